@@ -1,0 +1,54 @@
+"""Where meshadv finds the shared data folder (real meshes, scenes, photos).
+
+The data are never shipped inside the package. They are looked up, in order, at the path in the
+``MESHADV_DATA`` environment variable and at ``../shared/data`` beside the repository checkout.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Optional
+
+#: Environment variable that points at the shared data folder.
+DATA_ENV_VAR = "MESHADV_DATA"
+
+_REPO_ROOT = Path(__file__).resolve().parents[2]
+
+
+def shared_data_dir() -> Optional[Path]:
+    """Return the shared data folder, or ``None`` when it is not available.
+
+    Returns:
+        The first existing folder among ``$MESHADV_DATA`` and ``<repo>/../shared/data``.
+    """
+    candidates = []
+    env = os.environ.get(DATA_ENV_VAR)
+    if env:
+        candidates.append(Path(env))
+    candidates.append(_REPO_ROOT.parent / "shared" / "data")
+    candidates.append(Path.cwd().parent / "shared" / "data")
+    for candidate in candidates:
+        if candidate.is_dir():
+            return candidate
+    return None
+
+
+def require_shared_data(subpath: str = "") -> Path:
+    """Return ``shared_data_dir() / subpath``, raising ``FileNotFoundError`` with a clear reason if absent.
+
+    Args:
+        subpath: path inside the data folder, e.g. ``"pascal3d/chair/01.ply"``.
+
+    Raises:
+        FileNotFoundError: the data folder or the requested entry does not exist.
+    """
+    root = shared_data_dir()
+    if root is None:
+        raise FileNotFoundError(
+            f"shared data folder not found: set {DATA_ENV_VAR} or place it at ../shared/data beside the checkout"
+        )
+    path = root / subpath
+    if not path.exists():
+        raise FileNotFoundError(f"{path} does not exist in the shared data folder {root}")
+    return path
