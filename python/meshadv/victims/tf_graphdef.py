@@ -15,6 +15,7 @@ Messages decoded (field numbers from TensorFlow's ``graph.proto``, ``node_def.pr
                    repeated DataType type = 6; }
     TensorProto  { DataType dtype = 1; TensorShapeProto tensor_shape = 2; bytes tensor_content = 4;
                    repeated float float_val = 5; repeated double double_val = 6; repeated int32 int_val = 7;
+                   repeated bytes string_val = 8;
                    repeated int64 int64_val = 10; repeated bool bool_val = 11; }
     TensorShapeProto { repeated Dim dim = 2; }   Dim { int64 size = 1; }
 
@@ -46,6 +47,8 @@ _TF_DTYPES: Dict[int, np.dtype] = {
     9: np.dtype("<i8"),  # DT_INT64
     10: np.dtype("?"),  # DT_BOOL
 }
+
+_DT_STRING = 7
 
 # Wire types.
 _VARINT, _I64, _LEN, _I32 = 0, 1, 2, 5
@@ -146,6 +149,10 @@ def _parse_tensor(buf: memoryview) -> np.ndarray:
             values.extend(_packed_fixed(value, wire, "d"))
         elif number in (7, 10, 11):
             values.extend(_packed_varints(value, wire))
+        elif number == 8:
+            values.append(bytes(value))
+    if dtype_enum == _DT_STRING:
+        return np.asarray(values, dtype=object).reshape(shape if len(values) > 1 else shape or ())
     if dtype_enum not in _TF_DTYPES:
         raise ValueError(f"unsupported TensorProto dtype enum {dtype_enum}")
     dtype = _TF_DTYPES[dtype_enum]

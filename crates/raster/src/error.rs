@@ -1,0 +1,123 @@
+//! Typed errors of the raster core. Every variant names the argument at fault and what was expected.
+
+use thiserror::Error;
+
+/// The kind of Python exception a [`RasterError`] should become in the bindings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ErrorKind {
+    /// A bad value or shape (`ValueError`).
+    Value,
+    /// An index out of range (`IndexError`).
+    Index,
+}
+
+/// Errors of the raster core. Bad input never panics; it returns one of these.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum RasterError {
+    /// An array does not have the expected shape.
+    #[error("{arg}: expected shape {expected}, got {got}")]
+    Shape {
+        /// Argument name.
+        arg: &'static str,
+        /// Expected shape, e.g. `(B, N, 3)`.
+        expected: String,
+        /// Actual shape or length.
+        got: String,
+    },
+    /// A float array holds NaN or infinity.
+    #[error("{arg}: non-finite value ({value}) at flat index {index}")]
+    NonFinite {
+        /// Argument name.
+        arg: &'static str,
+        /// Flat index of the first bad element.
+        index: usize,
+        /// The bad value.
+        value: f32,
+    },
+    /// A face refers to a vertex that does not exist.
+    #[error("faces: face {face} refers to vertex {vertex}, but there are only {num_vertices} vertices")]
+    FaceIndexOutOfRange {
+        /// Face index.
+        face: usize,
+        /// The offending vertex index.
+        vertex: i64,
+        /// Number of vertices.
+        num_vertices: usize,
+    },
+    /// A face-index map entry is neither -1 nor a valid face.
+    #[error("face_index: entry {index} is {value}, expected -1 or a face in [0, {num_faces})")]
+    FaceMapOutOfRange {
+        /// Flat index in the map.
+        index: usize,
+        /// Value found.
+        value: i64,
+        /// Number of faces.
+        num_faces: usize,
+    },
+    /// The mesh has no faces or no vertices.
+    #[error("{arg}: the mesh is empty (need at least one face and three vertices)")]
+    EmptyMesh {
+        /// Argument name.
+        arg: &'static str,
+    },
+    /// The image size is zero or absurdly large.
+    #[error("{arg}: must be in [1, {max}], got {value}")]
+    ImageSize {
+        /// `height` or `width`.
+        arg: &'static str,
+        /// The value given.
+        value: i64,
+        /// The largest allowed value.
+        max: usize,
+    },
+    /// The clipping range is invalid.
+    #[error("near/far: need finite 0 <= near < far, got near={near}, far={far}")]
+    ClipRange {
+        /// Near plane.
+        near: f64,
+        /// Far plane.
+        far: f64,
+    },
+    /// A scalar parameter is out of its range.
+    #[error("{arg}: {message}")]
+    Parameter {
+        /// Argument name.
+        arg: &'static str,
+        /// What is expected.
+        message: String,
+    },
+    /// Every vertex of a batch element is behind the camera.
+    #[error("{arg}: every vertex of batch element {batch} is behind the camera (z <= 0)")]
+    BehindCamera {
+        /// Argument name.
+        arg: &'static str,
+        /// Batch element.
+        batch: usize,
+    },
+    /// The rayon thread pool could not be created.
+    #[error("num_threads: could not create a thread pool with {threads} threads: {message}")]
+    ThreadPool {
+        /// Requested thread count.
+        threads: usize,
+        /// The underlying error.
+        message: String,
+    },
+}
+
+impl RasterError {
+    /// Which Python exception this error maps to.
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            RasterError::FaceIndexOutOfRange { .. } | RasterError::FaceMapOutOfRange { .. } => ErrorKind::Index,
+            _ => ErrorKind::Value,
+        }
+    }
+
+    /// Shorthand for a [`RasterError::Shape`] error.
+    pub fn shape(arg: &'static str, expected: impl Into<String>, got: impl Into<String>) -> Self {
+        RasterError::Shape { arg, expected: expected.into(), got: got.into() }
+    }
+}
+
+/// Result alias of the raster core.
+pub type Result<T> = std::result::Result<T, RasterError>;

@@ -1,0 +1,202 @@
+//! Borrowed, validated views of the rasterizer's inputs (flat row-major slices plus their shapes).
+
+use crate::error::{RasterError, Result};
+
+/// Largest accepted image height or width.
+pub const MAX_IMAGE_SIZE: usize = 16384;
+
+/// How screen-space depth is interpolated (and how the view rays are formed in the ray cast).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Projection {
+    /// Perspective: `1/z` is interpolated linearly in screen space; faces with a vertex at `z <= 0` are not drawn.
+    #[default]
+    Perspective,
+    /// Orthographic: `z` is interpolated linearly in screen space.
+    Orthographic,
+}
+
+/// Screen-space triangle mesh, batched: `verts_screen` is `(B, N, 3)` of `(x_ndc, y_ndc, z_view)`,
+/// `faces` is `(M, 3)` shared by the batch.
+#[derive(Debug, Clone, Copy)]
+pub struct ScreenMesh<'a> {
+    /// Flat `(B, N, 3)` vertices in screen space.
+    pub verts_screen: &'a [f32],
+    /// Flat `(M, 3)` vertex indices.
+    pub faces: &'a [i32],
+    /// Batch size `B`.
+    pub batch: usize,
+    /// Vertex count `N`.
+    pub num_verts: usize,
+}
+
+impl<'a> ScreenMesh<'a> {
+    /// Wraps flat slices, checking that their lengths match `batch` and `num_verts`.
+    ///
+    /// ```
+    /// use meshadv_raster::ScreenMesh;
+    /// let verts = [0.0f32, 0.0, 1.0, 1.0, 0.0, 1.0, 0.0, 1.0, 1.0];
+    /// let mesh = ScreenMesh::new(&verts, &[0, 1, 2], 1, 3).unwrap();
+    /// assert_eq!(mesh.num_faces(), 1);
+    /// ```
+    pub fn new(verts_screen: &'a [f32], faces: &'a [i32], batch: usize, num_verts: usize) -> Result<Self> {
+        if verts_screen.len() != batch * num_verts * 3 {
+            return Err(RasterError::shape(
+                "verts_screen",
+                format!("({batch}, {num_verts}, 3) = {} values", batch * num_verts * 3),
+                format!("{} values", verts_screen.len()),
+            ));
+        }
+        if faces.len() % 3 != 0 {
+            return Err(RasterError::shape("faces", "(M, 3)", format!("{} values", faces.len())));
+        }
+        Ok(ScreenMesh { verts_screen, faces, batch, num_verts })
+    }
+
+    /// Number of faces `M`.
+    pub fn num_faces(&self) -> usize {
+        self.faces.len() / 3
+    }
+
+    /// Vertex indices of face `f` (already validated by [`ScreenMesh::validate`]).
+    #[inline]
+    pub fn face(&self, f: usize) -> [usize; 3] {
+        let t = &self.faces[3 * f..3 * f + 3];
+        [t[0] as usize, t[1] as usize, t[2] as usize]
+    }
+
+    /// Vertex `k` of batch element `b`.
+    #[inline]
+    pub fn vert(&self, b: usize, k: usize) -> [f32; 3] {
+        let o = (b * self.num_verts + k) * 3;
+        [self.verts_screen[o], self.verts_screen[o + 1], self.verts_screen[o + 2]]
+    }
+
+    /// Checks: non-empty, finite vertices, face indices in range, and that each batch element has a vertex
+    /// in front of the camera (`z > 0`).
+    pub fn validate(&self) -> Result<()> {
+        if self.batch == 0 {
+            return Err(RasterError::shape("verts_screen", "(B, N, 3) with B >= 1", "B = 0"));
+        }
+        validate_mesh_indices("faces", self.faces, self.num_verts)?;
+        check_finite("verts_screen", self.verts_screen)?;
+        for b in 0..self.batch {
+            let any_front = (0..self.num_verts).any(|k| self.vert(b, k)[2] > 0.0);
+            if !any_front {
+                return Err(RasterError::BehindCamera { arg: "verts_screen", batch: b });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Checks that `faces` (flat `(M, 3)`) is non-empty and refers to existing vertices.
+pub fn validate_mesh_indices(arg: &'static str, faces: &[i32], num_verts: usize) -> Result<()> {
+    if faces.is_empty() || num_verts < 3 {
+        return Err(RasterError::EmptyMesh { arg });
+    }
+    if faces.len() % 3 != 0 {
+        return Err(RasterError::shape(arg, "(M, 3)", format!("{} values", faces.len())));
+    }
+    for (i, &v) in faces.iter().enumerate() {
+        if v < 0 || v as usize >= num_verts {
+            return Err(RasterError::FaceIndexOutOfRange { face: i / 3, vertex: v as i64, num_vertices: num_verts });
+        }
+    }
+    Ok(())
+}
+
+/// Returns an error naming `arg` if any value is NaN or infinite.
+pub fn check_finite(arg: &'static str, values: &[f32]) -> Result<()> {
+    match values.iter().position(|x| !x.is_finite()) {
+        Some(index) => Err(RasterError::NonFinite { arg, index, value: values[index] }),
+        None => Ok(()),
+    }
+}
+
+/// Image size, clipping range, culling and projection of one rasterization.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RasterParams {
+    /// Image height `H` in pixels.
+    pub height: usize,
+    /// Image width `W` in pixels.
+    pub width: usize,
+    /// Near clipping depth (view-space z).
+    pub near: f64,
+    /// Far clipping depth (view-space z); also the depth written on background pixels.
+    pub far: f64,
+    /// Drop back-facing faces (counter-clockwise in y-up NDC, see ARCHITECTURE.md) instead of drawing both sides.
+    pub cull_backfaces: bool,
+    /// Depth interpolation rule.
+    pub projection: Projection,
+}
+
+impl RasterParams {
+    /// Perspective parameters with the given size and clip range, two-sided.
+    pub fn new(height: usize, width: usize, near: f64, far: f64) -> Self {
+        RasterParams { height, width, near, far, cull_backfaces: false, projection: Projection::Perspective }
+    }
+
+    /// Checks image size (1..=16384) and `0 <= near < far`, both finite.
+    pub fn validate(&self) -> Result<()> {
+        check_image_size("height", self.height as i64)?;
+        check_image_size("width", self.width as i64)?;
+        if !(self.near.is_finite() && self.far.is_finite() && self.near >= 0.0 && self.near < self.far) {
+            return Err(RasterError::ClipRange { near: self.near, far: self.far });
+        }
+        Ok(())
+    }
+
+    /// Pixels per image `H * W`.
+    pub fn pixels(&self) -> usize {
+        self.height * self.width
+    }
+}
+
+/// Checks one image dimension.
+pub fn check_image_size(arg: &'static str, value: i64) -> Result<usize> {
+    if value < 1 || value > MAX_IMAGE_SIZE as i64 {
+        return Err(RasterError::ImageSize { arg, value, max: MAX_IMAGE_SIZE });
+    }
+    Ok(value as usize)
+}
+
+/// Per-face attributes `(B, M, C)` and the background value `(C,)`.
+#[derive(Debug, Clone, Copy)]
+pub struct FaceAttrs<'a> {
+    /// Flat `(B, M, C)` attributes.
+    pub values: &'a [f32],
+    /// Flat `(C,)` background.
+    pub background: &'a [f32],
+    /// Channel count `C`.
+    pub channels: usize,
+}
+
+impl<'a> FaceAttrs<'a> {
+    /// Checks shapes against the mesh and finiteness.
+    pub fn validate(&self, mesh: &ScreenMesh<'_>) -> Result<()> {
+        let c = self.channels;
+        if c == 0 {
+            return Err(RasterError::shape("face_attrs", "(B, M, C) with C >= 1", "C = 0"));
+        }
+        let want = mesh.batch * mesh.num_faces() * c;
+        if self.values.len() != want {
+            return Err(RasterError::shape(
+                "face_attrs",
+                format!("({}, {}, {c})", mesh.batch, mesh.num_faces()),
+                format!("{} values", self.values.len()),
+            ));
+        }
+        if self.background.len() != c {
+            return Err(RasterError::shape("background", format!("({c},)"), format!("({},)", self.background.len())));
+        }
+        check_finite("face_attrs", self.values)?;
+        check_finite("background", self.background)
+    }
+
+    /// Attributes of face `f` in batch element `b`.
+    #[inline]
+    pub fn face(&self, b: usize, num_faces: usize, f: usize) -> &[f32] {
+        let o = (b * num_faces + f) * self.channels;
+        &self.values[o..o + self.channels]
+    }
+}

@@ -1,0 +1,173 @@
+//! Per-face setup, computed once per face and batch element: pixel-space corners, oriented edge functions
+//! (evaluated in a canonical vertex order so that a shared edge gives exactly opposite values in its two faces),
+//! top-left tie flags, signed area, clipped bounding box and the active flag.
+//!
+//! Pixel space: `u = (x_ndc * W + W - 1) / 2` (column), `v = (H - 1 - y_ndc * H) / 2` (row, down); pixel `(i, j)`
+//! has its centre at `(u, v) = (j, i)`.
+
+use crate::input::{Projection, RasterParams, ScreenMesh};
+
+/// One oriented edge function `E(u, v) = sign * (du * (v - av) - dv * (u - au))`, positive inside the face.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Edge {
+    /// Canonical start corner u.
+    pub au: f64,
+    /// Canonical start corner v.
+    pub av: f64,
+    /// Canonical end minus start, u.
+    pub du: f64,
+    /// Canonical end minus start, v.
+    pub dv: f64,
+    /// +1 or -1: orients the canonical function so that the inside is positive.
+    pub sign: f64,
+    /// Whether a pixel centre exactly on this edge belongs to the face (top-left rule).
+    pub owns_ties: bool,
+}
+
+impl Edge {
+    /// Builds the edge from corner `a` to corner `b` for a face with orientation `orient` (sign of its area).
+    fn new(a: [f64; 2], b: [f64; 2], orient: f64) -> Edge {
+        // Canonical order: lexicographic on (u, v), so both faces sharing an edge evaluate the same expression.
+        let (s, c, swap) = if (a[0], a[1]) <= (b[0], b[1]) { (a, b, 1.0) } else { (b, a, -1.0) };
+        let sign = swap * orient;
+        let (du, dv) = (c[0] - s[0], c[1] - s[1]);
+        // Inward normal = sign * (-dv, du). Top-left: normal points to +u (left edge), or is vertical and
+        // points to +v (down, i.e. a top edge).
+        let (nu, nv) = (-dv * sign, du * sign);
+        let owns_ties = nu > 0.0 || (nu == 0.0 && nv > 0.0);
+        Edge { au: s[0], av: s[1], du, dv, sign, owns_ties }
+    }
+
+    /// Oriented edge function at `(u, v)`.
+    #[inline(always)]
+    pub fn eval(&self, u: f64, v: f64) -> f64 {
+        self.sign * (self.du * (v - self.av) - self.dv * (u - self.au))
+    }
+
+    /// Whether a point with edge value `e` is inside with respect to this edge.
+    #[inline(always)]
+    pub fn inside(&self, e: f64) -> bool {
+        e > 0.0 || (e == 0.0 && self.owns_ties)
+    }
+}
+
+/// Setup of one face in one batch element.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct FaceSetup {
+    /// Corner columns (pixel space).
+    pub u: [f64; 3],
+    /// Corner rows (pixel space).
+    pub v: [f64; 3],
+    /// Corner depths (view z).
+    pub z: [f64; 3],
+    /// Corner inverse depths (perspective interpolation).
+    pub inv_z: [f64; 3],
+    /// Oriented edges; `edges[k]` is the edge opposite corner `k` (from corner k+1 to k+2), so its value divided by
+    /// `area` is the barycentric weight of corner `k`.
+    pub edges: [Edge; 3],
+    /// Twice the unsigned area in pixel units (oriented so that it is positive).
+    pub area: f64,
+    /// Twice the signed area in pixel space (v down): negative means counter-clockwise in y-up NDC.
+    pub signed_area: f64,
+    /// Whether the face is drawn at all.
+    pub active: bool,
+    /// Clipped bounding box of pixel centres: columns `col0..=col1`, rows `row0..=row1` (empty when `col0 > col1`).
+    pub col0: i32,
+    /// See `col0`.
+    pub col1: i32,
+    /// See `col0`.
+    pub row0: i32,
+    /// See `col0`.
+    pub row1: i32,
+    /// Orthographic (linear z) or perspective (linear 1/z) depth.
+    pub ortho: bool,
+}
+
+/// Converts NDC x to pixel-space u.
+#[inline]
+pub fn ndc_to_u(x: f32, width: usize) -> f64 {
+    (x as f64 * width as f64 + width as f64 - 1.0) / 2.0
+}
+
+/// Converts NDC y to pixel-space v.
+#[inline]
+pub fn ndc_to_v(y: f32, height: usize) -> f64 {
+    (height as f64 - 1.0 - y as f64 * height as f64) / 2.0
+}
+
+impl FaceSetup {
+    /// Sets up face `f` of batch element `b`.
+    pub fn new(mesh: &ScreenMesh<'_>, b: usize, f: usize, params: &RasterParams) -> FaceSetup {
+        let idx = mesh.face(f);
+        let mut s = FaceSetup { ortho: params.projection == Projection::Orthographic, ..Default::default() };
+        for k in 0..3 {
+            let p = mesh.vert(b, idx[k]);
+            s.u[k] = ndc_to_u(p[0], params.width);
+            s.v[k] = ndc_to_v(p[1], params.height);
+            s.z[k] = p[2] as f64;
+            s.inv_z[k] = 1.0 / p[2] as f64;
+        }
+        s.signed_area = (s.u[1] - s.u[0]) * (s.v[2] - s.v[0]) - (s.v[1] - s.v[0]) * (s.u[2] - s.u[0]);
+        let orient = if s.signed_area >= 0.0 { 1.0 } else { -1.0 };
+        for k in 0..3 {
+            let (a, c) = ((k + 1) % 3, (k + 2) % 3);
+            s.edges[k] = Edge::new([s.u[a], s.v[a]], [s.u[c], s.v[c]], orient);
+        }
+        s.area = s.signed_area.abs();
+        let behind = !s.ortho && s.z.iter().any(|&z| z <= 0.0);
+        // Back-facing = counter-clockwise in y-up NDC = clockwise in v-down pixel space = signed_area < 0 here.
+        let culled = params.cull_backfaces && s.signed_area < 0.0;
+        s.active = s.area > 0.0 && s.area.is_finite() && !behind && !culled;
+        let (w, h) = (params.width as f64, params.height as f64);
+        let umin = s.u[0].min(s.u[1]).min(s.u[2]);
+        let umax = s.u[0].max(s.u[1]).max(s.u[2]);
+        let vmin = s.v[0].min(s.v[1]).min(s.v[2]);
+        let vmax = s.v[0].max(s.v[1]).max(s.v[2]);
+        s.col0 = umin.ceil().clamp(0.0, w) as i32;
+        s.col1 = umax.floor().clamp(-1.0, w - 1.0) as i32;
+        s.row0 = vmin.ceil().clamp(0.0, h) as i32;
+        s.row1 = vmax.floor().clamp(-1.0, h - 1.0) as i32;
+        if !s.active || s.col0 > s.col1 || s.row0 > s.row1 {
+            s.col0 = 1;
+            s.col1 = 0;
+            s.row0 = 1;
+            s.row1 = 0;
+        }
+        s
+    }
+
+    /// Barycentric weights of the pixel-space point `(u, v)` (may be negative outside the face).
+    #[inline(always)]
+    pub fn barycentric(&self, u: f64, v: f64) -> [f64; 3] {
+        let inv = 1.0 / self.area;
+        [self.edges[0].eval(u, v) * inv, self.edges[1].eval(u, v) * inv, self.edges[2].eval(u, v) * inv]
+    }
+
+    /// Depth from barycentric weights: perspective-correct (`1/z` linear) or linear (orthographic).
+    /// `None` when undefined (non-positive or non-finite interpolated `1/z`).
+    #[inline(always)]
+    pub fn depth_from_weights(&self, w: [f64; 3]) -> Option<f64> {
+        if self.ortho {
+            let z = w[0] * self.z[0] + w[1] * self.z[1] + w[2] * self.z[2];
+            z.is_finite().then_some(z)
+        } else {
+            let iz = w[0] * self.inv_z[0] + w[1] * self.inv_z[1] + w[2] * self.inv_z[2];
+            if iz > 0.0 && iz.is_finite() {
+                Some(1.0 / iz)
+            } else {
+                None
+            }
+        }
+    }
+
+    /// Depth of the face's plane at pixel centre `(row, col)`, extrapolated outside the face.
+    #[inline(always)]
+    pub fn depth_at(&self, row: i32, col: i32) -> Option<f64> {
+        self.depth_from_weights(self.barycentric(col as f64, row as f64))
+    }
+}
+
+/// Sets up every face of batch element `b`.
+pub fn setup_faces(mesh: &ScreenMesh<'_>, b: usize, params: &RasterParams) -> Vec<FaceSetup> {
+    (0..mesh.num_faces()).map(|f| FaceSetup::new(mesh, b, f, params)).collect()
+}

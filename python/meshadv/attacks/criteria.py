@@ -1,0 +1,327 @@
+"""Attack criteria: what counts as adversarial, and the loss that drives an attack towards it.
+
+Criteria are small immutable objects in the manner of foolbox 3. A criterion is written in user terms (class names,
+ImageNet indices, PASCAL3D+ group names) and :meth:`Criterion.bind` resolves it against a victim. A bound criterion
+gives, for a batch of victim outputs:
+
+* :meth:`Criterion.loss` -- the adversarial loss per image (lower = more adversarial);
+* :meth:`Criterion.margin` -- a per-image margin, positive exactly when the image is adversarial;
+* :meth:`Criterion.score` -- the number reported as the "final score" (target probability, true-class probability
+  or the best detection score of the hidden class).
+
+Classes can be given as an ImageNet index (``340``), an ImageNet class name (``"zebra"``; any comma-separated synonym
+of the name also matches), a PASCAL3D+ class (``"boat"`` -> every ImageNet index of the group) or a list of indices
+(a custom group). A group counts as predicted when the top-1 class is one of its members.
+
+Example:
+    >>> crit = TargetedMisclassification("bicycle").bind(victim)    # doctest: +SKIP
+    >>> crit.margin(victim(images)) > 0                              # doctest: +SKIP  (adversarial?)
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar, Dict, Optional, Sequence, Tuple, Union
+
+import torch
+from torch import Tensor
+
+from meshadv.attacks import losses
+
+__all__ = [
+    "ClassSpec",
+    "Criterion",
+    "TargetedMisclassification",
+    "Misclassification",
+    "Disappearance",
+    "resolve_imagenet_classes",
+]
+
+#: A class given by index, by name (ImageNet or PASCAL3D+ group), or as a group of indices.
+ClassSpec = Union[int, str, Sequence[int]]
+
+CLASSIFIER_LOSSES = ("ce", "cw")
+
+
+def resolve_imagenet_classes(spec: ClassSpec, name: str = "class") -> Tuple[Tuple[int, ...], str]:
+    """Resolve a class spec to ImageNet indices and a display label.
+
+    Args:
+        spec: an index, a digit string, an ImageNet class name or synonym (case-insensitive), a PASCAL3D+ class
+            name (a group) or a sequence of indices.
+        name: argument name used in error messages.
+
+    Returns:
+        ``(indices, label)``.
+
+    Raises:
+        ValueError: unknown name or index out of ``[0, 1000)``.
+    """
+    from meshadv.victims.labels import PASCAL3D_TO_IMAGENET, imagenet_class_names
+
+    names = imagenet_class_names()
+    if isinstance(spec, str):
+        text = spec.strip()
+        if text.lstrip("-").isdigit():
+            spec = int(text)
+        elif text.lower() in PASCAL3D_TO_IMAGENET:
+            return tuple(PASCAL3D_TO_IMAGENET[text.lower()]), text.lower()
+        else:
+            low = text.lower()
+            for i, full in enumerate(names):
+                if full.lower() == low:
+                    return (i,), full
+            for i, full in enumerate(names):
+                if low in (s.strip().lower() for s in full.split(",")):
+                    return (i,), full
+            raise ValueError(f"{name} {spec!r} is neither an ImageNet class name, a PASCAL3D+ class "
+                             f"({', '.join(PASCAL3D_TO_IMAGENET)}) nor an index")
+    if isinstance(spec, (int,)) and not isinstance(spec, bool):
+        idx: Tuple[int, ...] = (int(spec),)
+    else:
+        try:
+            idx = tuple(int(i) for i in spec)  # type: ignore[union-attr]
+        except TypeError:
+            raise ValueError(f"{name} must be an int, a str or a sequence of ints, got {spec!r}") from None
+    if not idx or min(idx) < 0 or max(idx) >= len(names):
+        raise ValueError(f"{name} indices must be in [0, {len(names)}), got {list(idx)}")
+    label = names[idx[0]] if len(idx) == 1 else "group(" + ",".join(str(i) for i in idx) + ")"
+    return idx, label
+
+
+class Criterion(ABC):
+    """Base class of criteria. Subclasses are frozen dataclasses; :meth:`bind` returns a resolved copy.
+
+    Attributes:
+        victim_kind: the victim kind the criterion applies to (``"classifier"`` or ``"detector"``).
+    """
+
+    victim_kind: ClassVar[str] = ""
+
+    def check_victim(self, victim: Any) -> None:
+        """Raise ``ValueError`` naming ``victim`` when its kind does not suit this criterion."""
+        kind = getattr(victim, "kind", None)
+        if kind != self.victim_kind:
+            raise ValueError(f"victim of kind {kind!r} cannot be attacked with {type(self).__name__}, "
+                             f"which needs a {self.victim_kind}")
+
+    @abstractmethod
+    def bind(self, victim: Any) -> "Criterion":
+        """Resolve class names against ``victim`` and return a bound copy.
+
+        Raises:
+            ValueError: wrong victim kind or unknown class.
+        """
+
+    @abstractmethod
+    def loss(self, output: Any, *, loss: str = "ce", kappa: float = 0.0) -> Tensor:
+        """Adversarial loss per image ``(B,)``, lower = more adversarial."""
+
+    @abstractmethod
+    def margin(self, output: Any) -> Tensor:
+        """Per-image margin ``(B,)``: positive exactly when the image is adversarial."""
+
+    @abstractmethod
+    def score(self, output: Any) -> Tensor:
+        """The reported per-image score ``(B,)``."""
+
+    def is_adversarial(self, output: Any) -> Tensor:
+        """Boolean ``(B,)``: ``margin(output) > 0``."""
+        return self.margin(output) > 0
+
+    @property
+    @abstractmethod
+    def label(self) -> str:
+        """A short human-readable description, e.g. ``"target=bicycle"``."""
+
+    def to_record(self) -> Dict[str, Any]:
+        """JSON-able description."""
+        return {"criterion": type(self).__name__, "label": self.label}
+
+
+def _check_loss_name(loss: str) -> None:
+    if loss not in CLASSIFIER_LOSSES:
+        raise ValueError(f"loss must be one of {CLASSIFIER_LOSSES}, got {loss!r}")
+
+
+def _top1_margin(logits: Tensor, classes: Tuple[int, ...]) -> Tensor:
+    """Best member logit minus best non-member logit (positive when the top-1 is in ``classes``)."""
+    idx = torch.as_tensor(classes, dtype=torch.long, device=logits.device)
+    return logits[:, idx].max(dim=1).values - losses.best_other_logit(logits, idx)
+
+
+@dataclass(frozen=True)
+class TargetedMisclassification(Criterion):
+    """Adversarial when the top-1 class is the target (or any member of the target group).
+
+    Losses: ``"ce"`` targeted (grouped) cross-entropy; ``"cw"`` C&W margin with confidence ``kappa``.
+
+    Args:
+        target_class: the target, see :data:`ClassSpec`.
+    """
+
+    victim_kind: ClassVar[str] = "classifier"
+    target_class: ClassSpec
+    indices: Tuple[int, ...] = field(default=(), compare=False)
+    name: str = field(default="", compare=False)
+
+    def bind(self, victim: Any) -> "TargetedMisclassification":
+        """Resolve the target against the ImageNet label set (see :class:`Criterion`)."""
+        self.check_victim(victim)
+        idx, label = resolve_imagenet_classes(self.target_class, "target_class")
+        return replace(self, indices=idx, name=label)
+
+    def _bound(self) -> Tuple[int, ...]:
+        if not self.indices:
+            raise ValueError("criterion is not bound: call criterion.bind(victim) first")
+        return self.indices
+
+    def loss(self, output: Tensor, *, loss: str = "ce", kappa: float = 0.0) -> Tensor:
+        """Targeted CE or C&W loss per image (see module docstring)."""
+        _check_loss_name(loss)
+        if loss == "ce":
+            return losses.targeted_cross_entropy(output, self._bound())
+        return losses.cw_targeted_margin(output, self._bound(), kappa)
+
+    def margin(self, output: Tensor) -> Tensor:
+        """Best target logit minus best other logit."""
+        return _top1_margin(output, self._bound())
+
+    def score(self, output: Tensor) -> Tensor:
+        """Softmax probability of the target (group)."""
+        idx = torch.as_tensor(self._bound(), dtype=torch.long, device=output.device)
+        return torch.softmax(output, dim=1)[:, idx].sum(dim=1)
+
+    @property
+    def label(self) -> str:
+        """``"target=<name>"``."""
+        return f"target={self.name or self.target_class}"
+
+    def to_record(self) -> Dict[str, Any]:
+        """JSON-able description including the resolved indices."""
+        return {**super().to_record(), "target_class": self.name or str(self.target_class),
+                "indices": list(self.indices)}
+
+
+@dataclass(frozen=True)
+class Misclassification(Criterion):
+    """Untargeted: adversarial when the top-1 class is not the true class (nor any member of the true group).
+
+    Losses: ``"ce"`` minus the (grouped) cross-entropy of the true class; ``"cw"`` C&W untargeted margin.
+
+    Args:
+        true_class: the true class, see :data:`ClassSpec`.
+    """
+
+    victim_kind: ClassVar[str] = "classifier"
+    true_class: ClassSpec
+    indices: Tuple[int, ...] = field(default=(), compare=False)
+    name: str = field(default="", compare=False)
+
+    def bind(self, victim: Any) -> "Misclassification":
+        """Resolve the true class against the ImageNet label set."""
+        self.check_victim(victim)
+        idx, label = resolve_imagenet_classes(self.true_class, "true_class")
+        return replace(self, indices=idx, name=label)
+
+    def _bound(self) -> Tuple[int, ...]:
+        if not self.indices:
+            raise ValueError("criterion is not bound: call criterion.bind(victim) first")
+        return self.indices
+
+    def loss(self, output: Tensor, *, loss: str = "ce", kappa: float = 0.0) -> Tensor:
+        """Untargeted CE or C&W loss per image."""
+        _check_loss_name(loss)
+        if loss == "ce":
+            return losses.untargeted_cross_entropy(output, self._bound())
+        return losses.cw_untargeted_margin(output, self._bound(), kappa)
+
+    def margin(self, output: Tensor) -> Tensor:
+        """Best other logit minus best true logit."""
+        return -_top1_margin(output, self._bound())
+
+    def score(self, output: Tensor) -> Tensor:
+        """Softmax probability of the true class (group)."""
+        idx = torch.as_tensor(self._bound(), dtype=torch.long, device=output.device)
+        return torch.softmax(output, dim=1)[:, idx].sum(dim=1)
+
+    @property
+    def label(self) -> str:
+        """``"untargeted(true=<name>)"``."""
+        return f"untargeted(true={self.name or self.true_class})"
+
+    def to_record(self) -> Dict[str, Any]:
+        """JSON-able description including the resolved indices."""
+        return {**super().to_record(), "true_class": self.name or str(self.true_class), "indices": list(self.indices)}
+
+
+@dataclass(frozen=True)
+class Disappearance(Criterion):
+    """Detector criterion: adversarial when no box of the hidden class(es) scores ``threshold`` or more.
+
+    The loss is the paper's disappearance loss ``max_{z,b} score_{y'}(z, b)`` (objectness x class probability
+    where the model has an objectness, the class probability otherwise).
+
+    Args:
+        class_name: a detector class name (e.g. ``"dining table"``), a sequence of names, or ``"all"`` to hide
+            every detection.
+        threshold: the detection score threshold the victim reports at.
+    """
+
+    victim_kind: ClassVar[str] = "detector"
+    class_name: Union[str, Sequence[str]] = "all"
+    threshold: float = 0.5
+    indices: Optional[Tuple[int, ...]] = field(default=None, compare=False)
+    bound: bool = field(default=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if not 0.0 < float(self.threshold) <= 1.0:
+            raise ValueError(f"threshold must be in (0, 1], got {self.threshold}")
+
+    def bind(self, victim: Any) -> "Disappearance":
+        """Resolve class names against the detector's ``class_names``."""
+        self.check_victim(victim)
+        if isinstance(self.class_name, str) and self.class_name == "all":
+            return replace(self, indices=None, bound=True)
+        names = [self.class_name] if isinstance(self.class_name, str) else list(self.class_name)
+        if not names:
+            raise ValueError("class_name must name at least one class (or be 'all')")
+        idx = []
+        for n in names:
+            if hasattr(victim, "class_index"):
+                idx.append(int(victim.class_index(n)))
+            elif n in victim.class_names:
+                idx.append(list(victim.class_names).index(n))
+            else:
+                raise ValueError(f"class_name {n!r} is not a class of the victim")
+        return replace(self, indices=tuple(idx), bound=True)
+
+    def _scores(self, output: Any) -> Tensor:
+        if not self.bound:
+            raise ValueError("criterion is not bound: call criterion.bind(victim) first")
+        scores = output.scores() if hasattr(output, "scores") else output
+        return losses.disappearance_loss(scores, self.indices)
+
+    def loss(self, output: Any, *, loss: str = "ce", kappa: float = 0.0) -> Tensor:
+        """The disappearance loss (``loss`` and ``kappa`` are ignored: detectors have one loss)."""
+        return self._scores(output)
+
+    def margin(self, output: Any) -> Tensor:
+        """``threshold - max score``."""
+        return float(self.threshold) - self._scores(output)
+
+    def score(self, output: Any) -> Tensor:
+        """The best score of the hidden class(es)."""
+        return self._scores(output)
+
+    @property
+    def label(self) -> str:
+        """``"disappear(<names>)"``."""
+        names = self.class_name if isinstance(self.class_name, str) else ",".join(self.class_name)
+        return f"disappear({names})"
+
+    def to_record(self) -> Dict[str, Any]:
+        """JSON-able description."""
+        return {**super().to_record(), "class_name": self.class_name, "threshold": float(self.threshold),
+                "indices": None if self.indices is None else list(self.indices)}

@@ -1,0 +1,287 @@
+"""Execution backends: where jobs run. The runner talks to them through ``submit`` / ``wait`` / ``close``.
+
+- :class:`LocalBackend` (default): a ``concurrent.futures`` pool of ``workers`` slots on this machine; every job runs in
+  its own freshly *spawned* process (torch and ``fork`` do not mix), so a segfault or an ``os._exit`` in one job
+  (a native renderer crash, Mitsuba, OOM kill) is recorded as that job's crash and the sweep goes on. A per-job
+  timeout kills the process. A spawned job exits by itself when the driver dies.
+- :class:`RayBackend`: Ray tasks (``ray.init(address)`` on a cluster, a local Ray instance when no address is given);
+  the artefact folder must be on a file system every node can write (the driver only records paths).
+- :class:`SerialBackend`: runs jobs one by one inside the driver process (debugging, profiling; no crash isolation).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing as mp
+import os
+import signal
+import threading
+import time
+from typing import Any, Dict, List, Optional, Sequence, Tuple
+
+from meshadv.experiments.worker import Outcome, execute
+
+__all__ = ["Backend", "LocalBackend", "SerialBackend", "RayBackend", "make_backend", "BACKENDS"]
+
+#: Backend names accepted by :func:`make_backend` and ``meshadv sweep --backend``.
+BACKENDS = ("local", "ray", "serial")
+
+
+class Backend:
+    """Interface of an execution backend.
+
+    ``submit`` starts a job and returns a handle; ``wait`` blocks until at least one submitted job finishes (or
+    ``timeout`` passes) and returns the finished ``(handle, Outcome)`` pairs; ``close`` releases the workers.
+    ``capacity`` is how many jobs should be in flight at once.
+    """
+
+    capacity: int = 1
+
+    def submit(self, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str) -> Any:
+        """Start one job; return a handle."""
+        raise NotImplementedError
+
+    def wait(self, handles: Sequence[Any], timeout: Optional[float] = None) -> List[Tuple[Any, Outcome]]:
+        """Return the finished jobs among ``handles`` (at least one unless ``timeout`` passed)."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Stop the workers (jobs still running are abandoned)."""
+
+    def __enter__(self) -> "Backend":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _parent_watchdog(parent_pid: int) -> None:
+    while True:
+        time.sleep(1.0)
+        if os.getppid() != parent_pid:
+            os._exit(3)
+
+
+def _child_main(conn: Any, parent_pid: int, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str,
+                threads: int) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the driver, which then stops its jobs
+    threading.Thread(target=_parent_watchdog, args=(parent_pid,), daemon=True).start()
+    outcome = execute(job_ref, job_id, spec, out_dir, threads)
+    conn.send(outcome)
+    conn.close()
+
+
+def _crash_reason(exitcode: Optional[int]) -> str:
+    if exitcode is not None and exitcode < 0:
+        try:
+            name = signal.Signals(-exitcode).name
+        except ValueError:
+            name = f"signal {-exitcode}"
+        return f"job process crashed: killed by {name} (exit code {exitcode})"
+    return f"job process died without reporting a result (exit code {exitcode})"
+
+
+class LocalBackend(Backend):
+    """Run each job in its own spawned process, ``workers`` at a time.
+
+    Args:
+        workers: parallel jobs (0 = every core).
+        threads_per_job: intra-op threads of each job (0 = ``cores // workers``, at least 1).
+        timeout: seconds after which a job's process is killed and the attempt recorded as failed (0 = none).
+
+    Raises:
+        ValueError: negative arguments.
+    """
+
+    def __init__(self, workers: int = 0, threads_per_job: int = 0, timeout: float = 0.0) -> None:
+        if workers < 0 or threads_per_job < 0 or timeout < 0:
+            raise ValueError(
+                f"workers, threads_per_job and timeout must be >= 0, got {workers}, {threads_per_job}, {timeout}"
+            )
+        cores = os.cpu_count() or 1
+        self.capacity = workers or cores
+        self.threads_per_job = threads_per_job or max(1, cores // self.capacity)
+        self.timeout = float(timeout)
+        self._ctx = mp.get_context("spawn")
+        self._pool = cf.ThreadPoolExecutor(max_workers=self.capacity, thread_name_prefix="meshadv-job")
+        self._procs: Dict[str, Any] = {}
+        self._lock = threading.Lock()
+        self._closing = False
+
+    def _run(self, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str) -> Outcome:
+        start = time.perf_counter()
+        recv, send = self._ctx.Pipe(duplex=False)
+        proc = self._ctx.Process(
+            target=_child_main,
+            args=(send, os.getpid(), job_ref, job_id, spec, out_dir, self.threads_per_job),
+            name=f"meshadv-job-{job_id}",
+        )
+        with self._lock:
+            if self._closing:
+                return Outcome(job_id, False, None, "sweep stopped before the job started", 0.0)
+            proc.start()
+            self._procs[job_id] = proc
+        send.close()
+        outcome: Optional[Outcome] = None
+        error = None
+        try:
+            while True:
+                if recv.poll(0.2):
+                    try:
+                        outcome = recv.recv()
+                    except (EOFError, OSError):
+                        outcome = None
+                    break
+                if not proc.is_alive():
+                    if recv.poll(0):
+                        try:
+                            outcome = recv.recv()
+                        except (EOFError, OSError):
+                            outcome = None
+                    break
+                if self.timeout and time.perf_counter() - start > self.timeout:
+                    proc.kill()
+                    error = f"job timed out after {self.timeout:g} s and was killed"
+                    break
+            proc.join()
+        finally:
+            recv.close()
+            with self._lock:
+                self._procs.pop(job_id, None)
+        if outcome is not None:
+            return outcome
+        return Outcome(job_id, False, None, error or _crash_reason(proc.exitcode), time.perf_counter() - start)
+
+    def submit(self, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str) -> cf.Future:
+        """Start one job in a spawned process; return its future."""
+        return self._pool.submit(self._run, job_ref, job_id, spec, out_dir)
+
+    def wait(self, handles: Sequence[Any], timeout: Optional[float] = None) -> List[Tuple[Any, Outcome]]:
+        """Wait for the first finished job(s)."""
+        done, _ = cf.wait(list(handles), timeout=timeout, return_when=cf.FIRST_COMPLETED)
+        return [(f, f.result()) for f in done]
+
+    def close(self) -> None:
+        """Kill the job processes still running and stop the pool."""
+        with self._lock:
+            self._closing = True
+            procs = list(self._procs.values())
+        for proc in procs:
+            if proc.is_alive():
+                proc.kill()
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+class SerialBackend(Backend):
+    """Run jobs one at a time in the driver process (no isolation: a segfault ends the sweep).
+
+    Args:
+        threads_per_job: intra-op threads (0 = process default).
+    """
+
+    capacity = 1
+
+    def __init__(self, threads_per_job: int = 0) -> None:
+        self.threads_per_job = threads_per_job
+        self._pending: Dict[int, Tuple[str, str, Dict[str, Any], str]] = {}
+        self._next = 0
+
+    def submit(self, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str) -> int:
+        """Queue one job (it runs inside :meth:`wait`)."""
+        self._next += 1
+        self._pending[self._next] = (job_ref, job_id, spec, out_dir)
+        return self._next
+
+    def wait(self, handles: Sequence[Any], timeout: Optional[float] = None) -> List[Tuple[Any, Outcome]]:
+        """Run the first queued job among ``handles`` and return its outcome."""
+        for handle in handles:
+            if handle in self._pending:
+                args = self._pending.pop(handle)
+                return [(handle, execute(*args, threads=self.threads_per_job))]
+        return []
+
+
+class RayBackend(Backend):
+    """Run jobs as Ray tasks (one CPU each unless ``cpus_per_job`` says otherwise).
+
+    Args:
+        address: the cluster address (``"auto"``, ``"ray://host:10001"``, ...); ``None`` starts a local Ray instance.
+        num_cpus: CPUs of the local instance (ignored with an address; ``None`` = every core).
+        cpus_per_job: CPUs reserved per task (and its intra-op threads).
+        max_in_flight: tasks submitted at once (0 = the cluster's CPUs / cpus_per_job).
+
+    Raises:
+        ImportError: Ray is not installed (``pip install 'ray>=2.9'``).
+    """
+
+    def __init__(self, address: Optional[str] = None, *, num_cpus: Optional[int] = None, cpus_per_job: int = 1,
+                 max_in_flight: int = 0) -> None:
+        try:
+            import ray
+        except ImportError as err:
+            raise ImportError("the ray backend needs Ray: pip install 'ray>=2.9'") from err
+        if cpus_per_job < 1:
+            raise ValueError(f"cpus_per_job must be >= 1, got {cpus_per_job}")
+        self._ray = ray
+        self._owns = False
+        if not ray.is_initialized():
+            if address:
+                ray.init(address=address)
+            else:
+                ray.init(num_cpus=num_cpus, include_dashboard=False)
+            self._owns = True
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        self.capacity = max_in_flight or max(1, cpus // cpus_per_job)
+        self.cpus_per_job = cpus_per_job
+        self._remote = ray.remote(num_cpus=cpus_per_job, max_retries=0)(execute)
+        self._ids: Dict[Any, str] = {}
+
+    def submit(self, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str) -> Any:
+        """Submit one job as a Ray task; return its object ref."""
+        ref = self._remote.remote(job_ref, job_id, spec, out_dir, self.cpus_per_job)
+        self._ids[ref] = job_id
+        return ref
+
+    def wait(self, handles: Sequence[Any], timeout: Optional[float] = None) -> List[Tuple[Any, Outcome]]:
+        """Wait for the first finished task(s); a crashed worker becomes a failed outcome."""
+        ready, _ = self._ray.wait(list(handles), num_returns=1, timeout=timeout)
+        out = []
+        for ref in ready:
+            job_id = self._ids.pop(ref, "?")
+            try:
+                outcome = self._ray.get(ref)
+            except Exception as err:  # noqa: BLE001 - worker crash, node loss, ...
+                outcome = Outcome(job_id, False, None, f"ray task failed: {type(err).__name__}: {err}", 0.0)
+            out.append((ref, outcome))
+        return out
+
+    def close(self) -> None:
+        """Shut Ray down when this backend started it."""
+        if self._owns:
+            self._ray.shutdown()
+            self._owns = False
+
+
+def make_backend(name: str, *, workers: int = 0, threads_per_job: int = 0, timeout: float = 0.0,
+                 address: Optional[str] = None) -> Backend:
+    """Build a backend by name.
+
+    Args:
+        name: one of :data:`BACKENDS`.
+        workers: parallel jobs (local) or local Ray CPUs (ray without address); 0 = every core.
+        threads_per_job: intra-op threads per job (0 = automatic).
+        timeout: per-job timeout in seconds for the local backend (0 = none).
+        address: Ray cluster address (ray only).
+
+    Raises:
+        ValueError: unknown name, or an address given to a non-Ray backend.
+    """
+    if name not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {name!r}")
+    if address and name != "ray":
+        raise ValueError(f"address is only used by the ray backend, got backend={name!r}")
+    if name == "local":
+        return LocalBackend(workers=workers, threads_per_job=threads_per_job, timeout=timeout)
+    if name == "serial":
+        return SerialBackend(threads_per_job=threads_per_job)
+    return RayBackend(address, num_cpus=workers or None, cpus_per_job=max(1, threads_per_job))

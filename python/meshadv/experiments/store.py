@@ -1,0 +1,340 @@
+"""The results database: one SQLite row per job, resumable, crash-safe.
+
+The database is a single SQLite file in WAL mode. Table ``jobs`` holds one row per job, keyed by the deterministic
+job id (:func:`meshadv.experiments.spec.job_id`), with its spec, its state and, once done, its results:
+
+``pending`` -> ``running`` (attempts + 1) -> ``done`` | ``failed``; a failed job is retried while
+``attempts < max_attempts``. A run that was killed leaves ``running`` rows; :meth:`ResultStore.requeue_running` puts them
+back to ``pending`` (the interrupted attempt is not counted) when the next run starts. Every state change is one
+transaction, and a ``done`` row is written only after the job's artefacts are in place and is never written again, so a
+finished job is never lost nor recorded twice. Table ``meta`` holds the run settings (config text, versions).
+
+Only one driver process writes to a database at a time; :func:`driver_lock` enforces it.
+
+Example:
+    >>> store = ResultStore(":memory:")
+    >>> store.add_jobs([{"a": 1}])
+    1
+    >>> store.counts()["pending"]
+    1
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import socket
+import sqlite3
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, Iterable, Iterator, List, Optional, Union
+
+from meshadv.experiments.spec import canonical, canonical_json, job_id
+
+__all__ = ["JobRow", "ResultStore", "driver_lock", "STATES"]
+
+#: The states a job row can be in.
+STATES = ("pending", "running", "done", "failed")
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS jobs (
+    job_id    TEXT PRIMARY KEY,
+    spec      TEXT NOT NULL,
+    state     TEXT NOT NULL CHECK (state IN ('pending', 'running', 'done', 'failed')),
+    attempts  INTEGER NOT NULL DEFAULT 0,
+    error     TEXT,
+    success   INTEGER,
+    distance  REAL,
+    steps     INTEGER,
+    time_s    REAL,
+    out_dir   TEXT,
+    record    TEXT,
+    created   REAL NOT NULL,
+    started   REAL,
+    finished  REAL,
+    host      TEXT
+);
+CREATE INDEX IF NOT EXISTS jobs_state ON jobs (state);
+CREATE TABLE IF NOT EXISTS meta (
+    key   TEXT PRIMARY KEY,
+    value TEXT NOT NULL
+);
+"""
+
+
+@dataclass(frozen=True)
+class JobRow:
+    """One row of the ``jobs`` table.
+
+    Attributes:
+        job_id: deterministic id (hash of the canonical spec).
+        spec: the job spec.
+        state: one of :data:`STATES`.
+        attempts: number of started attempts (an attempt interrupted by a killed run is not counted).
+        error: the last error (traceback or crash reason), ``None`` when the last attempt succeeded.
+        record: the job's result record (``None`` unless done).
+        out_dir: where the job wrote its artefacts.
+        started: UNIX time of the last start, finished: UNIX time of completion (or ``None``).
+    """
+
+    job_id: str
+    spec: Dict[str, Any]
+    state: str
+    attempts: int
+    error: Optional[str]
+    record: Optional[Dict[str, Any]]
+    out_dir: Optional[str]
+    started: Optional[float]
+    finished: Optional[float]
+
+
+class ResultStore:
+    """The SQLite results database of a sweep.
+
+    Args:
+        path: database file (created with its folder when missing), or ``":memory:"``.
+        timeout: seconds to wait for a lock held by a reader before failing.
+
+    Raises:
+        ValueError: ``path`` exists and is not an SQLite database of this format.
+    """
+
+    def __init__(self, path: Union[str, Path], *, timeout: float = 30.0) -> None:
+        self.path = str(path)
+        if self.path != ":memory:":
+            Path(self.path).parent.mkdir(parents=True, exist_ok=True)
+        self._conn = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)
+        try:
+            self._conn.execute("PRAGMA journal_mode=WAL")
+            self._conn.execute("PRAGMA synchronous=NORMAL")
+            self._conn.executescript(_SCHEMA)
+        except sqlite3.DatabaseError as err:
+            self._conn.close()
+            raise ValueError(f"path {self.path!r} is not a meshadv results database: {err}") from err
+
+    def close(self) -> None:
+        """Close the connection."""
+        self._conn.close()
+
+    def __enter__(self) -> "ResultStore":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @contextlib.contextmanager
+    def _transaction(self) -> Iterator[sqlite3.Connection]:
+        self._conn.execute("BEGIN IMMEDIATE")
+        try:
+            yield self._conn
+        except BaseException:
+            self._conn.execute("ROLLBACK")
+            raise
+        self._conn.execute("COMMIT")
+
+    # ------------------------------------------------------------------ meta
+    def set_meta(self, key: str, value: Any) -> None:
+        """Store a JSON-able value under ``key`` in the ``meta`` table (replacing it)."""
+        with self._transaction() as conn:
+            conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", (key, json.dumps(value)))
+
+    def get_meta(self, key: str, default: Any = None) -> Any:
+        """Return the value stored under ``key``, or ``default``."""
+        row = self._conn.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        return default if row is None else json.loads(row[0])
+
+    def meta(self) -> Dict[str, Any]:
+        """Return every ``meta`` entry as a dict."""
+        return {k: json.loads(v) for k, v in self._conn.execute("SELECT key, value FROM meta ORDER BY key")}
+
+    # ------------------------------------------------------------------ jobs
+    def add_jobs(self, specs: Iterable[Dict[str, Any]]) -> int:
+        """Insert jobs as ``pending``; jobs already present (same id) are left untouched.
+
+        Args:
+            specs: job specs.
+
+        Returns:
+            The number of new rows.
+        """
+        now = time.time()
+        rows = [(job_id(s), canonical_json(s), now) for s in specs]
+        with self._transaction() as conn:
+            before = conn.total_changes
+            conn.executemany(
+                "INSERT OR IGNORE INTO jobs (job_id, spec, state, created) VALUES (?, ?, 'pending', ?)", rows
+            )
+            return conn.total_changes - before
+
+    def requeue_running(self) -> int:
+        """Put the ``running`` rows left by a killed run back to ``pending`` (their attempt is not counted).
+
+        Returns:
+            The number of re-queued jobs.
+        """
+        with self._transaction() as conn:
+            cur = conn.execute(
+                "UPDATE jobs SET state = 'pending', attempts = MAX(attempts - 1, 0) WHERE state = 'running'"
+            )
+            return cur.rowcount
+
+    def runnable(self, max_attempts: int) -> List[str]:
+        """Ids of the jobs to run: pending ones and failed ones with ``attempts < max_attempts``, in insertion order.
+
+        Args:
+            max_attempts: the bounded number of attempts per job (>= 1).
+        """
+        if max_attempts < 1:
+            raise ValueError(f"max_attempts must be >= 1, got {max_attempts}")
+        cur = self._conn.execute(
+            "SELECT job_id FROM jobs WHERE state = 'pending' OR (state = 'failed' AND attempts < ?) ORDER BY rowid",
+            (max_attempts,),
+        )
+        return [r[0] for r in cur]
+
+    def spec(self, job: str) -> Dict[str, Any]:
+        """Return the spec of job ``job``.
+
+        Raises:
+            KeyError: no such job.
+        """
+        row = self._conn.execute("SELECT spec FROM jobs WHERE job_id = ?", (job,)).fetchone()
+        if row is None:
+            raise KeyError(job)
+        return json.loads(row[0])
+
+    def mark_running(self, job: str) -> int:
+        """Mark a pending/failed job ``running`` and count the attempt.
+
+        Returns:
+            The attempt number (1 for the first).
+
+        Raises:
+            KeyError: no such job. ValueError: the job is already done or running.
+        """
+        with self._transaction() as conn:
+            row = conn.execute("SELECT state, attempts FROM jobs WHERE job_id = ?", (job,)).fetchone()
+            if row is None:
+                raise KeyError(job)
+            if row[0] not in ("pending", "failed"):
+                raise ValueError(f"job {job} is {row[0]}, cannot start it")
+            conn.execute(
+                "UPDATE jobs SET state = 'running', attempts = attempts + 1, started = ?, host = ? WHERE job_id = ?",
+                (time.time(), socket.gethostname(), job),
+            )
+            return int(row[1]) + 1
+
+    def mark_done(self, job: str, record: Dict[str, Any], out_dir: Optional[str] = None) -> bool:
+        """Record a finished job in one transaction (only a ``running`` row changes, so nothing is written twice).
+
+        Args:
+            job: the job id.
+            record: the job's JSON-able result record; ``success``, ``distance``, ``steps`` and ``time`` keys, when
+                present, are also stored in their own columns.
+            out_dir: the job's artefact folder.
+
+        Returns:
+            ``True`` when the row changed, ``False`` when the job was not running (e.g. already done).
+        """
+        rec = canonical(record)
+        success = rec.get("success")
+        with self._transaction() as conn:
+            cur = conn.execute(
+                "UPDATE jobs SET state = 'done', error = NULL, success = ?, distance = ?, steps = ?, time_s = ?, "
+                "record = ?, out_dir = ?, finished = ? WHERE job_id = ? AND state = 'running'",
+                (
+                    None if success is None else int(bool(success)),
+                    rec.get("distance"),
+                    rec.get("steps"),
+                    rec.get("time"),
+                    json.dumps(rec, sort_keys=True),
+                    out_dir,
+                    time.time(),
+                    job,
+                ),
+            )
+            return cur.rowcount == 1
+
+    def mark_failed(self, job: str, error: str) -> bool:
+        """Record a failed attempt (exception traceback or crash reason) of a ``running`` job.
+
+        Returns:
+            ``True`` when the row changed.
+        """
+        with self._transaction() as conn:
+            cur = conn.execute(
+                "UPDATE jobs SET state = 'failed', error = ?, finished = ? WHERE job_id = ? AND state = 'running'",
+                (error, time.time(), job),
+            )
+            return cur.rowcount == 1
+
+    def counts(self) -> Dict[str, int]:
+        """Number of jobs in each state (every state present, zero when empty), plus ``total`` and ``successes``."""
+        out = {s: 0 for s in STATES}
+        for state, n in self._conn.execute("SELECT state, COUNT(*) FROM jobs GROUP BY state"):
+            out[state] = int(n)
+        out["total"] = sum(out[s] for s in STATES)
+        row = self._conn.execute("SELECT COUNT(*) FROM jobs WHERE state = 'done' AND success = 1").fetchone()
+        out["successes"] = int(row[0])
+        return out
+
+    def rows(self, state: Optional[str] = None) -> List[JobRow]:
+        """All job rows (optionally only those in ``state``), in insertion order."""
+        if state is not None and state not in STATES:
+            raise ValueError(f"state must be one of {STATES}, got {state!r}")
+        query = "SELECT job_id, spec, state, attempts, error, record, out_dir, started, finished FROM jobs"
+        args: tuple = ()
+        if state is not None:
+            query += " WHERE state = ?"
+            args = (state,)
+        out = []
+        for r in self._conn.execute(query + " ORDER BY rowid", args):
+            out.append(
+                JobRow(
+                    job_id=r[0],
+                    spec=json.loads(r[1]),
+                    state=r[2],
+                    attempts=int(r[3]),
+                    error=r[4],
+                    record=None if r[5] is None else json.loads(r[5]),
+                    out_dir=r[6],
+                    started=r[7],
+                    finished=r[8],
+                )
+            )
+        return out
+
+
+@contextlib.contextmanager
+def driver_lock(db_path: Union[str, Path]) -> Iterator[None]:
+    """Hold an exclusive lock on ``<db_path>.lock`` so that only one sweep driver uses a database at a time.
+
+    Args:
+        db_path: the database path.
+
+    Raises:
+        RuntimeError: another live process holds the lock.
+    """
+    if str(db_path) == ":memory:":
+        yield
+        return
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - non-POSIX
+        yield
+        return
+    lock_path = f"{db_path}.lock"
+    Path(lock_path).parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as err:
+            raise RuntimeError(f"another sweep is already running on {db_path} (lock {lock_path} is held)") from err
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        yield
+    finally:
+        os.close(fd)

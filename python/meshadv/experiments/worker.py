@@ -1,0 +1,88 @@
+"""Running one job in a worker: resolve the job function, run it, turn any exception into an :class:`Outcome`.
+
+This is what every backend calls on its worker side (a spawned process, a Ray task or the driver itself). The job
+function has the signature ``run_job(spec: dict, out_dir: Path) -> dict`` and must put its artefacts in place (written
+atomically) before returning its JSON-able record.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, Optional
+
+from meshadv.experiments.spec import canonical, resolve_job
+
+__all__ = ["Outcome", "execute", "set_thread_limits"]
+
+_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "RAYON_NUM_THREADS")
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What came back from one attempt of one job.
+
+    Attributes:
+        job_id: the job.
+        ok: ``True`` when the job function returned a record.
+        record: the JSON-able record (``None`` when not ok).
+        error: the traceback or crash reason (``None`` when ok).
+        seconds: wall time of the attempt.
+    """
+
+    job_id: str
+    ok: bool
+    record: Optional[Dict[str, Any]]
+    error: Optional[str]
+    seconds: float
+
+
+def set_thread_limits(threads: int) -> None:
+    """Limit the intra-op threads of this process (OpenMP/MKL/BLAS, rayon, and torch when already imported).
+
+    Args:
+        threads: threads per job (>= 1), so that parallel jobs do not oversubscribe the cores.
+    """
+    if threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
+    for var in _THREAD_VARS:
+        os.environ[var] = str(threads)
+    import sys
+
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(threads)
+
+
+def execute(job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str, threads: int = 0) -> Outcome:
+    """Run one job and never raise: exceptions become a failed :class:`Outcome` carrying the traceback.
+
+    Args:
+        job_ref: ``"package.module:function"`` of the job function.
+        job_id: the job's id (echoed in the outcome).
+        spec: the job spec.
+        out_dir: the job's artefact folder (created here).
+        threads: threads per job (0 leaves the process default).
+
+    Returns:
+        The outcome.
+    """
+    start = time.perf_counter()
+    try:
+        if threads:
+            set_thread_limits(threads)
+        fn = resolve_job(job_ref)
+        path = Path(out_dir)
+        path.mkdir(parents=True, exist_ok=True)
+        record = fn(spec, path)
+        if not isinstance(record, dict):
+            raise TypeError(f"job function {job_ref} returned {type(record).__name__}, expected a dict record")
+        record = canonical(record)
+        json.dumps(record)
+        return Outcome(job_id, True, record, None, time.perf_counter() - start)
+    except Exception:  # noqa: BLE001 - a job's failure of any kind is recorded, never propagated
+        return Outcome(job_id, False, None, traceback.format_exc(), time.perf_counter() - start)

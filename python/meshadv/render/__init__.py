@@ -1,0 +1,26 @@
+"""meshadv.render: differentiable mesh rendering (PyTorch camera and shading, Rust rasterizer).
+
+Public API: :class:`Camera`, :class:`Lights`, :class:`ViewSet`, :func:`render`, :func:`render_silhouette`,
+:class:`RenderOutput`, :func:`rasterize`, :class:`RasterOutput`, :func:`face_normals`, :func:`shade`.
+"""
+
+from .camera import Camera
+from .lighting import Lights, face_normals, orient_normals, shade
+from .rasterize import RasterOutput, native_available, rasterize
+from .renderer import RenderOutput, render, render_silhouette
+from .views import ViewSet
+
+__all__ = [
+    "Camera",
+    "Lights",
+    "RasterOutput",
+    "RenderOutput",
+    "ViewSet",
+    "face_normals",
+    "native_available",
+    "orient_normals",
+    "rasterize",
+    "render",
+    "render_silhouette",
+    "shade",
+]

