@@ -205,6 +205,17 @@ class ResultStore:
             raise KeyError(job)
         return json.loads(row[0])
 
+    def attempts(self, job: str) -> int:
+        """Number of counted attempts of job ``job``.
+
+        Raises:
+            KeyError: no such job.
+        """
+        row = self._conn.execute("SELECT attempts FROM jobs WHERE job_id = ?", (job,)).fetchone()
+        if row is None:
+            raise KeyError(job)
+        return int(row[0])
+
     def mark_running(self, job: str) -> int:
         """Mark a pending/failed job ``running`` and count the attempt.
 

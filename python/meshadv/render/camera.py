@@ -28,6 +28,8 @@ from typing import Union
 
 import torch
 
+from ._checks import require_instance
+
 __all__ = ["Camera", "TensorLike"]
 
 #: Scalars, sequences or tensors accepted wherever a camera parameter is expected.
@@ -37,7 +39,9 @@ _EPS = 1e-12
 _DEGENERATE = 1e-6
 
 
-def _as_tensor(value: TensorLike, name: str, dtype: torch.dtype | None, device: torch.device | None) -> torch.Tensor:
+def _as_tensor(
+    value: TensorLike, name: str, dtype: torch.dtype | None, device: torch.device | None
+) -> torch.Tensor:
     """Convert ``value`` to a floating tensor, keeping autograd history when it already is a tensor."""
     if isinstance(value, torch.Tensor):
         t = value
@@ -51,7 +55,9 @@ def _as_tensor(value: TensorLike, name: str, dtype: torch.dtype | None, device: 
         try:
             t = torch.as_tensor(value, dtype=dtype or torch.float32, device=device)
         except (TypeError, ValueError, RuntimeError) as exc:
-            raise ValueError(f"{name} must be a number, a sequence of numbers or a tensor, got {value!r}") from exc
+            raise ValueError(
+                f"{name} must be a number, a sequence of numbers or a tensor, got {value!r}"
+            ) from exc
     if not torch.isfinite(t.detach()).all():
         raise ValueError(f"{name} must be finite, got {t.detach().cpu().tolist()}")
     return t
@@ -79,7 +85,9 @@ def _batch_scalars(named: dict, dtype: torch.dtype, device: torch.device) -> dic
     for name, value in named.items():
         t = _as_tensor(value, name, dtype, device)
         if t.dim() > 1:
-            raise ValueError(f"{name} must be a scalar or a 1-D tensor of shape (B,), got shape {tuple(t.shape)}")
+            raise ValueError(
+                f"{name} must be a scalar or a 1-D tensor of shape (B,), got shape {tuple(t.shape)}"
+            )
         tensors[name] = t.reshape(-1)
     sizes = {t.shape[0] for t in tensors.values()}
     sizes.discard(1)
@@ -192,15 +200,32 @@ class Camera:
         values = [distance, azimuth, elevation, tilt, viewing_angle, near, far, ortho_scale]
         dtype, device = _common_dtype(values), _common_device(values)
         p = _batch_scalars(
-            {"distance": distance, "azimuth": azimuth, "elevation": elevation, "tilt": tilt, "viewing_angle": viewing_angle,
-                 "near": near, "far": far, "ortho_scale": ortho_scale},
-            dtype, device,
+            {
+                "distance": distance,
+                "azimuth": azimuth,
+                "elevation": elevation,
+                "tilt": tilt,
+                "viewing_angle": viewing_angle,
+                "near": near,
+                "far": far,
+                "ortho_scale": ortho_scale,
+            },
+            dtype,
+            device,
         )
         if not orthographic and bool((p["distance"].detach() <= 0).any()):
             raise ValueError(f"distance must be > 0, got {p['distance'].detach().cpu().tolist()}")
-        cam = cls(viewing_angle=p["viewing_angle"], tilt=p["tilt"], near=p["near"], far=p["far"],
-                  ortho_scale=p["ortho_scale"], orthographic=bool(orthographic), distance=p["distance"],
-                  azimuth=p["azimuth"], elevation=p["elevation"])
+        cam = cls(
+            viewing_angle=p["viewing_angle"],
+            tilt=p["tilt"],
+            near=p["near"],
+            far=p["far"],
+            ortho_scale=p["ortho_scale"],
+            orthographic=bool(orthographic),
+            distance=p["distance"],
+            azimuth=p["azimuth"],
+            elevation=p["elevation"],
+        )
         cam._check_ranges()
         return cam
 
@@ -238,8 +263,17 @@ class Camera:
         """
         values = [eye, at, up, viewing_angle, near, far, tilt, ortho_scale]
         dtype, device = _common_dtype(values), _common_device(values)
-        p = _batch_scalars({"viewing_angle": viewing_angle, "near": near, "far": far, "tilt": tilt, "ortho_scale": ortho_scale},
-                           dtype, device)
+        p = _batch_scalars(
+            {
+                "viewing_angle": viewing_angle,
+                "near": near,
+                "far": far,
+                "tilt": tilt,
+                "ortho_scale": ortho_scale,
+            },
+            dtype,
+            device,
+        )
         batch = p["near"].shape[0]
         v = _batch_vectors({"eye": eye, "at": at, "up": up}, dtype, device, batch)
         b = v["eye"].shape[0]
@@ -248,9 +282,17 @@ class Camera:
             raise ValueError("eye and at must differ (the viewing direction is undefined)")
         if bool((v["up"].detach().norm(dim=-1) <= 1e-9).any()):
             raise ValueError("up must be a non-zero vector")
-        cam = cls(viewing_angle=p["viewing_angle"], tilt=p["tilt"], near=p["near"], far=p["far"],
-                  ortho_scale=p["ortho_scale"], orthographic=bool(orthographic),
-                  eye_position=v["eye"], at=v["at"], up=v["up"])
+        cam = cls(
+            viewing_angle=p["viewing_angle"],
+            tilt=p["tilt"],
+            near=p["near"],
+            far=p["far"],
+            ortho_scale=p["ortho_scale"],
+            orthographic=bool(orthographic),
+            eye_position=v["eye"],
+            at=v["at"],
+            up=v["up"],
+        )
         cam._check_ranges()
         return cam
 
@@ -293,8 +335,19 @@ class Camera:
 
     def _fields(self) -> dict:
         """All tensor fields (None for the unused group)."""
-        names = ["viewing_angle", "tilt", "near", "far", "ortho_scale", "distance", "azimuth", "elevation",
-                 "eye_position", "at", "up"]
+        names = [
+            "viewing_angle",
+            "tilt",
+            "near",
+            "far",
+            "ortho_scale",
+            "distance",
+            "azimuth",
+            "elevation",
+            "eye_position",
+            "at",
+            "up",
+        ]
         return {n: getattr(self, n) for n in names}
 
     def _replace(self, fn) -> Camera:
@@ -387,8 +440,7 @@ class Camera:
 
     def _batch_verts(self, verts: torch.Tensor, name: str = "verts") -> torch.Tensor:
         """Broadcast (N,3) or (B',3) vertices against the camera batch; returns (B,N,3)."""
-        if not isinstance(verts, torch.Tensor):
-            raise ValueError(f"{name} must be a torch.Tensor, got {type(verts).__name__}")
+        require_instance(verts, torch.Tensor, name)
         if verts.dim() == 2:
             verts = verts.unsqueeze(0)
         if verts.dim() != 3 or verts.shape[-1] != 3:
@@ -449,4 +501,3 @@ class Camera:
         el = torch.rad2deg(torch.asin((rel[:, 1] / d.clamp_min(_EPS)).clamp(-1, 1)))
         az = torch.rad2deg(torch.atan2(rel[:, 0], -rel[:, 2]))
         return {"distance": d, "azimuth": az, "elevation": el}
-

@@ -64,10 +64,18 @@ class Lights:
     ambient: torch.Tensor
 
     def __post_init__(self) -> None:
-        dtype = next((v.dtype for v in (self.directions, self.colors, self.ambient)
-                      if isinstance(v, torch.Tensor) and v.is_floating_point()), torch.float32)
-        device = next((v.device for v in (self.directions, self.colors, self.ambient)
-                       if isinstance(v, torch.Tensor)), None)
+        dtype = next(
+            (
+                v.dtype
+                for v in (self.directions, self.colors, self.ambient)
+                if isinstance(v, torch.Tensor) and v.is_floating_point()
+            ),
+            torch.float32,
+        )
+        device = next(
+            (v.device for v in (self.directions, self.colors, self.ambient) if isinstance(v, torch.Tensor)),
+            None,
+        )
         d = _tensor(self.directions, "directions", dtype, device)
         c = _tensor(self.colors, "colors", dtype, device)
         a = _tensor(self.ambient, "ambient", dtype, device)
@@ -80,12 +88,16 @@ class Lights:
         c = c if c.dim() == 3 else c.unsqueeze(0)
         a = a if a.dim() == 2 else a.unsqueeze(0)
         if d.shape[1] != c.shape[1]:
-            raise ValueError(f"directions and colors must hold the same number of lights, got {d.shape[1]} and {c.shape[1]}")
+            raise ValueError(
+                f"directions and colors must hold the same number of lights, got {d.shape[1]} and {c.shape[1]}"
+            )
         sizes = {d.shape[0], c.shape[0], a.shape[0]}
         sizes.discard(1)
         if len(sizes) > 1:
-            raise ValueError(f"lights have incompatible batch sizes: directions {tuple(d.shape)}, "
-                             f"colors {tuple(c.shape)}, ambient {tuple(a.shape)}")
+            raise ValueError(
+                f"lights have incompatible batch sizes: directions {tuple(d.shape)}, "
+                f"colors {tuple(c.shape)}, ambient {tuple(a.shape)}"
+            )
         b = sizes.pop() if sizes else 1
         if bool((d.detach().norm(dim=-1) <= 1e-9).any()):
             raise ValueError("directions must be non-zero vectors")
@@ -94,8 +106,12 @@ class Lights:
         object.__setattr__(self, "ambient", a.expand(b, -1) if a.shape[0] != b else a)
 
     @classmethod
-    def single(cls, direction: _Vec = (0.0, 0.0, -1.0), color: _Vec = (0.5, 0.5, 0.5),
-               ambient: _Vec = (0.5, 0.5, 0.5)) -> Lights:
+    def single(
+        cls,
+        direction: _Vec = (0.0, 0.0, -1.0),
+        color: _Vec = (0.5, 0.5, 0.5),
+        ambient: _Vec = (0.5, 0.5, 0.5),
+    ) -> Lights:
         """One directional light plus ambient.
 
         Args:
@@ -141,8 +157,11 @@ class Lights:
 
     def to(self, device: str | torch.device | None = None, dtype: torch.dtype | None = None) -> Lights:
         """Move to ``device`` and/or cast to ``dtype``."""
-        return Lights(self.directions.to(device=device, dtype=dtype), self.colors.to(device=device, dtype=dtype),
-                      self.ambient.to(device=device, dtype=dtype))
+        return Lights(
+            self.directions.to(device=device, dtype=dtype),
+            self.colors.to(device=device, dtype=dtype),
+            self.ambient.to(device=device, dtype=dtype),
+        )
 
     def detach(self) -> Lights:
         """A copy without autograd history."""
@@ -167,8 +186,11 @@ class Lights:
             raise ValueError("lights must be a non-empty sequence")
         if len({item.num_lights for item in lights}) != 1:
             raise ValueError("lights must all have the same number of directional lights to be concatenated")
-        return Lights(torch.cat([item.directions for item in lights]), torch.cat([item.colors for item in lights]),
-                      torch.cat([item.ambient for item in lights]))
+        return Lights(
+            torch.cat([item.directions for item in lights]),
+            torch.cat([item.colors for item in lights]),
+            torch.cat([item.ambient for item in lights]),
+        )
 
 
 def face_normals(verts_world: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
@@ -188,7 +210,9 @@ def face_normals(verts_world: torch.Tensor, faces: torch.Tensor) -> torch.Tensor
     return n / norm.clamp_min(_EPS)
 
 
-def orient_normals(normals: torch.Tensor, verts_world: torch.Tensor, faces: torch.Tensor, camera: Camera) -> torch.Tensor:
+def orient_normals(
+    normals: torch.Tensor, verts_world: torch.Tensor, faces: torch.Tensor, camera: Camera
+) -> torch.Tensor:
     """Flip normals that face away from the camera (two-sided rendering).
 
     Perspective: a normal is flipped when ``dot(n, eye - centroid) < 0``. Orthographic: when ``dot(n, view_dir) > 0``.
@@ -214,8 +238,14 @@ def orient_normals(normals: torch.Tensor, verts_world: torch.Tensor, faces: torc
     return normals * sign
 
 
-def shade(verts_world: torch.Tensor, faces: torch.Tensor, face_colors: torch.Tensor, lights: Lights,
-          camera: Camera | None = None, two_sided: bool = True) -> torch.Tensor:
+def shade(
+    verts_world: torch.Tensor,
+    faces: torch.Tensor,
+    face_colors: torch.Tensor,
+    lights: Lights,
+    camera: Camera | None = None,
+    two_sided: bool = True,
+) -> torch.Tensor:
     """Lambert-shaded face colours.
 
     Args:
@@ -242,8 +272,12 @@ def shade(verts_world: torch.Tensor, faces: torch.Tensor, face_colors: torch.Ten
     dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(_EPS)
     b = max(normals.shape[0], dirs.shape[0])
     if normals.shape[0] not in (1, b) or dirs.shape[0] not in (1, b):
-        raise ValueError(f"lights batch size {dirs.shape[0]} does not match the vertex/camera batch size {normals.shape[0]}")
+        raise ValueError(
+            f"lights batch size {dirs.shape[0]} does not match the vertex/camera batch size {normals.shape[0]}"
+        )
     cos = torch.matmul(normals.expand(b, -1, -1), dirs.transpose(1, 2).expand(b, -1, -1))  # (B,M,K)
-    intensity = lights.ambient.to(dtype).unsqueeze(1) + torch.matmul(cos.clamp_min(0), lights.colors.to(dtype).expand(b, -1, -1))
+    intensity = lights.ambient.to(dtype).unsqueeze(1) + torch.matmul(
+        cos.clamp_min(0), lights.colors.to(dtype).expand(b, -1, -1)
+    )
     colors = face_colors if face_colors.dim() == 3 else face_colors.unsqueeze(0)
     return (colors.to(dtype) * intensity).clamp(0.0, 1.0)

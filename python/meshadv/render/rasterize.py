@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from ._checks import require_instance
+
 __all__ = ["MAX_IMAGE_SIDE", "RasterOutput", "native_available", "parse_image_size", "rasterize"]
 
 #: Largest accepted image side in pixels.
@@ -66,8 +68,10 @@ def parse_image_size(image_size: int | Sequence[int], name: str = "image_size") 
     """
     if isinstance(image_size, (int, np.integer)) and not isinstance(image_size, bool):
         hw = (int(image_size), int(image_size))
-    elif isinstance(image_size, (tuple, list)) and len(image_size) == 2 and all(
-        isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in image_size
+    elif (
+        isinstance(image_size, (tuple, list))
+        and len(image_size) == 2
+        and all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in image_size)
     ):
         hw = (int(image_size[0]), int(image_size[1]))
     else:
@@ -79,8 +83,7 @@ def parse_image_size(image_size: int | Sequence[int], name: str = "image_size") 
 
 def _check_float_tensor(t: Any, name: str, ndims: tuple[int, ...], shape_doc: str) -> torch.Tensor:
     """Check a floating tensor's type, rank and finiteness."""
-    if not isinstance(t, torch.Tensor):
-        raise ValueError(f"{name} must be a torch.Tensor, got {type(t).__name__}")
+    require_instance(t, torch.Tensor, name)
     if not t.is_floating_point():
         raise ValueError(f"{name} must be a floating tensor (float32 or float64), got {t.dtype}")
     if t.dim() not in ndims:
@@ -104,9 +107,19 @@ class _Rasterize(torch.autograd.Function):
     """Private autograd op: ``meshadv._raster.rasterize_forward`` / ``rasterize_backward``."""
 
     @staticmethod
-    def forward(ctx: Any, verts_screen: torch.Tensor, face_attrs: torch.Tensor, faces: torch.Tensor,
-                background: torch.Tensor, height: int, width: int, near: float, far: float, cull_backfaces: bool,
-                num_threads: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(
+        ctx: Any,
+        verts_screen: torch.Tensor,
+        face_attrs: torch.Tensor,
+        faces: torch.Tensor,
+        background: torch.Tensor,
+        height: int,
+        width: int,
+        near: float,
+        far: float,
+        cull_backfaces: bool,
+        num_threads: int,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         native = _native()
         v_np, a_np = _to_numpy_f32(verts_screen), _to_numpy_f32(face_attrs)
         f_np, bg_np = _to_numpy_i32(faces), _to_numpy_f32(background)
@@ -130,11 +143,25 @@ class _Rasterize(torch.autograd.Function):
         if grad_image is None or not (need_v or need_a):
             return (None,) * 10
         grad_v, grad_a = _native().rasterize_backward(
-            _to_numpy_f32(verts_screen), _to_numpy_i32(faces), _to_numpy_f32(face_attrs), _to_numpy_f32(background),
-            height, width, near, far, cull_backfaces, _to_numpy_i32(face_index), _to_numpy_f32(image),
-            _to_numpy_f32(grad_image), num_threads,
+            _to_numpy_f32(verts_screen),
+            _to_numpy_i32(faces),
+            _to_numpy_f32(face_attrs),
+            _to_numpy_f32(background),
+            height,
+            width,
+            near,
+            far,
+            cull_backfaces,
+            _to_numpy_i32(face_index),
+            _to_numpy_f32(image),
+            _to_numpy_f32(grad_image),
+            num_threads,
         )
-        gv = torch.from_numpy(grad_v).to(device=verts_screen.device, dtype=verts_screen.dtype) if need_v else None
+        gv = (
+            torch.from_numpy(grad_v).to(device=verts_screen.device, dtype=verts_screen.dtype)
+            if need_v
+            else None
+        )
         ga = torch.from_numpy(grad_a).to(device=face_attrs.device, dtype=face_attrs.dtype) if need_a else None
         return gv, ga, None, None, None, None, None, None, None, None
 
@@ -189,8 +216,7 @@ def rasterize(
     if n == 0:
         raise ValueError("verts_screen is empty (N = 0 vertices)")
 
-    if not isinstance(faces, torch.Tensor):
-        raise ValueError(f"faces must be a torch.Tensor, got {type(faces).__name__}")
+    require_instance(faces, torch.Tensor, "faces")
     if faces.is_floating_point() or faces.is_complex() or faces.dtype == torch.bool:
         raise ValueError(f"faces must be an integer tensor (int32 or int64), got {faces.dtype}")
     if faces.dim() != 2 or faces.shape[1] != 3:
@@ -200,18 +226,24 @@ def rasterize(
         raise ValueError("faces is empty (M = 0 triangles)")
     fmin, fmax = int(faces.min()), int(faces.max())
     if fmin < 0 or fmax >= n:
-        raise ValueError(f"faces holds vertex indices in [{fmin}, {fmax}] but must be in [0, {n - 1}] (N = {n})")
+        raise ValueError(
+            f"faces holds vertex indices in [{fmin}, {fmax}] but must be in [0, {n - 1}] (N = {n})"
+        )
 
     face_attrs = _check_float_tensor(face_attrs, "face_attrs", (2, 3), "(B,M,C) or (M,C)")
     if face_attrs.dim() == 2:
         face_attrs = face_attrs.unsqueeze(0)
     if face_attrs.shape[1] != m:
-        raise ValueError(f"face_attrs must have one row per face (M = {m}), got shape {tuple(face_attrs.shape)}")
+        raise ValueError(
+            f"face_attrs must have one row per face (M = {m}), got shape {tuple(face_attrs.shape)}"
+        )
     c = face_attrs.shape[2]
     if c == 0:
         raise ValueError("face_attrs must have at least one channel (C >= 1)")
     if face_attrs.shape[0] not in (1, b):
-        raise ValueError(f"face_attrs batch size {face_attrs.shape[0]} does not match verts_screen batch size {b}")
+        raise ValueError(
+            f"face_attrs batch size {face_attrs.shape[0]} does not match verts_screen batch size {b}"
+        )
     if face_attrs.shape[0] != b:
         face_attrs = face_attrs.expand(b, -1, -1)
 
@@ -222,7 +254,11 @@ def rasterize(
     if background is None:
         bg = torch.zeros(c, dtype=torch.float32)
     else:
-        bg = background if isinstance(background, torch.Tensor) else torch.as_tensor(background, dtype=torch.float32)
+        bg = (
+            background
+            if isinstance(background, torch.Tensor)
+            else torch.as_tensor(background, dtype=torch.float32)
+        )
         if not (bg.is_floating_point() or bg.dtype in (torch.int32, torch.int64)):
             raise ValueError(f"background must be numeric, got {bg.dtype}")
         bg = bg.detach().to(torch.float32).reshape(-1)
@@ -234,8 +270,11 @@ def rasterize(
             raise ValueError("background contains NaN or Inf")
 
     for name, value in (("near", near), ("far", far)):
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-                or not np.isfinite(value):
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float, np.floating, np.integer))
+            or not np.isfinite(value)
+        ):
             raise ValueError(f"{name} must be a finite number, got {value!r}")
     if not far > near:
         raise ValueError(f"far must be > near, got near={near} far={far}")
@@ -243,7 +282,15 @@ def rasterize(
         raise ValueError(f"num_threads must be an int >= 0, got {num_threads!r}")
 
     image, face_index, depth = _Rasterize.apply(
-        verts_screen, face_attrs, faces, bg.cpu(), height, width, float(near), float(far), bool(cull_backfaces),
+        verts_screen,
+        face_attrs,
+        faces,
+        bg.cpu(),
+        height,
+        width,
+        float(near),
+        float(far),
+        bool(cull_backfaces),
         int(num_threads),
     )
     return RasterOutput(image=image.to(face_attrs.dtype), face_index=face_index.long(), depth=depth)

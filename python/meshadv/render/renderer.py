@@ -9,6 +9,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
+from ._checks import require_instance
 from .camera import Camera
 from .lighting import Lights, shade
 from .rasterize import RasterOutput, parse_image_size, rasterize
@@ -38,8 +39,7 @@ class RenderOutput:
 
 def _check_mesh(vertices: Any, faces: Any) -> tuple[torch.Tensor, torch.Tensor]:
     """Validate vertices (N,3)|(B,N,3) and faces (M,3); return batched vertices and int64 faces."""
-    if not isinstance(vertices, torch.Tensor):
-        raise ValueError(f"vertices must be a torch.Tensor, got {type(vertices).__name__}")
+    require_instance(vertices, torch.Tensor, "vertices")
     if not vertices.is_floating_point():
         raise ValueError(f"vertices must be a floating tensor, got {vertices.dtype}")
     if vertices.dim() not in (2, 3) or vertices.shape[-1] != 3:
@@ -49,8 +49,7 @@ def _check_mesh(vertices: Any, faces: Any) -> tuple[torch.Tensor, torch.Tensor]:
         raise ValueError(f"vertices is empty, shape {tuple(vertices.shape)}")
     if not bool(torch.isfinite(verts.detach()).all()):
         raise ValueError("vertices contains NaN or Inf")
-    if not isinstance(faces, torch.Tensor):
-        raise ValueError(f"faces must be a torch.Tensor, got {type(faces).__name__}")
+    require_instance(faces, torch.Tensor, "faces")
     if faces.is_floating_point() or faces.is_complex() or faces.dtype == torch.bool:
         raise ValueError(f"faces must be an integer tensor, got {faces.dtype}")
     if faces.dim() != 2 or faces.shape[1] != 3:
@@ -60,7 +59,9 @@ def _check_mesh(vertices: Any, faces: Any) -> tuple[torch.Tensor, torch.Tensor]:
     n = verts.shape[1]
     fmin, fmax = int(faces.min()), int(faces.max())
     if fmin < 0 or fmax >= n:
-        raise ValueError(f"faces holds vertex indices in [{fmin}, {fmax}] but must be in [0, {n - 1}] (N = {n})")
+        raise ValueError(
+            f"faces holds vertex indices in [{fmin}, {fmax}] but must be in [0, {n - 1}] (N = {n})"
+        )
     return verts, faces.to(device=verts.device, dtype=torch.long)
 
 
@@ -85,8 +86,7 @@ def _check_antialias(antialias: Any) -> int:
 
 def _project_checked(verts: torch.Tensor, camera: Camera, b: int) -> torch.Tensor:
     """Project to screen space and reject views in which every vertex is behind the near plane."""
-    if not isinstance(camera, Camera):
-        raise ValueError(f"camera must be a Camera, got {type(camera).__name__}")
+    require_instance(camera, Camera, "camera")
     verts_screen = _expand(camera.project(verts), b)
     z = verts_screen[..., 2].detach()
     near = _expand(camera.near.detach().to(z.dtype), b).unsqueeze(-1)
@@ -112,8 +112,16 @@ def _raster_groups(camera: Camera, b: int) -> list[tuple[list[int], float, float
     return [(idx, key[0], key[1]) for key, idx in groups.items()]
 
 
-def _rasterize_views(verts_screen: torch.Tensor, faces: torch.Tensor, attrs: torch.Tensor, size: tuple[int, int],
-                     background: torch.Tensor, camera: Camera, cull: bool, num_threads: int) -> RasterOutput:
+def _rasterize_views(
+    verts_screen: torch.Tensor,
+    faces: torch.Tensor,
+    attrs: torch.Tensor,
+    size: tuple[int, int],
+    background: torch.Tensor,
+    camera: Camera,
+    cull: bool,
+    num_threads: int,
+) -> RasterOutput:
     """Rasterize, one call per distinct clip range (one call in the usual case)."""
     b = verts_screen.shape[0]
     groups = _raster_groups(camera, b)
@@ -123,18 +131,26 @@ def _rasterize_views(verts_screen: torch.Tensor, faces: torch.Tensor, attrs: tor
     parts, order = [], []
     for idx, near, far in groups:
         sel = torch.as_tensor(idx, device=verts_screen.device)
-        parts.append(rasterize(verts_screen[sel], faces, attrs[sel], size, background, near, far, cull, num_threads))
+        parts.append(
+            rasterize(verts_screen[sel], faces, attrs[sel], size, background, near, far, cull, num_threads)
+        )
         order.extend(idx)
     inverse = torch.empty(b, dtype=torch.long)
     inverse[torch.as_tensor(order)] = torch.arange(b)
     inverse = inverse.to(verts_screen.device)
-    return RasterOutput(image=torch.cat([p.image for p in parts])[inverse],
-                        face_index=torch.cat([p.face_index for p in parts])[inverse],
-                        depth=torch.cat([p.depth for p in parts])[inverse])
+    return RasterOutput(
+        image=torch.cat([p.image for p in parts])[inverse],
+        face_index=torch.cat([p.face_index for p in parts])[inverse],
+        depth=torch.cat([p.depth for p in parts])[inverse],
+    )
 
 
 def _background(background: Any, dtype: torch.dtype) -> torch.Tensor:
-    bg = background if isinstance(background, torch.Tensor) else torch.as_tensor(background, dtype=torch.float32)
+    bg = (
+        background
+        if isinstance(background, torch.Tensor)
+        else torch.as_tensor(background, dtype=torch.float32)
+    )
     if bg.is_complex() or bg.dtype == torch.bool:
         raise ValueError(f"background must be numeric, got {bg.dtype}")
     bg = bg.detach().to(dtype=dtype, device="cpu").reshape(-1)
@@ -198,20 +214,26 @@ def render(
         (torch.Size([1, 3, 32, 32]), torch.Size([1, 1, 32, 32]))
     """
     verts, faces = _check_mesh(vertices, faces)
-    if not isinstance(lights, Lights):
-        raise ValueError(f"lights must be a Lights, got {type(lights).__name__}")
+    require_instance(lights, Lights, "lights")
     if not isinstance(face_colors, torch.Tensor) or not face_colors.is_floating_point():
         raise ValueError("face_colors must be a floating torch.Tensor of shape (M,3) or (B,M,3)")
     colors = face_colors if face_colors.dim() == 3 else face_colors.unsqueeze(0)
     if colors.dim() != 3 or colors.shape[1:] != (faces.shape[0], 3):
-        raise ValueError(f"face_colors must have shape (M,3) or (B,M,3) with M = {faces.shape[0]}, "
-                         f"got {tuple(face_colors.shape)}")
+        raise ValueError(
+            f"face_colors must have shape (M,3) or (B,M,3) with M = {faces.shape[0]}, "
+            f"got {tuple(face_colors.shape)}"
+        )
     if not bool(torch.isfinite(colors.detach()).all()):
         raise ValueError("face_colors contains NaN or Inf")
-    if not isinstance(camera, Camera):
-        raise ValueError(f"camera must be a Camera, got {type(camera).__name__}")
-    b = _batch_size({"vertices": verts.shape[0], "face_colors": colors.shape[0], "camera": len(camera),
-                     "lights": len(lights)})
+    require_instance(camera, Camera, "camera")
+    b = _batch_size(
+        {
+            "vertices": verts.shape[0],
+            "face_colors": colors.shape[0],
+            "camera": len(camera),
+            "lights": len(lights),
+        }
+    )
     height, width = parse_image_size(image_size)
     k = _check_antialias(antialias)
     parse_image_size((height * k, width * k), "image_size * antialias")
@@ -220,11 +242,17 @@ def render(
     shaded = _expand(shade(verts, faces, colors, lights, camera, two_sided=bool(fill_back)), b)
     attrs = torch.cat([shaded, torch.ones_like(shaded[..., :1])], dim=-1)
     bg = torch.cat([_background(background, torch.float32), torch.zeros(1)])
-    out = _rasterize_views(verts_screen, faces, attrs, (height * k, width * k), bg, camera, not fill_back, num_threads)
+    out = _rasterize_views(
+        verts_screen, faces, attrs, (height * k, width * k), bg, camera, not fill_back, num_threads
+    )
     img = _downsample(out.image.permute(0, 3, 1, 2), k)
     sub = slice(k // 2, None, k)
-    return RenderOutput(image=img[:, :3], alpha=img[:, 3:4], depth=out.depth[:, sub, sub].contiguous(),
-                        face_index=out.face_index[:, sub, sub].contiguous())
+    return RenderOutput(
+        image=img[:, :3],
+        alpha=img[:, 3:4],
+        depth=out.depth[:, sub, sub].contiguous(),
+        face_index=out.face_index[:, sub, sub].contiguous(),
+    )
 
 
 def render_silhouette(
@@ -254,14 +282,21 @@ def render_silhouette(
         ValueError: bad input, or all geometry behind the camera.
     """
     verts, faces = _check_mesh(vertices, faces)
-    if not isinstance(camera, Camera):
-        raise ValueError(f"camera must be a Camera, got {type(camera).__name__}")
+    require_instance(camera, Camera, "camera")
     b = _batch_size({"vertices": verts.shape[0], "camera": len(camera)})
     height, width = parse_image_size(image_size)
     k = _check_antialias(antialias)
     parse_image_size((height * k, width * k), "image_size * antialias")
     verts_screen = _project_checked(verts, camera, b)
     attrs = torch.ones(b, faces.shape[0], 1, dtype=verts_screen.dtype, device=verts_screen.device)
-    out = _rasterize_views(verts_screen, faces, attrs, (height * k, width * k), torch.zeros(1), camera,
-                           not fill_back, num_threads)
+    out = _rasterize_views(
+        verts_screen,
+        faces,
+        attrs,
+        (height * k, width * k),
+        torch.zeros(1),
+        camera,
+        not fill_back,
+        num_threads,
+    )
     return _downsample(out.image.permute(0, 3, 1, 2), k)

@@ -8,6 +8,7 @@ from typing import Any
 
 import torch
 
+from ._checks import require_instance
 from .camera import Camera, TensorLike
 from .lighting import Lights
 
@@ -38,17 +39,22 @@ class ViewSet:
     lights: Lights
 
     def __post_init__(self) -> None:
-        if not isinstance(self.camera, Camera):
-            raise ValueError(f"camera must be a Camera, got {type(self.camera).__name__}")
-        if not isinstance(self.lights, Lights):
-            raise ValueError(f"lights must be a Lights, got {type(self.lights).__name__}")
+        require_instance(self.camera, Camera, "camera")
+        require_instance(self.lights, Lights, "lights")
         b, bl = len(self.camera), len(self.lights)
         if bl != b:
             if bl != 1:
                 raise ValueError(f"lights batch size {bl} does not match the camera batch size {b}")
             lights = self.lights
-            object.__setattr__(self, "lights", Lights(lights.directions.expand(b, -1, -1),
-                                                       lights.colors.expand(b, -1, -1), lights.ambient.expand(b, -1)))
+            object.__setattr__(
+                self,
+                "lights",
+                Lights(
+                    lights.directions.expand(b, -1, -1),
+                    lights.colors.expand(b, -1, -1),
+                    lights.ambient.expand(b, -1),
+                ),
+            )
 
     def __len__(self) -> int:
         return len(self.camera)
@@ -100,7 +106,9 @@ class ViewSet:
         Returns:
             A ViewSet of B views.
         """
-        az = azimuths if isinstance(azimuths, torch.Tensor) else torch.as_tensor(azimuths, dtype=torch.float32)
+        az = (
+            azimuths if isinstance(azimuths, torch.Tensor) else torch.as_tensor(azimuths, dtype=torch.float32)
+        )
         camera = Camera.spherical(distance, az.reshape(-1), elevation, tilt, viewing_angle, near, far)
         return cls(camera, lights if lights is not None else Lights.default(camera))
 
@@ -136,8 +144,14 @@ class ViewSet:
         Raises:
             ValueError: negative magnitudes, or angle jitter on a look-at camera.
         """
-        mags = {"azimuth": azimuth, "elevation": elevation, "distance": distance, "tilt": tilt,
-                    "light_direction": light_direction, "light_intensity": light_intensity}
+        mags = {
+            "azimuth": azimuth,
+            "elevation": elevation,
+            "distance": distance,
+            "tilt": tilt,
+            "light_direction": light_direction,
+            "light_intensity": light_intensity,
+        }
         for name, value in mags.items():
             if not value >= 0:
                 raise ValueError(f"{name} jitter must be >= 0, got {value}")
@@ -149,17 +163,30 @@ class ViewSet:
 
         if cam.is_spherical:
             new_cam = Camera(
-                viewing_angle=cam.viewing_angle, tilt=cam.tilt + uniform((b,), tilt), near=cam.near, far=cam.far,
-                ortho_scale=cam.ortho_scale, orthographic=cam.orthographic,
-                distance=cam.distance * (1 + uniform((b,), distance)), azimuth=cam.azimuth + uniform((b,), azimuth),
+                viewing_angle=cam.viewing_angle,
+                tilt=cam.tilt + uniform((b,), tilt),
+                near=cam.near,
+                far=cam.far,
+                ortho_scale=cam.ortho_scale,
+                orthographic=cam.orthographic,
+                distance=cam.distance * (1 + uniform((b,), distance)),
+                azimuth=cam.azimuth + uniform((b,), azimuth),
                 elevation=cam.elevation + uniform((b,), elevation),
             )
         else:
             if azimuth or elevation or distance:
                 raise ValueError("azimuth/elevation/distance jitter needs a spherical camera")
-            new_cam = Camera(viewing_angle=cam.viewing_angle, tilt=cam.tilt + uniform((b,), tilt), near=cam.near,
-                             far=cam.far, ortho_scale=cam.ortho_scale, orthographic=cam.orthographic,
-                             eye_position=cam.eye_position, at=cam.at, up=cam.up)
+            new_cam = Camera(
+                viewing_angle=cam.viewing_angle,
+                tilt=cam.tilt + uniform((b,), tilt),
+                near=cam.near,
+                far=cam.far,
+                ortho_scale=cam.ortho_scale,
+                orthographic=cam.orthographic,
+                eye_position=cam.eye_position,
+                at=cam.at,
+                up=cam.up,
+            )
         dirs = lights.directions
         if light_direction > 0:
             noise = torch.randn(*dirs.shape, generator=generator).to(dirs.dtype) * light_direction
@@ -181,14 +208,22 @@ class ViewSet:
         for i in range(len(self)):
             rec: dict[str, Any] = {}
             if cam.is_spherical:
-                rec.update(distance=float(cam.distance[i]), azimuth=float(cam.azimuth[i]),
-                           elevation=float(cam.elevation[i]))
+                rec.update(
+                    distance=float(cam.distance[i]),
+                    azimuth=float(cam.azimuth[i]),
+                    elevation=float(cam.elevation[i]),
+                )
             else:
                 rec.update(eye=cam.eye_position[i].tolist(), at=cam.at[i].tolist(), up=cam.up[i].tolist())
             rec.update(
-                tilt=float(cam.tilt[i]), viewing_angle=float(cam.viewing_angle[i]), near=float(cam.near[i]),
-                far=float(cam.far[i]), orthographic=bool(cam.orthographic), ortho_scale=float(cam.ortho_scale[i]),
-                light_directions=lights.directions[i].tolist(), light_colors=lights.colors[i].tolist(),
+                tilt=float(cam.tilt[i]),
+                viewing_angle=float(cam.viewing_angle[i]),
+                near=float(cam.near[i]),
+                far=float(cam.far[i]),
+                orthographic=bool(cam.orthographic),
+                ortho_scale=float(cam.ortho_scale[i]),
+                light_directions=lights.directions[i].tolist(),
+                light_colors=lights.colors[i].tolist(),
                 ambient=lights.ambient[i].tolist(),
             )
             records.append(rec)
@@ -209,9 +244,14 @@ class ViewSet:
             missing = [k for k in ("light_directions", "light_colors", "ambient") if k not in rec]
             if missing:
                 raise ValueError(f"records[{i}] is missing keys {missing}")
-            common = {"tilt": rec.get("tilt", 0.0), "viewing_angle": rec.get("viewing_angle", 30.0),
-                          "near": rec.get("near", 0.1), "far": rec.get("far", 100.0),
-                          "orthographic": bool(rec.get("orthographic", False)), "ortho_scale": rec.get("ortho_scale", 1.0)}
+            common = {
+                "tilt": rec.get("tilt", 0.0),
+                "viewing_angle": rec.get("viewing_angle", 30.0),
+                "near": rec.get("near", 0.1),
+                "far": rec.get("far", 100.0),
+                "orthographic": bool(rec.get("orthographic", False)),
+                "ortho_scale": rec.get("ortho_scale", 1.0),
+            }
             if all(k in rec for k in _SPHERICAL_KEYS):
                 camera = Camera.spherical(rec["distance"], rec["azimuth"], rec["elevation"], **common)
             elif all(k in rec for k in _LOOK_AT_KEYS):
@@ -220,5 +260,7 @@ class ViewSet:
                 raise ValueError(f"records[{i}] needs either {_SPHERICAL_KEYS} or {_LOOK_AT_KEYS}")
             dirs = torch.as_tensor(rec["light_directions"], dtype=torch.float32).reshape(-1, 3)
             cols = torch.as_tensor(rec["light_colors"], dtype=torch.float32).reshape(-1, 3)
-            views.append(cls(camera, Lights(dirs, cols, torch.as_tensor(rec["ambient"], dtype=torch.float32))))
+            views.append(
+                cls(camera, Lights(dirs, cols, torch.as_tensor(rec["ambient"], dtype=torch.float32)))
+            )
         return cls.cat(views)

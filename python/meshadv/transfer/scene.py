@@ -106,15 +106,54 @@ class MitsubaCamera:
         return cls(tuple(eye.tolist()), (0.0, 0.0, 0.0), tuple(up.tolist()), viewing_angle, near, far)
 
     @classmethod
-    def from_record(cls, record: Mapping[str, Any]) -> "MitsubaCamera":
-        """Build from a ``ViewSet.to_records()`` record (keys distance, azimuth, elevation, tilt, viewing_angle).
+    def from_camera(cls, camera: Any, index: int = 0) -> "MitsubaCamera":
+        """Build from view ``index`` of a ``meshadv.render.Camera`` (spherical or look-at, tilt applied).
 
         Raises:
-            ValueError: a required key is missing.
+            ValueError: the camera is orthographic or ``index`` is out of range.
         """
+        if getattr(camera, "orthographic", False):
+            raise ValueError("camera: orthographic cameras are not supported by the Mitsuba conversion")
+        if not 0 <= index < len(camera):
+            raise ValueError(f"index {index} out of range for a camera batch of {len(camera)}")
+        eye = _as_numpy(camera.eye()[index], np.float64)
+        target = _as_numpy(camera.target()[index], np.float64)
+        up = _as_numpy(camera.rotation()[index, 1], np.float64)
+        return cls(
+            tuple(eye.tolist()),
+            tuple(target.tolist()),
+            tuple(up.tolist()),
+            float(camera.viewing_angle[index]),
+            float(camera.near[index]),
+            float(camera.far[index]),
+        )
+
+    @classmethod
+    def from_record(cls, record: Mapping[str, Any]) -> "MitsubaCamera":
+        """Build from a ``ViewSet.to_records()`` record.
+
+        Spherical records have keys distance, azimuth, elevation; look-at records have eye, at, up; both may have
+        tilt, viewing_angle, near, far.
+
+        Raises:
+            ValueError: required keys are missing, or the record is orthographic.
+        """
+        if record.get("orthographic", False):
+            raise ValueError("record: orthographic cameras are not supported by the Mitsuba conversion")
+        if all(k in record for k in ("eye", "at", "up")):
+            eye, at = _as_numpy(record["eye"], np.float64), _as_numpy(record["at"], np.float64)
+            up = _tilted_up(eye, at, _as_numpy(record["up"], np.float64), float(record.get("tilt", 0.0)))
+            return cls(
+                tuple(eye.tolist()),
+                tuple(at.tolist()),
+                tuple(up.tolist()),
+                float(record.get("viewing_angle", 30.0)),
+                float(record.get("near", 0.1)),
+                float(record.get("far", 100.0)),
+            )
         missing = [k for k in ("distance", "azimuth", "elevation") if k not in record]
         if missing:
-            raise ValueError(f"record is missing camera keys {missing}")
+            raise ValueError(f"record is missing camera keys {missing} (or eye, at, up)")
         return cls.spherical(
             float(record["distance"]),
             float(record["azimuth"]),

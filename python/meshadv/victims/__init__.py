@@ -24,17 +24,17 @@ from meshadv.victims.labels import (
 from meshadv.victims.registry import available_victims, load_victim
 
 __all__ = [
-    "Victim",
-    "ClassifierVictim",
-    "DetectorVictim",
-    "DetectorOutput",
-    "Detections",
-    "load_victim",
-    "available_victims",
     "PASCAL3D_TO_IMAGENET",
-    "imagenet_class_names",
-    "coco_class_names",
+    "ClassifierVictim",
+    "Detections",
+    "DetectorOutput",
+    "DetectorVictim",
+    "Victim",
+    "available_victims",
     "classify_pascal",
+    "coco_class_names",
     "group_logits",
     "group_scores",
+    "imagenet_class_names",
+    "load_victim",
 ]

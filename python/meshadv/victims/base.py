@@ -12,18 +12,19 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import ClassVar, List, Optional, Sequence, Tuple
+from typing import ClassVar
 
 import torch
 from torch import Tensor, nn
 
 __all__ = [
-    "Victim",
     "ClassifierVictim",
-    "DetectorVictim",
-    "DetectorOutput",
     "Detections",
+    "DetectorOutput",
+    "DetectorVictim",
+    "Victim",
     "check_images",
     "freeze",
 ]
@@ -43,7 +44,9 @@ def check_images(images: Tensor, name: str = "images") -> Tensor:
         ValueError: wrong type, rank, channel count, empty batch or non-floating dtype.
     """
     if not isinstance(images, Tensor):
-        raise ValueError(f"{name} must be a torch.Tensor of shape (B, 3, H, W), got {type(images).__name__}")
+        raise ValueError(  # noqa: TRY004 - the team convention: bad input is a ValueError
+            f"{name} must be a torch.Tensor of shape (B, 3, H, W), got {type(images).__name__}"
+        )
     if images.dim() != 4 or images.shape[1] != 3:
         raise ValueError(f"{name} must have shape (B, 3, H, W), got {tuple(images.shape)}")
     if images.shape[0] == 0 or images.shape[2] == 0 or images.shape[3] == 0:
@@ -82,12 +85,12 @@ class Victim(nn.Module):
 
     kind: ClassVar[str] = ""
 
-    def __init__(self, name: str, input_size: Tuple[int, int]) -> None:
+    def __init__(self, name: str, input_size: tuple[int, int]) -> None:
         super().__init__()
         self.name = name
         self.input_size = (int(input_size[0]), int(input_size[1]))
 
-    def train(self, mode: bool = True) -> "Victim":
+    def train(self, mode: bool = True) -> Victim:
         """Keep the victim in eval mode whatever ``mode`` is (victims are never trained).
 
         Args:
@@ -127,7 +130,7 @@ class ClassifierVictim(Victim):
     kind: ClassVar[str] = "classifier"
 
     @property
-    def class_names(self) -> List[str]:
+    def class_names(self) -> list[str]:
         """The 1000 ImageNet class names in logit order."""
         from meshadv.victims.labels import imagenet_class_names
 
@@ -159,7 +162,7 @@ class DetectorOutput:
     """
 
     boxes: Tensor
-    objectness: Optional[Tensor]
+    objectness: Tensor | None
     class_probs: Tensor
 
     def __post_init__(self) -> None:
@@ -196,16 +199,16 @@ class Detections:
     boxes: Tensor
     scores: Tensor
     labels: Tensor
-    class_names: Tuple[str, ...]
+    class_names: tuple[str, ...]
 
     def __len__(self) -> int:
         return int(self.scores.shape[0])
 
-    def names(self) -> List[str]:
+    def names(self) -> list[str]:
         """Class names of the detections, in order."""
         return [self.class_names[int(i)] for i in self.labels.tolist()]
 
-    def to_records(self) -> List[dict]:
+    def to_records(self) -> list[dict]:
         """JSON-able list of ``{"label", "score", "box"}`` dicts."""
         return [
             {"label": self.class_names[int(lab)], "score": float(s), "box": [float(v) for v in box]}
@@ -225,9 +228,9 @@ class DetectorVictim(Victim):
 
     kind: ClassVar[str] = "detector"
 
-    def __init__(self, name: str, input_size: Tuple[int, int], class_names: Sequence[str]) -> None:
+    def __init__(self, name: str, input_size: tuple[int, int], class_names: Sequence[str]) -> None:
         super().__init__(name, input_size)
-        self.class_names: Tuple[str, ...] = tuple(class_names)
+        self.class_names: tuple[str, ...] = tuple(class_names)
 
     def class_index(self, class_name: str) -> int:
         """Index of ``class_name`` in :attr:`class_names`.
@@ -248,7 +251,7 @@ class DetectorVictim(Victim):
         score_threshold: float = 0.5,
         iou_threshold: float = 0.5,
         max_detections: int = 100,
-    ) -> List[Detections]:
+    ) -> list[Detections]:
         """Decode, threshold and class-wise NMS-filter the detections of each image (no gradients).
 
         Args:
@@ -280,7 +283,7 @@ def postprocess_detections(
     score_threshold: float = 0.5,
     iou_threshold: float = 0.5,
     max_detections: int = 100,
-) -> List[Detections]:
+) -> list[Detections]:
     """Threshold and class-wise NMS a :class:`DetectorOutput` into one :class:`Detections` per image.
 
     Args:
@@ -297,7 +300,9 @@ def postprocess_detections(
 
     names = tuple(class_names)
     if out.class_probs.shape[-1] != len(names):
-        raise ValueError(f"class_names has {len(names)} entries but class_probs has {out.class_probs.shape[-1]}")
+        raise ValueError(
+            f"class_names has {len(names)} entries but class_probs has {out.class_probs.shape[-1]}"
+        )
     scores_all = out.scores().detach()
     boxes_all = out.boxes.detach()
     results = []

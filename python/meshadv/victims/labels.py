@@ -25,31 +25,31 @@ Example:
 
 from __future__ import annotations
 
-from functools import lru_cache
+from collections.abc import Mapping, Sequence
+from functools import cache
 from importlib import resources
-from typing import Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import torch
 from torch import Tensor
 
 __all__ = [
     "PASCAL3D_CLASSES",
-    "PASCAL3D_TO_IMAGENET",
     "PASCAL3D_TO_COCO",
-    "imagenet_class_names",
-    "coco_class_names",
+    "PASCAL3D_TO_IMAGENET",
+    "classify_pascal",
     "coco91_class_names",
+    "coco_class_names",
     "group_logits",
     "group_scores",
-    "classify_pascal",
+    "imagenet_class_names",
     "imagenet_index",
 ]
 
 #: The 7 PASCAL3D+ classes used by the paper, in a fixed order.
-PASCAL3D_CLASSES: Tuple[str, ...] = ("aeroplane", "bicycle", "boat", "bottle", "chair", "diningtable", "sofa")
+PASCAL3D_CLASSES: tuple[str, ...] = ("aeroplane", "bicycle", "boat", "bottle", "chair", "diningtable", "sofa")
 
 #: PASCAL3D+ class -> ImageNet-1k indices of the classes that count as that class (sorted).
-PASCAL3D_TO_IMAGENET: Dict[str, List[int]] = {
+PASCAL3D_TO_IMAGENET: dict[str, list[int]] = {
     "aeroplane": [404, 895],
     "bicycle": [444, 671],
     "boat": [472, 484, 510, 554, 576, 625, 628, 724, 780, 814, 871, 914],
@@ -60,7 +60,7 @@ PASCAL3D_TO_IMAGENET: Dict[str, List[int]] = {
 }
 
 #: PASCAL3D+ class -> COCO (80-class) name, for detectors.
-PASCAL3D_TO_COCO: Dict[str, str] = {
+PASCAL3D_TO_COCO: dict[str, str] = {
     "aeroplane": "airplane",
     "bicycle": "bicycle",
     "boat": "boat",
@@ -71,25 +71,25 @@ PASCAL3D_TO_COCO: Dict[str, str] = {
 }
 
 
-def _read_names(filename: str) -> Tuple[str, ...]:
+def _read_names(filename: str) -> tuple[str, ...]:
     text = resources.files("meshadv.victims").joinpath("data").joinpath(filename).read_text(encoding="utf-8")
     return tuple(line for line in text.splitlines() if line)
 
 
-@lru_cache(maxsize=None)
-def imagenet_class_names() -> Tuple[str, ...]:
+@cache
+def imagenet_class_names() -> tuple[str, ...]:
     """The 1000 ImageNet-1k class names in the standard (logit) order."""
     return _read_names("imagenet_classes.txt")
 
 
-@lru_cache(maxsize=None)
-def coco91_class_names() -> Tuple[str, ...]:
+@cache
+def coco91_class_names() -> tuple[str, ...]:
     """The 91 COCO category slots by category id: index 0 is ``"__background__"``, unused ids are ``"N/A"``."""
     return _read_names("coco91_classes.txt")
 
 
-@lru_cache(maxsize=None)
-def coco_class_names() -> Tuple[str, ...]:
+@cache
+def coco_class_names() -> tuple[str, ...]:
     """The 80 COCO class names in category-id order (the order YOLO and Darknet's ``coco.names`` use)."""
     return tuple(name for name in coco91_class_names() if name not in ("N/A", "__background__"))
 
@@ -106,7 +106,7 @@ def imagenet_index(name: str) -> int:
         raise ValueError(f"name {name!r} is not an ImageNet-1k class name") from None
 
 
-def _group_indices(groups: Union[Mapping[str, Sequence[int]], Sequence[Sequence[int]], None]) -> List[List[int]]:
+def _group_indices(groups: Mapping[str, Sequence[int]] | Sequence[Sequence[int]] | None) -> list[list[int]]:
     if groups is None:
         groups = PASCAL3D_TO_IMAGENET
     if isinstance(groups, Mapping):
@@ -123,7 +123,7 @@ def _group_indices(groups: Union[Mapping[str, Sequence[int]], Sequence[Sequence[
 
 
 def group_logits(
-    logits: Tensor, groups: Union[Mapping[str, Sequence[int]], Sequence[Sequence[int]], None] = None
+    logits: Tensor, groups: Mapping[str, Sequence[int]] | Sequence[Sequence[int]] | None = None
 ) -> Tensor:
     """Log-sum-exp of each group's ImageNet logits: a logit for "any class of the group" (differentiable).
 
@@ -151,7 +151,7 @@ def group_logits(
 
 
 def group_scores(
-    logits: Tensor, groups: Union[Mapping[str, Sequence[int]], Sequence[Sequence[int]], None] = None
+    logits: Tensor, groups: Mapping[str, Sequence[int]] | Sequence[Sequence[int]] | None = None
 ) -> Tensor:
     """Softmax probability mass of each group, ``sum_{i in group} softmax(logits)_i`` (differentiable).
 
@@ -165,7 +165,7 @@ def group_scores(
     return torch.exp(group_logits(logits, groups) - torch.logsumexp(logits, dim=1, keepdim=True))
 
 
-def classify_pascal(logits: Tensor) -> Union[Optional[str], List[Optional[str]]]:
+def classify_pascal(logits: Tensor) -> str | None | list[str | None]:
     """The PASCAL3D+ class whose ImageNet group holds the top-1 label, or ``None`` when no group does.
 
     Args:

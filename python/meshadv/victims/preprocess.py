@@ -12,8 +12,8 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence, Tuple, Union
 
 import numpy as np
 import torch
@@ -21,11 +21,11 @@ from torch import Tensor, nn
 
 from meshadv.victims.base import check_images
 
-__all__ = ["Preprocess", "IMAGENET_MEAN", "IMAGENET_STD", "image_to_tensor", "load_image", "center_crop"]
+__all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "Preprocess", "center_crop", "image_to_tensor", "load_image"]
 
 #: torchvision's ImageNet normalisation (applied to [0, 1] images).
-IMAGENET_MEAN: Tuple[float, float, float] = (0.485, 0.456, 0.406)
-IMAGENET_STD: Tuple[float, float, float] = (0.229, 0.224, 0.225)
+IMAGENET_MEAN: tuple[float, float, float] = (0.485, 0.456, 0.406)
+IMAGENET_STD: tuple[float, float, float] = (0.229, 0.224, 0.225)
 
 
 class Preprocess(nn.Module):
@@ -44,7 +44,7 @@ class Preprocess(nn.Module):
         ValueError: ``size`` not two positive integers, ``mean``/``std`` not three values, or a non-positive ``std``.
     """
 
-    def __init__(self, size: Tuple[int, int], mean: Sequence[float], std: Sequence[float]) -> None:
+    def __init__(self, size: tuple[int, int], mean: Sequence[float], std: Sequence[float]) -> None:
         super().__init__()
         if len(size) != 2 or min(int(size[0]), int(size[1])) < 1:
             raise ValueError(f"size must be two positive integers (H, W), got {size}")
@@ -53,7 +53,9 @@ class Preprocess(nn.Module):
         if min(std) <= 0:
             raise ValueError(f"std must be positive, got {tuple(std)}")
         self.size = (int(size[0]), int(size[1]))
-        self.register_buffer("mean", torch.tensor(mean, dtype=torch.float32).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer(
+            "mean", torch.tensor(mean, dtype=torch.float32).view(1, 3, 1, 1), persistent=False
+        )
         self.register_buffer("std", torch.tensor(std, dtype=torch.float32).view(1, 3, 1, 1), persistent=False)
 
     def forward(self, images: Tensor) -> Tensor:
@@ -67,7 +69,7 @@ class Preprocess(nn.Module):
         return (images - self.mean.to(images.dtype)) / self.std.to(images.dtype)
 
 
-def image_to_tensor(image: Union[np.ndarray, "object"]) -> Tensor:
+def image_to_tensor(image: np.ndarray | object) -> Tensor:
     """Convert an ``(H, W, 3)`` uint8 / float array or a PIL image to a ``(1, 3, H, W)`` float tensor in ``[0, 1]``.
 
     Args:
@@ -88,7 +90,7 @@ def image_to_tensor(image: Union[np.ndarray, "object"]) -> Tensor:
     return torch.from_numpy(np.ascontiguousarray(array, dtype=np.float32)).permute(2, 0, 1).unsqueeze(0)
 
 
-def load_image(path: Union[str, Path]) -> Tensor:
+def load_image(path: str | Path) -> Tensor:
     """Read an image file (any format Pillow reads) as a ``(1, 3, H, W)`` float tensor in ``[0, 1]``.
 
     Args:
@@ -122,7 +124,7 @@ def center_crop(images: Tensor, fraction: float = 0.875) -> Tensor:
     if not 0.0 < fraction <= 1.0:
         raise ValueError(f"fraction must be in (0, 1], got {fraction}")
     height, width = images.shape[-2:]
-    side = max(1, int(round(fraction * min(height, width))))
+    side = max(1, round(fraction * min(height, width)))
     top = (height - side) // 2
     left = (width - side) // 2
     return images[..., top : top + side, left : left + side]

@@ -22,25 +22,25 @@ Example:
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Union
+from typing import Callable, Optional, Union
 
 import torch
 
 from meshadv.victims.base import Victim
 
-__all__ = ["load_victim", "available_victims"]
+__all__ = ["available_victims", "load_victim"]
 
 PathLike = Union[str, Path]
 _Loader = Callable[[Optional[PathLike], Optional[PathLike], Union[str, torch.device]], Victim]
 
 
-def _no_cfg(name: str, cfg: Optional[PathLike]) -> None:
+def _no_cfg(name: str, cfg: PathLike | None) -> None:
     if cfg is not None:
         raise ValueError(f"cfg is only used by yolov3, not by {name}")
 
 
 def _efficientnet(name: str) -> _Loader:
-    def load(weights: Optional[PathLike], cfg: Optional[PathLike], device: Union[str, torch.device]) -> Victim:
+    def load(weights: PathLike | None, cfg: PathLike | None, device: str | torch.device) -> Victim:
         _no_cfg(name, cfg)
         from meshadv.victims.efficientnet_lite import EfficientNetLiteVictim
 
@@ -50,7 +50,7 @@ def _efficientnet(name: str) -> _Loader:
 
 
 def _torchvision(name: str) -> _Loader:
-    def load(weights: Optional[PathLike], cfg: Optional[PathLike], device: Union[str, torch.device]) -> Victim:
+    def load(weights: PathLike | None, cfg: PathLike | None, device: str | torch.device) -> Victim:
         _no_cfg(name, cfg)
         from meshadv.victims.torchvision_models import TorchvisionVictim
 
@@ -59,7 +59,7 @@ def _torchvision(name: str) -> _Loader:
     return load
 
 
-def _ssd(weights: Optional[PathLike], cfg: Optional[PathLike], device: Union[str, torch.device]) -> Victim:
+def _ssd(weights: PathLike | None, cfg: PathLike | None, device: str | torch.device) -> Victim:
     _no_cfg("ssd_mobilenet_v2_coco", cfg)
     try:
         from meshadv.victims.ssd_mobilenet import SSDMobileNetV2Victim
@@ -67,14 +67,10 @@ def _ssd(weights: Optional[PathLike], cfg: Optional[PathLike], device: Union[str
         if exc.name is not None and exc.name.startswith("meshadv"):
             raise ImportError("ssd_mobilenet_v2_coco is not available in this build of meshadv") from exc
         raise
-    if weights is None:
-        victim = SSDMobileNetV2Victim.from_package()
-    else:
-        victim = SSDMobileNetV2Victim.from_package(weights)
-    return victim.to(device)
+    return SSDMobileNetV2Victim.from_package(weights, device=device)
 
 
-def _yolov3(weights: Optional[PathLike], cfg: Optional[PathLike], device: Union[str, torch.device]) -> Victim:
+def _yolov3(weights: PathLike | None, cfg: PathLike | None, device: str | torch.device) -> Victim:
     from meshadv.victims.yolov3 import YOLOv3Victim
 
     if weights is None or cfg is None:
@@ -85,7 +81,7 @@ def _yolov3(weights: Optional[PathLike], cfg: Optional[PathLike], device: Union[
     return YOLOv3Victim.from_darknet(cfg, weights, device=device)
 
 
-_REGISTRY: Dict[str, _Loader] = {
+_REGISTRY: dict[str, _Loader] = {
     "efficientnet_lite0": _efficientnet("efficientnet_lite0"),
     "efficientnet_lite2": _efficientnet("efficientnet_lite2"),
     "ssd_mobilenet_v2_coco": _ssd,
@@ -95,7 +91,7 @@ _REGISTRY: Dict[str, _Loader] = {
 }
 
 
-def available_victims() -> List[str]:
+def available_victims() -> list[str]:
     """Names accepted by :func:`load_victim`, in registry order."""
     return list(_REGISTRY)
 
@@ -103,9 +99,9 @@ def available_victims() -> List[str]:
 def load_victim(
     name: str,
     *,
-    weights: Optional[PathLike] = None,
-    cfg: Optional[PathLike] = None,
-    device: Union[str, torch.device] = "cpu",
+    weights: PathLike | None = None,
+    cfg: PathLike | None = None,
+    device: str | torch.device = "cpu",
 ) -> Victim:
     """Build a frozen, eval-mode victim by name.
 

@@ -11,8 +11,8 @@ does the same conversion, so it is turned off here and the normalisation is done
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Dict, Optional, Sequence, Tuple, Union
 
 import torch
 from torch import Tensor, nn
@@ -20,10 +20,10 @@ from torch import Tensor, nn
 from meshadv.victims.base import ClassifierVictim, freeze
 from meshadv.victims.preprocess import IMAGENET_MEAN, IMAGENET_STD, Preprocess
 
-__all__ = ["TorchvisionVictim", "TORCHVISION_SPECS", "build_torchvision_model", "read_state_dict"]
+__all__ = ["TORCHVISION_SPECS", "TorchvisionVictim", "build_torchvision_model", "read_state_dict"]
 
 #: name -> (input size, mean, std).
-TORCHVISION_SPECS: Dict[str, Tuple[int, Tuple[float, ...], Tuple[float, ...]]] = {
+TORCHVISION_SPECS: dict[str, tuple[int, tuple[float, ...], tuple[float, ...]]] = {
     "densenet121": (224, IMAGENET_MEAN, IMAGENET_STD),
     "inception_v3": (299, (0.5, 0.5, 0.5), (0.5, 0.5, 0.5)),
 }
@@ -33,7 +33,7 @@ _DENSENET_OLD_KEY = re.compile(
 )
 
 
-def read_state_dict(path: Union[str, Path]) -> Dict[str, Tensor]:
+def read_state_dict(path: str | Path) -> dict[str, Tensor]:
     """Read a state_dict saved with ``torch.save``; unwraps ``{"state_dict": ...}`` / ``{"model": ...}`` and
     strips a ``module.`` prefix (DataParallel).
 
@@ -49,7 +49,7 @@ def read_state_dict(path: Union[str, Path]) -> Dict[str, Tensor]:
         raise FileNotFoundError(f"weights file {path} does not exist")
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - torch raises several types for non-state-dict files
+    except Exception as exc:
         raise ValueError(
             f"weights {path} is not a state_dict saved with torch.save(model.state_dict(), path): {exc}"
         ) from exc
@@ -63,7 +63,7 @@ def read_state_dict(path: Union[str, Path]) -> Dict[str, Tensor]:
     return state
 
 
-def build_torchvision_model(name: str, state: Optional[Dict[str, Tensor]] = None) -> nn.Module:
+def build_torchvision_model(name: str, state: dict[str, Tensor] | None = None) -> nn.Module:
     """Build the torchvision architecture ``name`` (random weights), matching ``state``'s layout when given.
 
     Args:
@@ -110,10 +110,10 @@ class TorchvisionVictim(ClassifierVictim):
     def __init__(
         self,
         name: str,
-        weights: Optional[Union[str, Path]] = None,
-        device: Union[str, torch.device] = "cpu",
-        mean: Optional[Sequence[float]] = None,
-        std: Optional[Sequence[float]] = None,
+        weights: str | Path | None = None,
+        device: str | torch.device = "cpu",
+        mean: Sequence[float] | None = None,
+        std: Sequence[float] | None = None,
     ) -> None:
         if name not in TORCHVISION_SPECS:
             raise ValueError(f"name must be one of {sorted(TORCHVISION_SPECS)}, got {name!r}")
@@ -137,7 +137,9 @@ class TorchvisionVictim(ClassifierVictim):
         try:
             self.net.load_state_dict(state, strict=True)
         except RuntimeError as exc:
-            raise ValueError(f"weights {weights} do not match the torchvision {name} architecture: {exc}") from exc
+            raise ValueError(
+                f"weights {weights} do not match the torchvision {name} architecture: {exc}"
+            ) from exc
         freeze(self)
         self.to(device)
 

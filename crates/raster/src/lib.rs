@@ -1,0 +1,27 @@
+//! meshadv-raster: the pure Rust core of meshadv's differentiable mesh renderer.
+//!
+//! * [`setup`]: per-face setup (edge functions, area, bounding box, cull and degenerate flags).
+//! * [`raster`]: forward rasterization of screen-space triangles with per-face attributes.
+//! * [`backward`]: exact attribute gradients and the Neural Mesh Renderer's approximate vertex gradients.
+//! * [`camera`], [`shading`], [`pipeline`]: NMR camera conventions, Lambert shading and the full forward render.
+//! * [`raycast`]: BVH ray cast (obvhs), the rasterizer's oracle and an alternative for very large meshes.
+//!
+//! Conventions are those of `docs/ARCHITECTURE.md` (Neural Mesh Renderer's). Every function validates its input and
+//! returns a [`RasterError`] rather than panicking; results are bit-identical for any thread count.
+
+pub mod backward;
+pub mod camera;
+pub mod error;
+pub mod input;
+pub mod parallel;
+pub mod pipeline;
+pub mod raster;
+pub mod raycast;
+pub mod setup;
+pub mod shading;
+
+pub use backward::{rasterize_backward, BackwardInputs, Gradients};
+pub use error::{ErrorKind, RasterError, Result};
+pub use input::{FaceAttrs, Projection, RasterParams, ScreenMesh, MAX_IMAGE_SIZE};
+pub use parallel::with_threads;
+pub use raster::{rasterize, rasterize_fragments, Fragments, RasterOutput};

@@ -1,0 +1,282 @@
+"""The result of a mesh attack and its atomic on-disk form.
+
+:class:`AttackResult` holds one adversarial mesh per target, the success of every (target, view) pair measured on the
+final meshes re-rendered from scratch, the distances, final scores, loss history, step count and wall time.
+:meth:`AttackResult.save` writes::
+
+    out_dir/
+      adversarial.ply, adversarial.obj (+ .mtl)       one target; several: adversarial_t{i}.ply / .obj
+      before_v{j}.png                                 pristine renders of the victim views
+      after_v{j}.png                                  adversarial renders (several targets: after_t{i}_v{j}.png)
+      result.json                                     the record (written last)
+
+Every file is first written into a private temporary folder inside ``out_dir`` and then moved into place with
+``os.replace`` (atomic on one file system); ``result.json`` is moved last, so a folder with a ``result.json`` always
+holds a complete result. :func:`load_result_record` reads the record back.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import torch
+from torch import Tensor
+
+__all__ = ["AttackResult", "load_result_record", "save_png", "write_json_atomic", "RESULT_FILE"]
+
+#: Name of the JSON record inside a result folder.
+RESULT_FILE = "result.json"
+
+
+def _json_float(value: float) -> Optional[float]:
+    """A float for JSON (``None`` for nan / inf)."""
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def save_png(image: Tensor, path: Union[str, Path]) -> None:
+    """Write a ``(3, H, W)`` image in ``[0, 1]`` as an 8-bit PNG (not atomic; see :meth:`AttackResult.save`).
+
+    Raises:
+        ValueError: wrong shape.
+    """
+    from PIL import Image
+
+    if image.dim() != 3 or image.shape[0] != 3:
+        raise ValueError(f"image must have shape (3, H, W), got {tuple(image.shape)}")
+    arr = (image.detach().float().clamp(0, 1) * 255).round().to(torch.uint8).permute(1, 2, 0).cpu().numpy()
+    Image.fromarray(np.ascontiguousarray(arr)).save(str(path))
+
+
+def write_json_atomic(record: Dict[str, Any], path: Union[str, Path]) -> None:
+    """Write ``record`` as JSON to ``path`` atomically (temporary file in the same folder, then ``os.replace``)."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=str(path.parent))
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(record, fh, indent=2)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def load_result_record(out_dir: Union[str, Path]) -> Dict[str, Any]:
+    """Read the ``result.json`` record of a saved result.
+
+    Raises:
+        FileNotFoundError: no record in ``out_dir``.
+    """
+    path = Path(out_dir) / RESULT_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"out_dir {out_dir} holds no {RESULT_FILE}")
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+@dataclass(frozen=True)
+class AttackResult:
+    """Outcome of a shape or texture attack on ``T`` targets over ``V`` victim views.
+
+    Attributes:
+        original: the pristine mesh.
+        adversarial: ``T`` adversarial meshes (the least-distorted successful one per target, else the best attempt).
+        perturbation: ``"shape"`` or ``"texture"``.
+        criteria: JSON records of the ``T`` bound criteria.
+        success: bool ``(T, V)``: adversarial on each victim view, re-rendered from the final mesh.
+        scores: ``(T, V)`` criterion score of each final render (target probability / best detection score).
+        original_scores: ``(T, V)`` the same score on the pristine renders.
+        margins: ``(T, V)`` criterion margins of the final renders (positive = adversarial).
+        top1: int64 ``(T, V)`` top-1 classes of the final renders (classifiers) or ``None``.
+        original_top1: int64 ``(V,)`` top-1 classes of the pristine renders (classifiers) or ``None``.
+        eval_success: bool ``(T, V_eval)`` on the held-out views, or ``None``.
+        eval_scores: ``(T, V_eval)`` or ``None``.
+        distances: one dict per target: ``laplacian``, ``color_rmse``, ``max_displacement``, ``mean_displacement``.
+        lambdas: the ``lambda`` that produced each kept mesh (``nan`` when no round succeeded).
+        loss_history: one JSON-able dict per optimiser step (round, step, per-target loss, adversarial and
+            perceptual terms, distance, worst-view margin; ``None`` for targets no longer optimised).
+        steps: total optimiser steps over all rounds.
+        steps_to_success: per target, the total step count at which the criterion first held (or ``None``).
+        time_to_success: per target, seconds from the start until then (or ``None``).
+        wall_time: seconds for the whole attack.
+        interrupted: True when the attack was stopped by Ctrl-C (the result is the best found so far).
+        success_fraction: fraction of views that must be adversarial for a target to count as attacked.
+        original_images: ``(V, 3, H, W)`` pristine renders.
+        images: ``(T, V, 3, H, W)`` final adversarial renders.
+        view_records: JSON records of the victim views; ``eval_view_records`` of the held-out views.
+        config: the attack's hyper-parameters.
+        victim: the victim's name.
+        class_names: the victim's class names (to label ``top1``), may be empty.
+    """
+
+    original: Any
+    adversarial: Tuple[Any, ...]
+    perturbation: str
+    criteria: Tuple[Dict[str, Any], ...]
+    success: Tensor
+    scores: Tensor
+    original_scores: Tensor
+    margins: Tensor
+    top1: Optional[Tensor]
+    original_top1: Optional[Tensor]
+    eval_success: Optional[Tensor]
+    eval_scores: Optional[Tensor]
+    distances: Tuple[Dict[str, float], ...]
+    lambdas: Tuple[float, ...]
+    loss_history: Tuple[Dict[str, Any], ...]
+    steps: int
+    steps_to_success: Tuple[Optional[int], ...]
+    time_to_success: Tuple[Optional[float], ...]
+    wall_time: float
+    interrupted: bool
+    success_fraction: float
+    original_images: Tensor
+    images: Tensor
+    view_records: Tuple[Dict[str, Any], ...]
+    eval_view_records: Optional[Tuple[Dict[str, Any], ...]]
+    config: Dict[str, Any]
+    victim: str
+    class_names: Tuple[str, ...] = field(default=(), repr=False)
+
+    @property
+    def num_targets(self) -> int:
+        """Number of targets ``T``."""
+        return len(self.adversarial)
+
+    @property
+    def mesh(self) -> Any:
+        """The adversarial mesh of the first (often only) target."""
+        return self.adversarial[0]
+
+    @property
+    def success_rate(self) -> Tensor:
+        """Fraction of victim views that are adversarial, per target ``(T,)``."""
+        return self.success.float().mean(dim=1)
+
+    @property
+    def succeeded(self) -> Tensor:
+        """bool ``(T,)``: the target holds on at least ``success_fraction`` of the victim views."""
+        return self.success_rate >= self.success_fraction - 1e-9
+
+    def _name(self, idx: int) -> str:
+        return self.class_names[idx] if 0 <= idx < len(self.class_names) else str(idx)
+
+    def summary(self) -> str:
+        """A few human-readable lines: per target, success, distances and top-1 labels."""
+        lines = [f"{self.perturbation} attack on {self.victim}: {self.steps} steps in {self.wall_time:.1f} s"
+                 + (" (interrupted)" if self.interrupted else "")]
+        for t, crit in enumerate(self.criteria):
+            d = self.distances[t]
+            status = "SUCCESS" if bool(self.succeeded[t]) else "failed"
+            line = (f"  {crit.get('label', '?')}: {status} on {int(self.success[t].sum())}/{self.success.shape[1]} "
+                    f"views; laplacian={d.get('laplacian', float('nan')):.4g} rmse={d['color_rmse']:.4g} "
+                    f"max_disp={d['max_displacement']:.4g}")
+            if self.eval_success is not None:
+                line += f"; held-out {int(self.eval_success[t].sum())}/{self.eval_success.shape[1]}"
+            lines.append(line)
+            if self.top1 is not None:
+                lines.append("    top-1: " + ", ".join(self._name(int(i)) for i in self.top1[t].tolist()))
+        return "\n".join(lines)
+
+    def mesh_filenames(self, target: int) -> Tuple[str, str]:
+        """File names ``(ply, obj)`` of target ``target``'s adversarial mesh inside a saved result."""
+        stem = "adversarial" if self.num_targets == 1 else f"adversarial_t{target}"
+        return f"{stem}.ply", f"{stem}.obj"
+
+    def to_record(self) -> Dict[str, Any]:
+        """The JSON-able record written as ``result.json`` (no images, no mesh data)."""
+        def names(t: Optional[Tensor]) -> Optional[List]:
+            if t is None:
+                return None
+            return [[self._name(int(i)) for i in row] for row in t.reshape(-1, t.shape[-1]).tolist()]
+
+        return {
+            "perturbation": self.perturbation,
+            "victim": self.victim,
+            "criteria": list(self.criteria),
+            "succeeded": [bool(s) for s in self.succeeded.tolist()],
+            "success": self.success.tolist(),
+            "success_rate": self.success_rate.tolist(),
+            "success_fraction": self.success_fraction,
+            "scores": self.scores.tolist(),
+            "original_scores": self.original_scores.tolist(),
+            "margins": self.margins.tolist(),
+            "top1": None if self.top1 is None else self.top1.tolist(),
+            "top1_names": names(self.top1),
+            "original_top1": None if self.original_top1 is None else self.original_top1.tolist(),
+            "original_top1_names": None if self.original_top1 is None else names(self.original_top1.unsqueeze(0))[0],
+            "eval_success": None if self.eval_success is None else self.eval_success.tolist(),
+            "eval_scores": None if self.eval_scores is None else self.eval_scores.tolist(),
+            "distances": [{k: _json_float(v) for k, v in d.items()} for d in self.distances],
+            "lambdas": [_json_float(v) for v in self.lambdas],
+            "steps": self.steps,
+            "steps_to_success": list(self.steps_to_success),
+            "time_to_success": [None if v is None else float(v) for v in self.time_to_success],
+            "wall_time": self.wall_time,
+            "interrupted": self.interrupted,
+            "views": list(self.view_records),
+            "eval_views": None if self.eval_view_records is None else list(self.eval_view_records),
+            "config": self.config,
+            "meshes": [list(self.mesh_filenames(t)) for t in range(self.num_targets)],
+            "num_vertices": int(self.original.vertices.shape[0]),
+            "num_faces": int(self.original.faces.shape[0]),
+            "loss_history": list(self.loss_history),
+        }
+
+    def save(self, out_dir: Union[str, Path], *, images: bool = True) -> Path:
+        """Write meshes (PLY and OBJ), PNG renders and ``result.json`` into ``out_dir`` atomically.
+
+        Args:
+            out_dir: folder to write into (created if needed; existing files of the same names are replaced).
+            images: also write the before / after PNG renders.
+
+        Returns:
+            The path of ``result.json``.
+
+        Raises:
+            ValueError: ``out_dir`` exists and is not a folder.
+        """
+        from meshadv.mesh import save_mesh
+
+        out = Path(out_dir)
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"out_dir {out} exists and is not a folder")
+        out.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".staging-", dir=str(out)))
+        try:
+            written: List[str] = []
+            for t, mesh in enumerate(self.adversarial):
+                for name in self.mesh_filenames(t):
+                    save_mesh(mesh.detach(), staging / name)
+            if images:
+                for v in range(self.original_images.shape[0]):
+                    save_png(self.original_images[v], staging / f"before_v{v}.png")
+                    for t in range(self.num_targets):
+                        name = f"after_v{v}.png" if self.num_targets == 1 else f"after_t{t}_v{v}.png"
+                        save_png(self.images[t, v], staging / name)
+            for path in sorted(staging.iterdir()):
+                os.replace(path, out / path.name)
+                written.append(path.name)
+            record = self.to_record()
+            record["files"] = sorted(written) + [RESULT_FILE]
+            write_json_atomic(record, out / RESULT_FILE)
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+        return out / RESULT_FILE
+
+
+def stack_or_none(values: Sequence[Optional[Tensor]]) -> Optional[Tensor]:
+    """Stack tensors, or return ``None`` when any is ``None``."""
+    if any(v is None for v in values):
+        return None
+    return torch.stack(list(values))  # type: ignore[arg-type]

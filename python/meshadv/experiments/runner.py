@@ -1,0 +1,138 @@
+"""The resumable sweep runner, generic over the job function.
+
+:func:`run_sweep` inserts the jobs into the results database (existing ids are kept), re-queues the ``running`` rows a
+killed run left behind, then keeps ``backend.capacity`` jobs in flight until every job is done or has failed
+``max_attempts`` times. The driver is the only writer: each outcome is written in one transaction as it arrives, after
+the job has put its artefacts in place. Kill the driver at any moment and run it again: finished jobs are skipped,
+interrupted ones run again, nothing is recorded twice.
+
+Example:
+    >>> from meshadv.experiments import ResultStore, SerialBackend, run_sweep
+    >>> store = ResultStore("/tmp/results.db")                                   # doctest: +SKIP
+    >>> summary = run_sweep(store, jobs, "meshadv.experiments.jobs:run_attack_job",
+    ...                     out_root="runs/x", backend=SerialBackend())          # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Dict, Iterable, Optional, Union
+
+from meshadv.experiments.backends import Backend, LocalBackend
+from meshadv.experiments.progress import Progress
+from meshadv.experiments.spec import JobFn, job_ref
+from meshadv.experiments.store import ResultStore, driver_lock
+
+__all__ = ["SweepSummary", "run_sweep", "job_out_dir"]
+
+
+@dataclass(frozen=True)
+class SweepSummary:
+    """Counts at the end of :func:`run_sweep`.
+
+    Attributes:
+        total: jobs in the database.
+        done: finished jobs; successes: finished jobs whose record says ``success``.
+        failed: jobs that exhausted their attempts (``state == 'failed'``).
+        ran: attempts started by this call; skipped: jobs already done when it started; requeued: ``running``
+            rows of a killed run put back to ``pending``.
+    """
+
+    total: int
+    done: int
+    successes: int
+    failed: int
+    ran: int
+    skipped: int
+    requeued: int
+
+
+def job_out_dir(out_root: Union[str, Path], job_id: str) -> Path:
+    """Artefact folder of a job: ``<out_root>/jobs/<first 2 hex digits>/<job_id>``."""
+    return Path(out_root) / "jobs" / job_id[:2] / job_id
+
+
+def run_sweep(
+    store: ResultStore,
+    jobs: Iterable[Dict[str, Any]],
+    job: Union[str, JobFn],
+    *,
+    out_root: Union[str, Path],
+    backend: Optional[Backend] = None,
+    max_attempts: int = 2,
+    progress: bool = True,
+    on_outcome: Optional[Callable[[str, bool], None]] = None,
+) -> SweepSummary:
+    """Run every job of a sweep that is not done yet, resumably.
+
+    Args:
+        store: the results database.
+        jobs: job specs (JSON-able dicts); ids are hashes of their canonical form.
+        job: the job function (module-level) or its reference ``"package.module:function"``; called as
+            ``job(spec, out_dir) -> record`` in a worker.
+        out_root: root folder of the job artefact folders (:func:`job_out_dir`).
+        backend: where jobs run; default a :class:`LocalBackend` over every core (closed at the end).
+        max_attempts: attempts per job, >= 1 (a crash or exception counts one; a killed run's attempt does not).
+        progress: show a progress bar (jobs done, successes, failures, ETA) on stderr.
+        on_outcome: called in the driver after each attempt is recorded, with the job id and whether it succeeded.
+
+    Returns:
+        The :class:`SweepSummary`.
+
+    Raises:
+        ValueError: ``max_attempts < 1`` or a bad job reference.
+        RuntimeError: another driver holds this database.
+    """
+    if max_attempts < 1:
+        raise ValueError(f"max_attempts must be >= 1, got {max_attempts}")
+    ref = job_ref(job)
+    own_backend = backend is None
+    with driver_lock(store.path):
+        store.add_jobs(jobs)
+        requeued = store.requeue_running()
+        skipped = store.counts()["done"]
+        be = backend if backend is not None else LocalBackend()
+        queue = store.runnable(max_attempts)
+        counts = store.counts()
+        bar = Progress(total=counts["total"], done=counts["done"], successes=counts["successes"],
+                       failed=0, enabled=progress)
+        in_flight: Dict[Any, str] = {}
+        ran = 0
+        try:
+            while queue or in_flight:
+                while queue and len(in_flight) < be.capacity:
+                    jid = queue.pop(0)
+                    store.mark_running(jid)
+                    out_dir = job_out_dir(out_root, jid)
+                    handle = be.submit(ref, jid, store.spec(jid), os.fspath(out_dir))
+                    in_flight[handle] = jid
+                    ran += 1
+                for handle, outcome in be.wait(list(in_flight)):
+                    jid = in_flight.pop(handle)
+                    if outcome.ok and outcome.record is not None:
+                        store.mark_done(jid, outcome.record, os.fspath(job_out_dir(out_root, jid)))
+                        bar.update(done=1, successes=int(bool(outcome.record.get("success"))))
+                    else:
+                        store.mark_failed(jid, outcome.error or "unknown error")
+                        if store.attempts(jid) < max_attempts:
+                            queue.append(jid)
+                        else:
+                            bar.update(failed=1)
+                    if on_outcome is not None:
+                        on_outcome(jid, outcome.ok)
+        finally:
+            bar.close()
+            if own_backend:
+                be.close()
+        counts = store.counts()
+    return SweepSummary(
+        total=counts["total"],
+        done=counts["done"],
+        successes=counts["successes"],
+        failed=counts["failed"],
+        ran=ran,
+        skipped=skipped,
+        requeued=requeued,
+    )

@@ -1,0 +1,58 @@
+"""Draw detections on an image and save it as PNG (atomically)."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Union
+
+import numpy as np
+import torch
+from PIL import Image, ImageDraw
+
+from meshadv.victims.base import Detections
+
+_PALETTE = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240)]
+
+
+def to_pil(image: torch.Tensor) -> Image.Image:
+    """Convert a (3, H, W) or (1, 3, H, W) tensor in [0, 1] to a PIL RGB image."""
+    if image.dim() == 4:
+        if image.shape[0] != 1:
+            raise ValueError(f"image must hold a single image, got batch {image.shape[0]}")
+        image = image[0]
+    if image.dim() != 3 or image.shape[0] != 3:
+        raise ValueError(f"image must have shape (3, H, W), got {tuple(image.shape)}")
+    array = (image.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255.0 + 0.5).astype(np.uint8)
+    return Image.fromarray(array)
+
+
+def draw_detections(image: torch.Tensor, detections: Detections) -> Image.Image:
+    """Return ``image`` as a PIL image with each detection's box and ``label score`` drawn on it."""
+    pil = to_pil(image)
+    draw = ImageDraw.Draw(pil)
+    width, height = pil.size
+    for k, (box, score, label) in enumerate(
+        zip(detections.boxes.tolist(), detections.scores.tolist(), detections.names())
+    ):
+        color = _PALETTE[k % len(_PALETTE)]
+        x1, y1, x2, y2 = box[0] * width, box[1] * height, box[2] * width, box[3] * height
+        draw.rectangle([x1, y1, x2, y2], outline=color, width=2)
+        draw.text((x1 + 3, y1 + 2), f"{label} {score:.2f}", fill=color)
+    return pil
+
+
+def save_png_atomic(image: Image.Image, path: Union[str, Path]) -> Path:
+    """Write ``image`` to ``path`` as PNG through a temporary file and an atomic rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".png.tmp")
+    os.close(fd)
+    try:
+        image.save(tmp, format="PNG")
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path

@@ -1,0 +1,38 @@
+"""Transfer of adversarial meshes to Mitsuba 3, a photorealistic, non-differentiable renderer.
+
+* :mod:`~meshadv.transfer.variants` picks the best working Mitsuba variant (probed in a child process).
+* :mod:`~meshadv.transfer.scene` converts meshes, cameras and lights into Mitsuba scenes (optionally merged into a
+  larger scene file).
+* :mod:`~meshadv.transfer.render` renders in an isolated child process.
+* :mod:`~meshadv.transfer.estimate` estimates camera and lights from an image (needs torch and meshadv.render).
+* :mod:`~meshadv.transfer.pipeline` runs the controlled and black-box transfer evaluations.
+
+Importing this package does not import torch or mitsuba.
+"""
+
+from meshadv.transfer.render import MitsubaImage, MitsubaRenderError, render_mask, render_scene, render_scenes
+from meshadv.transfer.scene import (
+    MeshObject,
+    MitsubaCamera,
+    MitsubaLights,
+    SceneSpec,
+    outdoor_environment,
+    scene_spec,
+)
+from meshadv.transfer.variants import best_variant, probe_variant
+
+__all__ = [
+    "MeshObject",
+    "MitsubaCamera",
+    "MitsubaImage",
+    "MitsubaLights",
+    "MitsubaRenderError",
+    "SceneSpec",
+    "best_variant",
+    "outdoor_environment",
+    "probe_variant",
+    "render_mask",
+    "render_scene",
+    "render_scenes",
+    "scene_spec",
+]

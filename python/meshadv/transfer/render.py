@@ -1,0 +1,151 @@
+"""Render :class:`~meshadv.transfer.scene.SceneSpec` objects with Mitsuba 3 in an isolated child process.
+
+Mitsuba can abort the whole process (e.g. ``llvm_ad_rgb`` with a too-old LLVM), so rendering never happens in the
+caller's process: the specs are pickled to a child (``python -m meshadv.transfer._worker``), which writes the images
+to a file. A crash, a non-zero exit or a timeout becomes a :class:`MitsubaRenderError` in the caller; when the failing
+variant is not ``scalar_rgb`` the batch is retried once with ``scalar_rgb``.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+import numpy as np
+
+from meshadv.transfer.scene import MeshObject, MitsubaCamera, SceneSpec
+from meshadv.transfer.variants import best_variant
+
+#: The variant used when the preferred one fails.
+FALLBACK_VARIANT = "scalar_rgb"
+
+_PACKAGE_PARENT = str(Path(__file__).resolve().parents[2])
+
+
+class MitsubaRenderError(RuntimeError):
+    """A Mitsuba render failed, crashed or timed out (the caller's process is unaffected)."""
+
+
+@dataclass(frozen=True)
+class MitsubaImage:
+    """One Mitsuba render.
+
+    Attributes:
+        image: (H, W, 3) float32 linear RGB in [0, 1] (composited over the background when one was given).
+        alpha: (H, W) float32 coverage of surfaces in [0, 1].
+        variant: the Mitsuba variant that rendered it.
+    """
+
+    image: np.ndarray
+    alpha: np.ndarray
+    variant: str
+
+    def chw(self) -> np.ndarray:
+        """The image as (3, H, W), the layout of meshadv's ``RenderOutput.image[b]``."""
+        return np.ascontiguousarray(self.image.transpose(2, 0, 1))
+
+
+def _run_worker(specs: Sequence[SceneSpec], variant: str, timeout: float) -> list[MitsubaImage]:
+    with tempfile.TemporaryDirectory(prefix="meshadv_mitsuba_") as tmp:
+        in_path = os.path.join(tmp, "specs.pkl")
+        out_path = os.path.join(tmp, "images.npz")
+        with open(in_path, "wb") as fh:
+            pickle.dump(list(specs), fh, protocol=pickle.HIGHEST_PROTOCOL)
+        env = dict(os.environ)
+        env["PYTHONPATH"] = _PACKAGE_PARENT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        cmd = [sys.executable, "-m", "meshadv.transfer._worker", in_path, out_path, variant]
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+        except subprocess.TimeoutExpired as exc:
+            raise MitsubaRenderError(f"Mitsuba ({variant}) timed out after {timeout:.0f} s") from exc
+        if proc.returncode != 0 or not os.path.exists(out_path):
+            how = f"was killed by signal {-proc.returncode}" if proc.returncode < 0 else f"exited with {proc.returncode}"
+            tail = "\n".join(proc.stderr.strip().splitlines()[-15:])
+            raise MitsubaRenderError(f"Mitsuba ({variant}) {how}:\n{tail}")
+        with np.load(out_path) as data:
+            return [
+                MitsubaImage(data[f"image_{i}"].copy(), data[f"alpha_{i}"].copy(), variant) for i in range(len(specs))
+            ]
+
+
+def render_scenes(
+    specs: Sequence[SceneSpec],
+    *,
+    variant: Optional[str] = None,
+    timeout: float = 1800.0,
+    fallback: bool = True,
+) -> list[MitsubaImage]:
+    """Render a batch of scenes with Mitsuba in one child process.
+
+    Args:
+        specs: the scenes.
+        variant: Mitsuba variant; default :func:`~meshadv.transfer.variants.best_variant`.
+        timeout: seconds for the whole batch.
+        fallback: retry with ``scalar_rgb`` when another variant fails.
+
+    Returns:
+        One :class:`MitsubaImage` per spec, in order.
+
+    Raises:
+        ValueError: ``specs`` contains something other than a SceneSpec.
+        MitsubaRenderError: rendering failed (crash, error or timeout), after the fallback.
+
+    Example:
+        >>> img = render_scenes([scene_spec(mesh, record, image_size=64)])[0].image  # doctest: +SKIP
+    """
+    specs = list(specs)
+    for i, spec in enumerate(specs):
+        if not isinstance(spec, SceneSpec):
+            raise ValueError(f"specs[{i}] must be a SceneSpec, got {type(spec).__name__}")
+    if not specs:
+        return []
+    if timeout <= 0:
+        raise ValueError(f"timeout must be positive, got {timeout}")
+    chosen = variant or best_variant()
+    try:
+        return _run_worker(specs, chosen, timeout)
+    except MitsubaRenderError:
+        if not fallback or chosen == FALLBACK_VARIANT:
+            raise
+        return _run_worker(specs, FALLBACK_VARIANT, timeout)
+
+
+def render_scene(spec: SceneSpec, **kwargs: Any) -> MitsubaImage:
+    """Render one scene (see :func:`render_scenes` for the keyword arguments)."""
+    return render_scenes([spec], **kwargs)[0]
+
+
+def render_mask(
+    mesh: Any,
+    camera: MitsubaCamera,
+    image_size: Any = 224,
+    *,
+    spp: int = 1,
+    **kwargs: Any,
+) -> np.ndarray:
+    """Render the coverage mask of a mesh with Mitsuba.
+
+    With ``spp == 1`` one ray goes through each pixel centre, meshadv's coverage rule, so the mask is binary.
+
+    Args:
+        mesh: a ``meshadv.mesh.Mesh`` or :class:`MeshObject`.
+        camera: the camera.
+        image_size: int or (H, W).
+        spp: rays per pixel (> 1 gives fractional, anti-aliased coverage).
+        **kwargs: passed to :func:`render_scenes`.
+
+    Returns:
+        (H, W) float32 coverage in [0, 1].
+    """
+    obj = mesh if isinstance(mesh, MeshObject) else MeshObject.from_mesh(mesh)
+    spec = SceneSpec(objects=(obj,), camera=camera, image_size=image_size, spp=spp, mask=True, background=None)
+    return render_scene(spec, **kwargs).alpha
+
+
+__all__ = ["MitsubaImage", "MitsubaRenderError", "render_mask", "render_scene", "render_scenes", "FALLBACK_VARIANT"]
