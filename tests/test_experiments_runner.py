@@ -1,4 +1,4 @@
-"""The sweep runner: resumes after a kill without repeating or losing jobs, records crashes, retries, stays consistent."""
+"""The sweep runner: resumes after a kill without repeating or losing jobs, records crashes, retries."""
 
 from __future__ import annotations
 

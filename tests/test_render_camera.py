@@ -34,8 +34,12 @@ def test_spherical_eye_and_view_match_nmr(az: float, el: float) -> None:
     cam = Camera.spherical(torch.tensor(2.5, dtype=torch.float64), az, el)
     torch.testing.assert_close(cam.eye()[0], nmr_eye(2.5, az, el))
     pts = torch.randn(7, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
-    expected = nmr_look_at(pts, nmr_eye(2.5, az, el), torch.zeros(3, dtype=torch.float64),
-                           torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64))
+    expected = nmr_look_at(
+        pts,
+        nmr_eye(2.5, az, el),
+        torch.zeros(3, dtype=torch.float64),
+        torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64),
+    )
     torch.testing.assert_close(cam.world_to_view(pts)[0], expected)
 
 
@@ -43,8 +47,12 @@ def test_past_the_pole_matches_nmr_flip() -> None:
     # elevation 120: cos(el) < 0 so NMR's normalize(cross(up, z)) flips x; the closed form must follow.
     cam = Camera.spherical(torch.tensor(3.0, dtype=torch.float64), 30.0, 120.0)
     pts = torch.randn(5, 3, dtype=torch.float64)
-    expected = nmr_look_at(pts, nmr_eye(3.0, 30.0, 120.0), torch.zeros(3, dtype=torch.float64),
-                           torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64))
+    expected = nmr_look_at(
+        pts,
+        nmr_eye(3.0, 30.0, 120.0),
+        torch.zeros(3, dtype=torch.float64),
+        torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64),
+    )
     torch.testing.assert_close(cam.world_to_view(pts)[0], expected)
 
 
@@ -145,8 +153,10 @@ def test_look_at_rejects_bad_input() -> None:
 
 def test_gradcheck_spherical_projection() -> None:
     pts = torch.randn(6, 3, dtype=torch.float64) * 0.5
-    params = [torch.tensor(v, dtype=torch.float64, requires_grad=True) for v in ([2.5, 3.0], [20.0, -50.0],
-                                                                                 [15.0, 60.0], [5.0, -30.0], [30.0, 45.0])]
+    params = [
+        torch.tensor(v, dtype=torch.float64, requires_grad=True)
+        for v in ([2.5, 3.0], [20.0, -50.0], [15.0, 60.0], [5.0, -30.0], [30.0, 45.0])
+    ]
 
     def fn(d: torch.Tensor, az: torch.Tensor, el: torch.Tensor, tilt: torch.Tensor, fov: torch.Tensor) -> torch.Tensor:
         return Camera.spherical(d, az, el, tilt=tilt, viewing_angle=fov).project(pts)

@@ -181,7 +181,7 @@ impl Ctx<'_> {
                     if d_out < 0 || d_out >= len {
                         continue;
                     }
-                    let mut contribute = |g: &mut [[f64; 2]; 3], d: i64, delta: f64| {
+                    let contribute = |g: &mut [[f64; 2]; 3], d: i64, delta: f64| {
                         let t = d as f64 - cross;
                         if pc != d0f {
                             let dist = nudge(to_ndc((pc - pa) / (pc - d0f) * t));

@@ -74,15 +74,20 @@ impl<'a> ScreenMesh<'a> {
     /// Checks: non-empty, finite vertices, face indices in range, and that each batch element has a vertex
     /// in front of the camera (`z > 0`).
     pub fn validate(&self) -> Result<()> {
+        self.validate_as("verts_screen")
+    }
+
+    /// [`ScreenMesh::validate`] with errors naming `arg` as the vertex array.
+    pub fn validate_as(&self, arg: &'static str) -> Result<()> {
         if self.batch == 0 {
-            return Err(RasterError::shape("verts_screen", "(B, N, 3) with B >= 1", "B = 0"));
+            return Err(RasterError::shape(arg, "(B, N, 3) with B >= 1", "B = 0"));
         }
         validate_mesh_indices("faces", self.faces, self.num_verts)?;
-        check_finite("verts_screen", self.verts_screen)?;
+        check_finite(arg, self.verts_screen)?;
         for b in 0..self.batch {
             let any_front = (0..self.num_verts).any(|k| self.vert(b, k)[2] > 0.0);
             if !any_front {
-                return Err(RasterError::BehindCamera { arg: "verts_screen", batch: b });
+                return Err(RasterError::BehindCamera { arg, batch: b });
             }
         }
         Ok(())

@@ -1,4 +1,4 @@
-"""Experiments: declarative sweeps of MeshAdv attacks, a resumable SQLite-backed runner, and the paper's tables and figures.
+"""Experiments: declarative sweeps of MeshAdv attacks, a resumable SQLite-backed runner, the paper's tables and figures.
 
 - :mod:`~meshadv.experiments.config`: the sweep file (TOML/YAML) and its expansion into jobs.
 - :mod:`~meshadv.experiments.store`: the results database (one row per job, WAL, resumable).

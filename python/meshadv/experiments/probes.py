@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 from typing import Any, Dict
 
-__all__ = ["probe_job", "atomic_write_text"]
+__all__ = ["probe_job", "mesh_probe_job", "atomic_write_text"]
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -78,4 +78,62 @@ def probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         "time": time.perf_counter() - start,
         "runs": runs,
         "artifacts": {"artefact": str(artefact)},
+    }
+
+
+def mesh_probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
+    """A synthetic "attack" with the artefacts and record layout of :func:`meshadv.experiments.jobs.run_attack_job`.
+
+    It moves the vertices of an icosphere by a smooth, seeded displacement field (amplitude ``spec["amplitude"]``,
+    default 0.02), writes ``benign.ply`` / ``adversarial.ply`` and flat-coloured ``benign_v0.png`` / ``after_v0.png``
+    and reports ``success`` from ``spec["success"]`` (default: ``True``) and distances computed from the field. Use
+    it to check reports and figures without rendering.
+
+    Args:
+        spec: a job spec as made by ``expand_jobs`` (``source_class``, ``target``, ``perturbation``, ``seed``...).
+        out_dir: the job's artefact folder.
+
+    Returns:
+        The record.
+    """
+    import zlib
+
+    import numpy as np
+    import trimesh
+    from PIL import Image
+
+    start = time.perf_counter()
+    out_dir = Path(out_dir)
+    seed = zlib.crc32(json.dumps(spec, sort_keys=True).encode())
+    rng = np.random.default_rng(seed)
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    v = np.asarray(sphere.vertices)
+    f = np.asarray(sphere.faces)
+    centre = rng.normal(size=3)
+    centre /= np.linalg.norm(centre)
+    weight = np.exp(-4.0 * np.linalg.norm(v - centre, axis=1) ** 2)
+    amplitude = float(spec.get("amplitude", 0.02))
+    flow = amplitude * weight[:, None] * (v + 0.3 * rng.normal(size=v.shape))
+    shape = spec.get("perturbation", "shape") == "shape"
+    va = v + flow if shape else v
+    edges = sphere.edges_unique
+    lap = float(np.mean(np.sum((flow[edges[:, 0]] - flow[edges[:, 1]]) ** 2, axis=1))) if shape else 0.0
+    rmse = 0.0 if shape else amplitude
+    trimesh.Trimesh(v, f, process=False).export(out_dir / "benign.ply")
+    trimesh.Trimesh(va, f, process=False).export(out_dir / "adversarial.ply")
+    for name, key in (("benign_v0.png", spec.get("source_class", "a")), ("after_v0.png", spec.get("target", "b"))):
+        colour = [zlib.crc32(str(key).encode()) >> s & 255 for s in (0, 8, 16)]
+        Image.new("RGB", (16, 16), tuple(colour)).save(out_dir / name)
+    distances = {"laplacian": lap, "color_rmse": rmse, "max_displacement": float(np.linalg.norm(flow, axis=1).max())}
+    return {
+        "success": bool(spec.get("success", True)),
+        "skipped": False,
+        "benign_correct": True,
+        "distance": distances["laplacian" if shape else "color_rmse"],
+        "distances": distances,
+        "steps": 1,
+        "time": time.perf_counter() - start,
+        "eval_success_rate": 0.5 if spec.get("kind") == "multiview" else None,
+        "artifacts": {"benign_mesh": "benign.ply", "benign_images": ["benign_v0.png"],
+                      "adversarial_mesh": "adversarial.ply", "adversarial_images": ["after_v0.png"]},
     }

@@ -72,7 +72,8 @@ def run_sweep(
         jobs: job specs (JSON-able dicts); ids are hashes of their canonical form.
         job: the job function (module-level) or its reference ``"package.module:function"``; called as
             ``job(spec, out_dir) -> record`` in a worker.
-        out_root: root folder of the job artefact folders (:func:`job_out_dir`).
+        out_root: root folder of the job artefact folders (:func:`job_out_dir`); made absolute. With Ray on a
+            cluster it must be on a file system every node shares.
         backend: where jobs run; default a :class:`LocalBackend` over every core (closed at the end).
         max_attempts: attempts per job, >= 1 (a crash or exception counts one; a killed run's attempt does not).
         progress: show a progress bar (jobs done, successes, failures, ETA) on stderr.
@@ -88,6 +89,7 @@ def run_sweep(
     if max_attempts < 1:
         raise ValueError(f"max_attempts must be >= 1, got {max_attempts}")
     ref = job_ref(job)
+    out_root = Path(out_root).resolve()  # workers (Ray, spawned processes) may run in another directory
     own_backend = backend is None
     with driver_lock(store.path):
         store.add_jobs(jobs)

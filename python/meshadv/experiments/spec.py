@@ -1,11 +1,11 @@
 """Job specifications: canonical JSON form and the deterministic job id.
 
-A *job* is a plain JSON-able ``dict`` (strings, numbers, booleans, lists, dicts). Its id is the first 16 hex digits of the
-SHA-256 of its canonical JSON (sorted keys, no spaces, floats rounded to 9 significant digits), so the same job
+A *job* is a plain JSON-able ``dict`` (strings, numbers, booleans, lists, dicts). Its id is the first 16 hex digits of
+the SHA-256 of its canonical JSON (sorted keys, no spaces, floats rounded to 9 significant digits), so the same job
 expanded twice, on any machine, gets the same id and is never run twice.
 
 Example:
-    >>> job_id({"victim": "efficientnet_lite0", "target": "sofa"}) == job_id({"target": "sofa", "victim": "efficientnet_lite0"})
+    >>> job_id({"victim": "efficientnet_lite0", "seed": 0}) == job_id({"seed": 0, "victim": "efficientnet_lite0"})
     True
 """
 

@@ -4,8 +4,8 @@ The database is a single SQLite file in WAL mode. Table ``jobs`` holds one row p
 job id (:func:`meshadv.experiments.spec.job_id`), with its spec, its state and, once done, its results:
 
 ``pending`` -> ``running`` (attempts + 1) -> ``done`` | ``failed``; a failed job is retried while
-``attempts < max_attempts``. A run that was killed leaves ``running`` rows; :meth:`ResultStore.requeue_running` puts them
-back to ``pending`` (the interrupted attempt is not counted) when the next run starts. Every state change is one
+``attempts < max_attempts``. A run that was killed leaves ``running`` rows; :meth:`ResultStore.requeue_running` puts
+them back to ``pending`` (the interrupted attempt is not counted) when the next run starts. Every state change is one
 transaction, and a ``done`` row is written only after the job's artefacts are in place and is never written again, so a
 finished job is never lost nor recorded twice. Table ``meta`` holds the run settings (config text, versions).
 

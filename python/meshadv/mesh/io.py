@@ -85,7 +85,26 @@ class LoadReport:
         return "; ".join(parts + list(self.warnings))
 
 
+def _check_binary_stl(path: Path) -> None:
+    """Refuse a binary STL whose size does not match its triangle count (a truncated download)."""
+    size = path.stat().st_size
+    with path.open("rb") as handle:
+        head = handle.read(4096)
+    if head[:5].lower() == b"solid" and b"facet" in head:
+        return  # ASCII STL
+    if size < 84:
+        raise MeshLoadError(f"{path}: truncated STL file ({size} bytes, shorter than the 84-byte header)")
+    count = int.from_bytes(head[80:84], "little")
+    if size != 84 + 50 * count:
+        raise MeshLoadError(
+            f"{path}: truncated or malformed binary STL: header announces {count} triangles "
+            f"({84 + 50 * count} bytes) but the file has {size} bytes"
+        )
+
+
 def _trimesh_load(path: Path, ext: str) -> object:
+    if ext == ".stl":
+        _check_binary_stl(path)
     if ext == ".obj":
         text = path.read_text(errors="replace")
         # Material statements removed: one geometry, faces in file order (colours are recovered separately).
@@ -107,7 +126,7 @@ def _flatten(loaded: object, path: Path) -> "tuple[list[trimesh.Trimesh], list[s
             else:
                 warnings.append(f"ignored a non-triangle geometry ({type(geom).__name__})")
         return parts, warnings
-    raise MeshLoadError(f"{path}: the file holds no triangle mesh (trimesh returned {type(loaded).__name__})")
+    raise MeshLoadError(f"{path}: the file has no faces (trimesh read a {type(loaded).__name__}, not a mesh)")
 
 
 def _part_colors(part: trimesh.Trimesh, default: np.ndarray, is_ply: bool) -> "tuple[np.ndarray, str]":

@@ -63,7 +63,9 @@ class Mesh:
         if f.numel() > 0:
             lo, hi = int(f.min()), int(f.max())
             if lo < 0 or hi >= v.shape[0]:
-                raise ValueError(f"faces index out of range: indices span [{lo}, {hi}] but there are {v.shape[0]} vertices")
+                raise ValueError(
+                    f"faces index out of range: indices span [{lo}, {hi}] but there are {v.shape[0]} vertices"
+                )
 
     @classmethod
     def from_numpy(

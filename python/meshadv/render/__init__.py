@@ -7,6 +7,7 @@ Public API: :class:`Camera`, :class:`Lights`, :class:`ViewSet`, :func:`render`, 
 from .camera import Camera
 from .lighting import Lights, face_normals, orient_normals, shade
 from .rasterize import RasterOutput, native_available, rasterize
+from .raycast import RayCastOutput, raycast
 from .renderer import RenderOutput, render, render_silhouette
 from .views import ViewSet
 
@@ -14,12 +15,14 @@ __all__ = [
     "Camera",
     "Lights",
     "RasterOutput",
+    "RayCastOutput",
     "RenderOutput",
     "ViewSet",
     "face_normals",
     "native_available",
     "orient_normals",
     "rasterize",
+    "raycast",
     "render",
     "render_silhouette",
     "shade",

@@ -39,9 +39,7 @@ _EPS = 1e-12
 _DEGENERATE = 1e-6
 
 
-def _as_tensor(
-    value: TensorLike, name: str, dtype: torch.dtype | None, device: torch.device | None
-) -> torch.Tensor:
+def _as_tensor(value: TensorLike, name: str, dtype: torch.dtype | None, device: torch.device | None) -> torch.Tensor:
     """Convert ``value`` to a floating tensor, keeping autograd history when it already is a tensor."""
     if isinstance(value, torch.Tensor):
         t = value
@@ -55,9 +53,7 @@ def _as_tensor(
         try:
             t = torch.as_tensor(value, dtype=dtype or torch.float32, device=device)
         except (TypeError, ValueError, RuntimeError) as exc:
-            raise ValueError(
-                f"{name} must be a number, a sequence of numbers or a tensor, got {value!r}"
-            ) from exc
+            raise ValueError(f"{name} must be a number, a sequence of numbers or a tensor, got {value!r}") from exc
     if not torch.isfinite(t.detach()).all():
         raise ValueError(f"{name} must be finite, got {t.detach().cpu().tolist()}")
     return t
@@ -85,9 +81,7 @@ def _batch_scalars(named: dict, dtype: torch.dtype, device: torch.device) -> dic
     for name, value in named.items():
         t = _as_tensor(value, name, dtype, device)
         if t.dim() > 1:
-            raise ValueError(
-                f"{name} must be a scalar or a 1-D tensor of shape (B,), got shape {tuple(t.shape)}"
-            )
+            raise ValueError(f"{name} must be a scalar or a 1-D tensor of shape (B,), got shape {tuple(t.shape)}")
         tensors[name] = t.reshape(-1)
     sizes = {t.shape[0] for t in tensors.values()}
     sizes.discard(1)
@@ -301,6 +295,8 @@ class Camera:
         near, far = self.near.detach(), self.far.detach()
         if not self.orthographic and bool((near <= 0).any()):
             raise ValueError(f"near must be > 0 for a perspective camera, got {near.cpu().tolist()}")
+        if bool((near < 0).any()):
+            raise ValueError(f"near must be >= 0, got {near.cpu().tolist()}")
         if bool((far <= near).any()):
             raise ValueError(f"far must be > near, got near={near.cpu().tolist()} far={far.cpu().tolist()}")
         fov = self.viewing_angle.detach()

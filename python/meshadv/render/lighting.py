@@ -1,7 +1,8 @@
 """Lambertian lighting with directional lights and ambient light (NMR's model), differentiable in PyTorch.
 
 ``s = ambient + sum_j color_j * max(dot(d_j, n), 0)`` with ``d_j`` the unit direction FROM the surface TOWARD light j
-and ``n`` the face normal (flipped toward the camera for two-sided rendering); ``face_color = clamp(reflectance * s, 0, 1)``.
+and ``n`` the face normal (flipped toward the camera for two-sided rendering);
+``face_color = clamp(reflectance * s, 0, 1)``.
 Lights live in world space.
 """
 

@@ -119,29 +119,30 @@ class _Rasterize(torch.autograd.Function):
         far: float,
         cull_backfaces: bool,
         num_threads: int,
+        orthographic: bool,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         native = _native()
         v_np, a_np = _to_numpy_f32(verts_screen), _to_numpy_f32(face_attrs)
         f_np, bg_np = _to_numpy_i32(faces), _to_numpy_f32(background)
         image, face_index, depth = native.rasterize_forward(
-            v_np, f_np, a_np, bg_np, height, width, near, far, cull_backfaces, num_threads
+            v_np, f_np, a_np, bg_np, height, width, near, far, cull_backfaces, num_threads, orthographic
         )
         device = verts_screen.device
         image_t = torch.from_numpy(image).to(device)
         index_t = torch.from_numpy(face_index).to(device)
         depth_t = torch.from_numpy(depth).to(device)
         ctx.save_for_backward(verts_screen, face_attrs, faces, background, image_t, index_t)
-        ctx.params = (height, width, near, far, cull_backfaces, num_threads)
+        ctx.params = (height, width, near, far, cull_backfaces, num_threads, orthographic)
         ctx.mark_non_differentiable(index_t, depth_t)
         return image_t, index_t, depth_t
 
     @staticmethod
     def backward(ctx: Any, grad_image: torch.Tensor | None, _grad_index: Any, _grad_depth: Any):
         verts_screen, face_attrs, faces, background, image, face_index = ctx.saved_tensors
-        height, width, near, far, cull_backfaces, num_threads = ctx.params
+        height, width, near, far, cull_backfaces, num_threads, orthographic = ctx.params
         need_v, need_a = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
         if grad_image is None or not (need_v or need_a):
-            return (None,) * 10
+            return (None,) * 11
         grad_v, grad_a = _native().rasterize_backward(
             _to_numpy_f32(verts_screen),
             _to_numpy_i32(faces),
@@ -156,14 +157,11 @@ class _Rasterize(torch.autograd.Function):
             _to_numpy_f32(image),
             _to_numpy_f32(grad_image),
             num_threads,
+            orthographic,
         )
-        gv = (
-            torch.from_numpy(grad_v).to(device=verts_screen.device, dtype=verts_screen.dtype)
-            if need_v
-            else None
-        )
+        gv = torch.from_numpy(grad_v).to(device=verts_screen.device, dtype=verts_screen.dtype) if need_v else None
         ga = torch.from_numpy(grad_a).to(device=face_attrs.device, dtype=face_attrs.dtype) if need_a else None
-        return gv, ga, None, None, None, None, None, None, None, None
+        return gv, ga, None, None, None, None, None, None, None, None, None
 
 
 def rasterize(
@@ -176,6 +174,7 @@ def rasterize(
     far: float = 100.0,
     cull_backfaces: bool = False,
     num_threads: int = 0,
+    orthographic: bool = False,
 ) -> RasterOutput:
     """Rasterize screen-space triangles with per-face attributes (differentiable, NMR gradients).
 
@@ -189,6 +188,7 @@ def rasterize(
         far: far clipping depth (> near).
         cull_backfaces: drop faces whose normal faces away from the camera.
         num_threads: worker threads for the native op (0 = all available). Results do not depend on it.
+        orthographic: interpolate depth linearly (orthographic camera) instead of ``1/z`` (perspective).
 
     Returns:
         :class:`RasterOutput` with ``image`` (B,H,W,C) in the dtype of ``face_attrs``, ``face_index`` (B,H,W) int64
@@ -226,24 +226,18 @@ def rasterize(
         raise ValueError("faces is empty (M = 0 triangles)")
     fmin, fmax = int(faces.min()), int(faces.max())
     if fmin < 0 or fmax >= n:
-        raise ValueError(
-            f"faces holds vertex indices in [{fmin}, {fmax}] but must be in [0, {n - 1}] (N = {n})"
-        )
+        raise ValueError(f"faces holds vertex indices in [{fmin}, {fmax}] but must be in [0, {n - 1}] (N = {n})")
 
     face_attrs = _check_float_tensor(face_attrs, "face_attrs", (2, 3), "(B,M,C) or (M,C)")
     if face_attrs.dim() == 2:
         face_attrs = face_attrs.unsqueeze(0)
     if face_attrs.shape[1] != m:
-        raise ValueError(
-            f"face_attrs must have one row per face (M = {m}), got shape {tuple(face_attrs.shape)}"
-        )
+        raise ValueError(f"face_attrs must have one row per face (M = {m}), got shape {tuple(face_attrs.shape)}")
     c = face_attrs.shape[2]
     if c == 0:
         raise ValueError("face_attrs must have at least one channel (C >= 1)")
     if face_attrs.shape[0] not in (1, b):
-        raise ValueError(
-            f"face_attrs batch size {face_attrs.shape[0]} does not match verts_screen batch size {b}"
-        )
+        raise ValueError(f"face_attrs batch size {face_attrs.shape[0]} does not match verts_screen batch size {b}")
     if face_attrs.shape[0] != b:
         face_attrs = face_attrs.expand(b, -1, -1)
 
@@ -254,11 +248,7 @@ def rasterize(
     if background is None:
         bg = torch.zeros(c, dtype=torch.float32)
     else:
-        bg = (
-            background
-            if isinstance(background, torch.Tensor)
-            else torch.as_tensor(background, dtype=torch.float32)
-        )
+        bg = background if isinstance(background, torch.Tensor) else torch.as_tensor(background, dtype=torch.float32)
         if not (bg.is_floating_point() or bg.dtype in (torch.int32, torch.int64)):
             raise ValueError(f"background must be numeric, got {bg.dtype}")
         bg = bg.detach().to(torch.float32).reshape(-1)
@@ -276,6 +266,8 @@ def rasterize(
             or not np.isfinite(value)
         ):
             raise ValueError(f"{name} must be a finite number, got {value!r}")
+    if near < 0:
+        raise ValueError(f"near must be >= 0, got {near}")
     if not far > near:
         raise ValueError(f"far must be > near, got near={near} far={far}")
     if isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer)) or num_threads < 0:
@@ -292,5 +284,6 @@ def rasterize(
         float(far),
         bool(cull_backfaces),
         int(num_threads),
+        bool(orthographic),
     )
     return RasterOutput(image=image.to(face_attrs.dtype), face_index=face_index.long(), depth=depth)

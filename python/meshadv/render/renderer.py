@@ -59,9 +59,7 @@ def _check_mesh(vertices: Any, faces: Any) -> tuple[torch.Tensor, torch.Tensor]:
     n = verts.shape[1]
     fmin, fmax = int(faces.min()), int(faces.max())
     if fmin < 0 or fmax >= n:
-        raise ValueError(
-            f"faces holds vertex indices in [{fmin}, {fmax}] but must be in [0, {n - 1}] (N = {n})"
-        )
+        raise ValueError(f"faces holds vertex indices in [{fmin}, {fmax}] but must be in [0, {n - 1}] (N = {n})")
     return verts, faces.to(device=verts.device, dtype=torch.long)
 
 
@@ -127,12 +125,25 @@ def _rasterize_views(
     groups = _raster_groups(camera, b)
     if len(groups) == 1:
         _, near, far = groups[0]
-        return rasterize(verts_screen, faces, attrs, size, background, near, far, cull, num_threads)
+        return rasterize(
+            verts_screen, faces, attrs, size, background, near, far, cull, num_threads, camera.orthographic
+        )
     parts, order = [], []
     for idx, near, far in groups:
         sel = torch.as_tensor(idx, device=verts_screen.device)
         parts.append(
-            rasterize(verts_screen[sel], faces, attrs[sel], size, background, near, far, cull, num_threads)
+            rasterize(
+                verts_screen[sel],
+                faces,
+                attrs[sel],
+                size,
+                background,
+                near,
+                far,
+                cull,
+                num_threads,
+                camera.orthographic,
+            )
         )
         order.extend(idx)
     inverse = torch.empty(b, dtype=torch.long)
@@ -146,11 +157,7 @@ def _rasterize_views(
 
 
 def _background(background: Any, dtype: torch.dtype) -> torch.Tensor:
-    bg = (
-        background
-        if isinstance(background, torch.Tensor)
-        else torch.as_tensor(background, dtype=torch.float32)
-    )
+    bg = background if isinstance(background, torch.Tensor) else torch.as_tensor(background, dtype=torch.float32)
     if bg.is_complex() or bg.dtype == torch.bool:
         raise ValueError(f"background must be numeric, got {bg.dtype}")
     bg = bg.detach().to(dtype=dtype, device="cpu").reshape(-1)
@@ -209,7 +216,8 @@ def render(
     Example:
         >>> from meshadv.render import Camera, Lights
         >>> verts = torch.tensor([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]])
-        >>> out = render(verts, torch.tensor([[0, 1, 2]]), torch.ones(1, 3), Camera.spherical(4.0), Lights.default(), 32)
+        >>> faces, colors = torch.tensor([[0, 1, 2]]), torch.ones(1, 3)
+        >>> out = render(verts, faces, colors, Camera.spherical(4.0), Lights.default(), 32)
         >>> out.image.shape, out.alpha.shape
         (torch.Size([1, 3, 32, 32]), torch.Size([1, 1, 32, 32]))
     """
@@ -220,8 +228,7 @@ def render(
     colors = face_colors if face_colors.dim() == 3 else face_colors.unsqueeze(0)
     if colors.dim() != 3 or colors.shape[1:] != (faces.shape[0], 3):
         raise ValueError(
-            f"face_colors must have shape (M,3) or (B,M,3) with M = {faces.shape[0]}, "
-            f"got {tuple(face_colors.shape)}"
+            f"face_colors must have shape (M,3) or (B,M,3) with M = {faces.shape[0]}, got {tuple(face_colors.shape)}"
         )
     if not bool(torch.isfinite(colors.detach()).all()):
         raise ValueError("face_colors contains NaN or Inf")
@@ -242,9 +249,7 @@ def render(
     shaded = _expand(shade(verts, faces, colors, lights, camera, two_sided=bool(fill_back)), b)
     attrs = torch.cat([shaded, torch.ones_like(shaded[..., :1])], dim=-1)
     bg = torch.cat([_background(background, torch.float32), torch.zeros(1)])
-    out = _rasterize_views(
-        verts_screen, faces, attrs, (height * k, width * k), bg, camera, not fill_back, num_threads
-    )
+    out = _rasterize_views(verts_screen, faces, attrs, (height * k, width * k), bg, camera, not fill_back, num_threads)
     img = _downsample(out.image.permute(0, 3, 1, 2), k)
     sub = slice(k // 2, None, k)
     return RenderOutput(

@@ -106,9 +106,7 @@ class ViewSet:
         Returns:
             A ViewSet of B views.
         """
-        az = (
-            azimuths if isinstance(azimuths, torch.Tensor) else torch.as_tensor(azimuths, dtype=torch.float32)
-        )
+        az = azimuths if isinstance(azimuths, torch.Tensor) else torch.as_tensor(azimuths, dtype=torch.float32)
         camera = Camera.spherical(distance, az.reshape(-1), elevation, tilt, viewing_angle, near, far)
         return cls(camera, lights if lights is not None else Lights.default(camera))
 
@@ -260,7 +258,5 @@ class ViewSet:
                 raise ValueError(f"records[{i}] needs either {_SPHERICAL_KEYS} or {_LOOK_AT_KEYS}")
             dirs = torch.as_tensor(rec["light_directions"], dtype=torch.float32).reshape(-1, 3)
             cols = torch.as_tensor(rec["light_colors"], dtype=torch.float32).reshape(-1, 3)
-            views.append(
-                cls(camera, Lights(dirs, cols, torch.as_tensor(rec["ambient"], dtype=torch.float32)))
-            )
+            views.append(cls(camera, Lights(dirs, cols, torch.as_tensor(rec["ambient"], dtype=torch.float32))))
         return cls.cat(views)

@@ -160,7 +160,8 @@ class Scene:
             face_colors: optional per-object replacement face colours (M_k, 3).
 
         Returns:
-            (world vertices (N, 3), faces (M, 3) int64, face colours (M, 3)); gradients flow only into overrides.
+            (world vertices (N, 3), faces (M, 3) int64, face colours (M, 3)); gradients flow only into overrides
+            (every other object's tensors are detached, so they stay fixed even if they require grad).
         """
         vertices = dict(vertices or {})
         face_colors = dict(face_colors or {})
@@ -170,13 +171,13 @@ class Scene:
         all_verts, all_faces, all_colors = [], [], []
         vertex_offset = 0
         for obj in self.objects:
-            verts = vertices.get(obj.name, obj.mesh.vertices)
+            verts = vertices[obj.name] if obj.name in vertices else obj.mesh.vertices.detach()
             if verts.shape != obj.mesh.vertices.shape:
                 raise ValueError(
                     f"vertices override for {obj.name!r} must have shape {tuple(obj.mesh.vertices.shape)}, "
                     f"got {tuple(verts.shape)}"
                 )
-            colors = face_colors.get(obj.name, obj.mesh.face_colors)
+            colors = face_colors[obj.name] if obj.name in face_colors else obj.mesh.face_colors.detach()
             if colors.shape != obj.mesh.face_colors.shape:
                 raise ValueError(
                     f"face_colors override for {obj.name!r} must have shape {tuple(obj.mesh.face_colors.shape)}, "

@@ -32,6 +32,7 @@ def main(argv: list) -> int:
     for i, spec in enumerate(specs):
         scene = build_mitsuba_scene(mi, spec)
         rgba = np.array(mi.render(scene, seed=int(spec.seed)), dtype=np.float32)
+        rgba = rgba[:, ::-1]  # Mitsuba's camera is physical, NMR's image is its mirror (see scene.py)
         rgb, alpha = rgba[..., :3], np.clip(rgba[..., 3], 0.0, 1.0)
         if spec.background is not None and not spec.mask:
             rgb = rgb + (1.0 - alpha)[..., None] * np.asarray(spec.background, dtype=np.float32)

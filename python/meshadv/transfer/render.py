@@ -27,6 +27,9 @@ FALLBACK_VARIANT = "scalar_rgb"
 
 _PACKAGE_PARENT = str(Path(__file__).resolve().parents[2])
 
+#: The module run in the child process (``python -m``).
+_WORKER_MODULE = "meshadv.transfer._worker"
+
 
 class MitsubaRenderError(RuntimeError):
     """A Mitsuba render failed, crashed or timed out (the caller's process is unaffected)."""
@@ -59,13 +62,14 @@ def _run_worker(specs: Sequence[SceneSpec], variant: str, timeout: float) -> lis
             pickle.dump(list(specs), fh, protocol=pickle.HIGHEST_PROTOCOL)
         env = dict(os.environ)
         env["PYTHONPATH"] = _PACKAGE_PARENT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-        cmd = [sys.executable, "-m", "meshadv.transfer._worker", in_path, out_path, variant]
+        cmd = [sys.executable, "-m", _WORKER_MODULE, in_path, out_path, variant]
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
         except subprocess.TimeoutExpired as exc:
             raise MitsubaRenderError(f"Mitsuba ({variant}) timed out after {timeout:.0f} s") from exc
         if proc.returncode != 0 or not os.path.exists(out_path):
-            how = f"was killed by signal {-proc.returncode}" if proc.returncode < 0 else f"exited with {proc.returncode}"
+            code = proc.returncode
+            how = f"was killed by signal {-code}" if code < 0 else f"exited with {code}"
             tail = "\n".join(proc.stderr.strip().splitlines()[-15:])
             raise MitsubaRenderError(f"Mitsuba ({variant}) {how}:\n{tail}")
         with np.load(out_path) as data:

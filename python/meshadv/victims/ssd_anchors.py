@@ -2,7 +2,9 @@
 
 ``ssd_anchor_grid`` reproduces ``anchor_generators/multiple_grid_anchor_generator.create_ssd_anchors`` (the
 ``ssd_anchor_generator`` config block) and ``decode_boxes`` the ``FasterRcnnBoxCoder`` decoder SSD uses. Boxes here
-are normalised to the network input (``[0, 1]`` on both axes, anchors may stick out of it).
+are normalised to the network input (``[0, 1]`` on both axes, anchors may stick out of it). The aspect ratios are the
+model config's ``1, 2, 0.5, 3, 0.3333``; OpenCV's text graph for the same model sizes the ``0.3333`` boxes very
+slightly differently (at most 4e-4 of the image), which is why OpenCV's boxes can differ from ours by that much.
 
 Example:
     >>> anchors = ssd_anchor_grid((19, 10, 5, 3, 2, 1))
@@ -88,7 +90,9 @@ def ssd_anchor_grid(
     if min(sizes) < 1:
         raise ValueError(f"feature_map_sizes must be positive, got {sizes}")
     if not 0.0 < min_scale <= max_scale:
-        raise ValueError(f"min_scale and max_scale must satisfy 0 < min_scale <= max_scale, got {min_scale}, {max_scale}")
+        raise ValueError(
+            f"min_scale and max_scale must satisfy 0 < min_scale <= max_scale, got {min_scale}, {max_scale}"
+        )
     specs = _layer_box_specs(
         len(sizes), min_scale, max_scale, aspect_ratios, interpolated_scale_aspect_ratio, reduce_boxes_in_lowest_layer
     )

@@ -66,7 +66,7 @@ def _read_varint(buf: memoryview, pos: int) -> Tuple[int, int]:
             return result, pos
         shift += 7
         if shift > 70:
-            raise ValueError("malformed protobuf: varint too long")
+            raise ValueError("protobuf: varint too long")
 
 
 def _fields(buf: memoryview) -> Iterator[Tuple[int, int, Any]]:
@@ -81,7 +81,7 @@ def _fields(buf: memoryview) -> Iterator[Tuple[int, int, Any]]:
         elif wire == _LEN:
             size, pos = _read_varint(buf, pos)
             if pos + size > end:
-                raise ValueError("malformed protobuf: length-delimited field runs past the end")
+                raise ValueError("protobuf: length-delimited field runs past the end")
             value = buf[pos : pos + size]
             pos += size
         elif wire == _I64:
@@ -91,7 +91,7 @@ def _fields(buf: memoryview) -> Iterator[Tuple[int, int, Any]]:
             value = buf[pos : pos + 4]
             pos += 4
         else:
-            raise ValueError(f"malformed protobuf: unsupported wire type {wire}")
+            raise ValueError(f"protobuf: unsupported wire type {wire}")
         yield number, wire, value
 
 
@@ -276,7 +276,7 @@ def parse_graphdef(data: bytes) -> GraphDef:
                             attr = _parse_attr(v3)
                     node.attrs[key] = attr
             nodes[node.name] = node
-    except (IndexError, UnicodeDecodeError, struct.error) as exc:
+    except (IndexError, UnicodeDecodeError, struct.error, ValueError) as exc:
         raise ValueError(f"malformed GraphDef: {exc}") from exc
     if not nodes:
         raise ValueError("malformed GraphDef: no nodes found")

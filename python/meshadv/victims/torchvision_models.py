@@ -79,9 +79,7 @@ def build_torchvision_model(name: str, state: dict[str, Tensor] | None = None) -
         return torchvision.models.densenet121(weights=None)
     if name == "inception_v3":
         aux = state is None or any(k.startswith("AuxLogits.") for k in state)
-        return torchvision.models.inception_v3(
-            weights=None, aux_logits=aux, transform_input=False, init_weights=False
-        )
+        return torchvision.models.inception_v3(weights=None, aux_logits=aux, transform_input=False, init_weights=False)
     raise ValueError(f"name must be one of {sorted(TORCHVISION_SPECS)}, got {name!r}")
 
 
@@ -127,8 +125,7 @@ class TorchvisionVictim(ClassifierVictim):
         state = read_state_dict(weights)
         if name == "densenet121":
             state = {
-                (_DENSENET_OLD_KEY.sub(r"\1\2", k) if _DENSENET_OLD_KEY.match(k) else k): v
-                for k, v in state.items()
+                (_DENSENET_OLD_KEY.sub(r"\1\2", k) if _DENSENET_OLD_KEY.match(k) else k): v for k, v in state.items()
             }
         self.preprocess = Preprocess(
             (size, size), mean if mean is not None else default_mean, std if std is not None else default_std
@@ -137,9 +134,7 @@ class TorchvisionVictim(ClassifierVictim):
         try:
             self.net.load_state_dict(state, strict=True)
         except RuntimeError as exc:
-            raise ValueError(
-                f"weights {weights} do not match the torchvision {name} architecture: {exc}"
-            ) from exc
+            raise ValueError(f"weights {weights} do not match the torchvision {name} architecture: {exc}") from exc
         freeze(self)
         self.to(device)
 

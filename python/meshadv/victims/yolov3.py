@@ -31,9 +31,7 @@ __all__ = ["YOLOv3Victim", "decode_yolo_layer"]
 PathLike = Union[str, Path]
 
 
-def decode_yolo_layer(
-    raw: Tensor, spec: YoloSpec, net_size: tuple[int, int]
-) -> tuple[Tensor, Tensor, Tensor]:
+def decode_yolo_layer(raw: Tensor, spec: YoloSpec, net_size: tuple[int, int]) -> tuple[Tensor, Tensor, Tensor]:
     """Decode one ``[yolo]`` layer's raw map into boxes, objectness and class probabilities (differentiable).
 
     Args:

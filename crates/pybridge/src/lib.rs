@@ -1,0 +1,372 @@
+//! `meshadv._raster`: thin PyO3 bindings of the `meshadv-raster` core.
+//!
+//! Arrays come in read-only and zero-copy (C-contiguous float32 / int32 required), are validated while holding the
+//! GIL, and the work runs with the GIL released. Results are moved into new NumPy arrays without copying. Core errors
+//! become `ValueError` / `IndexError` naming the argument; a panic (a bug) becomes `RuntimeError`.
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+
+use meshadv_raster::camera::SphericalCamera;
+use meshadv_raster::pipeline::{render, Lights, RenderSettings};
+use meshadv_raster::raycast::{raycast as core_raycast, RayCamera};
+use meshadv_raster::{
+    rasterize, rasterize_backward as core_backward, with_threads, BackwardInputs, ErrorKind, FaceAttrs, Projection,
+    RasterError, RasterParams, ScreenMesh,
+};
+use numpy::ndarray::{Array, IxDyn};
+use numpy::{Element, IntoPyArray, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyIndexError, PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+
+/// Local newtype so the core error converts into precise Python exceptions.
+struct PyRasterError(RasterError);
+
+impl From<PyRasterError> for PyErr {
+    fn from(e: PyRasterError) -> PyErr {
+        let msg = e.0.to_string();
+        match e.0.kind() {
+            ErrorKind::Index => PyIndexError::new_err(msg),
+            ErrorKind::Value => PyValueError::new_err(msg),
+        }
+    }
+}
+
+impl From<RasterError> for PyRasterError {
+    fn from(e: RasterError) -> Self {
+        PyRasterError(e)
+    }
+}
+
+type PyArr<'py, T> = Bound<'py, PyArrayDyn<T>>;
+
+/// Borrowed view of an input array: its shape and its contiguous data.
+fn view<'a, T: Element>(arg: &str, a: &'a PyReadonlyArrayDyn<'_, T>, ndim: usize) -> PyResult<(Vec<usize>, &'a [T])> {
+    let shape = a.shape().to_vec();
+    if shape.len() != ndim {
+        return Err(PyValueError::new_err(format!("{arg}: expected {ndim} dimensions, got shape {shape:?}")));
+    }
+    let data = a
+        .as_slice()
+        .map_err(|_| PyValueError::new_err(format!("{arg}: array must be C-contiguous (use np.ascontiguousarray)")))?;
+    Ok((shape, data))
+}
+
+fn expect_dim(arg: &str, shape: &[usize], axis: usize, want: usize, what: &str) -> PyResult<()> {
+    if shape[axis] != want {
+        return Err(PyValueError::new_err(format!(
+            "{arg}: dimension {axis} must be {want} ({what}), got shape {shape:?}"
+        )));
+    }
+    Ok(())
+}
+
+fn image_size(arg: &'static str, v: i64) -> PyResult<usize> {
+    Ok(meshadv_raster::input::check_image_size(arg, v).map_err(PyRasterError)?)
+}
+
+fn threads(num_threads: i64) -> PyResult<usize> {
+    if num_threads < 0 {
+        return Err(PyValueError::new_err(format!("num_threads: must be >= 0 (0 = default), got {num_threads}")));
+    }
+    Ok(num_threads as usize)
+}
+
+fn output<'py, T: Element>(py: Python<'py>, data: Vec<T>, shape: &[usize]) -> PyResult<Bound<'py, PyArrayDyn<T>>> {
+    let arr = Array::from_shape_vec(IxDyn(shape), data)
+        .map_err(|e| PyRuntimeError::new_err(format!("internal error: output shape {shape:?}: {e}")))?;
+    Ok(arr.into_pyarray(py))
+}
+
+/// Runs `f` without the GIL, on `num_threads` threads, turning panics into `RuntimeError`.
+fn run<R: Send>(py: Python<'_>, num_threads: usize, f: impl FnOnce() -> Result<R, RasterError> + Send) -> PyResult<R> {
+    let res = py.detach(|| catch_unwind(AssertUnwindSafe(|| with_threads(num_threads, f))));
+    match res {
+        Ok(Ok(Ok(r))) => Ok(r),
+        Ok(Ok(Err(e))) | Ok(Err(e)) => Err(PyRasterError(e).into()),
+        Err(_) => Err(PyRuntimeError::new_err("meshadv._raster: internal error (panic) in the raster core")),
+    }
+}
+
+/// Checked views of the arguments shared by the forward and backward op.
+struct OpArgs<'a> {
+    mesh: ScreenMesh<'a>,
+    attrs: FaceAttrs<'a>,
+    params: RasterParams,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn op_args<'a>(
+    verts_screen: &'a PyReadonlyArrayDyn<'_, f32>,
+    faces: &'a PyReadonlyArrayDyn<'_, i32>,
+    face_attrs: &'a PyReadonlyArrayDyn<'_, f32>,
+    background: &'a PyReadonlyArrayDyn<'_, f32>,
+    height: i64,
+    width: i64,
+    near: f64,
+    far: f64,
+    cull_backfaces: bool,
+    orthographic: bool,
+) -> PyResult<OpArgs<'a>> {
+    let (vs, vd) = view("verts_screen", verts_screen, 3)?;
+    expect_dim("verts_screen", &vs, 2, 3, "x_ndc, y_ndc, z_view")?;
+    let (fs, fd) = view("faces", faces, 2)?;
+    expect_dim("faces", &fs, 1, 3, "triangles")?;
+    let (as_, ad) = view("face_attrs", face_attrs, 3)?;
+    expect_dim("face_attrs", &as_, 0, vs[0], "batch size of verts_screen")?;
+    expect_dim("face_attrs", &as_, 1, fs[0], "number of faces")?;
+    let (bs, bd) = view("background", background, 1)?;
+    expect_dim("background", &bs, 0, as_[2], "channels of face_attrs")?;
+    let params = RasterParams {
+        height: image_size("height", height)?,
+        width: image_size("width", width)?,
+        near,
+        far,
+        cull_backfaces,
+        projection: if orthographic { Projection::Orthographic } else { Projection::Perspective },
+    };
+    let mesh = ScreenMesh::new(vd, fd, vs[0], vs[1]).map_err(PyRasterError)?;
+    let attrs = FaceAttrs { values: ad, background: bd, channels: as_[2] };
+    mesh.validate().map_err(PyRasterError)?;
+    params.validate().map_err(PyRasterError)?;
+    attrs.validate(&mesh).map_err(PyRasterError)?;
+    Ok(OpArgs { mesh, attrs, params })
+}
+
+/// Rasterizes screen-space triangles with per-face attributes (see docs/ARCHITECTURE.md, "The native op").
+///
+/// Returns `(image f32[B,H,W,C], face_index i32[B,H,W], depth f32[B,H,W])`.
+#[pyfunction]
+#[pyo3(signature = (verts_screen, faces, face_attrs, background, height, width, near, far, cull_backfaces,
+                    num_threads = 0, orthographic = false))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn rasterize_forward<'py>(
+    py: Python<'py>,
+    verts_screen: PyReadonlyArrayDyn<'py, f32>,
+    faces: PyReadonlyArrayDyn<'py, i32>,
+    face_attrs: PyReadonlyArrayDyn<'py, f32>,
+    background: PyReadonlyArrayDyn<'py, f32>,
+    height: i64,
+    width: i64,
+    near: f64,
+    far: f64,
+    cull_backfaces: bool,
+    num_threads: i64,
+    orthographic: bool,
+) -> PyResult<(PyArr<'py, f32>, PyArr<'py, i32>, PyArr<'py, f32>)> {
+    let nt = threads(num_threads)?;
+    let a = op_args(
+        &verts_screen,
+        &faces,
+        &face_attrs,
+        &background,
+        height,
+        width,
+        near,
+        far,
+        cull_backfaces,
+        orthographic,
+    )?;
+    let (b, h, w, c) = (a.mesh.batch, a.params.height, a.params.width, a.attrs.channels);
+    let out = run(py, nt, || rasterize(&a.mesh, &a.attrs, &a.params))?;
+    Ok((output(py, out.image, &[b, h, w, c])?, output(py, out.face_index, &[b, h, w])?, output(py, out.depth, &[b, h, w])?))
+}
+
+/// Backward of `rasterize_forward`: `(grad_verts_screen f32[B,N,3] (z = 0), grad_face_attrs f32[B,M,C])`.
+///
+/// The vertex gradient is NMR's approximate rasterization gradient, defined in docs/NMR_GRADIENT.md.
+#[pyfunction]
+#[pyo3(signature = (verts_screen, faces, face_attrs, background, height, width, near, far, cull_backfaces,
+                    face_index, image, grad_image, num_threads = 0, orthographic = false))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn rasterize_backward<'py>(
+    py: Python<'py>,
+    verts_screen: PyReadonlyArrayDyn<'py, f32>,
+    faces: PyReadonlyArrayDyn<'py, i32>,
+    face_attrs: PyReadonlyArrayDyn<'py, f32>,
+    background: PyReadonlyArrayDyn<'py, f32>,
+    height: i64,
+    width: i64,
+    near: f64,
+    far: f64,
+    cull_backfaces: bool,
+    face_index: PyReadonlyArrayDyn<'py, i32>,
+    image: PyReadonlyArrayDyn<'py, f32>,
+    grad_image: PyReadonlyArrayDyn<'py, f32>,
+    num_threads: i64,
+    orthographic: bool,
+) -> PyResult<(PyArr<'py, f32>, PyArr<'py, f32>)> {
+    let nt = threads(num_threads)?;
+    let a = op_args(
+        &verts_screen,
+        &faces,
+        &face_attrs,
+        &background,
+        height,
+        width,
+        near,
+        far,
+        cull_backfaces,
+        orthographic,
+    )?;
+    let (b, h, w, c) = (a.mesh.batch, a.params.height, a.params.width, a.attrs.channels);
+    let (fis, fid) = view("face_index", &face_index, 3)?;
+    if fis != [b, h, w] {
+        return Err(PyValueError::new_err(format!("face_index: expected shape ({b}, {h}, {w}), got {fis:?}")));
+    }
+    let (ims, imd) = view("image", &image, 4)?;
+    if ims != [b, h, w, c] {
+        return Err(PyValueError::new_err(format!("image: expected shape ({b}, {h}, {w}, {c}), got {ims:?}")));
+    }
+    let (gs, gd) = view("grad_image", &grad_image, 4)?;
+    if gs != [b, h, w, c] {
+        return Err(PyValueError::new_err(format!("grad_image: expected shape ({b}, {h}, {w}, {c}), got {gs:?}")));
+    }
+    let inputs = BackwardInputs { face_index: fid, image: imd, grad_image: gd };
+    let n = a.mesh.num_verts;
+    let m = a.mesh.num_faces();
+    let g = run(py, nt, || core_backward(&a.mesh, &a.attrs, &a.params, &inputs))?;
+    Ok((output(py, g.grad_verts_screen, &[b, n, 3])?, output(py, g.grad_face_attrs, &[b, m, c])?))
+}
+
+/// Exact BVH ray cast of view-space triangles: one primary ray through each pixel centre.
+///
+/// Returns `(face_index i32[B,H,W], depth f32[B,H,W])`, equal to the rasterizer's output for the same camera except
+/// at exact ties and pixel centres within rounding of an edge.
+#[pyfunction]
+#[pyo3(signature = (verts_view, faces, height, width, viewing_angle = 30.0, near = 0.1, far = 100.0,
+                    orthographic = false, ortho_scale = 1.0, cull_backfaces = false, num_threads = 0))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn raycast<'py>(
+    py: Python<'py>,
+    verts_view: PyReadonlyArrayDyn<'py, f32>,
+    faces: PyReadonlyArrayDyn<'py, i32>,
+    height: i64,
+    width: i64,
+    viewing_angle: f64,
+    near: f64,
+    far: f64,
+    orthographic: bool,
+    ortho_scale: f64,
+    cull_backfaces: bool,
+    num_threads: i64,
+) -> PyResult<(PyArr<'py, i32>, PyArr<'py, f32>)> {
+    let nt = threads(num_threads)?;
+    let (vs, vd) = view("verts_view", &verts_view, 3)?;
+    expect_dim("verts_view", &vs, 2, 3, "x, y, z in view space")?;
+    let (fs, fd) = view("faces", &faces, 2)?;
+    expect_dim("faces", &fs, 1, 3, "triangles")?;
+    let mesh = ScreenMesh::new(vd, fd, vs[0], vs[1]).map_err(PyRasterError)?;
+    let params = RasterParams {
+        height: image_size("height", height)?,
+        width: image_size("width", width)?,
+        near,
+        far,
+        cull_backfaces,
+        projection: if orthographic { Projection::Orthographic } else { Projection::Perspective },
+    };
+    let cam = RayCamera { viewing_angle, orthographic, ortho_scale };
+    let (b, h, w) = (vs[0], params.height, params.width);
+    let out = run(py, nt, || core_raycast(&mesh, &cam, &params))?;
+    Ok((output(py, out.face_index, &[b, h, w])?, output(py, out.depth, &[b, h, w])?))
+}
+
+/// Full forward render of one view in the core (camera + Lambert shading + raster), for cross-checks.
+///
+/// Returns `(image f32[H,W,3], alpha f32[H,W], depth f32[H,W], face_index i32[H,W])`.
+#[pyfunction]
+#[pyo3(signature = (verts_world, faces, face_colors, height, width, distance, azimuth, elevation, tilt = 0.0,
+                    viewing_angle = 30.0, near = 0.1, far = 100.0, orthographic = false, ortho_scale = 1.0,
+                    light_directions = None, light_colors = None, ambient = None, background = None,
+                    fill_back = true, num_threads = 0))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn render_full<'py>(
+    py: Python<'py>,
+    verts_world: PyReadonlyArrayDyn<'py, f32>,
+    faces: PyReadonlyArrayDyn<'py, i32>,
+    face_colors: PyReadonlyArrayDyn<'py, f32>,
+    height: i64,
+    width: i64,
+    distance: f64,
+    azimuth: f64,
+    elevation: f64,
+    tilt: f64,
+    viewing_angle: f64,
+    near: f64,
+    far: f64,
+    orthographic: bool,
+    ortho_scale: f64,
+    light_directions: Option<PyReadonlyArrayDyn<'py, f32>>,
+    light_colors: Option<PyReadonlyArrayDyn<'py, f32>>,
+    ambient: Option<PyReadonlyArrayDyn<'py, f32>>,
+    background: Option<PyReadonlyArrayDyn<'py, f32>>,
+    fill_back: bool,
+    num_threads: i64,
+) -> PyResult<(PyArr<'py, f32>, PyArr<'py, f32>, PyArr<'py, f32>, PyArr<'py, i32>)> {
+    let nt = threads(num_threads)?;
+    let (vs, vd) = view("verts_world", &verts_world, 2)?;
+    expect_dim("verts_world", &vs, 1, 3, "x, y, z")?;
+    let (fs, fd) = view("faces", &faces, 2)?;
+    expect_dim("faces", &fs, 1, 3, "triangles")?;
+    let (cs, cd) = view("face_colors", &face_colors, 2)?;
+    if cs != [fs[0], 3] {
+        return Err(PyValueError::new_err(format!("face_colors: expected shape ({}, 3), got {cs:?}", fs[0])));
+    }
+    let mut lights = Lights::default();
+    match (&light_directions, &light_colors) {
+        (Some(d), Some(c)) => {
+            let (ds, dd) = view("light_directions", d, 2)?;
+            expect_dim("light_directions", &ds, 1, 3, "x, y, z")?;
+            let (lcs, lcd) = view("light_colors", c, 2)?;
+            if lcs != ds {
+                return Err(PyValueError::new_err(format!(
+                    "light_colors: expected shape {ds:?} (as light_directions), got {lcs:?}"
+                )));
+            }
+            lights.directions = dd.chunks_exact(3).map(|v| [v[0], v[1], v[2]]).collect();
+            lights.colors = lcd.chunks_exact(3).map(|v| [v[0], v[1], v[2]]).collect();
+        }
+        (None, None) => {}
+        _ => {
+            return Err(PyValueError::new_err(
+                "light_directions/light_colors: give both or neither".to_string(),
+            ))
+        }
+    }
+    if let Some(a) = &ambient {
+        let (s, d) = view("ambient", a, 1)?;
+        expect_dim("ambient", &s, 0, 3, "RGB")?;
+        lights.ambient = [d[0], d[1], d[2]];
+    }
+    let mut settings = RenderSettings {
+        height: image_size("height", height)?,
+        width: image_size("width", width)?,
+        fill_back,
+        ..RenderSettings::default()
+    };
+    if let Some(bg) = &background {
+        let (s, d) = view("background", bg, 1)?;
+        expect_dim("background", &s, 0, 3, "RGB")?;
+        settings.background = [d[0], d[1], d[2]];
+    }
+    let camera =
+        SphericalCamera { distance, azimuth, elevation, tilt, viewing_angle, near, far, orthographic, ortho_scale };
+    let (h, w) = (settings.height, settings.width);
+    let out = run(py, nt, || render(vd, fd, cd, &camera, &lights, &settings))?;
+    Ok((
+        output(py, out.image, &[h, w, 3])?,
+        output(py, out.alpha, &[h, w])?,
+        output(py, out.depth, &[h, w])?,
+        output(py, out.face_index, &[h, w])?,
+    ))
+}
+
+/// The native module `meshadv._raster`.
+#[pymodule]
+fn _raster(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(rasterize_forward, m)?)?;
+    m.add_function(wrap_pyfunction!(rasterize_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(raycast, m)?)?;
+    m.add_function(wrap_pyfunction!(render_full, m)?)?;
+    m.add("MAX_IMAGE_SIZE", meshadv_raster::MAX_IMAGE_SIZE)?;
+    Ok(())
+}

@@ -1,0 +1,366 @@
+//! Mesh readers for the render binary: OBJ (tobj), OFF and PLY (ASCII and binary, careful hand-written parsers).
+//!
+//! Polygons are fan-triangulated. PLY per-face `red/green/blue` properties become face colours; otherwise faces get
+//! the default colour.
+
+use std::fs;
+use std::path::Path;
+
+/// A triangle mesh with per-face colours, flat arrays.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mesh {
+    /// `(N, 3)` positions.
+    pub vertices: Vec<f32>,
+    /// `(M, 3)` vertex indices.
+    pub faces: Vec<i32>,
+    /// `(M, 3)` RGB in `[0, 1]`, or `None` when the file has none.
+    pub face_colors: Option<Vec<f32>>,
+}
+
+/// Reads a mesh, choosing the parser from the extension (`.obj`, `.off`, `.ply`, case-insensitive).
+pub fn load_mesh(path: &Path) -> Result<Mesh, String> {
+    let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).unwrap_or_default();
+    if !path.exists() {
+        return Err(format!("{}: no such file", path.display()));
+    }
+    let mesh = match ext.as_str() {
+        "obj" => load_obj(path),
+        "off" => {
+            let bytes = fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+            parse_off(&bytes)
+        }
+        "ply" => {
+            let bytes = fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+            parse_ply(&bytes)
+        }
+        _ => Err(format!("unsupported mesh format {ext:?} (expected .obj, .off or .ply)")),
+    }
+    .map_err(|e| if e.starts_with(&path.display().to_string()) { e } else { format!("{}: {e}", path.display()) })?;
+    check_mesh(&mesh)?;
+    Ok(mesh)
+}
+
+/// Checks that the mesh is non-empty, finite and that faces refer to existing vertices.
+pub fn check_mesh(mesh: &Mesh) -> Result<(), String> {
+    let n = mesh.vertices.len() / 3;
+    if n == 0 || mesh.faces.is_empty() {
+        return Err("the mesh has no vertices or no faces".into());
+    }
+    if let Some(i) = mesh.vertices.iter().position(|v| !v.is_finite()) {
+        return Err(format!("vertex {} has a non-finite coordinate", i / 3));
+    }
+    if let Some(i) = mesh.faces.iter().position(|&f| f < 0 || f as usize >= n) {
+        return Err(format!("face {} refers to vertex {}, but there are {n} vertices", i / 3, mesh.faces[i]));
+    }
+    Ok(())
+}
+
+fn load_obj(path: &Path) -> Result<Mesh, String> {
+    let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
+    let (models, _materials) = tobj::load_obj(path, &opts).map_err(|e| format!("malformed OBJ: {e}"))?;
+    let mut vertices = Vec::new();
+    let mut faces = Vec::new();
+    for m in models {
+        let offset = (vertices.len() / 3) as i64;
+        vertices.extend_from_slice(&m.mesh.positions);
+        for &i in &m.mesh.indices {
+            let v = offset + i as i64;
+            faces.push(i32::try_from(v).map_err(|_| "too many vertices".to_string())?);
+        }
+    }
+    Ok(Mesh { vertices, faces, face_colors: None })
+}
+
+fn fan(poly: &[i64], faces: &mut Vec<i32>, what: &str) -> Result<(), String> {
+    if poly.len() < 3 {
+        return Err(format!("{what}: a face needs at least 3 vertices, got {}", poly.len()));
+    }
+    for k in 1..poly.len() - 1 {
+        for &v in &[poly[0], poly[k], poly[k + 1]] {
+            faces.push(i32::try_from(v).map_err(|_| format!("{what}: vertex index {v} out of range"))?);
+        }
+    }
+    Ok(())
+}
+
+/// Parses an ASCII OFF file: `OFF` header (counts on the same or the next line), one vertex per line (extra values
+/// such as colours ignored), one face per line `k i1 .. ik` (trailing colours ignored); `#` comments.
+pub fn parse_off(bytes: &[u8]) -> Result<Mesh, String> {
+    let text = std::str::from_utf8(bytes).map_err(|_| "malformed OFF: not UTF-8 text".to_string())?;
+    let mut lines = text.lines().map(|l| l.split('#').next().unwrap_or("").trim()).filter(|l| !l.is_empty());
+    let first = lines.next().ok_or("malformed OFF: empty file")?;
+    let mut head: Vec<&str> = first.split_whitespace().collect();
+    if head[0] != "OFF" {
+        return Err(format!("malformed OFF: expected the OFF header, got {:?}", head[0]));
+    }
+    head.remove(0);
+    if head.is_empty() {
+        head = lines.next().ok_or("malformed OFF: missing the counts line")?.split_whitespace().collect();
+    }
+    let count = |i: usize, what: &str| -> Result<usize, String> {
+        let s = head.get(i).ok_or_else(|| format!("malformed OFF: missing the {what}"))?;
+        s.parse::<usize>().map_err(|_| format!("malformed OFF: bad {what} {s:?}"))
+    };
+    let (nv, nf) = (count(0, "vertex count")?, count(1, "face count")?);
+    if nv > 100_000_000 || nf > 100_000_000 {
+        return Err(format!("malformed OFF: absurd counts ({nv} vertices, {nf} faces)"));
+    }
+    let mut vertices = Vec::with_capacity(nv * 3);
+    for i in 0..nv {
+        let l = lines.next().ok_or_else(|| format!("malformed OFF: expected {nv} vertices, file ends at {i}"))?;
+        let xyz: Vec<&str> = l.split_whitespace().take(3).collect();
+        if xyz.len() < 3 {
+            return Err(format!("malformed OFF: vertex {i}: expected 3 coordinates in {l:?}"));
+        }
+        for s in xyz {
+            vertices.push(s.parse::<f32>().map_err(|_| format!("malformed OFF: vertex {i}: bad number {s:?}"))?);
+        }
+    }
+    let mut faces = Vec::with_capacity(nf * 3);
+    for fi in 0..nf {
+        let l = lines.next().ok_or_else(|| format!("malformed OFF: expected {nf} faces, file ends at {fi}"))?;
+        let nums: Vec<&str> = l.split_whitespace().collect();
+        let k: usize = nums[0].parse().map_err(|_| format!("malformed OFF: face {fi}: bad vertex count {:?}", nums[0]))?;
+        if nums.len() < k + 1 {
+            return Err(format!("malformed OFF: face {fi}: expected {k} indices in {l:?}"));
+        }
+        let poly: Result<Vec<i64>, String> = nums[1..=k]
+            .iter()
+            .map(|s| s.parse::<i64>().map_err(|_| format!("malformed OFF: face {fi}: bad index {s:?}")))
+            .collect();
+        fan(&poly?, &mut faces, &format!("malformed OFF: face {fi}"))?;
+    }
+    Ok(Mesh { vertices, faces, face_colors: None })
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Scalar {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl Scalar {
+    fn parse(s: &str) -> Result<Scalar, String> {
+        Ok(match s {
+            "char" | "int8" => Scalar::I8,
+            "uchar" | "uint8" => Scalar::U8,
+            "short" | "int16" => Scalar::I16,
+            "ushort" | "uint16" => Scalar::U16,
+            "int" | "int32" => Scalar::I32,
+            "uint" | "uint32" => Scalar::U32,
+            "float" | "float32" => Scalar::F32,
+            "double" | "float64" => Scalar::F64,
+            _ => return Err(format!("malformed PLY: unknown property type {s:?}")),
+        })
+    }
+
+    fn size(self) -> usize {
+        match self {
+            Scalar::I8 | Scalar::U8 => 1,
+            Scalar::I16 | Scalar::U16 => 2,
+            Scalar::I32 | Scalar::U32 | Scalar::F32 => 4,
+            Scalar::F64 => 8,
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+struct Property {
+    name: String,
+    kind: Scalar,
+    /// Count type for list properties.
+    list: Option<Scalar>,
+}
+
+#[derive(Debug, Clone)]
+struct Element {
+    name: String,
+    count: usize,
+    props: Vec<Property>,
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Format {
+    Ascii,
+    Le,
+    Be,
+}
+
+/// Sequential value reader over the PLY body.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+    format: Format,
+    tokens: std::str::SplitAsciiWhitespace<'a>,
+}
+
+impl Reader<'_> {
+    fn read(&mut self, kind: Scalar) -> Result<f64, String> {
+        if self.format == Format::Ascii {
+            let t = self.tokens.next().ok_or("malformed PLY: unexpected end of data")?;
+            return t.parse::<f64>().map_err(|_| format!("malformed PLY: bad number {t:?}"));
+        }
+        let n = kind.size();
+        let b = self.bytes.get(self.pos..self.pos + n).ok_or("malformed PLY: file is truncated")?;
+        self.pos += n;
+        let mut a = [0u8; 8];
+        a[..n].copy_from_slice(b);
+        if self.format == Format::Be {
+            a[..n].reverse();
+        }
+        Ok(match kind {
+            Scalar::I8 => a[0] as i8 as f64,
+            Scalar::U8 => a[0] as f64,
+            Scalar::I16 => i16::from_le_bytes([a[0], a[1]]) as f64,
+            Scalar::U16 => u16::from_le_bytes([a[0], a[1]]) as f64,
+            Scalar::I32 => i32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
+            Scalar::U32 => u32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
+            Scalar::F32 => f32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
+            Scalar::F64 => f64::from_le_bytes(a),
+        })
+    }
+}
+
+/// Parses a PLY file (ASCII, binary little or big endian): `vertex` x/y/z, `face` `vertex_indices` (or
+/// `vertex_index`) lists, optional face `red/green/blue` (uchar 0-255 or float 0-1).
+pub fn parse_ply(bytes: &[u8]) -> Result<Mesh, String> {
+    const END: &[u8] = b"end_header";
+    let end = bytes.windows(END.len()).position(|w| w == END).ok_or("malformed PLY: no end_header")?;
+    let mut body_start = end + END.len();
+    // Skip the rest of the end_header line (\n or \r\n).
+    while body_start < bytes.len() && bytes[body_start] != b'\n' {
+        body_start += 1;
+    }
+    body_start += 1;
+    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "malformed PLY: header is not text")?;
+    let mut lines = header.lines();
+    if lines.next().map(str::trim) != Some("ply") {
+        return Err("malformed PLY: missing the 'ply' magic line".into());
+    }
+    let mut format = None;
+    let mut elements: Vec<Element> = Vec::new();
+    for line in lines {
+        let w: Vec<&str> = line.split_whitespace().collect();
+        match w.first().copied() {
+            Some("format") => {
+                format = Some(match w.get(1).copied() {
+                    Some("ascii") => Format::Ascii,
+                    Some("binary_little_endian") => Format::Le,
+                    Some("binary_big_endian") => Format::Be,
+                    other => return Err(format!("malformed PLY: unknown format {other:?}")),
+                })
+            }
+            Some("element") => {
+                let (Some(name), Some(count)) = (w.get(1), w.get(2)) else {
+                    return Err(format!("malformed PLY: bad element line {line:?}"));
+                };
+                let count: usize = count.parse().map_err(|_| format!("malformed PLY: bad element count {count:?}"))?;
+                if count > 200_000_000 {
+                    return Err(format!("malformed PLY: absurd element count {count}"));
+                }
+                elements.push(Element { name: name.to_string(), count, props: Vec::new() });
+            }
+            Some("property") => {
+                let el = elements.last_mut().ok_or("malformed PLY: property before any element")?;
+                let prop = if w.get(1) == Some(&"list") {
+                    let (Some(ct), Some(it), Some(name)) = (w.get(2), w.get(3), w.get(4)) else {
+                        return Err(format!("malformed PLY: bad list property {line:?}"));
+                    };
+                    Property { name: name.to_string(), kind: Scalar::parse(it)?, list: Some(Scalar::parse(ct)?) }
+                } else {
+                    let (Some(t), Some(name)) = (w.get(1), w.get(2)) else {
+                        return Err(format!("malformed PLY: bad property {line:?}"));
+                    };
+                    Property { name: name.to_string(), kind: Scalar::parse(t)?, list: None }
+                };
+                el.props.push(prop);
+            }
+            _ => {}
+        }
+    }
+    let format = format.ok_or("malformed PLY: no format line")?;
+    let body = bytes.get(body_start..).unwrap_or(&[]);
+    let text = if format == Format::Ascii {
+        std::str::from_utf8(body).map_err(|_| "malformed PLY: ASCII body is not text")?
+    } else {
+        ""
+    };
+    let mut rd = Reader { bytes: body, pos: 0, format, tokens: text.split_ascii_whitespace() };
+    let mut vertices = Vec::new();
+    let mut faces = Vec::new();
+    let mut colors: Vec<f32> = Vec::new();
+    let mut have_vertex = false;
+    for el in &elements {
+        let is_vertex = el.name == "vertex";
+        let is_face = el.name == "face";
+        let pos_idx: Vec<Option<usize>> =
+            ["x", "y", "z"].iter().map(|n| el.props.iter().position(|p| p.name == *n && p.list.is_none())).collect();
+        if is_vertex {
+            have_vertex = true;
+            if pos_idx.iter().any(Option::is_none) {
+                return Err("malformed PLY: vertex element lacks x, y or z".into());
+            }
+        }
+        let color_idx: Vec<Option<usize>> = ["red", "green", "blue"]
+            .iter()
+            .map(|n| el.props.iter().position(|p| p.name == *n && p.list.is_none()))
+            .collect();
+        let face_colors = is_face && color_idx.iter().all(Option::is_some);
+        for row in 0..el.count {
+            let mut xyz = [0f32; 3];
+            let mut rgb = [0f32; 3];
+            for (pi, p) in el.props.iter().enumerate() {
+                if let Some(ct) = p.list {
+                    let k = rd.read(ct)?;
+                    if !(0.0..=1_000_000.0).contains(&k) {
+                        return Err(format!("malformed PLY: {} {row}: bad list length {k}", el.name));
+                    }
+                    let mut items = Vec::with_capacity(k as usize);
+                    for _ in 0..k as usize {
+                        items.push(rd.read(p.kind)? as i64);
+                    }
+                    if is_face && (p.name == "vertex_indices" || p.name == "vertex_index") {
+                        fan(&items, &mut faces, &format!("malformed PLY: face {row}"))?;
+                    }
+                } else {
+                    let v = rd.read(p.kind)?;
+                    if is_vertex {
+                        for a in 0..3 {
+                            if pos_idx[a] == Some(pi) {
+                                xyz[a] = v as f32;
+                            }
+                        }
+                    }
+                    if face_colors {
+                        for a in 0..3 {
+                            if color_idx[a] == Some(pi) {
+                                rgb[a] = if matches!(p.kind, Scalar::F32 | Scalar::F64) { v as f32 } else { v as f32 / 255.0 };
+                            }
+                        }
+                    }
+                }
+            }
+            if is_vertex {
+                vertices.extend_from_slice(&xyz);
+            }
+            if face_colors {
+                // One colour per triangle of the fan.
+                let tris = faces.len() / 3 - colors.len() / 3;
+                for _ in 0..tris {
+                    colors.extend_from_slice(&rgb);
+                }
+            }
+        }
+    }
+    if !have_vertex {
+        return Err("malformed PLY: no vertex element".into());
+    }
+    let face_colors = (!colors.is_empty() && colors.len() == faces.len()).then_some(colors);
+    Ok(Mesh { vertices, faces, face_colors })
+}

@@ -1,0 +1,120 @@
+"""Type stub of the native module ``meshadv._raster`` (Rust core, crates/pybridge).
+
+All arrays must be C-contiguous; float arrays are float32 and index arrays int32. Errors: ``ValueError`` (bad shape,
+value, NaN/Inf, image size, near/far, all geometry behind the camera) and ``IndexError`` (face or face-index map entry
+out of range), each naming the argument; ``RuntimeError`` only for an internal error.
+"""
+
+import numpy as np
+import numpy.typing as npt
+
+MAX_IMAGE_SIZE: int
+
+def rasterize_forward(
+    verts_screen: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
+    face_attrs: npt.NDArray[np.float32],
+    background: npt.NDArray[np.float32],
+    height: int,
+    width: int,
+    near: float,
+    far: float,
+    cull_backfaces: bool,
+    num_threads: int = 0,
+    orthographic: bool = False,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.int32], npt.NDArray[np.float32]]:
+    """Rasterize screen-space triangles with per-face attributes.
+
+    Args:
+        verts_screen: (B,N,3) ``(x_ndc, y_ndc, z_view)``.
+        faces: (M,3) vertex indices.
+        face_attrs: (B,M,C) per-face attributes.
+        background: (C,) attribute of empty pixels.
+        height: image height H in [1, 16384].
+        width: image width W in [1, 16384].
+        near: near clipping depth, ``0 <= near < far``.
+        far: far clipping depth (written as depth on background).
+        cull_backfaces: drop faces whose normal points away from the camera (counter-clockwise in y-up NDC).
+        num_threads: rayon threads, 0 = default. Results do not depend on it.
+        orthographic: interpolate z (not 1/z) linearly in screen space; faces behind the eye are kept.
+
+    Returns:
+        ``(image (B,H,W,C), face_index (B,H,W) int32 with -1 = background, depth (B,H,W) with far on background)``.
+    """
+
+def rasterize_backward(
+    verts_screen: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
+    face_attrs: npt.NDArray[np.float32],
+    background: npt.NDArray[np.float32],
+    height: int,
+    width: int,
+    near: float,
+    far: float,
+    cull_backfaces: bool,
+    face_index: npt.NDArray[np.int32],
+    image: npt.NDArray[np.float32],
+    grad_image: npt.NDArray[np.float32],
+    num_threads: int = 0,
+    orthographic: bool = False,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """Backward of ``rasterize_forward`` (same leading arguments, plus its outputs and the image cotangent).
+
+    Returns:
+        ``(grad_verts_screen (B,N,3) with z = 0, grad_face_attrs (B,M,C))``. The vertex gradient is NMR's approximate
+        rasterization gradient defined in docs/NMR_GRADIENT.md; the attribute gradient is exact.
+    """
+
+def raycast(
+    verts_view: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
+    height: int,
+    width: int,
+    viewing_angle: float = 30.0,
+    near: float = 0.1,
+    far: float = 100.0,
+    orthographic: bool = False,
+    ortho_scale: float = 1.0,
+    cull_backfaces: bool = False,
+    num_threads: int = 0,
+) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.float32]]:
+    """Exact BVH ray cast of view-space triangles (B,N,3), one primary ray per pixel centre.
+
+    Returns:
+        ``(face_index (B,H,W) int32, depth (B,H,W) float32)``, as the rasterizer on the projected vertices except on
+        exact ties and within rounding of an edge.
+    """
+
+def render_full(
+    verts_world: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
+    face_colors: npt.NDArray[np.float32],
+    height: int,
+    width: int,
+    distance: float,
+    azimuth: float,
+    elevation: float,
+    tilt: float = 0.0,
+    viewing_angle: float = 30.0,
+    near: float = 0.1,
+    far: float = 100.0,
+    orthographic: bool = False,
+    ortho_scale: float = 1.0,
+    light_directions: npt.NDArray[np.float32] | None = None,
+    light_colors: npt.NDArray[np.float32] | None = None,
+    ambient: npt.NDArray[np.float32] | None = None,
+    background: npt.NDArray[np.float32] | None = None,
+    fill_back: bool = True,
+    num_threads: int = 0,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], npt.NDArray[np.float32], npt.NDArray[np.int32]]:
+    """Full forward render of one view in Rust (spherical camera, Lambert shading, rasterization).
+
+    Args:
+        verts_world: (N,3) world vertices. faces: (M,3). face_colors: (M,3) reflectances.
+        light_directions, light_colors: (K,3) each, both or neither (default: one light 0.5 toward +Y).
+        ambient: (3,) (default 0.5). background: (3,) (default white).
+        fill_back: two-sided with normals flipped toward the camera; False culls back faces.
+
+    Returns:
+        ``(image (H,W,3), alpha (H,W), depth (H,W), face_index (H,W))``.
+    """

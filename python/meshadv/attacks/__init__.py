@@ -1,0 +1,55 @@
+"""MeshAdv attacks (Xiao et al., CVPR 2019): adversarial shape and texture perturbations of meshes.
+
+Attack objects hold hyper-parameters only; the mesh, views, victim and criterion are passed per call and the call
+returns an :class:`AttackResult`:
+
+    >>> from meshadv.attacks import ShapeAttack, TargetedMisclassification
+    >>> result = ShapeAttack(steps=300)(mesh, views, victim, TargetedMisclassification("bicycle"))  # doctest: +SKIP
+    >>> result.succeeded, result.distances[0]["laplacian"]                                           # doctest: +SKIP
+
+Several targets are attacked together as a batch by passing a list of criteria.
+"""
+
+from __future__ import annotations
+
+from meshadv.attacks.base import MeshAttack, StepInfo
+from meshadv.attacks.criteria import Criterion, Disappearance, Misclassification, TargetedMisclassification
+from meshadv.attacks.distances import color_rmse, displacement_stats, laplacian_distance, mesh_distances
+from meshadv.attacks.losses import (
+    cw_targeted_margin,
+    cw_untargeted_margin,
+    disappearance_loss,
+    image_smoothness_loss,
+    laplacian_flow_loss,
+    targeted_cross_entropy,
+    untargeted_cross_entropy,
+)
+from meshadv.attacks.result import AttackResult, load_result_record
+from meshadv.attacks.search import LambdaSearch
+from meshadv.attacks.shape import ShapeAttack
+from meshadv.attacks.texture import TextureAttack
+
+__all__ = [
+    "MeshAttack",
+    "ShapeAttack",
+    "TextureAttack",
+    "StepInfo",
+    "Criterion",
+    "TargetedMisclassification",
+    "Misclassification",
+    "Disappearance",
+    "AttackResult",
+    "load_result_record",
+    "LambdaSearch",
+    "laplacian_flow_loss",
+    "image_smoothness_loss",
+    "targeted_cross_entropy",
+    "untargeted_cross_entropy",
+    "cw_targeted_margin",
+    "cw_untargeted_margin",
+    "disappearance_loss",
+    "laplacian_distance",
+    "color_rmse",
+    "displacement_stats",
+    "mesh_distances",
+]

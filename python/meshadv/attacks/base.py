@@ -1,0 +1,523 @@
+"""The optimisation loop shared by the shape and texture attacks.
+
+An attack minimises ``L_adv + lambda * L_perceptual`` with Adam over a per-target parameter tensor ``(T, ...)``:
+the ``T`` targets are a batch dimension, so one call renders ``T x V`` images (``V`` victim views) and evaluates the
+victim once. Because Adam is element-wise and the total loss is a sum of per-target terms, the targets are optimised
+exactly as if they ran one at a time. A target stops being rendered once it is finished (early stopping or budget).
+
+Per step, for the parameters *before* the update, the loop records the per-view margins of the criterion; a target
+whose views are adversarial (at least ``success_fraction`` of them) within the distortion budget keeps those
+parameters when their distortion is the least seen so far. ``lambda`` is searched per target over
+``binary_search_steps`` rounds (:class:`~meshadv.attacks.search.LambdaSearch`), each round restarting from the
+pristine mesh with the same seed.
+
+The result's success and scores are measured on the final meshes re-rendered from scratch (without jitter), never on
+the optimiser's last images. Ctrl-C (``KeyboardInterrupt``) inside the loop stops the attack and returns the best
+result so far with ``interrupted=True``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
+
+import torch
+from torch import Tensor
+
+from meshadv.attacks._compat import vertex_edges
+from meshadv.attacks.criteria import CLASSIFIER_LOSSES, Criterion
+from meshadv.attacks.distances import mesh_distances
+from meshadv.attacks.result import AttackResult
+from meshadv.attacks.search import LambdaSearch
+
+__all__ = ["MeshAttack", "StepInfo", "slice_output", "render_views"]
+
+ImageSize = Union[int, Tuple[int, int]]
+_JITTER_KEYS = ("azimuth", "elevation", "distance", "tilt", "light_direction", "light_intensity")
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    """Progress of one optimiser step, passed to the ``callback`` of an attack call.
+
+    Attributes:
+        round: binary-search round (0-based); ``rounds`` the number of rounds.
+        step: step within the round (0-based); ``steps`` the maximum steps per round.
+        total_step: steps done over all rounds before this one.
+        lambdas: current ``lambda`` per target.
+        loss: total loss per target (``None`` for finished targets).
+        distance: current distortion per target (Laplacian for shape, colour RMSE for texture), or ``None``.
+        margin: worst-view criterion margin per target, or ``None``.
+        top1: top-1 class of the first view per target (classifiers), or ``None``.
+        best_distance: least distortion of a success so far per target (``None`` before any success).
+        active: number of targets still being optimised.
+    """
+
+    round: int
+    rounds: int
+    step: int
+    steps: int
+    total_step: int
+    lambdas: Tuple[float, ...]
+    loss: Tuple[Optional[float], ...]
+    distance: Tuple[Optional[float], ...]
+    margin: Tuple[Optional[float], ...]
+    top1: Tuple[Optional[int], ...]
+    best_distance: Tuple[Optional[float], ...]
+    active: int
+
+
+def slice_output(output: Any, start: int, stop: int) -> Any:
+    """Rows ``start:stop`` of a victim output (logits tensor or ``DetectorOutput``)."""
+    if isinstance(output, Tensor):
+        return output[start:stop]
+    cls = type(output)
+    obj = output.objectness
+    return cls(boxes=output.boxes[start:stop], objectness=None if obj is None else obj[start:stop],
+               class_probs=output.class_probs[start:stop])
+
+
+def render_views(
+    vertices: Tensor,
+    faces: Tensor,
+    face_colors: Tensor,
+    views: Any,
+    *,
+    image_size: ImageSize,
+    background: Union[Tuple[float, float, float], Tensor],
+    antialias: int = 1,
+) -> Tuple[Tensor, Tensor]:
+    """Render ``K`` meshes (one topology) from each of ``V`` views in one batched call.
+
+    The batch is mesh-major: image ``k * V + v`` is mesh ``k`` seen from view ``v``. A background given as an image
+    ``(3, H, W)`` (e.g. a photo) is composited behind the object with the render's alpha.
+
+    Args:
+        vertices: ``(K, N, 3)``.
+        faces: int ``(M, 3)``.
+        face_colors: ``(M, 3)`` shared, or ``(K, M, 3)``.
+        views: a ``ViewSet`` of ``V`` views.
+        image_size: ``int`` or ``(H, W)``.
+        background: RGB colour or a ``(3, H, W)`` image.
+        antialias: supersampling factor.
+
+    Returns:
+        ``(images (K*V, 3, H, W), alpha (K*V, 1, H, W))``.
+    """
+    from meshadv.render import ViewSet, render
+
+    k, v = vertices.shape[0], len(views)
+    batched = ViewSet.cat([views] * k) if k > 1 else views
+    verts = vertices.repeat_interleave(v, dim=0) if v > 1 else vertices
+    colors = face_colors
+    if face_colors.dim() == 3:
+        colors = face_colors.repeat_interleave(v, dim=0) if v > 1 else face_colors
+    photo = isinstance(background, Tensor) and background.dim() == 3
+    bg = (0.0, 0.0, 0.0) if photo else background
+    out = render(verts, faces, colors, batched.camera, batched.lights, image_size=image_size, background=bg,
+                 antialias=antialias)
+    image = out.image
+    if photo:
+        image = image + (1.0 - out.alpha) * background.to(image.dtype).unsqueeze(0)
+    return image, out.alpha
+
+
+def _parse_image_size(image_size: ImageSize) -> Tuple[int, int]:
+    if isinstance(image_size, int):
+        size = (image_size, image_size)
+    else:
+        size = tuple(int(s) for s in image_size)  # type: ignore[assignment]
+    if len(size) != 2 or min(size) < 8:
+        raise ValueError(f"image_size must be an int or (H, W) of at least 8 pixels, got {image_size!r}")
+    return size  # type: ignore[return-value]
+
+
+class MeshAttack(ABC):
+    """Base class of mesh attacks: holds hyper-parameters only (keyword-only); the mesh, views, victim and criterion
+    are passed per call.
+
+    Args:
+        steps: maximum Adam steps per binary-search round (paper: 1000).
+        lr: Adam learning rate.
+        lambda_perceptual: initial weight ``lambda`` of the perceptual loss.
+        binary_search_steps: rounds of the ``lambda`` search (paper: 5; 1 = a single run at ``lambda_perceptual``).
+        loss: classifier loss, ``"ce"`` (targeted / untargeted cross-entropy) or ``"cw"`` (C&W margin).
+        kappa: C&W confidence (``loss="cw"`` only).
+        early_stop: stop a target once its criterion has held with ``early_stop_margin`` on every view for this
+            many consecutive steps (``None``: run every step, as the paper).
+        early_stop_margin: margin required by early stopping (logit units for classifiers, score units for
+            detectors).
+        max_distortion: distortion budget (Laplacian for shape, colour RMSE for texture): a target stops, failed
+            unless it already succeeded within the budget, once it exceeds it.
+        success_fraction: fraction of the victim views that must be adversarial (1.0 = all).
+        jitter: random view / light jitter at every step, keys of ``ViewSet.jitter`` (``azimuth``, ``elevation``,
+            ``distance``, ``tilt``, ``light_direction``, ``light_intensity``); ``None`` for none.
+        image_size: rendered image size, ``int`` or ``(H, W)`` (the victim resizes internally).
+        background: RGB background colour, or a ``(3, H, W)`` image tensor composited behind the object.
+        antialias: supersampling factor of the renderer.
+        seed: seed of the jitter generator (the attack is otherwise deterministic).
+
+    Raises:
+        ValueError: any hyper-parameter out of range, naming it.
+    """
+
+    perturbation: str = ""
+
+    def __init__(
+        self,
+        *,
+        steps: int = 1000,
+        lr: float = 0.01,
+        lambda_perceptual: float = 1.0,
+        binary_search_steps: int = 1,
+        loss: str = "ce",
+        kappa: float = 0.0,
+        early_stop: Optional[int] = None,
+        early_stop_margin: float = 0.0,
+        max_distortion: Optional[float] = None,
+        success_fraction: float = 1.0,
+        jitter: Optional[Dict[str, float]] = None,
+        image_size: ImageSize = 224,
+        background: Union[Tuple[float, float, float], Tensor] = (1.0, 1.0, 1.0),
+        antialias: int = 1,
+        seed: int = 0,
+    ) -> None:
+        if int(steps) < 1:
+            raise ValueError(f"steps must be >= 1, got {steps}")
+        if not lr > 0:
+            raise ValueError(f"lr must be > 0, got {lr}")
+        if not lambda_perceptual >= 0 or not math.isfinite(lambda_perceptual):
+            raise ValueError(f"lambda_perceptual must be a finite number >= 0, got {lambda_perceptual}")
+        if int(binary_search_steps) < 1:
+            raise ValueError(f"binary_search_steps must be >= 1, got {binary_search_steps}")
+        if loss not in CLASSIFIER_LOSSES:
+            raise ValueError(f"loss must be one of {CLASSIFIER_LOSSES}, got {loss!r}")
+        if not kappa >= 0:
+            raise ValueError(f"kappa must be >= 0, got {kappa}")
+        if early_stop is not None and int(early_stop) < 1:
+            raise ValueError(f"early_stop must be None or >= 1, got {early_stop}")
+        if max_distortion is not None and not max_distortion > 0:
+            raise ValueError(f"max_distortion must be None or > 0, got {max_distortion}")
+        if not 0 < success_fraction <= 1:
+            raise ValueError(f"success_fraction must be in (0, 1], got {success_fraction}")
+        if jitter is not None:
+            unknown = set(jitter) - set(_JITTER_KEYS)
+            if unknown:
+                raise ValueError(f"jitter has unknown keys {sorted(unknown)}; known: {_JITTER_KEYS}")
+        if int(antialias) < 1:
+            raise ValueError(f"antialias must be >= 1, got {antialias}")
+        if isinstance(background, Tensor):
+            if not (background.dim() == 3 and background.shape[0] == 3) and background.shape != (3,):
+                raise ValueError(f"background must be 3 values or a (3, H, W) image, got {tuple(background.shape)}")
+        elif len(tuple(background)) != 3:
+            raise ValueError(f"background must be 3 values or a (3, H, W) image, got {background!r}")
+        self.steps = int(steps)
+        self.lr = float(lr)
+        self.lambda_perceptual = float(lambda_perceptual)
+        self.binary_search_steps = int(binary_search_steps)
+        self.loss = loss
+        self.kappa = float(kappa)
+        self.early_stop = None if early_stop is None else int(early_stop)
+        self.early_stop_margin = float(early_stop_margin)
+        self.max_distortion = None if max_distortion is None else float(max_distortion)
+        self.success_fraction = float(success_fraction)
+        self.jitter = None if jitter is None else {k: float(v) for k, v in jitter.items()}
+        self.image_size = _parse_image_size(image_size)
+        if isinstance(background, Tensor) and background.dim() == 3 and tuple(background.shape[1:]) != self.image_size:
+            raise ValueError(f"background image {tuple(background.shape[1:])} must match image_size {self.image_size}")
+        self.background = background if isinstance(background, Tensor) else tuple(float(c) for c in background)
+        self.antialias = int(antialias)
+        self.seed = int(seed)
+
+    # ------------------------------------------------------------------ family hooks
+    @abstractmethod
+    def _init_params(self, mesh: Any, num_targets: int) -> Tensor:
+        """Initial parameters ``(T, ...)`` (the pristine mesh)."""
+
+    @abstractmethod
+    def _apply(self, params: Tensor, mesh: Any) -> Tuple[Tensor, Tensor]:
+        """``(vertices (K,N,3), face_colors (M,3) or (K,M,3))`` for parameters ``(K, ...)``."""
+
+    @abstractmethod
+    def _perceptual(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
+                    num_views: int) -> Tensor:
+        """Perceptual loss per target ``(K,)``."""
+
+    @abstractmethod
+    def _distance(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
+        """Distortion per target ``(K,)`` (the budget / best-result measure)."""
+
+    # ------------------------------------------------------------------ public
+    def config(self) -> Dict[str, Any]:
+        """The hyper-parameters as a JSON-able dict."""
+        bg = self.background
+        return {
+            "perturbation": self.perturbation, "steps": self.steps, "lr": self.lr,
+            "lambda_perceptual": self.lambda_perceptual, "binary_search_steps": self.binary_search_steps,
+            "loss": self.loss, "kappa": self.kappa, "early_stop": self.early_stop,
+            "early_stop_margin": self.early_stop_margin, "max_distortion": self.max_distortion,
+            "success_fraction": self.success_fraction, "jitter": self.jitter, "image_size": list(self.image_size),
+            "background": "image" if isinstance(bg, Tensor) and bg.dim() == 3 else [float(c) for c in bg],
+            "antialias": self.antialias, "seed": self.seed,
+        }
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self.config().items() if k != "perturbation")
+        return f"{type(self).__name__}({args})"
+
+    def __call__(
+        self,
+        mesh: Any,
+        views: Any,
+        victim: Any,
+        criterion: Union[Criterion, Sequence[Criterion]],
+        *,
+        eval_views: Any = None,
+        callback: Optional[Callable[[StepInfo], None]] = None,
+    ) -> AttackResult:
+        """Attack ``mesh`` seen from ``views`` against ``victim`` towards ``criterion``.
+
+        Args:
+            mesh: the pristine ``meshadv.mesh.Mesh``.
+            views: a ``meshadv.render.ViewSet`` of the ``V`` victim views optimised over.
+            victim: a classifier or detector victim (``meshadv.victims``).
+            criterion: one criterion, or a sequence of ``T`` criteria attacked together as a batch.
+            eval_views: optional held-out ``ViewSet`` on which the final meshes are also evaluated.
+            callback: called after every step with a :class:`StepInfo`; raising ``KeyboardInterrupt`` from it stops
+                the attack like Ctrl-C.
+
+        Returns:
+            An :class:`~meshadv.attacks.result.AttackResult`.
+
+        Raises:
+            ValueError: bad mesh, views or criterion, or a criterion that does not suit the victim.
+        """
+        criteria = [criterion] if isinstance(criterion, Criterion) else list(criterion)
+        if not criteria or not all(isinstance(c, Criterion) for c in criteria):
+            raise ValueError("criterion must be a Criterion or a non-empty sequence of Criterion objects")
+        for name, value in (("mesh", mesh), ):
+            if not hasattr(value, "vertices") or not hasattr(value, "faces") or not hasattr(value, "face_colors"):
+                raise ValueError(f"{name} must be a meshadv.mesh.Mesh, got {type(value).__name__}")
+        if not hasattr(views, "camera") or len(views) < 1:
+            raise ValueError("views must be a non-empty meshadv.render.ViewSet")
+        if eval_views is not None and (not hasattr(eval_views, "camera") or len(eval_views) < 1):
+            raise ValueError("eval_views must be None or a non-empty meshadv.render.ViewSet")
+        bound = [c.bind(victim) for c in criteria]
+        return self._run(mesh, views, victim, bound, eval_views, callback)
+
+    # ------------------------------------------------------------------ loop
+    def _forward(self, params: Tensor, mesh: Any, views: Any, victim: Any) -> Tuple[Tensor, Tensor, Any]:
+        verts, colors = self._apply(params, mesh)
+        images, alpha = render_views(verts, mesh.faces, colors, views, image_size=self.image_size,
+                                     background=self.background, antialias=self.antialias)
+        return images, alpha, victim(images)
+
+    def _run(self, mesh: Any, views: Any, victim: Any, criteria: List[Criterion], eval_views: Any,
+             callback: Optional[Callable[[StepInfo], None]]) -> AttackResult:
+        t_start = time.perf_counter()
+        num_t, num_v = len(criteria), len(views)
+        edges = vertex_edges(mesh.faces)
+        views = views.detach()
+        search = LambdaSearch(self.lambda_perceptual, num_t)
+        best_params: List[Optional[Tensor]] = [None] * num_t
+        best_dist = [math.inf] * num_t
+        best_lambda = [math.nan] * num_t
+        fallback: List[Optional[Tensor]] = [None] * num_t
+        fallback_key = [(-math.inf, -math.inf)] * num_t
+        first_step: List[Optional[int]] = [None] * num_t
+        first_time: List[Optional[float]] = [None] * num_t
+        history: List[Dict[str, Any]] = []
+        total_steps = 0
+        interrupted = False
+        classifier = getattr(victim, "kind", "") == "classifier"
+
+        for rnd in range(self.binary_search_steps):
+            generator = torch.Generator().manual_seed(self.seed)
+            lambdas = search.lambdas
+            params = self._init_params(mesh, num_t).detach().clone().requires_grad_(True)
+            optimiser = torch.optim.Adam([params], lr=self.lr)
+            active = [True] * num_t
+            hold = [0] * num_t
+            round_success = [False] * num_t
+            for step in range(self.steps):
+                act = [t for t in range(num_t) if active[t]]
+                if not act:
+                    break
+                try:
+                    step_views = views.jitter(generator, **self.jitter) if self.jitter else views
+                    idx = torch.tensor(act, dtype=torch.long)
+                    p = params[idx]
+                    images, alpha, output = self._forward(p, mesh, step_views, victim)
+                    adv = torch.stack([
+                        criteria[t].loss(slice_output(output, a * num_v, (a + 1) * num_v),
+                                         loss=self.loss, kappa=self.kappa).mean()
+                        for a, t in enumerate(act)
+                    ])
+                    perc = self._perceptual(p, mesh, edges, images, alpha, num_v)
+                    total = adv + lambdas[idx] * perc
+                    optimiser.zero_grad(set_to_none=True)
+                    total.sum().backward()
+                    optimiser.step()
+                except KeyboardInterrupt:
+                    interrupted = True
+                    break
+                total_steps += 1
+                total, adv, perc = total.detach(), adv.detach(), perc.detach()
+                with torch.no_grad():
+                    dist = self._distance(p.detach(), mesh, edges)
+                    margins = torch.stack([
+                        criteria[t].margin(slice_output(output, a * num_v, (a + 1) * num_v)).detach()
+                        for a, t in enumerate(act)
+                    ])
+                    top = output.detach().argmax(dim=1).view(len(act), num_v)[:, 0] if classifier else None
+                row: Dict[str, Any] = {"round": rnd, "step": step, "loss": [None] * num_t, "adv": [None] * num_t,
+                                       "perceptual": [None] * num_t, "distance": [None] * num_t,
+                                       "margin": [None] * num_t, "lambda": lambdas.tolist()}
+                top1: List[Optional[int]] = [None] * num_t
+                for a, t in enumerate(act):
+                    d = float(dist[a])
+                    frac = float((margins[a] > 0).float().mean())
+                    ok = frac >= self.success_fraction - 1e-9
+                    within = self.max_distortion is None or d <= self.max_distortion
+                    if ok and within:
+                        round_success[t] = True
+                        if first_step[t] is None:
+                            first_step[t] = total_steps
+                            first_time[t] = time.perf_counter() - t_start
+                        if d < best_dist[t]:
+                            best_dist[t] = d
+                            best_params[t] = p[a].detach().clone()
+                            best_lambda[t] = float(lambdas[t])
+                    key = (frac, float(margins[a].mean()))
+                    if best_params[t] is None and key > fallback_key[t]:
+                        fallback_key[t] = key
+                        fallback[t] = p[a].detach().clone()
+                    hold[t] = hold[t] + 1 if ok and float(margins[a].min()) >= self.early_stop_margin else 0
+                    if self.early_stop is not None and hold[t] >= self.early_stop:
+                        active[t] = False
+                    if not within:
+                        active[t] = False
+                    row["loss"][t] = float(total[a])
+                    row["adv"][t] = float(adv[a])
+                    row["perceptual"][t] = float(perc[a])
+                    row["distance"][t] = d
+                    row["margin"][t] = float(margins[a].min())
+                    if top is not None:
+                        top1[t] = int(top[a])
+                history.append(row)
+                if callback is not None:
+                    info = StepInfo(
+                        round=rnd, rounds=self.binary_search_steps, step=step, steps=self.steps,
+                        total_step=total_steps, lambdas=tuple(lambdas.tolist()), loss=tuple(row["loss"]),
+                        distance=tuple(row["distance"]), margin=tuple(row["margin"]), top1=tuple(top1),
+                        best_distance=tuple(None if math.isinf(b) else b for b in best_dist),
+                        active=sum(active),
+                    )
+                    try:
+                        callback(info)
+                    except KeyboardInterrupt:
+                        interrupted = True
+                        break
+            if interrupted:
+                break
+            search.update(round_success)
+
+        chosen = []
+        for t in range(num_t):
+            if best_params[t] is not None:
+                chosen.append(best_params[t])
+            elif fallback[t] is not None:
+                chosen.append(fallback[t])
+            else:
+                chosen.append(self._init_params(mesh, 1)[0].detach())
+        return self._finish(mesh, views, victim, criteria, eval_views, edges, torch.stack(chosen), best_lambda,
+                            history, total_steps, first_step, first_time, time.perf_counter() - t_start,
+                            interrupted)
+
+    # ------------------------------------------------------------------ final evaluation
+    def _evaluate(self, meshes: Sequence[Any], views: Any, victim: Any, criteria: List[Criterion],
+                  shared: bool = False) -> Tuple[Tensor, Tensor, Tensor, Optional[Tensor]]:
+        """Re-render ``meshes`` from scratch and score them against each criterion.
+
+        Args:
+            meshes: one mesh per criterion, or (``shared=True``) a single mesh scored against every criterion.
+            views: the ``V`` views.
+            victim: the victim.
+            criteria: ``T`` bound criteria.
+            shared: score the single mesh against every criterion.
+
+        Returns:
+            ``(margins (T, V), scores (T, V), images (K, V, 3, H, W), top1 (K, V) or None)`` with ``K`` meshes.
+        """
+        num_v = len(views)
+        verts = torch.stack([m.vertices for m in meshes])
+        colors = torch.stack([m.face_colors for m in meshes])
+        with torch.no_grad():
+            images, _ = render_views(verts, meshes[0].faces, colors, views, image_size=self.image_size,
+                                     background=self.background, antialias=self.antialias)
+            output = victim(images)
+            parts = [slice_output(output, 0, num_v) if shared else slice_output(output, t * num_v, (t + 1) * num_v)
+                     for t in range(len(criteria))]
+            margins = torch.stack([c.margin(o) for c, o in zip(criteria, parts)])
+            scores = torch.stack([c.score(o) for c, o in zip(criteria, parts)])
+            top1 = output.argmax(dim=1).view(len(meshes), num_v) if isinstance(output, Tensor) else None
+        return margins, scores, images.view(len(meshes), num_v, *images.shape[1:]), top1
+
+    def _finish(self, mesh: Any, views: Any, victim: Any, criteria: List[Criterion], eval_views: Any,
+                edges: Tensor, params: Tensor, best_lambda: List[float], history: List[Dict[str, Any]],
+                total_steps: int, first_step: List[Optional[int]], first_time: List[Optional[float]],
+                wall_time: float, interrupted: bool) -> AttackResult:
+        from meshadv.mesh import Mesh
+
+        num_t = params.shape[0]
+        with torch.no_grad():
+            verts, colors = self._apply(params, mesh)
+            if colors.dim() == 2:
+                colors = colors.unsqueeze(0).expand(num_t, -1, -1)
+        adversarial = tuple(
+            Mesh(verts[t].detach().clone().float().contiguous(), mesh.faces,
+                 colors[t].detach().clone().float().contiguous())
+            for t in range(num_t)
+        )
+        margins, scores, images, top1 = self._evaluate(adversarial, views, victim, criteria)
+        _, orig_scores, orig_images, orig_top1 = self._evaluate([mesh], views, victim, criteria, shared=True)
+        eval_success = eval_scores = None
+        if eval_views is not None:
+            ev_margins, eval_scores, _, _ = self._evaluate(adversarial, eval_views.detach(), victim, criteria)
+            eval_success = ev_margins > 0
+        distances = tuple(
+            mesh_distances(mesh.vertices, mesh.face_colors, m.vertices, m.face_colors, edges) for m in adversarial
+        )
+        return AttackResult(
+            original=mesh,
+            adversarial=adversarial,
+            perturbation=self.perturbation,
+            criteria=tuple(c.to_record() for c in criteria),
+            success=margins > 0,
+            scores=scores,
+            original_scores=orig_scores,
+            margins=margins,
+            top1=top1,
+            original_top1=None if orig_top1 is None else orig_top1[0],
+            eval_success=eval_success,
+            eval_scores=eval_scores,
+            distances=distances,
+            lambdas=tuple(best_lambda),
+            loss_history=tuple(history),
+            steps=total_steps,
+            steps_to_success=tuple(first_step),
+            time_to_success=tuple(first_time),
+            wall_time=wall_time,
+            interrupted=interrupted,
+            success_fraction=self.success_fraction,
+            original_images=orig_images[0],
+            images=images,
+            view_records=tuple(views.to_records()),
+            eval_view_records=None if eval_views is None else tuple(eval_views.to_records()),
+            config=self.config(),
+            victim=str(getattr(victim, "name", type(victim).__name__)),
+            class_names=tuple(getattr(victim, "class_names", ()) or ()),
+        )

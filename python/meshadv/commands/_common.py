@@ -1,0 +1,127 @@
+"""Helpers shared by the ``meshadv`` subcommands: mesh arguments, view sets, colours and labels.
+
+Heavy imports (torch, the renderer, victims) happen inside the functions so ``meshadv --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, List, Optional, Sequence, Tuple
+
+__all__ = [
+    "DEFAULT_DISTANCE",
+    "DEFAULT_ELEVATION",
+    "DEFAULT_BACKGROUND",
+    "load_mesh_arg",
+    "make_views",
+    "parse_color",
+    "topk_labels",
+]
+
+#: Camera distance that frames a mesh normalised into [-1, 1] with a 30 degree field of view.
+DEFAULT_DISTANCE = 4.0
+#: Default camera elevation (degrees).
+DEFAULT_ELEVATION = 15.0
+#: Default background colour.
+DEFAULT_BACKGROUND = "1,1,1"
+
+
+def load_mesh_arg(spec: str, *, z_up: Optional[bool] = None) -> Tuple[Any, str]:
+    """Load the mesh named on the command line and normalise it into ``[-1, 1]``.
+
+    Args:
+        spec: a mesh file (PLY/OBJ/OFF), ``builtin:NAME`` (a generated shape) or ``default`` (the shared PASCAL3D+
+            default when present, else a built-in).
+        z_up: the file is Z-up (rotate to Y-up); ``None`` guesses True for files under a ``pascal3d`` folder.
+
+    Returns:
+        ``(mesh, label)``.
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        ValueError: unknown built-in name or unreadable mesh.
+    """
+    from meshadv.mesh import load_mesh, normalize_mesh
+    from meshadv.mesh.shapes import builtin_mesh, default_mesh
+
+    if spec == "default":
+        return default_mesh(), "default"
+    if spec.startswith("builtin:"):
+        name = spec.split(":", 1)[1]
+        return builtin_mesh(name), spec
+    path = Path(spec)
+    if not path.is_file():
+        raise FileNotFoundError(f"MESH {spec} does not exist (give a mesh file, builtin:NAME or default)")
+    if z_up is None:
+        z_up = "pascal3d" in (p.lower() for p in path.resolve().parts)
+    mesh, _ = normalize_mesh(load_mesh(path), z_up=bool(z_up))
+    return mesh, str(path)
+
+
+def make_views(
+    num_views: int,
+    azimuth_range: Sequence[float] = (-30.0, 30.0),
+    elevation: float = DEFAULT_ELEVATION,
+    distance: float = DEFAULT_DISTANCE,
+    offset: float = 0.0,
+) -> Any:
+    """``num_views`` azimuths evenly spread over ``azimuth_range`` (inclusive; one view sits at its centre).
+
+    Args:
+        num_views: number of views (>= 1).
+        azimuth_range: ``(low, high)`` degrees.
+        elevation: camera elevation in degrees.
+        distance: camera distance.
+        offset: shift every azimuth by this fraction of the spacing (0.5 puts held-out views between the
+            optimised ones).
+
+    Returns:
+        A ``ViewSet`` with a head light per view.
+
+    Raises:
+        ValueError: ``num_views < 1`` or an empty range.
+    """
+    import torch
+
+    from meshadv.render import ViewSet
+
+    if num_views < 1:
+        raise ValueError(f"views must be >= 1, got {num_views}")
+    lo, hi = float(azimuth_range[0]), float(azimuth_range[1])
+    if hi < lo:
+        raise ValueError(f"azimuth range must be (low, high) with low <= high, got {azimuth_range}")
+    if num_views == 1:
+        az = torch.tensor([(lo + hi) / 2])
+    else:
+        az = torch.linspace(lo, hi, num_views)
+        if offset:
+            step = (hi - lo) / (num_views - 1)
+            az = (az + offset * step)[:-1] if offset > 0 else az
+    return ViewSet.orbit(az, elevation=elevation, distance=distance)
+
+
+def parse_color(text: str, name: str = "background") -> Tuple[float, float, float]:
+    """Parse ``"r,g,b"`` (floats in [0, 1]) or a grey level ``"g"``.
+
+    Raises:
+        ValueError: not 1 or 3 numbers in ``[0, 1]``.
+    """
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise ValueError(f"{name} must be 'r,g,b' or a grey level in [0, 1], got {text!r}") from None
+    if len(values) == 1:
+        values = values * 3
+    if len(values) != 3 or not all(0.0 <= v <= 1.0 for v in values):
+        raise ValueError(f"{name} must be 'r,g,b' or a grey level in [0, 1], got {text!r}")
+    return values[0], values[1], values[2]
+
+
+def topk_labels(logits: Any, names: Sequence[str], k: int = 5) -> List[List[Tuple[str, float]]]:
+    """Top-``k`` ``(name, probability)`` pairs of each row of ``(B, C)`` logits."""
+    import torch
+
+    probs = torch.softmax(logits.detach().float(), dim=1)
+    values, idx = probs.topk(min(k, probs.shape[1]), dim=1)
+    return [[(names[int(i)] if int(i) < len(names) else str(int(i)), float(v)) for v, i in zip(vr, ir)]
+            for vr, ir in zip(values.tolist(), idx.tolist())]

@@ -1,0 +1,77 @@
+"""``meshadv sweep CONFIG``: expand a sweep file into attack jobs and run them resumably.
+
+Results go to the SQLite database named by the config (``<output>/results.db`` by default). Run the same command
+again after a kill to resume: finished jobs are skipped, interrupted ones re-run, failed ones retried up to
+``max_attempts``.
+"""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+__all__ = ["register", "sweep"]
+
+
+def sweep(
+    config: Path = typer.Argument(..., help="Sweep file (.toml, .yaml or .yml)."),
+    backend: str = typer.Option("local", help="local (process pool, default), ray or serial."),
+    address: Optional[str] = typer.Option(None, help="Ray cluster address; without it Ray starts locally."),
+    workers: int = typer.Option(-1, help="Parallel jobs (0 = every core; default: the config's runner.workers)."),
+    db: Optional[Path] = typer.Option(None, help="Results database (default: from the config)."),
+    output: Optional[Path] = typer.Option(None, help="Artefact folder (default: from the config)."),
+    max_attempts: Optional[int] = typer.Option(None, help="Attempts per job (default: the config's)."),
+    timeout: Optional[float] = typer.Option(None, help="Per-job timeout in seconds, local backend (0 = none)."),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Only expand the jobs and print how many there are."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the progress bar."),
+) -> None:
+    """Run (or resume) the attack sweep described by CONFIG."""
+    from meshadv.experiments import ResultStore, make_backend, run_sweep
+    from meshadv.experiments.config import expand_jobs, load_config
+    from meshadv.experiments.report import environment_versions
+
+    try:
+        cfg = load_config(config)
+    except (ValueError, FileNotFoundError) as err:
+        raise typer.BadParameter(str(err), param_hint="CONFIG") from err
+    jobs = expand_jobs(cfg)
+    db_path = db or cfg.db
+    out_root = output or cfg.output
+    if dry_run:
+        kinds = {k: sum(j["kind"] == k for j in jobs) for k in ("single", "multiview")}
+        typer.echo(f"{len(jobs)} jobs ({kinds['single']} single-view, {kinds['multiview']} multi-view); "
+                   f"database {db_path}; artefacts {out_root}")
+        return
+    runner = cfg.runner
+    n_workers = int(runner["workers"]) if workers < 0 else workers
+    attempts = int(runner["max_attempts"]) if max_attempts is None else max_attempts
+    try:
+        be = make_backend(backend, workers=n_workers, threads_per_job=int(runner["threads_per_job"]),
+                          timeout=float(runner["timeout"] if timeout is None else timeout), address=address)
+    except ValueError as err:
+        raise typer.BadParameter(str(err), param_hint="--backend / --address") from err
+    with ResultStore(db_path) as store:
+        store.set_meta("name", cfg.name)
+        store.set_meta("config_path", str(Path(config).resolve()))
+        store.set_meta("config_text", cfg.text)
+        store.set_meta("command", "meshadv sweep " + " ".join(shlex.quote(a) for a in sys.argv[2:]))
+        store.set_meta("sweep_versions", environment_versions())
+        try:
+            summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be, max_attempts=attempts,
+                                progress=progress)
+        finally:
+            be.close()
+    typer.echo(f"{summary.done}/{summary.total} done ({summary.successes} successful), {summary.failed} failed; "
+               f"ran {summary.ran}, skipped {summary.skipped} finished, re-queued {summary.requeued} interrupted; "
+               f"results in {db_path}")
+    if summary.failed:
+        typer.echo(f"{summary.failed} job(s) failed: see the 'error' column of {db_path}", err=True)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``sweep`` command to ``app``."""
+    app.command("sweep")(sweep)

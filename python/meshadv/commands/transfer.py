@@ -1,0 +1,254 @@
+"""``meshadv transfer ...``: transfer adversarial meshes to Mitsuba 3 (a photorealistic, non-differentiable renderer).
+
+Commands:
+    variant               which Mitsuba variant works here (llvm_ad_rgb needs a recent LLVM; scalar_rgb always works)
+    check                 compare Mitsuba's and meshadv's renders of one mesh (mask IoU, interior colour difference)
+    render                render a mesh with Mitsuba (optionally inside the indoor / living-room scene)
+    controlled            re-render a sweep's adversarial meshes under the same camera and lights (Table 3, Fig. 5)
+    blackbox-classifier   the black-box pipeline against a classifier (aeroplane outdoors)
+    blackbox-detector     the black-box pipeline against a detector (bunny in the indoor scene)
+    report                the transfer tables of a results database (Markdown)
+
+Results go into the table ``transfer`` of the sweep's results database (see :mod:`meshadv.transfer.results`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+__all__ = ["register", "transfer_app"]
+
+transfer_app = typer.Typer(
+    name="transfer",
+    help="Transfer adversarial meshes to Mitsuba 3 (controlled and black-box evaluations).",
+    no_args_is_help=True,
+)
+
+
+def _echo_json(data: dict) -> None:
+    typer.echo(json.dumps(data, indent=2, default=str))
+
+
+@transfer_app.command("variant")
+def variant_cmd() -> None:
+    """Probe Mitsuba's CPU variants (each in a child process) and print the one that will be used."""
+    from meshadv.transfer.variants import PREFERRED_VARIANTS, best_variant, probe_variant
+
+    for name in PREFERRED_VARIANTS:
+        typer.echo(f"{name}: {'works' if probe_variant(name) else 'FAILS'}")
+    typer.echo(f"using: {best_variant()}")
+
+
+def _view_record(distance: float, azimuth: float, elevation: float, light: float, ambient: float,
+                 viewing_angle: float = 30.0) -> dict:
+    """A one-view record with a head light (toward the camera) of intensity ``light`` and ambient ``ambient``."""
+    from meshadv.render import Camera, Lights, ViewSet
+
+    camera = Camera.spherical(distance, azimuth, elevation, viewing_angle=viewing_angle)
+    direction = (camera.eye() - camera.target()).detach()
+    lights = Lights(direction.unsqueeze(1) + 0.3, [[light] * 3], [ambient] * 3)
+    return ViewSet(camera, lights).to_records()[0]
+
+
+@transfer_app.command("check")
+def check_cmd(
+    mesh: str = typer.Argument("builtin:sphere", help="Mesh file, builtin:NAME or default."),
+    size: int = typer.Option(96, help="Image side in pixels."),
+    spp: int = typer.Option(256, help="Mitsuba samples per pixel."),
+    distance: float = typer.Option(3.0, help="Camera distance."),
+    azimuth: float = typer.Option(30.0, help="Camera azimuth (degrees)."),
+    elevation: float = typer.Option(20.0, help="Camera elevation (degrees)."),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Folder for the two images and the numbers."),
+) -> None:
+    """Render MESH with meshadv and with Mitsuba (direct light only) and print how well they agree."""
+    from meshadv.commands._common import load_mesh_arg
+    from meshadv.transfer.check import conversion_check
+
+    if size < 8:
+        raise typer.BadParameter("size must be >= 8", param_hint="--size")
+    mesh_obj, _ = load_mesh_arg(mesh)
+    record = _view_record(distance, azimuth, elevation, 0.5, 0.4)
+    result = conversion_check(mesh_obj, record, image_size=size, spp=spp)
+    _echo_json(result.summary())
+    if out is not None:
+        import numpy as np
+        from PIL import Image
+
+        out.mkdir(parents=True, exist_ok=True)
+        for name, img in (("meshadv.png", result.meshadv_image), ("mitsuba.png", result.mitsuba_image)):
+            Image.fromarray(np.round(np.clip(img, 0, 1) * 255).astype(np.uint8)).save(out / name)
+        (out / "check.json").write_text(json.dumps(result.summary(), indent=2))
+
+
+@transfer_app.command("render")
+def render_cmd(
+    mesh: str = typer.Argument(..., help="Mesh file, builtin:NAME or default."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output PNG."),
+    size: int = typer.Option(224, help="Image side in pixels."),
+    spp: int = typer.Option(64, help="Samples per pixel."),
+    max_depth: int = typer.Option(8, help="Path depth (2 = direct light only)."),
+    distance: float = typer.Option(3.0, help="Camera distance."),
+    azimuth: float = typer.Option(30.0, help="Camera azimuth (degrees)."),
+    elevation: float = typer.Option(20.0, help="Camera elevation (degrees)."),
+    viewing_angle: float = typer.Option(30.0, help="Field of view (degrees)."),
+    scene: str = typer.Option("none", help="none, indoor, living-room, or a Mitsuba scene XML to place the mesh in."),
+    variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
+) -> None:
+    """Render MESH with Mitsuba under meshadv's camera conventions and a head light."""
+    import numpy as np
+    from PIL import Image
+
+    from meshadv.commands._common import load_mesh_arg
+    from meshadv.data import require_shared_data
+    from meshadv.transfer import MitsubaCamera, MitsubaLights, render_scene, scene_spec
+
+    if size < 8:
+        raise typer.BadParameter("size must be >= 8", param_hint="--size")
+    base = None
+    if scene == "indoor":
+        base = str(require_shared_data("scenes/indoor/scene.xml"))
+    elif scene == "living-room":
+        base = str(require_shared_data("scenes/living-room/scene_mi3.xml"))
+    elif scene != "none":
+        if not Path(scene).is_file():
+            raise typer.BadParameter(f"{scene} is not none, indoor, living-room or a scene file", param_hint="--scene")
+        base = scene
+    mesh_obj, _ = load_mesh_arg(mesh)
+    camera = MitsubaCamera.spherical(distance, azimuth, elevation, viewing_angle=viewing_angle)
+    lights = MitsubaLights(np.array([camera.eye]), np.full((1, 3), 0.5), np.full(3, 0.5 if base is None else 0.0))
+    spec = scene_spec(mesh_obj, camera, lights, image_size=size, spp=spp, max_depth=max_depth, base_scene=base,
+                      background=(1.0, 1.0, 1.0) if base is None else None)
+    image = render_scene(spec, variant=variant)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.round(image.image * 255).astype(np.uint8)).save(out)
+    typer.echo(f"wrote {out} ({image.variant})")
+
+
+@transfer_app.command("controlled")
+def controlled_cmd(
+    results: Path = typer.Argument(..., help="Results database of a finished `meshadv sweep`."),
+    limit: Optional[int] = typer.Option(None, help="At most this many adversarial meshes."),
+    spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
+    max_depth: int = typer.Option(8, help="Path depth (>= 3 adds interreflection)."),
+    experiment: str = typer.Option("controlled", help="Name of this transfer run in the database."),
+    images: Optional[Path] = typer.Option(None, help="Folder for the Mitsuba renders."),
+    all_attacks: bool = typer.Option(False, "--all", help="Also transfer attacks that failed in meshadv."),
+    variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
+) -> None:
+    """Re-render RESULTS' adversarial meshes with Mitsuba under the same views and test the victims."""
+    from meshadv.transfer.pipeline import cases_from_store, controlled_transfer
+    from meshadv.transfer.results import save_transfer_rows, transfer_report
+
+    if not results.is_file():
+        raise typer.BadParameter(f"{results} does not exist", param_hint="RESULTS")
+    cases = cases_from_store(results, limit=limit, only_successful=not all_attacks)
+    if not cases:
+        typer.echo("no finished single-view attacks with an adversarial mesh in this database")
+        raise typer.Exit(code=1)
+    rows = controlled_transfer(cases, spp=spp, max_depth=max_depth, variant=variant, image_dir=images)
+    save_transfer_rows(results, rows, experiment=experiment, kind="controlled")
+    typer.echo(transfer_report([{**r, "kind": "controlled"} for r in rows]))
+
+
+def _save_blackbox(row: dict, db: Optional[Path], out: Optional[Path], experiment: str) -> None:
+    import numpy as np
+    from PIL import Image
+
+    from meshadv.transfer.pipeline import public_row
+    from meshadv.transfer.results import save_transfer_rows
+
+    public = public_row(row)
+    _echo_json(public)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        for name, im in zip(("benign_mitsuba.png", "adversarial_mitsuba.png"), row["_images"]):
+            Image.fromarray(np.round(im.image * 255).astype(np.uint8)).save(out / name)
+        (out / "blackbox.json").write_text(json.dumps(public, indent=2, default=str))
+        from meshadv.mesh import save_mesh
+
+        save_mesh(row["_adversarial_mesh"].detach() if hasattr(row["_adversarial_mesh"], "detach")
+                  else row["_adversarial_mesh"], out / "adversarial.ply")
+    if db is not None:
+        save_transfer_rows(db, [public], experiment=experiment, kind="blackbox")
+
+
+@transfer_app.command("blackbox-classifier")
+def blackbox_classifier_cmd(
+    mesh: str = typer.Argument("aeroplane", help="aeroplane (PASCAL3D+ aeroplane/01), a mesh file or builtin:NAME."),
+    true_class: str = typer.Option("aeroplane", help="The object's class."),
+    target: Optional[str] = typer.Option(None, help="Target class (default: untargeted)."),
+    victim: str = typer.Option("efficientnet_lite0", help="Classifier victim."),
+    perturb: str = typer.Option("texture", help="shape or texture."),
+    steps: int = typer.Option(100, help="Attack steps."),
+    size: int = typer.Option(224, help="Image side."),
+    spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
+    db: Optional[Path] = typer.Option(None, help="Results database to add the row to."),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Folder for images, mesh and numbers."),
+    experiment: str = typer.Option("blackbox", help="Name of this run in the database."),
+) -> None:
+    """Black-box pipeline against a classifier: estimate camera + lights from a Mitsuba photo, attack, re-render."""
+    from meshadv.commands._common import load_mesh_arg
+    from meshadv.transfer.pipeline import blackbox_classifier
+    from meshadv.transfer.setups import default_aeroplane, outdoor_classifier_setup
+    from meshadv.victims import load_victim
+
+    if perturb not in ("shape", "texture"):
+        raise typer.BadParameter("perturb must be shape or texture", param_hint="--perturb")
+    mesh_obj = default_aeroplane() if mesh == "aeroplane" else load_mesh_arg(mesh)[0]
+    hidden = outdoor_classifier_setup(mesh_obj, image_size=size, spp=spp)
+    row = blackbox_classifier(mesh_obj, hidden, victim=load_victim(victim), true_class=true_class, target=target,
+                              attack_type=perturb, attack_kwargs={"steps": steps},
+                              case_id=f"outdoor_{Path(mesh).stem}_{perturb}_{target or 'untargeted'}")
+    _save_blackbox(row, db, out, experiment)
+
+
+@transfer_app.command("blackbox-detector")
+def blackbox_detector_cmd(
+    hide: str = typer.Option("dining table", help="Class to hide (detector class name), e.g. 'chair'."),
+    victim: str = typer.Option("ssd_mobilenet_v2_coco", help="Detector victim."),
+    steps: int = typer.Option(100, help="Attack steps."),
+    size: int = typer.Option(256, help="Image side."),
+    spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
+    db: Optional[Path] = typer.Option(None, help="Results database to add the row to."),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Folder for images, mesh and numbers."),
+    experiment: str = typer.Option("blackbox", help="Name of this run in the database."),
+) -> None:
+    """Black-box pipeline against a detector: the bunny on the indoor desk hides the table (or the chair)."""
+    from meshadv.transfer.pipeline import blackbox_detector
+    from meshadv.transfer.setups import indoor_detector_setup
+    from meshadv.victims import load_victim
+
+    setup = indoor_detector_setup(image_size=size, spp=spp)
+    row = blackbox_detector(setup.objects, setup.object_index, setup.hidden, victim=load_victim(victim),
+                            hide_class=hide, background_exclude=setup.background_exclude,
+                            attack_kwargs={"steps": steps}, case_id=f"indoor_bunny_hide_{hide.replace(' ', '_')}")
+    _save_blackbox(row, db, out, experiment)
+
+
+@transfer_app.command("report")
+def report_cmd(
+    results: Path = typer.Argument(..., help="Results database."),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Markdown file to write (default: print)."),
+    experiment: Optional[str] = typer.Option(None, help="Only this transfer run."),
+) -> None:
+    """Print (or write) the transfer tables and confusion matrices stored in RESULTS."""
+    from meshadv.transfer.results import load_transfer_rows, transfer_report
+
+    if not results.is_file():
+        raise typer.BadParameter(f"{results} does not exist", param_hint="RESULTS")
+    text = transfer_report(load_transfer_rows(results, experiment=experiment))
+    if out is None:
+        typer.echo(text)
+    else:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text)
+        typer.echo(f"wrote {out}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``transfer`` command group to ``app``."""
+    app.add_typer(transfer_app, name="transfer")

@@ -1,0 +1,329 @@
+"""The paper's figures (matplotlib, Agg backend, PNG).
+
+- :func:`render_grid`: the classes x classes grid of renders (Fig. 2 style): row = benign class, column = target class,
+  the diagonal shows the benign render, target class names on top.
+- :func:`flow_heatmaps`: per-vertex flow magnitude ``|v_adv - v|`` painted on the mesh, in the attack's view and in a
+  canonical view (azimuth 135°, elevation 45°).
+- :func:`flow_quiver`: a 3D quiver plot of the flow directions in the region around the most displaced vertex.
+- :func:`curvature_scatter`: per-vertex flow magnitude against mean curvature, with Pearson and Spearman correlations.
+
+Views use the contract's spherical camera (Y up, ``eye = (cos el sin az, sin el, -cos el cos az)``); matplotlib's Z-up
+axes show world point ``(x, y, z)`` at ``(x, -z, y)`` with ``view_init(elev=el, azim=90 - az)``, which is the same view
+direction (orthographic).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Dict, Mapping, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+__all__ = [
+    "render_grid",
+    "flow_heatmaps",
+    "flow_quiver",
+    "curvature_scatter",
+    "flow_magnitude",
+    "mean_curvature_np",
+    "CANONICAL_VIEW",
+]
+
+#: The canonical view of the flow figures: (azimuth, elevation) in degrees.
+CANONICAL_VIEW = (135.0, 45.0)
+
+PathLike = Union[str, Path]
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _check_mesh(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndarray) -> Tuple[np.ndarray, ...]:
+    v = np.asarray(vertices, dtype=np.float64)
+    va = np.asarray(vertices_adv, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"vertices must have shape (N, 3), got {v.shape}")
+    if va.shape != v.shape:
+        raise ValueError(f"vertices_adv must have the shape of vertices {v.shape}, got {va.shape}")
+    if f.ndim != 2 or f.shape[1] != 3 or (f.size and (f.min() < 0 or f.max() >= len(v))):
+        raise ValueError(f"faces must be (M, 3) indices into the {len(v)} vertices")
+    return v, va, f
+
+
+def flow_magnitude(vertices: np.ndarray, vertices_adv: np.ndarray) -> np.ndarray:
+    """Per-vertex flow magnitude ``|vertices_adv - vertices|`` ``(N,)``."""
+    return np.linalg.norm(np.asarray(vertices_adv, np.float64) - np.asarray(vertices, np.float64), axis=1)
+
+
+def _to_plot(points: np.ndarray) -> np.ndarray:
+    return np.stack([points[..., 0], -points[..., 2], points[..., 1]], axis=-1)
+
+
+def _set_view(ax, azimuth: float, elevation: float, points: np.ndarray) -> None:
+    ax.view_init(elev=elevation, azim=90.0 - azimuth)
+    p = _to_plot(points)
+    centre = (p.max(0) + p.min(0)) / 2
+    half = float((p.max(0) - p.min(0)).max()) / 2 or 1.0
+    for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+        setter(c - half, c + half)
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_axis_off()
+
+
+def render_grid(cells: Mapping[Tuple[str, str], PathLike], classes: Sequence[str], path: PathLike, *,
+                title: str = "") -> Path:
+    """Draw the classes x classes grid of renders.
+
+    Args:
+        cells: ``(source, target) -> PNG path``; ``(c, c)`` is the benign render of class ``c``. Missing cells stay
+            blank (an attack that was not run or not saved).
+        classes: row / column order.
+        path: output PNG.
+        title: figure title.
+
+    Returns:
+        ``path``.
+
+    Raises:
+        ValueError: no classes.
+    """
+    if not classes:
+        raise ValueError("classes must not be empty")
+    plt = _pyplot()
+    from PIL import Image
+
+    n = len(classes)
+    fig, axes = plt.subplots(n, n, figsize=(1.6 * n + 1.2, 1.6 * n + 0.8), squeeze=False)
+    for i, src in enumerate(classes):
+        for j, tgt in enumerate(classes):
+            ax = axes[i][j]
+            ax.set_xticks([])
+            ax.set_yticks([])
+            img = cells.get((src, tgt))
+            if img is not None and Path(img).is_file():
+                ax.imshow(np.asarray(Image.open(img).convert("RGB")))
+            for spine in ax.spines.values():
+                spine.set_visible(i == j)
+                spine.set_color("tab:green")
+                spine.set_linewidth(2)
+            if i == 0:
+                ax.set_title(tgt, fontsize=9)
+            if j == 0:
+                ax.set_ylabel(src, fontsize=9)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def _render_flat(vertices: np.ndarray, faces: np.ndarray, face_colors: np.ndarray, view: Mapping[str, float],
+                 size: int) -> Optional[np.ndarray]:
+    """Render unlit face colours with meshadv's renderer from a view record; ``None`` when it is unavailable."""
+    try:
+        import torch
+
+        from meshadv.render import ViewSet, render
+    except ImportError:
+        return None
+    record = {"distance": float(view.get("distance", 2.5)), "azimuth": float(view["azimuth"]),
+              "elevation": float(view["elevation"]), "tilt": float(view.get("tilt", 0.0)),
+              "viewing_angle": float(view.get("viewing_angle", 30.0)), "light_directions": [[0.0, 0.0, -1.0]],
+              "light_colors": [[0.0, 0.0, 0.0]], "ambient": [1.0, 1.0, 1.0]}
+    try:
+        views = ViewSet.from_records([record])
+        out = render(torch.as_tensor(vertices, dtype=torch.float32), torch.as_tensor(faces, dtype=torch.int64),
+                     torch.as_tensor(face_colors, dtype=torch.float32), views.camera, views.lights,
+                     image_size=size, background=(1.0, 1.0, 1.0))
+    except (ImportError, RuntimeError):  # native module missing
+        return None
+    return out.image[0].permute(1, 2, 0).detach().cpu().numpy()
+
+
+def flow_heatmaps(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndarray, path: PathLike, *,
+                  view: Union[Tuple[float, float], Mapping[str, float]],
+                  canonical: Tuple[float, float] = CANONICAL_VIEW, title: str = "", renderer: str = "auto",
+                  image_size: int = 320) -> Path:
+    """Paint the per-vertex flow magnitude on the benign mesh, seen from the attack view and a canonical view.
+
+    Args:
+        vertices: benign vertices ``(N, 3)``; vertices_adv: adversarial vertices ``(N, 3)``; faces: ``(M, 3)``.
+        path: output PNG.
+        view: the rendered (attack) view: a ``ViewSet`` record (distance, azimuth, elevation, ...) or
+            ``(azimuth, elevation)`` in degrees.
+        canonical: ``(azimuth, elevation)`` of the canonical view (same distance as ``view``).
+        title: figure title.
+        renderer: ``"meshadv"`` renders with meshadv's rasterizer and the view's perspective camera, ``"matplotlib"``
+            draws orthographic 3D polygons, ``"auto"`` uses meshadv's renderer when its native module is built.
+        image_size: pixel size of the meshadv renders.
+
+    Returns:
+        ``path``.
+
+    Raises:
+        ValueError: bad shapes or renderer name; ImportError: ``renderer="meshadv"`` without the native module.
+    """
+    v, va, f = _check_mesh(vertices, vertices_adv, faces)
+    if renderer not in ("auto", "meshadv", "matplotlib"):
+        raise ValueError(f"renderer must be auto, meshadv or matplotlib, got {renderer!r}")
+    record = dict(view) if isinstance(view, Mapping) else {"azimuth": float(view[0]), "elevation": float(view[1])}
+    plt = _pyplot()
+    from matplotlib import cm, colors
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    mag = flow_magnitude(v, va)
+    face_mag = mag[f].mean(axis=1)
+    norm = colors.Normalize(vmin=0.0, vmax=float(mag.max()) or 1.0)
+    cmap = plt.get_cmap("inferno")
+    face_rgb = cmap(norm(face_mag))[:, :3]
+    views = ((record, "rendered view"),
+             ({**record, "azimuth": canonical[0], "elevation": canonical[1], "tilt": 0.0}, "canonical view"))
+    fig = plt.figure(figsize=(9, 4.4))
+    for k, (rec, label) in enumerate(views):
+        az, el = float(rec["azimuth"]), float(rec["elevation"])
+        image = None if renderer == "matplotlib" else _render_flat(v, f, face_rgb, rec, image_size)
+        if image is None and renderer == "meshadv":
+            raise ImportError("renderer='meshadv' needs the native module meshadv._raster (maturin develop)")
+        if image is not None:
+            ax = fig.add_subplot(1, 2, k + 1)
+            ax.imshow(np.clip(image, 0.0, 1.0))
+            ax.set_axis_off()
+        else:
+            ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+            poly = Poly3DCollection(_to_plot(v[f]), facecolors=face_rgb, edgecolors="none")
+            ax.add_collection3d(poly)
+            _set_view(ax, az, el, v)
+        ax.set_title(f"{label} (az {az:.0f}°, el {el:.0f}°)", fontsize=9)
+    fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=fig.axes, shrink=0.7, label="flow magnitude")
+    if title:
+        fig.suptitle(title)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def flow_quiver(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndarray, path: PathLike, *,
+                region: int = 150, view: Optional[Tuple[float, float]] = None, title: str = "") -> Path:
+    """3D quiver plot of the flow directions of the ``region`` vertices nearest the most displaced vertex.
+
+    Arrows are normalised to a common length (directions are what the plot shows) and coloured by magnitude; the
+    region's triangles are drawn faintly for context. ``view`` = ``(azimuth, elevation)``; by default the camera looks
+    at the region from outside (from the direction of the most displaced vertex).
+
+    Returns:
+        ``path``.
+    """
+    v, va, f = _check_mesh(vertices, vertices_adv, faces)
+    if region < 1:
+        raise ValueError(f"region must be >= 1, got {region}")
+    plt = _pyplot()
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    flow = va - v
+    mag = np.linalg.norm(flow, axis=1)
+    centre = v[int(np.argmax(mag))]
+    idx = np.argsort(np.linalg.norm(v - centre, axis=1))[: min(region, len(v))]
+    inside = np.zeros(len(v), dtype=bool)
+    inside[idx] = True
+    pts = v[idx]
+    extent = float((pts.max(0) - pts.min(0)).max()) or 1.0
+    direction = flow[idx] / np.maximum(mag[idx, None], 1e-12)
+    fig = plt.figure(figsize=(6, 5.5))
+    ax = fig.add_subplot(1, 1, 1, projection="3d")
+    tri = f[inside[f].all(axis=1)]
+    if len(tri):
+        ax.add_collection3d(Poly3DCollection(_to_plot(v[tri]), facecolors=(0.7, 0.7, 0.7, 0.25),
+                                             edgecolors=(0.4, 0.4, 0.4, 0.2), linewidths=0.3))
+    p, d = _to_plot(pts), _to_plot(direction)
+    ax.quiver(p[:, 0], p[:, 1], p[:, 2], d[:, 0], d[:, 1], d[:, 2], length=0.12 * extent,
+              colors=plt.get_cmap("viridis")(mag[idx] / (mag[idx].max() or 1.0)), linewidths=0.8)
+    if view is None:
+        c = centre - v.mean(axis=0)
+        c = c / (np.linalg.norm(c) or 1.0)
+        view = (math.degrees(math.atan2(c[0], -c[2])), math.degrees(math.asin(float(np.clip(c[1], -1, 1)))))
+    _set_view(ax, view[0], view[1], pts)
+    ax.set_title(title or f"flow directions near the most displaced vertex ({len(idx)} vertices)", fontsize=9)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def mean_curvature_np(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unsigned discrete mean curvature per vertex: ``|L v| / 2`` with the cotangent Laplacian over barycentric areas.
+
+    Used when ``meshadv.mesh.mean_curvature`` is not available. Isolated vertices get 0.
+    """
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    n = len(v)
+    lap = np.zeros_like(v)
+    area = np.zeros(n)
+    for k in range(3):
+        i, j, o = f[:, k], f[:, (k + 1) % 3], f[:, (k + 2) % 3]
+        e1, e2 = v[i] - v[o], v[j] - v[o]
+        cross = np.linalg.norm(np.cross(e1, e2), axis=1)
+        cot = np.einsum("ij,ij->i", e1, e2) / np.maximum(cross, 1e-12)
+        w = (0.5 * cot)[:, None] * (v[j] - v[i])
+        np.add.at(lap, i, w)
+        np.add.at(lap, j, -w)
+        np.add.at(area, o, cross / 6.0)
+    return np.linalg.norm(lap, axis=1) / np.maximum(2.0 * area, 1e-12) * (area > 0)
+
+
+def _spearman(a: np.ndarray, b: np.ndarray) -> float:
+    from scipy.stats import spearmanr
+
+    return float(spearmanr(a, b).statistic) if len(a) > 2 else math.nan
+
+
+def curvature_scatter(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndarray, path: PathLike, *,
+                      curvature: Optional[np.ndarray] = None, title: str = "") -> Tuple[Path, Dict[str, float]]:
+    """Scatter per-vertex flow magnitude against mean curvature and report their correlation.
+
+    Args:
+        vertices, vertices_adv, faces: the benign and adversarial mesh.
+        path: output PNG.
+        curvature: per-vertex mean curvature ``(N,)``; default :func:`mean_curvature_np` of the benign mesh.
+        title: figure title.
+
+    Returns:
+        ``(path, {"pearson": r, "spearman": rho, "vertices": N})`` (``nan`` when undefined, e.g. no flow at all).
+    """
+    v, va, f = _check_mesh(vertices, vertices_adv, faces)
+    curv = mean_curvature_np(v, f) if curvature is None else np.asarray(curvature, np.float64)
+    if curv.shape != (len(v),):
+        raise ValueError(f"curvature must have shape ({len(v)},), got {curv.shape}")
+    mag = flow_magnitude(v, va)
+    ok = np.isfinite(curv) & np.isfinite(mag)
+    x, y = np.abs(curv[ok]), mag[ok]
+    pearson = float(np.corrcoef(x, y)[0, 1]) if len(x) > 2 and x.std() > 0 and y.std() > 0 else math.nan
+    spearman = _spearman(x, y) if x.std() > 0 and y.std() > 0 else math.nan
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 4.2))
+    ax.scatter(x, y, s=4, alpha=0.5)
+    ax.set_xlabel("|mean curvature|")
+    ax.set_ylabel("perturbation magnitude")
+    ax.set_title(title or f"Pearson r = {pearson:.3f}, Spearman ρ = {spearman:.3f}", fontsize=9)
+    if len(x) and x.max() > 0 and np.percentile(x, 99) > 0:
+        ax.set_xlim(0, float(np.percentile(x, 99.5)) * 1.05)
+    fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out, {"pearson": pearson, "spearman": spearman, "vertices": int(len(x))}

@@ -1,0 +1,254 @@
+"""The paper's tables from sweep results: Table 1 (best / average / worst case) and Table 2 (multi-view robustness).
+
+**Table 1 cases** follow Carlini & Wagner ("Towards Evaluating the Robustness of Neural Networks", S&P 2017, sec. V),
+which MeshAdv adopts. An *instance* is one benign input: (victim, perturbation type, mesh, rendering configuration,
+seed); it is attacked towards every target class (the other classes of the sweep).
+
+- **Best case**: the easiest target of each instance. The instance counts as a success when *any* target succeeds; its
+  distance is the *smallest* distance among its successful targets.
+- **Worst case**: the hardest target. The instance counts as a success only when *every* target succeeds (a failed
+  target is the hardest of all); its distance is the *largest* distance among its targets.
+- **Average case**: a target drawn uniformly at random; in expectation the success rate is the mean over instances of
+  the fraction of their targets that succeed, and the distance is the mean over every successful (instance, target)
+  attack.
+
+Success rates are fractions of instances; a case's mean distance is taken over its successful instances (successful
+attacks for the average case), as in C&W. Distances are the Laplacian loss for shape attacks and the face-colour RMSE
+for texture attacks. Instances attacked towards fewer targets than the others of their group (a job still missing or
+crashed) are left out of the best and worst cases and counted as ``incomplete``; crashed jobs are not results and
+never count as failed attacks.
+
+**Table 2**: for each (victim, type, number of attack views, azimuth range), the fraction of attacks that succeed on
+their attack views and the mean success rate on the unseen views of the same range.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections import defaultdict
+from dataclasses import asdict, dataclass
+from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
+
+__all__ = [
+    "AttackRow",
+    "CaseStats",
+    "Table1Row",
+    "Table2Row",
+    "attack_rows",
+    "table1",
+    "table2",
+    "to_markdown",
+    "to_csv",
+    "DISTANCE_NAMES",
+]
+
+#: The distance reported per perturbation type.
+DISTANCE_NAMES = {"shape": "laplacian", "texture": "color_rmse"}
+
+
+@dataclass(frozen=True)
+class AttackRow:
+    """One finished single-view attack, flattened for the tables.
+
+    Attributes:
+        victim, perturbation: the group. instance: hashable key of the benign input (mesh, configuration, seed).
+        source, target: classes. success: the target was reached. distance: the case distance (or ``None``).
+    """
+
+    victim: str
+    perturbation: str
+    instance: Tuple[Any, ...]
+    source: str
+    target: str
+    success: bool
+    distance: Optional[float]
+
+
+@dataclass(frozen=True)
+class CaseStats:
+    """Success rate and mean distance of one case (``distance`` is ``nan`` when nothing succeeded)."""
+
+    success_rate: float
+    distance: float
+    n: int
+
+
+@dataclass(frozen=True)
+class Table1Row:
+    """One row of Table 1: a victim and a perturbation type, with its three cases."""
+
+    victim: str
+    perturbation: str
+    distance_name: str
+    instances: int
+    incomplete: int
+    targets: int
+    best: CaseStats
+    average: CaseStats
+    worst: CaseStats
+
+
+@dataclass(frozen=True)
+class Table2Row:
+    """One row of Table 2: multi-view attacks of one setting."""
+
+    victim: str
+    perturbation: str
+    num_views: int
+    azimuth_range: Tuple[float, float]
+    attacks: int
+    attack_view_success: float
+    unseen_success: float
+
+
+def _mean(values: Sequence[float]) -> float:
+    return sum(values) / len(values) if values else math.nan
+
+
+def attack_rows(jobs: Iterable[Any]) -> List[AttackRow]:
+    """Flatten finished single-view jobs (``JobRow`` objects or ``{"spec", "record"}`` dicts) into :class:`AttackRow`.
+
+    Jobs that are not done, multi-view jobs, and jobs whose record says ``skipped`` (e.g. the benign render was not
+    classified as its class) are left out.
+    """
+    out = []
+    for job in jobs:
+        spec = job["spec"] if isinstance(job, dict) else job.spec
+        record = job["record"] if isinstance(job, dict) else job.record
+        if record is None or spec.get("kind", "single") != "single" or record.get("skipped"):
+            continue
+        ptype = spec["perturbation"]
+        mesh = spec["mesh"]
+        key = (mesh.get("path") or mesh.get("name"), spec.get("config_index"), spec.get("seed"))
+        dist = record.get("distances", {}).get(DISTANCE_NAMES.get(ptype, ""), record.get("distance"))
+        out.append(AttackRow(victim=spec["victim"], perturbation=ptype, instance=key, source=spec["source_class"],
+                             target=spec["target"], success=bool(record.get("success")),
+                             distance=None if dist is None else float(dist)))
+    return out
+
+
+def table1(rows: Iterable[AttackRow]) -> List[Table1Row]:
+    """Compute Table 1 (see the module docstring for the exact definitions).
+
+    Args:
+        rows: finished attacks.
+
+    Returns:
+        One row per (victim, perturbation), sorted.
+    """
+    groups: Dict[Tuple[str, str], Dict[Any, List[AttackRow]]] = defaultdict(lambda: defaultdict(list))
+    for row in rows:
+        groups[(row.victim, row.perturbation)][row.instance].append(row)
+    out = []
+    for (victim, ptype), instances in sorted(groups.items()):
+        n_targets = max(len(v) for v in instances.values())
+        best_s, best_d, worst_s, worst_d, avg_s, avg_d = [], [], [], [], [], []
+        incomplete = 0
+        for attacks in instances.values():
+            avg_s.append(_mean([float(a.success) for a in attacks]))
+            avg_d.extend(a.distance for a in attacks if a.success and a.distance is not None)
+            if len(attacks) < n_targets:
+                incomplete += 1
+                continue
+            won = [a for a in attacks if a.success]
+            best_s.append(1.0 if won else 0.0)
+            dists = [a.distance for a in won if a.distance is not None]
+            if dists:
+                best_d.append(min(dists))
+            all_won = len(won) == len(attacks)
+            worst_s.append(1.0 if all_won else 0.0)
+            if all_won and dists:
+                worst_d.append(max(dists))
+        out.append(Table1Row(
+            victim=victim, perturbation=ptype, distance_name=DISTANCE_NAMES.get(ptype, "distance"),
+            instances=len(instances), incomplete=incomplete, targets=n_targets,
+            best=CaseStats(_mean(best_s), _mean(best_d), len(best_s)),
+            average=CaseStats(_mean(avg_s), _mean(avg_d), len(avg_s)),
+            worst=CaseStats(_mean(worst_s), _mean(worst_d), len(worst_s)),
+        ))
+    return out
+
+
+def table2(jobs: Iterable[Any]) -> List[Table2Row]:
+    """Compute Table 2 from finished multi-view jobs (``JobRow`` objects or ``{"spec", "record"}`` dicts).
+
+    A job's unseen success rate is the fraction of its unseen views on which the target is reached
+    (``record["eval_success_rate"]``).
+    """
+    groups: Dict[Tuple[Any, ...], List[Tuple[bool, float]]] = defaultdict(list)
+    for job in jobs:
+        spec = job["spec"] if isinstance(job, dict) else job.spec
+        record = job["record"] if isinstance(job, dict) else job.record
+        if record is None or spec.get("kind") != "multiview" or record.get("skipped"):
+            continue
+        rate = record.get("eval_success_rate")
+        if rate is None:
+            continue
+        key = (spec["victim"], spec["perturbation"], int(spec["num_views"]), tuple(spec["azimuth_range"]))
+        groups[key].append((bool(record.get("success")), float(rate)))
+    return [
+        Table2Row(victim=k[0], perturbation=k[1], num_views=k[2], azimuth_range=(float(k[3][0]), float(k[3][1])),
+                  attacks=len(v), attack_view_success=_mean([float(s) for s, _ in v]),
+                  unseen_success=_mean([r for _, r in v]))
+        for k, v in sorted(groups.items())
+    ]
+
+
+def _fmt(value: float, kind: str) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    if kind == "pct":
+        return f"{100.0 * value:.1f}%"
+    return f"{value:.3g}"
+
+
+def _flat(row: Any) -> Dict[str, Any]:
+    out: Dict[str, Any] = {}
+    for key, value in asdict(row).items():
+        if isinstance(value, dict):
+            for sub, v in value.items():
+                out[f"{key}_{sub}"] = v
+        elif isinstance(value, tuple):
+            out[key] = "-".join(f"{v:g}" for v in value)
+        else:
+            out[key] = value
+    return out
+
+
+def to_csv(rows: Sequence[Any]) -> str:
+    """CSV text of Table 1 or Table 2 rows (nested cases flattened to ``best_success_rate`` etc.)."""
+    buf = io.StringIO()
+    flat = [_flat(r) for r in rows]
+    if not flat:
+        return ""
+    writer = csv.DictWriter(buf, fieldnames=list(flat[0]), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(flat)
+    return buf.getvalue()
+
+
+def to_markdown(rows: Sequence[Any]) -> str:
+    """Markdown table of Table 1 or Table 2 rows, laid out as in the paper."""
+    if not rows:
+        return "_no results_\n"
+    if isinstance(rows[0], Table1Row):
+        lines = ["| victim | type | distance | best: dist | best: success | average: dist | average: success | "
+                 "worst: dist | worst: success | instances | targets |",
+                 "|---|---|---|---|---|---|---|---|---|---|---|"]
+        for r in rows:
+            lines.append(
+                f"| {r.victim} | {r.perturbation} | {r.distance_name} | {_fmt(r.best.distance, 'num')} | "
+                f"{_fmt(r.best.success_rate, 'pct')} | {_fmt(r.average.distance, 'num')} | "
+                f"{_fmt(r.average.success_rate, 'pct')} | {_fmt(r.worst.distance, 'num')} | "
+                f"{_fmt(r.worst.success_rate, 'pct')} | {r.instances}"
+                + (f" ({r.incomplete} incomplete)" if r.incomplete else "") + f" | {r.targets} |")
+        return "\n".join(lines) + "\n"
+    lines = ["| victim | type | attack views | azimuth range | attacks | success on attack views | "
+             "success on unseen views |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r.victim} | {r.perturbation} | {r.num_views} | {r.azimuth_range[0]:g}°–"
+                     f"{r.azimuth_range[1]:g}° | {r.attacks} | {_fmt(r.attack_view_success, 'pct')} | "
+                     f"{_fmt(r.unseen_success, 'pct')} |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,356 @@
+"""Estimate the camera and the lighting of a photo of a known object (the paper's black-box pipeline, steps 1-2).
+
+1. Camera: minimise ``||R_mask(S; P) - M||^2`` over azimuth, elevation and distance through meshadv's differentiable
+   silhouette (NMR gradients), from several starting views (a coarse grid scored without gradients, the best few refined
+   with Adam, all in one batch).
+2. Lights: with the camera fixed, minimise the masked image error ``||M * (R(S; P, L) - I')||^2`` over ``K``
+   directional lights (direction, colour) and an ambient colour.
+
+Both need torch and :mod:`meshadv.render`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from meshadv.render import Camera, Lights, render, render_silhouette
+
+
+def _as_mask(mask: Any, name: str = "mask") -> torch.Tensor:
+    """(H, W) float32 tensor in [0, 1] from an array / tensor of shape (H, W), (1, H, W) or (1, 1, H, W)."""
+    t = torch.as_tensor(np.asarray(mask.detach().cpu() if hasattr(mask, "detach") else mask), dtype=torch.float32)
+    while t.dim() > 2 and t.shape[0] == 1:
+        t = t[0]
+    if t.dim() != 2:
+        raise ValueError(f"{name} must have shape (H, W), got {tuple(t.shape)}")
+    if not bool(torch.isfinite(t).all()):
+        raise ValueError(f"{name} contains NaN or Inf")
+    return t.clamp(0.0, 1.0)
+
+
+def _wrap_degrees(angle: float) -> float:
+    """Wrap an angle difference to (-180, 180]."""
+    return (angle + 180.0) % 360.0 - 180.0
+
+
+@dataclass(frozen=True)
+class CameraEstimate:
+    """A spherical camera estimated from a mask.
+
+    Attributes:
+        distance: distance from the origin.
+        azimuth: degrees in [0, 360).
+        elevation: degrees.
+        viewing_angle: the (known) field of view in degrees.
+        loss: final mean squared silhouette error.
+        iou: IoU of the estimated silhouette with the mask.
+    """
+
+    distance: float
+    azimuth: float
+    elevation: float
+    viewing_angle: float
+    loss: float
+    iou: float
+
+    def camera(self) -> Camera:
+        """The estimate as a ``meshadv.render.Camera`` (batch 1)."""
+        return Camera.spherical(self.distance, self.azimuth, self.elevation, viewing_angle=self.viewing_angle)
+
+    def errors(self, distance: float, azimuth: float, elevation: float) -> dict[str, float]:
+        """Errors against the true camera: absolute azimuth and elevation error (degrees), relative distance error."""
+        return {
+            "azimuth_error": abs(_wrap_degrees(self.azimuth - azimuth)),
+            "elevation_error": abs(self.elevation - elevation),
+            "distance_error": abs(self.distance - distance) / distance,
+        }
+
+
+def _silhouettes(
+    vertices: torch.Tensor,
+    faces: torch.Tensor,
+    dist: torch.Tensor,
+    az: torch.Tensor,
+    el: torch.Tensor,
+    viewing_angle: float,
+    size: tuple[int, int],
+    antialias: int,
+) -> torch.Tensor:
+    camera = Camera.spherical(dist, az, el, viewing_angle=viewing_angle)
+    return render_silhouette(vertices, faces, camera, size, antialias=antialias)[:, 0]
+
+
+def estimate_camera(
+    mask: Any,
+    vertices: torch.Tensor,
+    faces: torch.Tensor,
+    *,
+    viewing_angle: float = 30.0,
+    azimuths: Sequence[float] = tuple(range(0, 360, 30)),
+    elevations: Sequence[float] = (-10.0, 15.0, 40.0, 65.0),
+    reference_distance: float = 2.732,
+    refine: int = 4,
+    steps: int = 80,
+    lr: float = 2.0,
+    antialias: int = 2,
+) -> CameraEstimate:
+    """Estimate the spherical camera that makes the mesh's silhouette match ``mask``.
+
+    Every (azimuth, elevation) start is scored without gradients, with its distance set so that the silhouette area
+    matches the mask's (area scales as 1 / distance^2); the ``refine`` best are optimised jointly with Adam
+    (angles in degrees, distance in log space) and the one with the lowest final error is returned.
+
+    Args:
+        mask: (H, W) target silhouette in [0, 1] (array or tensor).
+        vertices: (N, 3) mesh vertices (world space, object at the origin).
+        faces: (M, 3) faces.
+        viewing_angle: the camera's (known) field of view in degrees.
+        azimuths: azimuth starts in degrees.
+        elevations: elevation starts in degrees.
+        reference_distance: distance at which the starts are first rendered.
+        refine: number of starts refined by gradient descent.
+        steps: Adam steps.
+        lr: Adam learning rate (degrees per step for the angles; a tenth of it, in log distance / 100, for distance).
+        antialias: supersampling of the silhouette (smoother objective).
+
+    Returns:
+        The :class:`CameraEstimate`.
+
+    Raises:
+        ValueError: an empty mask, bad shapes, or non-positive ``steps``/``refine``.
+
+    Example:
+        >>> est = estimate_camera(mask, mesh.vertices, mesh.faces)  # doctest: +SKIP
+        >>> est.azimuth, est.elevation
+    """
+    target = _as_mask(mask)
+    if float(target.sum()) < 1.0:
+        raise ValueError("mask is empty: the object is not visible")
+    if steps < 0 or refine < 1:
+        raise ValueError(f"steps must be >= 0 and refine >= 1, got steps={steps}, refine={refine}")
+    if not azimuths or not elevations:
+        raise ValueError("azimuths and elevations must be non-empty")
+    verts = torch.as_tensor(vertices, dtype=torch.float32).detach()
+    faces_t = torch.as_tensor(faces, dtype=torch.int64)
+    size = (int(target.shape[0]), int(target.shape[1]))
+
+    grid_az = torch.tensor([float(a) for a in azimuths for _ in elevations])
+    grid_el = torch.tensor([float(e) for _ in azimuths for e in elevations])
+    with torch.no_grad():
+        ref = torch.full_like(grid_az, float(reference_distance))
+        sil = _silhouettes(verts, faces_t, ref, grid_az, grid_el, viewing_angle, size, 1)
+        area = sil.sum(dim=(1, 2)).clamp_min(1.0)
+        dist = ref * torch.sqrt(area / target.sum())
+        sil = _silhouettes(verts, faces_t, dist, grid_az, grid_el, viewing_angle, size, 1)
+        loss = ((sil - target) ** 2).mean(dim=(1, 2))
+    best = torch.argsort(loss)[: min(refine, len(loss))]
+
+    az = grid_az[best].clone().requires_grad_(True)
+    el = grid_el[best].clone().requires_grad_(True)
+    log_d = torch.log(dist[best]).clone().requires_grad_(True)
+    opt = torch.optim.Adam([{"params": [az, el], "lr": lr}, {"params": [log_d], "lr": lr / 100.0}])
+    best_state = (az.detach().clone(), el.detach().clone(), log_d.detach().clone())
+    best_loss = torch.full((len(best),), float("inf"))
+    for _ in range(steps + 1):
+        opt.zero_grad()
+        sil = _silhouettes(verts, faces_t, log_d.exp(), az, el, viewing_angle, size, antialias)
+        per_view = ((sil - target) ** 2).mean(dim=(1, 2))
+        with torch.no_grad():
+            better = per_view < best_loss
+            best_loss = torch.where(better, per_view.detach(), best_loss)
+            best_state = tuple(
+                torch.where(better, p.detach(), s) for p, s in zip((az, el, log_d), best_state)
+            )
+        per_view.sum().backward()
+        opt.step()
+        with torch.no_grad():
+            el.clamp_(-89.0, 89.0)
+
+    i = int(torch.argmin(best_loss))
+    a, e, d = (float(s[i]) for s in best_state)
+    d = math.exp(d)
+    with torch.no_grad():
+        sil = _silhouettes(verts, faces_t, torch.tensor([d]), torch.tensor([a]), torch.tensor([e]), viewing_angle,
+                           size, 1)[0]
+        hard = sil > 0.5
+        tgt = target > 0.5
+        iou = float((hard & tgt).sum()) / max(float((hard | tgt).sum()), 1.0)
+    return CameraEstimate(d, a % 360.0, e, float(viewing_angle), float(best_loss[i]), iou)
+
+
+@dataclass(frozen=True)
+class LightEstimate:
+    """Lights estimated from a masked image.
+
+    Attributes:
+        lights: the estimated ``meshadv.render.Lights`` (batch 1, ``K`` directional lights + ambient).
+        loss: final masked mean squared error.
+    """
+
+    lights: Lights
+    loss: float
+
+
+def _unit_sphere_directions(count: int, toward: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+    """``count`` directions spread over the hemisphere around ``toward`` (a Fibonacci spiral, randomly rotated)."""
+    golden = math.pi * (3.0 - math.sqrt(5.0))
+    offset = float(torch.rand(1, generator=generator)) * 2 * math.pi
+    dirs = []
+    for i in range(count):
+        z = 1.0 - (i + 0.5) / count  # hemisphere: z in (0, 1]
+        r = math.sqrt(max(0.0, 1.0 - z * z))
+        phi = i * golden + offset
+        dirs.append([r * math.cos(phi), r * math.sin(phi), z])
+    local = torch.tensor(dirs, dtype=torch.float32)
+    w = toward / toward.norm()
+    helper = torch.tensor([0.0, 1.0, 0.0]) if abs(float(w[1])) < 0.9 else torch.tensor([1.0, 0.0, 0.0])
+    u = torch.linalg.cross(helper, w)
+    u = u / u.norm()
+    v = torch.linalg.cross(w, u)
+    return local[:, :1] * u + local[:, 1:2] * v + local[:, 2:3] * w
+
+
+def estimate_lights(
+    image: Any,
+    mask: Any,
+    vertices: torch.Tensor,
+    faces: torch.Tensor,
+    face_colors: torch.Tensor,
+    camera: Camera,
+    *,
+    num_lights: int = 5,
+    steps: int = 150,
+    lr: float = 0.05,
+    seed: int = 0,
+) -> LightEstimate:
+    """Estimate ``num_lights`` directional lights and an ambient colour from a photo of a known object.
+
+    Minimises the masked error ``mean(M * (R(S; P, L) - I')^2)`` with Adam. Light colours and the ambient are kept
+    non-negative (softplus); the initial directions are spread over the hemisphere facing the camera.
+
+    Args:
+        image: (3, H, W) or (H, W, 3) photo in [0, 1] (array or tensor).
+        mask: (H, W) object mask.
+        vertices: (N, 3) mesh vertices.
+        faces: (M, 3) faces.
+        face_colors: (M, 3) known reflectance.
+        camera: the (estimated) camera, batch 1.
+        num_lights: number of directional lights ``K`` (>= 0).
+        steps: Adam steps.
+        lr: Adam learning rate.
+        seed: seed of the initial directions.
+
+    Returns:
+        The :class:`LightEstimate`.
+
+    Raises:
+        ValueError: bad shapes, empty mask, or negative ``num_lights``/``steps``.
+    """
+    if num_lights < 0 or steps < 0:
+        raise ValueError(f"num_lights and steps must be >= 0, got {num_lights}, {steps}")
+    img = torch.as_tensor(np.asarray(image.detach().cpu() if hasattr(image, "detach") else image), dtype=torch.float32)
+    if img.dim() == 4 and img.shape[0] == 1:
+        img = img[0]
+    if img.dim() == 3 and img.shape[-1] == 3 and img.shape[0] != 3:
+        img = img.permute(2, 0, 1)
+    if img.dim() != 3 or img.shape[0] != 3:
+        raise ValueError(f"image must have shape (3, H, W) or (H, W, 3), got {tuple(img.shape)}")
+    m = _as_mask(mask)
+    if tuple(m.shape) != tuple(img.shape[1:]):
+        raise ValueError(f"mask shape {tuple(m.shape)} does not match image shape {tuple(img.shape[1:])}")
+    if float(m.sum()) < 1.0:
+        raise ValueError("mask is empty")
+    size = (int(img.shape[1]), int(img.shape[2]))
+    verts = torch.as_tensor(vertices, dtype=torch.float32).detach()
+    faces_t = torch.as_tensor(faces, dtype=torch.int64)
+    colors = torch.as_tensor(face_colors, dtype=torch.float32).detach()
+    gen = torch.Generator().manual_seed(seed)
+
+    toward_camera = (camera.eye() - camera.target())[0].detach().float()
+    dirs = _unit_sphere_directions(num_lights, toward_camera, gen).requires_grad_(True)
+    inv_softplus = lambda x: math.log(math.expm1(x))  # noqa: E731
+    raw_colors = torch.full((num_lights, 3), inv_softplus(0.3 / max(num_lights, 1) + 1e-3), requires_grad=True)
+    raw_ambient = torch.full((3,), inv_softplus(0.3), requires_grad=True)
+    params = [raw_ambient] + ([dirs, raw_colors] if num_lights else [])
+    opt = torch.optim.Adam(params, lr=lr)
+    denom = m.sum() * 3.0
+    best_loss, best = float("inf"), None
+
+    def make_lights() -> Lights:
+        d = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-6) if num_lights else torch.zeros(0, 3)
+        c = torch.nn.functional.softplus(raw_colors) if num_lights else torch.zeros(0, 3)
+        return Lights(d, c, torch.nn.functional.softplus(raw_ambient))
+
+    for _ in range(steps + 1):
+        opt.zero_grad()
+        lights = make_lights()
+        out = render(verts, faces_t, colors, camera, lights, size, background=(0.0, 0.0, 0.0))
+        loss = ((out.image[0] - img) ** 2 * m).sum() / denom
+        if float(loss) < best_loss:
+            best_loss = float(loss)
+            best = lights.detach()
+        loss.backward()
+        opt.step()
+    return LightEstimate(best, best_loss)
+
+
+def light_errors(estimated: Lights, true: Lights) -> dict[str, float]:
+    """Summary errors between two light sets (which may have different numbers of lights).
+
+    * ``direction_error``: angle (degrees) between the colour-weighted mean light directions (the direction a face
+      must point to receive the most direct light);
+    * ``intensity_error``: relative error of the total directional intensity ``sum_j mean(colour_j)``;
+    * ``ambient_error``: mean absolute error of the ambient colour.
+
+    Args:
+        estimated: lights of batch 1.
+        true: lights of batch 1.
+    """
+
+    def summary(lights: Lights) -> tuple[torch.Tensor, float, torch.Tensor]:
+        d = lights.directions[0].detach().float()
+        d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+        w = lights.colors[0].detach().float().mean(dim=-1)
+        return (w[:, None] * d).sum(dim=0), float(w.sum()), lights.ambient[0].detach().float()
+
+    v_e, s_e, a_e = summary(estimated)
+    v_t, s_t, a_t = summary(true)
+    if float(v_e.norm()) < 1e-9 or float(v_t.norm()) < 1e-9:
+        angle = float("nan")
+    else:
+        cos = float(torch.dot(v_e, v_t) / (v_e.norm() * v_t.norm()))
+        angle = math.degrees(math.acos(max(-1.0, min(1.0, cos))))
+    return {
+        "direction_error": angle,
+        "intensity_error": abs(s_e - s_t) / max(s_t, 1e-9),
+        "ambient_error": float((a_e - a_t).abs().mean()),
+    }
+
+
+def masked_rmse(a: Any, b: Any, mask: Any) -> float:
+    """Root mean squared difference of two (3, H, W) / (H, W, 3) images inside ``mask``.
+
+    Raises:
+        ValueError: the shapes differ or the mask is empty.
+    """
+    x = np.asarray(a, dtype=np.float64)
+    y = np.asarray(b, dtype=np.float64)
+    m = np.asarray(mask, dtype=np.float64)
+    if x.shape != y.shape:
+        raise ValueError(f"images must have the same shape, got {x.shape} and {y.shape}")
+    if x.ndim == 3 and x.shape[0] == 3:
+        x, y = x.transpose(1, 2, 0), y.transpose(1, 2, 0)
+    if m.shape != x.shape[:2]:
+        raise ValueError(f"mask shape {m.shape} does not match image {x.shape[:2]}")
+    if m.sum() < 1:
+        raise ValueError("mask is empty")
+    return float(np.sqrt((((x - y) ** 2) * m[..., None]).sum() / (3 * m.sum())))
+
+
+__all__ = ["CameraEstimate", "LightEstimate", "estimate_camera", "estimate_lights", "light_errors", "masked_rmse"]
+

@@ -1,0 +1,282 @@
+"""Transfer results in the sweep's SQLite database, and the paper's transfer tables (Table 3, Fig. 5).
+
+The rows live in their own table ``transfer`` of the same database file as the sweep's ``jobs`` table (WAL mode, one
+transaction per insert), so the report can read both. One row per (case, view) evaluation::
+
+    transfer(id INTEGER PRIMARY KEY, experiment TEXT, kind TEXT, case_id TEXT, victim TEXT, true_class TEXT,
+             target TEXT, attack_type TEXT, view INTEGER, success_meshadv INTEGER, success_mitsuba INTEGER,
+             record TEXT (JSON), created REAL, UNIQUE(experiment, kind, case_id, view))
+
+``kind`` is ``"controlled"`` or ``"blackbox"``; ``target`` is ``""`` for untargeted attacks.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Iterable, Optional, Sequence, Union
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS transfer (
+    id              INTEGER PRIMARY KEY AUTOINCREMENT,
+    experiment      TEXT NOT NULL,
+    kind            TEXT NOT NULL,
+    case_id         TEXT NOT NULL,
+    victim          TEXT NOT NULL,
+    true_class      TEXT NOT NULL,
+    target          TEXT NOT NULL,
+    attack_type     TEXT NOT NULL,
+    view            INTEGER NOT NULL,
+    success_meshadv INTEGER,
+    success_mitsuba INTEGER,
+    record          TEXT NOT NULL,
+    created         REAL NOT NULL,
+    UNIQUE (experiment, kind, case_id, view)
+);
+"""
+
+_COLUMNS = ("case_id", "victim", "true_class", "target", "attack_type", "view")
+
+
+def _connect(db_path: Union[str, Path]) -> sqlite3.Connection:
+    conn = sqlite3.connect(str(db_path), timeout=30.0)
+    conn.execute("PRAGMA journal_mode=WAL")
+    conn.executescript(_SCHEMA)
+    return conn
+
+
+def save_transfer_rows(
+    db_path: Union[str, Path], rows: Iterable[dict[str, Any]], *, experiment: str = "default", kind: str = "controlled"
+) -> int:
+    """Insert (or replace) transfer rows into the ``transfer`` table of ``db_path``.
+
+    Args:
+        db_path: the SQLite database (the sweep's ``results.db``; created if missing).
+        rows: dicts with at least ``case_id, victim, true_class, target, attack_type, view`` and the booleans
+            ``success_meshadv`` / ``success_mitsuba`` (any other keys are kept in the JSON record).
+        experiment: experiment name (several transfer runs can share a database).
+        kind: ``"controlled"`` or ``"blackbox"``.
+
+    Returns:
+        The number of rows written.
+
+    Raises:
+        ValueError: a row lacks a required key, or ``kind`` is unknown.
+    """
+    if kind not in ("controlled", "blackbox"):
+        raise ValueError(f"kind must be 'controlled' or 'blackbox', got {kind!r}")
+    rows = list(rows)
+    for i, row in enumerate(rows):
+        missing = [c for c in _COLUMNS if c not in row]
+        if missing:
+            raise ValueError(f"rows[{i}] is missing keys {missing}")
+    Path(db_path).parent.mkdir(parents=True, exist_ok=True)
+    conn = _connect(db_path)
+    try:
+        with conn:
+            for row in rows:
+                conn.execute(
+                    "INSERT OR REPLACE INTO transfer (experiment, kind, case_id, victim, true_class, target, "
+                    "attack_type, view, success_meshadv, success_mitsuba, record, created) "
+                    "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                    (
+                        experiment,
+                        kind,
+                        str(row["case_id"]),
+                        str(row["victim"]),
+                        str(row["true_class"]),
+                        str(row["target"] or ""),
+                        str(row["attack_type"]),
+                        int(row["view"]),
+                        None if row.get("success_meshadv") is None else int(bool(row["success_meshadv"])),
+                        None if row.get("success_mitsuba") is None else int(bool(row["success_mitsuba"])),
+                        json.dumps(row, default=str, sort_keys=True),
+                        time.time(),
+                    ),
+                )
+    finally:
+        conn.close()
+    return len(rows)
+
+
+def load_transfer_rows(
+    db_path: Union[str, Path], *, experiment: Optional[str] = None, kind: Optional[str] = None
+) -> list[dict[str, Any]]:
+    """Read transfer rows (their JSON records plus ``experiment`` and ``kind``).
+
+    Args:
+        db_path: the database.
+        experiment: only this experiment (default all).
+        kind: only this kind (default all).
+
+    Raises:
+        FileNotFoundError: ``db_path`` does not exist.
+    """
+    if not Path(db_path).is_file():
+        raise FileNotFoundError(f"db_path {db_path} does not exist")
+    conn = _connect(db_path)
+    try:
+        query, args = "SELECT experiment, kind, record FROM transfer WHERE 1=1", []
+        if experiment is not None:
+            query += " AND experiment = ?"
+            args.append(experiment)
+        if kind is not None:
+            query += " AND kind = ?"
+            args.append(kind)
+        out = []
+        for exp, knd, record in conn.execute(query + " ORDER BY id", args):
+            row = json.loads(record)
+            row.update(experiment=exp, kind=knd)
+            out.append(row)
+        return out
+    finally:
+        conn.close()
+
+
+def _rate(values: Sequence[Optional[bool]]) -> Optional[float]:
+    vals = [bool(v) for v in values if v is not None]
+    return sum(vals) / len(vals) if vals else None
+
+
+def transfer_table(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The paper's Table 3: success rates per victim and attack type, untargeted and targeted.
+
+    A targeted row counts for the targeted rate (top-1 in the target group); every row also counts for the untargeted
+    rate through ``untargeted_meshadv`` / ``untargeted_mitsuba`` (top-1 not in the true group).
+
+    Returns:
+        One dict per (victim, attack_type): ``n``, ``untargeted_meshadv``, ``untargeted_mitsuba``,
+        ``targeted_meshadv``, ``targeted_mitsuba`` (rates in [0, 1] or None).
+    """
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    for row in rows:
+        groups[(row["victim"], row["attack_type"])].append(row)
+    table = []
+    for (victim, attack_type), items in sorted(groups.items()):
+        targeted = [r for r in items if r.get("target")]
+        table.append(
+            {
+                "victim": victim,
+                "attack_type": attack_type,
+                "n": len(items),
+                "untargeted_meshadv": _rate([r.get("untargeted_meshadv") for r in items]),
+                "untargeted_mitsuba": _rate([r.get("untargeted_mitsuba") for r in items]),
+                "targeted_meshadv": _rate([r.get("success_meshadv") for r in targeted]),
+                "targeted_mitsuba": _rate([r.get("success_mitsuba") for r in targeted]),
+            }
+        )
+    return table
+
+
+def per_target_table(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Targeted transfer success per victim and target class (meshadv vs Mitsuba)."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    for row in rows:
+        if row.get("target"):
+            groups[(row["victim"], row["target"])].append(row)
+    return [
+        {
+            "victim": victim,
+            "target": target,
+            "n": len(items),
+            "targeted_meshadv": _rate([r.get("success_meshadv") for r in items]),
+            "targeted_mitsuba": _rate([r.get("success_mitsuba") for r in items]),
+        }
+        for (victim, target), items in sorted(groups.items())
+    ]
+
+
+def confusion_matrices(
+    rows: Sequence[dict[str, Any]], classes: Optional[Sequence[str]] = None, *, renderer: str = "mitsuba"
+) -> dict[str, tuple[list[str], list[list[Optional[float]]]]]:
+    """Targeted confusion matrices (the paper's Fig. 5): rate of success for each (true class, target class).
+
+    Args:
+        rows: transfer rows.
+        classes: the class order (default: every class seen, sorted).
+        renderer: ``"mitsuba"`` or ``"meshadv"`` (which success to count).
+
+    Returns:
+        ``{victim: (classes, matrix)}`` with ``matrix[i][j]`` the success rate of attacks on class ``i`` toward
+        target ``j`` (None when there is no such attack).
+
+    Raises:
+        ValueError: unknown ``renderer``.
+    """
+    if renderer not in ("mitsuba", "meshadv"):
+        raise ValueError(f"renderer must be 'mitsuba' or 'meshadv', got {renderer!r}")
+    key = f"success_{renderer}"
+    targeted = [r for r in rows if r.get("target")]
+    names = list(classes) if classes is not None else sorted({r["true_class"] for r in targeted} |
+                                                             {r["target"] for r in targeted})
+    out = {}
+    for victim in sorted({r["victim"] for r in targeted}):
+        cells: dict[tuple[str, str], list[Any]] = defaultdict(list)
+        for r in targeted:
+            if r["victim"] == victim:
+                cells[(r["true_class"], r["target"])].append(r.get(key))
+        matrix = [[_rate(cells[(t, g)]) if (t, g) in cells else None for g in names] for t in names]
+        out[victim] = (names, matrix)
+    return out
+
+
+def _fmt(value: Any) -> str:
+    if value is None:
+        return "–"
+    if isinstance(value, float):
+        return f"{value:.2f}"
+    return str(value)
+
+
+def markdown_table(table: Sequence[dict[str, Any]], columns: Optional[Sequence[str]] = None) -> str:
+    """Render a list of dicts as a GitHub-flavoured markdown table."""
+    if not table:
+        return "(no rows)\n"
+    cols = list(columns) if columns is not None else list(table[0].keys())
+    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    lines += ["| " + " | ".join(_fmt(row.get(c)) for c in cols) + " |" for row in table]
+    return "\n".join(lines) + "\n"
+
+
+def markdown_confusion(names: Sequence[str], matrix: Sequence[Sequence[Optional[float]]]) -> str:
+    """Render a confusion matrix (rows: true class, columns: target class) as markdown."""
+    lines = ["| true \\ target | " + " | ".join(names) + " |", "|---|" + "|".join("---" for _ in names) + "|"]
+    for name, row in zip(names, matrix):
+        lines.append(f"| {name} | " + " | ".join(_fmt(v) for v in row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def transfer_report(rows: Sequence[dict[str, Any]]) -> str:
+    """A markdown section with the transfer tables and confusion matrices of ``rows``."""
+    controlled = [r for r in rows if r.get("kind", "controlled") == "controlled"]
+    blackbox = [r for r in rows if r.get("kind") == "blackbox"]
+    parts = ["## Transfer to Mitsuba 3\n"]
+    if controlled:
+        parts.append("### Controlled parameters (same camera and lights)\n")
+        parts.append(markdown_table(transfer_table(controlled)))
+        parts.append("\n#### Targeted success per target class\n")
+        parts.append(markdown_table(per_target_table(controlled)))
+        for victim, (names, matrix) in confusion_matrices(controlled).items():
+            parts.append(f"\n#### Targeted confusion matrix, {victim} (Mitsuba)\n")
+            parts.append(markdown_confusion(names, matrix))
+    if blackbox:
+        parts.append("\n### Black-box pipeline (estimated camera and lights)\n")
+        cols = ["case_id", "victim", "true_class", "target", "attack_type", "success_meshadv", "success_mitsuba",
+                "benign_correct_mitsuba", "azimuth_error", "elevation_error", "distance_error", "light_rmse"]
+        parts.append(markdown_table(blackbox, [c for c in cols if any(c in r for r in blackbox)]))
+    return "\n".join(parts)
+
+
+__all__ = [
+    "confusion_matrices",
+    "load_transfer_rows",
+    "markdown_confusion",
+    "markdown_table",
+    "per_target_table",
+    "save_transfer_rows",
+    "transfer_report",
+    "transfer_table",
+]

@@ -1,0 +1,464 @@
+"""The "PASCAL3D+ renderings" set: random views of each class's meshes that every chosen victim gets right.
+
+For each class, candidates ``0, 1, 2, ...`` are drawn deterministically: candidate ``i`` uses mesh ``i mod M`` (the
+class's meshes in the given order) and a NumPy generator seeded with ``SeedSequence([seed, class_index, i])``, which
+samples, in this order:
+
+- azimuth ``U[0, 360)``, elevation ``U[0, 90]`` degrees (configurable);
+- a distance that frames the object: the mesh (normalised into ``[-1, 1]``, bounding-sphere radius ``r``) covers a
+  fraction ``fill ~ U[fill_range]`` of the half field of view, ``d = r / sin(atan(fill * tan(fov / 2)))``;
+- one directional light within ``light_max_angle`` (60 degrees) of the view direction (uniform on that spherical cap
+  around the object-to-camera direction), grey intensity ``U[light_range]``, plus grey ambient ``U[ambient_range]``.
+
+The mesh is rendered untextured (its file colours, light grey by default) on a constant background. A candidate is
+kept when **every** victim classifies it as its class (classifiers: top-1 ImageNet label in the class's group,
+:data:`~meshadv.victims.labels.PASCAL3D_TO_IMAGENET`; detectors: a detection of the class's COCO label with score
+``>= detector_threshold``). The set holds the first ``per_class`` kept candidates of each class in candidate order,
+so the result depends only on the configuration and the seed, never on batching or on interruptions: the file is
+rewritten atomically after every batch and a run with the same configuration resumes from it.
+
+Defaults and why: a white background (the NMR/MeshAdv renderings' choice; ImageNet photos of furniture, bottles and
+aircraft are often product shots on white, and white keeps the silhouette, the strongest cue for untextured shapes,
+at full contrast), ambient ``U[0.45, 0.65]`` plus a light ``U[0.35, 0.55]`` near the view direction so that faces
+seen by the camera are lit (reflectance 0.7 x (ambient + light) stays mostly below saturation) and shading shows
+the 3-D shape, and ``fill`` ``U[0.6, 0.9]`` so the object fills most of the frame as in ImageNet photos. The pass rates
+per class and victim are stored in the file (``classes[c]["pass_rate"]``) and printed by :func:`pass_rate_table`.
+
+File format (JSON, ``format = "meshadv-rendering-set"``, ``version = 1``)::
+
+    {"format", "version", "complete": bool, "config": {...},
+     "classes": {class: {"next_candidate", "tried", "kept", "passed": {victim: n, "all": n},
+                         "pass_rate": {victim: p, "all": p}, "exhausted": bool}},
+     "renderings": [{"class", "mesh", "mesh_index", "candidate", "seed", "view": ViewSet record,
+                     "predictions": {victim: label}}]}
+
+Example:
+    >>> doc = build_rendering_set({"chair": ["01.ply"]}, ["efficientnet_lite0"], 4, 0, "set.json")  # doctest: +SKIP
+    >>> print(pass_rate_table(doc))  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Optional, Union
+
+import numpy as np
+import torch
+
+from meshadv.victims.base import ClassifierVictim, DetectorVictim, Victim
+from meshadv.victims.labels import PASCAL3D_CLASSES, PASCAL3D_TO_COCO, PASCAL3D_TO_IMAGENET, imagenet_class_names
+
+__all__ = [
+    "FORMAT",
+    "VERSION",
+    "RenderingSetConfig",
+    "build_rendering_set",
+    "load_rendering_set",
+    "pass_rate_table",
+    "record_views",
+    "sample_view",
+]
+
+FORMAT = "meshadv-rendering-set"
+VERSION = 1
+
+PathLike = Union[str, Path]
+
+
+@dataclass(frozen=True)
+class RenderingSetConfig:
+    """Sampling and rendering options of the rendering set (all ranges are inclusive-low, uniform).
+
+    Attributes:
+        azimuth_range: degrees.
+        elevation_range: degrees.
+        fill_range: fraction of the half field of view covered by the mesh's bounding sphere.
+        light_max_angle: maximum angle in degrees between the light direction and the view direction.
+        light_range: grey intensity of the directional light.
+        ambient_range: grey ambient intensity.
+        viewing_angle: camera field of view in degrees.
+        background: RGB background colour.
+        image_size: rendered image size (square).
+        antialias: supersampling factor of the renderer.
+        z_up: the meshes are Z-up (PASCAL3D+) and are rotated to the renderer's Y-up on load.
+        detector_threshold: minimum detection score for a detector victim to count the class as found.
+        max_candidates_per_class: stop a class (``exhausted``) after this many candidates; ``0`` = 50 x per_class.
+    """
+
+    azimuth_range: tuple[float, float] = (0.0, 360.0)
+    elevation_range: tuple[float, float] = (0.0, 90.0)
+    fill_range: tuple[float, float] = (0.6, 0.9)
+    light_max_angle: float = 60.0
+    light_range: tuple[float, float] = (0.35, 0.55)
+    ambient_range: tuple[float, float] = (0.45, 0.65)
+    viewing_angle: float = 30.0
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    image_size: int = 224
+    antialias: int = 2
+    z_up: bool = True
+    detector_threshold: float = 0.3
+    max_candidates_per_class: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("azimuth_range", "elevation_range", "fill_range", "light_range", "ambient_range"):
+            lo, hi = getattr(self, name)
+            if not lo <= hi:
+                raise ValueError(f"{name} must be (low, high) with low <= high, got {(lo, hi)}")
+        lo, hi = self.elevation_range
+        if lo < -90 or hi > 90:
+            raise ValueError(f"elevation_range must lie in [-90, 90], got {(lo, hi)}")
+        lo, hi = self.fill_range
+        if lo <= 0 or hi > 1:
+            raise ValueError(f"fill_range must lie in (0, 1], got {(lo, hi)}")
+        if not 0 <= self.light_max_angle <= 90:
+            raise ValueError(f"light_max_angle must be in [0, 90], got {self.light_max_angle}")
+        if not 0 < self.viewing_angle < 180:
+            raise ValueError(f"viewing_angle must be in (0, 180), got {self.viewing_angle}")
+        if self.image_size < 8:
+            raise ValueError(f"image_size must be >= 8, got {self.image_size}")
+        if len(self.background) != 3:
+            raise ValueError(f"background must have 3 values, got {self.background}")
+        if self.max_candidates_per_class < 0:
+            raise ValueError(f"max_candidates_per_class must be >= 0, got {self.max_candidates_per_class}")
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-able dict (tuples become lists)."""
+        return json.loads(json.dumps(asdict(self)))
+
+
+def candidate_seed(seed: int, class_index: int, candidate: int) -> int:
+    """The 32-bit seed of candidate ``candidate`` of class number ``class_index`` (independent of batching)."""
+    return int(np.random.SeedSequence([int(seed), int(class_index), int(candidate)]).generate_state(1)[0])
+
+
+def sample_view(rng: np.random.Generator, radius: float, config: RenderingSetConfig) -> dict[str, Any]:
+    """Draw one camera + lighting configuration as a ViewSet record (see the module docstring for the law).
+
+    Args:
+        rng: the candidate's generator.
+        radius: bounding-sphere radius of the (normalised) mesh.
+        config: sampling ranges.
+
+    Returns:
+        A record accepted by :meth:`meshadv.render.ViewSet.from_records`.
+    """
+    azimuth = float(rng.uniform(*config.azimuth_range))
+    elevation = float(rng.uniform(*config.elevation_range))
+    fill = float(rng.uniform(*config.fill_range))
+    half_fov = math.radians(config.viewing_angle) / 2.0
+    distance = radius / math.sin(math.atan(fill * math.tan(half_fov)))
+    az, el = math.radians(azimuth), math.radians(elevation)
+    to_eye = np.array([math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)])
+    # uniform direction on the cap of half-angle light_max_angle around to_eye
+    cos_max = math.cos(math.radians(config.light_max_angle))
+    cos_t = float(rng.uniform(cos_max, 1.0))
+    phi = float(rng.uniform(0.0, 2.0 * math.pi))
+    sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+    helper = np.array([0.0, 1.0, 0.0]) if abs(to_eye[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    u = np.cross(helper, to_eye)
+    u /= np.linalg.norm(u)
+    v = np.cross(to_eye, u)
+    light_dir = cos_t * to_eye + sin_t * (math.cos(phi) * u + math.sin(phi) * v)
+    light = float(rng.uniform(*config.light_range))
+    ambient = float(rng.uniform(*config.ambient_range))
+    return {
+        "distance": distance,
+        "azimuth": azimuth,
+        "elevation": elevation,
+        "tilt": 0.0,
+        "viewing_angle": float(config.viewing_angle),
+        "near": 0.1,
+        "far": 100.0,
+        "orthographic": False,
+        "ortho_scale": 1.0,
+        "light_directions": [light_dir.tolist()],
+        "light_colors": [[light, light, light]],
+        "ambient": [ambient, ambient, ambient],
+    }
+
+
+def _write_json_atomic(path: Path, doc: dict[str, Any]) -> None:
+    data = json.dumps(doc, indent=1).encode("utf-8")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_rendering_set(path: PathLike) -> dict[str, Any]:
+    """Read a rendering-set file and check its format and version.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+        ValueError: not a rendering-set file, or an unsupported version.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"path {path} does not exist")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"path {path} is not a JSON rendering-set file: {exc}") from exc
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise ValueError(f"path {path} is not a {FORMAT} file")
+    if doc.get("version") != VERSION:
+        raise ValueError(f"path {path} has version {doc.get('version')}, this meshadv reads version {VERSION}")
+    return doc
+
+
+def record_views(records: Sequence[Mapping[str, Any]]) -> Any:
+    """The :class:`meshadv.render.ViewSet` of rendering-set records (their ``"view"`` entries).
+
+    Args:
+        records: entries of ``doc["renderings"]`` (typically those of one mesh).
+    """
+    from meshadv.render import ViewSet
+
+    return ViewSet.from_records([rec["view"] for rec in records])
+
+
+@dataclass
+class _Judge:
+    victim: Victim
+    threshold: float
+    imagenet_names: tuple[str, ...] = field(default_factory=tuple)
+
+    def __call__(self, images: torch.Tensor, cls: str) -> tuple[list[bool], list[str]]:
+        with torch.no_grad():
+            if isinstance(self.victim, ClassifierVictim):
+                top1 = self.victim(images).argmax(dim=1).tolist()
+                group = set(PASCAL3D_TO_IMAGENET[cls])
+                return [i in group for i in top1], [self.imagenet_names[i] for i in top1]
+            if isinstance(self.victim, DetectorVictim):
+                label = self.victim.class_index(PASCAL3D_TO_COCO[cls])
+                scores = self.victim(images).scores()
+                best_score, best_label = scores.max(dim=1).values.max(dim=1)
+                own = scores[:, :, label].max(dim=1).values
+                passed = [float(s) >= self.threshold for s in own]
+                labels = [
+                    f"{self.victim.class_names[int(lab)]}:{float(s):.3f}" for s, lab in zip(best_score, best_label)
+                ]
+                return passed, labels
+        raise ValueError(f"victims: unsupported victim kind {self.victim.kind!r}")
+
+
+def _resolve_victims(victims: Sequence[Union[str, Victim]]) -> list[Victim]:
+    from meshadv.victims.registry import load_victim
+
+    if isinstance(victims, (str, Victim)) or not victims:
+        raise ValueError("victims must be a non-empty sequence of victim names or Victim objects")
+    resolved = [load_victim(v) if isinstance(v, str) else v for v in victims]
+    names = [v.name for v in resolved]
+    if len(set(names)) != len(names):
+        raise ValueError(f"victims must have distinct names, got {names}")
+    return resolved
+
+
+def _new_doc(config_json: dict[str, Any], classes: Sequence[str], victim_names: Sequence[str]) -> dict[str, Any]:
+    zero = {name: 0 for name in [*victim_names, "all"]}
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "complete": False,
+        "config": config_json,
+        "classes": {
+            c: {
+                "next_candidate": 0,
+                "tried": 0,
+                "kept": 0,
+                "passed": dict(zero),
+                "pass_rate": {k: None for k in zero},
+                "exhausted": False,
+            }
+            for c in classes
+        },
+        "renderings": [],
+    }
+
+
+def build_rendering_set(
+    mesh_paths_by_class: Mapping[str, Sequence[PathLike]],
+    victims: Sequence[Union[str, Victim]],
+    per_class: int = 72,
+    seed: int = 0,
+    out_path: PathLike = "rendering_set.json",
+    *,
+    config: Optional[RenderingSetConfig] = None,
+    batch_size: int = 16,
+    progress: Optional[Callable[[str, dict[str, Any]], None]] = None,
+) -> dict[str, Any]:
+    """Build (or resume) the rendering set and write it to ``out_path`` (atomically, after every batch).
+
+    Args:
+        mesh_paths_by_class: PASCAL3D+ class name -> mesh files of that class.
+        victims: victim names (loaded with :func:`~meshadv.victims.load_victim`) or victim objects.
+        per_class: kept renderings wanted per class (the paper: 72).
+        seed: master seed.
+        out_path: the JSON file; if it exists with the same configuration the run resumes from it.
+        config: sampling / rendering options (default :class:`RenderingSetConfig`).
+        batch_size: candidates rendered and classified together.
+        progress: called as ``progress(class_name, class_stats)`` after each batch.
+
+    Returns:
+        The document written to ``out_path`` (see the module docstring).
+
+    Raises:
+        ValueError: unknown class, no meshes for a class, ``per_class`` / ``batch_size`` < 1, bad victims, or an
+            existing ``out_path`` written with a different configuration.
+        FileNotFoundError: a mesh file does not exist.
+    """
+    from meshadv.mesh import load_mesh, normalize_mesh
+    from meshadv.render import ViewSet, render
+
+    config = config or RenderingSetConfig()
+    if per_class < 1:
+        raise ValueError(f"per_class must be >= 1, got {per_class}")
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    if not mesh_paths_by_class:
+        raise ValueError("mesh_paths_by_class must name at least one class")
+    meshes_by_class: dict[str, list[str]] = {}
+    for cls, paths in mesh_paths_by_class.items():
+        if cls not in PASCAL3D_TO_IMAGENET:
+            raise ValueError(f"mesh_paths_by_class: unknown class {cls!r}; classes: {', '.join(PASCAL3D_CLASSES)}")
+        paths = [str(p) for p in paths]
+        if not paths:
+            raise ValueError(f"mesh_paths_by_class[{cls!r}] is empty")
+        for p in paths:
+            if not Path(p).is_file():
+                raise FileNotFoundError(f"mesh_paths_by_class[{cls!r}]: mesh file {p} does not exist")
+        meshes_by_class[cls] = paths
+    resolved = _resolve_victims(victims)
+    victim_names = [v.name for v in resolved]
+    max_candidates = config.max_candidates_per_class or 50 * per_class
+    config_json = {
+        "per_class": int(per_class),
+        "seed": int(seed),
+        "victims": victim_names,
+        "meshes": meshes_by_class,
+        "sampling": config.to_json(),
+    }
+    out_path = Path(out_path)
+    if out_path.exists():
+        doc = load_rendering_set(out_path)
+        if doc["config"] != config_json:
+            raise ValueError(
+                f"out_path {out_path} holds a rendering set with a different configuration; "
+                "remove it or choose another out_path"
+            )
+    else:
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+        doc = _new_doc(config_json, list(meshes_by_class), victim_names)
+    if doc["complete"]:
+        return doc
+
+    imagenet_names = imagenet_class_names()
+    judges = [_Judge(v, config.detector_threshold, imagenet_names) for v in resolved]
+
+    def load_class_meshes(paths: Sequence[str]) -> list[tuple[Any, float]]:
+        loaded = []
+        for path in paths:
+            mesh, _ = normalize_mesh(load_mesh(path), z_up=config.z_up)
+            loaded.append((mesh, float(mesh.vertices.norm(dim=1).max())))
+        return loaded
+
+    for class_index, cls in enumerate(PASCAL3D_CLASSES):
+        if cls not in meshes_by_class:
+            continue
+        stats = doc["classes"][cls]
+        paths = meshes_by_class[cls]
+        if stats["kept"] >= per_class or stats["next_candidate"] >= max_candidates:
+            continue
+        class_meshes = load_class_meshes(paths)
+        while stats["kept"] < per_class and stats["next_candidate"] < max_candidates:
+            start = stats["next_candidate"]
+            stop = min(start + batch_size, max_candidates)
+            candidates = list(range(start, stop))
+            by_mesh: dict[int, list[int]] = {}
+            for cand in candidates:
+                by_mesh.setdefault(cand % len(paths), []).append(cand)
+            results: dict[int, tuple[dict[str, Any], list[bool], dict[str, str]]] = {}
+            for mesh_index, cands in by_mesh.items():
+                mesh, radius = class_meshes[mesh_index]
+                views = [
+                    sample_view(np.random.default_rng(candidate_seed(seed, class_index, c)), radius, config)
+                    for c in cands
+                ]
+                view_set = ViewSet.from_records(views)
+                with torch.no_grad():
+                    images = render(
+                        mesh.vertices,
+                        mesh.faces,
+                        mesh.face_colors,
+                        view_set.camera,
+                        view_set.lights,
+                        image_size=config.image_size,
+                        background=config.background,
+                        antialias=config.antialias,
+                    ).image
+                verdicts = [judge(images, cls) for judge in judges]
+                for j, cand in enumerate(cands):
+                    passed = [v[0][j] for v in verdicts]
+                    preds = {name: v[1][j] for name, v in zip(victim_names, verdicts)}
+                    results[cand] = (views[j], passed, preds)
+            for cand in candidates:  # candidate order: the set does not depend on batching
+                view, passed, preds = results[cand]
+                stats["tried"] += 1
+                stats["next_candidate"] = cand + 1
+                for name, ok in zip(victim_names, passed):
+                    stats["passed"][name] += int(ok)
+                if all(passed):
+                    stats["passed"]["all"] += 1
+                    stats["kept"] += 1
+                    doc["renderings"].append(
+                        {
+                            "class": cls,
+                            "mesh": paths[cand % len(paths)],
+                            "mesh_index": cand % len(paths),
+                            "candidate": cand,
+                            "seed": candidate_seed(seed, class_index, cand),
+                            "view": view,
+                            "predictions": preds,
+                        }
+                    )
+                    if stats["kept"] >= per_class:
+                        break
+            stats["pass_rate"] = {k: n / stats["tried"] for k, n in stats["passed"].items()}
+            stats["exhausted"] = stats["kept"] < per_class and stats["next_candidate"] >= max_candidates
+            _write_json_atomic(out_path, doc)
+            if progress is not None:
+                progress(cls, stats)
+    doc["complete"] = True
+    _write_json_atomic(out_path, doc)
+    return doc
+
+
+def pass_rate_table(doc: Mapping[str, Any]) -> str:
+    """A plain-text table of the pass rate per class and victim (and of all victims together).
+
+    Args:
+        doc: a rendering-set document.
+    """
+    victims = list(doc["config"]["victims"])
+    header = ["class", "kept", "tried", *victims, "all"]
+    rows = [header]
+    for cls, stats in doc["classes"].items():
+        rates = stats["pass_rate"]
+        rows.append(
+            [cls, str(stats["kept"]), str(stats["tried"])]
+            + ["-" if rates[k] is None else f"{100 * rates[k]:.1f}%" for k in [*victims, "all"]]
+        )
+    widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
+    return "\n".join("  ".join(cell.ljust(w) for cell, w in zip(row, widths)) for row in rows)

