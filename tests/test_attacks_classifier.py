@@ -57,8 +57,8 @@ def mesh(shared_data: Path) -> Any:
 def _views(num_views: int = 1, spread: float = 10.0) -> Any:
     from meshadv.render import ViewSet
 
-    az = torch.tensor([30.0]) if num_views == 1 else torch.linspace(30.0 - spread, 30.0 + spread, num_views)
-    return ViewSet.orbit(az, elevation=15.0, distance=4.0)
+    az = torch.tensor([150.0]) if num_views == 1 else torch.linspace(150.0 - spread, 150.0 + spread, num_views)
+    return ViewSet.orbit(az, elevation=15.0, distance=4.5)
 
 
 def _ranking(mesh: Any, views: Any, victim: Any) -> Tuple[int, int, int]:

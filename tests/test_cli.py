@@ -64,7 +64,7 @@ def test_render_writes_views(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in out.glob("view_*.png")) == ["view_0.png", "view_1.png", "view_2.png"]
     record = json.loads((out / "predictions.json").read_text())
-    assert [v["azimuth"] for v in record["views"]] == pytest.approx([-30.0, 0.0, 30.0])
+    assert [v["azimuth"] for v in record["views"]] == pytest.approx([150.0, 180.0, 210.0])
 
 
 def test_attack_command_writes_result(tmp_path: Path) -> None:

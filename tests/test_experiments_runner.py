@@ -122,6 +122,17 @@ def test_timeout_kills_the_job(tmp_path: Path) -> None:
     assert "timed out" in store.rows()[0].error
 
 
+def test_workers_are_reused_and_recycled(tmp_path: Path) -> None:
+    specs = [{"probe": "ok", "i": i} for i in range(4)]
+    store = ResultStore(tmp_path / "r.db")
+    backend = LocalBackend(workers=1, threads_per_job=1, max_jobs_per_worker=2)
+    run_sweep(store, specs, PROBE, out_root=tmp_path, backend=backend, progress=False)
+    backend.close()
+    pids = [r.record["pid"] for r in store.rows()]
+    assert pids[0] == pids[1] and pids[2] == pids[3] and pids[1] != pids[2]
+    assert os.getpid() not in pids
+
+
 def test_second_driver_is_refused(tmp_path: Path) -> None:
     from meshadv.experiments import driver_lock
 

@@ -52,7 +52,7 @@ def test_vertex_neighbors_csr() -> None:
         ref.setdefault(a, set()).add(b)
         ref.setdefault(b, set()).add(a)
     for i in range(mesh.num_vertices):
-        neighbors = indices[offsets[i]:offsets[i + 1]].tolist()
+        neighbors = indices[offsets[i] : offsets[i + 1]].tolist()
         assert neighbors == sorted(ref[i])
     degrees = vertex_degrees(mesh.faces, mesh.num_vertices)
     assert torch.equal(degrees, offsets[1:] - offsets[:-1])

@@ -85,16 +85,18 @@ def test_merge_duplicates_preserves_first_occurrence_order() -> None:
 
 def test_clean_arrays_counts_and_identity_on_clean_input() -> None:
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [9, 9, 9], [1, 0, 0]], dtype=np.float32)
-    f = np.array([[0, 1, 2], [0, 1, 3], [0, 0, 2], [1, 5, 2]])  # collinear, repeated, merged-into-repeated
-    c = np.arange(12, dtype=np.float32).reshape(4, 3)
+    # collinear, repeated corner, merged-into-repeated, duplicate of the first in the other winding
+    f = np.array([[0, 1, 2], [0, 1, 3], [0, 0, 2], [1, 5, 2], [2, 1, 0]])
+    c = np.arange(15, dtype=np.float32).reshape(5, 3)
     nv, nf, nc, counts = clean_arrays(v, f, c)
     assert (counts.merged_vertices, counts.degenerate_faces, counts.unreferenced_vertices) == (1, 3, 2)
+    assert counts.duplicate_faces == 1
     np.testing.assert_array_equal(nf, [[0, 1, 2]])
     np.testing.assert_array_equal(nc, c[:1])
     np.testing.assert_array_equal(nv, v[:3])
     # A clean mesh passes through unchanged, in order.
     v2, f2, c2, counts2 = clean_arrays(nv, nf, nc)
-    assert counts2 == type(counts2)(0, 0, 0)
+    assert counts2 == type(counts2)(0, 0, 0, 0)
     np.testing.assert_array_equal(v2, nv)
     np.testing.assert_array_equal(f2, nf)
 

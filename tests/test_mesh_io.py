@@ -39,7 +39,8 @@ def test_load_every_shared_mesh(shared_data: Path) -> None:
         assert not degenerate_face_mask(v, f).any(), path
         assert len(np.unique(f)) == mesh.num_vertices, f"{path}: unreferenced vertices left"
         assert len(np.unique(v, axis=0)) == mesh.num_vertices, f"{path}: duplicate vertices left"
-        assert report.input_faces - report.degenerate_faces == mesh.num_faces, path
+        assert report.input_faces - report.degenerate_faces - report.duplicate_faces == mesh.num_faces, path
+        assert len(np.unique(np.sort(f, axis=1), axis=0)) == mesh.num_faces, f"{path}: duplicate faces left"
         assert report.input_vertices - report.merged_vertices - report.unreferenced_vertices == mesh.num_vertices
         np.testing.assert_allclose(c, 0.7, atol=1e-6)
         assert report.color_source == "default" and report.file_format == "ply"
@@ -48,8 +49,9 @@ def test_load_every_shared_mesh(shared_data: Path) -> None:
 def test_shared_mesh_matches_trimesh_geometry(shared_data: Path) -> None:
     path = shared_data / "pascal3d" / "chair" / "01.ply"
     mesh = load_mesh(path)
-    raw = trimesh.load(str(path), process=False)
-    # Same surface: equal bounds and equal total area of the non-degenerate faces.
+    raw = trimesh.load(str(path), process=True)  # trimesh's own clean-up, for comparison
+    raw.update_faces(raw.unique_faces() & raw.nondegenerate_faces())
+    # Same surface: equal bounds and equal total area once duplicate and degenerate faces are gone.
     np.testing.assert_allclose(mesh.bounds().numpy(), raw.bounds, rtol=1e-6)
     assert float(mesh.face_areas().sum()) == pytest.approx(raw.area, rel=1e-5)
 
@@ -154,11 +156,11 @@ def test_load_glb_scene_flattens_with_transforms(tmp_path: Path) -> None:
 def test_load_reports_cleanup(tmp_path: Path) -> None:
     path = tmp_path / "dirty.obj"
     path.write_text(
-        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 0 0\nv 5 5 5\nv 0 0 1\n"
-        "f 1 2 3\nf 1 4 6\nf 1 2 4\nf 2 3 2\n"
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 0 0\nv 5 5 5\nv 0 0 1\nf 1 2 3\nf 1 4 6\nf 1 2 4\nf 2 3 2\nf 3 2 1\n"
     )
     mesh, report = load_mesh_with_report(path)
-    assert (report.merged_vertices, report.degenerate_faces, report.unreferenced_vertices) == (1, 2, 1)
+    counts = (report.merged_vertices, report.degenerate_faces, report.unreferenced_vertices, report.duplicate_faces)
+    assert counts == (1, 2, 1, 1)
     assert report.changed and "merged 1" in report.summary()
     assert mesh.num_faces == 2 and mesh.num_vertices == 4
 

@@ -125,8 +125,9 @@ def test_timeout_becomes_exception() -> None:
 
 def test_worker_failures_are_reported(tmp_path: Path) -> None:
     with pytest.raises(MeshProcessingError, match="max_cells=100000"):
-        resample_mesh_with_info(builtin_mesh("sphere"), edge_length=0.01, method="uniform", cache_dir=tmp_path,
-                                max_cells=100_000)
+        resample_mesh_with_info(
+            builtin_mesh("sphere"), edge_length=0.01, method="uniform", cache_dir=tmp_path, max_cells=100_000
+        )
     with pytest.raises(MeshProcessingError, match="empty mesh"):
         # A cell far larger than the shape: marching cubes finds no surface.
         resample_mesh(builtin_mesh("cube"), edge_length=50.0, method="uniform", cache_dir=tmp_path)

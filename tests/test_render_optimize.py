@@ -104,7 +104,7 @@ def test_sphere_deforms_to_fit_target_silhouettes() -> None:
         loss = iou_loss(render_silhouette(base + disp, faces, cams, 48), target)
         loss.backward()
         opt.step()
-        losses.append(float(loss))
+        losses.append(float(loss.detach()))
     final = float(iou_loss(render_silhouette(base + disp.detach(), faces, cams, 48), target))
     assert final <= 0.1 * losses[0], f"loss {losses[0]:.4f} -> {final:.4f}"
 
@@ -131,4 +131,5 @@ def test_camera_pose_is_recovered_from_a_mask(az0: float, el0: float) -> None:
         loss = ((pred - target) ** 2).sum()
         loss.backward()
         opt.step()
-    assert abs(float(az) - az_true) < 2.0 and abs(float(el) - el_true) < 2.0, (float(az), float(el))
+    az_fit, el_fit = float(az.detach()), float(el.detach())
+    assert abs(az_fit - az_true) < 2.0 and abs(el_fit - el_true) < 2.0, (az_fit, el_fit)

@@ -32,7 +32,7 @@ SMALL = RenderingSetConfig(image_size=48, antialias=1)
 class CoverageVictim(ClassifierVictim):
     """A fake classifier: 'studio couch' (sofa) when the object covers more than ``threshold`` of the image."""
 
-    def __init__(self, threshold: float = 0.3, name: str = "coverage") -> None:
+    def __init__(self, threshold: float = 0.2, name: str = "coverage") -> None:
         super().__init__(name, (48, 48))
         self.threshold = threshold
         self.calls = 0

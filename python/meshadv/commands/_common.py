@@ -18,8 +18,8 @@ __all__ = [
     "topk_labels",
 ]
 
-#: Camera distance that frames a mesh normalised into [-1, 1] with a 30 degree field of view.
-DEFAULT_DISTANCE = 4.0
+#: Camera distance that frames a mesh normalised into [-1, 1] (whole object in view) with a 30 degree field of view.
+DEFAULT_DISTANCE = 4.5
 #: Default camera elevation (degrees).
 DEFAULT_ELEVATION = 15.0
 #: Default background colour.
@@ -60,7 +60,7 @@ def load_mesh_arg(spec: str, *, z_up: Optional[bool] = None) -> Tuple[Any, str]:
 
 def make_views(
     num_views: int,
-    azimuth_range: Sequence[float] = (-30.0, 30.0),
+    azimuth_range: Sequence[float] = (150.0, 210.0),
     elevation: float = DEFAULT_ELEVATION,
     distance: float = DEFAULT_DISTANCE,
     offset: float = 0.0,

@@ -124,7 +124,8 @@ def attack(
     disappear: Optional[str] = typer.Option(None, help="detector: class to hide, or 'all'"),
     perturb: str = typer.Option("shape", help="shape or texture"),
     views: int = typer.Option(5, help="number of victim views"),
-    azimuths: str = typer.Option("-30:30", help="azimuth range LOW:HIGH (degrees) of the victim views"),
+    azimuths: str = typer.Option("150:210", help="azimuth range LOW:HIGH (degrees) of the victim views; 180 faces "
+                                                       "the front of a PASCAL3D+ model"),
     eval_views: int = typer.Option(0, help="held-out views in the same range (between the victim views)"),
     elevation: float = typer.Option(DEFAULT_ELEVATION, help="camera elevation (degrees)"),
     distance: float = typer.Option(DEFAULT_DISTANCE, help="camera distance (mesh normalised to [-1, 1])"),

@@ -68,7 +68,7 @@ def demo(
         raise typer.BadParameter(str(exc)) from exc
     if model.kind != "classifier":
         raise typer.BadParameter(f"victim {victim} is a {model.kind}; the demo attacks a classifier")
-    view_set = make_views(views, (-20.0, 20.0), DEFAULT_ELEVATION, DEFAULT_DISTANCE)
+    view_set = make_views(views, (160.0, 200.0), DEFAULT_ELEVATION, DEFAULT_DISTANCE)
     names = list(model.class_names)
     with torch.no_grad():
         images, _ = render_views(mesh_obj.vertices.unsqueeze(0), mesh_obj.faces, mesh_obj.face_colors, view_set,

@@ -28,7 +28,8 @@ __all__ = ["render"]
 def render(
     mesh: str = typer.Argument(..., help="mesh file (PLY/OBJ/OFF), builtin:NAME, or 'default'"),
     views: int = typer.Option(4, help="number of views"),
-    azimuths: str = typer.Option("-30:30", help="azimuth range LOW:HIGH (degrees)"),
+    azimuths: str = typer.Option("150:210", help="azimuth range LOW:HIGH (degrees); 180 faces the front of a "
+                                                       "PASCAL3D+ model"),
     elevation: float = typer.Option(DEFAULT_ELEVATION, help="camera elevation (degrees)"),
     distance: float = typer.Option(DEFAULT_DISTANCE, help="camera distance (mesh normalised to [-1, 1])"),
     image_size: int = typer.Option(224, help="image size in pixels"),

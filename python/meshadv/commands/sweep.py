@@ -51,7 +51,8 @@ def sweep(
     attempts = int(runner["max_attempts"]) if max_attempts is None else max_attempts
     try:
         be = make_backend(backend, workers=n_workers, threads_per_job=int(runner["threads_per_job"]),
-                          timeout=float(runner["timeout"] if timeout is None else timeout), address=address)
+                          timeout=float(runner["timeout"] if timeout is None else timeout), address=address,
+                          max_jobs_per_worker=int(runner["max_jobs_per_worker"]))
     except ValueError as err:
         raise typer.BadParameter(str(err), param_hint="--backend / --address") from err
     with ResultStore(db_path) as store:

@@ -1,9 +1,9 @@
 """Execution backends: where jobs run. The runner talks to them through ``submit`` / ``wait`` / ``close``.
 
-- :class:`LocalBackend` (default): a ``concurrent.futures`` pool of ``workers`` slots on this machine; every job runs in
-  its own freshly *spawned* process (torch and ``fork`` do not mix), so a segfault or an ``os._exit`` in one job
-  (a native renderer crash, Mitsuba, OOM kill) is recorded as that job's crash and the sweep goes on. A per-job
-  timeout kills the process. A spawned job exits by itself when the driver dies.
+- :class:`LocalBackend` (default): ``workers`` long-lived worker processes started with ``spawn`` (torch and ``fork``
+  do not mix), fed by a ``concurrent.futures`` thread pool; a segfault or an ``os._exit`` in one job (a native
+  renderer crash, Mitsuba, an OOM kill) is recorded as that job's crash, its worker is replaced and the sweep goes on.
+  A per-job timeout kills the worker. Workers exit by themselves when the driver dies.
 - :class:`RayBackend`: Ray tasks (``ray.init(address)`` on a cluster, a local Ray instance when no address is given);
   the artefact folder must be on a file system every node can write (the driver only records paths).
 - :class:`SerialBackend`: runs jobs one by one inside the driver process (debugging, profiling; no crash isolation).
@@ -14,6 +14,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing as mp
 import os
+import queue
 import signal
 import threading
 import time
@@ -62,13 +63,18 @@ def _parent_watchdog(parent_pid: int) -> None:
             os._exit(3)
 
 
-def _child_main(conn: Any, parent_pid: int, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str,
-                threads: int) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the driver, which then stops its jobs
+def _worker_main(conn: Any, parent_pid: int, threads: int) -> None:
+    """Body of a local worker process: run the jobs received on ``conn`` until told to stop."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the driver, which then stops its workers
     threading.Thread(target=_parent_watchdog, args=(parent_pid,), daemon=True).start()
-    outcome = execute(job_ref, job_id, spec, out_dir, threads)
-    conn.send(outcome)
-    conn.close()
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            return
+        if msg is None:
+            return
+        conn.send(execute(*msg, threads=threads))
 
 
 def _crash_reason(exitcode: Optional[int]) -> str:
@@ -81,79 +87,122 @@ def _crash_reason(exitcode: Optional[int]) -> str:
     return f"job process died without reporting a result (exit code {exitcode})"
 
 
+class _Worker:
+    """A spawned worker process and the pipe to it."""
+
+    def __init__(self, ctx: Any, threads: int) -> None:
+        self.conn, child = ctx.Pipe(duplex=True)
+        self.proc = ctx.Process(target=_worker_main, args=(child, os.getpid(), threads), name="meshadv-worker")
+        self.proc.start()
+        child.close()
+        self.jobs = 0
+
+    def stop(self, kill: bool = False) -> None:
+        if kill:
+            self.proc.kill()
+        else:
+            try:
+                self.conn.send(None)
+            except (OSError, BrokenPipeError):
+                self.proc.kill()
+        self.proc.join(timeout=10)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+        self.conn.close()
+
+
 class LocalBackend(Backend):
-    """Run each job in its own spawned process, ``workers`` at a time.
+    """Run jobs in ``workers`` spawned worker processes on this machine.
+
+    Each worker process is started with the ``spawn`` method, imports torch and the job module once and runs job
+    after job (so imports and loaded victims are paid once per worker, not per job). When a job kills its worker
+    (segfault, ``os._exit``, OOM kill) or exceeds ``timeout``, only that job is recorded as crashed and a fresh worker
+    replaces the dead one.
 
     Args:
         workers: parallel jobs (0 = every core).
         threads_per_job: intra-op threads of each job (0 = ``cores // workers``, at least 1).
-        timeout: seconds after which a job's process is killed and the attempt recorded as failed (0 = none).
+        timeout: seconds after which a job's worker is killed and the attempt recorded as failed (0 = none).
+        max_jobs_per_worker: restart a worker after this many jobs, to bound leaks (0 = never).
 
     Raises:
         ValueError: negative arguments.
     """
 
-    def __init__(self, workers: int = 0, threads_per_job: int = 0, timeout: float = 0.0) -> None:
-        if workers < 0 or threads_per_job < 0 or timeout < 0:
+    def __init__(self, workers: int = 0, threads_per_job: int = 0, timeout: float = 0.0,
+                 max_jobs_per_worker: int = 0) -> None:
+        if workers < 0 or threads_per_job < 0 or timeout < 0 or max_jobs_per_worker < 0:
             raise ValueError(
-                f"workers, threads_per_job and timeout must be >= 0, got {workers}, {threads_per_job}, {timeout}"
+                "workers, threads_per_job, timeout and max_jobs_per_worker must be >= 0, got "
+                f"{workers}, {threads_per_job}, {timeout}, {max_jobs_per_worker}"
             )
         cores = os.cpu_count() or 1
         self.capacity = workers or cores
         self.threads_per_job = threads_per_job or max(1, cores // self.capacity)
         self.timeout = float(timeout)
+        self.max_jobs_per_worker = int(max_jobs_per_worker)
         self._ctx = mp.get_context("spawn")
         self._pool = cf.ThreadPoolExecutor(max_workers=self.capacity, thread_name_prefix="meshadv-job")
-        self._procs: Dict[str, Any] = {}
+        self._idle: "queue.SimpleQueue[_Worker]" = queue.SimpleQueue()
+        self._busy: Dict[int, _Worker] = {}
         self._lock = threading.Lock()
         self._closing = False
 
-    def _run(self, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str) -> Outcome:
-        start = time.perf_counter()
-        recv, send = self._ctx.Pipe(duplex=False)
-        proc = self._ctx.Process(
-            target=_child_main,
-            args=(send, os.getpid(), job_ref, job_id, spec, out_dir, self.threads_per_job),
-            name=f"meshadv-job-{job_id}",
-        )
+    def _acquire(self) -> Optional[_Worker]:
         with self._lock:
             if self._closing:
-                return Outcome(job_id, False, None, "sweep stopped before the job started", 0.0)
-            proc.start()
-            self._procs[job_id] = proc
-        send.close()
+                return None
+            try:
+                worker = self._idle.get_nowait()
+            except queue.Empty:
+                worker = _Worker(self._ctx, self.threads_per_job)
+            self._busy[id(worker)] = worker
+            return worker
+
+    def _release(self, worker: _Worker, healthy: bool) -> None:
+        with self._lock:
+            self._busy.pop(id(worker), None)
+            recycle = self.max_jobs_per_worker and worker.jobs >= self.max_jobs_per_worker
+            if healthy and not recycle and not self._closing:
+                self._idle.put(worker)
+                return
+        worker.stop(kill=not healthy)
+
+    def _run(self, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str) -> Outcome:
+        start = time.perf_counter()
+        worker = self._acquire()
+        if worker is None:
+            return Outcome(job_id, False, None, "sweep stopped before the job started", 0.0)
         outcome: Optional[Outcome] = None
         error = None
         try:
+            worker.conn.send((job_ref, job_id, spec, out_dir))
+            worker.jobs += 1
             while True:
-                if recv.poll(0.2):
-                    try:
-                        outcome = recv.recv()
-                    except (EOFError, OSError):
-                        outcome = None
+                if worker.conn.poll(0.2):
+                    outcome = worker.conn.recv()
                     break
-                if not proc.is_alive():
-                    if recv.poll(0):
-                        try:
-                            outcome = recv.recv()
-                        except (EOFError, OSError):
-                            outcome = None
+                if not worker.proc.is_alive():
+                    if worker.conn.poll(0):
+                        outcome = worker.conn.recv()
                     break
                 if self.timeout and time.perf_counter() - start > self.timeout:
-                    proc.kill()
+                    worker.proc.kill()
                     error = f"job timed out after {self.timeout:g} s and was killed"
                     break
-            proc.join()
-        finally:
-            recv.close()
-            with self._lock:
-                self._procs.pop(job_id, None)
+        except (EOFError, OSError):
+            outcome = None
         if outcome is not None:
+            self._release(worker, healthy=True)
             return outcome
-        return Outcome(job_id, False, None, error or _crash_reason(proc.exitcode), time.perf_counter() - start)
+        worker.proc.join(timeout=10)
+        exitcode = worker.proc.exitcode
+        self._release(worker, healthy=False)
+        return Outcome(job_id, False, None, error or _crash_reason(exitcode), time.perf_counter() - start)
 
     def submit(self, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str) -> cf.Future:
-        """Start one job in a spawned process; return its future."""
+        """Queue one job for the next free worker; return its future."""
         return self._pool.submit(self._run, job_ref, job_id, spec, out_dir)
 
     def wait(self, handles: Sequence[Any], timeout: Optional[float] = None) -> List[Tuple[Any, Outcome]]:
@@ -162,14 +211,19 @@ class LocalBackend(Backend):
         return [(f, f.result()) for f in done]
 
     def close(self) -> None:
-        """Kill the job processes still running and stop the pool."""
+        """Kill the workers still running a job, stop the idle ones and the pool."""
         with self._lock:
             self._closing = True
-            procs = list(self._procs.values())
-        for proc in procs:
-            if proc.is_alive():
-                proc.kill()
+            busy = list(self._busy.values())
+        for worker in busy:
+            if worker.proc.is_alive():
+                worker.proc.kill()
         self._pool.shutdown(wait=True, cancel_futures=True)
+        while True:
+            try:
+                self._idle.get_nowait().stop()
+            except queue.Empty:
+                break
 
 
 class SerialBackend(Backend):
@@ -263,7 +317,7 @@ class RayBackend(Backend):
 
 
 def make_backend(name: str, *, workers: int = 0, threads_per_job: int = 0, timeout: float = 0.0,
-                 address: Optional[str] = None) -> Backend:
+                 address: Optional[str] = None, max_jobs_per_worker: int = 0) -> Backend:
     """Build a backend by name.
 
     Args:
@@ -272,6 +326,7 @@ def make_backend(name: str, *, workers: int = 0, threads_per_job: int = 0, timeo
         threads_per_job: intra-op threads per job (0 = automatic).
         timeout: per-job timeout in seconds for the local backend (0 = none).
         address: Ray cluster address (ray only).
+        max_jobs_per_worker: local backend: restart a worker process after this many jobs (0 = never).
 
     Raises:
         ValueError: unknown name, or an address given to a non-Ray backend.
@@ -281,7 +336,8 @@ def make_backend(name: str, *, workers: int = 0, threads_per_job: int = 0, timeo
     if address and name != "ray":
         raise ValueError(f"address is only used by the ray backend, got backend={name!r}")
     if name == "local":
-        return LocalBackend(workers=workers, threads_per_job=threads_per_job, timeout=timeout)
+        return LocalBackend(workers=workers, threads_per_job=threads_per_job, timeout=timeout,
+                            max_jobs_per_worker=max_jobs_per_worker)
     if name == "serial":
         return SerialBackend(threads_per_job=threads_per_job)
     return RayBackend(address, num_cpus=workers or None, cpus_per_job=max(1, threads_per_job))

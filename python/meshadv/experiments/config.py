@@ -4,7 +4,8 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
 
     [experiment]  name, seeds = [0], output = "runs/<name>" (relative to the file), db = "<output>/results.db"
     [meshes]      source = "pascal3d" | "builtin" | "files"
-                  classes = [...] (PASCAL3D+ classes; default all 7), models_per_class = 1, models = ["01", ...]
+                  classes = [...] (PASCAL3D+ classes; default all 7), models_per_class = 1 (models 01, 02, ...),
+                  or models = ["01", ...] (every class) or models = {chair = ["03"], ...} (per class)
                   builtin = [{name = "sphere", class = "bottle"}], files = [{path = "x.ply", class = "chair"}]
                   target_faces = 0 (uniform resampling, 0 = keep), max_faces = 20000
     [render]      image_size = 224, configurations = 72, config_seed = 0, distance = [2.5, 3.0],
@@ -18,7 +19,7 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
                   eval_views = 20, types = ["shape", "texture"], classes = [...], targets = [...],
                   elevation = 20, distance = 2.7
     [runner]      job = "meshadv.experiments.jobs:run_attack_job", max_attempts = 2, timeout = 0, workers = 0,
-                  threads_per_job = 0
+                  threads_per_job = 0, max_jobs_per_worker = 0
 
 Rendering configurations are drawn once from ``config_seed`` (so every mesh, victim and target sees the same
 configurations): camera distance, azimuth and elevation uniform in their ranges, one directional light from the
@@ -135,6 +136,9 @@ def parse_config(raw: Dict[str, Any], *, base_dir: Union[str, Path] = ".", text:
     bad = [c for c in meshes["classes"] if c not in PASCAL3D_CLASSES]
     if meshes["source"] == "pascal3d" and bad:
         raise ValueError(f"meshes.classes must be PASCAL3D+ classes {list(PASCAL3D_CLASSES)}, got {bad}")
+    if meshes["models"] is not None and not isinstance(meshes["models"], (list, dict)):
+        raise ValueError(f"meshes.models must be a list of model numbers or a class -> list table, "
+                         f"got {meshes['models']!r}")
     if int(meshes["models_per_class"]) < 1:
         raise ValueError(f"meshes.models_per_class must be >= 1, got {meshes['models_per_class']}")
     for entry in meshes["builtin"] + meshes["files"]:
@@ -178,7 +182,7 @@ def parse_config(raw: Dict[str, Any], *, base_dir: Union[str, Path] = ".", text:
             raise ValueError(f"multiview.azimuth_ranges entries must be [low, high] with low < high, got {rng!r}")
 
     runner = {"job": DEFAULT_JOB, "max_attempts": 2, "timeout": 0.0, "workers": 0, "threads_per_job": 0,
-              **raw.get("runner", {})}
+              "max_jobs_per_worker": 0, **raw.get("runner", {})}
     if int(runner["max_attempts"]) < 1:
         raise ValueError(f"runner.max_attempts must be >= 1, got {runner['max_attempts']}")
     return SweepConfig(name=name, seeds=tuple(int(s) for s in seeds), output=output, db=db, meshes=meshes,
@@ -270,7 +274,10 @@ def _mesh_entries(meshes: Dict[str, Any]) -> List[Dict[str, Any]]:
         return [{"source": "files", "path": e["path"], "class": e["class"], **common} for e in meshes["files"]]
     out = []
     for cls in meshes["classes"]:
-        models = meshes["models"] or [f"{i + 1:02d}" for i in range(int(meshes["models_per_class"]))]
+        models = meshes["models"]
+        if isinstance(models, dict):
+            models = models.get(cls)
+        models = models or [f"{i + 1:02d}" for i in range(int(meshes["models_per_class"]))]
         for model in models:
             out.append({"source": "pascal3d", "path": f"pascal3d/{cls}/{model}.ply", "class": cls, **common})
     return out

@@ -77,6 +77,7 @@ def probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         "steps": int(spec.get("steps", 1)),
         "time": time.perf_counter() - start,
         "runs": runs,
+        "pid": os.getpid(),
         "artifacts": {"artefact": str(artefact)},
     }
 

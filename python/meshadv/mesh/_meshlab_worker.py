@@ -102,8 +102,9 @@ def hausdorff(vertices: np.ndarray, faces: np.ndarray, out_v: np.ndarray, out_f:
     return float(max(forward, backward))
 
 
-def _remesh(vertices: np.ndarray, faces: np.ndarray, length: float, max_dist: float, iterations: int,
-            smooth: bool) -> "tuple[np.ndarray, np.ndarray]":
+def _remesh(
+    vertices: np.ndarray, faces: np.ndarray, length: float, max_dist: float, iterations: int, smooth: bool
+) -> "tuple[np.ndarray, np.ndarray]":
     import pymeshlab
 
     ms = _new_meshset(vertices, faces)

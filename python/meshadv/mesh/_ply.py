@@ -28,9 +28,7 @@ def encode_ply(vertices: np.ndarray, faces: np.ndarray, face_colors: np.ndarray,
     Returns:
         The file content.
     """
-    face_dtype = np.dtype(
-        [("n", "u1"), ("idx", "<i4", (3,)), ("rgb", "u1", (3,)), ("exact", "<f4", (3,))]
-    )
+    face_dtype = np.dtype([("n", "u1"), ("idx", "<i4", (3,)), ("rgb", "u1", (3,)), ("exact", "<f4", (3,))])
     face_rec = np.zeros(len(faces), dtype=face_dtype)
     face_rec["n"] = 3
     face_rec["idx"] = faces

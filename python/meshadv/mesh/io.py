@@ -1,8 +1,8 @@
 """Loading meshes from OBJ, OFF, PLY, STL and GLB/glTF through trimesh, and saving them as PLY or OBJ + MTL.
 
-Loading cleans the mesh (merges bit-identical vertices, drops degenerate faces and unreferenced vertices) in an
-order-preserving way and reports what changed in a :class:`LoadReport`; scene files are flattened with their
-node transforms. Unusable files raise :class:`~meshadv.mesh.errors.MeshLoadError` naming the file.
+Loading cleans the mesh (merges bit-identical vertices, drops degenerate and duplicate faces and unreferenced
+vertices) in an order-preserving way and reports what changed in a :class:`LoadReport`; scene files are flattened
+with their node transforms. Unusable files raise :class:`~meshadv.mesh.errors.MeshLoadError` naming the file.
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ class LoadReport:
         merged_vertices: vertices merged into an earlier vertex with the same position.
         degenerate_faces: faces dropped for a repeated corner or zero area.
         unreferenced_vertices: vertices dropped because no face used them.
+        duplicate_faces: faces dropped because an earlier face has the same three vertices.
         color_source: ``"ply-exact"``, ``"face"``, ``"vertex"``, ``"material"``, ``"texture"``, ``"default"`` or
             ``"mixed"`` (different geometries coloured differently).
         warnings: anything else worth knowing (missing material library, ignored non-mesh geometry, ...).
@@ -61,13 +62,14 @@ class LoadReport:
     merged_vertices: int
     degenerate_faces: int
     unreferenced_vertices: int
+    duplicate_faces: int
     color_source: str
     warnings: "tuple[str, ...]" = ()
 
     @property
     def changed(self) -> bool:
         """True when clean-up removed or merged anything."""
-        return bool(self.merged_vertices or self.degenerate_faces or self.unreferenced_vertices)
+        return bool(self.merged_vertices or self.degenerate_faces or self.unreferenced_vertices or self.duplicate_faces)
 
     def summary(self) -> str:
         """A one-line human-readable account of the load."""
@@ -77,7 +79,7 @@ class LoadReport:
         if self.changed:
             parts.append(
                 f"merged {self.merged_vertices} duplicate vertices, dropped {self.degenerate_faces} degenerate "
-                f"faces and {self.unreferenced_vertices} unreferenced vertices"
+                f"faces, {self.duplicate_faces} duplicate faces and {self.unreferenced_vertices} unreferenced vertices"
             )
         else:
             parts.append("unchanged by clean-up")
@@ -268,6 +270,7 @@ def load_mesh_with_report(
         merged_vertices=counts.merged_vertices,
         degenerate_faces=counts.degenerate_faces,
         unreferenced_vertices=counts.unreferenced_vertices,
+        duplicate_faces=counts.duplicate_faces,
         color_source=unique_sources[0] if len(unique_sources) == 1 else "mixed",
         warnings=tuple(warnings),
     )

@@ -6,7 +6,9 @@ file's coordinates.
 Z-up to Y-up is the rotation of -90 degrees about +X, ``(x, y, z) -> (x, z, -y)`` (the Blender-to-glTF
 convention). For PASCAL3D+ models this means a PASCAL3D+ viewpoint ``(azimuth a, elevation e)`` (camera at
 ``d (cos e sin a, -cos e cos a, sin e)`` in the CAD frame) is seen by the renderer's spherical camera at
-``azimuth = 180 - a`` and the same elevation (see :func:`pascal3d_azimuth_to_renderer`).
+``azimuth = 180 - a`` and the same elevation (see :func:`pascal3d_azimuth_to_renderer`). The rotation keeps the
+geometry's handedness; note that NMR-convention images are the horizontal mirror of a right-handed camera's view
+(docs/ARCHITECTURE.md, "Handedness").
 """
 
 from __future__ import annotations
@@ -51,8 +53,14 @@ class NormalizeTransform:
     scale: float
     rotation: np.ndarray
 
-    def _apply(self, points: ArrayLike, matrix: np.ndarray, shift_before: "np.ndarray | None", factor: float,
-               shift_after: "np.ndarray | None") -> ArrayLike:
+    def _apply(
+        self,
+        points: ArrayLike,
+        matrix: np.ndarray,
+        shift_before: "np.ndarray | None",
+        factor: float,
+        shift_after: "np.ndarray | None",
+    ) -> ArrayLike:
         if isinstance(points, torch.Tensor):
             p = points
             kw = {"dtype": p.dtype, "device": p.device}

@@ -234,8 +234,9 @@ def resample_mesh_with_info(
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     if target_faces is not None and edge_length is not None:
         raise ValueError("give target_faces or edge_length, not both")
-    if target_faces is not None and (isinstance(target_faces, bool) or not isinstance(target_faces, int)
-                                     or target_faces < 4):
+    if target_faces is not None and (
+        isinstance(target_faces, bool) or not isinstance(target_faces, int) or target_faces < 4
+    ):
         raise ValueError(f"target_faces must be an integer >= 4, got {target_faces!r}")
     if edge_length is not None and not (np.isfinite(edge_length) and edge_length > 0):
         raise ValueError(f"edge_length must be a positive finite number, got {edge_length!r}")
@@ -250,8 +251,12 @@ def resample_mesh_with_info(
     if mesh.num_faces == 0:
         raise ValueError("mesh has no faces; there is nothing to resample")
 
-    vertices, faces, _ = mesh.numpy()
-    watertight = is_watertight(mesh.faces)
+    vertices, faces, colors = mesh.numpy()
+    # MeshLab's uniform resampling runs out of memory on duplicate faces; send it a clean copy.
+    vertices, faces, _, _ = clean_arrays(vertices, faces, colors)
+    if len(faces) == 0:
+        raise ValueError("mesh has only degenerate faces; there is nothing to resample")
+    watertight = is_watertight(faces)
     chosen = method if method != "auto" else ("uniform" if watertight else "isotropic")
     if target_faces is None and edge_length is None:
         edge_length = 0.01 * mesh.bbox_diagonal()

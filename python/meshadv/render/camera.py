@@ -12,7 +12,8 @@ counter-clockwise in the image about the viewing axis; perspective ``x_ndc = x_v
 
 Degenerate up vectors (stable choice):
     * Spherical cameras compute the view basis in closed form from the angles:
-      ``x = s * (cos(az), 0, sin(az))`` with ``s = +1`` when ``cos(el) >= 0`` and ``-1`` otherwise. This is exactly
+      ``x = s * (cos(az), 0, sin(az))`` with ``s = +1`` when ``cos(el) >= 0`` and ``-1`` otherwise (decided on the
+      elevation in degrees wrapped to [-90, 270), so ``s = +1`` exactly on [-90, 90] in any precision). This is exactly
       ``normalize(cross(+Y, z))`` wherever that is defined (so NMR's picture, including its 180 degree flip past the
       pole), and at ``elevation = +-90`` it is the limit from the equator side. Its gradient with respect to azimuth is
       therefore finite and correct everywhere, including at the poles.
@@ -29,6 +30,7 @@ from typing import Union
 import torch
 
 from ._checks import require_instance
+from ._ops import small_matmul
 
 __all__ = ["Camera", "TensorLike"]
 
@@ -411,7 +413,10 @@ class Camera:
             az, el = torch.deg2rad(self.azimuth), torch.deg2rad(self.elevation)
             ce, se, ca, sa = torch.cos(el), torch.sin(el), torch.cos(az), torch.sin(az)
             z = torch.stack([-ce * sa, -se, ce * ca], dim=-1)
-            sign = torch.where(ce >= 0, torch.ones_like(ce), -torch.ones_like(ce))
+            # sign(cos el) decided on the angle in degrees (wrapped to [-90, 270)), not on a rounded cosine: in
+            # float32, cos(deg2rad(90)) is -4e-8, which would flip the image at the pole.
+            wrapped = torch.remainder(self.elevation.detach() + 90.0, 360.0) - 90.0
+            sign = torch.where(wrapped <= 90.0, torch.ones_like(ce), -torch.ones_like(ce))
             x0 = torch.stack([ca, torch.zeros_like(ca), sa], dim=-1) * sign.unsqueeze(-1)
         else:
             z = _normalize(self.at - self.eye_position)
@@ -462,7 +467,7 @@ class Camera:
         if rot.shape[0] != verts.shape[0]:
             rot = rot.expand(verts.shape[0], 3, 3)
             eye = eye.expand(verts.shape[0], 3)
-        return torch.matmul(verts - eye.unsqueeze(1), rot.transpose(1, 2))
+        return small_matmul(verts - eye.unsqueeze(1), rot.transpose(1, 2))
 
     def project(self, verts_world: torch.Tensor) -> torch.Tensor:
         """Project world-space points to screen space.

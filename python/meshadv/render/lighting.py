@@ -14,6 +14,7 @@ from typing import Union
 
 import torch
 
+from ._ops import small_matmul
 from .camera import Camera
 
 __all__ = ["Lights", "face_normals", "orient_normals", "shade"]
@@ -276,9 +277,9 @@ def shade(
         raise ValueError(
             f"lights batch size {dirs.shape[0]} does not match the vertex/camera batch size {normals.shape[0]}"
         )
-    cos = torch.matmul(normals.expand(b, -1, -1), dirs.transpose(1, 2).expand(b, -1, -1))  # (B,M,K)
-    intensity = lights.ambient.to(dtype).unsqueeze(1) + torch.matmul(
-        cos.clamp_min(0), lights.colors.to(dtype).expand(b, -1, -1)
-    )
+    cos = small_matmul(normals, dirs.transpose(1, 2)).clamp_min(0)  # (B,M,K)
+    intensity = lights.ambient.to(dtype).unsqueeze(1).expand(b, 1, 3)
+    if lights.num_lights > 0:
+        intensity = intensity + small_matmul(cos, lights.colors.to(dtype))
     colors = face_colors if face_colors.dim() == 3 else face_colors.unsqueeze(0)
     return (colors.to(dtype) * intensity).clamp(0.0, 1.0)

@@ -291,8 +291,8 @@ def estimate_lights(
         lights = make_lights()
         out = render(verts, faces_t, colors, camera, lights, size, background=(0.0, 0.0, 0.0))
         loss = ((out.image[0] - img) ** 2 * m).sum() / denom
-        if float(loss) < best_loss:
-            best_loss = float(loss)
+        if float(loss.detach()) < best_loss:
+            best_loss = float(loss.detach())
             best = lights.detach()
         loss.backward()
         opt.step()

@@ -130,7 +130,7 @@ class ClassifierVictim(Victim):
     kind: ClassVar[str] = "classifier"
 
     @property
-    def class_names(self) -> list[str]:
+    def class_names(self) -> tuple[str, ...]:
         """The 1000 ImageNet class names in logit order."""
         from meshadv.victims.labels import imagenet_class_names
 
