@@ -12,6 +12,7 @@ from meshadv.mesh import (
     PASCAL3D_CLASSES,
     Pascal3DCatalog,
     builtin_mesh,
+    class_mesh,
     default_mesh,
     is_watertight,
     load_mesh,
@@ -104,3 +105,21 @@ def test_default_mesh_uses_shared_chair(shared_data: Path) -> None:
     ext_new = mesh.bounds().diff(dim=0)[0]
     ratio = ext_new[1] / ext_raw[2]
     assert torch.allclose(ext_new[[0, 2]] / ext_raw[[0, 1]], ratio.expand(2), rtol=1e-4)
+
+
+def test_class_mesh_falls_back_to_builtin(monkeypatch: pytest.MonkeyPatch) -> None:
+    import meshadv.mesh.shapes as shapes
+
+    monkeypatch.setattr(shapes, "shared_data_dir", lambda: None)
+    assert class_mesh("bottle").num_faces == builtin_mesh("bottle").num_faces
+    with pytest.raises(FileNotFoundError, match="aeroplane"):
+        class_mesh("aeroplane")
+
+
+def test_class_mesh_uses_shared_models(shared_data: Path) -> None:
+    mesh = class_mesh("sofa", 3)
+    raw = load_mesh(shared_data / "pascal3d" / "sofa" / "03.ply")
+    assert mesh.num_faces == raw.num_faces
+    assert float(mesh.vertices.abs().max()) == pytest.approx(1.0, abs=1e-6)
+    with pytest.raises(ValueError, match="cls 'car'"):
+        class_mesh("car")

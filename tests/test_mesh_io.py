@@ -194,6 +194,14 @@ def _truncated_ply(tmp_path: Path) -> Path:
     return bad
 
 
+def _truncated_export(tmp_path: Path, name: str) -> Path:
+    path = tmp_path / name
+    trimesh.creation.icosphere(subdivisions=1).export(str(path))
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) * 2 // 3])
+    return path
+
+
 def _write(tmp_path: Path, name: str, text: str) -> Path:
     path = tmp_path / name
     path.write_text(text)
@@ -204,6 +212,8 @@ def _write(tmp_path: Path, name: str, text: str) -> Path:
     "make, match",
     [
         (_truncated_ply, "malformed or truncated"),
+        (lambda t: _truncated_export(t, "cut.glb"), "malformed or truncated"),
+        (lambda t: _truncated_export(t, "cut.off"), "malformed or truncated"),
         (lambda t: _write(t, "oob.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n"), "out of"),
         (lambda t: _write(t, "nan.obj", "v 0 0 0\nv 1 nan 0\nv 0 1 0\nf 1 2 3\n"), "non-finite"),
         (lambda t: _write(t, "inf.off", "OFF\n3 1 0\n0 0 0\ninf 0 0\n0 1 0\n3 0 1 2\n"), "non-finite"),
@@ -245,3 +255,19 @@ def test_missing_file_and_bad_arguments(tmp_path: Path) -> None:
     path = save_mesh(builtin_mesh("cube"), tmp_path / "c.ply")[0]
     with pytest.raises(ValueError, match="default_color"):
         load_mesh(path, default_color=(1, 2))
+
+
+def test_vertex_colours_are_averaged_per_face(tmp_path: Path) -> None:
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    red = sphere.vertices[:, 0] > 0
+    rgba = np.zeros((len(sphere.vertices), 4), dtype=np.uint8)
+    rgba[:, 3] = 255
+    rgba[red, 0] = 255
+    sphere.visual.vertex_colors = rgba
+    path = tmp_path / "vc.ply"
+    sphere.export(str(path))
+    mesh, report = load_mesh_with_report(path)
+    assert report.color_source == "vertex"
+    corners_red = torch.as_tensor(red)[mesh.faces].float().mean(dim=1)
+    assert torch.allclose(mesh.face_colors[:, 0], corners_red)
+    assert torch.equal(mesh.face_colors[:, 1:], torch.zeros(mesh.num_faces, 2))

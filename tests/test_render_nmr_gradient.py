@@ -241,16 +241,17 @@ def check_against_reference(
     far: float = 100.0,
     cull: bool = False,
     seed: int = 0,
+    ortho: bool = False,
 ) -> None:
     v = verts.clone().requires_grad_(True)
     a = attrs.clone().requires_grad_(True)
     bg = torch.rand(attrs.shape[-1], generator=torch.Generator().manual_seed(seed + 100))
-    out = rasterize(v, faces, a, size, bg, near, far, cull)
+    out = rasterize(v, faces, a, size, bg, near, far, cull, orthographic=ortho)
     cot = torch.randn(out.image.shape, generator=torch.Generator().manual_seed(seed))
     (out.image * cot).sum().backward()
     for b in range(verts.shape[0]):
         vb, fb, ab = verts[b].numpy(), faces.numpy(), attrs[b].numpy().astype(np.float64)
-        index, depth, ambiguous = ref_forward(vb, fb, size[0], size[1], near, far, cull)
+        index, depth, ambiguous = ref_forward(vb, fb, size[0], size[1], near, far, cull, ortho)
         got_index = out.face_index[b].numpy()
         clear = ~ambiguous
         np.testing.assert_array_equal(got_index[clear], index[clear])
@@ -269,6 +270,7 @@ def check_against_reference(
             near,
             far,
             cull,
+            ortho,
         )
         assert np.abs(gv).sum() > 0, "the scene should produce a non-zero vertex gradient"
         scale = np.abs(gv).max()
@@ -307,3 +309,8 @@ def test_shared_edges_cover_each_pixel_once() -> None:
     assert (out.face_index >= 0).all()
     counts = torch.bincount(out.face_index.flatten(), minlength=2)
     assert counts[0] + counts[1] == 81 and abs(int(counts[0]) - int(counts[1])) == 9  # diagonal pixels go to one face
+
+
+def test_orthographic_depth_matches_reference() -> None:
+    verts, faces, attrs = occluding_scene(11)
+    check_against_reference(verts, faces, attrs, (20, 22), near=0.0, seed=11, ortho=True)

@@ -98,12 +98,14 @@ def test_sphere_deforms_to_fit_target_silhouettes() -> None:
     target = render_silhouette(target_verts, faces, cams, 48)
     disp = torch.zeros_like(base, requires_grad=True)
     opt = torch.optim.Adam([disp], lr=0.01)
+    sched = torch.optim.lr_scheduler.StepLR(opt, step_size=60, gamma=0.3)
     losses = []
     for _ in range(120):
         opt.zero_grad()
         loss = iou_loss(render_silhouette(base + disp, faces, cams, 48), target)
         loss.backward()
         opt.step()
+        sched.step()
         losses.append(float(loss.detach()))
     final = float(iou_loss(render_silhouette(base + disp.detach(), faces, cams, 48), target))
     assert final <= 0.1 * losses[0], f"loss {losses[0]:.4f} -> {final:.4f}"

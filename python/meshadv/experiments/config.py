@@ -34,6 +34,7 @@ over several views, evaluated on unseen views (Table 2).
 from __future__ import annotations
 
 import math
+import os
 import random
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -124,10 +125,10 @@ def parse_config(raw: Dict[str, Any], *, base_dir: Union[str, Path] = ".", text:
         seeds = [seeds]
     if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) for s in seeds):
         raise ValueError(f"experiment.seeds must be a non-empty list of ints, got {seeds!r}")
-    output = base / str(exp.get("output", f"runs/{name}"))
+    output = Path(os.path.normpath(base / str(exp.get("output", f"runs/{name}"))))
     db = Path(exp["db"]) if "db" in exp else output / "results.db"
     if not db.is_absolute() and "db" in exp:
-        db = base / db
+        db = Path(os.path.normpath(base / db))
 
     meshes = {"source": "pascal3d", "classes": list(PASCAL3D_CLASSES), "models_per_class": 1, "models": None,
               "builtin": [], "files": [], "target_faces": 0, "max_faces": 20000, **raw.get("meshes", {})}

@@ -223,17 +223,40 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
     settings = {"database": str(db.resolve()), "meta": meta, "report_versions": environment_versions(),
                 "counts": out.counts, "correlations": out.correlations}
     (out.out_dir / "settings.json").write_text(json.dumps(settings, indent=2, sort_keys=True), encoding="utf-8")
-    _write_readme(out, t1, t2, meta)
+    _write_readme(out, t1, t2, meta, _run_stats(done))
     return out
 
 
-def _write_readme(out: ReportOutput, t1: List[Any], t2: List[Any], meta: Dict[str, Any]) -> None:
+def _run_stats(done: List[JobRow]) -> List[str]:
+    """Lines on benign accuracy and attack cost per victim and type."""
+    lines = []
+    groups: Dict[Tuple[str, str], List[JobRow]] = defaultdict(list)
+    for r in done:
+        if r.spec.get("kind", "single") == "single":
+            groups[(r.spec["victim"], r.spec["perturbation"])].append(r)
+    for (victim, ptype), rows in sorted(groups.items()):
+        instances = {_instance(r): bool(r.record.get("benign_correct")) for r in rows if "benign_correct" in r.record}
+        attacked = [r for r in rows if not r.record.get("skipped")]
+        steps = [r.record["steps"] for r in attacked if r.record.get("steps") is not None]
+        secs = [r.record["time"] for r in attacked if r.record.get("time") is not None]
+        line = f"- {victim}, {ptype}: {len(attacked)} attacks"
+        if instances:
+            line += (f"; benign renders classified as their class: {sum(instances.values())}/{len(instances)} "
+                     f"instances")
+        if steps and secs:
+            line += f"; mean {sum(steps) / len(steps):.0f} steps and {sum(secs) / len(secs):.1f} s per attack"
+        lines.append(line)
+    return lines
+
+
+def _write_readme(out: ReportOutput, t1: List[Any], t2: List[Any], meta: Dict[str, Any], stats: List[str]) -> None:
     c = out.counts
     lines = [f"# Results: {meta.get('name', 'sweep')}", "",
              f"Jobs: {c.get('total', 0)} total, {c.get('done', 0)} done ({c.get('successes', 0)} successful), "
              f"{c.get('failed', 0)} failed, {c.get('pending', 0) + c.get('running', 0)} not finished.", ""]
     if meta.get("command"):
         lines += ["Command: `" + meta["command"] + "`", ""]
+    lines += stats + [""] if stats else []
     lines += ["## Table 1: best / average / worst case", "", to_markdown(t1), CASE_DEFINITIONS, ""]
     if t2:
         lines += ["## Table 2: multi-view robustness (success on unseen views)", "", to_markdown(t2)]

@@ -20,7 +20,7 @@ from meshadv.mesh.errors import MeshLoadError, MeshProcessingError
 from meshadv.mesh.io import DEFAULT_MAX_FACES, LoadReport, load_mesh, load_mesh_with_report, save_mesh
 from meshadv.mesh.normalize import NormalizeTransform, normalize_mesh, pascal3d_azimuth_to_renderer
 from meshadv.mesh.resample import ResampleInfo, default_cache_dir, resample_mesh, resample_mesh_with_info
-from meshadv.mesh.shapes import BUILTIN_SHAPES, builtin_mesh, default_mesh
+from meshadv.mesh.shapes import BUILTIN_SHAPES, builtin_mesh, class_mesh, default_mesh
 from meshadv.mesh.structure import Mesh
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "ResampleInfo",
     "boundary_vertex_mask",
     "builtin_mesh",
+    "class_mesh",
     "default_cache_dir",
     "default_mesh",
     "face_adjacency",

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import resource
 import signal
 import sys
 import time
@@ -155,6 +156,10 @@ def main(argv: "list[str]") -> int:
         return 2
     with open(argv[1], encoding="utf-8") as handle:
         req = json.load(handle)
+    limit_mb = int(req.get("memory_limit_mb") or 0)
+    if limit_mb > 0:  # set here rather than in a fork-time hook, which is unsafe in a threaded parent
+        resource.setrlimit(resource.RLIMIT_AS, (limit_mb << 20, limit_mb << 20))
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
     op = req.get("op")
     if op == "crash":
         os.kill(os.getpid(), signal.SIGSEGV)

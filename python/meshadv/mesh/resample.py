@@ -24,7 +24,6 @@ import hashlib
 import io
 import json
 import os
-import resource
 import signal
 import subprocess
 import sys
@@ -118,17 +117,12 @@ def run_isolated(request: dict, *, timeout: float = DEFAULT_TIMEOUT, memory_limi
         MeshProcessingError: the worker failed, crashed (the message names the signal) or timed out.
     """
     limit_mb = _memory_limit_mb(memory_limit_mb)
-
-    def limit_resources() -> None:  # runs in the child between fork and exec
-        if limit_mb:
-            limit = int(limit_mb) * 1024 * 1024
-            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
-
+    if limit_mb is not None and limit_mb < 0:
+        raise ValueError(f"memory_limit_mb must be >= 0, got {limit_mb!r}")
     op = request.get("op")
     with tempfile.TemporaryDirectory(prefix="meshadv-meshlab-") as tmp:
         req_path = Path(tmp) / "request.json"
-        req_path.write_text(json.dumps(request), encoding="utf-8")
+        req_path.write_text(json.dumps({**request, "memory_limit_mb": limit_mb}), encoding="utf-8")
         env = dict(os.environ)
         env.setdefault("OMP_NUM_THREADS", "1")
         try:
@@ -137,7 +131,6 @@ def run_isolated(request: dict, *, timeout: float = DEFAULT_TIMEOUT, memory_limi
                 capture_output=True,
                 text=True,
                 timeout=timeout,
-                preexec_fn=limit_resources,  # noqa: PLW1509 - no threads are started between fork and exec
                 env=env,
             )
         except subprocess.TimeoutExpired as exc:

@@ -8,12 +8,13 @@ solid of revolution.
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Union
 
 import numpy as np
 import trimesh
 
 from meshadv.data import shared_data_dir
+from meshadv.mesh.catalog import Pascal3DCatalog
 from meshadv.mesh.cleanup import clean_arrays
 from meshadv.mesh.io import load_mesh
 from meshadv.mesh.normalize import Z_UP_TO_Y_UP, normalize_mesh
@@ -166,3 +167,28 @@ def default_mesh() -> Mesh:
             mesh, _ = normalize_mesh(load_mesh(path), z_up=True)
             return mesh
     return builtin_mesh("chair")
+
+
+def class_mesh(cls: str, model: "Union[int, str]" = 1) -> Mesh:
+    """A ready-to-render mesh of a PASCAL3D+ class: the shared model when present, else a built-in stand-in.
+
+    Args:
+        cls: a class name, e.g. ``"chair"``.
+        model: model number (``1`` or ``"01"``) in the shared catalogue; ignored for built-in stand-ins.
+
+    Returns:
+        A CPU :class:`Mesh`, Y-up, centred, largest half-extent 1.
+
+    Raises:
+        ValueError: the shared catalogue has no such class or model.
+        FileNotFoundError: no shared data and no built-in stand-in for ``cls`` (aeroplane, bicycle, boat).
+    """
+    root = shared_data_dir()
+    if root is not None and (root / "pascal3d").is_dir():
+        return Pascal3DCatalog(root / "pascal3d").load(cls, model)
+    if cls in _BUILDERS and cls not in ("sphere", "cube", "torus"):
+        return builtin_mesh(cls)
+    raise FileNotFoundError(
+        f"cls {cls!r}: the shared PASCAL3D+ meshes are not available and there is no built-in stand-in "
+        "(built-in classes: bottle, chair, diningtable, sofa)"
+    )

@@ -16,9 +16,11 @@ import torch
 Device = Union[str, torch.device]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Mesh:
     """A triangle mesh with one RGB reflectance per face.
+
+    Equality is identity (tensors have no single truth value); compare fields with ``torch.equal``.
 
     Attributes:
         vertices: float32 tensor of vertex positions.
