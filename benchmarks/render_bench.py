@@ -145,6 +145,7 @@ MITSUBA_WORKER = textwrap.dedent(
     import mitsuba as mi
     cfg = json.loads(sys.argv[1])
     mi.set_variant("llvm_ad_rgb")
+    mi.set_log_level(mi.LogLevel.Error)
     dr.set_thread_count(cfg["threads"])
     data = np.load(cfg["mesh"])
     verts, faces, size = data["verts"], data["faces"].astype(np.uint32), cfg["size"]
@@ -162,7 +163,7 @@ MITSUBA_WORKER = textwrap.dedent(
             "type": "perspective", "fov": cfg["fov"], "fov_axis": "x",
             "to_world": mi.ScalarTransform4f().look_at(origin=eye, target=[0, 0, 0], up=[0, 1, 0]),
             "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"},
-                     "pixel_format": "rgb"},
+                     "pixel_format": "rgb", "sample_border": True},
             "sampler": {"type": "independent", "sample_count": 1},
         }))
     scene = mi.load_dict({
@@ -261,7 +262,12 @@ def run_mitsuba(inp: dict, size: int, batch: int, threads: int, repeats: int, tm
     if proc.returncode != 0:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["unknown"]
         return f"error: {tail[0][:160]}"
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    for line in reversed(proc.stdout.strip().splitlines()):
+        try:
+            return json.loads(line)
+        except json.JSONDecodeError:
+            continue
+    return f"error: no result in Mitsuba output: {proc.stdout.strip()[-160:]!r}"
 
 
 # ----------------------------------------------------------------------------- report

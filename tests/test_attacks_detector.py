@@ -27,7 +27,7 @@ def _require_renderer() -> None:
 
 
 class DarkBlobDetector(DetectorVictim):
-    """Stand-in detector: a 4x4 grid of cells; a cell's 'blob' score is sigmoid(20 (darkness - 0.15)).
+    """Stand-in detector: a 4x4 grid of cells; a cell's 'blob' score is sigmoid(20 (darkness - 0.3)).
 
     Darkness is 1 - mean intensity of the cell, so a dark object on a white background is detected where it is.
     The second class 'light' scores bright cells and is never hidden in the tests.
@@ -39,7 +39,7 @@ class DarkBlobDetector(DetectorVictim):
     def forward(self, images: torch.Tensor) -> DetectorOutput:
         x = self.resize(images).mean(dim=1, keepdim=True)
         cells = F.avg_pool2d(x, 16).flatten(1)  # (B, 16)
-        dark = torch.sigmoid(20 * ((1 - cells) - 0.15))
+        dark = torch.sigmoid(20 * ((1 - cells) - 0.3))
         light = torch.sigmoid(20 * (cells - 0.95))
         b = images.shape[0]
         ij = torch.stack(torch.meshgrid(torch.arange(4.0), torch.arange(4.0), indexing="ij"), -1).reshape(16, 2)

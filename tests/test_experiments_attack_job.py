@@ -25,6 +25,7 @@ TINY = {
 }
 
 
+@pytest.mark.slow
 def test_attack_job_sweep_and_report(tmp_path: Path) -> None:
     try:
         from meshadv.victims import load_victim

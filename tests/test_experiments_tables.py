@@ -83,3 +83,17 @@ def test_table2_by_hand() -> None:
     assert five.attack_view_success == pytest.approx(0.5) and five.unseen_success == pytest.approx(0.3)
     assert ten.unseen_success == pytest.approx(0.9) and ten.azimuth_range == (35.0, 70.0)
     assert "35°–70°" in to_markdown([five, ten])
+
+
+def test_benign_correct_filter() -> None:
+    mesh = {"source": "pascal3d", "path": "p.ply", "class": "chair"}
+
+    def job(ci: int, correct: bool) -> dict:
+        return {"spec": {"kind": "single", "mesh": mesh, "config_index": ci, "seed": 0, "victim": "v",
+                         "perturbation": "shape", "source_class": "chair", "target": "sofa"},
+                "record": {"success": True, "benign_correct": correct, "distances": {"laplacian": float(ci)}}}
+
+    jobs = [job(0, True), job(1, False)]
+    assert len(attack_rows(jobs)) == 2
+    (only,) = attack_rows(jobs, benign_correct_only=True)
+    assert only.instance[1] == 0

@@ -119,10 +119,10 @@ def test_controlled_transfer_survives_a_crashed_render(monkeypatch, victim) -> N
         pipeline.controlled_transfer([case], victim_loader=lambda name: victim, on_error="raise")
 
 
-def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
+def _fake_sweep(tmp_path):
+    """A sweep database with two finished texture attacks (one successful), as the experiment runner writes them."""
     from meshadv.experiments import ResultStore
     from meshadv.mesh import builtin_mesh, save_mesh
-    from meshadv.transfer.pipeline import cases_from_store
 
     db = tmp_path / "results.db"
     specs = [
@@ -142,6 +142,14 @@ def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
                  "config": {"image_size": [64, 64]}}))
             store.mark_running(row.job_id)
             store.mark_done(row.job_id, {"success": row.spec["seed"] == 0}, str(out))
+    return db, views
+
+
+def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
+    from meshadv.mesh import builtin_mesh
+    from meshadv.transfer.pipeline import cases_from_store
+
+    db, views = _fake_sweep(tmp_path)
     cases = cases_from_store(db)
     assert len(cases) == 1
     case = cases[0]
@@ -196,3 +204,21 @@ def test_cli_transfer_check_and_report(tmp_path) -> None:
     assert result.exit_code == 0 and "Transfer to Mitsuba 3" in result.output
     result = runner.invoke(app, ["transfer", "report", str(tmp_path / "missing.db")])
     assert result.exit_code != 0
+
+
+@needs_native
+def test_cli_controlled_transfer_is_resumable(tmp_path) -> None:
+    pytest.importorskip("mitsuba")
+    from typer.testing import CliRunner
+
+    from meshadv.cli import build_app
+
+    db, _ = _fake_sweep(tmp_path)
+    app = build_app({"transfer": "transfer:transfer"})
+    runner = CliRunner()
+    result = runner.invoke(app, ["transfer", "controlled", str(db), "--spp", "4", "--all"])
+    assert result.exit_code == 0, result.output
+    assert "transferring 2" in result.output and "Controlled parameters" in result.output
+    assert len(load_transfer_rows(db, kind="controlled")) == 2
+    result = runner.invoke(app, ["transfer", "controlled", str(db), "--spp", "4", "--all"])
+    assert result.exit_code == 0 and "transferring 0" in result.output

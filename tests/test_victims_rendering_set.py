@@ -18,7 +18,9 @@ from meshadv.victims.rendering_set import (
     RenderingSetConfig,
     build_rendering_set,
     candidate_seed,
+    frame_distance,
     load_rendering_set,
+    pascal3d_mesh_paths,
     pass_rate_table,
     record_views,
     sample_view,
@@ -56,19 +58,38 @@ def sofa_meshes(shared_data: Path) -> list[Path]:
 def test_sample_view_law() -> None:
     config = RenderingSetConfig()
     rng = np.random.default_rng(0)
+    vertices = rng.uniform(-1.0, 1.0, size=(50, 3)) * np.array([1.0, 0.3, 0.5])
     for _ in range(300):
-        view = sample_view(rng, 1.5, config)
+        view = sample_view(rng, vertices, config)
         assert 0.0 <= view["azimuth"] < 360.0 and 0.0 <= view["elevation"] <= 90.0
         az, el = math.radians(view["azimuth"]), math.radians(view["elevation"])
         to_eye = np.array([math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)])
         light = np.array(view["light_directions"][0])
         angle = math.degrees(math.acos(float(light @ to_eye) / float(np.linalg.norm(light))))
         assert angle <= 60.0 + 1e-6
-        # the bounding sphere subtends fill * tan(fov / 2) with fill in [0.6, 0.9]
-        fill = math.tan(math.asin(1.5 / view["distance"])) / math.tan(math.radians(15.0))
-        assert 0.6 - 1e-9 <= fill <= 0.9 + 1e-9
         assert 0.45 <= view["ambient"][0] <= 0.65 and 0.35 <= view["light_colors"][0][0] <= 0.55
     assert candidate_seed(0, 1, 2) == candidate_seed(0, 1, 2) != candidate_seed(0, 1, 3)
+
+
+def test_framing_puts_the_widest_extent_at_fill(sofa_meshes: list[Path]) -> None:
+    from meshadv.mesh import load_mesh, normalize_mesh
+    from meshadv.render import Camera, render_silhouette
+
+    mesh, _ = normalize_mesh(load_mesh(sofa_meshes[0]), z_up=True)
+    vertices = mesh.vertices.double().numpy()
+    size = 200
+    for azimuth, elevation, fill in [(0.0, 10.0, 0.8), (130.0, 45.0, 0.9), (250.0, 80.0, 0.7)]:
+        az, el = math.radians(azimuth), math.radians(elevation)
+        to_eye = np.array([math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)])
+        distance = frame_distance(vertices, to_eye, fill, 30.0)
+        camera = Camera.spherical(distance, azimuth, elevation, viewing_angle=30.0)
+        alpha = render_silhouette(mesh.vertices, mesh.faces, camera, size)[0, 0]
+        rows, cols = torch.nonzero(alpha > 0.5, as_tuple=True)
+        # pixel centres in NDC; the widest covered pixel lies within one pixel of fill
+        x = (2 * cols.double() + 1 - size) / size
+        y = -(2 * rows.double() + 1 - size) / size
+        extent = float(torch.maximum(x.abs().max(), y.abs().max()))
+        assert abs(extent - fill) <= 2.0 / size
 
 
 def test_config_validation() -> None:
@@ -171,3 +192,12 @@ def test_tiny_real_build(tmp_path: Path, shared_data: Path) -> None:
     stats = doc["classes"]["diningtable"]
     assert stats["kept"] == 2, pass_rate_table(doc)
     assert all(r["predictions"]["efficientnet_lite0"] == "dining table" for r in doc["renderings"])
+
+
+def test_pascal3d_mesh_paths(shared_data: Path) -> None:
+    paths = pascal3d_mesh_paths(shared_data / "pascal3d")
+    assert list(paths) == ["aeroplane", "bicycle", "boat", "bottle", "chair", "diningtable", "sofa"]
+    assert len(paths["chair"]) == 10 and all(p.suffix == ".ply" for p in paths["chair"])
+    assert list(pascal3d_mesh_paths(shared_data / "pascal3d", ["sofa"])) == ["sofa"]
+    with pytest.raises(ValueError, match="classes"):
+        pascal3d_mesh_paths(shared_data / "pascal3d", ["cat"])

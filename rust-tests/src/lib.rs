@@ -3,8 +3,8 @@
 
 use meshadv_raster::camera::project;
 use meshadv_raster::{
-    rasterize, rasterize_backward, BackwardInputs, FaceAttrs, Gradients, Projection, RasterOutput, RasterParams,
-    ScreenMesh,
+    rasterize, rasterize_backward, BackwardInputs, FaceAttrs, Gradients, Projection, RasterOutput,
+    RasterParams, ScreenMesh,
 };
 
 /// SplitMix64: small, deterministic, good enough for test geometry.
@@ -52,7 +52,11 @@ pub struct OwnedMesh {
 impl OwnedMesh {
     /// Single-batch mesh.
     pub fn new(verts: Vec<f32>, faces: Vec<i32>) -> OwnedMesh {
-        OwnedMesh { verts, faces, batch: 1 }
+        OwnedMesh {
+            verts,
+            faces,
+            batch: 1,
+        }
     }
 
     /// Borrowed view.
@@ -75,7 +79,11 @@ pub fn random_soup(rng: &mut Rng, count: usize, zlo: f32, zhi: f32) -> OwnedMesh
         let (cx, cy) = (rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0));
         let r = rng.uniform(0.05, 0.6);
         for _ in 0..3 {
-            verts.extend_from_slice(&[cx + rng.uniform(-r, r), cy + rng.uniform(-r, r), rng.uniform(zlo, zhi)]);
+            verts.extend_from_slice(&[
+                cx + rng.uniform(-r, r),
+                cy + rng.uniform(-r, r),
+                rng.uniform(zlo, zhi),
+            ]);
         }
         faces.extend_from_slice(&[3 * f as i32, 3 * f as i32 + 1, 3 * f as i32 + 2]);
     }
@@ -91,7 +99,11 @@ pub fn random_view_soup(rng: &mut Rng, count: usize) -> Vec<f32> {
         let (cx, cy) = (rng.uniform(-half, half), rng.uniform(-half, half));
         let r = rng.uniform(0.05, 0.5) * half;
         for _ in 0..3 {
-            verts.extend_from_slice(&[cx + rng.uniform(-r, r), cy + rng.uniform(-r, r), z + rng.uniform(-0.5, 0.5)]);
+            verts.extend_from_slice(&[
+                cx + rng.uniform(-r, r),
+                cy + rng.uniform(-r, r),
+                z + rng.uniform(-0.5, 0.5),
+            ]);
         }
     }
     verts
@@ -108,17 +120,41 @@ pub fn soup_faces(count: usize) -> Vec<i32> {
 }
 
 /// Forward with constant per-face RGB attributes derived from the face index, plus an alpha channel.
-pub fn forward(mesh: &OwnedMesh, attrs: &[f32], channels: usize, params: &RasterParams) -> RasterOutput {
+pub fn forward(
+    mesh: &OwnedMesh,
+    attrs: &[f32],
+    channels: usize,
+    params: &RasterParams,
+) -> RasterOutput {
     let bg = vec![0.0f32; channels];
-    let a = FaceAttrs { values: attrs, background: &bg, channels };
+    let a = FaceAttrs {
+        values: attrs,
+        background: &bg,
+        channels,
+    };
     rasterize(&mesh.view(), &a, params).expect("valid test input")
 }
 
 /// Backward of [`forward`] with cotangent `grad`.
-pub fn backward(mesh: &OwnedMesh, attrs: &[f32], channels: usize, params: &RasterParams, out: &RasterOutput, grad: &[f32]) -> Gradients {
+pub fn backward(
+    mesh: &OwnedMesh,
+    attrs: &[f32],
+    channels: usize,
+    params: &RasterParams,
+    out: &RasterOutput,
+    grad: &[f32],
+) -> Gradients {
     let bg = vec![0.0f32; channels];
-    let a = FaceAttrs { values: attrs, background: &bg, channels };
-    let inputs = BackwardInputs { face_index: &out.face_index, image: &out.image, grad_image: grad };
+    let a = FaceAttrs {
+        values: attrs,
+        background: &bg,
+        channels,
+    };
+    let inputs = BackwardInputs {
+        face_index: &out.face_index,
+        image: &out.image,
+        grad_image: grad,
+    };
     rasterize_backward(&mesh.view(), &a, params, &inputs).expect("valid test input")
 }
 
@@ -134,5 +170,8 @@ pub fn params(h: usize, w: usize) -> RasterParams {
 
 /// Orthographic parameters, two-sided.
 pub fn ortho_params(h: usize, w: usize) -> RasterParams {
-    RasterParams { projection: Projection::Orthographic, ..RasterParams::new(h, w, 0.1, 100.0) }
+    RasterParams {
+        projection: Projection::Orthographic,
+        ..RasterParams::new(h, w, 0.1, 100.0)
+    }
 }

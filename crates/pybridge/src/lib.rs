@@ -10,8 +10,8 @@ use meshadv_raster::camera::SphericalCamera;
 use meshadv_raster::pipeline::{render, Lights, RenderSettings};
 use meshadv_raster::raycast::{raycast as core_raycast, RayCamera};
 use meshadv_raster::{
-    rasterize, rasterize_backward as core_backward, with_threads, BackwardInputs, ErrorKind, FaceAttrs, Projection,
-    RasterError, RasterParams, ScreenMesh,
+    rasterize, rasterize_backward as core_backward, with_threads, BackwardInputs, ErrorKind,
+    FaceAttrs, Projection, RasterError, RasterParams, ScreenMesh,
 };
 use numpy::ndarray::{Array, IxDyn};
 use numpy::{Element, IntoPyArray, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
@@ -40,14 +40,22 @@ impl From<RasterError> for PyRasterError {
 type PyArr<'py, T> = Bound<'py, PyArrayDyn<T>>;
 
 /// Borrowed view of an input array: its shape and its contiguous data.
-fn view<'a, T: Element>(arg: &str, a: &'a PyReadonlyArrayDyn<'_, T>, ndim: usize) -> PyResult<(Vec<usize>, &'a [T])> {
+fn view<'a, T: Element>(
+    arg: &str,
+    a: &'a PyReadonlyArrayDyn<'_, T>,
+    ndim: usize,
+) -> PyResult<(Vec<usize>, &'a [T])> {
     let shape = a.shape().to_vec();
     if shape.len() != ndim {
-        return Err(PyValueError::new_err(format!("{arg}: expected {ndim} dimensions, got shape {shape:?}")));
+        return Err(PyValueError::new_err(format!(
+            "{arg}: expected {ndim} dimensions, got shape {shape:?}"
+        )));
     }
-    let data = a
-        .as_slice()
-        .map_err(|_| PyValueError::new_err(format!("{arg}: array must be C-contiguous (use np.ascontiguousarray)")))?;
+    let data = a.as_slice().map_err(|_| {
+        PyValueError::new_err(format!(
+            "{arg}: array must be C-contiguous (use np.ascontiguousarray)"
+        ))
+    })?;
     Ok((shape, data))
 }
 
@@ -66,24 +74,37 @@ fn image_size(arg: &'static str, v: i64) -> PyResult<usize> {
 
 fn threads(num_threads: i64) -> PyResult<usize> {
     if num_threads < 0 {
-        return Err(PyValueError::new_err(format!("num_threads: must be >= 0 (0 = default), got {num_threads}")));
+        return Err(PyValueError::new_err(format!(
+            "num_threads: must be >= 0 (0 = default), got {num_threads}"
+        )));
     }
     Ok(num_threads as usize)
 }
 
-fn output<'py, T: Element>(py: Python<'py>, data: Vec<T>, shape: &[usize]) -> PyResult<Bound<'py, PyArrayDyn<T>>> {
-    let arr = Array::from_shape_vec(IxDyn(shape), data)
-        .map_err(|e| PyRuntimeError::new_err(format!("internal error: output shape {shape:?}: {e}")))?;
+fn output<'py, T: Element>(
+    py: Python<'py>,
+    data: Vec<T>,
+    shape: &[usize],
+) -> PyResult<Bound<'py, PyArrayDyn<T>>> {
+    let arr = Array::from_shape_vec(IxDyn(shape), data).map_err(|e| {
+        PyRuntimeError::new_err(format!("internal error: output shape {shape:?}: {e}"))
+    })?;
     Ok(arr.into_pyarray(py))
 }
 
 /// Runs `f` without the GIL, on `num_threads` threads, turning panics into `RuntimeError`.
-fn run<R: Send>(py: Python<'_>, num_threads: usize, f: impl FnOnce() -> Result<R, RasterError> + Send) -> PyResult<R> {
+fn run<R: Send>(
+    py: Python<'_>,
+    num_threads: usize,
+    f: impl FnOnce() -> Result<R, RasterError> + Send,
+) -> PyResult<R> {
     let res = py.detach(|| catch_unwind(AssertUnwindSafe(|| with_threads(num_threads, f))));
     match res {
         Ok(Ok(Ok(r))) => Ok(r),
         Ok(Ok(Err(e))) | Ok(Err(e)) => Err(PyRasterError(e).into()),
-        Err(_) => Err(PyRuntimeError::new_err("meshadv._raster: internal error (panic) in the raster core")),
+        Err(_) => Err(PyRuntimeError::new_err(
+            "meshadv._raster: internal error (panic) in the raster core",
+        )),
     }
 }
 
@@ -122,14 +143,26 @@ fn op_args<'a>(
         near,
         far,
         cull_backfaces,
-        projection: if orthographic { Projection::Orthographic } else { Projection::Perspective },
+        projection: if orthographic {
+            Projection::Orthographic
+        } else {
+            Projection::Perspective
+        },
     };
     let mesh = ScreenMesh::new(vd, fd, vs[0], vs[1]).map_err(PyRasterError)?;
-    let attrs = FaceAttrs { values: ad, background: bd, channels: as_[2] };
+    let attrs = FaceAttrs {
+        values: ad,
+        background: bd,
+        channels: as_[2],
+    };
     mesh.validate().map_err(PyRasterError)?;
     params.validate().map_err(PyRasterError)?;
     attrs.validate(&mesh).map_err(PyRasterError)?;
-    Ok(OpArgs { mesh, attrs, params })
+    Ok(OpArgs {
+        mesh,
+        attrs,
+        params,
+    })
 }
 
 /// Rasterizes screen-space triangles with per-face attributes (see docs/ARCHITECTURE.md, "The native op").
@@ -166,9 +199,18 @@ fn rasterize_forward<'py>(
         cull_backfaces,
         orthographic,
     )?;
-    let (b, h, w, c) = (a.mesh.batch, a.params.height, a.params.width, a.attrs.channels);
+    let (b, h, w, c) = (
+        a.mesh.batch,
+        a.params.height,
+        a.params.width,
+        a.attrs.channels,
+    );
     let out = run(py, nt, || rasterize(&a.mesh, &a.attrs, &a.params))?;
-    Ok((output(py, out.image, &[b, h, w, c])?, output(py, out.face_index, &[b, h, w])?, output(py, out.depth, &[b, h, w])?))
+    Ok((
+        output(py, out.image, &[b, h, w, c])?,
+        output(py, out.face_index, &[b, h, w])?,
+        output(py, out.depth, &[b, h, w])?,
+    ))
 }
 
 /// Backward of `rasterize_forward`: `(grad_verts_screen f32[B,N,3] (z = 0), grad_face_attrs f32[B,M,C])`.
@@ -208,24 +250,44 @@ fn rasterize_backward<'py>(
         cull_backfaces,
         orthographic,
     )?;
-    let (b, h, w, c) = (a.mesh.batch, a.params.height, a.params.width, a.attrs.channels);
+    let (b, h, w, c) = (
+        a.mesh.batch,
+        a.params.height,
+        a.params.width,
+        a.attrs.channels,
+    );
     let (fis, fid) = view("face_index", &face_index, 3)?;
     if fis != [b, h, w] {
-        return Err(PyValueError::new_err(format!("face_index: expected shape ({b}, {h}, {w}), got {fis:?}")));
+        return Err(PyValueError::new_err(format!(
+            "face_index: expected shape ({b}, {h}, {w}), got {fis:?}"
+        )));
     }
     let (ims, imd) = view("image", &image, 4)?;
     if ims != [b, h, w, c] {
-        return Err(PyValueError::new_err(format!("image: expected shape ({b}, {h}, {w}, {c}), got {ims:?}")));
+        return Err(PyValueError::new_err(format!(
+            "image: expected shape ({b}, {h}, {w}, {c}), got {ims:?}"
+        )));
     }
     let (gs, gd) = view("grad_image", &grad_image, 4)?;
     if gs != [b, h, w, c] {
-        return Err(PyValueError::new_err(format!("grad_image: expected shape ({b}, {h}, {w}, {c}), got {gs:?}")));
+        return Err(PyValueError::new_err(format!(
+            "grad_image: expected shape ({b}, {h}, {w}, {c}), got {gs:?}"
+        )));
     }
-    let inputs = BackwardInputs { face_index: fid, image: imd, grad_image: gd };
+    let inputs = BackwardInputs {
+        face_index: fid,
+        image: imd,
+        grad_image: gd,
+    };
     let n = a.mesh.num_verts;
     let m = a.mesh.num_faces();
-    let g = run(py, nt, || core_backward(&a.mesh, &a.attrs, &a.params, &inputs))?;
-    Ok((output(py, g.grad_verts_screen, &[b, n, 3])?, output(py, g.grad_face_attrs, &[b, m, c])?))
+    let g = run(py, nt, || {
+        core_backward(&a.mesh, &a.attrs, &a.params, &inputs)
+    })?;
+    Ok((
+        output(py, g.grad_verts_screen, &[b, n, 3])?,
+        output(py, g.grad_face_attrs, &[b, m, c])?,
+    ))
 }
 
 /// Exact BVH ray cast of view-space triangles: one primary ray through each pixel centre.
@@ -262,12 +324,23 @@ fn raycast<'py>(
         near,
         far,
         cull_backfaces,
-        projection: if orthographic { Projection::Orthographic } else { Projection::Perspective },
+        projection: if orthographic {
+            Projection::Orthographic
+        } else {
+            Projection::Perspective
+        },
     };
-    let cam = RayCamera { viewing_angle, orthographic, ortho_scale };
+    let cam = RayCamera {
+        viewing_angle,
+        orthographic,
+        ortho_scale,
+    };
     let (b, h, w) = (vs[0], params.height, params.width);
     let out = run(py, nt, || core_raycast(&mesh, &cam, &params))?;
-    Ok((output(py, out.face_index, &[b, h, w])?, output(py, out.depth, &[b, h, w])?))
+    Ok((
+        output(py, out.face_index, &[b, h, w])?,
+        output(py, out.depth, &[b, h, w])?,
+    ))
 }
 
 /// Full forward render of one view in the core (camera + Lambert shading + raster), for cross-checks.
@@ -301,7 +374,12 @@ fn render_full<'py>(
     background: Option<PyReadonlyArrayDyn<'py, f32>>,
     fill_back: bool,
     num_threads: i64,
-) -> PyResult<(PyArr<'py, f32>, PyArr<'py, f32>, PyArr<'py, f32>, PyArr<'py, i32>)> {
+) -> PyResult<(
+    PyArr<'py, f32>,
+    PyArr<'py, f32>,
+    PyArr<'py, f32>,
+    PyArr<'py, i32>,
+)> {
     let nt = threads(num_threads)?;
     let (vs, vd) = view("verts_world", &verts_world, 2)?;
     expect_dim("verts_world", &vs, 1, 3, "x, y, z")?;
@@ -309,7 +387,10 @@ fn render_full<'py>(
     expect_dim("faces", &fs, 1, 3, "triangles")?;
     let (cs, cd) = view("face_colors", &face_colors, 2)?;
     if cs != [fs[0], 3] {
-        return Err(PyValueError::new_err(format!("face_colors: expected shape ({}, 3), got {cs:?}", fs[0])));
+        return Err(PyValueError::new_err(format!(
+            "face_colors: expected shape ({}, 3), got {cs:?}",
+            fs[0]
+        )));
     }
     let mut lights = Lights::default();
     match (&light_directions, &light_colors) {
@@ -348,8 +429,17 @@ fn render_full<'py>(
         expect_dim("background", &s, 0, 3, "RGB")?;
         settings.background = [d[0], d[1], d[2]];
     }
-    let camera =
-        SphericalCamera { distance, azimuth, elevation, tilt, viewing_angle, near, far, orthographic, ortho_scale };
+    let camera = SphericalCamera {
+        distance,
+        azimuth,
+        elevation,
+        tilt,
+        viewing_angle,
+        near,
+        far,
+        orthographic,
+        ortho_scale,
+    };
     let (h, w) = (settings.height, settings.width);
     let out = run(py, nt, || render(vd, fd, cd, &camera, &lights, &settings))?;
     Ok((

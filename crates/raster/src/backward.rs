@@ -43,7 +43,13 @@ pub struct BackwardInputs<'a> {
 }
 
 impl BackwardInputs<'_> {
-    fn validate(&self, batch: usize, num_faces: usize, channels: usize, params: &RasterParams) -> Result<()> {
+    fn validate(
+        &self,
+        batch: usize,
+        num_faces: usize,
+        channels: usize,
+        params: &RasterParams,
+    ) -> Result<()> {
         let (h, w) = (params.height, params.width);
         let n = batch * h * w;
         if self.face_index.len() != n {
@@ -63,7 +69,11 @@ impl BackwardInputs<'_> {
             }
             check_finite(arg, arr)?;
         }
-        if let Some(index) = self.face_index.iter().position(|&f| f < -1 || f as i64 >= num_faces as i64) {
+        if let Some(index) = self
+            .face_index
+            .iter()
+            .position(|&f| f < -1 || f as i64 >= num_faces as i64)
+        {
             return Err(RasterError::FaceMapOutOfRange {
                 index,
                 value: self.face_index[index] as i64,
@@ -74,12 +84,66 @@ impl BackwardInputs<'_> {
     }
 }
 
+/// Per-pixel buffers of one batch element laid out along sweep lines: pixel `d` of line `d0` is at `d0 * len + d`.
+/// Row-major for the row sweeps (axis V); a transposed copy for the column sweeps (axis U) keeps the inner loops
+/// contiguous.
+struct Lines {
+    /// Face index per pixel.
+    face: Vec<i32>,
+    /// Depth of the drawn face per pixel (recomputed from the positions, as in the forward); +inf on background.
+    depth: Vec<f64>,
+    /// `sum_c G[P, c] * I[P, c]`.
+    gi: Vec<f64>,
+    /// Cotangent, `C` per pixel.
+    grad: Vec<f32>,
+    /// Image, `C` per pixel.
+    image: Vec<f32>,
+    /// Line length.
+    len: usize,
+}
+
+impl Lines {
+    /// Builds the buffers; `transpose` gives column-major lines.
+    fn new(
+        setups: &[FaceSetup],
+        face_index: &[i32],
+        image: &[f32],
+        grad: &[f32],
+        c: usize,
+        params: &RasterParams,
+        transpose: bool,
+    ) -> Lines {
+        let (h, w) = (params.height, params.width);
+        let n = h * w;
+        let (mut face, mut depth, mut gi) = (vec![-1i32; n], vec![f64::INFINITY; n], vec![0f64; n]);
+        let (mut g, mut im) = (vec![0f32; n * c], vec![0f32; n * c]);
+        for i in 0..h {
+            for j in 0..w {
+                let p = i * w + j;
+                let q = if transpose { j * h + i } else { p };
+                let f = face_index[p];
+                face[q] = f;
+                if f >= 0 {
+                    depth[q] = setups[f as usize].depth_at(i as i32, j as i32).unwrap_or(f64::INFINITY);
+                }
+                let mut acc = 0f64;
+                for k in 0..c {
+                    acc += grad[p * c + k] as f64 * image[p * c + k] as f64;
+                }
+                gi[q] = acc;
+                g[q * c..(q + 1) * c].copy_from_slice(&grad[p * c..(p + 1) * c]);
+                im[q * c..(q + 1) * c].copy_from_slice(&image[p * c..(p + 1) * c]);
+            }
+        }
+        Lines { face, depth, gi, grad: g, image: im, len: if transpose { h } else { w } }
+    }
+}
+
 /// Per-batch-element context of the gradient sweeps.
 struct Ctx<'a> {
     setups: &'a [FaceSetup],
-    face_index: &'a [i32],
-    image: &'a [f32],
-    grad: &'a [f32],
+    rows: &'a Lines,
+    cols: &'a Lines,
     attrs: &'a [f32],
     channels: usize,
     params: &'a RasterParams,
@@ -93,52 +157,21 @@ enum Axis {
 }
 
 impl Ctx<'_> {
-    /// Whether face `f` would be drawn at pixel `(row, col)` if it extended there (depth test against the face
-    /// currently drawn, recomputed from the positions; lower index wins exact ties).
-    fn covers(&self, f: usize, row: i32, col: i32) -> bool {
-        let Some(zf) = self.setups[f].depth_at(row, col) else { return false };
-        if !(zf >= self.params.near && zf <= self.params.far) {
-            return false;
-        }
-        let fp = self.face_index[row as usize * self.params.width + col as usize];
-        if fp < 0 {
-            return true;
-        }
-        match self.setups[fp as usize].depth_at(row, col) {
-            None => true,
-            Some(zp) => zf < zp || (zf == zp && f < fp as usize),
-        }
-    }
-
-    /// `sum_c G[P, c] * (new[c] - I[P, c])`.
-    #[inline]
-    fn delta(&self, p: usize, new: &[f32]) -> f64 {
-        let c = self.channels;
-        let (g, i) = (&self.grad[p * c..(p + 1) * c], &self.image[p * c..(p + 1) * c]);
-        let mut acc = 0.0f64;
-        for k in 0..c {
-            acc += g[k] as f64 * (new[k] as f64 - i[k] as f64);
-        }
-        acc
-    }
-
     /// NMR gradient partial of face `f`: `[corner][x or y]`.
     fn face_grad(&self, f: usize) -> [[f64; 2]; 3] {
         let s = &self.setups[f];
         let (h, w) = (self.params.height as i64, self.params.width as i64);
+        let (near, far) = (self.params.near, self.params.far);
         let c = self.channels;
+        let fi = f as i32;
         let attrs_f = &self.attrs[f * c..(f + 1) * c];
         let mut g = [[0.0f64; 2]; 3];
         for e in 0..3 {
             let (a, cc, o) = (e, (e + 1) % 3, (e + 2) % 3);
             for axis in [Axis::U, Axis::V] {
-                let (p, q) = match axis {
-                    Axis::U => (&s.u, &s.v),
-                    Axis::V => (&s.v, &s.u),
-                };
-                let (lines, len) = match axis {
-                    Axis::U => (w, h),
-                    Axis::V => (h, w),
+                let (p, q, lines, len, ln) = match axis {
+                    Axis::U => (&s.u, &s.v, w, h, self.cols),
+                    Axis::V => (&s.v, &s.u, h, w, self.rows),
                 };
                 let (pa, qa, pc, qc, po, qo) = (p[a], q[a], p[cc], q[cc], p[o], q[o]);
                 if pa == pc {
@@ -153,21 +186,15 @@ impl Ctx<'_> {
                     continue;
                 }
                 let comp = if axis == Axis::U { 1 } else { 0 };
-                let to_ndc = |disp: f64| match axis {
-                    Axis::U => -2.0 * disp / h as f64,
-                    Axis::V => 2.0 * disp / w as f64,
+                // to_ndc(disp): U -> -2 disp / H, V -> 2 disp / W.
+                let ndc = match axis {
+                    Axis::U => -2.0 / h as f64,
+                    Axis::V => 2.0 / w as f64,
                 };
-                let pix = |d0: i64, d: i64| -> usize {
-                    match axis {
-                        Axis::U => (d * w + d0) as usize,
-                        Axis::V => (d0 * w + d) as usize,
-                    }
-                };
-                let rc = |d0: i64, d: i64| -> (i32, i32) {
-                    match axis {
-                        Axis::U => (d as i32, d0 as i32),
-                        Axis::V => (d0 as i32, d as i32),
-                    }
+                // The face's interpolated depth quantity along a line: plane(u, v) with (u, v) = (d0, d) or (d, d0).
+                let (pl_line, pl_step) = match axis {
+                    Axis::U => (s.plane[0], s.plane[1]),
+                    Axis::V => (s.plane[1], s.plane[0]),
                 };
                 for d0 in (lo as i64)..=(hi as i64) {
                     let d0f = d0 as f64;
@@ -181,30 +208,54 @@ impl Ctx<'_> {
                     if d_out < 0 || d_out >= len {
                         continue;
                     }
+                    let base = d0 as usize * ln.len;
+                    // Endpoint motion needed per pixel of crossing motion (None when the endpoint is on the line).
+                    let ka = (pc != d0f).then(|| ndc * (pc - pa) / (pc - d0f));
+                    let kc = (pa != d0f).then(|| ndc * (pc - pa) / (d0f - pa));
                     let contribute = |g: &mut [[f64; 2]; 3], d: i64, delta: f64| {
                         let t = d as f64 - cross;
-                        if pc != d0f {
-                            let dist = nudge(to_ndc((pc - pa) / (pc - d0f) * t));
-                            g[a][comp] += delta / dist;
+                        if let Some(k) = ka {
+                            g[a][comp] += delta / nudge(k * t);
                         }
-                        if pa != d0f {
-                            let dist = nudge(to_ndc((pc - pa) / (d0f - pa) * t));
-                            g[cc][comp] += delta / dist;
+                        if let Some(k) = kc {
+                            g[cc][comp] += delta / nudge(k * t);
                         }
                     };
                     // OUT: pixels beyond the edge that the face would cover.
-                    if self.face_index[pix(d0, d_in)] == f as i32 {
+                    if ln.face[base + d_in as usize] == fi {
+                        let pl0 = pl_line * d0f + s.plane[2];
                         let mut d = d_out;
                         while d >= 0 && d < len {
-                            let px = pix(d0, d);
-                            let (row, col) = rc(d0, d);
-                            if self.face_index[px] != f as i32 && self.covers(f, row, col) {
-                                let delta = self.delta(px, attrs_f);
-                                if delta < 0.0 {
-                                    contribute(&mut g, d, delta);
-                                }
-                            }
+                            let px = base + d as usize;
+                            let fp = ln.face[px];
                             d += dir;
+                            if fp == fi {
+                                continue;
+                            }
+                            let val = pl0 + pl_step * (d - dir) as f64;
+                            let zf = if s.ortho {
+                                val
+                            } else if val > 0.0 {
+                                1.0 / val
+                            } else {
+                                continue;
+                            };
+                            if !(zf >= near && zf <= far) {
+                                continue;
+                            }
+                            let zp = ln.depth[px];
+                            if !(zf < zp || (zf == zp && fi < fp)) {
+                                continue;
+                            }
+                            let gp = &ln.grad[px * c..(px + 1) * c];
+                            let mut ga = 0f64;
+                            for k in 0..c {
+                                ga += gp[k] as f64 * attrs_f[k] as f64;
+                            }
+                            let delta = ga - ln.gi[px];
+                            if delta < 0.0 {
+                                contribute(&mut g, d - dir, delta);
+                            }
                         }
                     }
                     // IN: pixels of the face that would be uncovered.
@@ -218,14 +269,19 @@ impl Ctx<'_> {
                     let limit = if dir > 0 { cross2.ceil() } else { cross2.floor() };
                     let from = d_in_f.min(limit).max(0.0) as i64;
                     let to = d_in_f.max(limit).min((len - 1) as f64) as i64;
-                    let out_px = pix(d0, d_out);
-                    let out_color = &self.image[out_px * c..(out_px + 1) * c];
+                    let out_px = base + d_out as usize;
+                    let out_color = &ln.image[out_px * c..(out_px + 1) * c];
                     for d in from..=to {
-                        let px = pix(d0, d);
-                        if self.face_index[px] != f as i32 {
+                        let px = base + d as usize;
+                        if ln.face[px] != fi {
                             continue;
                         }
-                        let delta = self.delta(px, out_color);
+                        let gp = &ln.grad[px * c..(px + 1) * c];
+                        let mut go = 0f64;
+                        for k in 0..c {
+                            go += gp[k] as f64 * out_color[k] as f64;
+                        }
+                        let delta = go - ln.gi[px];
                         if delta < 0.0 {
                             contribute(&mut g, d, delta);
                         }
@@ -264,8 +320,11 @@ pub fn rasterize_backward(
     let nv = mesh.num_verts;
     let mut grad_verts_screen = vec![0f32; mesh.batch * nv * 3];
     let mut grad_face_attrs = vec![0f32; mesh.batch * m * c];
-    grad_verts_screen.par_chunks_mut(nv * 3).zip(grad_face_attrs.par_chunks_mut(m * c)).enumerate().for_each(
-        |(b, (gv, ga))| {
+    grad_verts_screen
+        .par_chunks_mut(nv * 3)
+        .zip(grad_face_attrs.par_chunks_mut(m * c))
+        .enumerate()
+        .for_each(|(b, (gv, ga))| {
             let face_index = &inputs.face_index[b * hw..(b + 1) * hw];
             let image = &inputs.image[b * hw * c..(b + 1) * hw * c];
             let grad = &inputs.grad_image[b * hw * c..(b + 1) * hw * c];
@@ -286,18 +345,27 @@ pub fn rasterize_backward(
             }
             // NMR vertex gradient: per-face partials in parallel, reduced in face order.
             let setups = setup_faces(mesh, b, params);
+            let (rows, cols) = rayon::join(
+                || Lines::new(&setups, face_index, image, grad, c, params, false),
+                || Lines::new(&setups, face_index, image, grad, c, params, true),
+            );
             let ctx = Ctx {
                 setups: &setups,
-                face_index,
-                image,
-                grad,
+                rows: &rows,
+                cols: &cols,
                 attrs: &attrs.values[b * m * c..(b + 1) * m * c],
                 channels: c,
                 params,
             };
             let partials: Vec<[[f64; 2]; 3]> = (0..m)
                 .into_par_iter()
-                .map(|f| if visible[f] && setups[f].active { ctx.face_grad(f) } else { [[0.0; 2]; 3] })
+                .map(|f| {
+                    if visible[f] && setups[f].active {
+                        ctx.face_grad(f)
+                    } else {
+                        [[0.0; 2]; 3]
+                    }
+                })
                 .collect();
             let mut accv = vec![0f64; nv * 2];
             for (f, part) in partials.iter().enumerate() {
@@ -310,7 +378,9 @@ pub fn rasterize_backward(
                 gv[k * 3] = xy[0] as f32;
                 gv[k * 3 + 1] = xy[1] as f32;
             }
-        },
-    );
-    Ok(Gradients { grad_verts_screen, grad_face_attrs })
+        });
+    Ok(Gradients {
+        grad_verts_screen,
+        grad_face_attrs,
+    })
 }

@@ -71,17 +71,27 @@ impl ViewTransform {
 ///
 /// Errors when `eye == at` or `up` is parallel to the viewing direction.
 pub fn look_at(eye: DVec3, at: DVec3, up: DVec3, tilt_deg: f64) -> Result<ViewTransform> {
-    let z = (at - eye).try_normalize().ok_or_else(|| RasterError::Parameter {
-        arg: "eye",
-        message: "eye and at coincide (no viewing direction)".into(),
-    })?;
-    let x = up.cross(z).try_normalize().ok_or_else(|| RasterError::Parameter {
-        arg: "up",
-        message: "up is parallel to the viewing direction".into(),
-    })?;
+    let z = (at - eye)
+        .try_normalize()
+        .ok_or_else(|| RasterError::Parameter {
+            arg: "eye",
+            message: "eye and at coincide (no viewing direction)".into(),
+        })?;
+    let x = up
+        .cross(z)
+        .try_normalize()
+        .ok_or_else(|| RasterError::Parameter {
+            arg: "up",
+            message: "up is parallel to the viewing direction".into(),
+        })?;
     let y = z.cross(x);
     let (st, ct) = tilt_deg.to_radians().sin_cos();
-    Ok(ViewTransform { eye, x: ct * x + st * y, y: ct * y - st * x, z })
+    Ok(ViewTransform {
+        eye,
+        x: ct * x + st * y,
+        y: ct * y - st * x,
+        z,
+    })
 }
 
 impl SphericalCamera {
@@ -98,11 +108,17 @@ impl SphericalCamera {
         ];
         for (arg, v) in vals {
             if !v.is_finite() {
-                return Err(RasterError::Parameter { arg, message: format!("must be finite, got {v}") });
+                return Err(RasterError::Parameter {
+                    arg,
+                    message: format!("must be finite, got {v}"),
+                });
             }
         }
         if self.distance <= 0.0 {
-            return Err(RasterError::Parameter { arg: "distance", message: format!("must be > 0, got {}", self.distance) });
+            return Err(RasterError::Parameter {
+                arg: "distance",
+                message: format!("must be > 0, got {}", self.distance),
+            });
         }
         if !(self.viewing_angle > 0.0 && self.viewing_angle < 180.0) {
             return Err(RasterError::Parameter {
@@ -116,8 +132,15 @@ impl SphericalCamera {
                 message: format!("must be > 0, got {}", self.ortho_scale),
             });
         }
-        if !(self.near.is_finite() && self.far.is_finite() && self.near >= 0.0 && self.near < self.far) {
-            return Err(RasterError::ClipRange { near: self.near, far: self.far });
+        if !(self.near.is_finite()
+            && self.far.is_finite()
+            && self.near >= 0.0
+            && self.near < self.far)
+        {
+            return Err(RasterError::ClipRange {
+                near: self.near,
+                far: self.far,
+            });
         }
         Ok(())
     }
@@ -140,18 +163,33 @@ impl SphericalCamera {
         let x = DVec3::new(ca, 0.0, sa) * sign;
         let y = z.cross(x);
         let (st, ct) = self.tilt.to_radians().sin_cos();
-        Ok(ViewTransform { eye: self.eye(), x: ct * x + st * y, y: ct * y - st * x, z })
+        Ok(ViewTransform {
+            eye: self.eye(),
+            x: ct * x + st * y,
+            y: ct * y - st * x,
+            z,
+        })
     }
 
     /// Projects view-space points (flat `(N, 3)`) to screen space `(x_ndc, y_ndc, z_view)`.
     pub fn project_view(&self, verts_view: &[f32]) -> Vec<f32> {
-        project(verts_view, self.viewing_angle, self.orthographic, self.ortho_scale)
+        project(
+            verts_view,
+            self.viewing_angle,
+            self.orthographic,
+            self.ortho_scale,
+        )
     }
 }
 
 /// Projects view-space points (flat `(N, 3)`) to screen space: perspective `x / (z tan(angle/2))`, orthographic
 /// `x / scale`; the third component is `z_view`. Points at `z = 0` (perspective) get infinite coordinates.
-pub fn project(verts_view: &[f32], viewing_angle: f64, orthographic: bool, ortho_scale: f64) -> Vec<f32> {
+pub fn project(
+    verts_view: &[f32],
+    viewing_angle: f64,
+    orthographic: bool,
+    ortho_scale: f64,
+) -> Vec<f32> {
     let width = (viewing_angle.to_radians() / 2.0).tan();
     verts_view
         .chunks_exact(3)

@@ -35,7 +35,9 @@ pub enum RasterError {
         value: f32,
     },
     /// A face refers to a vertex that does not exist.
-    #[error("faces: face {face} refers to vertex {vertex}, but there are only {num_vertices} vertices")]
+    #[error(
+        "faces: face {face} refers to vertex {vertex}, but there are only {num_vertices} vertices"
+    )]
     FaceIndexOutOfRange {
         /// Face index.
         face: usize,
@@ -108,14 +110,20 @@ impl RasterError {
     /// Which Python exception this error maps to.
     pub fn kind(&self) -> ErrorKind {
         match self {
-            RasterError::FaceIndexOutOfRange { .. } | RasterError::FaceMapOutOfRange { .. } => ErrorKind::Index,
+            RasterError::FaceIndexOutOfRange { .. } | RasterError::FaceMapOutOfRange { .. } => {
+                ErrorKind::Index
+            }
             _ => ErrorKind::Value,
         }
     }
 
     /// Shorthand for a [`RasterError::Shape`] error.
     pub fn shape(arg: &'static str, expected: impl Into<String>, got: impl Into<String>) -> Self {
-        RasterError::Shape { arg, expected: expected.into(), got: got.into() }
+        RasterError::Shape {
+            arg,
+            expected: expected.into(),
+            got: got.into(),
+        }
     }
 }
 

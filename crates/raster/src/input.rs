@@ -38,18 +38,35 @@ impl<'a> ScreenMesh<'a> {
     /// let mesh = ScreenMesh::new(&verts, &[0, 1, 2], 1, 3).unwrap();
     /// assert_eq!(mesh.num_faces(), 1);
     /// ```
-    pub fn new(verts_screen: &'a [f32], faces: &'a [i32], batch: usize, num_verts: usize) -> Result<Self> {
+    pub fn new(
+        verts_screen: &'a [f32],
+        faces: &'a [i32],
+        batch: usize,
+        num_verts: usize,
+    ) -> Result<Self> {
         if verts_screen.len() != batch * num_verts * 3 {
             return Err(RasterError::shape(
                 "verts_screen",
-                format!("({batch}, {num_verts}, 3) = {} values", batch * num_verts * 3),
+                format!(
+                    "({batch}, {num_verts}, 3) = {} values",
+                    batch * num_verts * 3
+                ),
                 format!("{} values", verts_screen.len()),
             ));
         }
         if faces.len() % 3 != 0 {
-            return Err(RasterError::shape("faces", "(M, 3)", format!("{} values", faces.len())));
+            return Err(RasterError::shape(
+                "faces",
+                "(M, 3)",
+                format!("{} values", faces.len()),
+            ));
         }
-        Ok(ScreenMesh { verts_screen, faces, batch, num_verts })
+        Ok(ScreenMesh {
+            verts_screen,
+            faces,
+            batch,
+            num_verts,
+        })
     }
 
     /// Number of faces `M`.
@@ -68,7 +85,11 @@ impl<'a> ScreenMesh<'a> {
     #[inline]
     pub fn vert(&self, b: usize, k: usize) -> [f32; 3] {
         let o = (b * self.num_verts + k) * 3;
-        [self.verts_screen[o], self.verts_screen[o + 1], self.verts_screen[o + 2]]
+        [
+            self.verts_screen[o],
+            self.verts_screen[o + 1],
+            self.verts_screen[o + 2],
+        ]
     }
 
     /// Checks: non-empty, finite vertices, face indices in range, and that each batch element has a vertex
@@ -100,11 +121,19 @@ pub fn validate_mesh_indices(arg: &'static str, faces: &[i32], num_verts: usize)
         return Err(RasterError::EmptyMesh { arg });
     }
     if faces.len() % 3 != 0 {
-        return Err(RasterError::shape(arg, "(M, 3)", format!("{} values", faces.len())));
+        return Err(RasterError::shape(
+            arg,
+            "(M, 3)",
+            format!("{} values", faces.len()),
+        ));
     }
     for (i, &v) in faces.iter().enumerate() {
         if v < 0 || v as usize >= num_verts {
-            return Err(RasterError::FaceIndexOutOfRange { face: i / 3, vertex: v as i64, num_vertices: num_verts });
+            return Err(RasterError::FaceIndexOutOfRange {
+                face: i / 3,
+                vertex: v as i64,
+                num_vertices: num_verts,
+            });
         }
     }
     Ok(())
@@ -113,7 +142,11 @@ pub fn validate_mesh_indices(arg: &'static str, faces: &[i32], num_verts: usize)
 /// Returns an error naming `arg` if any value is NaN or infinite.
 pub fn check_finite(arg: &'static str, values: &[f32]) -> Result<()> {
     match values.iter().position(|x| !x.is_finite()) {
-        Some(index) => Err(RasterError::NonFinite { arg, index, value: values[index] }),
+        Some(index) => Err(RasterError::NonFinite {
+            arg,
+            index,
+            value: values[index],
+        }),
         None => Ok(()),
     }
 }
@@ -138,15 +171,29 @@ pub struct RasterParams {
 impl RasterParams {
     /// Perspective parameters with the given size and clip range, two-sided.
     pub fn new(height: usize, width: usize, near: f64, far: f64) -> Self {
-        RasterParams { height, width, near, far, cull_backfaces: false, projection: Projection::Perspective }
+        RasterParams {
+            height,
+            width,
+            near,
+            far,
+            cull_backfaces: false,
+            projection: Projection::Perspective,
+        }
     }
 
     /// Checks image size (1..=16384) and `0 <= near < far`, both finite.
     pub fn validate(&self) -> Result<()> {
         check_image_size("height", self.height as i64)?;
         check_image_size("width", self.width as i64)?;
-        if !(self.near.is_finite() && self.far.is_finite() && self.near >= 0.0 && self.near < self.far) {
-            return Err(RasterError::ClipRange { near: self.near, far: self.far });
+        if !(self.near.is_finite()
+            && self.far.is_finite()
+            && self.near >= 0.0
+            && self.near < self.far)
+        {
+            return Err(RasterError::ClipRange {
+                near: self.near,
+                far: self.far,
+            });
         }
         Ok(())
     }
@@ -160,7 +207,11 @@ impl RasterParams {
 /// Checks one image dimension.
 pub fn check_image_size(arg: &'static str, value: i64) -> Result<usize> {
     if value < 1 || value > MAX_IMAGE_SIZE as i64 {
-        return Err(RasterError::ImageSize { arg, value, max: MAX_IMAGE_SIZE });
+        return Err(RasterError::ImageSize {
+            arg,
+            value,
+            max: MAX_IMAGE_SIZE,
+        });
     }
     Ok(value as usize)
 }
@@ -181,7 +232,11 @@ impl<'a> FaceAttrs<'a> {
     pub fn validate(&self, mesh: &ScreenMesh<'_>) -> Result<()> {
         let c = self.channels;
         if c == 0 {
-            return Err(RasterError::shape("face_attrs", "(B, M, C) with C >= 1", "C = 0"));
+            return Err(RasterError::shape(
+                "face_attrs",
+                "(B, M, C) with C >= 1",
+                "C = 0",
+            ));
         }
         let want = mesh.batch * mesh.num_faces() * c;
         if self.values.len() != want {
@@ -192,7 +247,11 @@ impl<'a> FaceAttrs<'a> {
             ));
         }
         if self.background.len() != c {
-            return Err(RasterError::shape("background", format!("({c},)"), format!("({},)", self.background.len())));
+            return Err(RasterError::shape(
+                "background",
+                format!("({c},)"),
+                format!("({},)", self.background.len()),
+            ));
         }
         check_finite("face_attrs", self.values)?;
         check_finite("background", self.background)

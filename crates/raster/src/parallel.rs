@@ -33,7 +33,10 @@ pub fn with_threads<R: Send>(num_threads: usize, op: impl FnOnce() -> R + Send) 
                 let p = rayon::ThreadPoolBuilder::new()
                     .num_threads(num_threads)
                     .build()
-                    .map_err(|e| RasterError::ThreadPool { threads: num_threads, message: e.to_string() })?;
+                    .map_err(|e| RasterError::ThreadPool {
+                        threads: num_threads,
+                        message: e.to_string(),
+                    })?;
                 let p = Arc::new(p);
                 map.insert(num_threads, p.clone());
                 p

@@ -6,7 +6,9 @@ use glam::DVec3;
 
 use crate::camera::{project, world_to_view, SphericalCamera};
 use crate::error::{RasterError, Result};
-use crate::input::{check_finite, validate_mesh_indices, FaceAttrs, Projection, RasterParams, ScreenMesh};
+use crate::input::{
+    check_finite, validate_mesh_indices, FaceAttrs, Projection, RasterParams, ScreenMesh,
+};
 use crate::raster::rasterize;
 pub use crate::shading::Lights;
 use crate::shading::{face_normal, flip_toward_camera, lambert};
@@ -26,7 +28,12 @@ pub struct RenderSettings {
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        RenderSettings { height: 256, width: 256, background: [1.0, 1.0, 1.0], fill_back: true }
+        RenderSettings {
+            height: 256,
+            width: 256,
+            background: [1.0, 1.0, 1.0],
+            fill_back: true,
+        }
     }
 }
 
@@ -55,17 +62,27 @@ pub fn shade_faces(
     let view = camera.view()?;
     let p = |k: i32| {
         let o = k as usize * 3;
-        DVec3::new(verts_world[o] as f64, verts_world[o + 1] as f64, verts_world[o + 2] as f64)
+        DVec3::new(
+            verts_world[o] as f64,
+            verts_world[o + 1] as f64,
+            verts_world[o + 2] as f64,
+        )
     };
     let mut out = Vec::with_capacity(faces.len());
     for (f, tri) in faces.chunks_exact(3).enumerate() {
         let v = [p(tri[0]), p(tri[1]), p(tri[2])];
         let n = match face_normal(v) {
-            Some(n) if two_sided => flip_toward_camera(n, v[0], view.eye, view.z, camera.orthographic),
+            Some(n) if two_sided => {
+                flip_toward_camera(n, v[0], view.eye, view.z, camera.orthographic)
+            }
             Some(n) => n,
             None => DVec3::ZERO,
         };
-        let r = [reflectance[3 * f], reflectance[3 * f + 1], reflectance[3 * f + 2]];
+        let r = [
+            reflectance[3 * f],
+            reflectance[3 * f + 1],
+            reflectance[3 * f + 2],
+        ];
         out.extend_from_slice(&lambert(n, r, lights));
     }
     Ok(out)
@@ -93,7 +110,11 @@ pub fn render(
 ) -> Result<RenderOutput> {
     camera.validate()?;
     if verts_world.len() % 3 != 0 {
-        return Err(RasterError::shape("verts_world", "(N, 3)", format!("{} values", verts_world.len())));
+        return Err(RasterError::shape(
+            "verts_world",
+            "(N, 3)",
+            format!("{} values", verts_world.len()),
+        ));
     }
     let n = verts_world.len() / 3;
     validate_mesh_indices("faces", faces, n)?;
@@ -113,24 +134,46 @@ pub fn render(
             format!("({}, 3)", lights.colors.len()),
         ));
     }
-    for (arg, arr) in [("light_directions", &lights.directions), ("light_colors", &lights.colors)] {
+    for (arg, arr) in [
+        ("light_directions", &lights.directions),
+        ("light_colors", &lights.colors),
+    ] {
         check_finite(arg, arr.as_flattened())?;
     }
     check_finite("ambient", &lights.ambient)?;
     check_finite("background", &settings.background)?;
     let view = camera.view()?;
     let verts_view = world_to_view(verts_world, &view);
-    let verts_screen = project(&verts_view, camera.viewing_angle, camera.orthographic, camera.ortho_scale);
-    let colors = shade_faces(verts_world, faces, reflectance, camera, lights, settings.fill_back)?;
+    let verts_screen = project(
+        &verts_view,
+        camera.viewing_angle,
+        camera.orthographic,
+        camera.ortho_scale,
+    );
+    let colors = shade_faces(
+        verts_world,
+        faces,
+        reflectance,
+        camera,
+        lights,
+        settings.fill_back,
+    )?;
     let m = faces.len() / 3;
     let mut attrs = Vec::with_capacity(m * 4);
     for c in colors.chunks_exact(3) {
         attrs.extend_from_slice(&[c[0], c[1], c[2], 1.0]);
     }
-    let bg = [settings.background[0], settings.background[1], settings.background[2], 0.0];
+    let bg = [
+        settings.background[0],
+        settings.background[1],
+        settings.background[2],
+        0.0,
+    ];
     // Vertices at z <= 0 project to infinity; the rasterizer skips their faces, so give them finite placeholders.
-    let verts_screen: Vec<f32> =
-        verts_screen.into_iter().map(|x| if x.is_finite() { x } else { 0.0 }).collect();
+    let verts_screen: Vec<f32> = verts_screen
+        .into_iter()
+        .map(|x| if x.is_finite() { x } else { 0.0 })
+        .collect();
     let mesh = ScreenMesh::new(&verts_screen, faces, 1, n)?;
     let params = RasterParams {
         height: settings.height,
@@ -138,9 +181,21 @@ pub fn render(
         near: camera.near,
         far: camera.far,
         cull_backfaces: !settings.fill_back,
-        projection: if camera.orthographic { Projection::Orthographic } else { Projection::Perspective },
+        projection: if camera.orthographic {
+            Projection::Orthographic
+        } else {
+            Projection::Perspective
+        },
     };
-    let out = rasterize(&mesh, &FaceAttrs { values: &attrs, background: &bg, channels: 4 }, &params)?;
+    let out = rasterize(
+        &mesh,
+        &FaceAttrs {
+            values: &attrs,
+            background: &bg,
+            channels: 4,
+        },
+        &params,
+    )?;
     let hw = params.pixels();
     let mut image = Vec::with_capacity(hw * 3);
     let mut alpha = Vec::with_capacity(hw);
@@ -148,5 +203,10 @@ pub fn render(
         image.extend_from_slice(&px[..3]);
         alpha.push(px[3]);
     }
-    Ok(RenderOutput { image, alpha, depth: out.depth, face_index: out.face_index })
+    Ok(RenderOutput {
+        image,
+        alpha,
+        depth: out.depth,
+        face_index: out.face_index,
+    })
 }

@@ -78,8 +78,10 @@ fn raster_band(
                 if !(s.edges[0].inside(e0) && s.edges[1].inside(e1) && s.edges[2].inside(e2)) {
                     continue;
                 }
-                let inv = 1.0 / s.area;
-                let Some(z) = s.depth_from_weights([e0 * inv, e1 * inv, e2 * inv]) else { continue };
+                let inv = s.inv_area;
+                let Some(z) = s.depth_from_weights([e0 * inv, e1 * inv, e2 * inv]) else {
+                    continue;
+                };
                 if !(z >= near && z <= far) {
                     continue;
                 }
@@ -124,10 +126,14 @@ pub fn rasterize_fragments(mesh: &ScreenMesh<'_>, params: &RasterParams) -> Resu
     let hw = params.pixels();
     let mut face_index = vec![-1i32; mesh.batch * hw];
     let mut depth = vec![0f32; mesh.batch * hw];
-    face_index.par_chunks_mut(hw).zip(depth.par_chunks_mut(hw)).enumerate().for_each(|(b, (fi, dp))| {
-        let setups = setup_faces(mesh, b, params);
-        rasterize_fragments_one(&setups, params, fi, dp);
-    });
+    face_index
+        .par_chunks_mut(hw)
+        .zip(depth.par_chunks_mut(hw))
+        .enumerate()
+        .for_each(|(b, (fi, dp))| {
+            let setups = setup_faces(mesh, b, params);
+            rasterize_fragments_one(&setups, params, fi, dp);
+        });
     Ok(Fragments { face_index, depth })
 }
 
@@ -145,24 +151,35 @@ pub fn rasterize_fragments(mesh: &ScreenMesh<'_>, params: &RasterParams) -> Resu
 /// assert_eq!(out.face_index[3], -1); // top-right pixel
 /// assert_eq!(out.depth[3], 10.0);
 /// ```
-pub fn rasterize(mesh: &ScreenMesh<'_>, attrs: &FaceAttrs<'_>, params: &RasterParams) -> Result<RasterOutput> {
+pub fn rasterize(
+    mesh: &ScreenMesh<'_>,
+    attrs: &FaceAttrs<'_>,
+    params: &RasterParams,
+) -> Result<RasterOutput> {
     attrs.validate(mesh)?;
     let Fragments { face_index, depth } = rasterize_fragments(mesh, params)?;
     let c = attrs.channels;
     let hw = params.pixels();
     let m = mesh.num_faces();
     let mut image = vec![0f32; face_index.len() * c];
-    image.par_chunks_mut(params.width * c).enumerate().for_each(|(line, px)| {
-        let b = line / params.height;
-        let fi = &face_index[line * params.width..(line + 1) * params.width];
-        for (dst, &f) in px.chunks_exact_mut(c).zip(fi) {
-            if f < 0 {
-                dst.copy_from_slice(attrs.background);
-            } else {
-                dst.copy_from_slice(attrs.face(b, m, f as usize));
+    image
+        .par_chunks_mut(params.width * c)
+        .enumerate()
+        .for_each(|(line, px)| {
+            let b = line / params.height;
+            let fi = &face_index[line * params.width..(line + 1) * params.width];
+            for (dst, &f) in px.chunks_exact_mut(c).zip(fi) {
+                if f < 0 {
+                    dst.copy_from_slice(attrs.background);
+                } else {
+                    dst.copy_from_slice(attrs.face(b, m, f as usize));
+                }
             }
-        }
-    });
+        });
     let _ = hw;
-    Ok(RasterOutput { image, face_index, depth })
+    Ok(RasterOutput {
+        image,
+        face_index,
+        depth,
+    })
 }

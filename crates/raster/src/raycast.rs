@@ -39,7 +39,10 @@ pub struct RayCamera {
 
 impl RayCamera {
     fn validate(&self) -> Result<()> {
-        if !(self.viewing_angle.is_finite() && self.viewing_angle > 0.0 && self.viewing_angle < 180.0) {
+        if !(self.viewing_angle.is_finite()
+            && self.viewing_angle > 0.0
+            && self.viewing_angle < 180.0)
+        {
             return Err(RasterError::Parameter {
                 arg: "viewing_angle",
                 message: format!("must be in (0, 180) degrees, got {}", self.viewing_angle),
@@ -84,12 +87,18 @@ fn prepare(mesh: &ScreenMesh<'_>, b: usize, ortho: bool, cull: bool) -> Vec<Tri>
 #[inline]
 fn intersect(t: &Tri, origin: DVec3, dir: DVec3, ortho: bool) -> Option<f64> {
     let s = if ortho {
-        let e = |a: DVec3, b: DVec3| (b.x - a.x) * (origin.y - a.y) - (b.y - a.y) * (origin.x - a.x);
+        let e =
+            |a: DVec3, b: DVec3| (b.x - a.x) * (origin.y - a.y) - (b.y - a.y) * (origin.x - a.x);
         [e(t.v[0], t.v[1]), e(t.v[1], t.v[2]), e(t.v[2], t.v[0])]
     } else {
-        [dir.dot(t.v[0].cross(t.v[1])), dir.dot(t.v[1].cross(t.v[2])), dir.dot(t.v[2].cross(t.v[0]))]
+        [
+            dir.dot(t.v[0].cross(t.v[1])),
+            dir.dot(t.v[1].cross(t.v[2])),
+            dir.dot(t.v[2].cross(t.v[0])),
+        ]
     };
-    let inside = (s[0] >= 0.0 && s[1] >= 0.0 && s[2] >= 0.0) || (s[0] <= 0.0 && s[1] <= 0.0 && s[2] <= 0.0);
+    let inside =
+        (s[0] >= 0.0 && s[1] >= 0.0 && s[2] >= 0.0) || (s[0] <= 0.0 && s[1] <= 0.0 && s[2] <= 0.0);
     if !inside {
         return None;
     }
@@ -117,12 +126,20 @@ fn build(tris: &[Tri]) -> Bvh2 {
             Aabb::new((lo - pad).as_vec3().into(), (hi + pad).as_vec3().into())
         })
         .collect();
-    build_bvh2(&aabbs, BvhBuildParams::fast_build(), &mut Duration::default())
+    build_bvh2(
+        &aabbs,
+        BvhBuildParams::fast_build(),
+        &mut Duration::default(),
+    )
 }
 
 /// Casts one primary ray per pixel centre for every batch element of `verts_view` (flat `(B, N, 3)` view space).
 /// `params.projection` is ignored (the camera says it); `params.cull_backfaces` is honoured.
-pub fn raycast(mesh_view: &ScreenMesh<'_>, camera: &RayCamera, params: &RasterParams) -> Result<Fragments> {
+pub fn raycast(
+    mesh_view: &ScreenMesh<'_>,
+    camera: &RayCamera,
+    params: &RasterParams,
+) -> Result<Fragments> {
     mesh_view.validate_as("verts_view")?;
     params.validate()?;
     camera.validate()?;
@@ -132,51 +149,66 @@ pub fn raycast(mesh_view: &ScreenMesh<'_>, camera: &RayCamera, params: &RasterPa
     let tw = (camera.viewing_angle.to_radians() / 2.0).tan();
     let mut face_index = vec![-1i32; mesh_view.batch * hw];
     let mut depth = vec![params.far as f32; mesh_view.batch * hw];
-    face_index.par_chunks_mut(hw).zip(depth.par_chunks_mut(hw)).enumerate().for_each(|(b, (fi, dp))| {
-        let tris = prepare(mesh_view, b, ortho, params.cull_backfaces);
-        let bvh = build(&tris);
-        fi.par_chunks_mut(w).zip(dp.par_chunks_mut(w)).enumerate().for_each(|(i, (fi_row, dp_row))| {
-            let y = -((2 * i + 1) as f64 - h as f64) / h as f64;
-            for j in 0..w {
-                let x = ((2 * j + 1) as f64 - w as f64) / w as f64;
-                let (origin, dir) = if ortho {
-                    (DVec3::new(x * camera.ortho_scale, y * camera.ortho_scale, 0.0), DVec3::Z)
-                } else {
-                    (DVec3::ZERO, DVec3::new(x * tw, y * tw, 1.0))
-                };
-                // t equals z because dir.z == 1 (and origin.z == 0).
-                let ray = Ray::new(origin.as_vec3().into(), dir.as_vec3().into(), params.near as f32 * 0.999, {
-                    (params.far * 1.001) as f32
+    face_index
+        .par_chunks_mut(hw)
+        .zip(depth.par_chunks_mut(hw))
+        .enumerate()
+        .for_each(|(b, (fi, dp))| {
+            let tris = prepare(mesh_view, b, ortho, params.cull_backfaces);
+            let bvh = build(&tris);
+            fi.par_chunks_mut(w)
+                .zip(dp.par_chunks_mut(w))
+                .enumerate()
+                .for_each(|(i, (fi_row, dp_row))| {
+                    let y = -((2 * i + 1) as f64 - h as f64) / h as f64;
+                    for j in 0..w {
+                        let x = ((2 * j + 1) as f64 - w as f64) / w as f64;
+                        let (origin, dir) = if ortho {
+                            (
+                                DVec3::new(x * camera.ortho_scale, y * camera.ortho_scale, 0.0),
+                                DVec3::Z,
+                            )
+                        } else {
+                            (DVec3::ZERO, DVec3::new(x * tw, y * tw, 1.0))
+                        };
+                        // t equals z because dir.z == 1 (and origin.z == 0).
+                        let ray = Ray::new(
+                            origin.as_vec3().into(),
+                            dir.as_vec3().into(),
+                            params.near as f32 * 0.999,
+                            (params.far * 1.001) as f32,
+                        );
+                        let mut best: Option<(f64, usize)> = None;
+                        let mut hit = RayHit::none();
+                        bvh.ray_traverse(ray, &mut hit, |_ray, id| {
+                            let f = bvh.primitive_indices[id] as usize;
+                            let t = &tris[f];
+                            if !t.active {
+                                return f32::INFINITY;
+                            }
+                            let Some(z) = intersect(t, origin, dir, ortho) else {
+                                return f32::INFINITY;
+                            };
+                            if !(z >= params.near && z <= params.far) {
+                                return f32::INFINITY;
+                            }
+                            let better = match best {
+                                None => true,
+                                Some((bz, bf)) => z < bz || (z == bz && f < bf),
+                            };
+                            if better {
+                                best = Some((z, f));
+                            }
+                            // Report a slightly larger distance so that the traversal keeps testing exact ties.
+                            let bz = best.map_or(z, |(bz, _)| bz);
+                            (bz * (1.0 + 1e-6) + 1e-12) as f32
+                        });
+                        if let Some((z, f)) = best {
+                            fi_row[j] = f as i32;
+                            dp_row[j] = z as f32;
+                        }
+                    }
                 });
-                let mut best: Option<(f64, usize)> = None;
-                let mut hit = RayHit::none();
-                bvh.ray_traverse(ray, &mut hit, |_ray, id| {
-                    let f = bvh.primitive_indices[id] as usize;
-                    let t = &tris[f];
-                    if !t.active {
-                        return f32::INFINITY;
-                    }
-                    let Some(z) = intersect(t, origin, dir, ortho) else { return f32::INFINITY };
-                    if !(z >= params.near && z <= params.far) {
-                        return f32::INFINITY;
-                    }
-                    let better = match best {
-                        None => true,
-                        Some((bz, bf)) => z < bz || (z == bz && f < bf),
-                    };
-                    if better {
-                        best = Some((z, f));
-                    }
-                    // Report a slightly larger distance so that the traversal keeps testing exact ties.
-                    let bz = best.map_or(z, |(bz, _)| bz);
-                    (bz * (1.0 + 1e-6) + 1e-12) as f32
-                });
-                if let Some((z, f)) = best {
-                    fi_row[j] = f as i32;
-                    dp_row[j] = z as f32;
-                }
-            }
         });
-    });
     Ok(Fragments { face_index, depth })
 }

@@ -28,14 +28,25 @@ impl Edge {
     /// Builds the edge from corner `a` to corner `b` for a face with orientation `orient` (sign of its area).
     fn new(a: [f64; 2], b: [f64; 2], orient: f64) -> Edge {
         // Canonical order: lexicographic on (u, v), so both faces sharing an edge evaluate the same expression.
-        let (s, c, swap) = if (a[0], a[1]) <= (b[0], b[1]) { (a, b, 1.0) } else { (b, a, -1.0) };
+        let (s, c, swap) = if (a[0], a[1]) <= (b[0], b[1]) {
+            (a, b, 1.0)
+        } else {
+            (b, a, -1.0)
+        };
         let sign = swap * orient;
         let (du, dv) = (c[0] - s[0], c[1] - s[1]);
         // Inward normal = sign * (-dv, du). Top-left: normal points to +u (left edge), or is vertical and
         // points to +v (down, i.e. a top edge).
         let (nu, nv) = (-dv * sign, du * sign);
         let owns_ties = nu > 0.0 || (nu == 0.0 && nv > 0.0);
-        Edge { au: s[0], av: s[1], du, dv, sign, owns_ties }
+        Edge {
+            au: s[0],
+            av: s[1],
+            du,
+            dv,
+            sign,
+            owns_ties,
+        }
     }
 
     /// Oriented edge function at `(u, v)`.
@@ -81,6 +92,11 @@ pub struct FaceSetup {
     pub row1: i32,
     /// Orthographic (linear z) or perspective (linear 1/z) depth.
     pub ortho: bool,
+    /// `1 / area`.
+    pub inv_area: f64,
+    /// The interpolated quantity (`1/z` in perspective, `z` in orthographic) as a plane in pixel space:
+    /// `plane[0] * u + plane[1] * v + plane[2]` (used by the backward pass's extrapolated depth tests).
+    pub plane: [f64; 3],
 }
 
 /// Converts NDC x to pixel-space u.
@@ -99,21 +115,33 @@ impl FaceSetup {
     /// Sets up face `f` of batch element `b`.
     pub fn new(mesh: &ScreenMesh<'_>, b: usize, f: usize, params: &RasterParams) -> FaceSetup {
         let idx = mesh.face(f);
-        let mut s = FaceSetup { ortho: params.projection == Projection::Orthographic, ..Default::default() };
-        for k in 0..3 {
-            let p = mesh.vert(b, idx[k]);
+        let mut s = FaceSetup {
+            ortho: params.projection == Projection::Orthographic,
+            ..Default::default()
+        };
+        for (k, &vi) in idx.iter().enumerate() {
+            let p = mesh.vert(b, vi);
             s.u[k] = ndc_to_u(p[0], params.width);
             s.v[k] = ndc_to_v(p[1], params.height);
             s.z[k] = p[2] as f64;
             s.inv_z[k] = 1.0 / p[2] as f64;
         }
-        s.signed_area = (s.u[1] - s.u[0]) * (s.v[2] - s.v[0]) - (s.v[1] - s.v[0]) * (s.u[2] - s.u[0]);
+        s.signed_area =
+            (s.u[1] - s.u[0]) * (s.v[2] - s.v[0]) - (s.v[1] - s.v[0]) * (s.u[2] - s.u[0]);
         let orient = if s.signed_area >= 0.0 { 1.0 } else { -1.0 };
         for k in 0..3 {
             let (a, c) = ((k + 1) % 3, (k + 2) % 3);
             s.edges[k] = Edge::new([s.u[a], s.v[a]], [s.u[c], s.v[c]], orient);
         }
         s.area = s.signed_area.abs();
+        s.inv_area = 1.0 / s.area;
+        for k in 0..3 {
+            let e = &s.edges[k];
+            let val = if s.ortho { s.z[k] } else { s.inv_z[k] } * e.sign * s.inv_area;
+            s.plane[0] -= val * e.dv;
+            s.plane[1] += val * e.du;
+            s.plane[2] += val * (e.dv * e.au - e.du * e.av);
+        }
         let behind = !s.ortho && s.z.iter().any(|&z| z <= 0.0);
         // Back-facing = counter-clockwise in y-up NDC = clockwise in v-down pixel space = signed_area < 0 here.
         let culled = params.cull_backfaces && s.signed_area < 0.0;
@@ -140,7 +168,11 @@ impl FaceSetup {
     #[inline(always)]
     pub fn barycentric(&self, u: f64, v: f64) -> [f64; 3] {
         let inv = 1.0 / self.area;
-        [self.edges[0].eval(u, v) * inv, self.edges[1].eval(u, v) * inv, self.edges[2].eval(u, v) * inv]
+        [
+            self.edges[0].eval(u, v) * inv,
+            self.edges[1].eval(u, v) * inv,
+            self.edges[2].eval(u, v) * inv,
+        ]
     }
 
     /// Depth from barycentric weights: perspective-correct (`1/z` linear) or linear (orthographic).
@@ -169,5 +201,7 @@ impl FaceSetup {
 
 /// Sets up every face of batch element `b`.
 pub fn setup_faces(mesh: &ScreenMesh<'_>, b: usize, params: &RasterParams) -> Vec<FaceSetup> {
-    (0..mesh.num_faces()).map(|f| FaceSetup::new(mesh, b, f, params)).collect()
+    (0..mesh.num_faces())
+        .map(|f| FaceSetup::new(mesh, b, f, params))
+        .collect()
 }

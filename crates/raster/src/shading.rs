@@ -19,7 +19,11 @@ pub struct Lights {
 impl Default for Lights {
     /// NMR's defaults: ambient 0.5 and one white light of intensity 0.5 toward `(0, 1, 0)`.
     fn default() -> Self {
-        Lights { directions: vec![[0.0, 1.0, 0.0]], colors: vec![[0.5, 0.5, 0.5]], ambient: [0.5, 0.5, 0.5] }
+        Lights {
+            directions: vec![[0.0, 1.0, 0.0]],
+            colors: vec![[0.5, 0.5, 0.5]],
+            ambient: [0.5, 0.5, 0.5],
+        }
     }
 }
 
@@ -30,8 +34,18 @@ pub fn face_normal(v: [DVec3; 3]) -> Option<DVec3> {
 
 /// Flips `n` toward the camera: perspective when `dot(n, eye - p) < 0` (`p` any point of the face), orthographic
 /// when `dot(n, view_dir) > 0`.
-pub fn flip_toward_camera(n: DVec3, p: DVec3, eye: DVec3, view_dir: DVec3, orthographic: bool) -> DVec3 {
-    let away = if orthographic { n.dot(view_dir) > 0.0 } else { n.dot(eye - p) < 0.0 };
+pub fn flip_toward_camera(
+    n: DVec3,
+    p: DVec3,
+    eye: DVec3,
+    view_dir: DVec3,
+    orthographic: bool,
+) -> DVec3 {
+    let away = if orthographic {
+        n.dot(view_dir) > 0.0
+    } else {
+        n.dot(eye - p) < 0.0
+    };
     if away {
         -n
     } else {
@@ -41,9 +55,15 @@ pub fn flip_toward_camera(n: DVec3, p: DVec3, eye: DVec3, view_dir: DVec3, ortho
 
 /// Shades one face: `clamp(reflectance * (ambient + sum_j color_j max(dot(dir_j, n), 0)), 0, 1)`.
 pub fn lambert(n: DVec3, reflectance: [f32; 3], lights: &Lights) -> [f32; 3] {
-    let mut s = [lights.ambient[0] as f64, lights.ambient[1] as f64, lights.ambient[2] as f64];
+    let mut s = [
+        lights.ambient[0] as f64,
+        lights.ambient[1] as f64,
+        lights.ambient[2] as f64,
+    ];
     for (d, c) in lights.directions.iter().zip(&lights.colors) {
-        let dir = DVec3::new(d[0] as f64, d[1] as f64, d[2] as f64).try_normalize().unwrap_or(DVec3::ZERO);
+        let dir = DVec3::new(d[0] as f64, d[1] as f64, d[2] as f64)
+            .try_normalize()
+            .unwrap_or(DVec3::ZERO);
         let k = dir.dot(n).max(0.0);
         for ch in 0..3 {
             s[ch] += c[ch] as f64 * k;

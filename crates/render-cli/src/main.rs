@@ -73,7 +73,9 @@ fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
     }
     let mut out = [0f32; 3];
     for (o, p) in out.iter_mut().zip(parts) {
-        *o = p.parse::<f32>().map_err(|_| format!("bad number {p:?} in {s:?}"))?;
+        *o = p
+            .parse::<f32>()
+            .map_err(|_| format!("bad number {p:?} in {s:?}"))?;
         if !o.is_finite() {
             return Err(format!("non-finite number in {s:?}"));
         }
@@ -111,7 +113,11 @@ fn normalize(v: &mut [f32]) {
 
 fn run(args: Args) -> Result<(), String> {
     if args.size == 0 || args.size as usize > meshadv_raster::MAX_IMAGE_SIZE {
-        return Err(format!("--size must be in [1, {}], got {}", meshadv_raster::MAX_IMAGE_SIZE, args.size));
+        return Err(format!(
+            "--size must be in [1, {}], got {}",
+            meshadv_raster::MAX_IMAGE_SIZE,
+            args.size
+        ));
     }
     let mut mesh = meshio::load_mesh(&args.mesh)?;
     if args.z_up {
@@ -136,19 +142,44 @@ fn run(args: Args) -> Result<(), String> {
         }
     };
     let li = args.light_intensity;
-    let lights = Lights { directions: vec![light_dir], colors: vec![[li, li, li]], ambient: args.ambient };
-    let colors = mesh.face_colors.clone().unwrap_or_else(|| vec![0.7; mesh.faces.len()]);
+    let lights = Lights {
+        directions: vec![light_dir],
+        colors: vec![[li, li, li]],
+        ambient: args.ambient,
+    };
+    let colors = mesh
+        .face_colors
+        .clone()
+        .unwrap_or_else(|| vec![0.7; mesh.faces.len()]);
     let size = args.size as usize;
-    let settings = RenderSettings { height: size, width: size, background: [1.0, 1.0, 1.0], fill_back: true };
-    let out = render(&mesh.vertices, &mesh.faces, &colors, &camera, &lights, &settings).map_err(|e| e.to_string())?;
+    let settings = RenderSettings {
+        height: size,
+        width: size,
+        background: [1.0, 1.0, 1.0],
+        fill_back: true,
+    };
+    let out = render(
+        &mesh.vertices,
+        &mesh.faces,
+        &colors,
+        &camera,
+        &lights,
+        &settings,
+    )
+    .map_err(|e| e.to_string())?;
     let to_u8 = |x: f32| (x.clamp(0.0, 1.0) * 255.0).round() as u8;
     let (w, h) = (args.size, args.size);
     let result = if args.mask {
         let px: Vec<u8> = out.alpha.iter().map(|&a| to_u8(a)).collect();
         image::GrayImage::from_raw(w, h, px).map(|img| img.save(&args.output))
     } else if args.depth {
-        let fg: Vec<f32> =
-            out.depth.iter().zip(&out.face_index).filter(|(_, &f)| f >= 0).map(|(&d, _)| d).collect();
+        let fg: Vec<f32> = out
+            .depth
+            .iter()
+            .zip(&out.face_index)
+            .filter(|(_, &f)| f >= 0)
+            .map(|(&d, _)| d)
+            .collect();
         let lo = fg.iter().copied().fold(f32::INFINITY, f32::min);
         let hi = fg.iter().copied().fold(f32::NEG_INFINITY, f32::max);
         let span = if hi > lo { hi - lo } else { 1.0 };
@@ -156,7 +187,13 @@ fn run(args: Args) -> Result<(), String> {
             .depth
             .iter()
             .zip(&out.face_index)
-            .map(|(&d, &f)| if f < 0 { 0 } else { to_u8(1.0 - 0.8 * (d - lo) / span) })
+            .map(|(&d, &f)| {
+                if f < 0 {
+                    0
+                } else {
+                    to_u8(1.0 - 0.8 * (d - lo) / span)
+                }
+            })
             .collect();
         image::GrayImage::from_raw(w, h, px).map(|img| img.save(&args.output))
     } else {

@@ -19,23 +19,37 @@ pub struct Mesh {
 
 /// Reads a mesh, choosing the parser from the extension (`.obj`, `.off`, `.ply`, case-insensitive).
 pub fn load_mesh(path: &Path) -> Result<Mesh, String> {
-    let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).unwrap_or_default();
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase())
+        .unwrap_or_default();
     if !path.exists() {
         return Err(format!("{}: no such file", path.display()));
     }
     let mesh = match ext.as_str() {
         "obj" => load_obj(path),
         "off" => {
-            let bytes = fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+            let bytes =
+                fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
             parse_off(&bytes)
         }
         "ply" => {
-            let bytes = fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+            let bytes =
+                fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
             parse_ply(&bytes)
         }
-        _ => Err(format!("unsupported mesh format {ext:?} (expected .obj, .off or .ply)")),
+        _ => Err(format!(
+            "unsupported mesh format {ext:?} (expected .obj, .off or .ply)"
+        )),
     }
-    .map_err(|e| if e.starts_with(&path.display().to_string()) { e } else { format!("{}: {e}", path.display()) })?;
+    .map_err(|e| {
+        if e.starts_with(&path.display().to_string()) {
+            e
+        } else {
+            format!("{}: {e}", path.display())
+        }
+    })?;
     check_mesh(&mesh)?;
     Ok(mesh)
 }
@@ -50,14 +64,23 @@ pub fn check_mesh(mesh: &Mesh) -> Result<(), String> {
         return Err(format!("vertex {} has a non-finite coordinate", i / 3));
     }
     if let Some(i) = mesh.faces.iter().position(|&f| f < 0 || f as usize >= n) {
-        return Err(format!("face {} refers to vertex {}, but there are {n} vertices", i / 3, mesh.faces[i]));
+        return Err(format!(
+            "face {} refers to vertex {}, but there are {n} vertices",
+            i / 3,
+            mesh.faces[i]
+        ));
     }
     Ok(())
 }
 
 fn load_obj(path: &Path) -> Result<Mesh, String> {
-    let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
-    let (models, _materials) = tobj::load_obj(path, &opts).map_err(|e| format!("malformed OBJ: {e}"))?;
+    let opts = tobj::LoadOptions {
+        triangulate: true,
+        single_index: true,
+        ..Default::default()
+    };
+    let (models, _materials) =
+        tobj::load_obj(path, &opts).map_err(|e| format!("malformed OBJ: {e}"))?;
     let mut vertices = Vec::new();
     let mut faces = Vec::new();
     for m in models {
@@ -68,16 +91,25 @@ fn load_obj(path: &Path) -> Result<Mesh, String> {
             faces.push(i32::try_from(v).map_err(|_| "too many vertices".to_string())?);
         }
     }
-    Ok(Mesh { vertices, faces, face_colors: None })
+    Ok(Mesh {
+        vertices,
+        faces,
+        face_colors: None,
+    })
 }
 
 fn fan(poly: &[i64], faces: &mut Vec<i32>, what: &str) -> Result<(), String> {
     if poly.len() < 3 {
-        return Err(format!("{what}: a face needs at least 3 vertices, got {}", poly.len()));
+        return Err(format!(
+            "{what}: a face needs at least 3 vertices, got {}",
+            poly.len()
+        ));
     }
     for k in 1..poly.len() - 1 {
         for &v in &[poly[0], poly[k], poly[k + 1]] {
-            faces.push(i32::try_from(v).map_err(|_| format!("{what}: vertex index {v} out of range"))?);
+            faces.push(
+                i32::try_from(v).map_err(|_| format!("{what}: vertex index {v} out of range"))?,
+            );
         }
     }
     Ok(())
@@ -86,51 +118,87 @@ fn fan(poly: &[i64], faces: &mut Vec<i32>, what: &str) -> Result<(), String> {
 /// Parses an ASCII OFF file: `OFF` header (counts on the same or the next line), one vertex per line (extra values
 /// such as colours ignored), one face per line `k i1 .. ik` (trailing colours ignored); `#` comments.
 pub fn parse_off(bytes: &[u8]) -> Result<Mesh, String> {
-    let text = std::str::from_utf8(bytes).map_err(|_| "malformed OFF: not UTF-8 text".to_string())?;
-    let mut lines = text.lines().map(|l| l.split('#').next().unwrap_or("").trim()).filter(|l| !l.is_empty());
+    let text =
+        std::str::from_utf8(bytes).map_err(|_| "malformed OFF: not UTF-8 text".to_string())?;
+    let mut lines = text
+        .lines()
+        .map(|l| l.split('#').next().unwrap_or("").trim())
+        .filter(|l| !l.is_empty());
     let first = lines.next().ok_or("malformed OFF: empty file")?;
     let mut head: Vec<&str> = first.split_whitespace().collect();
     if head[0] != "OFF" {
-        return Err(format!("malformed OFF: expected the OFF header, got {:?}", head[0]));
+        return Err(format!(
+            "malformed OFF: expected the OFF header, got {:?}",
+            head[0]
+        ));
     }
     head.remove(0);
     if head.is_empty() {
-        head = lines.next().ok_or("malformed OFF: missing the counts line")?.split_whitespace().collect();
+        head = lines
+            .next()
+            .ok_or("malformed OFF: missing the counts line")?
+            .split_whitespace()
+            .collect();
     }
     let count = |i: usize, what: &str| -> Result<usize, String> {
-        let s = head.get(i).ok_or_else(|| format!("malformed OFF: missing the {what}"))?;
-        s.parse::<usize>().map_err(|_| format!("malformed OFF: bad {what} {s:?}"))
+        let s = head
+            .get(i)
+            .ok_or_else(|| format!("malformed OFF: missing the {what}"))?;
+        s.parse::<usize>()
+            .map_err(|_| format!("malformed OFF: bad {what} {s:?}"))
     };
     let (nv, nf) = (count(0, "vertex count")?, count(1, "face count")?);
     if nv > 100_000_000 || nf > 100_000_000 {
-        return Err(format!("malformed OFF: absurd counts ({nv} vertices, {nf} faces)"));
+        return Err(format!(
+            "malformed OFF: absurd counts ({nv} vertices, {nf} faces)"
+        ));
     }
     let mut vertices = Vec::with_capacity(nv * 3);
     for i in 0..nv {
-        let l = lines.next().ok_or_else(|| format!("malformed OFF: expected {nv} vertices, file ends at {i}"))?;
+        let l = lines
+            .next()
+            .ok_or_else(|| format!("malformed OFF: expected {nv} vertices, file ends at {i}"))?;
         let xyz: Vec<&str> = l.split_whitespace().take(3).collect();
         if xyz.len() < 3 {
-            return Err(format!("malformed OFF: vertex {i}: expected 3 coordinates in {l:?}"));
+            return Err(format!(
+                "malformed OFF: vertex {i}: expected 3 coordinates in {l:?}"
+            ));
         }
         for s in xyz {
-            vertices.push(s.parse::<f32>().map_err(|_| format!("malformed OFF: vertex {i}: bad number {s:?}"))?);
+            vertices.push(
+                s.parse::<f32>()
+                    .map_err(|_| format!("malformed OFF: vertex {i}: bad number {s:?}"))?,
+            );
         }
     }
     let mut faces = Vec::with_capacity(nf * 3);
     for fi in 0..nf {
-        let l = lines.next().ok_or_else(|| format!("malformed OFF: expected {nf} faces, file ends at {fi}"))?;
+        let l = lines
+            .next()
+            .ok_or_else(|| format!("malformed OFF: expected {nf} faces, file ends at {fi}"))?;
         let nums: Vec<&str> = l.split_whitespace().collect();
-        let k: usize = nums[0].parse().map_err(|_| format!("malformed OFF: face {fi}: bad vertex count {:?}", nums[0]))?;
+        let k: usize = nums[0]
+            .parse()
+            .map_err(|_| format!("malformed OFF: face {fi}: bad vertex count {:?}", nums[0]))?;
         if nums.len() < k + 1 {
-            return Err(format!("malformed OFF: face {fi}: expected {k} indices in {l:?}"));
+            return Err(format!(
+                "malformed OFF: face {fi}: expected {k} indices in {l:?}"
+            ));
         }
         let poly: Result<Vec<i64>, String> = nums[1..=k]
             .iter()
-            .map(|s| s.parse::<i64>().map_err(|_| format!("malformed OFF: face {fi}: bad index {s:?}")))
+            .map(|s| {
+                s.parse::<i64>()
+                    .map_err(|_| format!("malformed OFF: face {fi}: bad index {s:?}"))
+            })
             .collect();
         fan(&poly?, &mut faces, &format!("malformed OFF: face {fi}"))?;
     }
-    Ok(Mesh { vertices, faces, face_colors: None })
+    Ok(Mesh {
+        vertices,
+        faces,
+        face_colors: None,
+    })
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -203,11 +271,19 @@ struct Reader<'a> {
 impl Reader<'_> {
     fn read(&mut self, kind: Scalar) -> Result<f64, String> {
         if self.format == Format::Ascii {
-            let t = self.tokens.next().ok_or("malformed PLY: unexpected end of data")?;
-            return t.parse::<f64>().map_err(|_| format!("malformed PLY: bad number {t:?}"));
+            let t = self
+                .tokens
+                .next()
+                .ok_or("malformed PLY: unexpected end of data")?;
+            return t
+                .parse::<f64>()
+                .map_err(|_| format!("malformed PLY: bad number {t:?}"));
         }
         let n = kind.size();
-        let b = self.bytes.get(self.pos..self.pos + n).ok_or("malformed PLY: file is truncated")?;
+        let b = self
+            .bytes
+            .get(self.pos..self.pos + n)
+            .ok_or("malformed PLY: file is truncated")?;
         self.pos += n;
         let mut a = [0u8; 8];
         a[..n].copy_from_slice(b);
@@ -231,14 +307,18 @@ impl Reader<'_> {
 /// `vertex_index`) lists, optional face `red/green/blue` (uchar 0-255 or float 0-1).
 pub fn parse_ply(bytes: &[u8]) -> Result<Mesh, String> {
     const END: &[u8] = b"end_header";
-    let end = bytes.windows(END.len()).position(|w| w == END).ok_or("malformed PLY: no end_header")?;
+    let end = bytes
+        .windows(END.len())
+        .position(|w| w == END)
+        .ok_or("malformed PLY: no end_header")?;
     let mut body_start = end + END.len();
     // Skip the rest of the end_header line (\n or \r\n).
     while body_start < bytes.len() && bytes[body_start] != b'\n' {
         body_start += 1;
     }
     body_start += 1;
-    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "malformed PLY: header is not text")?;
+    let header =
+        std::str::from_utf8(&bytes[..end]).map_err(|_| "malformed PLY: header is not text")?;
     let mut lines = header.lines();
     if lines.next().map(str::trim) != Some("ply") {
         return Err("malformed PLY: missing the 'ply' magic line".into());
@@ -260,24 +340,40 @@ pub fn parse_ply(bytes: &[u8]) -> Result<Mesh, String> {
                 let (Some(name), Some(count)) = (w.get(1), w.get(2)) else {
                     return Err(format!("malformed PLY: bad element line {line:?}"));
                 };
-                let count: usize = count.parse().map_err(|_| format!("malformed PLY: bad element count {count:?}"))?;
+                let count: usize = count
+                    .parse()
+                    .map_err(|_| format!("malformed PLY: bad element count {count:?}"))?;
                 if count > 200_000_000 {
                     return Err(format!("malformed PLY: absurd element count {count}"));
                 }
-                elements.push(Element { name: name.to_string(), count, props: Vec::new() });
+                elements.push(Element {
+                    name: name.to_string(),
+                    count,
+                    props: Vec::new(),
+                });
             }
             Some("property") => {
-                let el = elements.last_mut().ok_or("malformed PLY: property before any element")?;
+                let el = elements
+                    .last_mut()
+                    .ok_or("malformed PLY: property before any element")?;
                 let prop = if w.get(1) == Some(&"list") {
                     let (Some(ct), Some(it), Some(name)) = (w.get(2), w.get(3), w.get(4)) else {
                         return Err(format!("malformed PLY: bad list property {line:?}"));
                     };
-                    Property { name: name.to_string(), kind: Scalar::parse(it)?, list: Some(Scalar::parse(ct)?) }
+                    Property {
+                        name: name.to_string(),
+                        kind: Scalar::parse(it)?,
+                        list: Some(Scalar::parse(ct)?),
+                    }
                 } else {
                     let (Some(t), Some(name)) = (w.get(1), w.get(2)) else {
                         return Err(format!("malformed PLY: bad property {line:?}"));
                     };
-                    Property { name: name.to_string(), kind: Scalar::parse(t)?, list: None }
+                    Property {
+                        name: name.to_string(),
+                        kind: Scalar::parse(t)?,
+                        list: None,
+                    }
                 };
                 el.props.push(prop);
             }
@@ -291,7 +387,12 @@ pub fn parse_ply(bytes: &[u8]) -> Result<Mesh, String> {
     } else {
         ""
     };
-    let mut rd = Reader { bytes: body, pos: 0, format, tokens: text.split_ascii_whitespace() };
+    let mut rd = Reader {
+        bytes: body,
+        pos: 0,
+        format,
+        tokens: text.split_ascii_whitespace(),
+    };
     let mut vertices = Vec::new();
     let mut faces = Vec::new();
     let mut colors: Vec<f32> = Vec::new();
@@ -299,8 +400,14 @@ pub fn parse_ply(bytes: &[u8]) -> Result<Mesh, String> {
     for el in &elements {
         let is_vertex = el.name == "vertex";
         let is_face = el.name == "face";
-        let pos_idx: Vec<Option<usize>> =
-            ["x", "y", "z"].iter().map(|n| el.props.iter().position(|p| p.name == *n && p.list.is_none())).collect();
+        let pos_idx: Vec<Option<usize>> = ["x", "y", "z"]
+            .iter()
+            .map(|n| {
+                el.props
+                    .iter()
+                    .position(|p| p.name == *n && p.list.is_none())
+            })
+            .collect();
         if is_vertex {
             have_vertex = true;
             if pos_idx.iter().any(Option::is_none) {
@@ -309,7 +416,11 @@ pub fn parse_ply(bytes: &[u8]) -> Result<Mesh, String> {
         }
         let color_idx: Vec<Option<usize>> = ["red", "green", "blue"]
             .iter()
-            .map(|n| el.props.iter().position(|p| p.name == *n && p.list.is_none()))
+            .map(|n| {
+                el.props
+                    .iter()
+                    .position(|p| p.name == *n && p.list.is_none())
+            })
             .collect();
         let face_colors = is_face && color_idx.iter().all(Option::is_some);
         for row in 0..el.count {
@@ -319,7 +430,10 @@ pub fn parse_ply(bytes: &[u8]) -> Result<Mesh, String> {
                 if let Some(ct) = p.list {
                     let k = rd.read(ct)?;
                     if !(0.0..=1_000_000.0).contains(&k) {
-                        return Err(format!("malformed PLY: {} {row}: bad list length {k}", el.name));
+                        return Err(format!(
+                            "malformed PLY: {} {row}: bad list length {k}",
+                            el.name
+                        ));
                     }
                     let mut items = Vec::with_capacity(k as usize);
                     for _ in 0..k as usize {
@@ -340,7 +454,11 @@ pub fn parse_ply(bytes: &[u8]) -> Result<Mesh, String> {
                     if face_colors {
                         for a in 0..3 {
                             if color_idx[a] == Some(pi) {
-                                rgb[a] = if matches!(p.kind, Scalar::F32 | Scalar::F64) { v as f32 } else { v as f32 / 255.0 };
+                                rgb[a] = if matches!(p.kind, Scalar::F32 | Scalar::F64) {
+                                    v as f32
+                                } else {
+                                    v as f32 / 255.0
+                                };
                             }
                         }
                     }
@@ -362,5 +480,95 @@ pub fn parse_ply(bytes: &[u8]) -> Result<Mesh, String> {
         return Err("malformed PLY: no vertex element".into());
     }
     let face_colors = (!colors.is_empty() && colors.len() == faces.len()).then_some(colors);
-    Ok(Mesh { vertices, faces, face_colors })
+    Ok(Mesh {
+        vertices,
+        faces,
+        face_colors,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn off_quads_are_fan_triangulated_and_counts_may_share_the_header_line() {
+        let m = parse_off(b"OFF 4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3 255 0 0\n")
+            .expect("valid");
+        assert_eq!(m.vertices.len(), 12);
+        assert_eq!(m.faces, vec![0, 1, 2, 0, 2, 3]);
+    }
+
+    #[test]
+    fn off_errors_say_what_is_wrong() {
+        assert!(parse_off(b"OFF\n3 1 0\n0 0 0\n1 0 x\n0 1 0\n3 0 1 2\n")
+            .expect_err("bad")
+            .contains("vertex 1"));
+        assert!(parse_off(b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n")
+            .expect_err("bad")
+            .contains("expected 1 faces"));
+        assert!(parse_off(b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n")
+            .expect_err("bad")
+            .contains("at least 3"));
+    }
+
+    fn binary_ply(big_endian: bool) -> Vec<u8> {
+        let fmt = if big_endian {
+            "binary_big_endian"
+        } else {
+            "binary_little_endian"
+        };
+        let mut b = format!(
+            "ply\nformat {fmt} 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty double z\n\
+             element face 1\nproperty list uchar uint vertex_indices\nend_header\n"
+        )
+        .into_bytes();
+        for (x, y, z) in [(0f32, 0f32, 0.5f64), (1.0, 0.0, 0.5), (0.0, 1.0, 0.5)] {
+            if big_endian {
+                b.extend(x.to_be_bytes());
+                b.extend(y.to_be_bytes());
+                b.extend(z.to_be_bytes());
+            } else {
+                b.extend(x.to_le_bytes());
+                b.extend(y.to_le_bytes());
+                b.extend(z.to_le_bytes());
+            }
+        }
+        b.push(3);
+        for i in [2u32, 1, 0] {
+            b.extend(if big_endian {
+                i.to_be_bytes()
+            } else {
+                i.to_le_bytes()
+            });
+        }
+        b
+    }
+
+    #[test]
+    fn binary_ply_both_endiannesses() {
+        for be in [false, true] {
+            let m = parse_ply(&binary_ply(be)).expect("valid");
+            assert_eq!(
+                m.vertices,
+                vec![0.0, 0.0, 0.5, 1.0, 0.0, 0.5, 0.0, 1.0, 0.5]
+            );
+            assert_eq!(m.faces, vec![2, 1, 0]);
+        }
+        let mut cut = binary_ply(false);
+        cut.truncate(cut.len() - 2);
+        assert!(parse_ply(&cut)
+            .expect_err("truncated")
+            .contains("truncated"));
+    }
+
+    #[test]
+    fn ascii_ply_face_colours() {
+        let text = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n\
+                    element face 1\nproperty list uchar int vertex_indices\nproperty uchar red\nproperty uchar green\n\
+                    property uchar blue\nend_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3 255 0 51\n";
+        let m = parse_ply(text.as_bytes()).expect("valid");
+        assert_eq!(m.faces.len(), 6);
+        assert_eq!(m.face_colors, Some(vec![1.0, 0.0, 0.2, 1.0, 0.0, 0.2]));
+    }
 }

@@ -131,7 +131,7 @@ def render_cmd(
 @transfer_app.command("controlled")
 def controlled_cmd(
     results: Path = typer.Argument(..., help="Results database of a finished `meshadv sweep`."),
-    limit: Optional[int] = typer.Option(None, help="At most this many adversarial meshes."),
+    limit: Optional[int] = typer.Option(None, help="At most this many adversarial meshes in this run."),
     spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
     max_depth: int = typer.Option(8, help="Path depth (>= 3 adds interreflection)."),
     experiment: str = typer.Option("controlled", help="Name of this transfer run in the database."),
@@ -139,19 +139,25 @@ def controlled_cmd(
     all_attacks: bool = typer.Option(False, "--all", help="Also transfer attacks that failed in meshadv."),
     variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
 ) -> None:
-    """Re-render RESULTS' adversarial meshes with Mitsuba under the same views and test the victims."""
+    """Re-render RESULTS' adversarial meshes with Mitsuba under the same views and test the victims (resumable)."""
     from meshadv.transfer.pipeline import cases_from_store, controlled_transfer
-    from meshadv.transfer.results import save_transfer_rows, transfer_report
+    from meshadv.transfer.results import load_transfer_rows, save_transfer_rows, transfer_report
 
     if not results.is_file():
         raise typer.BadParameter(f"{results} does not exist", param_hint="RESULTS")
-    cases = cases_from_store(results, limit=limit, only_successful=not all_attacks)
+    cases = cases_from_store(results, only_successful=not all_attacks)
     if not cases:
         typer.echo("no finished single-view attacks with an adversarial mesh in this database")
         raise typer.Exit(code=1)
-    rows = controlled_transfer(cases, spp=spp, max_depth=max_depth, variant=variant, image_dir=images)
-    save_transfer_rows(results, rows, experiment=experiment, kind="controlled")
-    typer.echo(transfer_report([{**r, "kind": "controlled"} for r in rows]))
+    done = {r["case_id"] for r in load_transfer_rows(results, experiment=experiment, kind="controlled")
+            if r.get("error") is None}
+    todo = [c for c in cases if c.case_id not in done][:limit]
+    typer.echo(f"{len(cases)} adversarial meshes, {len(cases) - len([c for c in cases if c.case_id not in done])} "
+               f"already transferred, transferring {len(todo)}")
+    for case in todo:  # one case at a time, saved at once: an interrupted run resumes where it stopped
+        rows = controlled_transfer([case], spp=spp, max_depth=max_depth, variant=variant, image_dir=images)
+        save_transfer_rows(results, rows, experiment=experiment, kind="controlled")
+    typer.echo(transfer_report(load_transfer_rows(results, experiment=experiment, kind="controlled")))
 
 
 def _save_blackbox(row: dict, db: Optional[Path], out: Optional[Path], experiment: str) -> None:

@@ -8,7 +8,7 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
                   or models = ["01", ...] (every class) or models = {chair = ["03"], ...} (per class)
                   builtin = [{name = "sphere", class = "bottle"}], files = [{path = "x.ply", class = "chair"}]
                   target_faces = 0 (uniform resampling, 0 = keep), max_faces = 20000
-    [render]      image_size = 224, configurations = 72, config_seed = 0, distance = [2.5, 3.0],
+    [render]      image_size = 224, configurations = 72, config_seed = 0, distance = [3.6, 4.4],
                   azimuth = [0, 360], elevation = [0, 30], viewing_angle = 30,
                   light_intensity = [0.4, 0.8], ambient = [0.3, 0.6], light_jitter = 30
     [victims]     names = ["efficientnet_lite0"] (required), weights = {densenet121 = "densenet121.pth"}
@@ -17,14 +17,16 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
     [attack.shape] / [attack.texture]   keyword arguments of ShapeAttack / TextureAttack (steps, lr, ...)
     [multiview]   enabled = false, view_counts = [5, 10, 15], azimuth_ranges = [[45, 60], [35, 70], [15, 75]],
                   eval_views = 20, types = ["shape", "texture"], classes = [...], targets = [...],
-                  elevation = 20, distance = 2.7
+                  elevation = 20, distance = 4.0
     [runner]      job = "meshadv.experiments.jobs:run_attack_job", max_attempts = 2, timeout = 0, workers = 0,
                   threads_per_job = 0, max_jobs_per_worker = 0
 
 Rendering configurations are drawn once from ``config_seed`` (so every mesh, victim and target sees the same
 configurations): camera distance, azimuth and elevation uniform in their ranges, one directional light from the
 camera side jittered by up to ``light_jitter`` degrees, light intensity and ambient uniform in their ranges. Each is a
-one-view ``ViewSet`` record (``meshadv.render.ViewSet.from_records``).
+one-view ``ViewSet`` record (``meshadv.render.ViewSet.from_records``). Meshes are normalised into ``[-1, 1]``, so
+with a 30° field of view the camera must be about ``1 / tan(15°) + 1 ≈ 4.7`` away to keep the whole object in the
+frame; the default distances (3.6 to 4.4) show it nearly whole and large.
 
 Jobs (one attack each) are the product mesh x configuration x victim x perturbation type x target x seed (Table 1),
 plus, when ``[multiview]`` is enabled, mesh x victim x type x target x (view count, azimuth range) x seed attacks
@@ -153,7 +155,7 @@ def parse_config(raw: Dict[str, Any], *, base_dir: Union[str, Path] = ".", text:
         raise ValueError(f"render.image_size must be >= 8, got {render['image_size']}")
     if int(render["configurations"]) < 1:
         raise ValueError(f"render.configurations must be >= 1, got {render['configurations']}")
-    for key, default in (("distance", (2.5, 3.0)), ("azimuth", (0.0, 360.0)), ("elevation", (0.0, 30.0)),
+    for key, default in (("distance", (3.6, 4.4)), ("azimuth", (0.0, 360.0)), ("elevation", (0.0, 30.0)),
                          ("light_intensity", (0.4, 0.8)), ("ambient", (0.3, 0.6))):
         render[key] = _range(render, key, default)
 
@@ -175,7 +177,7 @@ def parse_config(raw: Dict[str, Any], *, base_dir: Union[str, Path] = ".", text:
 
     multiview = {"enabled": False, "view_counts": [5, 10, 15], "azimuth_ranges": [[45, 60], [35, 70], [15, 75]],
                  "eval_views": 20, "types": list(_TYPES), "classes": None, "targets": None, "elevation": 20.0,
-                 "distance": 2.7, **raw.get("multiview", {})}
+                 "distance": 4.0, **raw.get("multiview", {})}
     if len(multiview["view_counts"]) != len(multiview["azimuth_ranges"]):
         raise ValueError("multiview.view_counts and multiview.azimuth_ranges must have the same length")
     for rng in multiview["azimuth_ranges"]:

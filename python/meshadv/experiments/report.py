@@ -4,6 +4,8 @@ Output folder layout::
 
     README.md                  summary: counts, Table 1, Table 2, figure list, correlations, definitions
     table1.md / table1.csv     best / average / worst case per victim and perturbation type
+    table1_benign_correct.*    the same over instances whose benign render was classified correctly (written when
+                               the sweep also attacked misclassified ones, benign_correct_only = false)
     table2.md / table2.csv     multi-view robustness (when the sweep had multi-view jobs)
     figures/grid_<victim>_<type>.png        classes x classes renders (diagonal benign)
     figures/flow_heatmap_<victim>.png       flow magnitude, rendered and canonical views
@@ -35,8 +37,9 @@ seed) attacked towards every other class. Best case: the instance succeeds when 
 smallest distance among its successful targets. Worst case: the instance succeeds only when every target succeeds;
 distance = the largest distance among them. Average case: a random target, i.e. the mean over instances of the
 fraction of successful targets; distance = the mean over all successful attacks. Mean distances are over successful
-instances / attacks. Distance: Laplacian loss (shape), face-colour RMSE (texture). Instances whose benign render was not
-classified as their class are not attacked (as in the paper)."""
+instances / attacks. Distance: Laplacian loss (shape), face-colour RMSE (texture). The paper attacks only instances whose
+benign render the victim classifies correctly (sweep option benign_correct_only = true); when a sweep attacked every
+instance, the table restricted to those is given too."""
 
 
 def environment_versions() -> Dict[str, str]:
@@ -197,9 +200,11 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         out.counts = store.counts()
     done = [r for r in rows if r.state == "done" and r.record is not None]
     t1 = table1(attack_rows(done))
+    t1_correct = table1(attack_rows(done, benign_correct_only=True))
+    mixed = any(r.record.get("benign_correct") is False and not r.record.get("skipped") for r in done)
     t2 = table2(done)
-    for name, table in (("table1", t1), ("table2", t2)):
-        if not table and name == "table2":
+    for name, table in (("table1", t1), ("table1_benign_correct", t1_correct), ("table2", t2)):
+        if not table and name != "table1" or name == "table1_benign_correct" and not mixed:
             continue
         for ext, text in (("md", to_markdown(table)), ("csv", to_csv(table))):
             path = out.out_dir / f"{name}.{ext}"
@@ -223,7 +228,7 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
     settings = {"database": str(db.resolve()), "meta": meta, "report_versions": environment_versions(),
                 "counts": out.counts, "correlations": out.correlations}
     (out.out_dir / "settings.json").write_text(json.dumps(settings, indent=2, sort_keys=True), encoding="utf-8")
-    _write_readme(out, t1, t2, meta, _run_stats(done))
+    _write_readme(out, t1, t1_correct if mixed else None, t2, meta, _run_stats(done))
     return out
 
 
@@ -249,7 +254,8 @@ def _run_stats(done: List[JobRow]) -> List[str]:
     return lines
 
 
-def _write_readme(out: ReportOutput, t1: List[Any], t2: List[Any], meta: Dict[str, Any], stats: List[str]) -> None:
+def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[Any]], t2: List[Any],
+                  meta: Dict[str, Any], stats: List[str]) -> None:
     c = out.counts
     lines = [f"# Results: {meta.get('name', 'sweep')}", "",
              f"Jobs: {c.get('total', 0)} total, {c.get('done', 0)} done ({c.get('successes', 0)} successful), "
@@ -258,6 +264,10 @@ def _write_readme(out: ReportOutput, t1: List[Any], t2: List[Any], meta: Dict[st
         lines += ["Command: `" + meta["command"] + "`", ""]
     lines += stats + [""] if stats else []
     lines += ["## Table 1: best / average / worst case", "", to_markdown(t1), CASE_DEFINITIONS, ""]
+    if t1_correct is not None:
+        lines += ["### Table 1, benign-correct instances only (the paper's protocol)", "",
+                  "Only the instances whose benign render the victim classified as their class:", "",
+                  to_markdown(t1_correct)]
     if t2:
         lines += ["## Table 2: multi-view robustness (success on unseen views)", "", to_markdown(t2)]
     if out.figures:

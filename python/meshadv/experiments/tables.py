@@ -107,17 +107,20 @@ def _mean(values: Sequence[float]) -> float:
     return sum(values) / len(values) if values else math.nan
 
 
-def attack_rows(jobs: Iterable[Any]) -> List[AttackRow]:
+def attack_rows(jobs: Iterable[Any], *, benign_correct_only: bool = False) -> List[AttackRow]:
     """Flatten finished single-view jobs (``JobRow`` objects or ``{"spec", "record"}`` dicts) into :class:`AttackRow`.
 
     Jobs that are not done, multi-view jobs, and jobs whose record says ``skipped`` (e.g. the benign render was not
-    classified as its class) are left out.
+    classified as its class) are left out; with ``benign_correct_only`` also those whose record says
+    ``benign_correct: false`` (the paper's protocol when the sweep attacked every configuration).
     """
     out = []
     for job in jobs:
         spec = job["spec"] if isinstance(job, dict) else job.spec
         record = job["record"] if isinstance(job, dict) else job.record
         if record is None or spec.get("kind", "single") != "single" or record.get("skipped"):
+            continue
+        if benign_correct_only and record.get("benign_correct") is False:
             continue
         ptype = spec["perturbation"]
         mesh = spec["mesh"]

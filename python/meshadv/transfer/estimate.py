@@ -18,7 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from meshadv.render import Camera, Lights, render, render_silhouette
+from meshadv.render import Camera, Lights, render, render_silhouette, shade
 
 
 def _as_mask(mask: Any, name: str = "mask") -> torch.Tensor:
@@ -231,7 +231,8 @@ def estimate_lights(
     """Estimate ``num_lights`` directional lights and an ambient colour from a photo of a known object.
 
     Minimises the masked error ``mean(M * (R(S; P, L) - I')^2)`` with Adam. Light colours and the ambient are kept
-    non-negative (softplus); the initial directions are spread over the hemisphere facing the camera.
+    non-negative (softplus); the initial directions are spread over the hemisphere facing the camera. The mesh is
+    rasterized once (camera and geometry are fixed) and only the shading is recomputed per step.
 
     Args:
         image: (3, H, W) or (H, W, 3) photo in [0, 1] (array or tensor).
@@ -278,7 +279,6 @@ def estimate_lights(
     raw_ambient = torch.full((3,), inv_softplus(0.3), requires_grad=True)
     params = [raw_ambient] + ([dirs, raw_colors] if num_lights else [])
     opt = torch.optim.Adam(params, lr=lr)
-    denom = m.sum() * 3.0
     best_loss, best = float("inf"), None
 
     def make_lights() -> Lights:
@@ -286,11 +286,20 @@ def estimate_lights(
         c = torch.nn.functional.softplus(raw_colors) if num_lights else torch.zeros(0, 3)
         return Lights(d, c, torch.nn.functional.softplus(raw_ambient))
 
+    # Geometry and camera are fixed: rasterize once, then each step only re-shades the faces (exactly what render()
+    # computes at antialias 1: the pixel takes the shaded colour of the face drawn there).
+    with torch.no_grad():
+        face_index = render(verts, faces_t, colors, camera, make_lights().detach(), size).face_index[0]
+    covered = face_index >= 0
+    weight = (m * covered).reshape(-1)
+    pix_faces = face_index.reshape(-1).clamp_min(0)
+    target = img.reshape(3, -1).T
+    denom = weight.sum().clamp_min(1.0) * 3.0
     for _ in range(steps + 1):
         opt.zero_grad()
         lights = make_lights()
-        out = render(verts, faces_t, colors, camera, lights, size, background=(0.0, 0.0, 0.0))
-        loss = ((out.image[0] - img) ** 2 * m).sum() / denom
+        shaded = shade(verts, faces_t, colors, lights, camera, two_sided=True)[0]
+        loss = (((shaded[pix_faces] - target) ** 2).sum(dim=1) * weight).sum() / denom
         if float(loss.detach()) < best_loss:
             best_loss = float(loss.detach())
             best = lights.detach()

@@ -394,6 +394,7 @@ def estimate_parameters(
     num_lights: int = 5,
     camera_steps: int = 60,
     light_steps: int = 120,
+    camera_size: int = 128,
     variant: Optional[str] = None,
     timeout: float = 1800.0,
 ) -> Estimation:
@@ -407,6 +408,7 @@ def estimate_parameters(
         num_lights: directional lights to estimate.
         camera_steps: Adam steps of the camera estimation.
         light_steps: Adam steps of the light estimation.
+        camera_size: the mask is average-pooled to at most this size for the camera fit.
         variant: Mitsuba variant.
         timeout: seconds per Mitsuba call.
 
@@ -424,7 +426,10 @@ def estimate_parameters(
     verts = torch.as_tensor(known.vertices, dtype=torch.float32).detach()
     faces = torch.as_tensor(known.faces, dtype=torch.int64)
     colors = torch.as_tensor(known.face_colors, dtype=torch.float32).detach()
-    cam_est = estimate_camera(mask, verts, faces, viewing_angle=hidden.viewing_angle, steps=camera_steps)
+    cam_mask = mask
+    if mask.shape[-1] > camera_size:  # the silhouette fit does not need full resolution (NDC is size-independent)
+        cam_mask = torch.nn.functional.adaptive_avg_pool2d(mask[None, None], camera_size)[0, 0]
+    cam_est = estimate_camera(cam_mask, verts, faces, viewing_angle=hidden.viewing_angle, steps=camera_steps)
     camera = cam_est.camera()
     light_est = estimate_lights(photo, mask, verts, faces, colors, camera, num_lights=num_lights, steps=light_steps)
     errors = cam_est.errors(hidden.camera["distance"], hidden.camera["azimuth"], hidden.camera["elevation"])

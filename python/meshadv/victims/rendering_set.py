@@ -5,8 +5,8 @@ class's meshes in the given order) and a NumPy generator seeded with ``SeedSeque
 samples, in this order:
 
 - azimuth ``U[0, 360)``, elevation ``U[0, 90]`` degrees (configurable);
-- a distance that frames the object: the mesh (normalised into ``[-1, 1]``, bounding-sphere radius ``r``) covers a
-  fraction ``fill ~ U[fill_range]`` of the half field of view, ``d = r / sin(atan(fill * tan(fov / 2)))``;
+- a distance that frames the object: the mesh (normalised into ``[-1, 1]``) is placed so that its widest projected
+  half-extent is a fraction ``fill ~ U[fill_range]`` of the image (exact perspective framing, :func:`frame_distance`);
 - one directional light within ``light_max_angle`` (60 degrees) of the view direction (uniform on that spherical cap
   around the object-to-camera direction), grey intensity ``U[light_range]``, plus grey ambient ``U[ambient_range]``.
 
@@ -21,7 +21,7 @@ Defaults and why: a white background (the NMR/MeshAdv renderings' choice; ImageN
 aircraft are often product shots on white, and white keeps the silhouette, the strongest cue for untextured shapes,
 at full contrast), ambient ``U[0.45, 0.65]`` plus a light ``U[0.35, 0.55]`` near the view direction so that faces
 seen by the camera are lit (reflectance 0.7 x (ambient + light) stays mostly below saturation) and shading shows
-the 3-D shape, and ``fill`` ``U[0.6, 0.9]`` so the object fills most of the frame as in ImageNet photos. The pass rates
+the 3-D shape, and ``fill`` ``U[0.7, 0.95]`` so the object fills most of the frame as in ImageNet photos. The pass rates
 per class and victim are stored in the file (``classes[c]["pass_rate"]``) and printed by :func:`pass_rate_table`.
 
 File format (JSON, ``format = "meshadv-rendering-set"``, ``version = 1``)::
@@ -59,7 +59,10 @@ __all__ = [
     "VERSION",
     "RenderingSetConfig",
     "build_rendering_set",
+    "candidate_seed",
+    "frame_distance",
     "load_rendering_set",
+    "pascal3d_mesh_paths",
     "pass_rate_table",
     "record_views",
     "sample_view",
@@ -78,7 +81,7 @@ class RenderingSetConfig:
     Attributes:
         azimuth_range: degrees.
         elevation_range: degrees.
-        fill_range: fraction of the half field of view covered by the mesh's bounding sphere.
+        fill_range: the mesh's widest projected half-extent as a fraction of the half image (NDC), in ``(0, 1]``.
         light_max_angle: maximum angle in degrees between the light direction and the view direction.
         light_range: grey intensity of the directional light.
         ambient_range: grey ambient intensity.
@@ -93,7 +96,7 @@ class RenderingSetConfig:
 
     azimuth_range: tuple[float, float] = (0.0, 360.0)
     elevation_range: tuple[float, float] = (0.0, 90.0)
-    fill_range: tuple[float, float] = (0.6, 0.9)
+    fill_range: tuple[float, float] = (0.7, 0.95)
     light_max_angle: float = 60.0
     light_range: tuple[float, float] = (0.35, 0.55)
     ambient_range: tuple[float, float] = (0.45, 0.65)
@@ -137,12 +140,38 @@ def candidate_seed(seed: int, class_index: int, candidate: int) -> int:
     return int(np.random.SeedSequence([int(seed), int(class_index), int(candidate)]).generate_state(1)[0])
 
 
-def sample_view(rng: np.random.Generator, radius: float, config: RenderingSetConfig) -> dict[str, Any]:
+def frame_distance(vertices: np.ndarray, to_eye: np.ndarray, fill: float, viewing_angle: float) -> float:
+    """Camera distance at which the mesh's widest projected half-extent is exactly ``fill`` of the half view.
+
+    With the NMR look-at basis ``(x, y, z)`` of a camera on the unit direction ``to_eye`` (up = +Y), a vertex with view
+    coordinates ``(a, b, c)`` relative to the origin projects to ``a / ((d + c) tan(fov / 2))``, so the distance is
+    ``max_i(max(|a_i|, |b_i|) / (fill tan(fov / 2)) - c_i)`` (exact for the perspective camera).
+
+    Args:
+        vertices: ``(N, 3)`` world-space vertices (object centred at the origin).
+        to_eye: unit vector from the origin toward the camera.
+        fill: wanted half-extent in NDC, in ``(0, 1]``.
+        viewing_angle: field of view in degrees.
+    """
+    z_axis = -to_eye
+    up = np.array([0.0, 1.0, 0.0])
+    x_axis = np.cross(up, z_axis)
+    if np.linalg.norm(x_axis) < 1e-9:  # looking straight down or up: any horizontal x works
+        x_axis = np.array([1.0, 0.0, 0.0])
+    x_axis /= np.linalg.norm(x_axis)
+    y_axis = np.cross(z_axis, x_axis)
+    a, b, c = vertices @ x_axis, vertices @ y_axis, vertices @ z_axis
+    tan_half = math.tan(math.radians(viewing_angle) / 2.0)
+    distance = float(np.max(np.maximum(np.abs(a), np.abs(b)) / (fill * tan_half) - c))
+    return max(distance, float(np.max(-c)) + 0.5)  # keep every vertex well beyond the near plane
+
+
+def sample_view(rng: np.random.Generator, vertices: np.ndarray, config: RenderingSetConfig) -> dict[str, Any]:
     """Draw one camera + lighting configuration as a ViewSet record (see the module docstring for the law).
 
     Args:
         rng: the candidate's generator.
-        radius: bounding-sphere radius of the (normalised) mesh.
+        vertices: ``(N, 3)`` world-space vertices of the (normalised, centred) mesh, for framing.
         config: sampling ranges.
 
     Returns:
@@ -151,10 +180,9 @@ def sample_view(rng: np.random.Generator, radius: float, config: RenderingSetCon
     azimuth = float(rng.uniform(*config.azimuth_range))
     elevation = float(rng.uniform(*config.elevation_range))
     fill = float(rng.uniform(*config.fill_range))
-    half_fov = math.radians(config.viewing_angle) / 2.0
-    distance = radius / math.sin(math.atan(fill * math.tan(half_fov)))
     az, el = math.radians(azimuth), math.radians(elevation)
     to_eye = np.array([math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)])
+    distance = frame_distance(vertices, to_eye, fill, config.viewing_angle)
     # uniform direction on the cap of half-angle light_max_angle around to_eye
     cos_max = math.cos(math.radians(config.light_max_angle))
     cos_t = float(rng.uniform(cos_max, 1.0))
@@ -288,6 +316,29 @@ def _new_doc(config_json: dict[str, Any], classes: Sequence[str], victim_names: 
     }
 
 
+def pascal3d_mesh_paths(
+    root: Optional[PathLike] = None, classes: Optional[Sequence[str]] = None
+) -> dict[str, list[Path]]:
+    """Mesh files per class of a PASCAL3D+ folder, ready for :func:`build_rendering_set`.
+
+    Args:
+        root: a PASCAL3D+ folder (``<root>/<class>/NN.ply`` or a release with ``CAD/``); default the shared data's.
+        classes: the classes to list; default all of :data:`~meshadv.victims.labels.PASCAL3D_CLASSES` present.
+
+    Raises:
+        FileNotFoundError: no such folder (or no shared data).
+        ValueError: an unknown class.
+    """
+    from meshadv.mesh import Pascal3DCatalog
+
+    catalog = Pascal3DCatalog.shared() if root is None else Pascal3DCatalog(root)
+    wanted = list(classes) if classes is not None else [c for c in PASCAL3D_CLASSES if c in catalog.classes()]
+    for cls in wanted:
+        if cls not in PASCAL3D_CLASSES:
+            raise ValueError(f"classes: unknown class {cls!r}; classes: {', '.join(PASCAL3D_CLASSES)}")
+    return {cls: list(catalog.models(cls)) for cls in wanted}
+
+
 def build_rendering_set(
     mesh_paths_by_class: Mapping[str, Sequence[PathLike]],
     victims: Sequence[Union[str, Victim]],
@@ -367,11 +418,11 @@ def build_rendering_set(
     imagenet_names = imagenet_class_names()
     judges = [_Judge(v, config.detector_threshold, imagenet_names) for v in resolved]
 
-    def load_class_meshes(paths: Sequence[str]) -> list[tuple[Any, float]]:
+    def load_class_meshes(paths: Sequence[str]) -> list[tuple[Any, np.ndarray]]:
         loaded = []
         for path in paths:
             mesh, _ = normalize_mesh(load_mesh(path), z_up=config.z_up)
-            loaded.append((mesh, float(mesh.vertices.norm(dim=1).max())))
+            loaded.append((mesh, mesh.vertices.detach().double().numpy()))
         return loaded
 
     for class_index, cls in enumerate(PASCAL3D_CLASSES):
@@ -391,9 +442,9 @@ def build_rendering_set(
                 by_mesh.setdefault(cand % len(paths), []).append(cand)
             results: dict[int, tuple[dict[str, Any], list[bool], dict[str, str]]] = {}
             for mesh_index, cands in by_mesh.items():
-                mesh, radius = class_meshes[mesh_index]
+                mesh, verts_np = class_meshes[mesh_index]
                 views = [
-                    sample_view(np.random.default_rng(candidate_seed(seed, class_index, c)), radius, config)
+                    sample_view(np.random.default_rng(candidate_seed(seed, class_index, c)), verts_np, config)
                     for c in cands
                 ]
                 view_set = ViewSet.from_records(views)
