@@ -211,3 +211,14 @@ def test_flow_figures_validate_and_draw(tmp_path: Path) -> None:
         flow_heatmaps(v, va, f, tmp_path / "x.png", view=(0.0, 0.0), renderer="opengl")
     with pytest.raises(ValueError, match="region"):
         flow_quiver(v, va, f, tmp_path / "x.png", region=0)
+
+
+def test_view_record_follows_the_camera_convention() -> None:
+    from meshadv.experiments.config import view_record
+
+    rec = view_record(4.0, 90.0, 0.0)
+    # eye = d (cos el sin az, sin el, -cos el cos az): azimuth 90 puts the camera on +x; the default light is there too
+    assert rec["light_directions"][0] == pytest.approx([1.0, 0.0, 0.0], abs=1e-6)
+    rec = view_record(4.0, 0.0, 90.0, light_azimuth=180.0, light_elevation=0.0)
+    assert rec["light_directions"][0] == pytest.approx([0.0, 0.0, 1.0], abs=1e-6)
+    assert rec["distance"] == 4.0 and rec["elevation"] == 90.0

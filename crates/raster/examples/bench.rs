@@ -1,11 +1,15 @@
 //! Quick timing of forward + backward on a ~10k-face sphere at 299 x 299, one thread.
 //!
-//! `cargo run --release -p meshadv-raster --example bench [threads]`
+//! `cargo run --release -p meshadv-raster --example bench [threads] [fwd|bwd]` (the mode runs only that pass, for
+//! `perf stat`).
 
 use std::time::Instant;
 
 use meshadv_raster::camera::{project, world_to_view, SphericalCamera};
-use meshadv_raster::{rasterize, rasterize_backward, with_threads, BackwardInputs, FaceAttrs, RasterParams, ScreenMesh};
+use meshadv_raster::{
+    rasterize, rasterize_backward, with_threads, BackwardInputs, FaceAttrs, RasterParams,
+    ScreenMesh,
+};
 
 /// UV sphere with `rings * segs * 2` faces (minus the pole duplicates).
 fn sphere(rings: usize, segs: usize) -> (Vec<f32>, Vec<i32>) {
@@ -31,20 +35,53 @@ fn sphere(rings: usize, segs: usize) -> (Vec<f32>, Vec<i32>) {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let threads: usize = std::env::args().nth(1).map(|s| s.parse()).transpose()?.unwrap_or(1);
+    let threads: usize = std::env::args()
+        .nth(1)
+        .map(|s| s.parse())
+        .transpose()?
+        .unwrap_or(1);
     let (verts, faces) = sphere(50, 100);
     let m = faces.len() / 3;
-    let cam = SphericalCamera { distance: 2.732, elevation: 30.0, azimuth: 45.0, ..Default::default() };
+    let cam = SphericalCamera {
+        distance: 2.732,
+        elevation: 30.0,
+        azimuth: 45.0,
+        ..Default::default()
+    };
     let view = world_to_view(&verts, &cam.view()?);
     let screen = project(&view, 30.0, false, 1.0);
     let mesh = ScreenMesh::new(&screen, &faces, 1, verts.len() / 3)?;
     let c = 4;
-    let attrs: Vec<f32> = (0..m * c).map(|i| ((i * 7919) % 1000) as f32 / 1000.0).collect();
+    let attrs: Vec<f32> = (0..m * c)
+        .map(|i| ((i * 7919) % 1000) as f32 / 1000.0)
+        .collect();
     let bg = [1.0f32, 1.0, 1.0, 0.0];
-    let fa = FaceAttrs { values: &attrs, background: &bg, channels: c };
+    let fa = FaceAttrs {
+        values: &attrs,
+        background: &bg,
+        channels: c,
+    };
     let p = RasterParams::new(299, 299, 0.1, 100.0);
-    let grad: Vec<f32> = (0..299 * 299 * c).map(|i| ((i * 104729) % 2001) as f32 / 1000.0 - 1.0).collect();
+    let grad: Vec<f32> = (0..299 * 299 * c)
+        .map(|i| ((i * 104729) % 2001) as f32 / 1000.0 - 1.0)
+        .collect();
     let reps = 20;
+    let mode = std::env::args().nth(2).unwrap_or_default();
+    if !mode.is_empty() {
+        return with_threads(threads, || -> Result<(), meshadv_raster::RasterError> {
+            let out = rasterize(&mesh, &fa, &p)?;
+            let inputs = BackwardInputs { face_index: &out.face_index, image: &out.image, grad_image: &grad };
+            for _ in 0..reps {
+                if mode == "fwd" {
+                    std::hint::black_box(rasterize(&mesh, &fa, &p)?);
+                } else {
+                    std::hint::black_box(rasterize_backward(&mesh, &fa, &p, &inputs)?);
+                }
+            }
+            Ok(())
+        })?
+        .map_err(Into::into);
+    }
     with_threads(threads, || -> Result<(), meshadv_raster::RasterError> {
         let mut tf = 0.0;
         let mut tb = 0.0;
@@ -52,7 +89,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let t0 = Instant::now();
             let out = rasterize(&mesh, &fa, &p)?;
             let t1 = Instant::now();
-            let inputs = BackwardInputs { face_index: &out.face_index, image: &out.image, grad_image: &grad };
+            let inputs = BackwardInputs {
+                face_index: &out.face_index,
+                image: &out.image,
+                grad_image: &grad,
+            };
             let g = rasterize_backward(&mesh, &fa, &p, &inputs)?;
             let t2 = Instant::now();
             std::hint::black_box(&g);
@@ -63,12 +104,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         for _ in 0..reps {
             std::hint::black_box(meshadv_raster::rasterize_fragments(&mesh, &p)?);
         }
-        println!("fragments only: {:.2} ms", 1e3 * t0.elapsed().as_secs_f64() / reps as f64);
+        println!(
+            "fragments only: {:.2} ms",
+            1e3 * t0.elapsed().as_secs_f64() / reps as f64
+        );
         let t0 = Instant::now();
         for _ in 0..reps {
             std::hint::black_box(meshadv_raster::setup::setup_faces(&mesh, 0, &p));
         }
-        println!("setup only: {:.2} ms", 1e3 * t0.elapsed().as_secs_f64() / reps as f64);
+        println!(
+            "setup only: {:.2} ms",
+            1e3 * t0.elapsed().as_secs_f64() / reps as f64
+        );
         println!(
             "{m} faces, 299x299, {threads} thread(s): forward {:.2} ms, backward {:.2} ms",
             1e3 * tf / reps as f64,

@@ -90,12 +90,13 @@ impl BackwardInputs<'_> {
 struct Lines {
     /// Face index per pixel.
     face: Vec<i32>,
-    /// Depth of the drawn face per pixel (recomputed from the positions, as in the forward); +inf on background.
-    depth: Vec<f64>,
+    /// Depth-test key of the drawn face per pixel (larger = nearer): `1/z` in perspective, `-z` in orthographic,
+    /// with `z` recomputed from the positions as in the forward; `-inf` on background.
+    key: Vec<f64>,
     /// `sum_c G[P, c] * I[P, c]`.
     gi: Vec<f64>,
     /// Cotangent, `C` per pixel.
-    grad: Vec<f32>,
+    grad: Vec<f64>,
     /// Image, `C` per pixel.
     image: Vec<f32>,
     /// Line length.
@@ -115,8 +116,9 @@ impl Lines {
     ) -> Lines {
         let (h, w) = (params.height, params.width);
         let n = h * w;
-        let (mut face, mut depth, mut gi) = (vec![-1i32; n], vec![f64::INFINITY; n], vec![0f64; n]);
-        let (mut g, mut im) = (vec![0f32; n * c], vec![0f32; n * c]);
+        let (mut face, mut key, mut gi) =
+            (vec![-1i32; n], vec![f64::NEG_INFINITY; n], vec![0f64; n]);
+        let (mut g, mut im) = (vec![0f64; n * c], vec![0f32; n * c]);
         for i in 0..h {
             for j in 0..w {
                 let p = i * w + j;
@@ -124,18 +126,32 @@ impl Lines {
                 let f = face_index[p];
                 face[q] = f;
                 if f >= 0 {
-                    depth[q] = setups[f as usize].depth_at(i as i32, j as i32).unwrap_or(f64::INFINITY);
+                    let s = &setups[f as usize];
+                    key[q] = match s.depth_at(i as i32, j as i32) {
+                        Some(z) if s.ortho => -z,
+                        Some(z) => 1.0 / z,
+                        None => f64::NEG_INFINITY,
+                    };
                 }
                 let mut acc = 0f64;
                 for k in 0..c {
                     acc += grad[p * c + k] as f64 * image[p * c + k] as f64;
                 }
                 gi[q] = acc;
-                g[q * c..(q + 1) * c].copy_from_slice(&grad[p * c..(p + 1) * c]);
+                for k in 0..c {
+                    g[q * c + k] = grad[p * c + k] as f64;
+                }
                 im[q * c..(q + 1) * c].copy_from_slice(&image[p * c..(p + 1) * c]);
             }
         }
-        Lines { face, depth, gi, grad: g, image: im, len: if transpose { h } else { w } }
+        Lines {
+            face,
+            key,
+            gi,
+            grad: g,
+            image: im,
+            len: if transpose { h } else { w },
+        }
     }
 }
 
@@ -157,12 +173,28 @@ enum Axis {
 }
 
 impl Ctx<'_> {
-    /// NMR gradient partial of face `f`: `[corner][x or y]`.
+    /// NMR gradient partial of face `f`: `[corner][x or y]`, dispatching to a channel-count specialisation.
     fn face_grad(&self, f: usize) -> [[f64; 2]; 3] {
+        match self.channels {
+            1 => self.face_grad_c::<1>(f),
+            3 => self.face_grad_c::<3>(f),
+            4 => self.face_grad_c::<4>(f),
+            _ => self.face_grad_c::<0>(f),
+        }
+    }
+
+    /// [`Ctx::face_grad`] for `C` channels (`C = 0`: read the count at run time).
+    fn face_grad_c<const C: usize>(&self, f: usize) -> [[f64; 2]; 3] {
         let s = &self.setups[f];
         let (h, w) = (self.params.height as i64, self.params.width as i64);
+        // Depth window on the interpolated quantity: 1/z in [1/far, 1/near] (perspective) or z in [near, far].
         let (near, far) = (self.params.near, self.params.far);
-        let c = self.channels;
+        let (lo_key, hi_key) = if s.ortho {
+            (near, far)
+        } else {
+            (1.0 / far, 1.0 / near)
+        };
+        let c = if C == 0 { self.channels } else { C };
         let fi = f as i32;
         let attrs_f = &self.attrs[f * c..(f + 1) * c];
         let mut g = [[0.0f64; 2]; 3];
@@ -224,38 +256,47 @@ impl Ctx<'_> {
                     // OUT: pixels beyond the edge that the face would cover.
                     if ln.face[base + d_in as usize] == fi {
                         let pl0 = pl_line * d0f + s.plane[2];
-                        let mut d = d_out;
-                        while d >= 0 && d < len {
-                            let px = base + d as usize;
-                            let fp = ln.face[px];
-                            d += dir;
-                            if fp == fi {
-                                continue;
-                            }
-                            let val = pl0 + pl_step * (d - dir) as f64;
-                            let zf = if s.ortho {
-                                val
-                            } else if val > 0.0 {
-                                1.0 / val
-                            } else {
-                                continue;
-                            };
-                            if !(zf >= near && zf <= far) {
-                                continue;
-                            }
-                            let zp = ln.depth[px];
-                            if !(zf < zp || (zf == zp && fi < fp)) {
-                                continue;
-                            }
-                            let gp = &ln.grad[px * c..(px + 1) * c];
-                            let mut ga = 0f64;
-                            for k in 0..c {
-                                ga += gp[k] as f64 * attrs_f[k] as f64;
-                            }
-                            let delta = ga - ln.gi[px];
-                            if delta < 0.0 {
-                                contribute(&mut g, d - dir, delta);
-                            }
+                        let eps_of = |k: Option<f64>| {
+                            k.map_or(0.0, |k| if k * dir as f64 > 0.0 { EPS } else { -EPS })
+                        };
+                        let (eps_a, eps_c) = (eps_of(ka), eps_of(kc));
+                        let (start, end) = if dir > 0 {
+                            (d_out as usize, len as usize)
+                        } else {
+                            (0, d_out as usize + 1)
+                        };
+                        let (lo_px, hi_px) = (base + start, base + end);
+                        let it = ln.face[lo_px..hi_px]
+                            .iter()
+                            .zip(&ln.key[lo_px..hi_px])
+                            .zip(&ln.gi[lo_px..hi_px])
+                            .zip(ln.grad[lo_px * c..hi_px * c].chunks_exact(c))
+                            .enumerate();
+                        let sweep = OutSweep {
+                            fi,
+                            start,
+                            pl0,
+                            pl_step,
+                            lo_key,
+                            hi_key,
+                            ortho: s.ortho,
+                            cross,
+                            ka: ka.unwrap_or(0.0),
+                            kc: kc.unwrap_or(0.0),
+                            eps_a,
+                            eps_c,
+                            attrs: attrs_f,
+                        };
+                        let (sa, sc) = if dir > 0 {
+                            sweep.run(it)
+                        } else {
+                            sweep.run(it.rev())
+                        };
+                        if ka.is_some() {
+                            g[a][comp] += sa;
+                        }
+                        if kc.is_some() {
+                            g[cc][comp] += sc;
                         }
                     }
                     // IN: pixels of the face that would be uncovered.
@@ -266,7 +307,11 @@ impl Ctx<'_> {
                     } else {
                         qo
                     };
-                    let limit = if dir > 0 { cross2.ceil() } else { cross2.floor() };
+                    let limit = if dir > 0 {
+                        cross2.ceil()
+                    } else {
+                        cross2.floor()
+                    };
                     let from = d_in_f.min(limit).max(0.0) as i64;
                     let to = d_in_f.max(limit).min((len - 1) as f64) as i64;
                     let out_px = base + d_out as usize;
@@ -279,7 +324,7 @@ impl Ctx<'_> {
                         let gp = &ln.grad[px * c..(px + 1) * c];
                         let mut go = 0f64;
                         for k in 0..c {
-                            go += gp[k] as f64 * out_color[k] as f64;
+                            go += gp[k] * out_color[k] as f64;
                         }
                         let delta = go - ln.gi[px];
                         if delta < 0.0 {
@@ -290,6 +335,60 @@ impl Ctx<'_> {
             }
         }
         g
+    }
+}
+
+/// One OUT sweep along a line (see the module docs), with local accumulators for the two edge endpoints.
+struct OutSweep<'a> {
+    fi: i32,
+    start: usize,
+    pl0: f64,
+    pl_step: f64,
+    lo_key: f64,
+    hi_key: f64,
+    ortho: bool,
+    cross: f64,
+    ka: f64,
+    kc: f64,
+    eps_a: f64,
+    eps_c: f64,
+    attrs: &'a [f32],
+}
+
+impl OutSweep<'_> {
+    /// Sums the contributions of the pixels produced by `it` (`(i, (((face, key), gi), grad))`, `d = start + i`),
+    /// in iteration order. Returns the sums for endpoints `a` and `c` (meaningful only when their `k` is defined).
+    #[inline(always)]
+    fn run<'b>(
+        &self,
+        it: impl Iterator<Item = (usize, (((&'b i32, &'b f64), &'b f64), &'b [f64]))>,
+    ) -> (f64, f64) {
+        let (mut sa, mut sc) = (0f64, 0f64);
+        for (i, (((&fp, &kp), &gi), gp)) in it {
+            if fp == self.fi {
+                continue;
+            }
+            let d = (self.start + i) as f64;
+            let val = self.pl0 + self.pl_step * d;
+            if !(val >= self.lo_key && val <= self.hi_key) {
+                continue;
+            }
+            let kf = if self.ortho { -val } else { val };
+            if !(kf > kp || (kf == kp && self.fi < fp)) {
+                continue;
+            }
+            let mut ga = 0f64;
+            for (gk, ak) in gp.iter().zip(self.attrs) {
+                ga += gk * *ak as f64;
+            }
+            // Branch-free form of `if delta < 0 { contribute(d, delta) }`: beyond the edge `t = d - cross` has the
+            // sign of `dir` and is never 0, so `nudge(k t)` is `k t + sign(k dir) EPS`; a skipped pixel adds 0.
+            let m = (ga - gi).min(0.0);
+            let t = d - self.cross;
+            sa += m / (self.ka * t + self.eps_a);
+            sc += m / (self.kc * t + self.eps_c);
+        }
+        (sa, sc)
     }
 }
 

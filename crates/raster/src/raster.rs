@@ -159,7 +159,6 @@ pub fn rasterize(
     attrs.validate(mesh)?;
     let Fragments { face_index, depth } = rasterize_fragments(mesh, params)?;
     let c = attrs.channels;
-    let hw = params.pixels();
     let m = mesh.num_faces();
     let mut image = vec![0f32; face_index.len() * c];
     image
@@ -176,7 +175,6 @@ pub fn rasterize(
                 }
             }
         });
-    let _ = hw;
     Ok(RasterOutput {
         image,
         face_index,

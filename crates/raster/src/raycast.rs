@@ -25,6 +25,9 @@ use crate::error::{RasterError, Result};
 use crate::input::{RasterParams, ScreenMesh};
 use crate::raster::Fragments;
 
+/// Largest accepted view-space coordinate magnitude (the BVH boxes are float32 and padded).
+pub const MAX_COORD: f32 = 1e18;
+
 /// Projection of the primary rays.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RayCamera {
@@ -143,6 +146,19 @@ pub fn raycast(
     mesh_view.validate_as("verts_view")?;
     params.validate()?;
     camera.validate()?;
+    if let Some(index) = mesh_view
+        .verts_screen
+        .iter()
+        .position(|v| v.abs() > MAX_COORD)
+    {
+        return Err(RasterError::Parameter {
+            arg: "verts_view",
+            message: format!(
+                "coordinate {} at flat index {index} exceeds {MAX_COORD:e} (the BVH works in float32)",
+                mesh_view.verts_screen[index]
+            ),
+        });
+    }
     let (h, w) = (params.height, params.width);
     let hw = h * w;
     let ortho = camera.orthographic;

@@ -442,6 +442,8 @@ def estimate_parameters(
         true = Lights(torch.from_numpy(hidden.lights.directions), torch.from_numpy(hidden.lights.colors),
                       torch.from_numpy(hidden.lights.ambient))
         errors.update(light_errors(light_est.lights, true))
+        if hidden.environment is not None:  # the environment is the true ambient: no single colour to compare with
+            errors.pop("ambient_error", None)
     errors.update(estimated_azimuth=cam_est.azimuth, estimated_elevation=cam_est.elevation,
                   estimated_distance=cam_est.distance)
     return Estimation(ViewSet(camera, light_est.lights), errors, photo, mask)

@@ -1,6 +1,6 @@
 """The paper's two black-box transfer setups, built from the shared data.
 
-* :func:`outdoor_classifier_setup`: an object (the paper: an aeroplane) on the ground of an outdoor-like world lit by
+* :func:`outdoor_classifier_setup`: an object (the paper: an aeroplane) flying in an outdoor-like world lit by
   a procedural sky environment and a sun (a directional light), seen by a hidden camera.
 * :func:`indoor_detector_setup`: the indoor desk scene (``scenes/indoor/scene.xml``: desk, chair, the Stanford Bunny
   on the desk, floor, walls, an area light and a dim environment); the bunny is the attacked object.
@@ -18,8 +18,9 @@ import numpy as np
 from meshadv.transfer.pipeline import HiddenScene
 from meshadv.transfer.scene import MitsubaLights, outdoor_environment
 
-#: The hidden camera of the outdoor setup (degrees; distance in object units).
-OUTDOOR_CAMERA = {"distance": 2.8, "azimuth": 215.0, "elevation": 18.0}
+#: The hidden camera of the outdoor setup (degrees; distance in object units): slightly below a flying airliner,
+#: against the sky (EfficientNet-Lite0 says "airliner" with p = 0.8 for PASCAL3D+ aeroplane/01 here).
+OUTDOOR_CAMERA = {"distance": 3.2, "azimuth": 120.0, "elevation": -5.0}
 
 #: The hidden camera of the indoor setup: close to the scene file's own view, looking at the origin.
 INDOOR_CAMERA = {"distance": 3.4, "azimuth": 145.0, "elevation": 24.0}
@@ -41,8 +42,9 @@ def outdoor_classifier_setup(
     sun_azimuth: float = 160.0,
     sun_strength: float = 0.6,
     sky_scale: float = 0.7,
+    ground: bool = False,
 ) -> HiddenScene:
-    """An outdoor-like hidden world for a classifier: sky environment light, a sun and a ground plane.
+    """An outdoor-like hidden world for a classifier: sky environment light, a sun and optionally a ground plane.
 
     Args:
         mesh: the object (normalised into [-1, 1], Y up); the ground is placed just below it.
@@ -53,6 +55,8 @@ def outdoor_classifier_setup(
         sun_azimuth: degrees (meshadv's azimuth convention).
         sun_strength: the sun's colour in meshadv units (a white face facing it gets this much).
         sky_scale: multiplier of the sky's radiance.
+        ground: put a ground plane just below the object (False: the object flies; the environment's lower half
+            stands for the distant ground).
 
     Returns:
         The :class:`~meshadv.transfer.pipeline.HiddenScene`.
@@ -66,7 +70,7 @@ def outdoor_classifier_setup(
         lights=_sun(sun_elevation, sun_azimuth, sun_strength),
         environment=env,
         environment_scale=sky_scale,
-        ground=(ground_y, (0.35, 0.33, 0.3)),
+        ground=(ground_y, (0.35, 0.33, 0.3)) if ground else None,
         image_size=(image_size, image_size),
         spp=spp,
         max_depth=6,
