@@ -33,8 +33,14 @@ def _ranked_classes(mesh: Any, views: Any, victim: Any, image_size: int, count: 
     from meshadv.attacks.base import render_views
 
     with torch.no_grad():
-        images, _ = render_views(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views,
-                                 image_size=image_size, background=(1.0, 1.0, 1.0))
+        images, _ = render_views(
+            mesh.vertices.unsqueeze(0),
+            mesh.faces,
+            mesh.face_colors,
+            views,
+            image_size=image_size,
+            background=(1.0, 1.0, 1.0),
+        )
         probs = torch.softmax(victim(images), dim=1).mean(dim=0)
     return [int(i) for i in probs.topk(count + 1).indices.tolist()[1:]]
 
@@ -55,12 +61,19 @@ def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: A
     from meshadv.render import ViewSet
 
     mesh = normalize_mesh(load_mesh(require_shared_data(f"pascal3d/{mesh_name}.ply")), z_up=True)[0]
-    views = ViewSet.orbit(torch.linspace(-30.0, 30.0, args.views) if args.views > 1 else torch.tensor([0.0]),
-                          elevation=15.0, distance=4.0)
+    views = ViewSet.orbit(
+        torch.linspace(-30.0, 30.0, args.views) if args.views > 1 else torch.tensor([0.0]), elevation=15.0, distance=4.0
+    )
     targets = _ranked_classes(mesh, views, victim, args.image_size, args.targets)
     crits = [TargetedMisclassification(t) for t in targets]
-    record: Dict[str, Any] = {"mesh": mesh_name, "perturb": perturb, "faces": mesh.num_faces,
-                              "views": args.views, "image_size": args.image_size, "targets": targets}
+    record: Dict[str, Any] = {
+        "mesh": mesh_name,
+        "perturb": perturb,
+        "faces": mesh.num_faces,
+        "views": args.views,
+        "image_size": args.image_size,
+        "targets": targets,
+    }
 
     # throughput
     for label, crit in (("single", crits[:1]), ("batched", crits)):
@@ -86,8 +99,11 @@ def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: A
     t0 = time.perf_counter()
     result = attack(mesh, views, victim, crits)
     record.update(
-        sequential_time_s=seq_time, sequential_successes=seq_ok, sequential_first_success_s=seq_first,
-        batched_time_s=time.perf_counter() - t0, batched_successes=int(result.succeeded.sum()),
+        sequential_time_s=seq_time,
+        sequential_successes=seq_ok,
+        sequential_first_success_s=seq_first,
+        batched_time_s=time.perf_counter() - t0,
+        batched_successes=int(result.succeeded.sum()),
         batched_first_success_s=list(result.time_to_success),
     )
     return record
@@ -116,18 +132,23 @@ def main(argv: List[str]) -> int:
     command = "python benchmarks/attack_bench.py " + " ".join(argv)
     print(f"command: {command}")
     print(f"machine: {platform.processor() or platform.machine()}, torch threads {torch.get_num_threads()}")
-    print("| mesh | faces | perturb | views x px | steps/s 1 target | steps/s {T} targets | target-steps/s "
-          "1 vs {T} | time to all successes: sequential | batched |".replace("{T}", str(args.targets)))
+    print(
+        "| mesh | faces | perturb | views x px | steps/s 1 target | steps/s {T} targets | target-steps/s "
+        "1 vs {T} | time to all successes: sequential | batched |".replace("{T}", str(args.targets))
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for r in records:
-        print(f"| {r['mesh']} | {r['faces']} | {r['perturb']} | {r['views']} x {r['image_size']} | "
-              f"{r['single_steps_per_s']:.2f} | {r['batched_steps_per_s']:.2f} | "
-              f"{r['single_target_steps_per_s']:.2f} vs {r['batched_target_steps_per_s']:.2f} | "
-              f"{r['sequential_time_s']:.1f} s ({r['sequential_successes']}/{args.targets}) | "
-              f"{r['batched_time_s']:.1f} s ({r['batched_successes']}/{args.targets}) |")
+        print(
+            f"| {r['mesh']} | {r['faces']} | {r['perturb']} | {r['views']} x {r['image_size']} | "
+            f"{r['single_steps_per_s']:.2f} | {r['batched_steps_per_s']:.2f} | "
+            f"{r['single_target_steps_per_s']:.2f} vs {r['batched_target_steps_per_s']:.2f} | "
+            f"{r['sequential_time_s']:.1f} s ({r['sequential_successes']}/{args.targets}) | "
+            f"{r['batched_time_s']:.1f} s ({r['batched_successes']}/{args.targets}) |"
+        )
     if args.out is not None:
-        args.out.write_text(json.dumps({"command": command, "torch_threads": torch.get_num_threads(),
-                                        "records": records}, indent=2))
+        args.out.write_text(
+            json.dumps({"command": command, "torch_threads": torch.get_num_threads(), "records": records}, indent=2)
+        )
     return 0
 
 

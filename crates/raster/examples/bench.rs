@@ -70,7 +70,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if !mode.is_empty() {
         return with_threads(threads, || -> Result<(), meshadv_raster::RasterError> {
             let out = rasterize(&mesh, &fa, &p)?;
-            let inputs = BackwardInputs { face_index: &out.face_index, image: &out.image, grad_image: &grad };
+            let inputs = BackwardInputs {
+                face_index: &out.face_index,
+                image: &out.image,
+                grad_image: &grad,
+            };
             for _ in 0..reps {
                 if mode == "fwd" {
                     std::hint::black_box(rasterize(&mesh, &fa, &p)?);
