@@ -363,13 +363,14 @@ def main(argv: list[str] | None = None) -> int:
                     if time.monotonic() - started > args.max_minutes * 60:
                         skipped += 1
                         continue
-                    torch.set_num_threads(threads)
                     row = {"faces": int(inp["faces"].shape[0]), "size": size, "batch": batch, "threads": threads}
                     for mode, bw in (("fwd", False), ("bwd", True)):
+                        torch.set_num_threads(1)  # meshadv: only the Rust thread count varies
                         row[f"meshadv_{mode}"], _ = median_time(
                             meshadv_step(inp, size, threads, bw, cot), args.repeats, args.budget
                         )
                         if not args.no_torch and nf * batch <= args.torch_max_work:
+                            torch.set_num_threads(threads)
                             row[f"torch_{mode}"], _ = median_time(
                                 torch_step(inp, size, bw, cot), args.repeats, args.budget
                             )
@@ -400,7 +401,7 @@ def main(argv: list[str] | None = None) -> int:
         "Median wall time in ms. Mesh: bumpy UV sphere (about 1k/10k/100k faces) filling ~40% of the image, "
         "per-face colours, one directional light + ambient, views at azimuths spread over 0-315°.",
         "* **meshadv**: `meshadv.render.render` (PyTorch camera + Lambert shading, Rust rasterizer, RGB + alpha), "
-        "`num_threads` = threads.",
+        "Rust `num_threads` = thr, `torch.set_num_threads(1)` for the small PyTorch part.",
         "* **torch**: the same camera + shading with the vectorised pure-PyTorch rasterizer "
         "(benchmarks/torch_reference_rasterizer.py: same hard image model; backward = exact attribute gradient plus "
         "straight-through soft-coverage vertex gradient), `torch.set_num_threads(threads)`.",

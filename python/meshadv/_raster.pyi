@@ -1,6 +1,7 @@
 """Type stub of the native module ``meshadv._raster`` (Rust core, crates/pybridge).
 
-All arrays must be C-contiguous; float arrays are float32 and index arrays int32. Errors: ``ValueError`` (bad shape,
+All arrays must be C-contiguous numpy arrays; float arrays are float32 and index arrays int32 (``TypeError`` naming the
+argument otherwise; arrays are borrowed read-only, never copied). Errors: ``ValueError`` (bad shape,
 value, NaN/Inf, image size, near/far, all geometry behind the camera) and ``IndexError`` (face or face-index map entry
 out of range), each naming the argument; ``RuntimeError`` only for an internal error.
 """

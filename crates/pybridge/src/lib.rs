@@ -14,8 +14,10 @@ use meshadv_raster::{
     FaceAttrs, Projection, RasterError, RasterParams, ScreenMesh,
 };
 use numpy::ndarray::{Array, IxDyn};
-use numpy::{Element, IntoPyArray, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
-use pyo3::exceptions::{PyIndexError, PyRuntimeError, PyValueError};
+use numpy::{
+    Element, IntoPyArray, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods,
+};
+use pyo3::exceptions::{PyIndexError, PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 
 /// Local newtype so the core error converts into precise Python exceptions.
@@ -38,6 +40,29 @@ impl From<RasterError> for PyRasterError {
 }
 
 type PyArr<'py, T> = Bound<'py, PyArrayDyn<T>>;
+
+/// Casts `obj` to a read-only NumPy array of `T` (no copy), or raises `TypeError` naming the argument.
+fn array<'py, T: Element>(
+    arg: &str,
+    dtype: &str,
+    obj: &Bound<'py, PyAny>,
+) -> PyResult<PyReadonlyArrayDyn<'py, T>> {
+    let a = obj.cast::<PyArrayDyn<T>>().map_err(|_| {
+        let got = match obj.getattr("dtype") {
+            Ok(d) => format!("an array of {d}"),
+            Err(_) => obj
+                .get_type()
+                .name()
+                .map(|n| n.to_string())
+                .unwrap_or_else(|_| "another type".into()),
+        };
+        PyTypeError::new_err(format!(
+            "{arg}: expected a numpy.ndarray of {dtype}, got {got}"
+        ))
+    })?;
+    a.try_readonly()
+        .map_err(|e| PyValueError::new_err(format!("{arg}: cannot borrow the array: {e}")))
+}
 
 /// Borrowed view of an input array: its shape and its contiguous data.
 fn view<'a, T: Element>(
@@ -174,10 +199,10 @@ fn op_args<'a>(
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn rasterize_forward<'py>(
     py: Python<'py>,
-    verts_screen: PyReadonlyArrayDyn<'py, f32>,
-    faces: PyReadonlyArrayDyn<'py, i32>,
-    face_attrs: PyReadonlyArrayDyn<'py, f32>,
-    background: PyReadonlyArrayDyn<'py, f32>,
+    verts_screen: &Bound<'py, PyAny>,
+    faces: &Bound<'py, PyAny>,
+    face_attrs: &Bound<'py, PyAny>,
+    background: &Bound<'py, PyAny>,
     height: i64,
     width: i64,
     near: f64,
@@ -187,6 +212,10 @@ fn rasterize_forward<'py>(
     orthographic: bool,
 ) -> PyResult<(PyArr<'py, f32>, PyArr<'py, i32>, PyArr<'py, f32>)> {
     let nt = threads(num_threads)?;
+    let verts_screen = array::<f32>("verts_screen", "float32", verts_screen)?;
+    let faces = array::<i32>("faces", "int32", faces)?;
+    let face_attrs = array::<f32>("face_attrs", "float32", face_attrs)?;
+    let background = array::<f32>("background", "float32", background)?;
     let a = op_args(
         &verts_screen,
         &faces,
@@ -222,22 +251,29 @@ fn rasterize_forward<'py>(
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn rasterize_backward<'py>(
     py: Python<'py>,
-    verts_screen: PyReadonlyArrayDyn<'py, f32>,
-    faces: PyReadonlyArrayDyn<'py, i32>,
-    face_attrs: PyReadonlyArrayDyn<'py, f32>,
-    background: PyReadonlyArrayDyn<'py, f32>,
+    verts_screen: &Bound<'py, PyAny>,
+    faces: &Bound<'py, PyAny>,
+    face_attrs: &Bound<'py, PyAny>,
+    background: &Bound<'py, PyAny>,
     height: i64,
     width: i64,
     near: f64,
     far: f64,
     cull_backfaces: bool,
-    face_index: PyReadonlyArrayDyn<'py, i32>,
-    image: PyReadonlyArrayDyn<'py, f32>,
-    grad_image: PyReadonlyArrayDyn<'py, f32>,
+    face_index: &Bound<'py, PyAny>,
+    image: &Bound<'py, PyAny>,
+    grad_image: &Bound<'py, PyAny>,
     num_threads: i64,
     orthographic: bool,
 ) -> PyResult<(PyArr<'py, f32>, PyArr<'py, f32>)> {
     let nt = threads(num_threads)?;
+    let verts_screen = array::<f32>("verts_screen", "float32", verts_screen)?;
+    let faces = array::<i32>("faces", "int32", faces)?;
+    let face_attrs = array::<f32>("face_attrs", "float32", face_attrs)?;
+    let background = array::<f32>("background", "float32", background)?;
+    let face_index = array::<i32>("face_index", "int32", face_index)?;
+    let image = array::<f32>("image", "float32", image)?;
+    let grad_image = array::<f32>("grad_image", "float32", grad_image)?;
     let a = op_args(
         &verts_screen,
         &faces,
@@ -300,8 +336,8 @@ fn rasterize_backward<'py>(
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn raycast<'py>(
     py: Python<'py>,
-    verts_view: PyReadonlyArrayDyn<'py, f32>,
-    faces: PyReadonlyArrayDyn<'py, i32>,
+    verts_view: &Bound<'py, PyAny>,
+    faces: &Bound<'py, PyAny>,
     height: i64,
     width: i64,
     viewing_angle: f64,
@@ -313,6 +349,8 @@ fn raycast<'py>(
     num_threads: i64,
 ) -> PyResult<(PyArr<'py, i32>, PyArr<'py, f32>)> {
     let nt = threads(num_threads)?;
+    let verts_view = array::<f32>("verts_view", "float32", verts_view)?;
+    let faces = array::<i32>("faces", "int32", faces)?;
     let (vs, vd) = view("verts_view", &verts_view, 3)?;
     expect_dim("verts_view", &vs, 2, 3, "x, y, z in view space")?;
     let (fs, fd) = view("faces", &faces, 2)?;
@@ -354,9 +392,9 @@ fn raycast<'py>(
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn render_full<'py>(
     py: Python<'py>,
-    verts_world: PyReadonlyArrayDyn<'py, f32>,
-    faces: PyReadonlyArrayDyn<'py, i32>,
-    face_colors: PyReadonlyArrayDyn<'py, f32>,
+    verts_world: &Bound<'py, PyAny>,
+    faces: &Bound<'py, PyAny>,
+    face_colors: &Bound<'py, PyAny>,
     height: i64,
     width: i64,
     distance: f64,
@@ -368,10 +406,10 @@ fn render_full<'py>(
     far: f64,
     orthographic: bool,
     ortho_scale: f64,
-    light_directions: Option<PyReadonlyArrayDyn<'py, f32>>,
-    light_colors: Option<PyReadonlyArrayDyn<'py, f32>>,
-    ambient: Option<PyReadonlyArrayDyn<'py, f32>>,
-    background: Option<PyReadonlyArrayDyn<'py, f32>>,
+    light_directions: Option<&Bound<'py, PyAny>>,
+    light_colors: Option<&Bound<'py, PyAny>>,
+    ambient: Option<&Bound<'py, PyAny>>,
+    background: Option<&Bound<'py, PyAny>>,
     fill_back: bool,
     num_threads: i64,
 ) -> PyResult<(
@@ -381,6 +419,21 @@ fn render_full<'py>(
     PyArr<'py, i32>,
 )> {
     let nt = threads(num_threads)?;
+    let verts_world = array::<f32>("verts_world", "float32", verts_world)?;
+    let faces = array::<i32>("faces", "int32", faces)?;
+    let face_colors = array::<f32>("face_colors", "float32", face_colors)?;
+    let light_directions = light_directions
+        .map(|o| array::<f32>("light_directions", "float32", o))
+        .transpose()?;
+    let light_colors = light_colors
+        .map(|o| array::<f32>("light_colors", "float32", o))
+        .transpose()?;
+    let ambient = ambient
+        .map(|o| array::<f32>("ambient", "float32", o))
+        .transpose()?;
+    let background = background
+        .map(|o| array::<f32>("background", "float32", o))
+        .transpose()?;
     let (vs, vd) = view("verts_world", &verts_world, 2)?;
     expect_dim("verts_world", &vs, 1, 3, "x, y, z")?;
     let (fs, fd) = view("faces", &faces, 2)?;

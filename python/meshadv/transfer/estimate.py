@@ -85,29 +85,48 @@ def _silhouettes(
     return render_silhouette(vertices, faces, camera, size, antialias=antialias)[:, 0]
 
 
+def _blur(images: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Separable Gaussian blur of (B, H, W) images (differentiable; identity for sigma < 0.3 pixel)."""
+    if sigma < 0.3:
+        return images
+    radius = max(1, int(math.ceil(3 * sigma)))
+    x = torch.arange(-radius, radius + 1, dtype=images.dtype)
+    k = torch.exp(-0.5 * (x / sigma) ** 2)
+    k = k / k.sum()
+    out = images.unsqueeze(1)
+    out = torch.nn.functional.conv2d(torch.nn.functional.pad(out, (radius, radius, 0, 0)), k.view(1, 1, 1, -1))
+    out = torch.nn.functional.conv2d(torch.nn.functional.pad(out, (0, 0, radius, radius)), k.view(1, 1, -1, 1))
+    return out.squeeze(1)
+
+
 def estimate_camera(
     mask: Any,
     vertices: torch.Tensor,
     faces: torch.Tensor,
     *,
     viewing_angle: float = 30.0,
-    azimuths: Sequence[float] = tuple(range(0, 360, 30)),
-    elevations: Sequence[float] = (-10.0, 15.0, 40.0, 65.0),
+    azimuths: Sequence[float] = tuple(range(0, 360, 15)),
+    elevations: Sequence[float] = tuple(range(-10, 80, 10)),
     reference_distance: float = 2.732,
     refine: int = 4,
     steps: int = 80,
     lr: float = 2.0,
     antialias: int = 2,
+    coarse_size: int = 48,
+    blur: float = 0.04,
 ) -> CameraEstimate:
     """Estimate the spherical camera that makes the mesh's silhouette match ``mask``.
 
-    Every (azimuth, elevation) start is scored without gradients, with its distance set so that the silhouette area
-    matches the mask's (area scales as 1 / distance^2); the ``refine`` best are optimised jointly with Adam
-    (angles in degrees, distance in log space) and the one with the lowest final error is returned.
+    Coarse to fine, because the silhouette error of thin or off-centre geometry (chair slats, a scene whose objects
+    are not at the origin) has narrow basins: every (azimuth, elevation) start is scored without gradients on small
+    (``coarse_size``), Gaussian-blurred silhouettes, with its distance set so that the silhouette area matches the
+    mask's (area scales as 1 / distance^2); the ``refine`` best are then optimised jointly with Adam (angles in
+    degrees, distance in log space) on ``||blur(R_mask(S; P)) - blur(M)||^2`` with a blur that shrinks to zero over
+    the first two thirds of the steps. The start with the lowest final (unblurred) error wins.
 
     Args:
         mask: (H, W) target silhouette in [0, 1] (array or tensor).
-        vertices: (N, 3) mesh vertices (world space, object at the origin).
+        vertices: (N, 3) mesh vertices (world space).
         faces: (M, 3) faces.
         viewing_angle: the camera's (known) field of view in degrees.
         azimuths: azimuth starts in degrees.
@@ -115,8 +134,10 @@ def estimate_camera(
         reference_distance: distance at which the starts are first rendered.
         refine: number of starts refined by gradient descent.
         steps: Adam steps.
-        lr: Adam learning rate (degrees per step for the angles; a tenth of it, in log distance / 100, for distance).
-        antialias: supersampling of the silhouette (smoother objective).
+        lr: Adam learning rate (degrees per step for the angles; a hundredth of it for log distance).
+        antialias: supersampling of the silhouette during refinement (smoother objective).
+        coarse_size: image side used to score the starts.
+        blur: initial Gaussian blur, as a fraction of the image side.
 
     Returns:
         The :class:`CameraEstimate`.
@@ -135,19 +156,24 @@ def estimate_camera(
         raise ValueError(f"steps must be >= 0 and refine >= 1, got steps={steps}, refine={refine}")
     if not azimuths or not elevations:
         raise ValueError("azimuths and elevations must be non-empty")
+    if coarse_size < 8 or blur < 0:
+        raise ValueError(f"coarse_size must be >= 8 and blur >= 0, got {coarse_size}, {blur}")
     verts = torch.as_tensor(vertices, dtype=torch.float32).detach()
     faces_t = torch.as_tensor(faces, dtype=torch.int64)
     size = (int(target.shape[0]), int(target.shape[1]))
 
     grid_az = torch.tensor([float(a) for a in azimuths for _ in elevations])
     grid_el = torch.tensor([float(e) for _ in azimuths for e in elevations])
+    coarse = (min(coarse_size, size[0]), min(coarse_size, size[1]))
+    target_c = torch.nn.functional.adaptive_avg_pool2d(target[None, None], coarse)[0, 0]
+    sigma_c = blur * max(coarse)
     with torch.no_grad():
         ref = torch.full_like(grid_az, float(reference_distance))
-        sil = _silhouettes(verts, faces_t, ref, grid_az, grid_el, viewing_angle, size, 1)
-        area = sil.sum(dim=(1, 2)).clamp_min(1.0)
-        dist = ref * torch.sqrt(area / target.sum())
-        sil = _silhouettes(verts, faces_t, dist, grid_az, grid_el, viewing_angle, size, 1)
-        loss = ((sil - target) ** 2).mean(dim=(1, 2))
+        sil = _silhouettes(verts, faces_t, ref, grid_az, grid_el, viewing_angle, coarse, 2)
+        area = sil.sum(dim=(1, 2)).clamp_min(1e-3)
+        dist = ref * torch.sqrt(area / target_c.sum().clamp_min(1e-3))
+        sil = _silhouettes(verts, faces_t, dist, grid_az, grid_el, viewing_angle, coarse, 2)
+        loss = ((_blur(sil, sigma_c) - _blur(target_c[None], sigma_c)) ** 2).mean(dim=(1, 2))
     best = torch.argsort(loss)[: min(refine, len(loss))]
 
     az = grid_az[best].clone().requires_grad_(True)
@@ -156,16 +182,18 @@ def estimate_camera(
     opt = torch.optim.Adam([{"params": [az, el], "lr": lr}, {"params": [log_d], "lr": lr / 100.0}])
     best_state = (az.detach().clone(), el.detach().clone(), log_d.detach().clone())
     best_loss = torch.full((len(best),), float("inf"))
-    for _ in range(steps + 1):
+    sigma0 = blur * max(size)
+    blur_steps = max(1, (2 * steps) // 3)
+    for step in range(steps + 1):
+        sigma = sigma0 * max(0.0, 1.0 - step / blur_steps)
         opt.zero_grad()
         sil = _silhouettes(verts, faces_t, log_d.exp(), az, el, viewing_angle, size, antialias)
-        per_view = ((sil - target) ** 2).mean(dim=(1, 2))
-        with torch.no_grad():
-            better = per_view < best_loss
-            best_loss = torch.where(better, per_view.detach(), best_loss)
-            best_state = tuple(
-                torch.where(better, p.detach(), s) for p, s in zip((az, el, log_d), best_state)
-            )
+        per_view = ((_blur(sil, sigma) - _blur(target[None], sigma)) ** 2).mean(dim=(1, 2))
+        if sigma < 0.3:  # only unblurred errors are comparable between steps
+            with torch.no_grad():
+                better = per_view < best_loss
+                best_loss = torch.where(better, per_view.detach(), best_loss)
+                best_state = tuple(torch.where(better, p.detach(), s) for p, s in zip((az, el, log_d), best_state))
         per_view.sum().backward()
         opt.step()
         with torch.no_grad():
@@ -180,7 +208,8 @@ def estimate_camera(
         hard = sil > 0.5
         tgt = target > 0.5
         iou = float((hard & tgt).sum()) / max(float((hard | tgt).sum()), 1.0)
-    return CameraEstimate(d, a % 360.0, e, float(viewing_angle), float(best_loss[i]), iou)
+        final = float(((sil - target) ** 2).mean())
+    return CameraEstimate(d, a % 360.0, e, float(viewing_angle), final, iou)
 
 
 @dataclass(frozen=True)
