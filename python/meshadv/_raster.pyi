@@ -58,6 +58,7 @@ def rasterize_backward(
     grad_image: npt.NDArray[np.float32],
     num_threads: int = 0,
     orthographic: bool = False,
+    vertex_grad: bool = True,
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
     """Backward of ``rasterize_forward`` (same leading arguments, plus its outputs and the image cotangent).
 

@@ -136,6 +136,7 @@ fn backward_rejects_inconsistent_forward_outputs() {
                 face_index: fi,
                 image,
                 grad_image: grad,
+                vertex_grad: true,
             },
         )
         .map(|_| ())

@@ -244,10 +244,11 @@ fn rasterize_forward<'py>(
 
 /// Backward of `rasterize_forward`: `(grad_verts_screen f32[B,N,3] (z = 0), grad_face_attrs f32[B,M,C])`.
 ///
-/// The vertex gradient is NMR's approximate rasterization gradient, defined in docs/NMR_GRADIENT.md.
+/// The vertex gradient is NMR's approximate rasterization gradient, defined in docs/NMR_GRADIENT.md; with
+/// `vertex_grad=False` it is skipped (returned as zeros), which makes texture-only backward passes cheap.
 #[pyfunction]
 #[pyo3(signature = (verts_screen, faces, face_attrs, background, height, width, near, far, cull_backfaces,
-                    face_index, image, grad_image, num_threads = 0, orthographic = false))]
+                    face_index, image, grad_image, num_threads = 0, orthographic = false, vertex_grad = true))]
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn rasterize_backward<'py>(
     py: Python<'py>,
@@ -265,6 +266,7 @@ fn rasterize_backward<'py>(
     grad_image: &Bound<'py, PyAny>,
     num_threads: i64,
     orthographic: bool,
+    vertex_grad: bool,
 ) -> PyResult<(PyArr<'py, f32>, PyArr<'py, f32>)> {
     let nt = threads(num_threads)?;
     let verts_screen = array::<f32>("verts_screen", "float32", verts_screen)?;
@@ -314,6 +316,7 @@ fn rasterize_backward<'py>(
         face_index: fid,
         image: imd,
         grad_image: gd,
+        vertex_grad,
     };
     let n = a.mesh.num_verts;
     let m = a.mesh.num_faces();

@@ -74,6 +74,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 face_index: &out.face_index,
                 image: &out.image,
                 grad_image: &grad,
+                vertex_grad: true,
             };
             for _ in 0..reps {
                 if mode == "fwd" {
@@ -97,6 +98,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 face_index: &out.face_index,
                 image: &out.image,
                 grad_image: &grad,
+                vertex_grad: true,
             };
             let g = rasterize_backward(&mesh, &fa, &p, &inputs)?;
             let t2 = Instant::now();

@@ -40,6 +40,8 @@ pub struct BackwardInputs<'a> {
     pub image: &'a [f32],
     /// `(B, H, W, C)` cotangent of the image.
     pub grad_image: &'a [f32],
+    /// Compute the (expensive) NMR vertex gradient; when false `grad_verts_screen` is all zeros.
+    pub vertex_grad: bool,
 }
 
 impl BackwardInputs<'_> {
@@ -441,6 +443,9 @@ pub fn rasterize_backward(
             }
             for (dst, &src) in ga.iter_mut().zip(&acc) {
                 *dst = src as f32;
+            }
+            if !inputs.vertex_grad {
+                return;
             }
             // NMR vertex gradient: per-face partials in parallel, reduced in face order.
             let setups = setup_faces(mesh, b, params);

@@ -1,7 +1,7 @@
 """``meshadv demo``: a complete shape attack in about a minute on 2 CPU cores.
 
 The default mesh (the shared PASCAL3D+ chair when the shared data exist, else the built-in chair) is rendered from
-2 views (azimuths 165 and 195, around the front) at 160 px against the real EfficientNet-Lite0. Unless ``--target``
+2 views (azimuths 165 and 195, around the front) at 128 px against the real EfficientNet-Lite0. Unless ``--target``
 is given, the target is the class the pristine renders rank highest after the current top-1 (averaged over the
 views), a reachable but real change of label. The shape attack (Laplacian-regularised vertex flow, Adam lr 5e-3,
 lambda 0.01, C&W margin loss, early stopping once the target leads by 0.5 logits for 2 steps) then writes
@@ -46,7 +46,7 @@ def demo(
     victim: str = typer.Option("efficientnet_lite0", help="classifier victim"),
     target: Optional[str] = typer.Option(None, help="target class (default: the pristine runner-up)"),
     views: int = typer.Option(2, help="number of victim views (spread over azimuths 165..195)"),
-    image_size: int = typer.Option(160, help="rendered image size"),
+    image_size: int = typer.Option(128, help="rendered image size (the victim resizes to its input size)"),
     steps: int = typer.Option(100, help="maximum Adam steps"),
     seed: int = typer.Option(0, help="random seed"),
     quiet: bool = typer.Option(False, help="no progress bar"),

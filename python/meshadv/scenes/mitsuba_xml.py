@@ -87,11 +87,22 @@ def _reflectance(bsdf: Optional[ET.Element]) -> Tuple[float, float, float]:
     return _GREY
 
 
-def _rectangle_mesh(color: Tuple[float, float, float]) -> Mesh:
-    vertices = torch.tensor([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=torch.float32)
-    faces = torch.tensor([[0, 1, 2], [0, 2, 3]], dtype=torch.int64)
-    colors = torch.tensor([color, color], dtype=torch.float32)
-    return Mesh(vertices=vertices, faces=faces, face_colors=colors)
+#: Rectangles are split into a grid of this many cells per side: the rasterizer drops a triangle with a vertex
+#: behind the camera (as NMR does), so large floors and walls must be made of small triangles.
+RECTANGLE_CELLS = 24
+
+
+def _rectangle_mesh(color: Tuple[float, float, float], cells: int = RECTANGLE_CELLS) -> Mesh:
+    """Mitsuba's ``rectangle`` ([-1, 1]^2 in the z = 0 plane) as a ``cells x cells`` grid of triangle pairs."""
+    ticks = torch.linspace(-1.0, 1.0, cells + 1)
+    ys, xs = torch.meshgrid(ticks, ticks, indexing="ij")
+    vertices = torch.stack([xs.reshape(-1), ys.reshape(-1), torch.zeros(xs.numel())], dim=1)
+    idx = torch.arange((cells + 1) ** 2).reshape(cells + 1, cells + 1)
+    a, b = idx[:-1, :-1].reshape(-1), idx[:-1, 1:].reshape(-1)
+    c, d = idx[1:, 1:].reshape(-1), idx[1:, :-1].reshape(-1)
+    faces = torch.cat([torch.stack([a, b, c], 1), torch.stack([a, c, d], 1)]).to(torch.int64)
+    colors = torch.tensor([color], dtype=torch.float32).expand(faces.shape[0], 3).contiguous()
+    return Mesh(vertices=vertices.float().contiguous(), faces=faces, face_colors=colors)
 
 
 @dataclass(frozen=True)
