@@ -154,7 +154,7 @@ pub fn backward(
         face_index: &out.face_index,
         image: &out.image,
         grad_image: grad,
-                vertex_grad: true,
+        vertex_grad: true,
     };
     rasterize_backward(&mesh.view(), &a, params, &inputs).expect("valid test input")
 }
