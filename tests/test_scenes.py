@@ -113,3 +113,41 @@ def test_scene_attack_hides_the_target_class(shared_data: Path) -> None:
     assert result.score_after < 0.5
     assert result.success
     assert "dog" not in result.detections_after.names()
+
+
+def test_scene_camera_resized_keeps_aspect_and_parity() -> None:
+    camera = SceneCamera(eye=(0.0, 0.0, 5.0), at=(0.0, 0.0, 0.0), width=480, height=360)
+    small = camera.resized(161)
+    assert small.width == 161 and (small.width - small.height) % 2 == 0
+    assert abs(small.height / small.width - 0.75) < 0.02
+    with pytest.raises(ValueError, match="width"):
+        camera.resized(0)
+
+
+def test_attack_scene_command_writes_images_mesh_and_record(shared_data: Path, tmp_path: Path) -> None:
+    """The command line runs a (very short) texture attack on the indoor scene and writes every promised file."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from meshadv.cli import app
+
+    try:
+        from meshadv.victims import load_victim
+
+        load_victim("ssd_mobilenet_v2_coco")
+    except ImportError as exc:
+        pytest.skip(f"the SSD detector is not available: {exc}")
+    result = CliRunner().invoke(
+        app,
+        ["attack-scene", "indoor", "--hide", "dining table", "--perturb", "texture", "--steps", "2",
+         "--threshold", "0.3", "--width", "160", "-o", str(tmp_path)],
+    )
+    assert result.exit_code == 0, result.output
+    for name in ("before.png", "after.png", "adversarial.ply", "result.json"):
+        assert (tmp_path / name).is_file(), name
+    record = json.loads((tmp_path / "result.json").read_text())
+    assert record["hide"] == "dining table"
+    assert record["steps"] >= 1
+    assert isinstance(record["detections_before"], list)
+    assert "color_rmse" in record["distances"]

@@ -36,6 +36,11 @@ def _native() -> ModuleType:
         ) from exc
 
 
+def _backward_has_vertex_grad_flag() -> bool:
+    """True when the built ``rasterize_backward`` accepts ``vertex_grad`` (skip the NMR sweep when not needed)."""
+    return "vertex_grad" in (getattr(_native().rasterize_backward, "__text_signature__", None) or "")
+
+
 def native_available() -> bool:
     """True when the native module ``meshadv._raster`` can be imported."""
     try:
@@ -143,6 +148,8 @@ class _Rasterize(torch.autograd.Function):
         need_v, need_a = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
         if grad_image is None or not (need_v or need_a):
             return (None,) * 11
+        # Attribute-only backward (e.g. texture attacks) skips the NMR vertex sweep, the expensive part.
+        extra = {"vertex_grad": False} if not need_v and _backward_has_vertex_grad_flag() else {}
         grad_v, grad_a = _native().rasterize_backward(
             _to_numpy_f32(verts_screen),
             _to_numpy_i32(faces),
@@ -158,6 +165,7 @@ class _Rasterize(torch.autograd.Function):
             _to_numpy_f32(grad_image),
             num_threads,
             orthographic,
+            **extra,
         )
         gv = torch.from_numpy(grad_v).to(device=verts_screen.device, dtype=verts_screen.dtype) if need_v else None
         ga = torch.from_numpy(grad_a).to(device=face_attrs.device, dtype=face_attrs.dtype) if need_a else None

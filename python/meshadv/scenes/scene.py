@@ -7,7 +7,7 @@ overrides carry gradients; every other object is constant.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping, Optional, Sequence, Tuple
 
 import torch
@@ -86,6 +86,15 @@ class SceneCamera:
             near=self.near,
             far=self.far,
         )
+
+    def resized(self, width: int) -> "SceneCamera":
+        """The same camera rendering ``width`` pixels wide, the height scaled to keep the aspect ratio (rounded so
+        that ``width - height`` stays even)."""
+        if width <= 0:
+            raise ValueError(f"width must be positive, got {width}")
+        height = int(round(self.height * width / self.width))
+        height -= (width - height) % 2
+        return replace(self, width=width, height=max(height, 2 - width % 2))
 
     def crop_rows(self) -> slice:
         """Rows of the square render that form the ``height``-row image."""

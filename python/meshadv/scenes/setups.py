@@ -26,7 +26,7 @@ def build_setup(scene: str, obj: str, place: str = "0.5,0.75,0.3", width: Option
         obj: for XML scenes the name of the object to perturb; for photos a mesh file, or ``"bunny"`` for the
             shared Stanford Bunny (falling back to a built-in shape when the shared data is missing).
         place: photos only, ``"u,v,height_fraction"``.
-        width: optional photo width to resize to.
+        width: optional image width to render at (the height follows the aspect ratio).
 
     Raises:
         ValueError / FileNotFoundError: unknown scene, object or unreadable files.
@@ -36,7 +36,8 @@ def build_setup(scene: str, obj: str, place: str = "0.5,0.75,0.3", width: Option
 
     if scene == "indoor" or scene.endswith(".xml"):
         info = load_indoor_scene() if scene == "indoor" else read_mitsuba_scene(Path(scene))
-        return SceneSetup(scene=info.scene, object_name=obj, camera=info.camera, lights=indoor_lights())
+        camera = info.camera if width is None else info.camera.resized(width)
+        return SceneSetup(scene=info.scene, object_name=obj, camera=camera, lights=indoor_lights())
     path = Path(scene)
     if path.suffix.lower() not in PHOTO_SUFFIXES:
         raise ValueError(f"scene must be 'indoor', a .xml scene or a photo ({', '.join(PHOTO_SUFFIXES)}), got {scene!r}")
