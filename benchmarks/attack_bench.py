@@ -49,8 +49,8 @@ def _make_attack(perturb: str, **kwargs: Any) -> Any:
     from meshadv.attacks import ShapeAttack, TextureAttack
 
     if perturb == "shape":
-        return ShapeAttack(lr=2e-3, lambda_perceptual=0.05, **kwargs)
-    return TextureAttack(lr=0.1, lambda_perceptual=1e-4, **kwargs)
+        return ShapeAttack(lr=5e-3, lambda_perceptual=0.01, loss="cw", **kwargs)
+    return TextureAttack(lr=0.1, lambda_perceptual=1e-4, loss="cw", **kwargs)
 
 
 def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: Any) -> Dict[str, Any]:
@@ -62,7 +62,9 @@ def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: A
 
     mesh = normalize_mesh(load_mesh(require_shared_data(f"pascal3d/{mesh_name}.ply")), z_up=True)[0]
     views = ViewSet.orbit(
-        torch.linspace(-30.0, 30.0, args.views) if args.views > 1 else torch.tensor([0.0]), elevation=15.0, distance=4.0
+        torch.linspace(165.0, 195.0, args.views) if args.views > 1 else torch.tensor([180.0]),
+        elevation=15.0,
+        distance=4.5,
     )
     targets = _ranked_classes(mesh, views, victim, args.image_size, args.targets)
     crits = [TargetedMisclassification(t) for t in targets]

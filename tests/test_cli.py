@@ -93,3 +93,35 @@ def test_demo_runs_end_to_end(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert (out / "comparison.png").is_file() and (out / "adversarial.ply").is_file()
     assert json.loads((out / "result.json").read_text())["steps"] <= 2
+
+
+def test_ctrl_c_saves_best_result_so_far(tmp_path: Path) -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    _require_renderer()
+    _require_victim()
+    out = tmp_path / "interrupted"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "meshadv.cli", "attack", "builtin:chair", "--target", "bicycle", "--views", "1",
+         "--steps", "1000", "--early-stop", "0", "--image-size", "64", "--quiet", "-o", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+    )
+    try:
+        first = proc.stdout.readline()  # printed just before the attack loop starts
+        assert first.startswith("mesh "), first
+        time.sleep(3.0)
+        proc.send_signal(signal.SIGINT)
+        rest, _ = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, first + rest
+    assert "interrupted" in rest
+    record = json.loads((out / "result.json").read_text())
+    assert record["interrupted"] is True and record["steps"] < 1000
+    assert (out / "adversarial.ply").is_file() and (out / "after_v0.png").is_file()

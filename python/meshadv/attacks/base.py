@@ -334,96 +334,100 @@ class MeshAttack(ABC):
         interrupted = False
         classifier = getattr(victim, "kind", "") == "classifier"
 
-        for rnd in range(self.binary_search_steps):
-            generator = torch.Generator().manual_seed(self.seed)
-            lambdas = search.lambdas
-            params = self._init_params(mesh, num_t).detach().clone().requires_grad_(True)
-            optimiser = torch.optim.Adam([params], lr=self.lr)
-            active = [True] * num_t
-            hold = [0] * num_t
-            round_success = [False] * num_t
-            for step in range(self.steps):
-                act = [t for t in range(num_t) if active[t]]
-                if not act:
-                    break
-                try:
-                    step_views = views.jitter(generator, **self.jitter) if self.jitter else views
-                    idx = torch.tensor(act, dtype=torch.long)
-                    p = params[idx]
-                    images, alpha, output = self._forward(p, mesh, step_views, victim)
-                    adv = torch.stack([
-                        criteria[t].loss(slice_output(output, a * num_v, (a + 1) * num_v),
-                                         loss=self.loss, kappa=self.kappa).mean()
-                        for a, t in enumerate(act)
-                    ])
-                    perc = self._perceptual(p, mesh, edges, images, alpha, num_v)
-                    total = adv + lambdas[idx] * perc
-                    optimiser.zero_grad(set_to_none=True)
-                    total.sum().backward()
-                    optimiser.step()
-                except KeyboardInterrupt:
-                    interrupted = True
-                    break
-                total_steps += 1
-                total, adv, perc = total.detach(), adv.detach(), perc.detach()
-                with torch.no_grad():
-                    dist = self._distance(p.detach(), mesh, edges)
-                    margins = torch.stack([
-                        criteria[t].margin(slice_output(output, a * num_v, (a + 1) * num_v)).detach()
-                        for a, t in enumerate(act)
-                    ])
-                    top = output.detach().argmax(dim=1).view(len(act), num_v)[:, 0] if classifier else None
-                row: Dict[str, Any] = {"round": rnd, "step": step, "loss": [None] * num_t, "adv": [None] * num_t,
-                                       "perceptual": [None] * num_t, "distance": [None] * num_t,
-                                       "margin": [None] * num_t, "lambda": lambdas.tolist()}
-                top1: List[Optional[int]] = [None] * num_t
-                for a, t in enumerate(act):
-                    d = float(dist[a])
-                    frac = float((margins[a] > 0).float().mean())
-                    ok = frac >= self.success_fraction - 1e-9
-                    within = self.max_distortion is None or d <= self.max_distortion
-                    if ok and within:
-                        round_success[t] = True
-                        if first_step[t] is None:
-                            first_step[t] = total_steps
-                            first_time[t] = time.perf_counter() - t_start
-                        if d < best_dist[t]:
-                            best_dist[t] = d
-                            best_params[t] = p[a].detach().clone()
-                            best_lambda[t] = float(lambdas[t])
-                    key = (frac, float(margins[a].mean()))
-                    if best_params[t] is None and key > fallback_key[t]:
-                        fallback_key[t] = key
-                        fallback[t] = p[a].detach().clone()
-                    hold[t] = hold[t] + 1 if ok and float(margins[a].min()) >= self.early_stop_margin else 0
-                    if self.early_stop is not None and hold[t] >= self.early_stop:
-                        active[t] = False
-                    if not within:
-                        active[t] = False
-                    row["loss"][t] = float(total[a])
-                    row["adv"][t] = float(adv[a])
-                    row["perceptual"][t] = float(perc[a])
-                    row["distance"][t] = d
-                    row["margin"][t] = float(margins[a].min())
-                    if top is not None:
-                        top1[t] = int(top[a])
-                history.append(row)
-                if callback is not None:
-                    info = StepInfo(
-                        round=rnd, rounds=self.binary_search_steps, step=step, steps=self.steps,
-                        total_step=total_steps, lambdas=tuple(lambdas.tolist()), loss=tuple(row["loss"]),
-                        distance=tuple(row["distance"]), margin=tuple(row["margin"]), top1=tuple(top1),
-                        best_distance=tuple(None if math.isinf(b) else b for b in best_dist),
-                        active=sum(active),
-                    )
+        try:
+            for rnd in range(self.binary_search_steps):
+                generator = torch.Generator().manual_seed(self.seed)
+                lambdas = search.lambdas
+                params = self._init_params(mesh, num_t).detach().clone().requires_grad_(True)
+                optimiser = torch.optim.Adam([params], lr=self.lr)
+                active = [True] * num_t
+                hold = [0] * num_t
+                round_success = [False] * num_t
+                for step in range(self.steps):
+                    act = [t for t in range(num_t) if active[t]]
+                    if not act:
+                        break
                     try:
-                        callback(info)
+                        step_views = views.jitter(generator, **self.jitter) if self.jitter else views
+                        idx = torch.tensor(act, dtype=torch.long)
+                        p = params[idx]
+                        images, alpha, output = self._forward(p, mesh, step_views, victim)
+                        adv = torch.stack([
+                            criteria[t].loss(slice_output(output, a * num_v, (a + 1) * num_v),
+                                             loss=self.loss, kappa=self.kappa).mean()
+                            for a, t in enumerate(act)
+                        ])
+                        perc = self._perceptual(p, mesh, edges, images, alpha, num_v)
+                        total = adv + lambdas[idx] * perc
+                        optimiser.zero_grad(set_to_none=True)
+                        total.sum().backward()
+                        optimiser.step()
                     except KeyboardInterrupt:
                         interrupted = True
                         break
-            if interrupted:
-                break
-            search.update(round_success)
+                    total_steps += 1
+                    total, adv, perc = total.detach(), adv.detach(), perc.detach()
+                    with torch.no_grad():
+                        dist = self._distance(p.detach(), mesh, edges)
+                        margins = torch.stack([
+                            criteria[t].margin(slice_output(output, a * num_v, (a + 1) * num_v)).detach()
+                            for a, t in enumerate(act)
+                        ])
+                        top = output.detach().argmax(dim=1).view(len(act), num_v)[:, 0] if classifier else None
+                    row: Dict[str, Any] = {"round": rnd, "step": step, "loss": [None] * num_t, "adv": [None] * num_t,
+                                           "perceptual": [None] * num_t, "distance": [None] * num_t,
+                                           "margin": [None] * num_t, "lambda": lambdas.tolist()}
+                    top1: List[Optional[int]] = [None] * num_t
+                    for a, t in enumerate(act):
+                        d = float(dist[a])
+                        frac = float((margins[a] > 0).float().mean())
+                        ok = frac >= self.success_fraction - 1e-9
+                        within = self.max_distortion is None or d <= self.max_distortion
+                        if ok and within:
+                            round_success[t] = True
+                            if first_step[t] is None:
+                                first_step[t] = total_steps
+                                first_time[t] = time.perf_counter() - t_start
+                            if d < best_dist[t]:
+                                best_dist[t] = d
+                                best_params[t] = p[a].detach().clone()
+                                best_lambda[t] = float(lambdas[t])
+                        key = (frac, float(margins[a].mean()))
+                        if best_params[t] is None and key > fallback_key[t]:
+                            fallback_key[t] = key
+                            fallback[t] = p[a].detach().clone()
+                        hold[t] = hold[t] + 1 if ok and float(margins[a].min()) >= self.early_stop_margin else 0
+                        if self.early_stop is not None and hold[t] >= self.early_stop:
+                            active[t] = False
+                        if not within:
+                            active[t] = False
+                        row["loss"][t] = float(total[a])
+                        row["adv"][t] = float(adv[a])
+                        row["perceptual"][t] = float(perc[a])
+                        row["distance"][t] = d
+                        row["margin"][t] = float(margins[a].min())
+                        if top is not None:
+                            top1[t] = int(top[a])
+                    history.append(row)
+                    if callback is not None:
+                        info = StepInfo(
+                            round=rnd, rounds=self.binary_search_steps, step=step, steps=self.steps,
+                            total_step=total_steps, lambdas=tuple(lambdas.tolist()), loss=tuple(row["loss"]),
+                            distance=tuple(row["distance"]), margin=tuple(row["margin"]), top1=tuple(top1),
+                            best_distance=tuple(None if math.isinf(b) else b for b in best_dist),
+                            active=sum(active),
+                        )
+                        try:
+                            callback(info)
+                        except KeyboardInterrupt:
+                            interrupted = True
+                            break
+                if interrupted:
+                    break
+                search.update(round_success)
+
+        except KeyboardInterrupt:  # Ctrl-C between steps: keep what we have
+            interrupted = True
 
         chosen = []
         for t in range(num_t):

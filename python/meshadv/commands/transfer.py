@@ -160,6 +160,17 @@ def controlled_cmd(
     typer.echo(transfer_report(load_transfer_rows(results, experiment=experiment, kind="controlled")))
 
 
+def _attack_kwargs(steps: int, lr: Optional[float], lambda_perceptual: Optional[float]) -> dict:
+    if steps < 1:
+        raise typer.BadParameter("steps must be >= 1", param_hint="--steps")
+    kwargs: dict = {"steps": steps}
+    if lr is not None:
+        kwargs["lr"] = lr
+    if lambda_perceptual is not None:
+        kwargs["lambda_perceptual"] = lambda_perceptual
+    return kwargs
+
+
 def _save_blackbox(row: dict, db: Optional[Path], out: Optional[Path], experiment: str) -> None:
     import numpy as np
     from PIL import Image
@@ -190,6 +201,8 @@ def blackbox_classifier_cmd(
     victim: str = typer.Option("efficientnet_lite0", help="Classifier victim."),
     perturb: str = typer.Option("texture", help="shape or texture."),
     steps: int = typer.Option(100, help="Attack steps."),
+    lr: Optional[float] = typer.Option(None, help="Attack learning rate (default: the attack's)."),
+    lambda_perceptual: Optional[float] = typer.Option(None, help="Perceptual loss weight (default: the attack's)."),
     size: int = typer.Option(224, help="Image side."),
     spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
     db: Optional[Path] = typer.Option(None, help="Results database to add the row to."),
@@ -207,7 +220,7 @@ def blackbox_classifier_cmd(
     mesh_obj = default_aeroplane() if mesh == "aeroplane" else load_mesh_arg(mesh)[0]
     hidden = outdoor_classifier_setup(mesh_obj, image_size=size, spp=spp)
     row = blackbox_classifier(mesh_obj, hidden, victim=load_victim(victim), true_class=true_class, target=target,
-                              attack_type=perturb, attack_kwargs={"steps": steps},
+                              attack_type=perturb, attack_kwargs=_attack_kwargs(steps, lr, lambda_perceptual),
                               case_id=f"outdoor_{Path(mesh).stem}_{perturb}_{target or 'untargeted'}")
     _save_blackbox(row, db, out, experiment)
 
@@ -217,7 +230,9 @@ def blackbox_detector_cmd(
     hide: str = typer.Option("dining table", help="Class to hide (detector class name), e.g. 'chair'."),
     victim: str = typer.Option("ssd_mobilenet_v2_coco", help="Detector victim."),
     steps: int = typer.Option(100, help="Attack steps."),
-    size: int = typer.Option(256, help="Image side."),
+    lr: Optional[float] = typer.Option(None, help="Attack learning rate (default: the attack's)."),
+    lambda_perceptual: Optional[float] = typer.Option(None, help="Perceptual loss weight (default: the attack's)."),
+    size: int = typer.Option(300, help="Image side."),
     spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
     db: Optional[Path] = typer.Option(None, help="Results database to add the row to."),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="Folder for images, mesh and numbers."),
@@ -231,7 +246,8 @@ def blackbox_detector_cmd(
     setup = indoor_detector_setup(image_size=size, spp=spp)
     row = blackbox_detector(setup.objects, setup.object_index, setup.hidden, victim=load_victim(victim),
                             hide_class=hide, background_exclude=setup.background_exclude,
-                            attack_kwargs={"steps": steps}, case_id=f"indoor_bunny_hide_{hide.replace(' ', '_')}")
+                            attack_kwargs=_attack_kwargs(steps, lr, lambda_perceptual),
+                            case_id=f"indoor_bunny_hide_{hide.replace(' ', '_')}")
     _save_blackbox(row, db, out, experiment)
 
 

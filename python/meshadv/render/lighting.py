@@ -217,8 +217,9 @@ def orient_normals(
 ) -> torch.Tensor:
     """Flip normals that face away from the camera (two-sided rendering).
 
-    Perspective: a normal is flipped when ``dot(n, eye - centroid) < 0``. Orthographic: when ``dot(n, view_dir) > 0``.
-    The flip sign is piecewise constant, so it carries no gradient.
+    Perspective: a normal is flipped when ``dot(n, eye - p) < 0`` with ``p`` a point of the face (its first vertex:
+    ``n`` is orthogonal to the face's plane, so every point of the face, e.g. the centroid, gives the same sign).
+    Orthographic: when ``dot(n, view_dir) > 0``. The flip sign is piecewise constant, so it carries no gradient.
 
     Args:
         normals: (B,M,3) face normals.
@@ -230,12 +231,13 @@ def orient_normals(
         (B,M,3) normals facing the camera.
     """
     verts = verts_world if verts_world.dim() == 3 else verts_world.unsqueeze(0)
-    if camera.orthographic:
-        toward = -camera.view_direction().to(normals.dtype).unsqueeze(1)  # (Bc,1,3)
-    else:
-        centroids = verts[:, faces.long()].mean(dim=2)  # (Bv,M,3)
-        toward = camera.eye().to(normals.dtype).unsqueeze(1) - centroids
-    facing = (normals * toward).sum(-1, keepdim=True).detach()
+    with torch.no_grad():
+        if camera.orthographic:
+            toward = -camera.view_direction().to(normals.dtype).unsqueeze(1)  # (Bc,1,3)
+        else:
+            corner = verts[:, faces[:, 0].long()]  # (Bv,M,3)
+            toward = camera.eye().to(normals.dtype).unsqueeze(1) - corner
+        facing = (normals * toward).sum(-1, keepdim=True)
     sign = torch.where(facing < 0, -torch.ones_like(facing), torch.ones_like(facing))
     return normals * sign
 
