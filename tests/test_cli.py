@@ -55,6 +55,9 @@ def test_attack_rejects_bad_input(tmp_path: Path) -> None:
     result = runner.invoke(app, ["attack", "builtin:cube", "--target", "1", "--untargeted", "2", "-o",
                                  str(tmp_path / "out")])
     assert result.exit_code == 2 and "exactly one" in result.output
+    result = runner.invoke(app, ["attack", "builtin:cube", "--target", "no such class", "-o", str(tmp_path / "out")])
+    assert result.exit_code == 2 and "target_class" in result.output
+    assert not (tmp_path / "out").exists()
 
 
 def test_render_writes_views(tmp_path: Path) -> None:

@@ -169,6 +169,8 @@ def attack(
         )
         victim_obj = load_victim(victim)
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
+        for crit in criteria:
+            crit.bind(victim_obj)  # validate class names now, before the attack starts
     except (ValueError, FileNotFoundError, ImportError) as exc:
         raise typer.BadParameter(str(exc)) from exc
     typer.echo(f"mesh {label}: {mesh_obj.num_vertices} vertices, {mesh_obj.num_faces} faces; "

@@ -316,11 +316,12 @@ def curvature_scatter(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 4.2))
     ax.scatter(x, y, s=4, alpha=0.5)
-    ax.set_xlabel("|mean curvature|")
+    ax.set_xlabel("|mean curvature| (symmetric log scale)")
+    positive = x[x > 0]
+    if len(positive):
+        ax.set_xscale("symlog", linthresh=float(np.percentile(positive, 5)) or 1e-6)
     ax.set_ylabel("perturbation magnitude")
     ax.set_title(title or f"Pearson r = {pearson:.3f}, Spearman ρ = {spearman:.3f}", fontsize=9)
-    if len(x) and x.max() > 0 and np.percentile(x, 99) > 0:
-        ax.set_xlim(0, float(np.percentile(x, 99.5)) * 1.05)
     fig.tight_layout()
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)

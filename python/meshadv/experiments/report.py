@@ -37,9 +37,9 @@ seed) attacked towards every other class. Best case: the instance succeeds when 
 smallest distance among its successful targets. Worst case: the instance succeeds only when every target succeeds;
 distance = the largest distance among them. Average case: a random target, i.e. the mean over instances of the
 fraction of successful targets; distance = the mean over all successful attacks. Mean distances are over successful
-instances / attacks. Distance: Laplacian loss (shape), face-colour RMSE (texture). The paper attacks only instances whose
-benign render the victim classifies correctly (sweep option benign_correct_only = true); when a sweep attacked every
-instance, the table restricted to those is given too."""
+instances / attacks. Distance: Laplacian loss (shape), face-colour RMSE (texture). The paper attacks only instances
+whose benign render the victim classifies correctly (sweep option benign_correct_only = true); when a sweep attacked
+every instance, the table restricted to those is given too."""
 
 
 def environment_versions() -> Dict[str, str]:
@@ -152,8 +152,9 @@ def _flow_figures(rows: List[JobRow], fig_dir: Path, out: ReportOutput) -> None:
         if row.spec.get("perturbation") == "shape" and not row.record.get("skipped"):
             by_victim[row.spec["victim"]].append(row)
     for victim, vrows in sorted(by_victim.items()):
-        # a successful shape attack (when there is one) with the largest flow: the clearest picture of the flow
-        vrows.sort(key=lambda r: (not r.record.get("success"),
+        # a successful shape attack (when there is one) on the densest mesh, then with the largest flow: the
+        # clearest picture of the flow field
+        vrows.sort(key=lambda r: (not r.record.get("success"), -(r.record.get("num_vertices") or 0),
                                   -(r.record.get("distances", {}).get("max_displacement") or 0.0)))
         for row in vrows:
             pair = _load_pair(row)
