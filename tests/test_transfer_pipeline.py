@@ -45,6 +45,7 @@ def test_results_roundtrip_tables_and_confusion(tmp_path) -> None:
     assert table[0]["targeted_meshadv"] == pytest.approx(1.0)
     assert table[0]["targeted_mitsuba"] == pytest.approx(1 / 4)
     assert table[0]["untargeted_mitsuba"] == pytest.approx(3 / 4)  # a/1 is the only miss
+    assert table[0]["n_benign_correct"] == 0 and table[0]["untargeted_mitsuba_benign_correct"] is None
     per_target = {r["target"]: r for r in per_target_table(loaded)}
     assert per_target["sofa"]["targeted_mitsuba"] == pytest.approx(0.5)
     names, matrix = confusion_matrices(loaded)["v1"]
@@ -141,7 +142,7 @@ def _fake_sweep(tmp_path):
                 {"views": views, "meshes": [["adversarial.ply", "adversarial.obj"]],
                  "config": {"image_size": [64, 64]}}))
             store.mark_running(row.job_id)
-            store.mark_done(row.job_id, {"success": row.spec["seed"] == 0}, str(out))
+            store.mark_done(row.job_id, {"success": row.spec["seed"] == 0, "benign_correct": True}, str(out))
     return db, views
 
 
@@ -156,6 +157,7 @@ def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
     assert (case.victim, case.true_class, case.target, case.attack_type) == ("efficientnet_lite0", "bottle",
                                                                               "chair", "texture")
     assert case.image_size == (64, 64) and case.views[0]["azimuth"] == pytest.approx(views[0]["azimuth"])
+    assert case.benign_correct is True
     assert case.mesh.faces.shape == builtin_mesh("bottle").faces.shape
     assert len(cases_from_store(db, only_successful=False)) == 2
     with pytest.raises(FileNotFoundError):

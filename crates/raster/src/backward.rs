@@ -86,29 +86,57 @@ impl BackwardInputs<'_> {
     }
 }
 
-/// Per-pixel buffers of one batch element laid out along sweep lines: pixel `d` of line `d0` is at `d0 * len + d`.
-/// Row-major for the row sweeps (axis V); a transposed copy for the column sweeps (axis U) keeps the inner loops
-/// contiguous.
+/// Line field: index of the drawn face (as f64, -1 on background).
+const FACE: usize = 0;
+/// Line field: depth-test key of the drawn face (see [`depth_keys`]).
+const KEY: usize = 1;
+/// Line field: `sum_c G[P, c] * I[P, c]`.
+const GI: usize = 2;
+/// Line field: first cotangent channel (channel `k` is field `GRAD + k`).
+const GRAD: usize = 3;
+
+/// Depth-test key of the face drawn at each pixel (row-major; larger = nearer): `1/z` in perspective, `-z` in
+/// orthographic, with `z` recomputed from the positions exactly as the forward computes it; `-inf` on background.
+fn depth_keys(setups: &[FaceSetup], face_index: &[i32], params: &RasterParams) -> Vec<f64> {
+    let w = params.width;
+    let mut key = vec![f64::NEG_INFINITY; face_index.len()];
+    key.par_chunks_mut(w)
+        .zip(face_index.par_chunks(w))
+        .enumerate()
+        .for_each(|(i, (key, faces))| {
+            for (j, (k, &f)) in key.iter_mut().zip(faces).enumerate() {
+                if f >= 0 {
+                    let s = &setups[f as usize];
+                    *k = match s.depth_at(i as i32, j as i32) {
+                        Some(z) if s.ortho => -z,
+                        Some(z) => 1.0 / z,
+                        None => f64::NEG_INFINITY,
+                    };
+                }
+            }
+        });
+    key
+}
+
+/// Per-pixel buffers of one batch element laid out along sweep lines (image rows for the row sweeps, axis V, or
+/// image columns for the column sweeps, axis U), so that the inner loops read memory contiguously: line `d0` holds
+/// the planes of its fields ([`FACE`], [`KEY`], [`GI`], then the `C` cotangent channels), `len` f64 values each.
 struct Lines {
-    /// Face index per pixel.
-    face: Vec<i32>,
-    /// Depth-test key of the drawn face per pixel (larger = nearer): `1/z` in perspective, `-z` in orthographic,
-    /// with `z` recomputed from the positions as in the forward; `-inf` on background.
-    key: Vec<f64>,
-    /// `sum_c G[P, c] * I[P, c]`.
-    gi: Vec<f64>,
-    /// Cotangent, `C` per pixel.
-    grad: Vec<f64>,
-    /// Image, `C` per pixel.
-    image: Vec<f32>,
-    /// Line length.
+    /// The planes, line after line, field after field.
+    data: Vec<f64>,
+    /// Line length in pixels.
     len: usize,
+    /// Fields per pixel, `GRAD + C`.
+    fields: usize,
+    /// Per line, the range `[first, last + 1)` of pixels whose cotangent is not all zero (`[0, 0]` when none):
+    /// pixels outside it have `delta = 0` and never contribute.
+    nonzero: Vec<[usize; 2]>,
 }
 
 impl Lines {
-    /// Builds the buffers; `transpose` gives column-major lines.
+    /// Builds the buffers; `transpose` gives column lines.
     fn new(
-        setups: &[FaceSetup],
+        key: &[f64],
         face_index: &[i32],
         image: &[f32],
         grad: &[f32],
@@ -117,44 +145,79 @@ impl Lines {
         transpose: bool,
     ) -> Lines {
         let (h, w) = (params.height, params.width);
-        let n = h * w;
-        let (mut face, mut key, mut gi) =
-            (vec![-1i32; n], vec![f64::NEG_INFINITY; n], vec![0f64; n]);
-        let (mut g, mut im) = (vec![0f64; n * c], vec![0f32; n * c]);
-        for i in 0..h {
-            for j in 0..w {
-                let p = i * w + j;
-                let q = if transpose { j * h + i } else { p };
-                let f = face_index[p];
-                face[q] = f;
-                if f >= 0 {
-                    let s = &setups[f as usize];
-                    key[q] = match s.depth_at(i as i32, j as i32) {
-                        Some(z) if s.ortho => -z,
-                        Some(z) => 1.0 / z,
-                        None => f64::NEG_INFINITY,
-                    };
+        let (lines, len) = if transpose { (w, h) } else { (h, w) };
+        let fields = GRAD + c;
+        let mut data = vec![0f64; lines * fields * len];
+        let mut nonzero = vec![[0usize; 2]; lines];
+        data.par_chunks_mut(fields * len)
+            .zip(nonzero.par_iter_mut())
+            .enumerate()
+            .for_each(|(d0, (line, nz))| {
+                let (mut first, mut last) = (len, 0);
+                for d in 0..len {
+                    let p = if transpose { d * w + d0 } else { d0 * w + d };
+                    line[FACE * len + d] = face_index[p] as f64;
+                    line[KEY * len + d] = key[p];
+                    let (gp, ip) = (&grad[p * c..(p + 1) * c], &image[p * c..(p + 1) * c]);
+                    let mut gi = 0f64;
+                    for k in 0..c {
+                        gi += gp[k] as f64 * ip[k] as f64;
+                        line[(GRAD + k) * len + d] = gp[k] as f64;
+                    }
+                    line[GI * len + d] = gi;
+                    if gp.iter().any(|&x| x != 0.0) {
+                        first = first.min(d);
+                        last = d + 1;
+                    }
                 }
-                let mut acc = 0f64;
-                for k in 0..c {
-                    acc += grad[p * c + k] as f64 * image[p * c + k] as f64;
-                }
-                gi[q] = acc;
-                for k in 0..c {
-                    g[q * c + k] = grad[p * c + k] as f64;
-                }
-                im[q * c..(q + 1) * c].copy_from_slice(&image[p * c..(p + 1) * c]);
-            }
-        }
+                *nz = if first < last { [first, last] } else { [0, 0] };
+            });
         Lines {
-            face,
-            key,
-            gi,
-            grad: g,
-            image: im,
-            len: if transpose { h } else { w },
+            data,
+            len,
+            fields,
+            nonzero,
         }
     }
+
+    /// Field `field` of the pixels `range` of line `d0`.
+    #[inline(always)]
+    fn plane(&self, d0: usize, field: usize, range: std::ops::Range<usize>) -> &[f64] {
+        let o = (d0 * self.fields + field) * self.len;
+        &self.data[o + range.start..o + range.end]
+    }
+
+    /// Field `field` of pixel `d` of line `d0`.
+    #[inline(always)]
+    fn get(&self, d0: usize, d: usize, field: usize) -> f64 {
+        self.data[(d0 * self.fields + field) * self.len + d]
+    }
+}
+
+/// Per-task scratch buffers of the OUT sweeps (one line each), reused across faces.
+struct Scratch {
+    /// `sum_c G[P, c] A[f, c]` per pixel of the sweep.
+    ga: Vec<f64>,
+    /// Contribution to endpoint `a` per pixel.
+    out_a: Vec<f64>,
+    /// Contribution to endpoint `c` per pixel.
+    out_c: Vec<f64>,
+}
+
+impl Scratch {
+    /// Buffers for lines of up to `len` pixels.
+    fn new(len: usize) -> Scratch {
+        Scratch {
+            ga: vec![0.0; len],
+            out_a: vec![0.0; len],
+            out_c: vec![0.0; len],
+        }
+    }
+}
+
+/// `0, 1, 2, ...` as f64 (pixel positions along a line).
+fn positions(len: usize) -> Vec<f64> {
+    (0..len).map(|d| d as f64).collect()
 }
 
 /// Per-batch-element context of the gradient sweeps.
@@ -162,7 +225,12 @@ struct Ctx<'a> {
     setups: &'a [FaceSetup],
     rows: &'a Lines,
     cols: &'a Lines,
-    attrs: &'a [f32],
+    /// `(M, C)` face attributes as f64.
+    attrs: &'a [f64],
+    /// `(H, W, C)` image (row-major, as given).
+    image: &'a [f32],
+    /// Pixel positions along a line, see [`positions`].
+    pos: &'a [f64],
     channels: usize,
     params: &'a RasterParams,
 }
@@ -175,28 +243,20 @@ enum Axis {
 }
 
 impl Ctx<'_> {
-    /// NMR gradient partial of face `f`: `[corner][x or y]`, dispatching to a channel-count specialisation.
-    fn face_grad(&self, f: usize) -> [[f64; 2]; 3] {
-        match self.channels {
-            1 => self.face_grad_c::<1>(f),
-            3 => self.face_grad_c::<3>(f),
-            4 => self.face_grad_c::<4>(f),
-            _ => self.face_grad_c::<0>(f),
-        }
-    }
-
-    /// [`Ctx::face_grad`] for `C` channels (`C = 0`: read the count at run time).
-    fn face_grad_c<const C: usize>(&self, f: usize) -> [[f64; 2]; 3] {
+    /// NMR gradient partial of face `f`: `[corner][x or y]`.
+    fn face_grad(&self, f: usize, scratch: &mut Scratch) -> [[f64; 2]; 3] {
         let s = &self.setups[f];
         let (h, w) = (self.params.height as i64, self.params.width as i64);
-        // Depth window on the interpolated quantity: 1/z in [1/far, 1/near] (perspective) or z in [near, far].
+        // Depth-test keys (1/z in perspective, -z in orthographic) allowed by the clip range [near, far].
         let (near, far) = (self.params.near, self.params.far);
-        let (lo_key, hi_key) = if s.ortho {
-            (near, far)
+        let (key_lo, key_hi) = if s.ortho {
+            (-far, -near)
         } else {
             (1.0 / far, 1.0 / near)
         };
-        let c = if C == 0 { self.channels } else { C };
+        // The key is `sgn * plane(u, v)`: the plane interpolates 1/z (perspective) or z (orthographic).
+        let sgn = if s.ortho { -1.0 } else { 1.0 };
+        let c = self.channels;
         let fi = f as i32;
         let attrs_f = &self.attrs[f * c..(f + 1) * c];
         let mut g = [[0.0f64; 2]; 3];
@@ -242,7 +302,7 @@ impl Ctx<'_> {
                     if d_out < 0 || d_out >= len {
                         continue;
                     }
-                    let base = d0 as usize * ln.len;
+                    let line = d0 as usize;
                     // Endpoint motion needed per pixel of crossing motion (None when the endpoint is on the line).
                     let ka = (pc != d0f).then(|| ndc * (pc - pa) / (pc - d0f));
                     let kc = (pa != d0f).then(|| ndc * (pc - pa) / (d0f - pa));
@@ -255,50 +315,42 @@ impl Ctx<'_> {
                             g[cc][comp] += delta / nudge(k * t);
                         }
                     };
-                    // OUT: pixels beyond the edge that the face would cover.
-                    if ln.face[base + d_in as usize] == fi {
-                        let pl0 = pl_line * d0f + s.plane[2];
-                        let eps_of = |k: Option<f64>| {
-                            k.map_or(0.0, |k| if k * dir as f64 > 0.0 { EPS } else { -EPS })
-                        };
-                        let (eps_a, eps_c) = (eps_of(ka), eps_of(kc));
+                    // OUT: pixels beyond the edge that the face would cover (only where the cotangent is not zero).
+                    if ln.get(line, d_in as usize, FACE) == fi as f64 {
                         let (start, end) = if dir > 0 {
-                            (d_out as usize, len as usize)
+                            (d_out as usize, ln.len)
                         } else {
                             (0, d_out as usize + 1)
                         };
-                        let (lo_px, hi_px) = (base + start, base + end);
-                        let it = ln.face[lo_px..hi_px]
-                            .iter()
-                            .zip(&ln.key[lo_px..hi_px])
-                            .zip(&ln.gi[lo_px..hi_px])
-                            .zip(ln.grad[lo_px * c..hi_px * c].chunks_exact(c))
-                            .enumerate();
-                        let sweep = OutSweep {
-                            fi,
-                            start,
-                            pl0,
-                            pl_step,
-                            lo_key,
-                            hi_key,
-                            ortho: s.ortho,
-                            cross,
-                            ka: ka.unwrap_or(0.0),
-                            kc: kc.unwrap_or(0.0),
-                            eps_a,
-                            eps_c,
-                            attrs: attrs_f,
-                        };
-                        let (sa, sc) = if dir > 0 {
-                            sweep.run(it)
-                        } else {
-                            sweep.run(it.rev())
-                        };
-                        if ka.is_some() {
-                            g[a][comp] += sa;
-                        }
-                        if kc.is_some() {
-                            g[cc][comp] += sc;
+                        let [nz0, nz1] = ln.nonzero[line];
+                        let (start, end) = (start.max(nz0), end.min(nz1));
+                        if start < end {
+                            // `nudge(k t)` is `k t + sign(k dir) EPS` beyond the edge (`t` has the sign of `dir`).
+                            let split = |k: Option<f64>| match k {
+                                Some(k) => (k, if k * dir as f64 > 0.0 { EPS } else { -EPS }),
+                                None => (0.0, 1.0),
+                            };
+                            let ((ka_, ea), (kc_, ec)) = (split(ka), split(kc));
+                            let sweep = OutSweep {
+                                fi: fi as f64,
+                                key0: sgn * (pl_line * d0f + s.plane[2]),
+                                key_step: sgn * pl_step,
+                                key_lo,
+                                key_hi,
+                                cross,
+                                ka: ka_,
+                                ea,
+                                kc: kc_,
+                                ec,
+                                attrs: attrs_f,
+                            };
+                            let (sa, sc) = sweep.run(ln, line, start, end, self.pos, scratch);
+                            if ka.is_some() {
+                                g[a][comp] += sa;
+                            }
+                            if kc.is_some() {
+                                g[cc][comp] += sc;
+                            }
                         }
                     }
                     // IN: pixels of the face that would be uncovered.
@@ -316,19 +368,21 @@ impl Ctx<'_> {
                     };
                     let from = d_in_f.min(limit).max(0.0) as i64;
                     let to = d_in_f.max(limit).min((len - 1) as f64) as i64;
-                    let out_px = base + d_out as usize;
-                    let out_color = &ln.image[out_px * c..(out_px + 1) * c];
+                    let out_px = match axis {
+                        Axis::U => d_out as usize * w as usize + line,
+                        Axis::V => line * w as usize + d_out as usize,
+                    };
+                    let out_color = &self.image[out_px * c..(out_px + 1) * c];
                     for d in from..=to {
-                        let px = base + d as usize;
-                        if ln.face[px] != fi {
+                        let du = d as usize;
+                        if ln.get(line, du, FACE) != fi as f64 {
                             continue;
                         }
-                        let gp = &ln.grad[px * c..(px + 1) * c];
                         let mut go = 0f64;
-                        for k in 0..c {
-                            go += gp[k] * out_color[k] as f64;
+                        for (k, &ok) in out_color.iter().enumerate() {
+                            go += ln.get(line, du, GRAD + k) * ok as f64;
                         }
-                        let delta = go - ln.gi[px];
+                        let delta = go - ln.get(line, du, GI);
                         if delta < 0.0 {
                             contribute(&mut g, d, delta);
                         }
@@ -342,55 +396,160 @@ impl Ctx<'_> {
 
 /// One OUT sweep along a line (see the module docs), with local accumulators for the two edge endpoints.
 struct OutSweep<'a> {
-    fi: i32,
-    start: usize,
-    pl0: f64,
-    pl_step: f64,
-    lo_key: f64,
-    hi_key: f64,
-    ortho: bool,
+    /// The face, as f64 (compared with the [`FACE`] field).
+    fi: f64,
+    /// Depth-test key of the face's plane at pixel 0 of the line.
+    key0: f64,
+    /// Key increment per pixel along the line.
+    key_step: f64,
+    /// Smallest key allowed by the clip range.
+    key_lo: f64,
+    /// Largest key allowed by the clip range.
+    key_hi: f64,
+    /// Where the edge crosses the line.
     cross: f64,
+    /// `to_ndc` motion of endpoint `a` per pixel of crossing motion (0 when `a` is on the line).
     ka: f64,
+    /// `sign(ka dir) EPS` (1 when `a` is on the line, so that its denominator never vanishes).
+    ea: f64,
+    /// As `ka`, endpoint `c`.
     kc: f64,
-    eps_a: f64,
-    eps_c: f64,
-    attrs: &'a [f32],
+    /// As `ea`, endpoint `c`.
+    ec: f64,
+    /// The face's attributes.
+    attrs: &'a [f64],
+}
+
+/// First index in `lo..hi` where `pred` is false, for a predicate that is true then false (`hi` if none).
+#[inline]
+fn partition_point(mut lo: usize, mut hi: usize, pred: impl Fn(usize) -> bool) -> usize {
+    while lo < hi {
+        let mid = lo + (hi - lo) / 2;
+        if pred(mid) {
+            lo = mid + 1;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
+}
+
+/// Sum of `v` in a fixed order (four interleaved partial sums, then added).
+#[inline(always)]
+fn fixed_sum(v: &[f64]) -> f64 {
+    let mut acc = [0f64; 4];
+    let mut chunks = v.chunks_exact(4);
+    for ch in &mut chunks {
+        for l in 0..4 {
+            acc[l] += ch[l];
+        }
+    }
+    for (l, &x) in chunks.remainder().iter().enumerate() {
+        acc[l] += x;
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3])
 }
 
 impl OutSweep<'_> {
-    /// Sums the contributions of the pixels produced by `it` (`(i, (((face, key), gi), grad))`, `d = start + i`),
-    /// in iteration order. Returns the sums for endpoints `a` and `c` (meaningful only when their `k` is defined).
+    /// Depth-test key of the face's plane at pixel `d` of the line.
     #[inline(always)]
-    fn run<'b>(
-        &self,
-        it: impl Iterator<Item = (usize, (((&'b i32, &'b f64), &'b f64), &'b [f64]))>,
-    ) -> (f64, f64) {
-        let (mut sa, mut sc) = (0f64, 0f64);
-        for (i, (((&fp, &kp), &gi), gp)) in it {
-            if fp == self.fi {
-                continue;
-            }
-            let d = (self.start + i) as f64;
-            let val = self.pl0 + self.pl_step * d;
-            if !(val >= self.lo_key && val <= self.hi_key) {
-                continue;
-            }
-            let kf = if self.ortho { -val } else { val };
-            if !(kf > kp || (kf == kp && self.fi < fp)) {
-                continue;
-            }
-            let mut ga = 0f64;
-            for (gk, ak) in gp.iter().zip(self.attrs) {
-                ga += gk * *ak as f64;
-            }
-            // Branch-free form of `if delta < 0 { contribute(d, delta) }`: beyond the edge `t = d - cross` has the
-            // sign of `dir` and is never 0, so `nudge(k t)` is `k t + sign(k dir) EPS`; a skipped pixel adds 0.
-            let m = (ga - gi).min(0.0);
-            let t = d - self.cross;
-            sa += m / (self.ka * t + self.eps_a);
-            sc += m / (self.kc * t + self.eps_c);
+    fn key(&self, d: usize) -> f64 {
+        self.key0 + self.key_step * d as f64
+    }
+
+    /// The pixels of `start..end` where the face's key is within the clip range. Exact: the computed key is a
+    /// monotone function of `d` (products and sums round monotonically), so these pixels form one range.
+    fn clip(&self, start: usize, end: usize) -> (usize, usize) {
+        let above_lo = |d: usize| self.key(d) >= self.key_lo;
+        let below_hi = |d: usize| self.key(d) <= self.key_hi;
+        if self.key_step > 0.0 {
+            let s = partition_point(start, end, |d| !above_lo(d));
+            (s, partition_point(s, end, below_hi))
+        } else if self.key_step < 0.0 {
+            let s = partition_point(start, end, |d| !below_hi(d));
+            (s, partition_point(s, end, above_lo))
+        } else if start < end && above_lo(start) && below_hi(start) {
+            (start, end)
+        } else {
+            (start, start)
         }
-        (sa, sc)
+    }
+
+    /// Sums the contributions of pixels `start..end` of line `d0`. Returns the sums for endpoints `a` and `c`
+    /// (meaningful only when their `k` is defined), each added in a fixed order.
+    fn run(
+        &self,
+        ln: &Lines,
+        d0: usize,
+        start: usize,
+        end: usize,
+        pos: &[f64],
+        scratch: &mut Scratch,
+    ) -> (f64, f64) {
+        let (start, end) = self.clip(start, end);
+        if start >= end {
+            return (0.0, 0.0);
+        }
+        let r = start..end;
+        match self.attrs.len() {
+            1 => self.kernel::<1>(ln, d0, r, pos, scratch),
+            2 => self.kernel::<2>(ln, d0, r, pos, scratch),
+            3 => self.kernel::<3>(ln, d0, r, pos, scratch),
+            4 => self.kernel::<4>(ln, d0, r, pos, scratch),
+            _ => {
+                // Any channel count: sum_c G[P, c] A[f, c] into the scratch buffer first, channel by channel.
+                let ga = &mut scratch.ga[..r.len()];
+                ga.fill(0.0);
+                for (k, &ak) in self.attrs.iter().enumerate() {
+                    for (x, &g) in ga.iter_mut().zip(ln.plane(d0, GRAD + k, r.clone())) {
+                        *x += g * ak;
+                    }
+                }
+                self.kernel::<0>(ln, d0, r, pos, scratch)
+            }
+        }
+    }
+
+    /// The OUT sweep over the pixels `r` of line `d0` (already clipped), for `C` channels (`C = 0`: with
+    /// `sum_c G[P, c] A[f, c]` precomputed in `scratch.ga`).
+    #[inline(always)]
+    fn kernel<const C: usize>(
+        &self,
+        ln: &Lines,
+        d0: usize,
+        r: std::ops::Range<usize>,
+        pos: &[f64],
+        scratch: &mut Scratch,
+    ) -> (f64, f64) {
+        let n = r.len();
+        let g: [&[f64]; C] = std::array::from_fn(|k| &ln.plane(d0, GRAD + k, r.clone())[..n]);
+        let a: [f64; C] = std::array::from_fn(|k| self.attrs[k]);
+        let Scratch { ga, out_a, out_c } = scratch;
+        let (pre, out_a, out_c) = (&ga[..n], &mut out_a[..n], &mut out_c[..n]);
+        let face = &ln.plane(d0, FACE, r.clone())[..n];
+        let key = &ln.plane(d0, KEY, r.clone())[..n];
+        let gi = &ln.plane(d0, GI, r.clone())[..n];
+        let pos = &pos[r][..n];
+        for i in 0..n {
+            let mut ga = if C == 0 { pre[i] } else { 0.0 };
+            for k in 0..C {
+                ga += g[k][i] * a[k];
+            }
+            let (fp, kp, d) = (face[i], key[i], pos[i]);
+            let kf = self.key0 + self.key_step * d;
+            let delta = ga - gi[i];
+            // covers(f, P) (the clip range is handled by `clip`) and delta < 0.
+            let take =
+                (fp != self.fi) & ((kf > kp) | ((kf == kp) & (self.fi < fp))) & (delta < 0.0);
+            let m = if take { delta } else { 0.0 };
+            let t = d - self.cross;
+            let (da, dc) = (self.ka * t + self.ea, self.kc * t + self.ec);
+            // m / da and m / dc with one division.
+            let q = m / (da * dc);
+            out_a[i] = q * dc;
+            out_c[i] = q * da;
+        }
+        (fixed_sum(out_a), fixed_sum(out_c))
     }
 }
 
@@ -449,27 +608,38 @@ pub fn rasterize_backward(
             }
             // NMR vertex gradient: per-face partials in parallel, reduced in face order.
             let setups = setup_faces(mesh, b, params);
+            let key = depth_keys(&setups, face_index, params);
             let (rows, cols) = rayon::join(
-                || Lines::new(&setups, face_index, image, grad, c, params, false),
-                || Lines::new(&setups, face_index, image, grad, c, params, true),
+                || Lines::new(&key, face_index, image, grad, c, params, false),
+                || Lines::new(&key, face_index, image, grad, c, params, true),
             );
+            let attrs_b: Vec<f64> = attrs.values[b * m * c..(b + 1) * m * c]
+                .iter()
+                .map(|&x| x as f64)
+                .collect();
+            let pos = positions(params.height.max(params.width));
             let ctx = Ctx {
                 setups: &setups,
                 rows: &rows,
                 cols: &cols,
-                attrs: &attrs.values[b * m * c..(b + 1) * m * c],
+                attrs: &attrs_b,
+                image,
+                pos: &pos,
                 channels: c,
                 params,
             };
             let partials: Vec<[[f64; 2]; 3]> = (0..m)
                 .into_par_iter()
-                .map(|f| {
-                    if visible[f] && setups[f].active {
-                        ctx.face_grad(f)
-                    } else {
-                        [[0.0; 2]; 3]
-                    }
-                })
+                .map_init(
+                    || Scratch::new(params.height.max(params.width)),
+                    |scratch, f| {
+                        if visible[f] && setups[f].active {
+                            ctx.face_grad(f, scratch)
+                        } else {
+                            [[0.0; 2]; 3]
+                        }
+                    },
+                )
                 .collect();
             let mut accv = vec![0f64; nv * 2];
             for (f, part) in partials.iter().enumerate() {

@@ -10,6 +10,10 @@ from typing import Optional
 
 import typer
 
+#: Default Adam learning rates: scene units per step for shape (small: NMR gradients are heavy-tailed and Adam moves
+#: every vertex that receives any gradient by about lr per step), logit units per step for texture.
+DEFAULT_LR = {"shape": 3e-4, "texture": 0.05}
+
 SCENE_HELP = (
     "'indoor' (the shared desk scene), a Mitsuba scene XML file, or a photograph (.jpg/.png) to insert --object into"
 )
@@ -30,8 +34,8 @@ def attack_scene(
     obj: str = typer.Option("bunny", "--object", help="object to perturb (scene object name, or a mesh file for photos)"),
     place: str = typer.Option("0.5,0.75,0.3", help="photo only: u,v,height_fraction of the inserted object"),
     steps: int = typer.Option(300, help="maximum Adam steps"),
-    lr: float = typer.Option(2e-3, help="Adam learning rate"),
-    lambda_perceptual: float = typer.Option(0.1, "--lambda", help="perceptual loss weight"),
+    lr: Optional[float] = typer.Option(None, help="Adam learning rate (default: 3e-4 for shape, 0.05 for texture)"),
+    lambda_perceptual: float = typer.Option(1.0, "--lambda", help="perceptual loss weight"),
     threshold: float = typer.Option(0.5, help="detection score threshold"),
     width: Optional[int] = typer.Option(None, help="render width (default: the scene's / photo's own)"),
     seed: int = typer.Option(0, help="random seed"),
@@ -48,6 +52,8 @@ def attack_scene(
 
     setup = build_setup(scene, obj, place, width)
     detector = load_victim(victim)
+    if lr is None:
+        lr = DEFAULT_LR.get(perturb, 3e-4)
     attack = SceneAttack(perturb=perturb, steps=steps, lr=lr, lambda_perceptual=lambda_perceptual, seed=seed)
 
     def progress(step: int, loss: float, score: float) -> None:

@@ -134,8 +134,8 @@ class SceneAttack:
 
     perturb: str = "shape"
     steps: int = 300
-    lr: float = 2e-3
-    lambda_perceptual: float = 0.1
+    lr: float = 3e-4
+    lambda_perceptual: float = 1.0
     margin: float = 0.05
     patience: int = 5
     seed: int = 0

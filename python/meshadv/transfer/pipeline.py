@@ -46,6 +46,7 @@ class TransferCase:
         attack_type: ``"shape"`` or ``"texture"``.
         image_size: (H, W) of the renders.
         background: RGB background of the renders.
+        benign_correct: whether the victim classified the benign render correctly (from the sweep), if known.
     """
 
     case_id: str
@@ -57,6 +58,7 @@ class TransferCase:
     attack_type: str = ""
     image_size: tuple[int, int] = (224, 224)
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    benign_correct: Optional[bool] = None
 
     def __post_init__(self) -> None:
         if not self.views:
@@ -123,6 +125,7 @@ def cases_from_store(
                 target=None if target is None else str(target),
                 attack_type=str(spec.get("perturbation", result.get("perturbation", ""))),
                 image_size=tuple(size) if isinstance(size, (list, tuple)) else (int(size), int(size)),
+                benign_correct=None if record.get("benign_correct") is None else bool(record["benign_correct"]),
             )
         )
         if limit is not None and len(cases) >= limit:
@@ -214,6 +217,7 @@ def evaluate_case(
                 "top1_mitsuba": top_theirs[v],
                 "mean_abs_image_difference": float(diff[v]),
                 "variant": mitsuba_images[v].variant,
+                "benign_correct": case.benign_correct,
             }
         )
     return rows

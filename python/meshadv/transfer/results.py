@@ -149,7 +149,9 @@ def transfer_table(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 
     Returns:
         One dict per (victim, attack_type): ``n``, ``untargeted_meshadv``, ``untargeted_mitsuba``,
-        ``targeted_meshadv``, ``targeted_mitsuba`` (rates in [0, 1] or None).
+        ``targeted_meshadv``, ``targeted_mitsuba`` (rates in [0, 1] or None), ``n_benign_correct`` (rows whose benign
+        render the victim classified correctly) and ``untargeted_mitsuba_benign_correct`` (the untargeted rate over
+        those rows only: a misclassified benign object makes untargeted success trivial).
     """
     groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
     for row in rows:
@@ -166,6 +168,10 @@ def transfer_table(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
                 "untargeted_mitsuba": _rate([r.get("untargeted_mitsuba") for r in items]),
                 "targeted_meshadv": _rate([r.get("success_meshadv") for r in targeted]),
                 "targeted_mitsuba": _rate([r.get("success_mitsuba") for r in targeted]),
+                "n_benign_correct": sum(1 for r in items if r.get("benign_correct")),
+                "untargeted_mitsuba_benign_correct": _rate(
+                    [r.get("untargeted_mitsuba") for r in items if r.get("benign_correct")]
+                ),
             }
         )
     return table
