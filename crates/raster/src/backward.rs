@@ -9,6 +9,22 @@
 //! partials are added to the vertices in increasing face order; pixels are summed in row-major order for
 //! `grad_face_attrs`. Results are therefore bit-identical for any thread count.
 //!
+//! # Implementation notes (precomputations; same numbers as the definition up to float rounding)
+//!
+//! * Once per batch element, per pixel: the depth-test key of the drawn face (`1/z` in perspective, `-z` in
+//!   orthographic, `z` from the barycentric depth exactly as the forward computes it; larger = nearer) and
+//!   `gI[P] = sum_c G[P, c] I[P, c]`, so that the OUT sweep's `delta = sum_c G[P, c] A[f, c] - gI[P]`. These and the
+//!   face index and cotangent are stored as f64 planes along sweep lines: row lines for the row sweeps, a transposed
+//!   copy for the column sweeps, so the inner loops read contiguous memory and vectorise.
+//! * Per line, the range of pixels with a non-zero cotangent: an OUT sweep is cut to it (elsewhere `delta = 0`).
+//! * Per OUT sweep: the face's key along the line is `key0 + key_step * d` (its plane in pixel space); the pixels
+//!   whose key lies in the clip range form one interval (the computed key is monotone in `d`), found once, so the
+//!   inner loop only tests the depth order (`key > key(P)`, or equal keys and the lower face index) and `delta < 0`.
+//! * Per pixel of an OUT or IN sweep, `delta / dist_a` and `delta / dist_c` (the two endpoint displacements) use one
+//!   division, `q = delta / (dist_a * dist_c)`, times `dist_c` and `dist_a`. The inner loop is branch-free (skipped
+//!   pixels add 0) and writes per-pixel terms to a scratch buffer that is summed in a fixed order, so each sweep is
+//!   added to the face's accumulators as one sum.
+//!
 //! The exact, step-by-step definition (the same text as `docs/NMR_GRADIENT.md`) follows.
 //!
 #![doc = include_str!("../../../docs/NMR_GRADIENT.md")]
@@ -293,7 +309,7 @@ impl Ctx<'_> {
                 for d0 in (lo as i64)..=(hi as i64) {
                     let d0f = d0 as f64;
                     let cross = qa + slope * (d0f - pa);
-                    let d_in_f = if dir > 0 { cross.floor() } else { cross.ceil() };
+                    let d_in_f = if dir > 0 { floor(cross) } else { ceil(cross) };
                     if !(d_in_f >= 0.0 && d_in_f <= (len - 1) as f64) {
                         continue;
                     }
@@ -306,15 +322,6 @@ impl Ctx<'_> {
                     // Endpoint motion needed per pixel of crossing motion (None when the endpoint is on the line).
                     let ka = (pc != d0f).then(|| ndc * (pc - pa) / (pc - d0f));
                     let kc = (pa != d0f).then(|| ndc * (pc - pa) / (d0f - pa));
-                    let contribute = |g: &mut [[f64; 2]; 3], d: i64, delta: f64| {
-                        let t = d as f64 - cross;
-                        if let Some(k) = ka {
-                            g[a][comp] += delta / nudge(k * t);
-                        }
-                        if let Some(k) = kc {
-                            g[cc][comp] += delta / nudge(k * t);
-                        }
-                    };
                     // OUT: pixels beyond the edge that the face would cover (only where the cotangent is not zero).
                     if ln.get(line, d_in as usize, FACE) == fi as f64 {
                         let (start, end) = if dir > 0 {
@@ -361,11 +368,7 @@ impl Ctx<'_> {
                     } else {
                         qo
                     };
-                    let limit = if dir > 0 {
-                        cross2.ceil()
-                    } else {
-                        cross2.floor()
-                    };
+                    let limit = if dir > 0 { ceil(cross2) } else { floor(cross2) };
                     let from = d_in_f.min(limit).max(0.0) as i64;
                     let to = d_in_f.max(limit).min((len - 1) as f64) as i64;
                     let out_px = match axis {
@@ -373,18 +376,22 @@ impl Ctx<'_> {
                         Axis::V => line * w as usize + d_out as usize,
                     };
                     let out_color = &self.image[out_px * c..(out_px + 1) * c];
-                    for d in from..=to {
-                        let du = d as usize;
-                        if ln.get(line, du, FACE) != fi as f64 {
-                            continue;
+                    if from <= to {
+                        let (sa, sc) = in_sweep(
+                            ln,
+                            line,
+                            from as usize..to as usize + 1,
+                            fi as f64,
+                            out_color,
+                            cross,
+                            ka.unwrap_or(0.0),
+                            kc.unwrap_or(0.0),
+                        );
+                        if ka.is_some() {
+                            g[a][comp] += sa;
                         }
-                        let mut go = 0f64;
-                        for (k, &ok) in out_color.iter().enumerate() {
-                            go += ln.get(line, du, GRAD + k) * ok as f64;
-                        }
-                        let delta = go - ln.get(line, du, GI);
-                        if delta < 0.0 {
-                            contribute(&mut g, d, delta);
+                        if kc.is_some() {
+                            g[cc][comp] += sc;
                         }
                     }
                 }
@@ -434,20 +441,20 @@ fn partition_point(mut lo: usize, mut hi: usize, pred: impl Fn(usize) -> bool) -
     lo
 }
 
-/// Sum of `v` in a fixed order (four interleaved partial sums, then added).
+/// Sum of `v` in a fixed order (eight interleaved partial sums, then added pairwise).
 #[inline(always)]
 fn fixed_sum(v: &[f64]) -> f64 {
-    let mut acc = [0f64; 4];
-    let mut chunks = v.chunks_exact(4);
+    let mut acc = [0f64; 8];
+    let mut chunks = v.chunks_exact(8);
     for ch in &mut chunks {
-        for l in 0..4 {
+        for l in 0..8 {
             acc[l] += ch[l];
         }
     }
     for (l, &x) in chunks.remainder().iter().enumerate() {
         acc[l] += x;
     }
-    (acc[0] + acc[1]) + (acc[2] + acc[3])
+    ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
 }
 
 impl OutSweep<'_> {
@@ -462,14 +469,15 @@ impl OutSweep<'_> {
     fn clip(&self, start: usize, end: usize) -> (usize, usize) {
         let above_lo = |d: usize| self.key(d) >= self.key_lo;
         let below_hi = |d: usize| self.key(d) <= self.key_hi;
-        if self.key_step > 0.0 {
+        let inside = |d: usize| above_lo(d) && below_hi(d);
+        if start >= end || (inside(start) && inside(end - 1)) {
+            (start, end)
+        } else if self.key_step > 0.0 {
             let s = partition_point(start, end, |d| !above_lo(d));
             (s, partition_point(s, end, below_hi))
         } else if self.key_step < 0.0 {
             let s = partition_point(start, end, |d| !below_hi(d));
             (s, partition_point(s, end, above_lo))
-        } else if start < end && above_lo(start) && below_hi(start) {
-            (start, end)
         } else {
             (start, start)
         }
@@ -492,10 +500,10 @@ impl OutSweep<'_> {
         }
         let r = start..end;
         match self.attrs.len() {
-            1 => self.kernel::<1>(ln, d0, r, pos, scratch),
-            2 => self.kernel::<2>(ln, d0, r, pos, scratch),
-            3 => self.kernel::<3>(ln, d0, r, pos, scratch),
-            4 => self.kernel::<4>(ln, d0, r, pos, scratch),
+            1 => self.kernel_ties::<1>(ln, d0, r, pos, scratch),
+            2 => self.kernel_ties::<2>(ln, d0, r, pos, scratch),
+            3 => self.kernel_ties::<3>(ln, d0, r, pos, scratch),
+            4 => self.kernel_ties::<4>(ln, d0, r, pos, scratch),
             _ => {
                 // Any channel count: sum_c G[P, c] A[f, c] into the scratch buffer first, channel by channel.
                 let ga = &mut scratch.ga[..r.len()];
@@ -505,15 +513,15 @@ impl OutSweep<'_> {
                         *x += g * ak;
                     }
                 }
-                self.kernel::<0>(ln, d0, r, pos, scratch)
+                self.kernel_ties::<0>(ln, d0, r, pos, scratch)
             }
         }
     }
 
-    /// The OUT sweep over the pixels `r` of line `d0` (already clipped), for `C` channels (`C = 0`: with
-    /// `sum_c G[P, c] A[f, c]` precomputed in `scratch.ga`).
+    /// [`OutSweep::kernel`] without the exact-tie rule of the depth test, then with it if some pixel's key equals
+    /// the face's (rare: coplanar neighbours), which is cheaper than testing ties at every pixel.
     #[inline(always)]
-    fn kernel<const C: usize>(
+    fn kernel_ties<const C: usize>(
         &self,
         ln: &Lines,
         d0: usize,
@@ -521,7 +529,28 @@ impl OutSweep<'_> {
         pos: &[f64],
         scratch: &mut Scratch,
     ) -> (f64, f64) {
+        match self.kernel::<C, false>(ln, d0, r.clone(), pos, scratch) {
+            Some(sums) => sums,
+            None => self
+                .kernel::<C, true>(ln, d0, r, pos, scratch)
+                .unwrap_or((0.0, 0.0)),
+        }
+    }
+
+    /// The OUT sweep over the pixels `r` of line `d0` (already clipped), for `C` channels (`C = 0`: with
+    /// `sum_c G[P, c] A[f, c]` precomputed in `scratch.ga`). Without `TIES`, pixels whose key equals the face's are
+    /// not handled and their presence gives `None`.
+    #[inline(always)]
+    fn kernel<const C: usize, const TIES: bool>(
+        &self,
+        ln: &Lines,
+        d0: usize,
+        r: std::ops::Range<usize>,
+        pos: &[f64],
+        scratch: &mut Scratch,
+    ) -> Option<(f64, f64)> {
         let n = r.len();
+        let mut tie = false;
         let g: [&[f64]; C] = std::array::from_fn(|k| &ln.plane(d0, GRAD + k, r.clone())[..n]);
         let a: [f64; C] = std::array::from_fn(|k| self.attrs[k]);
         let Scratch { ga, out_a, out_c } = scratch;
@@ -531,16 +560,21 @@ impl OutSweep<'_> {
         let gi = &ln.plane(d0, GI, r.clone())[..n];
         let pos = &pos[r][..n];
         for i in 0..n {
-            let mut ga = if C == 0 { pre[i] } else { 0.0 };
-            for k in 0..C {
+            let mut ga = if C == 0 { pre[i] } else { g[0][i] * a[0] };
+            for k in 1..C {
                 ga += g[k][i] * a[k];
             }
             let (fp, kp, d) = (face[i], key[i], pos[i]);
             let kf = self.key0 + self.key_step * d;
             let delta = ga - gi[i];
             // covers(f, P) (the clip range is handled by `clip`) and delta < 0.
-            let take =
-                (fp != self.fi) & ((kf > kp) | ((kf == kp) & (self.fi < fp))) & (delta < 0.0);
+            let nearer = if TIES {
+                (kf > kp) | ((kf == kp) & (self.fi < fp))
+            } else {
+                tie |= kf == kp;
+                kf > kp
+            };
+            let take = (fp != self.fi) & nearer & (delta < 0.0);
             let m = if take { delta } else { 0.0 };
             let t = d - self.cross;
             let (da, dc) = (self.ka * t + self.ea, self.kc * t + self.ec);
@@ -549,18 +583,76 @@ impl OutSweep<'_> {
             out_a[i] = q * dc;
             out_c[i] = q * da;
         }
-        (fixed_sum(out_a), fixed_sum(out_c))
+        (!tie).then(|| (fixed_sum(out_a), fixed_sum(out_c)))
     }
 }
 
-/// NMR's `dist = dist + eps` if positive else `dist - eps`.
-#[inline]
-fn nudge(dist: f64) -> f64 {
-    if dist > 0.0 {
-        dist + EPS
-    } else {
-        dist - EPS
+/// The IN sweep of one line over the pixels `range` (see the module docs): sums of the contributions to the edge
+/// endpoints `a` and `c`, whose crossing-motion factors are `ka` and `kc` (meaningful only when defined).
+#[allow(clippy::too_many_arguments)]
+fn in_sweep(
+    ln: &Lines,
+    line: usize,
+    range: std::ops::Range<usize>,
+    fi: f64,
+    out_color: &[f32],
+    cross: f64,
+    ka: f64,
+    kc: f64,
+) -> (f64, f64) {
+    let (face, gi) = (
+        ln.plane(line, FACE, range.clone()),
+        ln.plane(line, GI, range.clone()),
+    );
+    let (mut sa, mut sc) = (0f64, 0f64);
+    for (i, (&fp, &gi)) in face.iter().zip(gi).enumerate() {
+        let d = range.start + i;
+        let mut go = 0f64;
+        for (k, &oc) in out_color.iter().enumerate() {
+            go += ln.get(line, d, GRAD + k) * oc as f64;
+        }
+        let delta = go - gi;
+        // Branch-free form of `if F[P] == f && delta < 0 { contribute(d, delta) }`.
+        let m = if (fp == fi) & (delta < 0.0) {
+            delta
+        } else {
+            0.0
+        };
+        let t = d as f64 - cross;
+        let (da, dc) = (nudge(ka * t), nudge(kc * t));
+        let q = m / (da * dc);
+        sa += q * dc;
+        sc += q * da;
     }
+    (sa, sc)
+}
+
+/// `x.floor()` without a library call (the baseline x86-64 target has no rounding instruction).
+#[inline(always)]
+fn floor(x: f64) -> f64 {
+    // Beyond 2^52 (and for infinities and NaN) `x` is its own floor.
+    if x.abs() < 4503599627370496.0 {
+        let t = x as i64 as f64;
+        if t > x {
+            t - 1.0
+        } else {
+            t
+        }
+    } else {
+        x
+    }
+}
+
+/// `x.ceil()` without a library call, see [`floor`].
+#[inline(always)]
+fn ceil(x: f64) -> f64 {
+    -floor(-x)
+}
+
+/// NMR's `dist = dist + eps` if positive else `dist - eps`.
+#[inline(always)]
+fn nudge(dist: f64) -> f64 {
+    dist + if dist > 0.0 { EPS } else { -EPS }
 }
 
 /// Backward pass: exact attribute gradient and NMR's approximate vertex gradient (see the module docs).

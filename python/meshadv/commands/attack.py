@@ -136,7 +136,9 @@ def attack(
     loss: str = typer.Option("ce", help="classifier loss: ce or cw"),
     kappa: float = typer.Option(0.0, help="C&W confidence"),
     early_stop: int = typer.Option(10, help="stop once the target held for this many steps (0: never)"),
-    early_stop_margin: float = typer.Option(0.5, help="margin the target must hold with for early stopping"),
+    early_stop_margin: Optional[float] = typer.Option(
+        None, help="margin the target must hold with for early stopping (default: 0.5 logits for classifiers, "
+                   "0.05 below the threshold for detectors)"),
     budget: Optional[float] = typer.Option(None, help="distortion ceiling (Laplacian for shape, RMSE for texture)"),
     jitter: bool = typer.Option(False, help="random camera/light jitter at every step (robustness)"),
     image_size: int = typer.Option(224, help="rendered image size in pixels"),
@@ -161,13 +163,15 @@ def attack(
         held_out = make_views(eval_views + 1, az, elevation, distance, offset=0.5) if eval_views > 0 else None
         jitter_cfg = dict(azimuth=5.0, elevation=3.0, distance=0.05, light_direction=0.2,
                           light_intensity=0.2) if jitter else None
+        victim_obj = load_victim(victim)
+        if early_stop_margin is None:
+            early_stop_margin = 0.05 if victim_obj.kind == "detector" else 0.5
         attack_obj = build_attack(
             perturb, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
             max_distortion=budget, jitter=jitter_cfg, image_size=image_size, background=parse_color(background),
             seed=seed,
         )
-        victim_obj = load_victim(victim)
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
         for crit in criteria:
             crit.bind(victim_obj)  # validate class names now, before the attack starts

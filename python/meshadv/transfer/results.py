@@ -271,7 +271,8 @@ def transfer_report(rows: Sequence[dict[str, Any]]) -> str:
     if blackbox:
         parts.append("\n### Black-box pipeline (estimated camera and lights)\n")
         cols = ["case_id", "victim", "true_class", "target", "attack_type", "success_meshadv", "success_mitsuba",
-                "benign_correct_mitsuba", "azimuth_error", "elevation_error", "distance_error", "light_rmse"]
+                "benign_correct_mitsuba", "azimuth_error", "elevation_error", "distance_error", "light_rmse",
+                "direction_error"]
         parts.append(markdown_table(blackbox, [c for c in cols if any(c in r for r in blackbox)]))
     return "\n".join(parts)
 
