@@ -13,9 +13,7 @@ from meshadv.scenes import Scene, SceneCamera, SceneObject, composite_over_photo
 
 
 def _square(z: float, color: float, size: float = 1.0) -> Mesh:
-    verts = torch.tensor(
-        [[-size, -size, z], [size, -size, z], [size, size, z], [-size, size, z]], dtype=torch.float32
-    )
+    verts = torch.tensor([[-size, -size, z], [size, -size, z], [size, size, z], [-size, size, z]], dtype=torch.float32)
     faces = torch.tensor([[0, 1, 2], [0, 2, 3]], dtype=torch.int64)
     return Mesh(vertices=verts, faces=faces, face_colors=torch.full((2, 3), color))
 
@@ -26,7 +24,8 @@ def _camera(size: int = 32) -> SceneCamera:
 
 def _lights() -> Lights:
     return Lights(
-        directions=torch.tensor([[[0.0, 0.0, 1.0]]]), colors=torch.tensor([[[0.5, 0.5, 0.5]]]),
+        directions=torch.tensor([[[0.0, 0.0, 1.0]]]),
+        colors=torch.tensor([[[0.5, 0.5, 0.5]]]),
         ambient=torch.tensor([[0.5, 0.5, 0.5]]),
     )
 
@@ -52,8 +51,9 @@ def test_only_the_chosen_object_receives_gradient() -> None:
     scene = Scene((SceneObject("other", other), SceneObject("chosen", chosen)))
     offset = torch.zeros_like(chosen.vertices, requires_grad=True)
     colors = chosen.face_colors.clone().requires_grad_(True)
-    out = scene.render(_camera(), _lights(), vertices={"chosen": chosen.vertices + offset},
-                       face_colors={"chosen": colors})
+    out = scene.render(
+        _camera(), _lights(), vertices={"chosen": chosen.vertices + offset}, face_colors={"chosen": colors}
+    )
     (out.image * torch.randn_like(out.image)).sum().backward()
     assert other.vertices.grad is None
     assert offset.grad is not None and offset.grad.abs().sum() > 0
@@ -84,8 +84,9 @@ def test_indoor_scene_loads_with_its_objects(shared_data: Path) -> None:
     names = [o.name for o in info.scene.objects]
     for expected in ("desk", "chair", "bunny"):
         assert expected in names
-    camera = SceneCamera(eye=info.camera.eye, at=info.camera.at, up=info.camera.up, fov=info.camera.fov,
-                         width=160, height=120)
+    camera = SceneCamera(
+        eye=info.camera.eye, at=info.camera.at, up=info.camera.up, fov=info.camera.fov, width=160, height=120
+    )
     out = info.scene.render(camera, indoor_lights())
     visible = set(int(i) for i in out.object_index.unique().tolist())
     assert info.scene.index_of("desk") in visible
@@ -105,8 +106,13 @@ def test_scene_attack_hides_the_target_class(shared_data: Path) -> None:
         victim = load_victim("ssd_mobilenet_v2_coco")
     except ImportError as exc:
         pytest.skip(f"the SSD detector is not available: {exc}")
-    setup = photo_setup(shared_data / "photos" / "dog.jpg", builtin_mesh("sphere"), center_uv=(0.3, 0.62),
-                        height_fraction=0.35, width=320)
+    setup = photo_setup(
+        shared_data / "photos" / "dog.jpg",
+        builtin_mesh("sphere"),
+        center_uv=(0.3, 0.62),
+        height_fraction=0.35,
+        width=320,
+    )
     attack = SceneAttack(perturb="texture", steps=60, lr=0.5, lambda_perceptual=0.0, seed=0)
     result = attack(setup, victim, Disappearance("dog", threshold=0.5))
     assert result.score_before >= 0.5, "the pristine composite must still show the dog"
@@ -140,8 +146,22 @@ def test_attack_scene_command_writes_images_mesh_and_record(shared_data: Path, t
         pytest.skip(f"the SSD detector is not available: {exc}")
     result = CliRunner().invoke(
         app,
-        ["attack-scene", "indoor", "--hide", "dining table", "--perturb", "texture", "--steps", "2",
-         "--threshold", "0.3", "--width", "160", "-o", str(tmp_path)],
+        [
+            "attack-scene",
+            "indoor",
+            "--hide",
+            "dining table",
+            "--perturb",
+            "texture",
+            "--steps",
+            "2",
+            "--threshold",
+            "0.3",
+            "--width",
+            "160",
+            "-o",
+            str(tmp_path),
+        ],
     )
     assert result.exit_code == 0, result.output
     for name in ("before.png", "after.png", "adversarial.ply", "result.json"):

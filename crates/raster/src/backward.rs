@@ -750,3 +750,163 @@ pub fn rasterize_backward(
         grad_face_attrs,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Small deterministic generator (SplitMix64) for the tests.
+    struct Rng(u64);
+
+    impl Rng {
+        fn next(&mut self) -> f64 {
+            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = self.0;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    #[test]
+    fn floor_and_ceil_match_the_library() {
+        let mut rng = Rng(1);
+        let mut xs = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            2.5e15,
+            -2.5e15,
+            4503599627370495.5,
+            -4503599627370495.5,
+            1e300,
+            -1e300,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        xs.extend((0..1000).map(|_| (rng.next() - 0.5) * 1000.0));
+        for x in xs {
+            assert_eq!(floor(x), x.floor(), "floor({x})");
+            assert_eq!(ceil(x), x.ceil(), "ceil({x})");
+        }
+        assert!(floor(f64::NAN).is_nan() && ceil(f64::NAN).is_nan());
+    }
+
+    /// An OUT sweep with random parameters; the clip range is `[lo, hi]` on the key.
+    fn sweep<'a>(rng: &mut Rng, attrs: &'a [f64], lo: f64, hi: f64) -> OutSweep<'a> {
+        OutSweep {
+            fi: 3.0,
+            key0: rng.next() * 4.0 - 1.0,
+            key_step: (rng.next() - 0.5) * 0.05 * (rng.next() < 0.9) as i32 as f64,
+            key_lo: lo,
+            key_hi: hi,
+            cross: rng.next() * 2.0 - 1.5,
+            ka: (rng.next() - 0.5) * 0.1,
+            ea: EPS,
+            kc: (rng.next() - 0.5) * 0.1,
+            ec: -EPS,
+            attrs,
+        }
+    }
+
+    #[test]
+    fn clip_keeps_exactly_the_pixels_in_the_clip_range() {
+        let mut rng = Rng(2);
+        let attrs = [0.5];
+        for _ in 0..2000 {
+            let (lo, hi) = (rng.next(), 1.0 + rng.next() * 2.0);
+            let s = sweep(&mut rng, &attrs, lo, hi);
+            let (start, end) = ((rng.next() * 60.0) as usize, (rng.next() * 120.0) as usize);
+            let (a, b) = s.clip(start, end);
+            for d in start..end {
+                let k = s.key(d);
+                let inside = k >= s.key_lo && k <= s.key_hi;
+                assert_eq!(inside, a <= d && d < b, "d = {d}, range {a}..{b}");
+            }
+        }
+    }
+
+    /// Buffers of one image (`h x w`, `c` channels) whose drawn faces' keys often equal the swept face's plane.
+    fn tie_lines(rng: &mut Rng, h: usize, w: usize, c: usize, key0: f64, step: f64) -> Lines {
+        let n = h * w;
+        let face: Vec<i32> = (0..n).map(|_| (rng.next() * 7.0) as i32 - 1).collect();
+        // Column lines: pixel d of line d0 is row d, so the key of the swept plane at row d is key0 + step * d.
+        let key: Vec<f64> = (0..n)
+            .map(|p| {
+                let plane = key0 + step * (p / w) as f64;
+                match (rng.next() * 3.0) as i32 {
+                    0 => plane,
+                    1 => plane + 0.01,
+                    _ => plane - 0.01,
+                }
+            })
+            .collect();
+        let image: Vec<f32> = (0..n * c).map(|_| rng.next() as f32).collect();
+        let grad: Vec<f32> = (0..n * c).map(|_| rng.next() as f32 - 0.5).collect();
+        let params = RasterParams::new(h, w, 0.1, 100.0);
+        Lines::new(&key, &face, &image, &grad, c, &params, true)
+    }
+
+    #[test]
+    fn the_tie_fallback_equals_the_exact_depth_test() {
+        let mut rng = Rng(3);
+        let (h, w) = (40, 9);
+        for c in [1, 3, 4, 5] {
+            let attrs: Vec<f64> = (0..c).map(|_| rng.next()).collect();
+            let mut s = sweep(&mut rng, &attrs, f64::NEG_INFINITY, f64::INFINITY);
+            s.cross = -0.5;
+            let ln = tie_lines(&mut rng, h, w, c, s.key0, s.key_step);
+            let pos = positions(h);
+            let mut scratch = Scratch::new(h);
+            let mut fallbacks = 0;
+            for d0 in 0..w {
+                let (start, end) = (0, h);
+                let got = s.run(&ln, d0, start, end, &pos, &mut scratch);
+                if c != 5 {
+                    // The fast path with its tie fallback gives the same bits as the exact test.
+                    let want = match c {
+                        1 => s.kernel::<1, true>(&ln, d0, start..end, &pos, &mut scratch),
+                        3 => s.kernel::<3, true>(&ln, d0, start..end, &pos, &mut scratch),
+                        _ => s.kernel::<4, true>(&ln, d0, start..end, &pos, &mut scratch),
+                    };
+                    assert_eq!(Some(got), want, "c = {c}, line {d0}");
+                    let fast = match c {
+                        1 => s.kernel::<1, false>(&ln, d0, start..end, &pos, &mut scratch),
+                        3 => s.kernel::<3, false>(&ln, d0, start..end, &pos, &mut scratch),
+                        _ => s.kernel::<4, false>(&ln, d0, start..end, &pos, &mut scratch),
+                    };
+                    fallbacks += fast.is_none() as usize;
+                }
+                // Reference: the definition's per-pixel test, summed in pixel order.
+                let (mut sa, mut sc) = (0f64, 0f64);
+                for d in start..end {
+                    let (fp, kp) = (ln.get(d0, d, FACE), ln.get(d0, d, KEY));
+                    let kf = s.key(d);
+                    let mut ga = 0f64;
+                    for (k, &ak) in attrs.iter().enumerate() {
+                        ga += ln.get(d0, d, GRAD + k) * ak;
+                    }
+                    let delta = ga - ln.get(d0, d, GI);
+                    let covers = kf > kp || (kf == kp && s.fi < fp);
+                    if fp != s.fi && covers && delta < 0.0 {
+                        let t = d as f64 - s.cross;
+                        sa += delta / (s.ka * t + s.ea);
+                        sc += delta / (s.kc * t + s.ec);
+                    }
+                }
+                let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * (1.0 + y.abs());
+                assert!(
+                    close(got.0, sa) && close(got.1, sc),
+                    "c = {c}, line {d0}: {got:?} vs ({sa}, {sc})"
+                );
+            }
+            assert!(
+                c == 5 || fallbacks > 0,
+                "the lines should contain exact ties"
+            );
+        }
+    }
+}

@@ -10,9 +10,10 @@ from typing import Optional
 
 import typer
 
-#: Default Adam learning rates: scene units per step for shape (small: NMR gradients are heavy-tailed and Adam moves
-#: every vertex that receives any gradient by about lr per step), logit units per step for texture.
-DEFAULT_LR = {"shape": 3e-4, "texture": 0.05}
+#: Default Adam learning rates: for shape in units of the object's bounding-box diagonal per step (small: NMR
+#: gradients are heavy-tailed and Adam moves every parameter that receives any gradient by about lr per step), for
+#: texture in logit units per step.
+DEFAULT_LR = {"shape": 5e-4, "texture": 0.05}
 
 SCENE_HELP = (
     "'indoor' (the shared desk scene), a Mitsuba scene XML file, or a photograph (.jpg/.png) to insert --object into"
@@ -31,10 +32,13 @@ def attack_scene(
     victim: str = typer.Option("ssd_mobilenet_v2_coco", help="detector victim name"),
     hide: str = typer.Option("all", help="COCO class to hide (e.g. 'dining table', 'dog') or 'all'"),
     perturb: str = typer.Option("shape", help="shape or texture"),
-    obj: str = typer.Option("bunny", "--object", help="object to perturb (scene object name, or a mesh file for photos)"),
+    obj: str = typer.Option(
+        "bunny", "--object", help="object to perturb (scene object name, or a mesh file for photos)"
+    ),
     place: str = typer.Option("0.5,0.75,0.3", help="photo only: u,v,height_fraction of the inserted object"),
     steps: int = typer.Option(300, help="maximum Adam steps"),
-    lr: Optional[float] = typer.Option(None, help="Adam learning rate (default: 3e-4 for shape, 0.05 for texture)"),
+    lr: Optional[float] = typer.Option(None, help="Adam learning rate (default: 5e-4 for shape, 0.05 for texture)"),
+    smoothing: int = typer.Option(8, help="shape only: neighbour-averaging iterations of the flow parameters"),
     lambda_perceptual: float = typer.Option(1.0, "--lambda", help="perceptual loss weight"),
     threshold: float = typer.Option(0.5, help="detection score threshold"),
     width: Optional[int] = typer.Option(None, help="render width (default: the scene's / photo's own)"),
@@ -54,7 +58,9 @@ def attack_scene(
     detector = load_victim(victim)
     if lr is None:
         lr = DEFAULT_LR.get(perturb, 3e-4)
-    attack = SceneAttack(perturb=perturb, steps=steps, lr=lr, lambda_perceptual=lambda_perceptual, seed=seed)
+    attack = SceneAttack(
+        perturb=perturb, steps=steps, lr=lr, lambda_perceptual=lambda_perceptual, smoothing=smoothing, seed=seed
+    )
 
     def progress(step: int, loss: float, score: float) -> None:
         if step == 1 or step % 10 == 0:
@@ -65,11 +71,19 @@ def attack_scene(
     save_png_atomic(draw_detections(result.image_before, result.detections_before), output / "before.png")
     save_png_atomic(draw_detections(result.image_after, result.detections_after), output / "after.png")
     save_mesh(result.object_mesh, output / "adversarial.ply")
-    record = {"scene": scene, "object": setup.object_name, "victim": victim, "hide": hide, "perturb": perturb,
-              **result.to_record()}
+    record = {
+        "scene": scene,
+        "object": setup.object_name,
+        "victim": victim,
+        "hide": hide,
+        "perturb": perturb,
+        **result.to_record(),
+    }
     _write_json_atomic(record, output / "result.json")
-    typer.echo(f"{'success' if result.success else 'failure'}: hidden score {result.score_before:.3f} -> "
-               f"{result.score_after:.3f} in {result.steps} steps; wrote {output}")
+    typer.echo(
+        f"{'success' if result.success else 'failure'}: hidden score {result.score_before:.3f} -> "
+        f"{result.score_after:.3f} in {result.steps} steps; wrote {output}"
+    )
 
 
 def register(app: typer.Typer) -> None:

@@ -171,6 +171,14 @@ def _attack_kwargs(steps: int, lr: Optional[float], lambda_perceptual: Optional[
     return kwargs
 
 
+def _jitter(scale: float) -> dict:
+    from meshadv.transfer.pipeline import DEFAULT_JITTER
+
+    if scale < 0:
+        raise typer.BadParameter("jitter must be >= 0", param_hint="--jitter")
+    return {k: v * scale for k, v in DEFAULT_JITTER.items()}
+
+
 def _save_blackbox(row: dict, db: Optional[Path], out: Optional[Path], experiment: str) -> None:
     import numpy as np
     from PIL import Image
@@ -203,6 +211,7 @@ def blackbox_classifier_cmd(
     steps: int = typer.Option(100, help="Attack steps."),
     lr: Optional[float] = typer.Option(None, help="Attack learning rate (default: the attack's)."),
     lambda_perceptual: Optional[float] = typer.Option(None, help="Perceptual loss weight (default: the attack's)."),
+    jitter: float = typer.Option(1.0, help="Scale of the per-step jitter of the estimates (0 = none)."),
     size: int = typer.Option(224, help="Image side."),
     spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
     db: Optional[Path] = typer.Option(None, help="Results database to add the row to."),
@@ -221,7 +230,8 @@ def blackbox_classifier_cmd(
     hidden = outdoor_classifier_setup(mesh_obj, image_size=size, spp=spp)
     row = blackbox_classifier(mesh_obj, hidden, victim=load_victim(victim), true_class=true_class, target=target,
                               attack_type=perturb, attack_kwargs=_attack_kwargs(steps, lr, lambda_perceptual),
-                              case_id=f"outdoor_{Path(mesh).stem}_{perturb}_{target or 'untargeted'}")
+                              jitter=_jitter(jitter),
+                              case_id=f"outdoor_{Path(mesh).stem}_{perturb}_{target or 'untargeted'}_jitter{jitter:g}")
     _save_blackbox(row, db, out, experiment)
 
 
@@ -232,6 +242,7 @@ def blackbox_detector_cmd(
     steps: int = typer.Option(100, help="Attack steps."),
     lr: Optional[float] = typer.Option(None, help="Attack learning rate (default: the attack's)."),
     lambda_perceptual: Optional[float] = typer.Option(None, help="Perceptual loss weight (default: the attack's)."),
+    jitter: float = typer.Option(1.0, help="Scale of the per-step jitter of the estimates (0 = none)."),
     size: int = typer.Option(300, help="Image side."),
     spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
     db: Optional[Path] = typer.Option(None, help="Results database to add the row to."),
@@ -246,7 +257,7 @@ def blackbox_detector_cmd(
     setup = indoor_detector_setup(image_size=size, spp=spp)
     row = blackbox_detector(setup.objects, setup.object_index, setup.hidden, victim=load_victim(victim),
                             hide_class=hide, background_exclude=setup.background_exclude,
-                            attack_kwargs=_attack_kwargs(steps, lr, lambda_perceptual),
+                            attack_kwargs=_attack_kwargs(steps, lr, lambda_perceptual), jitter=_jitter(jitter),
                             case_id=f"indoor_bunny_hide_{hide.replace(' ', '_')}")
     _save_blackbox(row, db, out, experiment)
 

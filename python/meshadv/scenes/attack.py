@@ -19,7 +19,7 @@ import torch
 from meshadv.attacks.criteria import Disappearance
 from meshadv.attacks.distances import mesh_distances
 from meshadv.attacks.losses import image_smoothness_loss, laplacian_flow_loss
-from meshadv.mesh import Mesh, vertex_edges
+from meshadv.mesh import Mesh, uniform_laplacian, vertex_edges
 from meshadv.render import Lights
 from meshadv.scenes.composite import composite_over_photo
 from meshadv.scenes.scene import Scene, SceneCamera
@@ -56,7 +56,9 @@ class SceneSetup:
                 f"got {tuple(self.photo.shape)}"
             )
 
-    def image(self, vertices: Optional[torch.Tensor] = None, face_colors: Optional[torch.Tensor] = None) -> torch.Tensor:
+    def image(
+        self, vertices: Optional[torch.Tensor] = None, face_colors: Optional[torch.Tensor] = None
+    ) -> torch.Tensor:
         """Render the scene with the object's vertices / colours replaced, composited over the photo if any.
 
         Returns:
@@ -121,7 +123,14 @@ class SceneAttack:
     Args:
         perturb: ``"shape"`` (vertex displacement) or ``"texture"`` (per-face colours kept in [0, 1] by a sigmoid).
         steps: maximum Adam steps.
-        lr: Adam learning rate (in scene units for shape, in logit units for texture).
+        lr: Adam learning rate: for shape in units of the object's bounding-box diagonal (the displacement is
+            ``diagonal * smooth(p)``), for texture in logit units.
+        smoothing: shape only: iterations of neighbour averaging ``p <- p + 0.5 * L p`` applied to the optimised
+            per-vertex parameters before they become displacements (0 = the paper's plain per-vertex flow). NMR's
+            rasterization gradients are sparse and heavy-tailed and Adam moves every vertex that receives any
+            gradient by about ``lr`` per step, which roughens a dense mesh such as the bunny; smoothing the
+            parametrisation (in the spirit of Nicolet et al., "Large Steps in Inverse Rendering", 2021) spreads
+            each step over a neighbourhood and keeps the perturbation smooth.
         lambda_perceptual: weight of the perceptual loss.
         margin: stop once the best hidden score is ``threshold - margin`` or lower ...
         patience: ... for this many consecutive steps.
@@ -134,8 +143,9 @@ class SceneAttack:
 
     perturb: str = "shape"
     steps: int = 300
-    lr: float = 3e-4
+    lr: float = 5e-4
     lambda_perceptual: float = 1.0
+    smoothing: int = 8
     margin: float = 0.05
     patience: int = 5
     seed: int = 0
@@ -151,6 +161,8 @@ class SceneAttack:
             raise ValueError(f"lambda_perceptual must be >= 0, got {self.lambda_perceptual}")
         if self.patience < 1:
             raise ValueError(f"patience must be >= 1, got {self.patience}")
+        if self.smoothing < 0:
+            raise ValueError(f"smoothing must be >= 0, got {self.smoothing}")
 
     def __call__(
         self,
@@ -180,8 +192,15 @@ class SceneAttack:
         edges = vertex_edges(mesh.faces)
         generator = torch.Generator().manual_seed(self.seed)
 
+        diagonal = float((mesh.vertices.max(0).values - mesh.vertices.min(0).values).norm())
+
+        def displacement(p: torch.Tensor) -> torch.Tensor:
+            for _ in range(self.smoothing):
+                p = p + 0.5 * uniform_laplacian(p, edges)
+            return diagonal * p
+
         if self.perturb == "shape":
-            param = (1e-5 * torch.randn(mesh.vertices.shape, generator=generator)).requires_grad_(True)
+            param = (1e-6 * torch.randn(mesh.vertices.shape, generator=generator)).requires_grad_(True)
         else:
             base = mesh.face_colors.clamp(1e-3, 1 - 1e-3)
             param = torch.logit(base).clone().requires_grad_(True)
@@ -189,7 +208,7 @@ class SceneAttack:
 
         def parameters_to_mesh(p: torch.Tensor) -> Mesh:
             if self.perturb == "shape":
-                return mesh.with_vertices((mesh.vertices + p).detach())
+                return mesh.with_vertices((mesh.vertices + displacement(p)).detach())
             return mesh.with_face_colors(torch.sigmoid(p).detach())
 
         with torch.no_grad():
@@ -204,8 +223,9 @@ class SceneAttack:
             for step in range(1, self.steps + 1):
                 optimizer.zero_grad()
                 if self.perturb == "shape":
-                    image = setup.image(vertices=mesh.vertices + param)
-                    perceptual = laplacian_flow_loss(param, edges)
+                    flow = displacement(param)
+                    image = setup.image(vertices=mesh.vertices + flow)
+                    perceptual = laplacian_flow_loss(flow, edges)
                 else:
                     image = setup.image(face_colors=torch.sigmoid(param))
                     perceptual = image_smoothness_loss(image)[0] / image[0, 0].numel()
@@ -240,7 +260,9 @@ class SceneAttack:
             detections_after=detections[1],
             score_before=score_before,
             score_after=score_after,
-            distances=mesh_distances(mesh.vertices, mesh.face_colors, adversarial.vertices, adversarial.face_colors, edges),
+            distances=mesh_distances(
+                mesh.vertices, mesh.face_colors, adversarial.vertices, adversarial.face_colors, edges
+            ),
             loss_history=history,
             steps=step,
             wall_time=time.perf_counter() - start,

@@ -46,7 +46,9 @@ def composite_over_photo(image: torch.Tensor, alpha: torch.Tensor, photo: torch.
     if image.dim() != 4 or image.shape[1] != 3:
         raise ValueError(f"image must have shape (B, 3, H, W), got {tuple(image.shape)}")
     if alpha.shape != (image.shape[0], 1, image.shape[2], image.shape[3]):
-        raise ValueError(f"alpha must have shape {(image.shape[0], 1) + tuple(image.shape[2:])}, got {tuple(alpha.shape)}")
+        raise ValueError(
+            f"alpha must have shape {(image.shape[0], 1) + tuple(image.shape[2:])}, got {tuple(alpha.shape)}"
+        )
     if photo.dim() != 4 or photo.shape[1:] != image.shape[1:]:
         raise ValueError(f"photo must have shape (1|B, 3, H, W) = {tuple(image.shape[1:])}, got {tuple(photo.shape)}")
     photo = photo.to(image.dtype)

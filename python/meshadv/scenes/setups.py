@@ -40,7 +40,9 @@ def build_setup(scene: str, obj: str, place: str = "0.5,0.75,0.3", width: Option
         return SceneSetup(scene=info.scene, object_name=obj, camera=camera, lights=indoor_lights())
     path = Path(scene)
     if path.suffix.lower() not in PHOTO_SUFFIXES:
-        raise ValueError(f"scene must be 'indoor', a .xml scene or a photo ({', '.join(PHOTO_SUFFIXES)}), got {scene!r}")
+        raise ValueError(
+            f"scene must be 'indoor', a .xml scene or a photo ({', '.join(PHOTO_SUFFIXES)}), got {scene!r}"
+        )
     from meshadv.scenes.photo import photo_setup
 
     mesh = _photo_object(obj)
