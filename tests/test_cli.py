@@ -113,6 +113,8 @@ def test_ctrl_c_saves_best_result_so_far(tmp_path: Path) -> None:
         [sys.executable, "-m", "meshadv.cli", "attack", "builtin:chair", "--target", "bicycle", "--views", "1",
          "--steps", "1000", "--early-stop", "0", "--image-size", "64", "--quiet", "-o", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+        # a shell that started pytest in the background ignores SIGINT, and the child would inherit that
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         first = proc.stdout.readline()  # printed just before the attack loop starts
