@@ -171,6 +171,17 @@ def test_report_counts_failed_and_unsuccessful_jobs(tmp_path: Path) -> None:
     assert float(row["best_success_rate"]) == pytest.approx(0.5)
     with pytest.raises(FileNotFoundError):
         write_report(tmp_path / "nope.db", tmp_path / "rep")
+    assert not (tmp_path / "rep" / "transfer.md").exists()
+    # Mitsuba transfer rows in the same database join the report.
+    from meshadv.transfer.results import save_transfer_rows
+
+    row = {"case_id": "c", "victim": "v", "true_class": "boat", "target": "chair", "attack_type": "shape", "view": 0,
+           "success_meshadv": True, "success_mitsuba": False, "untargeted_meshadv": True, "untargeted_mitsuba": True}
+    save_transfer_rows(tmp_path / "r.db", [row], experiment="controlled")
+    write_report(tmp_path / "r.db", tmp_path / "rep", figures=False)
+    transfer = (tmp_path / "rep" / "transfer.md").read_text()
+    assert "Transfer to Mitsuba 3" in transfer and "chair" in transfer
+    assert "Transfer to Mitsuba 3" in (tmp_path / "rep" / "README.md").read_text()
 
 
 def _ellipsoid() -> tuple:

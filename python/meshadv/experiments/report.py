@@ -211,6 +211,11 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
             path = out.out_dir / f"{name}.{ext}"
             path.write_text(text, encoding="utf-8")
             out.tables.append(path)
+    transfer = _transfer_section(db)
+    if transfer:
+        path = out.out_dir / "transfer.md"
+        path.write_text(transfer, encoding="utf-8")
+        out.tables.append(path)
     if figures:
         fig_dir = out.out_dir / "figures"
         single = [r for r in done if r.spec.get("kind", "single") == "single" and not r.record.get("skipped")]
@@ -229,8 +234,22 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
     settings = {"database": str(db.resolve()), "meta": meta, "report_versions": environment_versions(),
                 "counts": out.counts, "correlations": out.correlations}
     (out.out_dir / "settings.json").write_text(json.dumps(settings, indent=2, sort_keys=True), encoding="utf-8")
-    _write_readme(out, t1, t1_correct if mixed else None, t2, meta, _run_stats(done))
+    _write_readme(out, t1, t1_correct if mixed else None, t2, meta, _run_stats(done), transfer)
     return out
+
+
+def _transfer_section(db: Path) -> str:
+    """The Mitsuba transfer section (``meshadv transfer`` rows in the same database), or ``""`` when there are none."""
+    import sqlite3
+
+    with sqlite3.connect(str(db)) as conn:
+        has_table = conn.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'transfer'").fetchone()
+    if not has_table:
+        return ""
+    from meshadv.transfer.results import load_transfer_rows, transfer_report
+
+    rows = load_transfer_rows(db)
+    return transfer_report(rows) if rows else ""
 
 
 def _run_stats(done: List[JobRow]) -> List[str]:
@@ -256,7 +275,7 @@ def _run_stats(done: List[JobRow]) -> List[str]:
 
 
 def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[Any]], t2: List[Any],
-                  meta: Dict[str, Any], stats: List[str]) -> None:
+                  meta: Dict[str, Any], stats: List[str], transfer: str = "") -> None:
     c = out.counts
     lines = [f"# Results: {meta.get('name', 'sweep')}", "",
              f"Jobs: {c.get('total', 0)} total, {c.get('done', 0)} done ({c.get('successes', 0)} successful), "
@@ -271,6 +290,8 @@ def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[An
                   to_markdown(t1_correct)]
     if t2:
         lines += ["## Table 2: multi-view robustness (success on unseen views)", "", to_markdown(t2)]
+    if transfer:
+        lines += [transfer, ""]
     if out.figures:
         lines += ["## Figures", ""]
         lines += [f"- [{p.name}](figures/{p.name})" for p in out.figures]
