@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Optional
 
@@ -18,13 +15,6 @@ DEFAULT_LR = {"shape": 5e-4, "texture": 0.05}
 SCENE_HELP = (
     "'indoor' (the shared desk scene), a Mitsuba scene XML file, or a photograph (.jpg/.png) to insert --object into"
 )
-
-
-def _write_json_atomic(record: dict, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".json.tmp")
-    with os.fdopen(fd, "w") as handle:
-        json.dump(record, handle, indent=2)
-    os.replace(tmp, path)
 
 
 def attack_scene(
@@ -48,6 +38,7 @@ def attack_scene(
     """Hide CLASS (or everything) from a detector by perturbing only one object; writes before/after images with
     detections drawn, the adversarial object mesh and a JSON record."""
     from meshadv.attacks.criteria import Disappearance
+    from meshadv.attacks.result import write_json_atomic
     from meshadv.mesh import save_mesh
     from meshadv.scenes.draw import draw_detections, save_png_atomic
     from meshadv.scenes.setups import build_setup
@@ -79,7 +70,7 @@ def attack_scene(
         "perturb": perturb,
         **result.to_record(),
     }
-    _write_json_atomic(record, output / "result.json")
+    write_json_atomic(record, output / "result.json")
     typer.echo(
         f"{'success' if result.success else 'failure'}: hidden score {result.score_before:.3f} -> "
         f"{result.score_after:.3f} in {result.steps} steps; wrote {output}"
