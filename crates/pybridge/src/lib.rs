@@ -84,6 +84,23 @@ fn view<'a, T: Element>(
     Ok((shape, data))
 }
 
+/// A C-contiguous view whose shape must equal `expected` exactly (e.g. a forward output fed back to backward).
+fn view_exact<'a, T: Element>(
+    arg: &str,
+    a: &'a PyReadonlyArrayDyn<'_, T>,
+    expected: &[usize],
+) -> PyResult<&'a [T]> {
+    let (shape, data) = view(arg, a, expected.len())?;
+    if shape != expected {
+        let want: Vec<String> = expected.iter().map(|d| d.to_string()).collect();
+        return Err(PyValueError::new_err(format!(
+            "{arg}: expected shape ({}), got {shape:?}",
+            want.join(", ")
+        )));
+    }
+    Ok(data)
+}
+
 fn expect_dim(arg: &str, shape: &[usize], axis: usize, want: usize, what: &str) -> PyResult<()> {
     if shape[axis] != want {
         return Err(PyValueError::new_err(format!(
@@ -294,28 +311,10 @@ fn rasterize_backward<'py>(
         a.params.width,
         a.attrs.channels,
     );
-    let (fis, fid) = view("face_index", &face_index, 3)?;
-    if fis != [b, h, w] {
-        return Err(PyValueError::new_err(format!(
-            "face_index: expected shape ({b}, {h}, {w}), got {fis:?}"
-        )));
-    }
-    let (ims, imd) = view("image", &image, 4)?;
-    if ims != [b, h, w, c] {
-        return Err(PyValueError::new_err(format!(
-            "image: expected shape ({b}, {h}, {w}, {c}), got {ims:?}"
-        )));
-    }
-    let (gs, gd) = view("grad_image", &grad_image, 4)?;
-    if gs != [b, h, w, c] {
-        return Err(PyValueError::new_err(format!(
-            "grad_image: expected shape ({b}, {h}, {w}, {c}), got {gs:?}"
-        )));
-    }
     let inputs = BackwardInputs {
-        face_index: fid,
-        image: imd,
-        grad_image: gd,
+        face_index: view_exact("face_index", &face_index, &[b, h, w])?,
+        image: view_exact("image", &image, &[b, h, w, c])?,
+        grad_image: view_exact("grad_image", &grad_image, &[b, h, w, c])?,
         vertex_grad,
     };
     let n = a.mesh.num_verts;
