@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import math
 
 import pytest
 import torch
+import trimesh
 
 from meshadv.render import Camera, native_available, render_silhouette
 
@@ -13,62 +13,9 @@ pytestmark = pytest.mark.skipif(not native_available(), reason="meshadv._raster 
 
 
 def icosphere(subdivisions: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Unit icosphere by midpoint subdivision of an icosahedron."""
-    t = (1 + math.sqrt(5)) / 2
-    v = [
-        [-1, t, 0],
-        [1, t, 0],
-        [-1, -t, 0],
-        [1, -t, 0],
-        [0, -1, t],
-        [0, 1, t],
-        [0, -1, -t],
-        [0, 1, -t],
-        [t, 0, -1],
-        [t, 0, 1],
-        [-t, 0, -1],
-        [-t, 0, 1],
-    ]
-    v = [[float(c) for c in p] for p in v]
-    faces = [
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ]
-    for _ in range(subdivisions):
-        cache: dict = {}
-
-        def mid(a: int, b: int) -> int:
-            key = (min(a, b), max(a, b))
-            if key not in cache:
-                v.append([(v[a][i] + v[b][i]) / 2 for i in range(3)])
-                cache[key] = len(v) - 1
-            return cache[key]
-
-        new = []
-        for a, b, c in faces:
-            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
-            new += [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
-        faces = new
-    vt = torch.tensor(v)
-    return vt / vt.norm(dim=1, keepdim=True), torch.tensor(faces)
+    """Unit icosphere by midpoint subdivision of an icosahedron (trimesh's construction)."""
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+    return torch.tensor(sphere.vertices, dtype=torch.float32), torch.tensor(sphere.faces, dtype=torch.int64)
 
 
 def boxes(*specs: tuple[tuple[float, float, float], tuple[float, float, float]]) -> tuple[torch.Tensor, torch.Tensor]:
