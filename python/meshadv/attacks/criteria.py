@@ -151,6 +151,13 @@ def _top1_margin(logits: Tensor, classes: Tuple[int, ...]) -> Tensor:
     return logits[:, idx].max(dim=1).values - losses.best_other_logit(logits, idx)
 
 
+def _require_bound(indices: Tuple[int, ...]) -> Tuple[int, ...]:
+    """The resolved class indices of a classifier criterion; ``ValueError`` when ``bind`` was not called."""
+    if not indices:
+        raise ValueError("criterion is not bound: call criterion.bind(victim) first")
+    return indices
+
+
 @dataclass(frozen=True)
 class TargetedMisclassification(Criterion):
     """Adversarial when the top-1 class is the target (or any member of the target group).
@@ -173,9 +180,7 @@ class TargetedMisclassification(Criterion):
         return replace(self, indices=idx, name=label)
 
     def _bound(self) -> Tuple[int, ...]:
-        if not self.indices:
-            raise ValueError("criterion is not bound: call criterion.bind(victim) first")
-        return self.indices
+        return _require_bound(self.indices)
 
     def loss(self, output: Tensor, *, loss: str = "ce", kappa: float = 0.0) -> Tensor:
         """Targeted CE or C&W loss per image (see module docstring)."""
@@ -226,9 +231,7 @@ class Misclassification(Criterion):
         return replace(self, indices=idx, name=label)
 
     def _bound(self) -> Tuple[int, ...]:
-        if not self.indices:
-            raise ValueError("criterion is not bound: call criterion.bind(victim) first")
-        return self.indices
+        return _require_bound(self.indices)
 
     def loss(self, output: Tensor, *, loss: str = "ce", kappa: float = 0.0) -> Tensor:
         """Untargeted CE or C&W loss per image."""
