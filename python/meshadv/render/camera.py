@@ -29,7 +29,7 @@ from typing import Union
 
 import torch
 
-from ._checks import require_instance
+from ._checks import as_float_tensor, require_instance
 from ._ops import small_matmul
 
 __all__ = ["Camera", "TensorLike"]
@@ -39,26 +39,6 @@ TensorLike = Union[float, int, Sequence[float], torch.Tensor]
 
 _EPS = 1e-12
 _DEGENERATE = 1e-6
-
-
-def _as_tensor(value: TensorLike, name: str, dtype: torch.dtype | None, device: torch.device | None) -> torch.Tensor:
-    """Convert ``value`` to a floating tensor, keeping autograd history when it already is a tensor."""
-    if isinstance(value, torch.Tensor):
-        t = value
-        if not t.is_floating_point():
-            t = t.to(dtype or torch.float32)
-        elif dtype is not None and t.dtype != dtype:
-            t = t.to(dtype)
-        if device is not None and t.device != device:
-            t = t.to(device)
-    else:
-        try:
-            t = torch.as_tensor(value, dtype=dtype or torch.float32, device=device)
-        except (TypeError, ValueError, RuntimeError) as exc:
-            raise ValueError(f"{name} must be a number, a sequence of numbers or a tensor, got {value!r}") from exc
-    if not torch.isfinite(t.detach()).all():
-        raise ValueError(f"{name} must be finite, got {t.detach().cpu().tolist()}")
-    return t
 
 
 def _common_dtype(values: Sequence[TensorLike]) -> torch.dtype:
@@ -81,7 +61,7 @@ def _batch_scalars(named: dict, dtype: torch.dtype, device: torch.device) -> dic
     """Turn scalar-or-(B,) parameters into tensors of one common shape (B,)."""
     tensors = {}
     for name, value in named.items():
-        t = _as_tensor(value, name, dtype, device)
+        t = as_float_tensor(value, name, dtype, device)
         if t.dim() > 1:
             raise ValueError(f"{name} must be a scalar or a 1-D tensor of shape (B,), got shape {tuple(t.shape)}")
         tensors[name] = t.reshape(-1)
@@ -100,7 +80,7 @@ def _batch_vectors(named: dict, dtype: torch.dtype, device: torch.device, batch:
     """Turn (3,)-or-(B,3) parameters into tensors of shape (B,3) broadcast to ``batch``."""
     out = {}
     for name, value in named.items():
-        t = _as_tensor(value, name, dtype, device)
+        t = as_float_tensor(value, name, dtype, device)
         if t.dim() == 1:
             t = t.unsqueeze(0)
         if t.dim() != 2 or t.shape[1] != 3:

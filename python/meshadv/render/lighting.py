@@ -14,6 +14,7 @@ from typing import Union
 
 import torch
 
+from ._checks import as_float_tensor
 from ._ops import small_matmul
 from .camera import Camera
 
@@ -21,24 +22,6 @@ __all__ = ["Lights", "face_normals", "orient_normals", "shade"]
 
 _EPS = 1e-12
 _Vec = Union[Sequence[float], torch.Tensor]
-
-
-def _tensor(value: _Vec, name: str, dtype: torch.dtype | None = None, device=None) -> torch.Tensor:
-    """A floating tensor from ``value`` (keeps autograd history)."""
-    if isinstance(value, torch.Tensor):
-        t = value if value.is_floating_point() else value.to(dtype or torch.float32)
-        if dtype is not None:
-            t = t.to(dtype)
-        if device is not None:
-            t = t.to(device)
-    else:
-        try:
-            t = torch.as_tensor(value, dtype=dtype or torch.float32, device=device)
-        except (TypeError, ValueError, RuntimeError) as exc:
-            raise ValueError(f"{name} must be numbers or a tensor, got {value!r}") from exc
-    if not torch.isfinite(t.detach()).all():
-        raise ValueError(f"{name} must be finite")
-    return t
 
 
 @dataclass(frozen=True)
@@ -78,9 +61,9 @@ class Lights:
             (v.device for v in (self.directions, self.colors, self.ambient) if isinstance(v, torch.Tensor)),
             None,
         )
-        d = _tensor(self.directions, "directions", dtype, device)
-        c = _tensor(self.colors, "colors", dtype, device)
-        a = _tensor(self.ambient, "ambient", dtype, device)
+        d = as_float_tensor(self.directions, "directions", dtype, device)
+        c = as_float_tensor(self.colors, "colors", dtype, device)
+        a = as_float_tensor(self.ambient, "ambient", dtype, device)
         for name, t in (("directions", d), ("colors", c)):
             if t.dim() not in (2, 3) or t.shape[-1] != 3:
                 raise ValueError(f"{name} must have shape (K,3) or (B,K,3), got {tuple(t.shape)}")
@@ -121,8 +104,8 @@ class Lights:
             color: (3,) or (B,3) RGB intensity.
             ambient: (3,) or (B,3) RGB ambient intensity.
         """
-        d = _tensor(direction, "direction")
-        c = _tensor(color, "color", d.dtype, d.device)
+        d = as_float_tensor(direction, "direction")
+        c = as_float_tensor(color, "color", d.dtype, d.device)
         return cls(directions=d.unsqueeze(-2), colors=c.unsqueeze(-2), ambient=ambient)
 
     @classmethod
@@ -177,7 +160,7 @@ class Lights:
                 raise IndexError(f"lights index {index} out of range for batch size {b}")
             index = slice(index % b, index % b + 1)
         elif not isinstance(index, slice):
-            index = torch.as_tensor(index, dtype=torch.long, device=self.ambient.device)
+            index = torch.asas_float_tensor(index, dtype=torch.long, device=self.ambient.device)
         return Lights(self.directions[index], self.colors[index], self.ambient[index])
 
     @staticmethod
