@@ -157,54 +157,94 @@ struct OpArgs<'a> {
     params: RasterParams,
 }
 
-#[allow(clippy::too_many_arguments)]
-fn op_args<'a>(
-    verts_screen: &'a PyReadonlyArrayDyn<'_, f32>,
-    faces: &'a PyReadonlyArrayDyn<'_, i32>,
-    face_attrs: &'a PyReadonlyArrayDyn<'_, f32>,
-    background: &'a PyReadonlyArrayDyn<'_, f32>,
-    height: i64,
-    width: i64,
-    near: f64,
-    far: f64,
-    cull_backfaces: bool,
-    orthographic: bool,
-) -> PyResult<OpArgs<'a>> {
-    let (vs, vd) = view("verts_screen", verts_screen, 3)?;
-    expect_dim("verts_screen", &vs, 2, 3, "x_ndc, y_ndc, z_view")?;
-    let (fs, fd) = view("faces", faces, 2)?;
-    expect_dim("faces", &fs, 1, 3, "triangles")?;
-    let (as_, ad) = view("face_attrs", face_attrs, 3)?;
-    expect_dim("face_attrs", &as_, 0, vs[0], "batch size of verts_screen")?;
-    expect_dim("face_attrs", &as_, 1, fs[0], "number of faces")?;
-    let (bs, bd) = view("background", background, 1)?;
-    expect_dim("background", &bs, 0, as_[2], "channels of face_attrs")?;
-    let params = RasterParams {
-        height: image_size("height", height)?,
-        width: image_size("width", width)?,
-        near,
-        far,
-        cull_backfaces,
-        projection: if orthographic {
-            Projection::Orthographic
-        } else {
-            Projection::Perspective
-        },
-    };
-    let mesh = ScreenMesh::new(vd, fd, vs[0], vs[1]).map_err(PyRasterError)?;
-    let attrs = FaceAttrs {
-        values: ad,
-        background: bd,
-        channels: as_[2],
-    };
-    mesh.validate().map_err(PyRasterError)?;
-    params.validate().map_err(PyRasterError)?;
-    attrs.validate(&mesh).map_err(PyRasterError)?;
-    Ok(OpArgs {
-        mesh,
-        attrs,
-        params,
-    })
+impl OpArgs<'_> {
+    /// `(batch, height, width, channels)` of the op's image.
+    fn dims(&self) -> (usize, usize, usize, usize) {
+        (
+            self.mesh.batch,
+            self.params.height,
+            self.params.width,
+            self.attrs.channels,
+        )
+    }
+}
+
+/// The four input arrays shared by the forward and backward op, borrowed read-only from Python.
+struct OpArrays<'py> {
+    verts_screen: PyReadonlyArrayDyn<'py, f32>,
+    faces: PyReadonlyArrayDyn<'py, i32>,
+    face_attrs: PyReadonlyArrayDyn<'py, f32>,
+    background: PyReadonlyArrayDyn<'py, f32>,
+}
+
+impl<'py> OpArrays<'py> {
+    /// Casts the Python arguments (no copy), raising `TypeError` naming the first wrong one.
+    fn extract(
+        verts_screen: &Bound<'py, PyAny>,
+        faces: &Bound<'py, PyAny>,
+        face_attrs: &Bound<'py, PyAny>,
+        background: &Bound<'py, PyAny>,
+    ) -> PyResult<Self> {
+        Ok(OpArrays {
+            verts_screen: array::<f32>("verts_screen", "float32", verts_screen)?,
+            faces: array::<i32>("faces", "int32", faces)?,
+            face_attrs: array::<f32>("face_attrs", "float32", face_attrs)?,
+            background: array::<f32>("background", "float32", background)?,
+        })
+    }
+
+    /// Checks shapes and scalar parameters and returns the core's views of the arrays.
+    fn args(
+        &self,
+        height: i64,
+        width: i64,
+        near: f64,
+        far: f64,
+        cull_backfaces: bool,
+        orthographic: bool,
+    ) -> PyResult<OpArgs<'_>> {
+        let OpArrays {
+            verts_screen,
+            faces,
+            face_attrs,
+            background,
+        } = self;
+        let (vs, vd) = view("verts_screen", verts_screen, 3)?;
+        expect_dim("verts_screen", &vs, 2, 3, "x_ndc, y_ndc, z_view")?;
+        let (fs, fd) = view("faces", faces, 2)?;
+        expect_dim("faces", &fs, 1, 3, "triangles")?;
+        let (as_, ad) = view("face_attrs", face_attrs, 3)?;
+        expect_dim("face_attrs", &as_, 0, vs[0], "batch size of verts_screen")?;
+        expect_dim("face_attrs", &as_, 1, fs[0], "number of faces")?;
+        let (bs, bd) = view("background", background, 1)?;
+        expect_dim("background", &bs, 0, as_[2], "channels of face_attrs")?;
+        let params = RasterParams {
+            height: image_size("height", height)?,
+            width: image_size("width", width)?,
+            near,
+            far,
+            cull_backfaces,
+            projection: if orthographic {
+                Projection::Orthographic
+            } else {
+                Projection::Perspective
+            },
+        };
+        let mesh = ScreenMesh::new(vd, fd, vs[0], vs[1]).map_err(PyRasterError)?;
+        let attrs = FaceAttrs {
+            values: ad,
+            background: bd,
+            channels: as_[2],
+        };
+        mesh.validate().map_err(PyRasterError)?;
+        params.validate().map_err(PyRasterError)?;
+        attrs.validate(&mesh).map_err(PyRasterError)?;
+        Ok(OpArgs {
+            mesh,
+            attrs,
+            params,
+        })
+    }
 }
 
 /// Rasterizes screen-space triangles with per-face attributes (see docs/ARCHITECTURE.md, "The native op").
@@ -229,28 +269,9 @@ fn rasterize_forward<'py>(
     orthographic: bool,
 ) -> PyResult<(PyArr<'py, f32>, PyArr<'py, i32>, PyArr<'py, f32>)> {
     let nt = threads(num_threads)?;
-    let verts_screen = array::<f32>("verts_screen", "float32", verts_screen)?;
-    let faces = array::<i32>("faces", "int32", faces)?;
-    let face_attrs = array::<f32>("face_attrs", "float32", face_attrs)?;
-    let background = array::<f32>("background", "float32", background)?;
-    let a = op_args(
-        &verts_screen,
-        &faces,
-        &face_attrs,
-        &background,
-        height,
-        width,
-        near,
-        far,
-        cull_backfaces,
-        orthographic,
-    )?;
-    let (b, h, w, c) = (
-        a.mesh.batch,
-        a.params.height,
-        a.params.width,
-        a.attrs.channels,
-    );
+    let arrays = OpArrays::extract(verts_screen, faces, face_attrs, background)?;
+    let a = arrays.args(height, width, near, far, cull_backfaces, orthographic)?;
+    let (b, h, w, c) = a.dims();
     let out = run(py, nt, || rasterize(&a.mesh, &a.attrs, &a.params))?;
     Ok((
         output(py, out.image, &[b, h, w, c])?,
@@ -286,31 +307,12 @@ fn rasterize_backward<'py>(
     vertex_grad: bool,
 ) -> PyResult<(PyArr<'py, f32>, PyArr<'py, f32>)> {
     let nt = threads(num_threads)?;
-    let verts_screen = array::<f32>("verts_screen", "float32", verts_screen)?;
-    let faces = array::<i32>("faces", "int32", faces)?;
-    let face_attrs = array::<f32>("face_attrs", "float32", face_attrs)?;
-    let background = array::<f32>("background", "float32", background)?;
+    let arrays = OpArrays::extract(verts_screen, faces, face_attrs, background)?;
     let face_index = array::<i32>("face_index", "int32", face_index)?;
     let image = array::<f32>("image", "float32", image)?;
     let grad_image = array::<f32>("grad_image", "float32", grad_image)?;
-    let a = op_args(
-        &verts_screen,
-        &faces,
-        &face_attrs,
-        &background,
-        height,
-        width,
-        near,
-        far,
-        cull_backfaces,
-        orthographic,
-    )?;
-    let (b, h, w, c) = (
-        a.mesh.batch,
-        a.params.height,
-        a.params.width,
-        a.attrs.channels,
-    );
+    let a = arrays.args(height, width, near, far, cull_backfaces, orthographic)?;
+    let (b, h, w, c) = a.dims();
     let inputs = BackwardInputs {
         face_index: view_exact("face_index", &face_index, &[b, h, w])?,
         image: view_exact("image", &image, &[b, h, w, c])?,
