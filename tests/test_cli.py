@@ -130,3 +130,24 @@ def test_ctrl_c_saves_best_result_so_far(tmp_path: Path) -> None:
     record = json.loads((out / "result.json").read_text())
     assert record["interrupted"] is True and record["steps"] < 1000
     assert (out / "adversarial.ply").is_file() and (out / "after_v0.png").is_file()
+
+
+def test_rendering_set_build_and_report(tmp_path: Path, shared_data: Path) -> None:
+    _require_renderer()
+    _require_victim()
+    out = tmp_path / "set.json"
+    args = ["rendering-set", "build", "-o", str(out), "--victims", "efficientnet_lite0", "--per-class", "1",
+            "--classes", "sofa", "--max-candidates", "48", "--batch-size", "8"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    doc = json.loads(out.read_text())
+    assert doc["classes"]["sofa"]["kept"] == 1 and doc["renderings"][0]["mesh"].startswith("pascal3d/sofa/")
+    assert doc["renderings"][0]["predictions"]["efficientnet_lite0"] == "studio couch"
+    report = runner.invoke(app, ["rendering-set", "report", str(out), "-o", str(tmp_path / "rep")])
+    assert report.exit_code == 0, report.output
+    assert "| sofa | 1 |" in (tmp_path / "rep" / "pass_rates.md").read_text()
+    assert (tmp_path / "rep" / "contact_sheet.png").stat().st_size > 0
+    bad = runner.invoke(app, ["rendering-set", "build", "-o", str(out), "--classes", "cat"])
+    assert bad.exit_code == 2 and "unknown class" in bad.output
+    missing = runner.invoke(app, ["rendering-set", "report", str(tmp_path / "nope.json"), "-o", str(tmp_path)])
+    assert missing.exit_code == 2 and "does not exist" in " ".join(missing.output.replace("│", " ").split())

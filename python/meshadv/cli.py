@@ -30,6 +30,7 @@ SUBCOMMANDS: Dict[str, str] = {
     "sweep": "sweep:sweep",
     "report": "report:report",
     "transfer": "transfer:transfer",
+    "rendering-set": "rendering_set:build",
 }
 
 

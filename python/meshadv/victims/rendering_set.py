@@ -22,12 +22,15 @@ are often product shots on white, and white keeps the silhouette, the strongest 
 contrast), the mesh's own colours (light grey 0.7 for the uncoloured PASCAL3D+ files), ambient ``U[0.45, 0.65]`` plus
 a light ``U[0.35, 0.55]`` near the view direction so that the faces the camera sees are lit without saturating and
 shading shows the 3-D shape, and ``fill`` ``U[0.7, 0.95]`` so the object fills most of the frame as in ImageNet photos.
-A pilot on the shared PASCAL3D+ meshes (24 candidates per class, seed 0, EfficientNet-Lite0 and -Lite2 both right)
-measured a mean pass rate over the 7 classes of 16% on white and 15% on light grey (0.85) backgrounds, against 5% on
-mid grey (0.5) and 11% on black; a darker reflectance (0.5) changed it by no more than the sampling noise. Per class
-on white: aeroplane 21%, bicycle 4%, boat 8%, bottle 25%, chair 25%, dining table 0% (top-down views of a table
-are flat shapes; it needs many candidates), sofa 25%. The pass rates per class and victim of a build are stored in
-the file (``classes[c]["pass_rate"]``) and printed by :func:`pass_rate_table`.
+The packaged set (``meshadv/victims/data/pascal3d_renderings_v1.json``, :func:`packaged_rendering_set_path`; made
+by ``meshadv rendering-set build -o ...`` with these defaults, seed 0, EfficientNet-Lite0 and -Lite2) kept 72 per
+class after 175 (aeroplane), 663 (bicycle), 1335 (boat), 263 (bottle), 205 (chair), 1119 (dining table) and 505
+(sofa) candidates: both victims right on 41%, 11%, 5%, 27%, 35%, 6% and 14%. Low elevations pass most (a table seen from
+above is an "envelope"), so the kept set leans toward them (median kept elevation 11 degrees for dining tables,
+19-40 for the other classes, against 45 sampled), as any set filtered by the victims must. A 24-candidate pilot had measured white 16% vs light grey (0.85) 15%, mid grey 5% and black 11%
+(mean pass rate over classes), so white stays. The pass rates per class and victim of a build are stored in the
+file (``classes[c]["pass_rate"]``) and printed by :func:`pass_rate_table`; ``docs/results/rendering_set`` shows them
+with a contact sheet.
 
 File format (JSON, ``format = "meshadv-rendering-set"``, ``version = 1``)::
 
@@ -68,13 +71,18 @@ __all__ = [
     "frame_distance",
     "load_rendering_set",
     "pascal3d_mesh_paths",
+    "rendering_mesh_path",
     "pass_rate_table",
     "record_views",
+    "render_records",
     "sample_view",
+    "sampling_config",
 ]
 
 FORMAT = "meshadv-rendering-set"
 VERSION = 1
+#: File name of the rendering set shipped in ``meshadv/victims/data`` (EfficientNet-Lite0 and -Lite2, 72 per class).
+PACKAGED_FILE = "pascal3d_renderings_v1.json"
 
 PathLike = Union[str, Path]
 
@@ -97,6 +105,8 @@ class RenderingSetConfig:
         z_up: the meshes are Z-up (PASCAL3D+) and are rotated to the renderer's Y-up on load.
         detector_threshold: minimum detection score for a detector victim to count the class as found.
         max_candidates_per_class: stop a class (``exhausted``) after this many candidates; ``0`` = 50 x per_class.
+            Not part of the set's identity: resuming with a larger budget continues the exhausted classes and yields
+            the same set as a run that had the larger budget from the start.
     """
 
     azimuth_range: tuple[float, float] = (0.0, 360.0)
@@ -220,6 +230,9 @@ def _write_json_atomic(path: Path, doc: dict[str, Any]) -> None:
     data = json.dumps(doc, indent=1).encode("utf-8")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual permissions
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
             handle.flush()
@@ -228,6 +241,20 @@ def _write_json_atomic(path: Path, doc: dict[str, Any]) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def packaged_rendering_set_path() -> Path:
+    """Path of the rendering set shipped with meshadv (its mesh paths are relative to the shared data folder).
+
+    Raises:
+        FileNotFoundError: this installation does not include it.
+    """
+    from importlib import resources
+
+    path = Path(str(resources.files("meshadv.victims").joinpath("data").joinpath(PACKAGED_FILE)))
+    if not path.is_file():
+        raise FileNotFoundError(f"the packaged rendering set {path} is missing from this installation")
+    return path
 
 
 def load_rendering_set(path: PathLike) -> dict[str, Any]:
@@ -249,6 +276,97 @@ def load_rendering_set(path: PathLike) -> dict[str, Any]:
     if doc.get("version") != VERSION:
         raise ValueError(f"path {path} has version {doc.get('version')}, this meshadv reads version {VERSION}")
     return doc
+
+
+def _identity(config_json: Mapping[str, Any]) -> dict[str, Any]:
+    """The part of a set's configuration that decides its content (everything but the candidate budget)."""
+    sampling = {k: v for k, v in config_json["sampling"].items() if k != "max_candidates_per_class"}
+    return {**config_json, "sampling": sampling}
+
+
+def _stored_path(path: str, root: Optional[Path]) -> str:
+    if root is None:
+        return path
+    resolved = Path(path).resolve()
+    try:
+        return resolved.relative_to(root).as_posix()
+    except ValueError:
+        raise ValueError(f"mesh_paths_by_class: mesh {path} is not inside mesh_root {root}") from None
+
+
+def rendering_mesh_path(record: Mapping[str, Any], mesh_root: Optional[PathLike] = None) -> Path:
+    """The mesh file of a rendering-set record (absolute paths as stored; relative ones under ``mesh_root``).
+
+    Args:
+        record: an entry of ``doc["renderings"]``.
+        mesh_root: folder the stored relative paths refer to; default the shared data folder
+            (:func:`meshadv.data.shared_data_dir`).
+
+    Raises:
+        FileNotFoundError: the mesh file does not exist, or a relative path and no ``mesh_root`` / shared data.
+    """
+    stored = Path(record["mesh"])
+    if not stored.is_absolute():
+        if mesh_root is None:
+            from meshadv.data import require_shared_data
+
+            mesh_root = require_shared_data()
+        stored = Path(mesh_root) / stored
+    if not stored.is_file():
+        raise FileNotFoundError(f"record: mesh file {stored} does not exist (pass mesh_root=the folder it is under)")
+    return stored
+
+
+def _render_mesh_views(mesh: Any, view_set: Any, config: RenderingSetConfig) -> torch.Tensor:
+    from meshadv.render import render
+
+    with torch.no_grad():
+        return render(
+            mesh.vertices,
+            mesh.faces,
+            mesh.face_colors,
+            view_set.camera,
+            view_set.lights,
+            image_size=config.image_size,
+            background=config.background,
+            antialias=config.antialias,
+        ).image
+
+
+def sampling_config(doc: Mapping[str, Any]) -> RenderingSetConfig:
+    """The :class:`RenderingSetConfig` a rendering-set document was built with."""
+    raw = dict(doc["config"]["sampling"])
+    return RenderingSetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in raw.items()})
+
+
+def render_records(
+    doc: Mapping[str, Any], records: Sequence[Mapping[str, Any]], mesh_root: Optional[PathLike] = None
+) -> torch.Tensor:
+    """Re-render rendering-set records exactly as the set was built (same mesh normalisation, views, options).
+
+    Args:
+        doc: the rendering-set document (for its sampling options).
+        records: entries of ``doc["renderings"]``.
+        mesh_root: folder of relative mesh paths (see :func:`rendering_mesh_path`).
+
+    Returns:
+        ``(len(records), 3, S, S)`` images in ``[0, 1]``.
+    """
+    from meshadv.mesh import load_mesh, normalize_mesh
+
+    if not records:
+        raise ValueError("records must not be empty")
+    config = sampling_config(doc)
+    images: list[Optional[torch.Tensor]] = [None] * len(records)
+    by_mesh: dict[Path, list[int]] = {}
+    for i, rec in enumerate(records):
+        by_mesh.setdefault(rendering_mesh_path(rec, mesh_root), []).append(i)
+    for path, indices in by_mesh.items():
+        mesh, _ = normalize_mesh(load_mesh(path), z_up=config.z_up)
+        rendered = _render_mesh_views(mesh, record_views([records[i] for i in indices]), config)
+        for j, i in enumerate(indices):
+            images[i] = rendered[j]
+    return torch.stack([img for img in images if img is not None])
 
 
 def record_views(records: Sequence[Mapping[str, Any]]) -> Any:
@@ -353,6 +471,7 @@ def build_rendering_set(
     *,
     config: Optional[RenderingSetConfig] = None,
     batch_size: int = 16,
+    mesh_root: Optional[PathLike] = None,
     progress: Optional[Callable[[str, dict[str, Any]], None]] = None,
 ) -> dict[str, Any]:
     """Build (or resume) the rendering set and write it to ``out_path`` (atomically, after every batch).
@@ -365,18 +484,20 @@ def build_rendering_set(
         out_path: the JSON file; if it exists with the same configuration the run resumes from it.
         config: sampling / rendering options (default :class:`RenderingSetConfig`).
         batch_size: candidates rendered and classified together.
+        mesh_root: when given, mesh paths are stored relative to this folder (every mesh must lie inside it), so the
+            file is portable between machines; resolve them with :func:`rendering_mesh_path`.
         progress: called as ``progress(class_name, class_stats)`` after each batch.
 
     Returns:
         The document written to ``out_path`` (see the module docstring).
 
     Raises:
-        ValueError: unknown class, no meshes for a class, ``per_class`` / ``batch_size`` < 1, bad victims, or an
-            existing ``out_path`` written with a different configuration.
+        ValueError: unknown class, no meshes for a class, ``per_class`` / ``batch_size`` < 1, bad victims, a mesh
+            outside ``mesh_root``, or an existing ``out_path`` written with a different configuration.
         FileNotFoundError: a mesh file does not exist.
     """
     from meshadv.mesh import load_mesh, normalize_mesh
-    from meshadv.render import ViewSet, render
+    from meshadv.render import ViewSet
 
     config = config or RenderingSetConfig()
     if per_class < 1:
@@ -386,6 +507,10 @@ def build_rendering_set(
     if not mesh_paths_by_class:
         raise ValueError("mesh_paths_by_class must name at least one class")
     meshes_by_class: dict[str, list[str]] = {}
+    stored_by_class: dict[str, list[str]] = {}
+    root = Path(mesh_root).resolve() if mesh_root is not None else None
+    if root is not None and not root.is_dir():
+        raise FileNotFoundError(f"mesh_root {mesh_root} is not a folder")
     for cls, paths in mesh_paths_by_class.items():
         if cls not in PASCAL3D_TO_IMAGENET:
             raise ValueError(f"mesh_paths_by_class: unknown class {cls!r}; classes: {', '.join(PASCAL3D_CLASSES)}")
@@ -396,6 +521,7 @@ def build_rendering_set(
             if not Path(p).is_file():
                 raise FileNotFoundError(f"mesh_paths_by_class[{cls!r}]: mesh file {p} does not exist")
         meshes_by_class[cls] = paths
+        stored_by_class[cls] = [_stored_path(p, root) for p in paths]
     resolved = _resolve_victims(victims)
     victim_names = [v.name for v in resolved]
     max_candidates = config.max_candidates_per_class or 50 * per_class
@@ -403,22 +529,27 @@ def build_rendering_set(
         "per_class": int(per_class),
         "seed": int(seed),
         "victims": victim_names,
-        "meshes": meshes_by_class,
+        "meshes": stored_by_class,
         "sampling": config.to_json(),
     }
     out_path = Path(out_path)
     if out_path.exists():
         doc = load_rendering_set(out_path)
-        if doc["config"] != config_json:
+        if _identity(doc["config"]) != _identity(config_json):
             raise ValueError(
                 f"out_path {out_path} holds a rendering set with a different configuration; "
                 "remove it or choose another out_path"
             )
+        # the candidate budget only says when to give up: a larger one continues exhausted classes
+        doc["config"]["sampling"]["max_candidates_per_class"] = config.max_candidates_per_class
     else:
         out_path.parent.mkdir(parents=True, exist_ok=True)
         doc = _new_doc(config_json, list(meshes_by_class), victim_names)
-    if doc["complete"]:
+    if doc["complete"] and not any(
+        s["kept"] < per_class and s["next_candidate"] < max_candidates for s in doc["classes"].values()
+    ):
         return doc
+    doc["complete"] = False
 
     imagenet_names = imagenet_class_names()
     judges = [_Judge(v, config.detector_threshold, imagenet_names) for v in resolved]
@@ -436,6 +567,7 @@ def build_rendering_set(
         stats = doc["classes"][cls]
         paths = meshes_by_class[cls]
         if stats["kept"] >= per_class or stats["next_candidate"] >= max_candidates:
+            stats["exhausted"] = stats["kept"] < per_class
             continue
         class_meshes = load_class_meshes(paths)
         while stats["kept"] < per_class and stats["next_candidate"] < max_candidates:
@@ -452,18 +584,7 @@ def build_rendering_set(
                     sample_view(np.random.default_rng(candidate_seed(seed, class_index, c)), verts_np, config)
                     for c in cands
                 ]
-                view_set = ViewSet.from_records(views)
-                with torch.no_grad():
-                    images = render(
-                        mesh.vertices,
-                        mesh.faces,
-                        mesh.face_colors,
-                        view_set.camera,
-                        view_set.lights,
-                        image_size=config.image_size,
-                        background=config.background,
-                        antialias=config.antialias,
-                    ).image
+                images = _render_mesh_views(mesh, ViewSet.from_records(views), config)
                 verdicts = [judge(images, cls) for judge in judges]
                 for j, cand in enumerate(cands):
                     passed = [v[0][j] for v in verdicts]
@@ -481,7 +602,7 @@ def build_rendering_set(
                     doc["renderings"].append(
                         {
                             "class": cls,
-                            "mesh": paths[cand % len(paths)],
+                            "mesh": stored_by_class[cls][cand % len(paths)],
                             "mesh_index": cand % len(paths),
                             "candidate": cand,
                             "seed": candidate_seed(seed, class_index, cand),
@@ -501,11 +622,12 @@ def build_rendering_set(
     return doc
 
 
-def pass_rate_table(doc: Mapping[str, Any]) -> str:
-    """A plain-text table of the pass rate per class and victim (and of all victims together).
+def pass_rate_table(doc: Mapping[str, Any], *, markdown: bool = False) -> str:
+    """A table of the pass rate per class and victim (and of all victims together).
 
     Args:
         doc: a rendering-set document.
+        markdown: a Markdown table instead of aligned plain text.
     """
     victims = list(doc["config"]["victims"])
     header = ["class", "kept", "tried", *victims, "all"]
@@ -516,5 +638,9 @@ def pass_rate_table(doc: Mapping[str, Any]) -> str:
             [cls, str(stats["kept"]), str(stats["tried"])]
             + ["-" if rates[k] is None else f"{100 * rates[k]:.1f}%" for k in [*victims, "all"]]
         )
+    if markdown:
+        lines = ["| " + " | ".join(row) + " |" for row in rows]
+        lines.insert(1, "|" + "---|" * len(header))
+        return "\n".join(lines)
     widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
     return "\n".join("  ".join(cell.ljust(w) for cell, w in zip(row, widths)) for row in rows)
