@@ -10,7 +10,8 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
                   target_faces = 0 (uniform resampling, 0 = keep), max_faces = 20000
     [render]      image_size = 224, configurations = 72, config_seed = 0, distance = [3.6, 4.4],
                   azimuth = [0, 360], elevation = [0, 30], viewing_angle = 30,
-                  light_intensity = [0.4, 0.8], ambient = [0.3, 0.6], light_jitter = 30
+                  light_intensity = [0.4, 0.8], ambient = [0.3, 0.6], light_jitter = 30,
+                  rendering_set = "packaged" | "path/to/set.json" (optional, see below)
     [victims]     names = ["efficientnet_lite0"] (required), weights = {densenet121 = "densenet121.pth"}
                   (weights files for victims that need them, relative to the file; the path is part of the job)
     [attack]      types = ["shape", "texture"], targets = "others" | [...], benign_correct_only = true
@@ -27,6 +28,12 @@ camera side jittered by up to ``light_jitter`` degrees, light intensity and ambi
 one-view ``ViewSet`` record (``meshadv.render.ViewSet.from_records``). Meshes are normalised into ``[-1, 1]``, so
 with a 30° field of view the camera must be about ``1 / tan(15°) + 1 ≈ 4.7`` away to keep the whole object in the
 frame; the default distances (3.6 to 4.4) show it nearly whole and large.
+
+With ``render.rendering_set`` the configurations come from a PASCAL3D+ rendering set instead
+(:mod:`meshadv.victims.rendering_set`; ``"packaged"`` = the set shipped with meshadv, built with EfficientNet-Lite0
+and -Lite2): for each class in ``meshes.classes`` the first ``render.configurations`` kept renderings (restricted to
+``meshes.models`` when given), each with its own mesh and view, exactly as the paper picks its 72 configurations per
+class. The sampling keys above are then unused; ``render.image_size`` still sets the attack's render size.
 
 Jobs (one attack each) are the product mesh x configuration x victim x perturbation type x target x seed (Table 1),
 plus, when ``[multiview]`` is enabled, mesh x victim x type x target x (view count, azimuth range) x seed attacks
@@ -155,6 +162,13 @@ def parse_config(raw: Dict[str, Any], *, base_dir: Union[str, Path] = ".", text:
         raise ValueError(f"render.image_size must be >= 8, got {render['image_size']}")
     if int(render["configurations"]) < 1:
         raise ValueError(f"render.configurations must be >= 1, got {render['configurations']}")
+    if render.get("rendering_set") is not None:
+        if not isinstance(render["rendering_set"], str):
+            raise ValueError(f"render.rendering_set must be 'packaged' or a file path, got {render['rendering_set']!r}")
+        if meshes["source"] != "pascal3d":
+            raise ValueError("render.rendering_set needs meshes.source = 'pascal3d'")
+        if render["rendering_set"] != "packaged":
+            render["rendering_set"] = str((base / render["rendering_set"]).resolve())
     for key, default in (("distance", (3.6, 4.4)), ("azimuth", (0.0, 360.0)), ("elevation", (0.0, 30.0)),
                          ("light_intensity", (0.4, 0.8)), ("ambient", (0.3, 0.6))):
         render[key] = _range(render, key, default)
@@ -269,8 +283,43 @@ def rendering_configurations(render: Dict[str, Any]) -> List[Dict[str, Any]]:
     return out
 
 
+def _mesh_common(meshes: Dict[str, Any]) -> Dict[str, int]:
+    return {"target_faces": int(meshes["target_faces"]), "max_faces": int(meshes["max_faces"])}
+
+
+def rendering_set_instances(config: SweepConfig) -> List[Tuple[Dict[str, Any], int, Dict[str, Any]]]:
+    """The ``(mesh entry, configuration index, view record)`` instances a rendering-set sweep attacks.
+
+    Raises:
+        FileNotFoundError: the rendering-set file does not exist. ValueError: not a rendering-set file, or a class
+            with fewer kept renderings than ``render.configurations``.
+    """
+    from meshadv.victims.rendering_set import load_rendering_set, packaged_rendering_set_path
+
+    spec = config.render["rendering_set"]
+    doc = load_rendering_set(packaged_rendering_set_path() if spec == "packaged" else spec)
+    count = int(config.render["configurations"])
+    models = config.meshes["models"]
+    out = []
+    for cls in config.meshes["classes"]:
+        wanted = models.get(cls) if isinstance(models, dict) else models
+        records = [r for r in doc["renderings"] if r["class"] == cls
+                   and (not wanted or Path(r["mesh"]).stem in [str(m) for m in wanted])]
+        if len(records) < count:
+            raise ValueError(f"render.rendering_set {spec}: class {cls} has {len(records)} kept renderings"
+                             f"{' of models ' + str(wanted) if wanted else ''}, fewer than render.configurations = "
+                             f"{count}")
+        for ci, rec in enumerate(records[:count]):
+            if Path(rec["mesh"]).is_absolute():
+                raise ValueError(f"render.rendering_set {spec}: mesh paths must be relative to the shared data "
+                                 f"folder (build it with mesh_root), got {rec['mesh']}")
+            mesh = {"source": "pascal3d", "path": rec["mesh"], "class": cls, **_mesh_common(config.meshes)}
+            out.append((mesh, ci, rec["view"]))
+    return out
+
+
 def _mesh_entries(meshes: Dict[str, Any]) -> List[Dict[str, Any]]:
-    common = {"target_faces": int(meshes["target_faces"]), "max_faces": int(meshes["max_faces"])}
+    common = _mesh_common(meshes)
     if meshes["source"] == "builtin":
         return [{"source": "builtin", "name": e["name"], "class": e["class"], **common} for e in meshes["builtin"]]
     if meshes["source"] == "files":
@@ -303,22 +352,25 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
     """
     meshes = _mesh_entries(config.meshes)
     classes = sorted({m["class"] for m in meshes}, key=lambda c: (PASCAL3D_CLASSES + (c,)).index(c))
-    configs = rendering_configurations(config.render)
+    if config.render.get("rendering_set") is not None:
+        instances = rendering_set_instances(config)
+    else:
+        configs = rendering_configurations(config.render)
+        instances = [(mesh, ci, view) for mesh in meshes for ci, view in enumerate(configs)]
     size = int(config.render["image_size"])
     jobs: List[Dict[str, Any]] = []
-    for mesh in meshes:
-        for ci, view in enumerate(configs):
-            for victim in config.victims:
-                for ptype in config.attack["types"]:
-                    for target in _targets(config.attack["targets"], mesh["class"], classes):
-                        for seed in config.seeds:
-                            jobs.append({
-                                "kind": "single", "mesh": mesh, "source_class": mesh["class"], "target": target,
-                                "victim": victim, "perturbation": ptype, "views": [view], "eval_views": [],
-                                "image_size": size, "attack": dict(config.attack.get(ptype, {})), "seed": seed,
-                                "config_index": ci,
-                                "benign_correct_only": bool(config.attack["benign_correct_only"]),
-                            })
+    for mesh, ci, view in instances:
+        for victim in config.victims:
+            for ptype in config.attack["types"]:
+                for target in _targets(config.attack["targets"], mesh["class"], classes):
+                    for seed in config.seeds:
+                        jobs.append({
+                            "kind": "single", "mesh": mesh, "source_class": mesh["class"], "target": target,
+                            "victim": victim, "perturbation": ptype, "views": [view], "eval_views": [],
+                            "image_size": size, "attack": dict(config.attack.get(ptype, {})), "seed": seed,
+                            "config_index": ci,
+                            "benign_correct_only": bool(config.attack["benign_correct_only"]),
+                        })
     mv = config.multiview
     if mv["enabled"]:
         mv_classes = mv["classes"] or classes

@@ -75,7 +75,8 @@ def _victim(name: str, weights: Any = None) -> Any:
     return _VICTIM_CACHE[key]
 
 
-def _benign_check(mesh: Any, views: Any, victim: Any, source: str, image_size: int) -> Tuple[bool, List[str], Any]:
+def _benign_check(mesh: Any, views: Any, victim: Any, source: str, image_size: int,
+                  antialias: int = 1) -> Tuple[bool, List[str], Any]:
     import torch
 
     from meshadv.attacks import TargetedMisclassification
@@ -83,7 +84,7 @@ def _benign_check(mesh: Any, views: Any, victim: Any, source: str, image_size: i
 
     with torch.no_grad():
         images, _ = render_views(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views,
-                                 image_size=image_size, background=(1.0, 1.0, 1.0))
+                                 image_size=image_size, background=(1.0, 1.0, 1.0), antialias=antialias)
         logits = victim(images)
         crit = TargetedMisclassification(source).bind(victim)
         correct = bool((crit.margin(logits) > 0).all())
@@ -124,7 +125,8 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     eval_views = ViewSet.from_records(spec["eval_views"]) if spec.get("eval_views") else None
     victim = _victim(spec["victim"], spec.get("victim_weights"))
     size = int(spec.get("image_size", 224))
-    correct, benign_top1, benign_images = _benign_check(mesh, views, victim, spec["source_class"], size)
+    antialias = int(spec.get("attack", {}).get("antialias", 1))  # judge the benign render as the attack renders it
+    correct, benign_top1, benign_images = _benign_check(mesh, views, victim, spec["source_class"], size, antialias)
     save_mesh(mesh, out / "benign.ply")
     benign_pngs = []
     for j in range(benign_images.shape[0]):

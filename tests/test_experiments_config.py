@@ -1,0 +1,87 @@
+"""Sweep files that take their rendering configurations from a PASCAL3D+ rendering set."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from meshadv.experiments.config import expand_jobs, parse_config
+from meshadv.victims.rendering_set import FORMAT, VERSION, packaged_rendering_set_path
+
+
+def _view(azimuth: float) -> dict[str, Any]:
+    return {"distance": 4.0, "azimuth": azimuth, "elevation": 10.0, "tilt": 0.0, "viewing_angle": 30.0,
+            "light_directions": [[0.0, 0.0, -1.0]], "light_colors": [[0.5, 0.5, 0.5]], "ambient": [0.5, 0.5, 0.5]}
+
+
+def _write_set(path: Path, records: list[tuple[str, str, float]]) -> Path:
+    doc = {"format": FORMAT, "version": VERSION, "complete": True, "config": {}, "classes": {},
+           "renderings": [{"class": cls, "mesh": mesh, "candidate": i, "view": _view(az)}
+                          for i, (cls, mesh, az) in enumerate(records)]}
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def _config(**render: Any) -> dict[str, Any]:
+    return {"meshes": {"classes": ["chair", "sofa"]}, "render": {"image_size": 64, **render},
+            "victims": {"names": ["efficientnet_lite0"]}, "attack": {"types": ["texture"]}}
+
+
+RECORDS = [("chair", "pascal3d/chair/03.ply", 10.0), ("sofa", "pascal3d/sofa/01.ply", 20.0),
+           ("chair", "pascal3d/chair/01.ply", 30.0), ("chair", "pascal3d/chair/03.ply", 40.0),
+           ("sofa", "pascal3d/sofa/02.ply", 50.0), ("bottle", "pascal3d/bottle/01.ply", 60.0)]
+
+
+def test_jobs_take_mesh_and_view_from_the_set_in_order(tmp_path: Path) -> None:
+    _write_set(tmp_path / "set.json", RECORDS)
+    cfg = parse_config(_config(rendering_set="set.json", configurations=2), base_dir=tmp_path)
+    jobs = expand_jobs(cfg)
+    assert len(jobs) == 4  # 2 classes x 2 configurations x 1 target (the other class) x 1 type
+    got = [(j["source_class"], j["mesh"]["path"], j["views"][0]["azimuth"], j["config_index"], j["target"])
+           for j in jobs]
+    assert got == [
+        ("chair", "pascal3d/chair/03.ply", 10.0, 0, "sofa"),
+        ("chair", "pascal3d/chair/01.ply", 30.0, 1, "sofa"),
+        ("sofa", "pascal3d/sofa/01.ply", 20.0, 0, "chair"),
+        ("sofa", "pascal3d/sofa/02.ply", 50.0, 1, "chair"),
+    ]
+    assert all(j["mesh"]["source"] == "pascal3d" and j["image_size"] == 64 for j in jobs)
+
+
+def test_models_restrict_the_records(tmp_path: Path) -> None:
+    _write_set(tmp_path / "set.json", RECORDS)
+    raw = _config(rendering_set="set.json", configurations=1)
+    raw["meshes"]["models"] = {"chair": ["01"]}
+    jobs = expand_jobs(parse_config(raw, base_dir=tmp_path))
+    assert [(j["mesh"]["path"], j["views"][0]["azimuth"]) for j in jobs] == [
+        ("pascal3d/chair/01.ply", 30.0), ("pascal3d/sofa/01.ply", 20.0)]
+
+
+def test_bad_rendering_set_configs(tmp_path: Path) -> None:
+    _write_set(tmp_path / "set.json", RECORDS)
+    with pytest.raises(ValueError, match="fewer than render.configurations"):
+        expand_jobs(parse_config(_config(rendering_set="set.json", configurations=3), base_dir=tmp_path))
+    with pytest.raises(FileNotFoundError, match="missing.json"):
+        expand_jobs(parse_config(_config(rendering_set="missing.json", configurations=1), base_dir=tmp_path))
+    with pytest.raises(ValueError, match="render.rendering_set"):
+        parse_config(_config(rendering_set=3))
+    raw = _config(rendering_set="set.json")
+    raw["meshes"] = {"source": "builtin", "builtin": [{"name": "chair", "class": "chair"}]}
+    with pytest.raises(ValueError, match="meshes.source"):
+        parse_config(raw, base_dir=tmp_path)
+    _write_set(tmp_path / "abs.json", [("chair", "/abs/chair.ply", 0.0), ("sofa", "/abs/sofa.ply", 0.0)])
+    with pytest.raises(ValueError, match="relative"):
+        expand_jobs(parse_config(_config(rendering_set="abs.json", configurations=1), base_dir=tmp_path))
+
+
+def test_packaged_set_expands_to_the_papers_72_per_class() -> None:
+    if not packaged_rendering_set_path().is_file():  # pragma: no cover - raises instead
+        pytest.fail("packaged set missing")
+    raw = {"render": {"rendering_set": "packaged"}, "victims": {"names": ["efficientnet_lite0"]},
+           "attack": {"types": ["shape", "texture"]}}
+    jobs = expand_jobs(parse_config(raw))
+    assert len(jobs) == 7 * 72 * 2 * 6  # classes x configurations x types x targets: Table 1's protocol
+    assert len({(j["mesh"]["path"], json.dumps(j["views"][0])) for j in jobs}) == 7 * 72
