@@ -92,7 +92,7 @@ def report(
     table = pass_rate_table(doc, markdown=True)
     command = "meshadv rendering-set report " + " ".join(shlex.quote(a) for a in sys.argv[3:])
     (out / "pass_rates.md").write_text(
-        f"Pass rates of `{rendering_set.name}` (made by `{command}`):\n\n{table}\n", encoding="utf-8"
+        f"Pass rates recorded in `{rendering_set.name}` by its build (this file: `{command}`):\n\n{table}\n", encoding="utf-8"
     )
     rows = {}
     for cls in doc["classes"]:
