@@ -91,9 +91,8 @@ def report(
     out.mkdir(parents=True, exist_ok=True)
     table = pass_rate_table(doc, markdown=True)
     command = "meshadv rendering-set report " + " ".join(shlex.quote(a) for a in sys.argv[3:])
-    (out / "pass_rates.md").write_text(
-        f"Pass rates recorded in `{rendering_set.name}` by its build (this file: `{command}`):\n\n{table}\n", encoding="utf-8"
-    )
+    intro = f"Pass rates recorded in `{rendering_set.name}` by its build (this file: `{command}`):"
+    (out / "pass_rates.md").write_text(f"{intro}\n\n{table}\n", encoding="utf-8")
     rows = {}
     for cls in doc["classes"]:
         records = [r for r in doc["renderings"] if r["class"] == cls][:per_class]
