@@ -140,7 +140,7 @@ def _fake_sweep(tmp_path):
             save_mesh(builtin_mesh("bottle"), out / "adversarial.ply")
             (out / "result.json").write_text(json.dumps(
                 {"views": views, "meshes": [["adversarial.ply", "adversarial.obj"]],
-                 "config": {"image_size": [64, 64]}}))
+                 "config": {"image_size": [64, 64], "antialias": 2}}))
             store.mark_running(row.job_id)
             store.mark_done(row.job_id, {"success": row.spec["seed"] == 0, "benign_correct": True}, str(out))
     return db, views
@@ -158,6 +158,7 @@ def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
                                                                               "chair", "texture")
     assert case.image_size == (64, 64) and case.views[0]["azimuth"] == pytest.approx(views[0]["azimuth"])
     assert case.benign_correct is True
+    assert case.antialias == 2, "the meshadv reference render uses the attack's supersampling"
     assert case.mesh.faces.shape == builtin_mesh("bottle").faces.shape
     assert len(cases_from_store(db, only_successful=False)) == 2
     with pytest.raises(FileNotFoundError):

@@ -47,6 +47,8 @@ class TransferCase:
         image_size: (H, W) of the renders.
         background: RGB background of the renders.
         benign_correct: whether the victim classified the benign render correctly (from the sweep), if known.
+        antialias: meshadv's supersampling factor for the reference render (the attack's own, so that
+            ``success_meshadv`` is the attack's success).
     """
 
     case_id: str
@@ -59,6 +61,7 @@ class TransferCase:
     image_size: tuple[int, int] = (224, 224)
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
     benign_correct: Optional[bool] = None
+    antialias: int = 1
 
     def __post_init__(self) -> None:
         if not self.views:
@@ -126,6 +129,7 @@ def cases_from_store(
                 attack_type=str(spec.get("perturbation", result.get("perturbation", ""))),
                 image_size=tuple(size) if isinstance(size, (list, tuple)) else (int(size), int(size)),
                 benign_correct=None if record.get("benign_correct") is None else bool(record["benign_correct"]),
+                antialias=int(result.get("config", {}).get("antialias") or 1),
             )
         )
         if limit is not None and len(cases) >= limit:
@@ -186,7 +190,7 @@ def evaluate_case(
     mesh = case.mesh
     with torch.no_grad():
         ours = render(mesh.vertices, mesh.faces, mesh.face_colors, views.camera, views.lights, case.image_size,
-                      background=case.background).image
+                      background=case.background, antialias=case.antialias).image
         theirs = _images_tensor(mitsuba_images)
         logits_ours, logits_theirs = victim(ours), victim(theirs)
     untargeted, targeted = _criteria(case, victim)
