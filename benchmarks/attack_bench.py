@@ -8,9 +8,18 @@ Real meshes (shared PASCAL3D+ models) and a real victim (EfficientNet-Lite0). Fo
   (sum of wall times) and all together as a batch (one wall time), with early stopping; reports the time until
   every target held, and how many did within ``--max-steps``.
 
+With ``--convergence`` only the shape attack's time to success is measured, for every combination of
+``--smoothing`` (rounds of neighbour averaging of the flow, 0 = the paper's per-vertex flow) and ``--shape-lr``: each
+target is attacked alone for up to ``--max-steps`` steps, stopping at the first step where it holds on every view
+(early stopping is the first success, so a run also tells how many steps a smaller budget would have needed);
+reports successes within each of ``--budgets`` steps, the steps to success and the Laplacian / displacement of the
+applied flow at success.
+
 Usage:
     python benchmarks/attack_bench.py --meshes chair/01 sofa/01 --views 5 --image-size 160 --targets 4 \\
         --out benchmarks/attack_bench.json
+    python benchmarks/attack_bench.py --convergence --meshes chair/01 sofa/01 --views 2 --image-size 128 \\
+        --targets 3 --max-steps 200 --budgets 60 200 --smoothing 0 8 --shape-lr 5e-3 2e-2
 
 Prints a Markdown table (paste it into benchmarks/RESULTS.md with the command line) and writes a JSON record.
 """
@@ -19,11 +28,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
+import statistics
 import sys
 import time
 from pathlib import Path
-from typing import Any, Dict, List
+from typing import Any, Dict, List, Optional, Tuple
 
 import torch
 
@@ -45,17 +56,19 @@ def _ranked_classes(mesh: Any, views: Any, victim: Any, image_size: int, count: 
     return [int(i) for i in probs.topk(count + 1).indices.tolist()[1:]]
 
 
-def _make_attack(perturb: str, **kwargs: Any) -> Any:
+def _make_attack(perturb: str, *, smoothing: Optional[int] = None, shape_lr: Optional[float] = None,
+                 **kwargs: Any) -> Any:
     from meshadv.attacks import ShapeAttack, TextureAttack
 
     if perturb == "shape":
-        return ShapeAttack(lr=5e-3, lambda_perceptual=0.01, loss="cw", **kwargs)
+        extra: Dict[str, Any] = {} if smoothing is None else {"smoothing": smoothing}
+        lr = 5e-3 if shape_lr is None else shape_lr
+        return ShapeAttack(lr=lr, lambda_perceptual=0.01, loss="cw", **extra, **kwargs)
     return TextureAttack(lr=0.1, lambda_perceptual=1e-4, loss="cw", **kwargs)
 
 
-def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: Any) -> Dict[str, Any]:
-    """Benchmark one mesh and perturbation; returns a JSON-able record."""
-    from meshadv.attacks import TargetedMisclassification
+def _setup(mesh_name: str, args: argparse.Namespace, victim: Any) -> Tuple[Any, Any, List[int]]:
+    """The normalised shared mesh, the victim views and the runner-up target classes."""
     from meshadv.data import require_shared_data
     from meshadv.mesh import load_mesh, normalize_mesh
     from meshadv.render import ViewSet
@@ -66,7 +79,70 @@ def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: A
         elevation=15.0,
         distance=4.5,
     )
-    targets = _ranked_classes(mesh, views, victim, args.image_size, args.targets)
+    return mesh, views, _ranked_classes(mesh, views, victim, args.image_size, args.targets)
+
+
+def convergence_case(mesh_name: str, smoothing: int, lr: float, args: argparse.Namespace,
+                     victim: Any) -> Dict[str, Any]:
+    """Shape attack time to success of each runner-up target alone, for one smoothing and learning rate."""
+    from meshadv.attacks import TargetedMisclassification
+
+    mesh, views, targets = _setup(mesh_name, args, victim)
+    runs = []
+    t_case = time.perf_counter()
+    for target in targets:
+        attack = _make_attack("shape", smoothing=smoothing, shape_lr=lr, steps=args.max_steps, early_stop=1,
+                              image_size=args.image_size)
+        t0 = time.perf_counter()
+        result = attack(mesh, views, victim, TargetedMisclassification(target))
+        runs.append({
+            "target": target,
+            "succeeded": bool(result.succeeded[0]),
+            "steps_to_success": result.steps_to_success[0] if bool(result.succeeded[0]) else None,
+            "steps": result.steps,
+            "time_s": time.perf_counter() - t0,
+            "distances": dict(result.distances[0]),
+        })
+    return {"mesh": mesh_name, "faces": mesh.num_faces, "smoothing": smoothing, "lr": lr, "views": args.views,
+            "image_size": args.image_size, "max_steps": args.max_steps, "targets": targets, "runs": runs,
+            "time_s": time.perf_counter() - t_case}
+
+
+def _median(values: List[float]) -> Optional[float]:
+    return float(statistics.median(values)) if values else None
+
+
+def _fmt(value: Optional[float], spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def print_convergence(records: List[Dict[str, Any]], budgets: List[int]) -> None:
+    """Markdown table of the convergence records."""
+    heads = " | ".join(f"success <= {b} steps" for b in budgets)
+    print(f"| mesh | smoothing | lr | {heads} | steps to success | Laplacian (median) | max / mean displacement "
+          "(median, x bbox diagonal) | time |")
+    print("|---|---|---|" + "---|" * len(budgets) + "---|---|---|---|")
+    for r in records:
+        runs = r["runs"]
+        ok = [run for run in runs if run["succeeded"]]
+        counts = " | ".join(
+            f"{sum(1 for run in ok if run['steps_to_success'] <= b)}/{len(runs)}" for b in budgets
+        )
+        steps = ", ".join("-" if run["steps_to_success"] is None else str(run["steps_to_success"]) for run in runs)
+        lap = _median([run["distances"]["laplacian"] for run in ok])
+        dmax = _median([run["distances"]["max_displacement"] for run in ok])
+        dmean = _median([run["distances"]["mean_displacement"] for run in ok])
+        print(f"| {r['mesh']} | {r['smoothing']} | {r['lr']:g} | {counts} | {steps} | {_fmt(lap, '.3g')} | "
+              f"{_fmt(dmax, '.3f')} / {_fmt(dmean, '.4f')} | {r['time_s']:.0f} s |")
+
+
+def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: Any) -> Dict[str, Any]:
+    """Benchmark one mesh and perturbation; returns a JSON-able record."""
+    from meshadv.attacks import TargetedMisclassification
+
+    mesh, views, targets = _setup(mesh_name, args, victim)
+    shape_kw: Dict[str, Any] = {"smoothing": None if args.smoothing is None else args.smoothing[0],
+                                "shape_lr": args.shape_lr[0]}
     crits = [TargetedMisclassification(t) for t in targets]
     record: Dict[str, Any] = {
         "mesh": mesh_name,
@@ -79,7 +155,7 @@ def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: A
 
     # throughput
     for label, crit in (("single", crits[:1]), ("batched", crits)):
-        attack = _make_attack(perturb, steps=args.steps, image_size=args.image_size)
+        attack = _make_attack(perturb, **shape_kw, steps=args.steps, image_size=args.image_size)
         if label == "single" and args.warmup:
             attack(mesh, views, victim, crit)
         t0 = time.perf_counter()
@@ -91,13 +167,13 @@ def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: A
     # time to success
     seq_time, seq_ok, seq_first = 0.0, 0, []
     for crit in crits:
-        attack = _make_attack(perturb, steps=args.max_steps, early_stop=1, image_size=args.image_size)
+        attack = _make_attack(perturb, **shape_kw, steps=args.max_steps, early_stop=1, image_size=args.image_size)
         t0 = time.perf_counter()
         result = attack(mesh, views, victim, crit)
         seq_time += time.perf_counter() - t0
         seq_ok += int(result.succeeded[0])
         seq_first.append(result.time_to_success[0])
-    attack = _make_attack(perturb, steps=args.max_steps, early_stop=1, image_size=args.image_size)
+    attack = _make_attack(perturb, **shape_kw, steps=args.max_steps, early_stop=1, image_size=args.image_size)
     t0 = time.perf_counter()
     result = attack(mesh, views, victim, crits)
     record.update(
@@ -124,16 +200,46 @@ def main(argv: List[str]) -> int:
     parser.add_argument("--max-steps", type=int, default=200, help="step limit of the time-to-success runs")
     parser.add_argument("--warmup", action="store_true", help="one untimed run first")
     parser.add_argument("--out", type=Path, default=None, help="JSON output file")
+    parser.add_argument("--convergence", action="store_true",
+                        help="only the shape attack's time to success over --smoothing x --shape-lr")
+    parser.add_argument("--smoothing", type=int, nargs="+", default=None,
+                        help="shape flow smoothing rounds (default: ShapeAttack's default)")
+    parser.add_argument("--shape-lr", type=float, nargs="+", default=[5e-3], help="shape attack learning rates")
+    parser.add_argument("--budgets", type=int, nargs="+", default=None,
+                        help="--convergence: step budgets to count successes within (default: --max-steps)")
     args = parser.parse_args(argv)
 
     from meshadv.victims import load_victim
 
     torch.manual_seed(0)
     victim = load_victim(args.victim)
-    records = [bench_case(m, p, args, victim) for m in args.meshes for p in args.perturb]
     command = "python benchmarks/attack_bench.py " + " ".join(argv)
+    machine = f"machine: {platform.processor() or platform.machine()}, torch threads {torch.get_num_threads()}"
+    if args.convergence:
+        from meshadv.attacks.shape import DEFAULT_SMOOTHING
+
+        smoothings = args.smoothing if args.smoothing is not None else [DEFAULT_SMOOTHING]
+        budgets = sorted(b for b in (args.budgets or [args.max_steps]) if b <= args.max_steps)
+        loads = [os.getloadavg()[0]]
+        records = []
+        for m in args.meshes:
+            for k in smoothings:
+                for lr in args.shape_lr:
+                    records.append(convergence_case(m, k, lr, args, victim))
+                    loads.append(os.getloadavg()[0])
+                    steps = [run["steps_to_success"] for run in records[-1]["runs"]]
+                    print(f"done {m} smoothing={k} lr={lr:g}: steps to success {steps} "
+                          f"({records[-1]['time_s']:.0f} s, load {loads[-1]:.1f})", file=sys.stderr, flush=True)
+        print(f"command: {command}")
+        print(f"{machine}; 1-minute load average {min(loads):.1f}-{max(loads):.1f}")
+        print_convergence(records, budgets)
+        if args.out is not None:
+            args.out.write_text(json.dumps({"command": command, "torch_threads": torch.get_num_threads(),
+                                            "load": loads, "records": records}, indent=2))
+        return 0
+    records = [bench_case(m, p, args, victim) for m in args.meshes for p in args.perturb]
     print(f"command: {command}")
-    print(f"machine: {platform.processor() or platform.machine()}, torch threads {torch.get_num_threads()}")
+    print(machine)
     print(
         "| mesh | faces | perturb | views x px | steps/s 1 target | steps/s {T} targets | target-steps/s "
         "1 vs {T} | time to all successes: sequential | batched |".replace("{T}", str(args.targets))

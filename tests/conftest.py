@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -16,3 +17,28 @@ def shared_data() -> Path:
     if root is None:
         pytest.skip(f"shared data not found (set {DATA_ENV_VAR} or provide ../shared/data)")
     return root
+
+
+@pytest.fixture(scope="session")
+def lite0_victim() -> Any:
+    """The real EfficientNet-Lite0 victim; skipped when the renderer or the victim's package is missing."""
+    from meshadv.render import native_available
+
+    if not native_available():
+        pytest.skip("native module meshadv._raster is not built (run `maturin develop --release`)")
+    try:
+        from meshadv.victims import load_victim
+
+        return load_victim("efficientnet_lite0")
+    except ImportError as exc:
+        pytest.skip(f"victim efficientnet_lite0 unavailable: {exc}")
+
+
+def load_shared_pascal_mesh(shared_data: Path, category: str, model: str) -> Any:
+    """A shared PASCAL3D+ mesh, Z-up turned Y-up and normalised to [-1, 1]; skips the test when the file is missing."""
+    from meshadv.mesh import load_mesh, normalize_mesh
+
+    path = shared_data / "pascal3d" / category / f"{model}.ply"
+    if not path.is_file():
+        pytest.skip(f"shared mesh {path} is missing")
+    return normalize_mesh(load_mesh(path), z_up=True)[0]

@@ -12,6 +12,7 @@ from typing import Any, Tuple
 
 import pytest
 import torch
+from conftest import load_shared_pascal_mesh
 
 from meshadv.attacks import (
     Misclassification,
@@ -26,32 +27,14 @@ IMAGE_SIZE = 128
 EASY_MESH = ("sofa", "01")
 
 
-def _require_renderer() -> None:
-    from meshadv.render import native_available
-
-    if not native_available():
-        pytest.skip("native module meshadv._raster is not built (run `maturin develop --release`)")
-
-
 @pytest.fixture(scope="module")
-def victim() -> Any:
-    _require_renderer()
-    try:
-        from meshadv.victims import load_victim
-
-        return load_victim("efficientnet_lite0")
-    except ImportError as exc:
-        pytest.skip(f"victim efficientnet_lite0 unavailable: {exc}")
+def victim(lite0_victim: Any) -> Any:
+    return lite0_victim
 
 
 @pytest.fixture(scope="module")
 def mesh(shared_data: Path) -> Any:
-    from meshadv.mesh import load_mesh, normalize_mesh
-
-    path = shared_data / "pascal3d" / EASY_MESH[0] / f"{EASY_MESH[1]}.ply"
-    if not path.is_file():
-        pytest.skip(f"shared mesh {path} is missing")
-    return normalize_mesh(load_mesh(path), z_up=True)[0]
+    return load_shared_pascal_mesh(shared_data, *EASY_MESH)
 
 
 def _views(num_views: int = 1, spread: float = 10.0) -> Any:

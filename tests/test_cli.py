@@ -87,6 +87,20 @@ def test_attack_command_writes_result(tmp_path: Path) -> None:
         assert (out / name).is_file(), name
 
 
+def test_attack_smoothing_option(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["attack", "builtin:cube", "--perturb", "texture", "--smoothing", "2", "--target", "1",
+                                 "-o", str(tmp_path / "t")])
+    assert result.exit_code == 2 and "--smoothing" in result.output
+    _require_renderer()
+    _require_victim()
+    out = tmp_path / "s"
+    result = runner.invoke(app, ["attack", "builtin:chair", "--target", "bicycle", "--smoothing", "3", "--views", "1",
+                                 "--steps", "2", "--image-size", "64", "--quiet", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "result.json").read_text())
+    assert record["config"]["smoothing"] == 3 and record["perturbation"] == "shape"
+
+
 def test_demo_runs_end_to_end(tmp_path: Path) -> None:
     _require_renderer()
     _require_victim()

@@ -15,6 +15,7 @@ from __future__ import annotations
 from meshadv.attacks.base import MeshAttack, StepInfo
 from meshadv.attacks.criteria import Criterion, Disappearance, Misclassification, TargetedMisclassification
 from meshadv.attacks.distances import color_rmse, displacement_stats, laplacian_distance, mesh_distances
+from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import (
     cw_targeted_margin,
     cw_untargeted_margin,
@@ -52,4 +53,5 @@ __all__ = [
     "color_rmse",
     "displacement_stats",
     "mesh_distances",
+    "smooth_flow",
 ]

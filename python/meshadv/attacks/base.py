@@ -238,8 +238,8 @@ class MeshAttack(ABC):
         """Initial parameters ``(T, ...)`` (the pristine mesh)."""
 
     @abstractmethod
-    def _apply(self, params: Tensor, mesh: Any) -> Tuple[Tensor, Tensor]:
-        """``(vertices (K,N,3), face_colors (M,3) or (K,M,3))`` for parameters ``(K, ...)``."""
+    def _apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
+        """``(vertices (K,N,3), face_colors (M,3) or (K,M,3))`` for parameters ``(K, ...)`` (``edges`` of ``mesh``)."""
 
     @abstractmethod
     def _perceptual(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
@@ -309,8 +309,9 @@ class MeshAttack(ABC):
         return self._run(mesh, views, victim, bound, eval_views, callback)
 
     # ------------------------------------------------------------------ loop
-    def _forward(self, params: Tensor, mesh: Any, views: Any, victim: Any) -> Tuple[Tensor, Tensor, Any]:
-        verts, colors = self._apply(params, mesh)
+    def _forward(self, params: Tensor, mesh: Any, edges: Tensor, views: Any,
+                 victim: Any) -> Tuple[Tensor, Tensor, Any]:
+        verts, colors = self._apply(params, mesh, edges)
         images, alpha = render_views(verts, mesh.faces, colors, views, image_size=self.image_size,
                                      background=self.background, antialias=self.antialias)
         return images, alpha, victim(images)
@@ -351,7 +352,7 @@ class MeshAttack(ABC):
                         step_views = views.jitter(generator, **self.jitter) if self.jitter else views
                         idx = torch.tensor(act, dtype=torch.long)
                         p = params[idx]
-                        images, alpha, output = self._forward(p, mesh, step_views, victim)
+                        images, alpha, output = self._forward(p, mesh, edges, step_views, victim)
                         adv = torch.stack([
                             criteria[t].loss(slice_output(output, a * num_v, (a + 1) * num_v),
                                              loss=self.loss, kappa=self.kappa).mean()
@@ -478,7 +479,7 @@ class MeshAttack(ABC):
 
         num_t = params.shape[0]
         with torch.no_grad():
-            verts, colors = self._apply(params, mesh)
+            verts, colors = self._apply(params, mesh, edges)
             if colors.dim() == 2:
                 colors = colors.unsqueeze(0).expand(num_t, -1, -1)
         adversarial = tuple(

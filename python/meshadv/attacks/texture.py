@@ -50,7 +50,7 @@ class TextureAttack(MeshAttack):
         logits = torch.logit(mesh.face_colors.clamp(_EPS, 1 - _EPS))
         return logits.unsqueeze(0).repeat(num_targets, 1, 1)
 
-    def _apply(self, params: Tensor, mesh: Any) -> Tuple[Tensor, Tensor]:
+    def _apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
         verts = mesh.vertices.unsqueeze(0).expand(params.shape[0], -1, -1)
         return verts, torch.sigmoid(params)
 

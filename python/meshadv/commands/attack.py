@@ -132,6 +132,9 @@ def attack(
     steps: int = typer.Option(300, help="maximum Adam steps per binary-search round"),
     lr: Optional[float] = typer.Option(None, help="Adam learning rate (default: the attack's)"),
     lambda_: Optional[float] = typer.Option(None, "--lambda", help="initial perceptual weight lambda"),
+    smoothing: Optional[int] = typer.Option(
+        None, help="shape only: rounds of neighbour averaging of the optimised vertex flow (default: the attack's; "
+                   "0 = the paper's exact per-vertex flow)"),
     binary_search: int = typer.Option(1, help="binary-search rounds over lambda (paper: 5)"),
     loss: str = typer.Option("ce", help="classifier loss: ce or cw"),
     kappa: float = typer.Option(0.0, help="C&W confidence"),
@@ -157,6 +160,8 @@ def attack(
 
     torch.manual_seed(seed)
     try:
+        if smoothing is not None and perturb != "shape":
+            raise ValueError("--smoothing applies to --perturb shape only")
         mesh_obj, label = load_mesh_arg(mesh, z_up=z_up)
         az = _azimuth_range(azimuths)
         view_set = make_views(views, az, elevation, distance)
@@ -166,11 +171,12 @@ def attack(
         victim_obj = load_victim(victim)
         if early_stop_margin is None:
             early_stop_margin = 0.05 if victim_obj.kind == "detector" else 0.5
+        shape_only = {"smoothing": smoothing} if perturb == "shape" else {}
         attack_obj = build_attack(
             perturb, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
             max_distortion=budget, jitter=jitter_cfg, image_size=image_size, background=parse_color(background),
-            seed=seed,
+            seed=seed, **shape_only,
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
         for crit in criteria:

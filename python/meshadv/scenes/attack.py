@@ -18,8 +18,9 @@ import torch
 
 from meshadv.attacks.criteria import Disappearance
 from meshadv.attacks.distances import mesh_distances
+from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import image_smoothness_loss, laplacian_flow_loss
-from meshadv.mesh import Mesh, uniform_laplacian, vertex_edges
+from meshadv.mesh import Mesh, vertex_edges
 from meshadv.render import Lights
 from meshadv.scenes.composite import composite_over_photo
 from meshadv.scenes.scene import Scene, SceneCamera
@@ -126,7 +127,8 @@ class SceneAttack:
         lr: Adam learning rate: for shape in units of the object's bounding-box diagonal (the displacement is
             ``diagonal * smooth(p)``), for texture in logit units.
         smoothing: shape only: iterations of neighbour averaging ``p <- p + 0.5 * L p`` applied to the optimised
-            per-vertex parameters before they become displacements (0 = the paper's plain per-vertex flow). NMR's
+            per-vertex parameters before they become displacements (0 = the paper's plain per-vertex flow;
+            :func:`meshadv.attacks.flow.smooth_flow`, shared with :class:`~meshadv.attacks.ShapeAttack`). NMR's
             rasterization gradients are sparse and heavy-tailed and Adam moves every vertex that receives any
             gradient by about ``lr`` per step, which roughens a dense mesh such as the bunny; smoothing the
             parametrisation (in the spirit of Nicolet et al., "Large Steps in Inverse Rendering", 2021) spreads
@@ -195,9 +197,7 @@ class SceneAttack:
         diagonal = float((mesh.vertices.max(0).values - mesh.vertices.min(0).values).norm())
 
         def displacement(p: torch.Tensor) -> torch.Tensor:
-            for _ in range(self.smoothing):
-                p = p + 0.5 * uniform_laplacian(p, edges)
-            return diagonal * p
+            return diagonal * smooth_flow(p, edges, self.smoothing)
 
         if self.perturb == "shape":
             param = (1e-6 * torch.randn(mesh.vertices.shape, generator=generator)).requires_grad_(True)
