@@ -169,22 +169,39 @@ def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
 def test_blackbox_classifier_tiny_run(victim) -> None:
     pytest.importorskip("mitsuba")
     from meshadv.mesh import builtin_mesh
-    from meshadv.transfer.pipeline import blackbox_classifier, public_row
+    from meshadv.transfer.pipeline import Robustness, blackbox_classifier, public_row
     from meshadv.transfer.setups import outdoor_classifier_setup
 
     mesh = builtin_mesh("chair")
     hidden = outdoor_classifier_setup(mesh, camera={"distance": 3.2, "azimuth": 50.0, "elevation": 20.0},
                                       image_size=64, spp=8)
+    steps = []
+    robustness = Robustness(eot=2, margin=1.5, pixel_noise=0.01, verify_samples=3)
     row = blackbox_classifier(mesh, hidden, victim=victim, true_class="chair", attack_type="texture",
-                              attack_kwargs={"steps": 2}, camera_steps=20, light_steps=20)
+                              attack_kwargs={"steps": 2, "antialias": 2}, robustness=robustness,
+                              camera_steps=20, light_steps=20, callback=lambda info: steps.append(info.step))
     public = public_row(row)
     json.dumps(public)  # JSON-able
     for key in ("azimuth_error", "elevation_error", "distance_error", "light_rmse", "mask_iou", "direction_error",
-                "success_meshadv", "success_mitsuba", "benign_correct_mitsuba"):
-        assert key in public
+                "success_meshadv", "success_mitsuba", "success_mitsuba_estimated", "benign_correct_mitsuba",
+                "margin_meshadv", "margin_mitsuba", "margin_mitsuba_estimated", "margin_benign_mitsuba",
+                "top1_meshadv", "top1_mitsuba_estimated", "color_rmse", "steps_run", "attack_time"):
+        assert key in public, key
     assert public["mask_iou"] > 0.8
-    assert row["_images"][1].image.shape == (64, 64, 3)
+    assert steps == [0, 1] and public["steps_run"] == 2
+    assert (public["eot"], public["required_margin"], public["pixel_noise"], public["antialias"]) == (2, 1.5, 0.01, 2)
+    # The successes are the signs of the margins (margin 0: the required margin is for the attack only).
+    for where in ("meshadv", "mitsuba", "mitsuba_estimated"):
+        assert public[f"success_{where}"] == (public[f"margin_{where}"] > 0)
+    rate = public["robust_rate_meshadv"]
+    assert rate is not None and round(rate * 3) == rate * 3 and 0.0 <= rate <= 1.0  # 3 verification views
+    assert set(row["_images"]) == {"benign_mitsuba", "adversarial_mitsuba", "adversarial_mitsuba_estimated",
+                                   "adversarial_meshadv"}
+    assert all(im.shape == (64, 64, 3) for im in row["_images"].values())
     assert torch.as_tensor(row["_adversarial_mesh"].face_colors).shape == mesh.face_colors.shape
+    # Mitsuba under the estimates differs from meshadv's render (renderer mismatch) but not by much.
+    diff = abs(row["_images"]["adversarial_mitsuba_estimated"] - row["_images"]["adversarial_meshadv"]).mean()
+    assert 0.0 < diff < 0.1
 
 
 @needs_native

@@ -16,9 +16,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Any, Callable, Optional
 
 import typer
+
+if TYPE_CHECKING:
+    from meshadv.transfer.pipeline import Robustness
 
 __all__ = ["register", "transfer_app"]
 
@@ -160,23 +163,72 @@ def controlled_cmd(
     typer.echo(transfer_report(load_transfer_rows(results, experiment=experiment, kind="controlled")))
 
 
-def _attack_kwargs(steps: int, lr: Optional[float], lambda_perceptual: Optional[float]) -> dict:
+def _attack_kwargs(steps: int, lr: Optional[float], lambda_perceptual: Optional[float], antialias: int = 1,
+                   loss: str = "ce", kappa: float = 0.0, early_stop: Optional[int] = None, seed: int = 0) -> dict:
     if steps < 1:
         raise typer.BadParameter("steps must be >= 1", param_hint="--steps")
-    kwargs: dict = {"steps": steps}
+    if antialias < 1:
+        raise typer.BadParameter("antialias must be >= 1", param_hint="--antialias")
+    if loss not in ("ce", "cw"):
+        raise typer.BadParameter("loss must be ce or cw", param_hint="--loss")
+    if kappa < 0:
+        raise typer.BadParameter("kappa must be >= 0", param_hint="--kappa")
+    if early_stop is not None and early_stop < 1:
+        raise typer.BadParameter("early-stop must be >= 1", param_hint="--early-stop")
+    kwargs: dict = {"steps": steps, "antialias": antialias, "loss": loss, "kappa": kappa, "early_stop": early_stop,
+                    "seed": seed}
     if lr is not None:
+        if not lr > 0:
+            raise typer.BadParameter("lr must be > 0", param_hint="--lr")
         kwargs["lr"] = lr
     if lambda_perceptual is not None:
+        if lambda_perceptual < 0:
+            raise typer.BadParameter("lambda-perceptual must be >= 0", param_hint="--lambda-perceptual")
         kwargs["lambda_perceptual"] = lambda_perceptual
     return kwargs
 
 
-def _jitter(scale: float) -> dict:
+def _jitter(scale: float, light_scale: Optional[float] = None) -> dict:
+    """DEFAULT_JITTER with the camera entries times ``scale`` and the light entries times ``light_scale`` (default
+    ``scale``)."""
     from meshadv.transfer.pipeline import DEFAULT_JITTER
 
     if scale < 0:
         raise typer.BadParameter("jitter must be >= 0", param_hint="--jitter")
-    return {k: v * scale for k, v in DEFAULT_JITTER.items()}
+    if light_scale is not None and light_scale < 0:
+        raise typer.BadParameter("light-jitter must be >= 0", param_hint="--light-jitter")
+    light = scale if light_scale is None else light_scale
+    return {k: v * (light if k.startswith("light_") else scale) for k, v in DEFAULT_JITTER.items()}
+
+
+def _robustness(eot: int, margin: float, pixel_noise: float, verify: int, seed: int) -> "Robustness":
+    from meshadv.transfer.pipeline import Robustness
+
+    for value, hint, low in ((eot, "--eot", 1), (margin, "--margin", 0), (pixel_noise, "--pixel-noise", 0),
+                             (verify, "--verify", 0)):
+        if value < low:
+            raise typer.BadParameter(f"must be >= {low}, got {value}", param_hint=hint)
+    return Robustness(eot=eot, margin=margin, pixel_noise=pixel_noise, verify_samples=verify, seed=seed)
+
+
+def _check_smoothing(texture_smoothing: Optional[int], perturb: str) -> None:
+    if texture_smoothing is None:
+        return
+    if texture_smoothing < 0:
+        raise typer.BadParameter("texture-smoothing must be >= 0", param_hint="--texture-smoothing")
+    if perturb != "texture":
+        raise typer.BadParameter("texture-smoothing needs --perturb texture", param_hint="--texture-smoothing")
+
+
+def _settings_suffix(jitter: float, eot: int, margin: float, pixel_noise: float, antialias: int, steps: int,
+                     defaults_steps: int, light_jitter: Optional[float] = None) -> str:
+    """The non-default settings of a black-box run, for its default case id (e.g. ``_eot8_margin10_aa3``)."""
+    parts = [f"_jitter{jitter:g}" if jitter != 1.0 else "",
+             f"_lightjitter{light_jitter:g}" if light_jitter is not None else ""]
+    parts += [f"_eot{eot}" if eot != 1 else "", f"_margin{margin:g}" if margin else "",
+              f"_noise{pixel_noise:g}" if pixel_noise else "", f"_aa{antialias}" if antialias != 1 else "",
+              f"_steps{steps}" if steps != defaults_steps else ""]
+    return "".join(parts)
 
 
 def _save_blackbox(row: dict, db: Optional[Path], out: Optional[Path], experiment: str) -> None:
@@ -190,15 +242,45 @@ def _save_blackbox(row: dict, db: Optional[Path], out: Optional[Path], experimen
     _echo_json(public)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-        for name, im in zip(("benign_mitsuba.png", "adversarial_mitsuba.png"), row["_images"]):
-            Image.fromarray(np.round(im.image * 255).astype(np.uint8)).save(out / name)
+        for name, im in row["_images"].items():
+            Image.fromarray(np.round(np.clip(im, 0.0, 1.0) * 255).astype(np.uint8)).save(out / f"{name}.png")
         (out / "blackbox.json").write_text(json.dumps(public, indent=2, default=str))
         from meshadv.mesh import save_mesh
 
-        save_mesh(row["_adversarial_mesh"].detach() if hasattr(row["_adversarial_mesh"], "detach")
-                  else row["_adversarial_mesh"], out / "adversarial.ply")
+        save_mesh(row["_adversarial_mesh"].detach(), out / "adversarial.ply")
+        if row.get("_result") is not None:
+            (out / "loss_history.json").write_text(json.dumps(list(row["_result"].loss_history), default=str))
     if db is not None:
         save_transfer_rows(db, [public], experiment=experiment, kind="blackbox")
+
+
+def _progress(every: int) -> Optional[Callable[[Any], None]]:
+    """A callback printing the attack's progress to stderr every ``every`` steps (None when ``every`` is 0)."""
+    if every < 0:
+        raise typer.BadParameter("progress must be >= 0", param_hint="--progress")
+    if every == 0:
+        return None
+
+    def report(info: Any) -> None:
+        if info.step % every == 0 or info.step == info.steps - 1:
+            margin = info.margin[0]
+            typer.echo(f"step {info.step}/{info.steps} loss {info.loss[0]} worst margin {margin} "
+                       f"distance {info.distance[0]} best {info.best_distance[0]}", err=True)
+
+    return report
+
+
+_LIGHT_JITTER_HELP = "Scale of the light part of the jitter (default: --jitter)."
+_EOT_HELP = "Jittered samples of the estimated view per attack step (expectation over transformation)."
+_MARGIN_HELP = ("Margin the criterion must hold with on every sample of a step to count as a success "
+                "(classifier: logits; detector: score below the threshold).")
+_NOISE_HELP = ("Std of Gaussian noise added to the rendered object's pixels of what the victim sees during the attack "
+               "(the photo behind it has its own noise; 0 = none).")
+_AA_HELP = "Supersampling of meshadv's renders in the attack (Mitsuba's pixels are area averages)."
+_SMOOTH_HELP = ("Texture as a smoothed per-vertex colour field with this many rounds of neighbour averaging "
+                "(for meshes with many faces per pixel); default: the paper's per-face colours.")
+_VERIFY_HELP = ("Fresh views around the estimate (the default jitter, whatever --jitter) to re-test the adversarial "
+                "mesh on in meshadv (0 = skip).")
 
 
 @transfer_app.command("blackbox-classifier")
@@ -212,8 +294,21 @@ def blackbox_classifier_cmd(
     lr: Optional[float] = typer.Option(None, help="Attack learning rate (default: the attack's)."),
     lambda_perceptual: Optional[float] = typer.Option(None, help="Perceptual loss weight (default: the attack's)."),
     jitter: float = typer.Option(1.0, help="Scale of the per-step jitter of the estimates (0 = none)."),
+    light_jitter: Optional[float] = typer.Option(None, help=_LIGHT_JITTER_HELP),
+    eot: int = typer.Option(1, help=_EOT_HELP),
+    margin: float = typer.Option(0.0, help=_MARGIN_HELP),
+    pixel_noise: float = typer.Option(0.0, help=_NOISE_HELP),
+    antialias: int = typer.Option(1, help=_AA_HELP),
+    texture_smoothing: Optional[int] = typer.Option(None, help=_SMOOTH_HELP),
+    loss: str = typer.Option("ce", help="Classifier loss: ce or cw (C&W margin with --kappa)."),
+    kappa: float = typer.Option(0.0, help="C&W confidence (--loss cw)."),
+    early_stop: Optional[int] = typer.Option(None, help="Stop once the margin has held this many steps in a row."),
+    verify: int = typer.Option(16, help=_VERIFY_HELP),
+    seed: int = typer.Option(0, help="Seed of the jitter, the pixel noise and the verification views."),
+    progress: int = typer.Option(25, help="Print the attack's progress to stderr every N steps (0 = quiet)."),
     size: int = typer.Option(224, help="Image side."),
-    spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
+    spp: int = typer.Option(64, help="Mitsuba samples per pixel (the photo and every Mitsuba render)."),
+    case_id: Optional[str] = typer.Option(None, help="Row id (default: built from the setup and the settings)."),
     db: Optional[Path] = typer.Option(None, help="Results database to add the row to."),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="Folder for images, mesh and numbers."),
     experiment: str = typer.Option("blackbox", help="Name of this run in the database."),
@@ -226,12 +321,26 @@ def blackbox_classifier_cmd(
 
     if perturb not in ("shape", "texture"):
         raise typer.BadParameter("perturb must be shape or texture", param_hint="--perturb")
+    if size < 8:
+        raise typer.BadParameter("size must be >= 8", param_hint="--size")
+    if spp < 1:
+        raise typer.BadParameter("spp must be >= 1", param_hint="--spp")
+    _check_smoothing(texture_smoothing, perturb)
+    kwargs = _attack_kwargs(steps, lr, lambda_perceptual, antialias, loss, kappa, early_stop, seed)
+    robustness = _robustness(eot, margin, pixel_noise, verify, seed)
+    callback = _progress(progress)
+    jitter_dict = _jitter(jitter, light_jitter)
     mesh_obj = default_aeroplane() if mesh == "aeroplane" else load_mesh_arg(mesh)[0]
     hidden = outdoor_classifier_setup(mesh_obj, image_size=size, spp=spp)
+    if case_id is None:
+        case_id = (f"outdoor_{Path(mesh).stem}_{perturb}_{target or 'untargeted'}"
+                   + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter)
+                   + (f"_smooth{texture_smoothing}" if texture_smoothing is not None else "")
+                   + (f"_spp{spp}" if spp != 64 else ""))
     row = blackbox_classifier(mesh_obj, hidden, victim=load_victim(victim), true_class=true_class, target=target,
-                              attack_type=perturb, attack_kwargs=_attack_kwargs(steps, lr, lambda_perceptual),
-                              jitter=_jitter(jitter),
-                              case_id=f"outdoor_{Path(mesh).stem}_{perturb}_{target or 'untargeted'}_jitter{jitter:g}")
+                              attack_type=perturb, attack_kwargs=kwargs, jitter=jitter_dict,
+                              robustness=robustness, texture_smoothing=texture_smoothing, case_id=case_id,
+                              callback=callback)
     _save_blackbox(row, db, out, experiment)
 
 
@@ -239,12 +348,30 @@ def blackbox_classifier_cmd(
 def blackbox_detector_cmd(
     hide: str = typer.Option("dining table", help="Class to hide (detector class name), e.g. 'chair'."),
     victim: str = typer.Option("ssd_mobilenet_v2_coco", help="Detector victim."),
+    perturb: str = typer.Option("texture", help="texture or shape (of the bunny)."),
+    context: str = typer.Option("photo", help="photo: only the bunny is rendered by meshadv, over the Mitsuba photo; "
+                                "render: desk, chair and bunny are rendered by meshadv over the empty room."),
+    light_fit: str = typer.Option("object", help="object: fit the lights on the bunny's pixels (the light where it "
+                                  "stands); known: on desk, chair and bunny together."),
     steps: int = typer.Option(100, help="Attack steps."),
     lr: Optional[float] = typer.Option(None, help="Attack learning rate (default: the attack's)."),
     lambda_perceptual: Optional[float] = typer.Option(None, help="Perceptual loss weight (default: the attack's)."),
     jitter: float = typer.Option(1.0, help="Scale of the per-step jitter of the estimates (0 = none)."),
+    light_jitter: Optional[float] = typer.Option(None, help=_LIGHT_JITTER_HELP),
+    eot: int = typer.Option(1, help=_EOT_HELP),
+    margin: float = typer.Option(0.0, help=_MARGIN_HELP),
+    pixel_noise: float = typer.Option(0.0, help=_NOISE_HELP),
+    antialias: int = typer.Option(1, help=_AA_HELP),
+    texture_smoothing: Optional[int] = typer.Option(None, help=_SMOOTH_HELP),
+    early_stop: Optional[int] = typer.Option(None, help="Stop once the margin has held this many steps in a row."),
+    verify: int = typer.Option(16, help=_VERIFY_HELP),
+    seed: int = typer.Option(0, help="Seed of the jitter, the pixel noise and the verification views."),
+    progress: int = typer.Option(25, help="Print the attack's progress to stderr every N steps (0 = quiet)."),
+    score_threshold: float = typer.Option(0.3, help="Detection score at which the hidden class counts as detected."),
+    object_scale: float = typer.Option(1.0, help="Scale of the bunny about its base (1 = the scene's 0.25 m)."),
     size: int = typer.Option(300, help="Image side."),
-    spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
+    spp: int = typer.Option(64, help="Mitsuba samples per pixel (the photo and every Mitsuba render)."),
+    case_id: Optional[str] = typer.Option(None, help="Row id (default: built from the setup and the settings)."),
     db: Optional[Path] = typer.Option(None, help="Results database to add the row to."),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="Folder for images, mesh and numbers."),
     experiment: str = typer.Option("blackbox", help="Name of this run in the database."),
@@ -254,11 +381,41 @@ def blackbox_detector_cmd(
     from meshadv.transfer.setups import indoor_detector_setup
     from meshadv.victims import load_victim
 
-    setup = indoor_detector_setup(image_size=size, spp=spp)
+    if perturb not in ("shape", "texture"):
+        raise typer.BadParameter("perturb must be shape or texture", param_hint="--perturb")
+    if size < 8:
+        raise typer.BadParameter("size must be >= 8", param_hint="--size")
+    if spp < 1:
+        raise typer.BadParameter("spp must be >= 1", param_hint="--spp")
+    if context not in ("photo", "render"):
+        raise typer.BadParameter("context must be photo or render", param_hint="--context")
+    if light_fit not in ("object", "known"):
+        raise typer.BadParameter("light-fit must be object or known", param_hint="--light-fit")
+    if not 0 < score_threshold <= 1:
+        raise typer.BadParameter("score-threshold must be in (0, 1]", param_hint="--score-threshold")
+    if not object_scale > 0:
+        raise typer.BadParameter("object-scale must be > 0", param_hint="--object-scale")
+    _check_smoothing(texture_smoothing, perturb)
+    kwargs = _attack_kwargs(steps, lr, lambda_perceptual, antialias, early_stop=early_stop, seed=seed)
+    robustness = _robustness(eot, margin, pixel_noise, verify, seed)
+    callback = _progress(progress)
+    jitter_dict = _jitter(jitter, light_jitter)
+    setup = indoor_detector_setup(image_size=size, spp=spp, object_scale=object_scale)
+    if case_id is None:
+        case_id = (f"indoor_bunny_hide_{hide.replace(' ', '_')}" + (f"_{perturb}" if perturb != "texture" else "")
+                   + (f"_{context}" if context != "photo" else "")
+                   + ("_lightsknown" if light_fit != "object" else "")
+                   + (f"_scale{object_scale:g}" if object_scale != 1.0 else "")
+                   + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter)
+                   + (f"_smooth{texture_smoothing}" if texture_smoothing is not None else "")
+                   + (f"_spp{spp}" if spp != 64 else ""))
     row = blackbox_detector(setup.objects, setup.object_index, setup.hidden, victim=load_victim(victim),
-                            hide_class=hide, background_exclude=setup.background_exclude,
-                            attack_kwargs=_attack_kwargs(steps, lr, lambda_perceptual), jitter=_jitter(jitter),
-                            case_id=f"indoor_bunny_hide_{hide.replace(' ', '_')}")
+                            hide_class=hide, attack_type=perturb, context=context, light_fit=light_fit,
+                            background_exclude=setup.background_exclude,
+                            attack_kwargs=kwargs, jitter=jitter_dict, robustness=robustness,
+                            texture_smoothing=texture_smoothing,
+                            score_threshold=score_threshold, case_id=case_id, callback=callback)
+    row["object_scale"] = object_scale
     _save_blackbox(row, db, out, experiment)
 
 

@@ -399,6 +399,7 @@ def estimate_parameters(
     hidden: HiddenScene,
     *,
     known: Optional[Any] = None,
+    light_faces: Optional[tuple[int, int]] = None,
     num_lights: int = 5,
     camera_steps: int = 60,
     light_steps: int = 120,
@@ -413,6 +414,10 @@ def estimate_parameters(
         hidden: the hidden world.
         known: the geometry the attacker knows and segments in the photo (its mask and shading are fitted); default
             ``mesh``. For a scene, the merged mesh of its known objects.
+        light_faces: ``(start, stop)``: fit the lights only on the pixels where one of the faces ``start:stop`` of
+            ``known`` is the visible surface (the attacked object of a scene: the lighting where it stands, which in a
+            room with an area light differs from the average over the scene; occlusion by the other objects is
+            respected). ``None``: every pixel of ``known``. The camera is always fitted on all of ``known``.
         num_lights: directional lights to estimate.
         camera_steps: Adam steps of the camera estimation.
         light_steps: Adam steps of the light estimation.
@@ -421,12 +426,19 @@ def estimate_parameters(
         timeout: seconds per Mitsuba call.
 
     Returns:
-        The :class:`Estimation`.
+        The :class:`Estimation`; ``errors["light_rmse"]`` is measured over the pixels the lights were fitted on,
+        ``errors["light_fit_pixels"]`` counts them.
+
+    Raises:
+        ValueError: ``light_faces`` is not a non-empty range of ``known``'s faces, or selects no visible pixel.
     """
     from meshadv.render import Lights, ViewSet, render
     from meshadv.transfer.estimate import estimate_camera, estimate_lights, light_errors, masked_rmse
 
     known = mesh if known is None else known
+    num_faces = int(known.faces.shape[0])
+    if light_faces is not None and not (len(light_faces) == 2 and 0 <= light_faces[0] < light_faces[1] <= num_faces):
+        raise ValueError(f"light_faces must be (start, stop) with 0 <= start < stop <= {num_faces}, got {light_faces}")
     photo_img = render_scenes([hidden.spec(mesh)], variant=variant, timeout=timeout)[0]
     mask_np = render_mask(known, hidden.mitsuba_camera(), hidden.image_size, variant=variant, timeout=timeout)
     photo = torch.from_numpy(photo_img.chw())
@@ -439,13 +451,22 @@ def estimate_parameters(
         cam_mask = torch.nn.functional.adaptive_avg_pool2d(mask[None, None], camera_size)[0, 0]
     cam_est = estimate_camera(cam_mask, verts, faces, viewing_angle=hidden.viewing_angle, steps=camera_steps)
     camera = cam_est.camera()
-    light_est = estimate_lights(photo, mask, verts, faces, colors, camera, num_lights=num_lights, steps=light_steps)
+    light_mask = mask
+    if light_faces is not None:
+        with torch.no_grad():
+            visible = render(verts, faces, colors, camera, Lights.default(), hidden.image_size).face_index[0]
+        light_mask = mask * ((visible >= light_faces[0]) & (visible < light_faces[1])).float()
+        if float(light_mask.sum()) < 1.0:
+            raise ValueError("light_faces: those faces cover no pixel of the photo under the estimated camera")
+    light_est = estimate_lights(photo, light_mask, verts, faces, colors, camera, num_lights=num_lights,
+                                steps=light_steps)
     errors = cam_est.errors(hidden.camera["distance"], hidden.camera["azimuth"], hidden.camera["elevation"])
     errors["mask_iou"] = cam_est.iou
     with torch.no_grad():
         ours = render(verts, faces, colors, camera, light_est.lights, hidden.image_size, background=(0.0, 0.0, 0.0))
-    both = (mask.numpy() > 0.5) & (ours.alpha[0, 0].numpy() > 0.5)
+    both = (light_mask.numpy() > 0.5) & (ours.alpha[0, 0].numpy() > 0.5)
     errors["light_rmse"] = masked_rmse(ours.image[0].numpy(), photo.numpy(), both) if both.any() else float("nan")
+    errors["light_fit_pixels"] = float(both.sum())
     if hidden.lights is not None:
         true = Lights(torch.from_numpy(hidden.lights.directions), torch.from_numpy(hidden.lights.colors),
                       torch.from_numpy(hidden.lights.ambient))
@@ -469,6 +490,189 @@ def _background_image(hidden: HiddenScene, exclude: Sequence[str], variant: Opti
     return torch.from_numpy(render_scenes([spec], variant=variant, timeout=timeout)[0].chw())
 
 
+@dataclass(frozen=True)
+class Robustness:
+    """How a black-box attack is made to survive the change of renderer and the error of the estimates.
+
+    See :mod:`meshadv.transfer.robust`. The defaults reproduce the plain pipeline (one jittered sample per step, the
+    least distorted success kept, no pixel noise).
+
+    Attributes:
+        eot: jittered samples of the estimated view per Adam step, rendered as one batch (expectation over
+            transformation); success at a step needs all of them. ``>= 1``.
+        margin: margin with which the criterion must hold on every sample of a step for the step to count as a
+            success (:class:`~meshadv.transfer.robust.WithMargin`): logits for classifiers, detection score for
+            detectors. ``>= 0``.
+        pixel_noise: standard deviation of the Gaussian noise added to the rendered object's pixels of every image
+            the victim sees during the attack (:class:`~meshadv.transfer.robust.NoisyVictim`; the photo behind it
+            already has its own noise), ``>= 0`` (0 = none).
+        verify_samples: fresh samples around the estimated view, drawn with :data:`DEFAULT_JITTER` (whatever the
+            attack's jitter), on which the adversarial mesh is re-rendered in meshadv after the attack
+            (``robust_rate_meshadv`` of the result row), ``>= 0`` (0 = skip).
+        seed: seed of the pixel noise and of the verification samples.
+
+    Raises:
+        ValueError: a field out of range, naming it.
+    """
+
+    eot: int = 1
+    margin: float = 0.0
+    pixel_noise: float = 0.0
+    verify_samples: int = 16
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("eot", "verify_samples", "seed"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ValueError(f"{name} must be an int, got {value!r}")
+        if self.eot < 1:
+            raise ValueError(f"eot must be >= 1, got {self.eot}")
+        if self.verify_samples < 0:
+            raise ValueError(f"verify_samples must be >= 0, got {self.verify_samples}")
+        for name in ("margin", "pixel_noise"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value)
+                                                                                       and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+    def to_record(self) -> dict[str, Any]:
+        """The fields as result-row entries (``required_margin`` for ``margin``)."""
+        return {"eot": self.eot, "required_margin": float(self.margin), "pixel_noise": float(self.pixel_noise),
+                "verify_samples": self.verify_samples, "robust_seed": self.seed}
+
+
+def estimated_view_spec(mesh: Any, record: dict[str, Any], hidden: HiddenScene, *, seed: int = 0) -> SceneSpec:
+    """Mitsuba's scene of what the attack optimised: ``mesh`` under the *estimated* camera and lights.
+
+    Directional lights and a constant ambient (no environment map, no base scene), direct light only
+    (``max_depth = 2``), black background: composite the result over the background photo with its alpha
+    (:func:`composite`). Comparing this render with meshadv's separates the renderer mismatch (anti-aliasing,
+    Monte-Carlo noise, shadows, ambient occlusion) from the parameter mismatch (estimated vs true camera and lights).
+
+    Args:
+        mesh: the object (or the merged known objects) in world space.
+        record: the estimated view (``ViewSet.to_records()[0]``).
+        hidden: the hidden world (for the image size and samples per pixel).
+        seed: Mitsuba sampler seed.
+
+    Returns:
+        The scene spec.
+    """
+    return SceneSpec(
+        objects=(MeshObject.from_mesh(mesh),),
+        camera=MitsubaCamera.from_record(record),
+        lights=MitsubaLights.from_record(record),
+        image_size=hidden.image_size,
+        spp=hidden.spp,
+        max_depth=2,
+        background=(0.0, 0.0, 0.0),
+        seed=seed,
+    )
+
+
+def composite(image: MitsubaImage, background: torch.Tensor) -> torch.Tensor:
+    """A Mitsuba render made over black (premultiplied by its alpha) composited over a (3, H, W) background.
+
+    Raises:
+        ValueError: the background's shape does not match the image.
+    """
+    rgb = torch.from_numpy(image.chw())
+    if tuple(background.shape) != tuple(rgb.shape):
+        raise ValueError(f"background {tuple(background.shape)} must match the image {tuple(rgb.shape)}")
+    alpha = torch.from_numpy(image.alpha)[None]
+    return (rgb + (1.0 - alpha) * background.to(rgb.dtype)).clamp(0.0, 1.0)
+
+
+def _attack_estimated(attack: Any, mesh: Any, est: "Estimation", victim: Any, criterion: Any,
+                      robustness: Robustness, callback: Optional[Callable[[Any], None]] = None) -> Any:
+    """Run ``attack`` on the estimated view with the EOT batch, the margin and the pixel noise of ``robustness``."""
+    from meshadv.transfer.robust import NoisyVictim, WithMargin, eot_views
+
+    attack_victim = victim
+    if robustness.pixel_noise > 0:
+        background = attack.background if isinstance(attack.background, torch.Tensor) else None
+        if background is not None and background.dim() != 3:
+            background = None
+        attack_victim = NoisyVictim(victim, robustness.pixel_noise, seed=robustness.seed, background=background)
+    return attack(mesh, eot_views(est.views, robustness.eot), attack_victim, WithMargin(criterion, robustness.margin),
+                  callback=callback)
+
+
+def _noise_where(attack: Any, robustness: Robustness) -> Optional[str]:
+    """Where :func:`_attack_estimated` puts the pixel noise: ``"rendered pixels"``, ``"whole image"`` or None."""
+    if robustness.pixel_noise == 0:
+        return None
+    background = attack.background
+    return "rendered pixels" if isinstance(background, torch.Tensor) and background.dim() == 3 else "whole image"
+
+
+def _meshadv_margins(attack: Any, mesh: Any, views: Any, victim: Any, bound: Any,
+                     chunk: int = 8) -> tuple[torch.Tensor, Any]:
+    """Margins (V,) of ``bound`` on meshadv's renders of ``mesh`` (the attack's renderer settings, clean victim),
+    and the first image (3, H, W)."""
+    from meshadv.attacks.base import render_views
+
+    margins, first = [], None
+    with torch.no_grad():
+        for start in range(0, len(views), chunk):
+            part = views[start:start + chunk]
+            images, _ = render_views(mesh.vertices[None], mesh.faces, mesh.face_colors[None], part,
+                                     image_size=attack.image_size, background=attack.background,
+                                     antialias=attack.antialias)
+            first = images[0] if first is None else first
+            margins.append(bound.margin(victim(images)))
+    return torch.cat(margins), first
+
+
+def _robust_rate(attack: Any, mesh: Any, est: "Estimation", victim: Any, bound: Any,
+                 robustness: Robustness) -> Optional[float]:
+    """Fraction of ``robustness.verify_samples`` fresh views around the estimate, drawn with
+    :data:`DEFAULT_JITTER` whatever jitter the attack used (one yardstick for every run), on which ``mesh`` is
+    adversarial in meshadv."""
+    from meshadv.transfer.robust import eot_views
+
+    if robustness.verify_samples == 0:
+        return None
+    generator = torch.Generator().manual_seed(robustness.seed + 7919)  # not the attack's samples
+    views = eot_views(est.views, robustness.verify_samples).jitter(generator, **DEFAULT_JITTER)
+    margins, _ = _meshadv_margins(attack, mesh, views, victim, bound)
+    return float((margins > 0).float().mean())
+
+
+def _attack_record(attack: Any, result: Any) -> dict[str, Any]:
+    """Hyper-parameters and cost of the attack, as result-row entries."""
+    config = attack.config()
+    record = {k: config[k] for k in ("steps", "lr", "lambda_perceptual", "loss", "kappa", "antialias", "early_stop")}
+    record.update(steps_run=int(result.steps), steps_to_success=result.steps_to_success[0],
+                  attack_time=float(result.wall_time))
+    record.update({k: float(v) for k, v in result.distances[0].items()})
+    return record
+
+
+def _check_smoothing(texture_smoothing: Optional[int], attack_type: str) -> None:
+    if texture_smoothing is None:
+        return
+    if attack_type != "texture":
+        raise ValueError("texture_smoothing applies to texture attacks only (attack_type='texture')")
+    if isinstance(texture_smoothing, bool) or not isinstance(texture_smoothing, int) or texture_smoothing < 0:
+        raise ValueError(f"texture_smoothing must be None or an int >= 0, got {texture_smoothing!r}")
+
+
+def _texture_attack(smoothing: Optional[int], face_mask: Optional[torch.Tensor], kwargs: dict[str, Any]) -> Any:
+    """The paper's per-face texture attack (``smoothing`` None) or the smoothed per-vertex one."""
+    from meshadv.attacks import TextureAttack
+    from meshadv.transfer.smooth_texture import SmoothTextureAttack
+
+    if smoothing is None:
+        return TextureAttack(**kwargs)
+    return SmoothTextureAttack(smoothing=smoothing, face_mask=face_mask, **kwargs)
+
+
+def _hwc(image: torch.Tensor) -> np.ndarray:
+    return image.detach().permute(1, 2, 0).cpu().numpy()
+
+
 def blackbox_classifier(
     mesh: Any,
     hidden: HiddenScene,
@@ -479,17 +683,22 @@ def blackbox_classifier(
     attack_type: str = "texture",
     attack_kwargs: Optional[dict[str, Any]] = None,
     jitter: Optional[dict[str, float]] = None,
+    robustness: Optional[Robustness] = None,
+    texture_smoothing: Optional[int] = None,
     num_lights: int = 5,
     camera_steps: int = 60,
     light_steps: int = 120,
     variant: Optional[str] = None,
     timeout: float = 1800.0,
     case_id: str = "blackbox_classifier",
+    callback: Optional[Callable[[Any], None]] = None,
 ) -> dict[str, Any]:
     """The paper's black-box pipeline against a classifier (e.g. an aeroplane in an outdoor scene).
 
-    1-2. :func:`estimate_parameters`; 3. attack in meshadv on the estimated view with jitter, the renders composited
-    over the photo's background; 4. re-render the adversarial mesh with Mitsuba under the hidden parameters and test.
+    1-2. :func:`estimate_parameters`; 3. attack in meshadv on the estimated view with jitter (``robustness.eot``
+    jittered samples per step), the renders composited over the photo's background; 4. re-render the adversarial
+    mesh with Mitsuba under the hidden parameters and test. As a diagnostic, Mitsuba also renders it under the
+    *estimated* parameters (:func:`estimated_view_spec`).
 
     Args:
         mesh: the benign mesh.
@@ -498,43 +707,63 @@ def blackbox_classifier(
         true_class: the object's class.
         target: target class (None = untargeted).
         attack_type: ``"shape"`` or ``"texture"``.
-        attack_kwargs: keyword arguments of the attack (steps, lr, ...).
-        jitter: per-step jitter of the estimates (default :data:`DEFAULT_JITTER`).
+        attack_kwargs: keyword arguments of the attack (steps, lr, antialias, ...).
+        jitter: per-step jitter of the estimates (default :data:`DEFAULT_JITTER`; ``{}`` = none).
+        robustness: EOT samples, required margin, pixel noise (default :class:`Robustness()`, the plain pipeline).
+        texture_smoothing: ``None`` for the paper's per-face texture; an int ``k >= 0`` for a smoothed per-vertex
+            colour field (:class:`~meshadv.transfer.smooth_texture.SmoothTextureAttack`, ``k`` rounds), for meshes
+            with many faces per pixel. Texture attacks only.
         num_lights: directional lights to estimate.
         camera_steps: camera estimation steps.
         light_steps: light estimation steps.
         variant: Mitsuba variant.
         timeout: seconds per Mitsuba call.
         case_id: identifier of the result row.
+        callback: passed to the attack (called with a ``meshadv.attacks.StepInfo`` after every step).
 
     Returns:
-        A result row (see :mod:`meshadv.transfer.results`) with estimation errors, ``success_meshadv`` (on the
-        estimated view), ``success_mitsuba`` (under the hidden parameters) and ``benign_correct_mitsuba``.
+        A result row (see :mod:`meshadv.transfer.results`): the estimation errors; ``success_meshadv`` (the final
+        mesh on the estimated view, meshadv's render with the attack's settings, clean victim, margin 0),
+        ``success_mitsuba_estimated`` (Mitsuba, estimated camera and lights), ``success_mitsuba`` (Mitsuba, hidden
+        parameters), the matching ``margin_*`` (logits, > 0 = adversarial) and ``top1_*``, ``robust_rate_meshadv``
+        (fresh views around the estimate, :data:`DEFAULT_JITTER`), ``benign_correct_mitsuba``, the attack's
+        settings and distortion. Private entries: ``_images`` (name -> (H, W, 3) image), ``_adversarial_mesh``,
+        ``_result`` (the AttackResult).
 
     Raises:
-        ValueError: unknown ``attack_type``.
+        ValueError: unknown ``attack_type``, or ``texture_smoothing`` given for a shape attack or negative.
     """
-    from meshadv.attacks import Misclassification, ShapeAttack, TargetedMisclassification, TextureAttack
+    from meshadv.attacks import Misclassification, ShapeAttack, TargetedMisclassification
 
     if attack_type not in ("shape", "texture"):
         raise ValueError(f"attack_type must be 'shape' or 'texture', got {attack_type!r}")
+    _check_smoothing(texture_smoothing, attack_type)
+    robustness = Robustness() if robustness is None else robustness
+    jitter = dict(DEFAULT_JITTER if jitter is None else jitter)
     est = estimate_parameters(mesh, hidden, num_lights=num_lights, camera_steps=camera_steps,
                               light_steps=light_steps, variant=variant, timeout=timeout)
     background = _background_image(hidden, (), variant, timeout)
     kwargs = dict(attack_kwargs or {})
     kwargs.setdefault("image_size", hidden.image_size)
     kwargs.setdefault("background", background)
-    kwargs.setdefault("jitter", DEFAULT_JITTER if jitter is None else jitter)
-    attack = (ShapeAttack if attack_type == "shape" else TextureAttack)(**kwargs)
+    kwargs.setdefault("jitter", jitter or None)
+    attack = ShapeAttack(**kwargs) if attack_type == "shape" else _texture_attack(texture_smoothing, None, kwargs)
     criterion = TargetedMisclassification(target) if target else Misclassification(true_class)
-    result = attack(mesh, est.views, victim, criterion)
+    result = _attack_estimated(attack, mesh, est, victim, criterion, robustness, callback)
     adversarial = result.mesh
-    images = render_scenes([hidden.spec(mesh), hidden.spec(adversarial)], variant=variant, timeout=timeout)
-    with torch.no_grad():
-        logits = victim(_images_tensor(images))
-    bound_untargeted = Misclassification(true_class).bind(victim)
     bound = criterion.bind(victim)
-    adv = bound.is_adversarial(logits).tolist()
+    ours_margin, ours_image = _meshadv_margins(attack, adversarial, est.views, victim, bound)
+    with torch.no_grad():
+        ours_top1 = _top1_names(victim, victim(ours_image[None]))[0]
+    robust_rate = _robust_rate(attack, adversarial, est, victim, bound, robustness)
+    record = est.views.to_records()[0]
+    images = render_scenes([hidden.spec(mesh), hidden.spec(adversarial),
+                            estimated_view_spec(adversarial, record, hidden)], variant=variant, timeout=timeout)
+    estimated_image = composite(images[2], background)
+    with torch.no_grad():
+        logits = victim(torch.cat([_images_tensor(images[:2]), estimated_image[None]]))
+    margins = bound.margin(logits).tolist()
+    bound_untargeted = Misclassification(true_class).bind(victim)
     names = _top1_names(victim, logits)
     row: dict[str, Any] = {
         "case_id": case_id,
@@ -543,18 +772,64 @@ def blackbox_classifier(
         "target": target or "",
         "attack_type": attack_type,
         "view": 0,
-        "success_meshadv": bool(result.succeeded[0]),
-        "success_mitsuba": bool(adv[1]),
-        "benign_adversarial_mitsuba": bool(adv[0]),
+        "success_meshadv": bool(ours_margin[0] > 0),
+        "success_mitsuba_estimated": margins[2] > 0,
+        "success_mitsuba": margins[1] > 0,
+        "benign_adversarial_mitsuba": margins[0] > 0,
         "benign_correct_mitsuba": not bool(bound_untargeted.is_adversarial(logits[:1])[0]),
+        "margin_meshadv": float(ours_margin[0]),
+        "margin_mitsuba_estimated": float(margins[2]),
+        "margin_mitsuba": float(margins[1]),
+        "margin_benign_mitsuba": float(margins[0]),
+        "robust_rate_meshadv": robust_rate,
+        "top1_meshadv": ours_top1,
+        "top1_mitsuba_estimated": names[2],
         "top1_benign_mitsuba": names[0],
         "top1_adversarial_mitsuba": names[1],
+        "texture_smoothing": texture_smoothing,
+        "spp": hidden.spp,
         "variant": images[0].variant,
     }
+    row.update(robustness.to_record())
+    row["pixel_noise_on"] = _noise_where(attack, robustness)
+    row.update(_attack_record(attack, result))
     row.update({k: float(v) for k, v in est.errors.items()})
-    row["_images"] = images
+    row["_images"] = {"benign_mitsuba": images[0].image, "adversarial_mitsuba": images[1].image,
+                      "adversarial_mitsuba_estimated": _hwc(estimated_image), "adversarial_meshadv": _hwc(ours_image)}
     row["_adversarial_mesh"] = adversarial
+    row["_result"] = result
     return row
+
+
+def occlusion_mask(objects: Sequence[Any], index: int, views: Any, image_size: Any) -> torch.Tensor:
+    """Pixels where object ``index`` alone would be drawn but another of ``objects`` is in front of it.
+
+    Args:
+        objects: ``meshadv.mesh.Mesh`` objects in world space.
+        index: the object of interest.
+        views: a one-view ``ViewSet`` (the estimated view).
+        image_size: int or (H, W).
+
+    Returns:
+        (H, W) float32, 1 where the object is occluded.
+
+    Raises:
+        ValueError: ``index`` out of range.
+    """
+    from meshadv.render import render
+
+    if not 0 <= index < len(objects):
+        raise ValueError(f"index {index} out of range for {len(objects)} objects")
+    merged = _merge_meshes(objects)
+    start = sum(int(o.faces.shape[0]) for o in objects[:index])
+    stop = start + int(objects[index].faces.shape[0])
+    obj = objects[index]
+    with torch.no_grad():
+        scene = render(merged.vertices, merged.faces, merged.face_colors, views.camera, views.lights,
+                       image_size).face_index[0]
+        alone = render(obj.vertices, obj.faces, obj.face_colors, views.camera, views.lights, image_size).face_index[0]
+    visible = (scene >= start) & (scene < stop)
+    return ((alone >= 0) & ~visible).float()
 
 
 def blackbox_detector(
@@ -564,9 +839,14 @@ def blackbox_detector(
     *,
     victim: Any,
     hide_class: str,
+    attack_type: str = "texture",
+    context: str = "photo",
+    light_fit: str = "object",
     background_exclude: Sequence[str] = (),
     attack_kwargs: Optional[dict[str, Any]] = None,
     jitter: Optional[dict[str, float]] = None,
+    robustness: Optional[Robustness] = None,
+    texture_smoothing: Optional[int] = None,
     num_lights: int = 5,
     camera_steps: int = 60,
     light_steps: int = 120,
@@ -574,14 +854,26 @@ def blackbox_detector(
     timeout: float = 1800.0,
     score_threshold: float = 0.3,
     case_id: str = "blackbox_detector",
+    callback: Optional[Callable[[Any], None]] = None,
 ) -> dict[str, Any]:
-    """The black-box pipeline against a detector: change one object's texture so that ``hide_class`` disappears.
+    """The black-box pipeline against a detector: change one object so that ``hide_class`` disappears.
 
     The attacker knows the geometry of ``scene_objects`` (world space; e.g. the indoor scene's desk, chair and bunny)
     but not the camera or lights. (1-2) The camera and lights are estimated from the Mitsuba photo (mask and shading
-    of the known objects); (3) a texture attack on the merged known objects, composited over the photo's background
-    (the hidden world without them), with jitter; only the attacked object's colours are kept; (4) the adversarial
-    object is re-rendered by Mitsuba under the hidden parameters and the detector is run.
+    of the known objects); (3) a texture (or shape) attack on the attacked object, with jitter, seen in a context
+    chosen by ``context``; (4) the adversarial object is re-rendered by Mitsuba under the hidden parameters and the
+    detector is run. The attack's criterion is :class:`~meshadv.attacks.Disappearance` at ``score_threshold`` (the
+    threshold the success is measured at), with ``robustness.margin`` on top (in score units).
+
+    Contexts:
+        * ``"photo"`` (the paper's compositing): meshadv renders only the attacked object, over the Mitsuba photo
+          itself; the rest of the scene is the photo's pixels (where another known object hides the attacked one
+          in the estimated view, the photo is put back, :class:`~meshadv.transfer.robust.Occluded`). The photo
+          still shows the benign object behind the rendered one: exact for texture attacks (same silhouette), a
+          faint ghost where a shape attack moves the surface inward.
+        * ``"render"``: meshadv renders every known object (only the attacked one may change) over the photo of
+          the world without them (``background_exclude``); the detector then sees meshadv's shading of the whole
+          scene, which differs from Mitsuba's (the indoor table scores 0.75 in meshadv, 0.96 in Mitsuba).
 
     Args:
         scene_objects: ``meshadv.mesh.Mesh`` objects in world space.
@@ -590,63 +882,144 @@ def blackbox_detector(
         hidden: the hidden world.
         victim: a detector victim.
         hide_class: the class to hide (a name of ``victim.class_names``, e.g. ``"chair"``).
-        background_exclude: base-scene shapes to drop for the background render (the known objects).
-        attack_kwargs: keyword arguments of :class:`meshadv.attacks.TextureAttack`.
-        jitter: per-step jitter (default :data:`DEFAULT_JITTER`).
+        attack_type: ``"texture"`` (the object's face colours) or ``"shape"`` (its vertices).
+        context: ``"photo"`` or ``"render"`` (see above).
+        light_fit: ``"object"``: fit the lights on the attacked object's visible pixels only (the light where it
+            stands); ``"known"``: on every known object (one lighting for the whole scene).
+        background_exclude: base-scene shapes to drop for the background render (the known objects; ``"render"``).
+        attack_kwargs: keyword arguments of the attack.
+        jitter: per-step jitter (default :data:`DEFAULT_JITTER`; ``{}`` = none).
+        robustness: EOT samples, required margin (score units), pixel noise (default :class:`Robustness()`).
+        texture_smoothing: ``None`` for the paper's per-face texture; an int ``k >= 0`` for a smoothed per-vertex
+            colour field (:class:`~meshadv.transfer.smooth_texture.SmoothTextureAttack`, ``k`` rounds), for meshes
+            with many faces per pixel. Texture attacks only.
         num_lights: directional lights to estimate.
         camera_steps: camera estimation steps.
         light_steps: light estimation steps.
         variant: Mitsuba variant.
         timeout: seconds per Mitsuba call.
-        score_threshold: detection score above which ``hide_class`` counts as detected.
+        score_threshold: detection score at or above which ``hide_class`` counts as detected, in (0, 1].
         case_id: identifier of the result row.
+        callback: passed to the attack (called with a ``meshadv.attacks.StepInfo`` after every step).
 
     Returns:
-        A result row with estimation errors, the best ``hide_class`` score of the benign and adversarial Mitsuba
-        renders and ``success_mitsuba`` (no ``hide_class`` detection above the threshold).
+        A result row with the estimation errors, the best ``hide_class`` score of meshadv's render on the estimated
+        view (``hide_score_meshadv``), of Mitsuba's under the estimates (``hide_score_mitsuba_estimated``, in the
+        same context) and under the hidden parameters (benign and adversarial), the matching ``success_*`` (score
+        below the threshold), ``robust_rate_meshadv``, ``occluded_pixels`` (``"photo"``) and the attack's settings.
+        Private entries as :func:`blackbox_classifier`.
 
     Raises:
-        ValueError: ``object_index`` out of range.
+        ValueError: ``object_index`` out of range, unknown ``attack_type``, ``context`` or ``light_fit``, a bad
+            ``score_threshold``, or ``texture_smoothing`` given for a shape attack or negative.
     """
-    from meshadv.attacks import Disappearance
+    from meshadv.attacks import Disappearance, ShapeAttack
+    from meshadv.transfer.robust import Occluded
 
     objects = list(scene_objects)
     if not 0 <= object_index < len(objects):
         raise ValueError(f"object_index {object_index} out of range for {len(objects)} objects")
+    if attack_type not in ("shape", "texture"):
+        raise ValueError(f"attack_type must be 'shape' or 'texture', got {attack_type!r}")
+    if context not in ("photo", "render"):
+        raise ValueError(f"context must be 'photo' or 'render', got {context!r}")
+    if light_fit not in ("object", "known"):
+        raise ValueError(f"light_fit must be 'object' or 'known', got {light_fit!r}")
+    _check_smoothing(texture_smoothing, attack_type)
+    if not 0.0 < score_threshold <= 1.0:
+        raise ValueError(f"score_threshold must be in (0, 1], got {score_threshold}")
+    robustness = Robustness() if robustness is None else robustness
+    jitter = dict(DEFAULT_JITTER if jitter is None else jitter)
     target_obj = objects[object_index]
     merged = _merge_meshes(objects)
-    est = estimate_parameters(target_obj, hidden, known=merged, num_lights=num_lights, camera_steps=camera_steps,
-                              light_steps=light_steps, variant=variant, timeout=timeout)
+    first_face = sum(int(o.faces.shape[0]) for o in objects[:object_index])
+    light_faces = (first_face, first_face + int(target_obj.faces.shape[0])) if light_fit == "object" else None
+    est = estimate_parameters(target_obj, hidden, known=merged, light_faces=light_faces, num_lights=num_lights,
+                              camera_steps=camera_steps, light_steps=light_steps, variant=variant, timeout=timeout)
     kwargs = dict(attack_kwargs or {})
     kwargs.setdefault("image_size", hidden.image_size)
-    kwargs.setdefault("jitter", DEFAULT_JITTER if jitter is None else jitter)
-    kwargs.setdefault("background", _background_image(hidden, background_exclude, variant, timeout))
-    start = sum(int(o.faces.shape[0]) for o in objects[:object_index])
-    stop = start + int(target_obj.faces.shape[0])
-    face_mask = torch.zeros(int(merged.faces.shape[0]), dtype=torch.bool)
-    face_mask[start:stop] = True
-    attack = object_texture_attack(face_mask, **kwargs)
-    result = attack(merged, est.views, victim, Disappearance(hide_class))
-    adversarial = target_obj.with_face_colors(result.mesh.face_colors.detach()[start:stop].clone())
-    images = render_scenes([hidden.spec(target_obj), hidden.spec(adversarial)], variant=variant, timeout=timeout)
-    scores = detection_scores(victim, _images_tensor(images), hide_class)
+    kwargs.setdefault("jitter", jitter or None)
+    occluded: Optional[torch.Tensor] = None
+    seen_victim = victim
+    if context == "photo":
+        background = est.photo
+        kwargs.setdefault("background", background)
+        occluded = occlusion_mask(objects, object_index, est.views, hidden.image_size)
+        if bool(occluded.any()):
+            seen_victim = Occluded(victim, est.photo, occluded)
+        attacked = target_obj
+        attack = _texture_attack(texture_smoothing, None, kwargs) if attack_type == "texture" else ShapeAttack(**kwargs)
+        start, stop = 0, None
+    else:
+        background = _background_image(hidden, background_exclude, variant, timeout)
+        kwargs.setdefault("background", background)
+        attacked = merged
+        if attack_type == "texture":
+            start = sum(int(o.faces.shape[0]) for o in objects[:object_index])
+            stop = start + int(target_obj.faces.shape[0])
+            face_mask = torch.zeros(int(merged.faces.shape[0]), dtype=torch.bool)
+            face_mask[start:stop] = True
+            attack = (object_texture_attack(face_mask, **kwargs) if texture_smoothing is None
+                      else _texture_attack(texture_smoothing, face_mask, kwargs))
+        else:
+            start = sum(int(o.vertices.shape[0]) for o in objects[:object_index])
+            stop = start + int(target_obj.vertices.shape[0])
+            vertex_mask = torch.zeros(int(merged.vertices.shape[0]), dtype=torch.bool)
+            vertex_mask[start:stop] = True
+            attack = object_shape_attack(vertex_mask, **kwargs)
+    criterion = Disappearance(hide_class, threshold=score_threshold)
+    result = _attack_estimated(attack, attacked, est, seen_victim, criterion, robustness, callback)
+    if attack_type == "texture":
+        adversarial = target_obj.with_face_colors(result.mesh.face_colors.detach()[start:stop].clone())
+    else:
+        adversarial = target_obj.with_vertices(result.mesh.vertices.detach()[start:stop].clone())
+    if context == "photo":
+        seen = adversarial
+    else:
+        seen = _merge_meshes([adversarial if i == object_index else o for i, o in enumerate(objects)])
+    bound = criterion.bind(victim)
+    ours_margin, ours_image = _meshadv_margins(attack, seen, est.views, seen_victim, bound)
+    robust_rate = _robust_rate(attack, seen, est, seen_victim, bound, robustness)
+    record = est.views.to_records()[0]
+    images = render_scenes([hidden.spec(target_obj), hidden.spec(adversarial),
+                            estimated_view_spec(seen, record, hidden)], variant=variant, timeout=timeout)
+    estimated_image = composite(images[2], background)
+    if occluded is not None:
+        estimated_image = estimated_image * (1.0 - occluded) + est.photo * occluded
+        ours_image = ours_image * (1.0 - occluded) + est.photo * occluded
+    scores = detection_scores(victim, torch.cat([_images_tensor(images[:2]), estimated_image[None]]), hide_class)
     row: dict[str, Any] = {
         "case_id": case_id,
         "victim": getattr(victim, "name", type(victim).__name__),
         "true_class": hide_class,
         "target": "",
-        "attack_type": "texture",
+        "attack_type": attack_type,
         "view": 0,
-        "success_meshadv": bool(result.succeeded[0]),
+        "context": context,
+        "light_fit": light_fit,
+        "success_meshadv": bool(ours_margin[0] > 0),
+        "success_mitsuba_estimated": scores[2] < score_threshold,
         "success_mitsuba": scores[1] < score_threshold,
         "benign_correct_mitsuba": scores[0] >= score_threshold,
+        "score_threshold": float(score_threshold),
+        "hide_score_meshadv": float(score_threshold - ours_margin[0]),
+        "hide_score_mitsuba_estimated": scores[2],
         "hide_score_benign_mitsuba": scores[0],
         "hide_score_adversarial_mitsuba": scores[1],
+        "robust_rate_meshadv": robust_rate,
+        "occluded_pixels": None if occluded is None else int(occluded.sum()),
+        "texture_smoothing": texture_smoothing,
+        "spp": hidden.spp,
         "variant": images[0].variant,
     }
+    row.update(robustness.to_record())
+    row["pixel_noise_on"] = _noise_where(attack, robustness)
+    row.update(_attack_record(attack, result))
     row.update({k: float(v) for k, v in est.errors.items()})
-    row["_images"] = images
+    row["_images"] = {"benign_mitsuba": images[0].image, "adversarial_mitsuba": images[1].image,
+                      "adversarial_mitsuba_estimated": _hwc(estimated_image), "adversarial_meshadv": _hwc(ours_image)}
     row["_adversarial_mesh"] = adversarial
+    row["_result"] = result
     return row
 
 
@@ -669,8 +1042,8 @@ def object_texture_attack(face_mask: torch.Tensor, **kwargs: Any) -> Any:
         raise ValueError("face_mask selects no face")
 
     class _ObjectTextureAttack(TextureAttack):
-        def _apply(self, params: torch.Tensor, mesh: Any) -> tuple[torch.Tensor, torch.Tensor]:
-            verts, colors = super()._apply(params, mesh)
+        def _apply(self, params: torch.Tensor, mesh: Any, edges: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            verts, colors = super()._apply(params, mesh, edges)
             fixed = mesh.face_colors.unsqueeze(0).expand_as(colors)
             return verts, torch.where(face_mask[None, :, None], colors, fixed)
 
@@ -679,6 +1052,42 @@ def object_texture_attack(face_mask: torch.Tensor, **kwargs: Any) -> Any:
             return color_rmse(colors, mesh.face_colors[face_mask])
 
     return _ObjectTextureAttack(**kwargs)
+
+
+def object_shape_attack(vertex_mask: torch.Tensor, **kwargs: Any) -> Any:
+    """A :class:`meshadv.attacks.ShapeAttack` that moves only the vertices in ``vertex_mask`` (one object of a scene).
+
+    The parameters of the other vertices are multiplied by zero before the attack's parametrisation (smoothing,
+    clamp) is applied, so they get no gradient and stay at zero; the objects of a merged scene share no edge, so
+    neither the smoothing nor the Laplacian loss crosses from one object to another.
+
+    Args:
+        vertex_mask: bool (N,) vertices that may move.
+        **kwargs: the attack's hyper-parameters (:class:`~meshadv.attacks.ShapeAttack`).
+
+    Raises:
+        ValueError: ``vertex_mask`` is not a non-empty 1-D bool tensor.
+    """
+    from meshadv.attacks import ShapeAttack
+
+    if not isinstance(vertex_mask, torch.Tensor) or vertex_mask.dtype != torch.bool or vertex_mask.dim() != 1:
+        raise ValueError("vertex_mask must be a 1-D bool tensor")
+    if not bool(vertex_mask.any()):
+        raise ValueError("vertex_mask selects no vertex")
+    keep = vertex_mask[None, :, None].float()
+
+    class _ObjectShapeAttack(ShapeAttack):
+        def _apply(self, params: torch.Tensor, mesh: Any, edges: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            return super()._apply(params * keep, mesh, edges)
+
+        def _perceptual(self, params: torch.Tensor, mesh: Any, edges: torch.Tensor, images: torch.Tensor,
+                        alpha: torch.Tensor, num_views: int) -> torch.Tensor:
+            return super()._perceptual(params * keep, mesh, edges, images, alpha, num_views)
+
+        def _distance(self, params: torch.Tensor, mesh: Any, edges: torch.Tensor) -> torch.Tensor:
+            return super()._distance(params * keep, mesh, edges)
+
+    return _ObjectShapeAttack(**kwargs)
 
 
 def detection_scores(victim: Any, images: torch.Tensor, class_name: str) -> list[float]:
@@ -708,16 +1117,21 @@ __all__ = [
     "DEFAULT_JITTER",
     "Estimation",
     "HiddenScene",
+    "Robustness",
     "TransferCase",
     "blackbox_classifier",
     "blackbox_detector",
     "cases_from_store",
+    "composite",
     "controlled_transfer",
     "detection_scores",
-    "object_texture_attack",
     "estimate_parameters",
+    "estimated_view_spec",
     "evaluate_case",
     "mitsuba_specs_for_case",
+    "object_shape_attack",
+    "object_texture_attack",
+    "occlusion_mask",
     "public_row",
     "save_images",
 ]

@@ -233,6 +233,8 @@ def _fmt(value: Any) -> str:
     if value is None:
         return "–"
     if isinstance(value, float):
+        if value != 0 and abs(value) < 0.005:
+            return f"{value:.2g}"  # a learning rate or a weight such as 1e-05, not 0.00
         return f"{value:.2f}"
     return str(value)
 
@@ -255,6 +257,49 @@ def markdown_confusion(names: Sequence[str], matrix: Sequence[Sequence[Optional[
     return "\n".join(lines) + "\n"
 
 
+#: Columns of the black-box tables: outcome, classifier margins, detector scores, attack settings, estimation errors.
+BLACKBOX_OUTCOME_COLUMNS = ("case_id", "victim", "true_class", "target", "attack_type", "context", "success_meshadv",
+                            "robust_rate_meshadv", "success_mitsuba_estimated", "success_mitsuba",
+                            "benign_correct_mitsuba", "top1_adversarial_mitsuba")
+BLACKBOX_MARGIN_COLUMNS = ("case_id", "margin_meshadv", "margin_mitsuba_estimated", "margin_mitsuba",
+                           "margin_benign_mitsuba", "top1_meshadv", "top1_mitsuba_estimated")
+BLACKBOX_SCORE_COLUMNS = ("case_id", "hide_score_meshadv", "hide_score_mitsuba_estimated",
+                          "hide_score_adversarial_mitsuba", "hide_score_benign_mitsuba", "score_threshold")
+BLACKBOX_SETTINGS_COLUMNS = ("case_id", "eot", "required_margin", "pixel_noise", "pixel_noise_on", "antialias",
+                             "texture_smoothing", "object_scale", "steps", "steps_run", "steps_to_success", "lr",
+                             "lambda_perceptual", "color_rmse", "laplacian", "spp", "attack_time")
+BLACKBOX_ESTIMATION_COLUMNS = ("case_id", "azimuth_error", "elevation_error", "distance_error", "mask_iou",
+                               "light_fit", "light_fit_pixels", "light_rmse", "direction_error")
+
+
+def blackbox_report(rows: Sequence[dict[str, Any]]) -> str:
+    """The black-box section: outcome, margins (classifiers) or scores (detectors), settings, estimation errors.
+
+    ``success_meshadv`` is meshadv's render of the final mesh on the estimated view, ``robust_rate_meshadv`` the
+    fraction of fresh jittered estimated views on which it is adversarial, ``success_mitsuba_estimated`` Mitsuba's
+    render under the *estimated* camera and lights (renderer mismatch only), ``success_mitsuba`` Mitsuba under the
+    hidden parameters (the pipeline's result). A table is shown when some row has one of its columns, a column when
+    some of the table's rows has it; a missing value shows as "–".
+    """
+    parts = ["\n### Black-box pipeline (estimated camera and lights)\n"]
+    classifier = [r for r in rows if "hide_score_adversarial_mitsuba" not in r]
+    detector = [r for r in rows if "hide_score_adversarial_mitsuba" in r]
+    sections = (("Outcome", BLACKBOX_OUTCOME_COLUMNS, rows),
+                ("Classifier margins (logits, > 0 = adversarial) and top-1 classes", BLACKBOX_MARGIN_COLUMNS,
+                 classifier),
+                ("Detector: best score of the hidden class (detected at >= score_threshold)", BLACKBOX_SCORE_COLUMNS,
+                 detector),
+                ("Attack settings and distortion", BLACKBOX_SETTINGS_COLUMNS, rows),
+                ("Estimation errors (degrees; distance relative)", BLACKBOX_ESTIMATION_COLUMNS, rows))
+    for title, cols, subset in sections:
+        present = [c for c in cols if any(r.get(c) is not None for r in subset)]
+        if len(present) <= 1:
+            continue
+        parts.append(f"\n#### {title}\n")
+        parts.append(markdown_table(subset, present))
+    return "\n".join(parts)
+
+
 def transfer_report(rows: Sequence[dict[str, Any]]) -> str:
     """A markdown section with the transfer tables and confusion matrices of ``rows``."""
     controlled = [r for r in rows if r.get("kind", "controlled") == "controlled"]
@@ -269,15 +314,17 @@ def transfer_report(rows: Sequence[dict[str, Any]]) -> str:
             parts.append(f"\n#### Targeted confusion matrix, {victim} (Mitsuba)\n")
             parts.append(markdown_confusion(names, matrix))
     if blackbox:
-        parts.append("\n### Black-box pipeline (estimated camera and lights)\n")
-        cols = ["case_id", "victim", "true_class", "target", "attack_type", "success_meshadv", "success_mitsuba",
-                "benign_correct_mitsuba", "azimuth_error", "elevation_error", "distance_error", "light_rmse",
-                "direction_error"]
-        parts.append(markdown_table(blackbox, [c for c in cols if any(c in r for r in blackbox)]))
+        parts.append(blackbox_report(blackbox))
     return "\n".join(parts)
 
 
 __all__ = [
+    "BLACKBOX_ESTIMATION_COLUMNS",
+    "BLACKBOX_MARGIN_COLUMNS",
+    "BLACKBOX_OUTCOME_COLUMNS",
+    "BLACKBOX_SCORE_COLUMNS",
+    "BLACKBOX_SETTINGS_COLUMNS",
+    "blackbox_report",
     "confusion_matrices",
     "load_transfer_rows",
     "markdown_confusion",

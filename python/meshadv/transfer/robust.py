@@ -1,0 +1,232 @@
+"""Making an attack found with *estimated* parameters survive a different renderer and the true parameters.
+
+Two tools of the black-box pipeline (:mod:`meshadv.transfer.pipeline`), both built on the public attack API without
+changing it:
+
+* :class:`WithMargin` -- a criterion that counts an image as adversarial only when the wrapped criterion holds with a
+  margin ``required`` (logit units for classifiers, score units for detectors). The attacks keep the *least
+  distorted* successful step, which with a plain criterion is the first, borderline one (a logit margin of ~0.5),
+  and a borderline success does not survive anti-aliasing, Monte-Carlo noise or a slightly different light. With
+  :class:`WithMargin` the kept step is the least distorted one that holds with the margin.
+* :func:`eot_views` -- expectation over transformation: ``K`` copies of the estimated view, which the attack's
+  per-step ``jitter`` then perturbs independently, so every Adam step averages the loss over ``K`` random cameras and
+  lights (one batch), and success at a step needs every one of the ``K`` samples to be adversarial.
+* :class:`NoisyVictim` -- expectation over pixel noise: the victim sees every render with fresh Gaussian noise on the
+  rendered object, so the texture does not depend on exact pixel values that a path tracer's Monte-Carlo noise
+  changes (at 64 samples per pixel Mitsuba's noise has a standard deviation of about 0.01 on the outdoor aeroplane,
+  enough to undo a texture attack that held with a 3-logit margin, and 0.07 on the indoor bunny).
+* :class:`Occluded` -- puts back the photo's pixels where, in the photo, another object hides the attacked one (the
+  attack renders only the attacked object over the photo).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any, Dict
+
+import torch
+from torch import Tensor
+
+from meshadv.attacks.criteria import Criterion
+
+__all__ = ["NoisyVictim", "Occluded", "WithMargin", "eot_views"]
+
+
+@dataclass(frozen=True)
+class WithMargin(Criterion):
+    """``base`` with a confidence margin: adversarial when ``base.margin(output) > required``.
+
+    The loss is ``base``'s (so the attack keeps pushing past the margin with ``loss="ce"``; with ``loss="cw"`` give
+    ``kappa >= required``), the score is ``base``'s.
+
+    Args:
+        base: the criterion to strengthen (any :class:`~meshadv.attacks.criteria.Criterion`).
+        required: the margin it must hold with, ``>= 0`` (0 = ``base`` itself). Classifier criteria measure their
+            margin in logits (best target logit minus best other logit), :class:`~meshadv.attacks.Disappearance` in
+            detection score (``threshold - best score``).
+
+    Raises:
+        ValueError: ``base`` is not a criterion, or ``required`` is negative or not finite.
+
+    Example:
+        >>> from meshadv.attacks import Misclassification
+        >>> crit = WithMargin(Misclassification("aeroplane"), 3.0)
+        >>> crit.label
+        'untargeted(true=aeroplane)+margin3'
+    """
+
+    base: Criterion
+    required: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.base, Criterion):
+            raise ValueError(f"base must be a Criterion, got {type(self.base).__name__}")
+        if not (isinstance(self.required, (int, float)) and math.isfinite(self.required) and self.required >= 0):
+            raise ValueError(f"required must be a finite number >= 0, got {self.required!r}")
+        object.__setattr__(self, "required", float(self.required))
+
+    @property
+    def victim_kind(self) -> str:  # type: ignore[override]
+        """The wrapped criterion's victim kind."""
+        return self.base.victim_kind
+
+    def bind(self, victim: Any) -> "WithMargin":
+        """Bind the wrapped criterion to ``victim`` (see :meth:`Criterion.bind`)."""
+        return replace(self, base=self.base.bind(victim))
+
+    def loss(self, output: Any, *, loss: str = "ce", kappa: float = 0.0) -> Tensor:
+        """The wrapped criterion's loss."""
+        return self.base.loss(output, loss=loss, kappa=kappa)
+
+    def margin(self, output: Any) -> Tensor:
+        """``base.margin(output) - required``."""
+        return self.base.margin(output) - self.required
+
+    def score(self, output: Any) -> Tensor:
+        """The wrapped criterion's score."""
+        return self.base.score(output)
+
+    @property
+    def label(self) -> str:
+        """``"<base label>+margin<required>"``."""
+        return f"{self.base.label}+margin{self.required:g}"
+
+    def to_record(self) -> Dict[str, Any]:
+        """JSON-able description: the wrapped criterion's record plus ``required_margin``."""
+        return {**self.base.to_record(), "criterion": f"WithMargin({type(self.base).__name__})",
+                "label": self.label, "required_margin": self.required}
+
+
+def eot_views(views: Any, samples: int) -> Any:
+    """``samples`` copies of every view of ``views`` (view-major blocks: all views, then all views again, ...).
+
+    Passed to an attack that has a ``jitter``, each copy is jittered independently at every step: an
+    expectation-over-transformation batch of ``samples`` random cameras and lights per view.
+
+    Args:
+        views: a ``meshadv.render.ViewSet``.
+        samples: copies per view, ``>= 1`` (1 returns ``views`` itself).
+
+    Returns:
+        A ``ViewSet`` of ``samples * len(views)`` views.
+
+    Raises:
+        ValueError: ``samples`` is not a positive int, or ``views`` is not a non-empty ViewSet.
+    """
+    from meshadv.render import ViewSet
+
+    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+        raise ValueError(f"samples must be an int >= 1, got {samples!r}")
+    if not isinstance(views, ViewSet) or len(views) < 1:
+        raise ValueError("views must be a non-empty meshadv.render.ViewSet")
+    return views if samples == 1 else ViewSet.cat([views] * samples)
+
+
+class NoisyVictim:
+    """A victim that adds Gaussian pixel noise to the images it is given (an expectation-over-noise transform).
+
+    With ``background`` (the photo the attack composites its renders over), the noise goes only where an image
+    differs from the background, i.e. on the pixels meshadv rendered: the photo already carries the path tracer's
+    own noise, and noise over the whole image changes what the victim sees of the scene (SSD stops detecting the
+    indoor table under noise of standard deviation 0.06 alone). A pixel the render does not cover is exactly the
+    background (``render + (1 - alpha) * background`` with ``alpha = 0``), so the test is exact. Without
+    ``background`` every pixel gets noise.
+
+    Everything but the call (``kind``, ``name``, ``class_names``, ``class_index``, ...) is the wrapped victim's, so an
+    attack or a criterion treats it as the victim itself. Images are clamped to ``[0, 1]`` after the noise, as a
+    renderer's output is. Use it for the attack only: its outputs are random.
+
+    Args:
+        victim: a ``meshadv.victims`` victim (classifier or detector).
+        std: standard deviation of the noise (image units, ``[0, 1]`` scale), ``> 0``.
+        seed: seed of the noise generator (the sequence of noises is reproducible).
+        background: optional ``(3, H, W)`` image: noise only where the images differ from it.
+
+    Raises:
+        ValueError: ``std`` is not a positive finite number, ``victim`` is not callable, or ``background`` is not a
+            ``(3, H, W)`` tensor (or, at call time, does not match the images).
+
+    Example:
+        >>> noisy = NoisyVictim(victim, 0.05, background=photo)  # doctest: +SKIP
+        >>> logits = noisy(images)  # victim(images + noise on the rendered object)  # doctest: +SKIP
+    """
+
+    def __init__(self, victim: Any, std: float, *, seed: int = 0, background: Any = None) -> None:
+        if not callable(victim):
+            raise ValueError(f"victim must be a callable victim, got {type(victim).__name__}")
+        if isinstance(std, bool) or not isinstance(std, (int, float)) or not (math.isfinite(std) and std > 0):
+            raise ValueError(f"std must be a finite number > 0, got {std!r}")
+        if background is not None and (not isinstance(background, Tensor) or background.dim() != 3
+                                       or background.shape[0] != 3):
+            raise ValueError("background must be None or a (3, H, W) tensor")
+        self.__dict__["victim"] = victim
+        self.__dict__["std"] = float(std)
+        self.__dict__["background"] = None if background is None else background.detach()
+        self.__dict__["_generator"] = torch.Generator().manual_seed(int(seed))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.__dict__["victim"], name)
+
+    def __call__(self, images: Tensor) -> Any:
+        """``victim(clamp(images + mask * N(0, std^2), 0, 1))``; gradients flow to ``images``."""
+        noise = torch.randn(images.shape, generator=self._generator, dtype=images.dtype).to(images.device)
+        if self.background is not None:
+            if tuple(images.shape[1:]) != tuple(self.background.shape):
+                raise ValueError(f"images {tuple(images.shape[1:])} must match the background "
+                                 f"{tuple(self.background.shape)}")
+            rendered = (images.detach() != self.background.to(images)).any(dim=1, keepdim=True)
+            noise = noise * rendered
+        return self.victim((images + self.std * noise).clamp(0.0, 1.0))
+
+    def __repr__(self) -> str:
+        where = "rendered pixels" if self.background is not None else "every pixel"
+        return f"NoisyVictim({getattr(self.victim, 'name', type(self.victim).__name__)}, std={self.std:g}, {where})"
+
+
+class Occluded:
+    """A victim that first restores ``photo`` where ``mask`` is 1: the pixels where, in the photo, something in
+    front hides the object being attacked (which the attack renders alone over the photo).
+
+    Everything but the call is the wrapped victim's (as :class:`NoisyVictim`). The mask is fixed: under view jitter
+    it is the occlusion of the estimated view.
+
+    Args:
+        victim: a victim (or another wrapper).
+        photo: ``(3, H, W)`` the photo.
+        mask: ``(H, W)`` occluded pixels in ``[0, 1]`` (1 = show the photo).
+
+    Raises:
+        ValueError: shapes that do not match, or a mask outside ``[0, 1]``.
+
+    Example:
+        >>> victim = Occluded(victim, photo, occluded)        # doctest: +SKIP
+    """
+
+    def __init__(self, victim: Any, photo: Tensor, mask: Tensor) -> None:
+        if not callable(victim):
+            raise ValueError(f"victim must be a callable victim, got {type(victim).__name__}")
+        if not isinstance(photo, Tensor) or photo.dim() != 3 or photo.shape[0] != 3:
+            raise ValueError(f"photo must be a (3, H, W) tensor, got {getattr(photo, 'shape', type(photo).__name__)}")
+        if not isinstance(mask, Tensor) or tuple(mask.shape) != tuple(photo.shape[1:]):
+            raise ValueError(f"mask must be an (H, W) tensor matching the photo {tuple(photo.shape[1:])}, "
+                             f"got {getattr(mask, 'shape', type(mask).__name__)}")
+        if mask.numel() and (float(mask.min()) < 0 or float(mask.max()) > 1):
+            raise ValueError("mask values must be in [0, 1]")
+        self.__dict__["victim"] = victim
+        self.__dict__["photo"] = photo.detach().float()
+        self.__dict__["mask"] = mask.detach().float()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.__dict__["victim"], name)
+
+    def __call__(self, images: Tensor) -> Any:
+        """``victim(images * (1 - mask) + photo * mask)``; gradients flow to the unoccluded pixels."""
+        if tuple(images.shape[-2:]) != tuple(self.mask.shape):
+            raise ValueError(f"images {tuple(images.shape[-2:])} must match the occlusion mask "
+                             f"{tuple(self.mask.shape)}")
+        mask = self.mask.to(images)
+        return self.victim(images * (1.0 - mask) + self.photo.to(images) * mask)
+
+    def __repr__(self) -> str:
+        return f"Occluded({self.victim!r}, {int((self.mask > 0).sum())} pixels)"
