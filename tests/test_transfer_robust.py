@@ -12,11 +12,12 @@ import math
 import pytest
 import torch
 import torch.nn.functional as F
+from stand_in_victims import DarkBlobDetector
 
 from meshadv.attacks import Disappearance, Misclassification, TextureAttack
 from meshadv.render import native_available
 from meshadv.transfer.robust import NoisyVictim, WithMargin, eot_views
-from meshadv.victims.base import ClassifierVictim, DetectorOutput, DetectorVictim
+from meshadv.victims.base import ClassifierVictim
 
 needs_native = pytest.mark.skipif(not native_available(), reason="native module meshadv._raster not built")
 
@@ -37,23 +38,6 @@ class RedClassifier(ClassifierVictim):
         logits[:, 0] = 2.0
         logits[:, 1] = self.scale * (x[:, 0] - x[:, 1]).mean(dim=(1, 2))
         return logits
-
-
-class DarkBlobDetector(DetectorVictim):
-    """Stand-in detector (as tests/test_attacks_detector.py): 4x4 cells, 'blob' score = sigmoid(20 (darkness - 0.3))."""
-
-    def __init__(self) -> None:
-        super().__init__("dark_blob", (64, 64), ("blob", "light"))
-
-    def forward(self, images: torch.Tensor) -> DetectorOutput:
-        x = self.resize(images).mean(dim=1, keepdim=True)
-        cells = F.avg_pool2d(x, 16).flatten(1)
-        dark = torch.sigmoid(20 * ((1 - cells) - 0.3))
-        light = torch.sigmoid(20 * (cells - 0.95))
-        b = images.shape[0]
-        ij = torch.stack(torch.meshgrid(torch.arange(4.0), torch.arange(4.0), indexing="ij"), -1).reshape(16, 2)
-        boxes = torch.cat([ij[:, [1, 0]] / 4, (ij[:, [1, 0]] + 1) / 4], dim=1).expand(b, 16, 4)
-        return DetectorOutput(boxes=boxes, objectness=None, class_probs=torch.stack([dark, light], dim=-1))
 
 
 def _logits(z0: float, z1: float) -> torch.Tensor:

@@ -1,0 +1,29 @@
+"""Tiny differentiable stand-in victims shared by the tests (no weights, exact and fast)."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from meshadv.victims.base import DetectorOutput, DetectorVictim
+
+
+class DarkBlobDetector(DetectorVictim):
+    """Stand-in detector: a 4x4 grid of cells; a cell's 'blob' score is sigmoid(20 (darkness - 0.3)).
+
+    Darkness is 1 - mean intensity of the cell, so a dark object on a white background is detected where it is.
+    The second class 'light' scores bright cells and is never hidden in the tests.
+    """
+
+    def __init__(self) -> None:
+        super().__init__("dark_blob", (64, 64), ("blob", "light"))
+
+    def forward(self, images: torch.Tensor) -> DetectorOutput:
+        x = self.resize(images).mean(dim=1, keepdim=True)
+        cells = F.avg_pool2d(x, 16).flatten(1)  # (B, 16)
+        dark = torch.sigmoid(20 * ((1 - cells) - 0.3))
+        light = torch.sigmoid(20 * (cells - 0.95))
+        b = images.shape[0]
+        ij = torch.stack(torch.meshgrid(torch.arange(4.0), torch.arange(4.0), indexing="ij"), -1).reshape(16, 2)
+        boxes = torch.cat([ij[:, [1, 0]] / 4, (ij[:, [1, 0]] + 1) / 4], dim=1).expand(b, 16, 4)
+        return DetectorOutput(boxes=boxes, objectness=None, class_probs=torch.stack([dark, light], dim=-1))
