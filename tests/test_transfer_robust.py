@@ -575,3 +575,11 @@ def test_cli_light_jitter_scales_only_the_light_entries() -> None:
     assert split["light_direction"] == pytest.approx(3.0 * DEFAULT_JITTER["light_direction"])
     assert split["light_intensity"] == pytest.approx(3.0 * DEFAULT_JITTER["light_intensity"])
     assert _jitter(0.0, 1.0)["elevation"] == 0.0 and _jitter(0.0, 1.0)["light_intensity"] > 0
+
+
+def test_blackbox_case_ids_name_every_non_default_setting_including_the_seed() -> None:
+    from meshadv.commands.transfer import _settings_suffix
+
+    assert _settings_suffix(1.0, 1, 0.0, 0.0, 1, 100, 100) == ""
+    assert _settings_suffix(1.0, 4, 0.29, 0.0, 2, 300, 100, None, 1) == "_eot4_margin0.29_aa2_steps300_seed1"
+    assert _settings_suffix(0.5, 1, 0.0, 0.02, 1, 100, 100, 2.0) == "_jitter0.5_lightjitter2_noise0.02"

@@ -221,13 +221,13 @@ def _check_smoothing(texture_smoothing: Optional[int], perturb: str) -> None:
 
 
 def _settings_suffix(jitter: float, eot: int, margin: float, pixel_noise: float, antialias: int, steps: int,
-                     defaults_steps: int, light_jitter: Optional[float] = None) -> str:
-    """The non-default settings of a black-box run, for its default case id (e.g. ``_eot8_margin10_aa3``)."""
+                     defaults_steps: int, light_jitter: Optional[float] = None, seed: int = 0) -> str:
+    """The non-default settings of a black-box run, for its default case id (e.g. ``_eot8_margin10_aa3_seed1``)."""
     parts = [f"_jitter{jitter:g}" if jitter != 1.0 else "",
              f"_lightjitter{light_jitter:g}" if light_jitter is not None else ""]
     parts += [f"_eot{eot}" if eot != 1 else "", f"_margin{margin:g}" if margin else "",
               f"_noise{pixel_noise:g}" if pixel_noise else "", f"_aa{antialias}" if antialias != 1 else "",
-              f"_steps{steps}" if steps != defaults_steps else ""]
+              f"_steps{steps}" if steps != defaults_steps else "", f"_seed{seed}" if seed != 0 else ""]
     return "".join(parts)
 
 
@@ -334,7 +334,7 @@ def blackbox_classifier_cmd(
     hidden = outdoor_classifier_setup(mesh_obj, image_size=size, spp=spp)
     if case_id is None:
         case_id = (f"outdoor_{Path(mesh).stem}_{perturb}_{target or 'untargeted'}"
-                   + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter)
+                   + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed)
                    + (f"_smooth{texture_smoothing}" if texture_smoothing is not None else "")
                    + (f"_spp{spp}" if spp != 64 else ""))
     row = blackbox_classifier(mesh_obj, hidden, victim=load_victim(victim), true_class=true_class, target=target,
@@ -406,7 +406,7 @@ def blackbox_detector_cmd(
                    + (f"_{context}" if context != "photo" else "")
                    + ("_lightsknown" if light_fit != "object" else "")
                    + (f"_scale{object_scale:g}" if object_scale != 1.0 else "")
-                   + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter)
+                   + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed)
                    + (f"_smooth{texture_smoothing}" if texture_smoothing is not None else "")
                    + (f"_spp{spp}" if spp != 64 else ""))
     row = blackbox_detector(setup.objects, setup.object_index, setup.hidden, victim=load_victim(victim),
