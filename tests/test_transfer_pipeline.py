@@ -81,7 +81,7 @@ def _views(n: int) -> list:
 def test_controlled_transfer_tiny_run_produces_its_table(tmp_path, victim) -> None:
     pytest.importorskip("mitsuba")
     from meshadv.mesh import builtin_mesh
-    from meshadv.transfer.pipeline import TransferCase, controlled_transfer
+    from meshadv.transfer.controlled import TransferCase, controlled_transfer
     from meshadv.victims.labels import PASCAL3D_TO_IMAGENET, imagenet_class_names
 
     case = TransferCase("case0", builtin_mesh("bottle"), tuple(_views(2)), "efficientnet_lite0", "bottle",
@@ -106,18 +106,18 @@ def test_controlled_transfer_tiny_run_produces_its_table(tmp_path, victim) -> No
 @needs_native
 def test_controlled_transfer_survives_a_crashed_render(monkeypatch, victim) -> None:
     from meshadv.mesh import builtin_mesh
-    from meshadv.transfer import pipeline
+    from meshadv.transfer import controlled
     from meshadv.transfer.render import MitsubaRenderError
 
     def crash(*args, **kwargs):
         raise MitsubaRenderError("Mitsuba (llvm_ad_rgb) was killed by signal 6")
 
-    monkeypatch.setattr(pipeline, "render_scenes", crash)
-    case = pipeline.TransferCase("c", builtin_mesh("cube"), tuple(_views(1)), "efficientnet_lite0", "bottle")
-    rows = pipeline.controlled_transfer([case], victim_loader=lambda name: victim)
+    monkeypatch.setattr(controlled, "render_scenes", crash)
+    case = controlled.TransferCase("c", builtin_mesh("cube"), tuple(_views(1)), "efficientnet_lite0", "bottle")
+    rows = controlled.controlled_transfer([case], victim_loader=lambda name: victim)
     assert len(rows) == 1 and "signal 6" in rows[0]["error"] and rows[0]["success_mitsuba"] is None
     with pytest.raises(MitsubaRenderError):
-        pipeline.controlled_transfer([case], victim_loader=lambda name: victim, on_error="raise")
+        controlled.controlled_transfer([case], victim_loader=lambda name: victim, on_error="raise")
 
 
 def _fake_sweep(tmp_path):
@@ -148,7 +148,7 @@ def _fake_sweep(tmp_path):
 
 def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
     from meshadv.mesh import builtin_mesh
-    from meshadv.transfer.pipeline import cases_from_store
+    from meshadv.transfer.controlled import cases_from_store
 
     db, views = _fake_sweep(tmp_path)
     cases = cases_from_store(db)
@@ -169,7 +169,8 @@ def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
 def test_blackbox_classifier_tiny_run(victim) -> None:
     pytest.importorskip("mitsuba")
     from meshadv.mesh import builtin_mesh
-    from meshadv.transfer.pipeline import Robustness, blackbox_classifier, public_row
+    from meshadv.transfer.blackbox import blackbox_classifier, public_row
+    from meshadv.transfer.robust import Robustness
     from meshadv.transfer.setups import outdoor_classifier_setup
 
     mesh = builtin_mesh("chair")

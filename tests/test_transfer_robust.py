@@ -191,7 +191,7 @@ def test_noisy_victim_with_a_background_adds_noise_only_on_the_rendered_pixels()
 
 
 def test_robustness_validates_its_fields() -> None:
-    from meshadv.transfer.pipeline import Robustness
+    from meshadv.transfer.robust import Robustness
 
     r = Robustness(eot=4, margin=2.5, pixel_noise=0.01)
     assert r.to_record() == {"eot": 4, "required_margin": 2.5, "pixel_noise": 0.01, "verify_samples": 16,
@@ -210,7 +210,7 @@ def test_robustness_validates_its_fields() -> None:
 def test_composite_puts_the_background_where_alpha_is_zero() -> None:
     import numpy as np
 
-    from meshadv.transfer.pipeline import composite
+    from meshadv.transfer.blackbox import composite
     from meshadv.transfer.render import MitsubaImage
 
     image = np.zeros((4, 4, 3), np.float32)
@@ -230,7 +230,7 @@ def test_estimated_view_spec_is_the_attack_view_with_direct_light_only() -> None
 
     from meshadv.mesh import builtin_mesh
     from meshadv.render import Camera, Lights, ViewSet
-    from meshadv.transfer.pipeline import HiddenScene, estimated_view_spec
+    from meshadv.transfer.blackbox import HiddenScene, estimated_view_spec
 
     camera = Camera.spherical(3.0, 40.0, 10.0, viewing_angle=30.0)
     lights = Lights([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]], [[0.4] * 3, [0.2] * 3], [0.3] * 3)
@@ -248,7 +248,8 @@ def test_estimated_view_spec_is_the_attack_view_with_direct_light_only() -> None
 def test_object_shape_attack_moves_only_the_masked_object() -> None:
     from meshadv.mesh import builtin_mesh
     from meshadv.render import ViewSet
-    from meshadv.transfer.pipeline import _merge_meshes, object_shape_attack
+    from meshadv.transfer.blackbox import _merge_meshes
+    from meshadv.transfer.object_attacks import object_shape_attack
 
     left = builtin_mesh("cube", color=(0.15, 0.15, 0.15))
     left = left.with_vertices(left.vertices * 0.4 + torch.tensor([-0.6, 0.0, 0.0]))
@@ -290,7 +291,8 @@ def test_blackbox_detector_tiny_run(context: str, attack_type: str) -> None:
     """Two known objects (a dark cube 'table' and a sphere); the sphere is attacked so that 'blob' disappears."""
     pytest.importorskip("mitsuba")
     from meshadv.mesh import builtin_mesh
-    from meshadv.transfer.pipeline import HiddenScene, Robustness, blackbox_detector, public_row
+    from meshadv.transfer.blackbox import HiddenScene, blackbox_detector, public_row
+    from meshadv.transfer.robust import Robustness
     from meshadv.transfer.scene import MeshObject, MitsubaLights
 
     cube = builtin_mesh("cube", color=(0.1, 0.1, 0.1))
@@ -440,7 +442,7 @@ def test_occluded_puts_the_photo_back_where_the_mask_is_one() -> None:
 def test_occlusion_mask_marks_what_is_behind_another_object() -> None:
     from meshadv.mesh import builtin_mesh
     from meshadv.render import ViewSet
-    from meshadv.transfer.pipeline import occlusion_mask
+    from meshadv.transfer.blackbox import occlusion_mask
 
     back = builtin_mesh("sphere")
     back = back.with_vertices(back.vertices * 0.5)
@@ -500,7 +502,7 @@ def test_smooth_texture_starts_at_the_original_colours_and_spreads_a_vertex_offs
 def test_smooth_texture_attack_with_a_face_mask_changes_only_those_faces() -> None:
     from meshadv.mesh import builtin_mesh
     from meshadv.render import ViewSet
-    from meshadv.transfer.pipeline import _merge_meshes
+    from meshadv.transfer.blackbox import _merge_meshes
     from meshadv.transfer.smooth_texture import SmoothTextureAttack
 
     left = builtin_mesh("sphere", color=(0.5, 0.5, 0.5))
@@ -535,7 +537,7 @@ def test_estimate_parameters_can_fit_the_lights_on_one_object() -> None:
     pytest.importorskip("mitsuba")
     from meshadv.mesh import builtin_mesh
     from meshadv.render import render
-    from meshadv.transfer.pipeline import HiddenScene, _merge_meshes, estimate_parameters
+    from meshadv.transfer.blackbox import HiddenScene, _merge_meshes, estimate_parameters
     from meshadv.transfer.scene import MeshObject, MitsubaLights
 
     cube = builtin_mesh("cube", color=(0.6, 0.6, 0.6))
@@ -566,7 +568,7 @@ def test_estimate_parameters_can_fit_the_lights_on_one_object() -> None:
 
 def test_cli_light_jitter_scales_only_the_light_entries() -> None:
     from meshadv.commands.transfer import _jitter
-    from meshadv.transfer.pipeline import DEFAULT_JITTER
+    from meshadv.transfer.robust import DEFAULT_JITTER
 
     both = _jitter(2.0)
     assert both == {k: 2.0 * v for k, v in DEFAULT_JITTER.items()}

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, Callable, Optional
 import typer
 
 if TYPE_CHECKING:
-    from meshadv.transfer.pipeline import Robustness
+    from meshadv.transfer.robust import Robustness
 
 __all__ = ["register", "transfer_app"]
 
@@ -143,7 +143,7 @@ def controlled_cmd(
     variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
 ) -> None:
     """Re-render RESULTS' adversarial meshes with Mitsuba under the same views and test the victims (resumable)."""
-    from meshadv.transfer.pipeline import cases_from_store, controlled_transfer
+    from meshadv.transfer.controlled import cases_from_store, controlled_transfer
     from meshadv.transfer.results import load_transfer_rows, save_transfer_rows, transfer_report
 
     if not results.is_file():
@@ -191,7 +191,7 @@ def _attack_kwargs(steps: int, lr: Optional[float], lambda_perceptual: Optional[
 def _jitter(scale: float, light_scale: Optional[float] = None) -> dict:
     """DEFAULT_JITTER with the camera entries times ``scale`` and the light entries times ``light_scale`` (default
     ``scale``)."""
-    from meshadv.transfer.pipeline import DEFAULT_JITTER
+    from meshadv.transfer.robust import DEFAULT_JITTER
 
     if scale < 0:
         raise typer.BadParameter("jitter must be >= 0", param_hint="--jitter")
@@ -202,7 +202,7 @@ def _jitter(scale: float, light_scale: Optional[float] = None) -> dict:
 
 
 def _robustness(eot: int, margin: float, pixel_noise: float, verify: int, seed: int) -> "Robustness":
-    from meshadv.transfer.pipeline import Robustness
+    from meshadv.transfer.robust import Robustness
 
     for value, hint, low in ((eot, "--eot", 1), (margin, "--margin", 0), (pixel_noise, "--pixel-noise", 0),
                              (verify, "--verify", 0)):
@@ -235,7 +235,7 @@ def _save_blackbox(row: dict, db: Optional[Path], out: Optional[Path], experimen
     import numpy as np
     from PIL import Image
 
-    from meshadv.transfer.pipeline import public_row
+    from meshadv.transfer.blackbox import public_row
     from meshadv.transfer.results import save_transfer_rows
 
     public = public_row(row)
@@ -315,7 +315,7 @@ def blackbox_classifier_cmd(
 ) -> None:
     """Black-box pipeline against a classifier: estimate camera + lights from a Mitsuba photo, attack, re-render."""
     from meshadv.commands._common import load_mesh_arg
-    from meshadv.transfer.pipeline import blackbox_classifier
+    from meshadv.transfer.blackbox import blackbox_classifier
     from meshadv.transfer.setups import default_aeroplane, outdoor_classifier_setup
     from meshadv.victims import load_victim
 
@@ -377,7 +377,7 @@ def blackbox_detector_cmd(
     experiment: str = typer.Option("blackbox", help="Name of this run in the database."),
 ) -> None:
     """Black-box pipeline against a detector: the bunny on the indoor desk hides the table (or the chair)."""
-    from meshadv.transfer.pipeline import blackbox_detector
+    from meshadv.transfer.blackbox import blackbox_detector
     from meshadv.transfer.setups import indoor_detector_setup
     from meshadv.victims import load_victim
 

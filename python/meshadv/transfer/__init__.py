@@ -5,7 +5,10 @@
   larger scene file).
 * :mod:`~meshadv.transfer.render` renders in an isolated child process.
 * :mod:`~meshadv.transfer.estimate` estimates camera and lights from an image (needs torch and meshadv.render).
-* :mod:`~meshadv.transfer.pipeline` runs the controlled and black-box transfer evaluations.
+* :mod:`~meshadv.transfer.controlled` re-renders a sweep's adversarial meshes under their own camera and lights.
+* :mod:`~meshadv.transfer.blackbox` runs the black-box pipeline (estimated camera and lights, attack, re-render), with
+  :mod:`~meshadv.transfer.robust` (EOT, margin, pixel noise) and :mod:`~meshadv.transfer.object_attacks` (attacks on
+  one object of a scene).
 
 Importing this package does not import torch or mitsuba.
 """

@@ -1,6 +1,6 @@
 """Making an attack found with *estimated* parameters survive a different renderer and the true parameters.
 
-Two tools of the black-box pipeline (:mod:`meshadv.transfer.pipeline`), both built on the public attack API without
+Tools of the black-box pipeline (:mod:`meshadv.transfer.blackbox`), built on the public attack API without
 changing it:
 
 * :class:`WithMargin` -- a criterion that counts an image as adversarial only when the wrapped criterion holds with a
@@ -17,20 +17,25 @@ changing it:
   enough to undo a texture attack that held with a 3-logit margin, and 0.07 on the indoor bunny).
 * :class:`Occluded` -- puts back the photo's pixels where, in the photo, another object hides the attacked one (the
   attack renders only the attacked object over the photo).
+* :class:`Robustness` -- the settings of a black-box attack that combine these tools, and :data:`DEFAULT_JITTER`, the
+  per-step jitter of the estimated camera and lights.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Any, Dict
+from typing import Any, Callable, Dict, Optional
 
 import torch
 from torch import Tensor
 
 from meshadv.attacks.criteria import Criterion
 
-__all__ = ["NoisyVictim", "Occluded", "WithMargin", "eot_views"]
+__all__ = ["DEFAULT_JITTER", "NoisyVictim", "Occluded", "Robustness", "WithMargin", "eot_views"]
+
+#: Jitter of the estimated camera and lights at every attack step (the paper's step 3).
+DEFAULT_JITTER = {"azimuth": 5.0, "elevation": 5.0, "distance": 0.05, "light_direction": 0.2, "light_intensity": 0.2}
 
 
 @dataclass(frozen=True)
@@ -230,3 +235,109 @@ class Occluded:
 
     def __repr__(self) -> str:
         return f"Occluded({self.victim!r}, {int((self.mask > 0).sum())} pixels)"
+
+
+
+@dataclass(frozen=True)
+class Robustness:
+    """How a black-box attack is made to survive the change of renderer and the error of the estimates.
+
+    The defaults reproduce the plain pipeline (one jittered sample per step, the
+    least distorted success kept, no pixel noise).
+
+    Attributes:
+        eot: jittered samples of the estimated view per Adam step, rendered as one batch (expectation over
+            transformation); success at a step needs all of them. ``>= 1``.
+        margin: margin with which the criterion must hold on every sample of a step for the step to count as a
+            success (:class:`~meshadv.transfer.robust.WithMargin`): logits for classifiers, detection score for
+            detectors. ``>= 0``.
+        pixel_noise: standard deviation of the Gaussian noise added to the rendered object's pixels of every image
+            the victim sees during the attack (:class:`~meshadv.transfer.robust.NoisyVictim`; the photo behind it
+            already has its own noise), ``>= 0`` (0 = none).
+        verify_samples: fresh samples around the estimated view, drawn with :data:`DEFAULT_JITTER` (whatever the
+            attack's jitter), on which the adversarial mesh is re-rendered in meshadv after the attack
+            (``robust_rate_meshadv`` of the result row), ``>= 0`` (0 = skip).
+        seed: seed of the pixel noise and of the verification samples.
+
+    Raises:
+        ValueError: a field out of range, naming it.
+    """
+
+    eot: int = 1
+    margin: float = 0.0
+    pixel_noise: float = 0.0
+    verify_samples: int = 16
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("eot", "verify_samples", "seed"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ValueError(f"{name} must be an int, got {value!r}")
+        if self.eot < 1:
+            raise ValueError(f"eot must be >= 1, got {self.eot}")
+        if self.verify_samples < 0:
+            raise ValueError(f"verify_samples must be >= 0, got {self.verify_samples}")
+        for name in ("margin", "pixel_noise"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value)
+                                                                                       and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+    def to_record(self) -> dict[str, Any]:
+        """The fields as result-row entries (``required_margin`` for ``margin``)."""
+        return {"eot": self.eot, "required_margin": float(self.margin), "pixel_noise": float(self.pixel_noise),
+                "verify_samples": self.verify_samples, "robust_seed": self.seed}
+
+
+def _attack_estimated(attack: Any, mesh: Any, views: Any, victim: Any, criterion: Any,
+                      robustness: Robustness, callback: Optional[Callable[[Any], None]] = None) -> Any:
+    """Run ``attack`` on the estimated ``views`` with the EOT batch, the margin and the pixel noise of
+    ``robustness``."""
+    attack_victim = victim
+    if robustness.pixel_noise > 0:
+        background = attack.background if isinstance(attack.background, torch.Tensor) else None
+        if background is not None and background.dim() != 3:
+            background = None
+        attack_victim = NoisyVictim(victim, robustness.pixel_noise, seed=robustness.seed, background=background)
+    return attack(mesh, eot_views(views, robustness.eot), attack_victim, WithMargin(criterion, robustness.margin),
+                  callback=callback)
+
+
+def _noise_where(attack: Any, robustness: Robustness) -> Optional[str]:
+    """Where :func:`_attack_estimated` puts the pixel noise: ``"rendered pixels"``, ``"whole image"`` or None."""
+    if robustness.pixel_noise == 0:
+        return None
+    background = attack.background
+    return "rendered pixels" if isinstance(background, torch.Tensor) and background.dim() == 3 else "whole image"
+
+
+def _meshadv_margins(attack: Any, mesh: Any, views: Any, victim: Any, bound: Any,
+                     chunk: int = 8) -> tuple[torch.Tensor, Any]:
+    """Margins (V,) of ``bound`` on meshadv's renders of ``mesh`` (the attack's renderer settings, clean victim),
+    and the first image (3, H, W)."""
+    from meshadv.attacks.base import render_views
+
+    margins, first = [], None
+    with torch.no_grad():
+        for start in range(0, len(views), chunk):
+            part = views[start:start + chunk]
+            images, _ = render_views(mesh.vertices[None], mesh.faces, mesh.face_colors[None], part,
+                                     image_size=attack.image_size, background=attack.background,
+                                     antialias=attack.antialias)
+            first = images[0] if first is None else first
+            margins.append(bound.margin(victim(images)))
+    return torch.cat(margins), first
+
+
+def _robust_rate(attack: Any, mesh: Any, views: Any, victim: Any, bound: Any,
+                 robustness: Robustness) -> Optional[float]:
+    """Fraction of ``robustness.verify_samples`` fresh views around the estimated ``views``, drawn with
+    :data:`DEFAULT_JITTER` whatever jitter the attack used (one yardstick for every run), on which ``mesh`` is
+    adversarial in meshadv."""
+    if robustness.verify_samples == 0:
+        return None
+    generator = torch.Generator().manual_seed(robustness.seed + 7919)  # not the attack's samples
+    samples = eot_views(views, robustness.verify_samples).jitter(generator, **DEFAULT_JITTER)
+    margins, _ = _meshadv_margins(attack, mesh, samples, victim, bound)
+    return float((margins > 0).float().mean())

@@ -15,7 +15,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from meshadv.transfer.pipeline import HiddenScene
+from meshadv.transfer.blackbox import HiddenScene
 from meshadv.transfer.scene import MitsubaLights, outdoor_environment
 
 #: The hidden camera of the outdoor setup (degrees; distance in object units): slightly below a flying airliner,
@@ -59,7 +59,7 @@ def outdoor_classifier_setup(
             stands for the distant ground).
 
     Returns:
-        The :class:`~meshadv.transfer.pipeline.HiddenScene`.
+        The :class:`~meshadv.transfer.blackbox.HiddenScene`.
     """
     verts = mesh.vertices.detach().cpu().numpy() if hasattr(mesh.vertices, "detach") else np.asarray(mesh.vertices)
     ground_y = float(verts[:, 1].min()) - 0.02

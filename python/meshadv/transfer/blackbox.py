@@ -1,309 +1,55 @@
-"""Transfer evaluations: adversarial meshes re-rendered with Mitsuba 3 and fed to the victims.
+"""The black-box transfer pipeline: attack a Mitsuba "photo" whose camera and lights are unknown.
 
-* **Controlled parameters** (:func:`controlled_transfer`): every adversarial mesh of a sweep is re-rendered with
-  Mitsuba under the *same* camera and lights it was attacked with (the paper's Table 3 and Fig. 5).
-* **Unknown parameters** (:func:`blackbox_classifier`, :func:`blackbox_detector`), the paper's pipeline: a "photo" is
-  rendered by Mitsuba under hidden parameters; the camera is estimated from the object's mask, the lights from the
-  masked image; the attack runs in meshadv with random jitter of the estimates at every step; the adversarial mesh is
-  re-rendered by Mitsuba under the hidden parameters and tested.
-
-Every Mitsuba render runs in a child process (:mod:`meshadv.transfer.render`), so a crash fails one evaluation, never
-the sweep.
+The paper's pipeline (:func:`blackbox_classifier`, :func:`blackbox_detector`): a "photo" is rendered by Mitsuba
+under hidden parameters (:class:`HiddenScene`); the camera is estimated from the object's mask, the lights from the
+masked image (:func:`estimate_parameters`); the attack runs in meshadv with random jitter of the estimates at every
+step (:mod:`meshadv.transfer.robust`); the adversarial mesh is re-rendered by Mitsuba under the hidden parameters and
+tested. Every Mitsuba render runs in a child process (:mod:`meshadv.transfer.render`).
 """
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Any, Callable, Optional, Sequence, Union
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 import torch
 
-from meshadv.transfer.render import MitsubaImage, MitsubaRenderError, render_mask, render_scenes
+from meshadv.transfer.controlled import _images_tensor, _top1_names
+from meshadv.transfer.object_attacks import (
+    _check_smoothing,
+    _texture_attack,
+    object_shape_attack,
+    object_texture_attack,
+)
+from meshadv.transfer.render import MitsubaImage, render_mask, render_scenes
+from meshadv.transfer.robust import (
+    DEFAULT_JITTER,
+    Occluded,
+    Robustness,
+    _attack_estimated,
+    _meshadv_margins,
+    _noise_where,
+    _robust_rate,
+)
 from meshadv.transfer.scene import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
+
+__all__ = [
+    "Estimation",
+    "HiddenScene",
+    "blackbox_classifier",
+    "blackbox_detector",
+    "composite",
+    "detection_scores",
+    "estimate_parameters",
+    "estimated_view_spec",
+    "occlusion_mask",
+    "public_row",
+]
 
 #: A one-triangle stand-in used where a scene spec needs a mesh that is then dropped.
 _PLACEHOLDER_MESH = MeshObject(np.eye(3, dtype=np.float32), np.array([[0, 1, 2]]), np.ones((1, 3), np.float32))
-
-#: Jitter of the estimated camera and lights at every attack step (the paper's step 3).
-DEFAULT_JITTER = {"azimuth": 5.0, "elevation": 5.0, "distance": 0.05, "light_direction": 0.2, "light_intensity": 0.2}
-
-
-@dataclass(frozen=True)
-class TransferCase:
-    """One adversarial mesh to transfer, with the views it was attacked under.
-
-    Attributes:
-        case_id: identifier (the sweep job id, or any string).
-        mesh: the adversarial ``meshadv.mesh.Mesh``.
-        views: ``ViewSet.to_records()`` records of the views (camera + lights).
-        victim: victim name (``meshadv.victims.load_victim``).
-        true_class: the class of the benign object (PASCAL3D+ name or ImageNet spec).
-        target: the target class of a targeted attack, or None for an untargeted one.
-        attack_type: ``"shape"`` or ``"texture"``.
-        image_size: (H, W) of the renders.
-        background: RGB background of the renders.
-        benign_correct: whether the victim classified the benign render correctly (from the sweep), if known.
-        antialias: meshadv's supersampling factor for the reference render (the attack's own, so that
-            ``success_meshadv`` is the attack's success).
-    """
-
-    case_id: str
-    mesh: Any
-    views: tuple[dict[str, Any], ...]
-    victim: str
-    true_class: str
-    target: Optional[str] = None
-    attack_type: str = ""
-    image_size: tuple[int, int] = (224, 224)
-    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    benign_correct: Optional[bool] = None
-    antialias: int = 1
-
-    def __post_init__(self) -> None:
-        if not self.views:
-            raise ValueError("views must hold at least one view record")
-        object.__setattr__(self, "views", tuple(self.views))
-        size = self.image_size
-        size = (int(size), int(size)) if isinstance(size, (int, float)) else (int(size[0]), int(size[1]))
-        object.__setattr__(self, "image_size", size)
-
-
-def cases_from_store(
-    db_path: Union[str, Path], *, limit: Optional[int] = None, only_successful: bool = True
-) -> list[TransferCase]:
-    """Collect the adversarial meshes of a finished sweep (single-view attack jobs) as transfer cases.
-
-    Reads the ``jobs`` table of the sweep database (``meshadv.experiments.ResultStore``); for each done job, the
-    adversarial mesh ``adversarial.ply`` and the views of its ``result.json`` in the job's folder.
-
-    Args:
-        db_path: the sweep's ``results.db``.
-        limit: at most this many cases.
-        only_successful: keep only attacks that succeeded in meshadv (as the paper does).
-
-    Returns:
-        The cases, in database order.
-
-    Raises:
-        FileNotFoundError: ``db_path`` does not exist.
-    """
-    from meshadv.experiments import ResultStore
-    from meshadv.mesh import load_mesh
-
-    if not Path(db_path).is_file():
-        raise FileNotFoundError(f"db_path {db_path} does not exist")
-    cases: list[TransferCase] = []
-    with ResultStore(db_path) as store:
-        rows = store.rows("done")
-    for row in rows:
-        spec, record = row.spec, row.record or {}
-        if spec.get("kind", "single") != "single" or record.get("skipped") or not row.out_dir:
-            continue
-        if only_successful and not record.get("success"):
-            continue
-        out = Path(row.out_dir)
-        result_path = out / "result.json"
-        if not result_path.is_file():
-            continue
-        result = json.loads(result_path.read_text())
-        meshes = result.get("meshes") or [["adversarial.ply", "adversarial.obj"]]
-        mesh_path = out / meshes[0][0]
-        if not mesh_path.is_file() or not result.get("views"):
-            continue
-        target = spec.get("target")
-        if target in ("", "untargeted", None):
-            target = None
-        size = result.get("config", {}).get("image_size") or spec.get("image_size") or 224
-        cases.append(
-            TransferCase(
-                case_id=row.job_id,
-                mesh=load_mesh(mesh_path),
-                views=tuple(result["views"]),
-                victim=str(spec.get("victim", result.get("victim"))),
-                true_class=str(spec.get("source_class", spec.get("mesh", {}).get("class", ""))),
-                target=None if target is None else str(target),
-                attack_type=str(spec.get("perturbation", result.get("perturbation", ""))),
-                image_size=tuple(size) if isinstance(size, (list, tuple)) else (int(size), int(size)),
-                benign_correct=None if record.get("benign_correct") is None else bool(record["benign_correct"]),
-                antialias=int(result.get("config", {}).get("antialias") or 1),
-            )
-        )
-        if limit is not None and len(cases) >= limit:
-            break
-    return cases
-
-
-def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int = 8, seed: int = 0) -> list[SceneSpec]:
-    """One Mitsuba scene per view of ``case``: same camera, lights, image size and background."""
-    obj = MeshObject.from_mesh(case.mesh)
-    return [
-        SceneSpec(
-            objects=(obj,),
-            camera=MitsubaCamera.from_record(rec),
-            lights=MitsubaLights.from_record(rec),
-            image_size=case.image_size,
-            spp=spp,
-            max_depth=max_depth,
-            background=case.background,
-            seed=seed + i,
-        )
-        for i, rec in enumerate(case.views)
-    ]
-
-
-def _images_tensor(images: Sequence[MitsubaImage]) -> torch.Tensor:
-    return torch.from_numpy(np.stack([im.chw() for im in images])).float()
-
-
-def _criteria(case: TransferCase, victim: Any) -> tuple[Any, Optional[Any]]:
-    from meshadv.attacks import Misclassification, TargetedMisclassification
-
-    untargeted = Misclassification(case.true_class).bind(victim)
-    targeted = TargetedMisclassification(case.target).bind(victim) if case.target else None
-    return untargeted, targeted
-
-
-def _top1_names(victim: Any, logits: torch.Tensor) -> list[str]:
-    names = list(getattr(victim, "class_names", []) or [])
-    top = logits.argmax(dim=1).tolist()
-    return [names[i] if i < len(names) else str(i) for i in top]
-
-
-def evaluate_case(
-    case: TransferCase,
-    victim: Any,
-    mitsuba_images: Sequence[MitsubaImage],
-) -> list[dict[str, Any]]:
-    """Evaluate one case on its meshadv renders and its Mitsuba renders (classifier victims).
-
-    Returns:
-        One row per view with ``success_meshadv`` / ``success_mitsuba`` (targeted when the case has a target, else
-        untargeted), ``untargeted_meshadv`` / ``untargeted_mitsuba``, the top-1 labels and the Mitsuba variant.
-    """
-    from meshadv.render import ViewSet, render
-
-    views = ViewSet.from_records(list(case.views))
-    mesh = case.mesh
-    with torch.no_grad():
-        ours = render(mesh.vertices, mesh.faces, mesh.face_colors, views.camera, views.lights, case.image_size,
-                      background=case.background, antialias=case.antialias).image
-        theirs = _images_tensor(mitsuba_images)
-        logits_ours, logits_theirs = victim(ours), victim(theirs)
-    untargeted, targeted = _criteria(case, victim)
-    un_ours = untargeted.is_adversarial(logits_ours).tolist()
-    un_theirs = untargeted.is_adversarial(logits_theirs).tolist()
-    if targeted is not None:
-        t_ours = targeted.is_adversarial(logits_ours).tolist()
-        t_theirs = targeted.is_adversarial(logits_theirs).tolist()
-    else:
-        t_ours, t_theirs = un_ours, un_theirs
-    top_ours, top_theirs = _top1_names(victim, logits_ours), _top1_names(victim, logits_theirs)
-    diff = (ours - theirs).abs().mean(dim=(1, 2, 3)).tolist()
-    rows = []
-    for v in range(len(case.views)):
-        rows.append(
-            {
-                "case_id": case.case_id,
-                "victim": case.victim,
-                "true_class": case.true_class,
-                "target": case.target or "",
-                "attack_type": case.attack_type,
-                "view": v,
-                "success_meshadv": bool(t_ours[v]),
-                "success_mitsuba": bool(t_theirs[v]),
-                "untargeted_meshadv": bool(un_ours[v]),
-                "untargeted_mitsuba": bool(un_theirs[v]),
-                "top1_meshadv": top_ours[v],
-                "top1_mitsuba": top_theirs[v],
-                "mean_abs_image_difference": float(diff[v]),
-                "variant": mitsuba_images[v].variant,
-                "benign_correct": case.benign_correct,
-            }
-        )
-    return rows
-
-
-def controlled_transfer(
-    cases: Sequence[TransferCase],
-    *,
-    spp: int = 64,
-    max_depth: int = 8,
-    variant: Optional[str] = None,
-    timeout: float = 1800.0,
-    victim_loader: Optional[Callable[[str], Any]] = None,
-    image_dir: Optional[Union[str, Path]] = None,
-    on_error: str = "record",
-) -> list[dict[str, Any]]:
-    """Re-render each case with Mitsuba under its own camera and lights and test the victims (Table 3 / Fig. 5).
-
-    Args:
-        cases: the adversarial meshes (see :func:`cases_from_store`).
-        spp: Mitsuba samples per pixel.
-        max_depth: path depth (>= 3 adds interreflection; 2 is direct light with shadows only).
-        variant: Mitsuba variant (default: the best that works).
-        timeout: seconds per case.
-        victim_loader: ``name -> victim`` (default ``meshadv.victims.load_victim``); victims are loaded once.
-        image_dir: when given, Mitsuba renders are saved there as ``<case_id>_v<view>.png``.
-        on_error: ``"record"`` keeps going and records a row with an ``error`` for a failed render; ``"raise"``
-            re-raises.
-
-    Returns:
-        One row per (case, view) (see :func:`evaluate_case`); failed renders give rows with ``error`` and no success.
-
-    Raises:
-        ValueError: unknown ``on_error``.
-        MitsubaRenderError: a render failed and ``on_error == "raise"``.
-    """
-    if on_error not in ("record", "raise"):
-        raise ValueError(f"on_error must be 'record' or 'raise', got {on_error!r}")
-    if victim_loader is None:
-        from meshadv.victims import load_victim
-
-        victim_loader = load_victim
-    victims: dict[str, Any] = {}
-    rows: list[dict[str, Any]] = []
-    for case in cases:
-        try:
-            images = render_scenes(mitsuba_specs_for_case(case, spp=spp, max_depth=max_depth), variant=variant,
-                                   timeout=timeout)
-        except MitsubaRenderError as exc:
-            if on_error == "raise":
-                raise
-            rows.extend(
-                {"case_id": case.case_id, "victim": case.victim, "true_class": case.true_class,
-                 "target": case.target or "", "attack_type": case.attack_type, "view": v,
-                 "success_meshadv": None, "success_mitsuba": None, "error": str(exc)}
-                for v in range(len(case.views))
-            )
-            continue
-        if case.victim not in victims:
-            victims[case.victim] = victim_loader(case.victim)
-        rows.extend(evaluate_case(case, victims[case.victim], images))
-        if image_dir is not None:
-            save_images(images, Path(image_dir), case.case_id)
-    return rows
-
-
-def save_images(images: Sequence[MitsubaImage], out_dir: Path, stem: str) -> list[Path]:
-    """Save Mitsuba renders as 8-bit PNGs ``<stem>_v<i>.png`` (linear values, as meshadv's images)."""
-    from PIL import Image
-
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for i, im in enumerate(images):
-        path = out_dir / f"{stem}_v{i}.png"
-        Image.fromarray(np.round(im.image * 255).astype(np.uint8)).save(path)
-        paths.append(path)
-    return paths
-
-
-# ----------------------------------------------------------------------------------------------------------------------
-# Unknown parameters: the black-box pipeline
-# ----------------------------------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -489,59 +235,6 @@ def _background_image(hidden: HiddenScene, exclude: Sequence[str], variant: Opti
     spec = replace(spec, objects=(), base_exclude=tuple(hidden.base_exclude) + tuple(exclude))
     return torch.from_numpy(render_scenes([spec], variant=variant, timeout=timeout)[0].chw())
 
-
-@dataclass(frozen=True)
-class Robustness:
-    """How a black-box attack is made to survive the change of renderer and the error of the estimates.
-
-    See :mod:`meshadv.transfer.robust`. The defaults reproduce the plain pipeline (one jittered sample per step, the
-    least distorted success kept, no pixel noise).
-
-    Attributes:
-        eot: jittered samples of the estimated view per Adam step, rendered as one batch (expectation over
-            transformation); success at a step needs all of them. ``>= 1``.
-        margin: margin with which the criterion must hold on every sample of a step for the step to count as a
-            success (:class:`~meshadv.transfer.robust.WithMargin`): logits for classifiers, detection score for
-            detectors. ``>= 0``.
-        pixel_noise: standard deviation of the Gaussian noise added to the rendered object's pixels of every image
-            the victim sees during the attack (:class:`~meshadv.transfer.robust.NoisyVictim`; the photo behind it
-            already has its own noise), ``>= 0`` (0 = none).
-        verify_samples: fresh samples around the estimated view, drawn with :data:`DEFAULT_JITTER` (whatever the
-            attack's jitter), on which the adversarial mesh is re-rendered in meshadv after the attack
-            (``robust_rate_meshadv`` of the result row), ``>= 0`` (0 = skip).
-        seed: seed of the pixel noise and of the verification samples.
-
-    Raises:
-        ValueError: a field out of range, naming it.
-    """
-
-    eot: int = 1
-    margin: float = 0.0
-    pixel_noise: float = 0.0
-    verify_samples: int = 16
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ("eot", "verify_samples", "seed"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ValueError(f"{name} must be an int, got {value!r}")
-        if self.eot < 1:
-            raise ValueError(f"eot must be >= 1, got {self.eot}")
-        if self.verify_samples < 0:
-            raise ValueError(f"verify_samples must be >= 0, got {self.verify_samples}")
-        for name in ("margin", "pixel_noise"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value)
-                                                                                       and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-
-    def to_record(self) -> dict[str, Any]:
-        """The fields as result-row entries (``required_margin`` for ``margin``)."""
-        return {"eot": self.eot, "required_margin": float(self.margin), "pixel_noise": float(self.pixel_noise),
-                "verify_samples": self.verify_samples, "robust_seed": self.seed}
-
-
 def estimated_view_spec(mesh: Any, record: dict[str, Any], hidden: HiddenScene, *, seed: int = 0) -> SceneSpec:
     """Mitsuba's scene of what the attack optimised: ``mesh`` under the *estimated* camera and lights.
 
@@ -584,62 +277,6 @@ def composite(image: MitsubaImage, background: torch.Tensor) -> torch.Tensor:
     return (rgb + (1.0 - alpha) * background.to(rgb.dtype)).clamp(0.0, 1.0)
 
 
-def _attack_estimated(attack: Any, mesh: Any, est: "Estimation", victim: Any, criterion: Any,
-                      robustness: Robustness, callback: Optional[Callable[[Any], None]] = None) -> Any:
-    """Run ``attack`` on the estimated view with the EOT batch, the margin and the pixel noise of ``robustness``."""
-    from meshadv.transfer.robust import NoisyVictim, WithMargin, eot_views
-
-    attack_victim = victim
-    if robustness.pixel_noise > 0:
-        background = attack.background if isinstance(attack.background, torch.Tensor) else None
-        if background is not None and background.dim() != 3:
-            background = None
-        attack_victim = NoisyVictim(victim, robustness.pixel_noise, seed=robustness.seed, background=background)
-    return attack(mesh, eot_views(est.views, robustness.eot), attack_victim, WithMargin(criterion, robustness.margin),
-                  callback=callback)
-
-
-def _noise_where(attack: Any, robustness: Robustness) -> Optional[str]:
-    """Where :func:`_attack_estimated` puts the pixel noise: ``"rendered pixels"``, ``"whole image"`` or None."""
-    if robustness.pixel_noise == 0:
-        return None
-    background = attack.background
-    return "rendered pixels" if isinstance(background, torch.Tensor) and background.dim() == 3 else "whole image"
-
-
-def _meshadv_margins(attack: Any, mesh: Any, views: Any, victim: Any, bound: Any,
-                     chunk: int = 8) -> tuple[torch.Tensor, Any]:
-    """Margins (V,) of ``bound`` on meshadv's renders of ``mesh`` (the attack's renderer settings, clean victim),
-    and the first image (3, H, W)."""
-    from meshadv.attacks.base import render_views
-
-    margins, first = [], None
-    with torch.no_grad():
-        for start in range(0, len(views), chunk):
-            part = views[start:start + chunk]
-            images, _ = render_views(mesh.vertices[None], mesh.faces, mesh.face_colors[None], part,
-                                     image_size=attack.image_size, background=attack.background,
-                                     antialias=attack.antialias)
-            first = images[0] if first is None else first
-            margins.append(bound.margin(victim(images)))
-    return torch.cat(margins), first
-
-
-def _robust_rate(attack: Any, mesh: Any, est: "Estimation", victim: Any, bound: Any,
-                 robustness: Robustness) -> Optional[float]:
-    """Fraction of ``robustness.verify_samples`` fresh views around the estimate, drawn with
-    :data:`DEFAULT_JITTER` whatever jitter the attack used (one yardstick for every run), on which ``mesh`` is
-    adversarial in meshadv."""
-    from meshadv.transfer.robust import eot_views
-
-    if robustness.verify_samples == 0:
-        return None
-    generator = torch.Generator().manual_seed(robustness.seed + 7919)  # not the attack's samples
-    views = eot_views(est.views, robustness.verify_samples).jitter(generator, **DEFAULT_JITTER)
-    margins, _ = _meshadv_margins(attack, mesh, views, victim, bound)
-    return float((margins > 0).float().mean())
-
-
 def _attack_record(attack: Any, result: Any) -> dict[str, Any]:
     """Hyper-parameters and cost of the attack, as result-row entries."""
     config = attack.config()
@@ -648,25 +285,6 @@ def _attack_record(attack: Any, result: Any) -> dict[str, Any]:
                   attack_time=float(result.wall_time))
     record.update({k: float(v) for k, v in result.distances[0].items()})
     return record
-
-
-def _check_smoothing(texture_smoothing: Optional[int], attack_type: str) -> None:
-    if texture_smoothing is None:
-        return
-    if attack_type != "texture":
-        raise ValueError("texture_smoothing applies to texture attacks only (attack_type='texture')")
-    if isinstance(texture_smoothing, bool) or not isinstance(texture_smoothing, int) or texture_smoothing < 0:
-        raise ValueError(f"texture_smoothing must be None or an int >= 0, got {texture_smoothing!r}")
-
-
-def _texture_attack(smoothing: Optional[int], face_mask: Optional[torch.Tensor], kwargs: dict[str, Any]) -> Any:
-    """The paper's per-face texture attack (``smoothing`` None) or the smoothed per-vertex one."""
-    from meshadv.attacks import TextureAttack
-    from meshadv.transfer.smooth_texture import SmoothTextureAttack
-
-    if smoothing is None:
-        return TextureAttack(**kwargs)
-    return SmoothTextureAttack(smoothing=smoothing, face_mask=face_mask, **kwargs)
 
 
 def _hwc(image: torch.Tensor) -> np.ndarray:
@@ -708,8 +326,10 @@ def blackbox_classifier(
         target: target class (None = untargeted).
         attack_type: ``"shape"`` or ``"texture"``.
         attack_kwargs: keyword arguments of the attack (steps, lr, antialias, ...).
-        jitter: per-step jitter of the estimates (default :data:`DEFAULT_JITTER`; ``{}`` = none).
-        robustness: EOT samples, required margin, pixel noise (default :class:`Robustness()`, the plain pipeline).
+        jitter: per-step jitter of the estimates (default :data:`~meshadv.transfer.robust.DEFAULT_JITTER`; ``{}`` =
+            none).
+        robustness: EOT samples, required margin, pixel noise (default
+            :class:`~meshadv.transfer.robust.Robustness` ``()``, the plain pipeline).
         texture_smoothing: ``None`` for the paper's per-face texture; an int ``k >= 0`` for a smoothed per-vertex
             colour field (:class:`~meshadv.transfer.smooth_texture.SmoothTextureAttack`, ``k`` rounds), for meshes
             with many faces per pixel. Texture attacks only.
@@ -726,9 +346,9 @@ def blackbox_classifier(
         mesh on the estimated view, meshadv's render with the attack's settings, clean victim, margin 0),
         ``success_mitsuba_estimated`` (Mitsuba, estimated camera and lights), ``success_mitsuba`` (Mitsuba, hidden
         parameters), the matching ``margin_*`` (logits, > 0 = adversarial) and ``top1_*``, ``robust_rate_meshadv``
-        (fresh views around the estimate, :data:`DEFAULT_JITTER`), ``benign_correct_mitsuba``, the attack's
-        settings and distortion. Private entries: ``_images`` (name -> (H, W, 3) image), ``_adversarial_mesh``,
-        ``_result`` (the AttackResult).
+        (fresh views around the estimate, :data:`~meshadv.transfer.robust.DEFAULT_JITTER`),
+        ``benign_correct_mitsuba``, the attack's settings and distortion. Private entries: ``_images`` (name ->
+        (H, W, 3) image), ``_adversarial_mesh``, ``_result`` (the AttackResult).
 
     Raises:
         ValueError: unknown ``attack_type``, or ``texture_smoothing`` given for a shape attack or negative.
@@ -749,13 +369,13 @@ def blackbox_classifier(
     kwargs.setdefault("jitter", jitter or None)
     attack = ShapeAttack(**kwargs) if attack_type == "shape" else _texture_attack(texture_smoothing, None, kwargs)
     criterion = TargetedMisclassification(target) if target else Misclassification(true_class)
-    result = _attack_estimated(attack, mesh, est, victim, criterion, robustness, callback)
+    result = _attack_estimated(attack, mesh, est.views, victim, criterion, robustness, callback)
     adversarial = result.mesh
     bound = criterion.bind(victim)
     ours_margin, ours_image = _meshadv_margins(attack, adversarial, est.views, victim, bound)
     with torch.no_grad():
         ours_top1 = _top1_names(victim, victim(ours_image[None]))[0]
-    robust_rate = _robust_rate(attack, adversarial, est, victim, bound, robustness)
+    robust_rate = _robust_rate(attack, adversarial, est.views, victim, bound, robustness)
     record = est.views.to_records()[0]
     images = render_scenes([hidden.spec(mesh), hidden.spec(adversarial),
                             estimated_view_spec(adversarial, record, hidden)], variant=variant, timeout=timeout)
@@ -888,8 +508,9 @@ def blackbox_detector(
             stands); ``"known"``: on every known object (one lighting for the whole scene).
         background_exclude: base-scene shapes to drop for the background render (the known objects; ``"render"``).
         attack_kwargs: keyword arguments of the attack.
-        jitter: per-step jitter (default :data:`DEFAULT_JITTER`; ``{}`` = none).
-        robustness: EOT samples, required margin (score units), pixel noise (default :class:`Robustness()`).
+        jitter: per-step jitter (default :data:`~meshadv.transfer.robust.DEFAULT_JITTER`; ``{}`` = none).
+        robustness: EOT samples, required margin (score units), pixel noise (default
+            :class:`~meshadv.transfer.robust.Robustness` ``()``).
         texture_smoothing: ``None`` for the paper's per-face texture; an int ``k >= 0`` for a smoothed per-vertex
             colour field (:class:`~meshadv.transfer.smooth_texture.SmoothTextureAttack`, ``k`` rounds), for meshes
             with many faces per pixel. Texture attacks only.
@@ -914,7 +535,6 @@ def blackbox_detector(
             ``score_threshold``, or ``texture_smoothing`` given for a shape attack or negative.
     """
     from meshadv.attacks import Disappearance, ShapeAttack
-    from meshadv.transfer.robust import Occluded
 
     objects = list(scene_objects)
     if not 0 <= object_index < len(objects):
@@ -968,7 +588,7 @@ def blackbox_detector(
             vertex_mask[start:stop] = True
             attack = object_shape_attack(vertex_mask, **kwargs)
     criterion = Disappearance(hide_class, threshold=score_threshold)
-    result = _attack_estimated(attack, attacked, est, seen_victim, criterion, robustness, callback)
+    result = _attack_estimated(attack, attacked, est.views, seen_victim, criterion, robustness, callback)
     if attack_type == "texture":
         adversarial = target_obj.with_face_colors(result.mesh.face_colors.detach()[start:stop].clone())
     else:
@@ -979,7 +599,7 @@ def blackbox_detector(
         seen = _merge_meshes([adversarial if i == object_index else o for i, o in enumerate(objects)])
     bound = criterion.bind(victim)
     ours_margin, ours_image = _meshadv_margins(attack, seen, est.views, seen_victim, bound)
-    robust_rate = _robust_rate(attack, seen, est, seen_victim, bound, robustness)
+    robust_rate = _robust_rate(attack, seen, est.views, seen_victim, bound, robustness)
     record = est.views.to_records()[0]
     images = render_scenes([hidden.spec(target_obj), hidden.spec(adversarial),
                             estimated_view_spec(seen, record, hidden)], variant=variant, timeout=timeout)
@@ -1023,73 +643,6 @@ def blackbox_detector(
     return row
 
 
-def object_texture_attack(face_mask: torch.Tensor, **kwargs: Any) -> Any:
-    """A :class:`meshadv.attacks.TextureAttack` that changes only the faces in ``face_mask`` (one object of a scene).
-
-    Args:
-        face_mask: bool (M,) faces whose colours may change.
-        **kwargs: the attack's hyper-parameters.
-
-    Raises:
-        ValueError: ``face_mask`` is not a non-empty 1-D bool tensor.
-    """
-    from meshadv.attacks import TextureAttack
-    from meshadv.attacks.distances import color_rmse
-
-    if not isinstance(face_mask, torch.Tensor) or face_mask.dtype != torch.bool or face_mask.dim() != 1:
-        raise ValueError("face_mask must be a 1-D bool tensor")
-    if not bool(face_mask.any()):
-        raise ValueError("face_mask selects no face")
-
-    class _ObjectTextureAttack(TextureAttack):
-        def _apply(self, params: torch.Tensor, mesh: Any, edges: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-            verts, colors = super()._apply(params, mesh, edges)
-            fixed = mesh.face_colors.unsqueeze(0).expand_as(colors)
-            return verts, torch.where(face_mask[None, :, None], colors, fixed)
-
-        def _distance(self, params: torch.Tensor, mesh: Any, edges: torch.Tensor) -> torch.Tensor:
-            colors = torch.sigmoid(params)[:, face_mask]
-            return color_rmse(colors, mesh.face_colors[face_mask])
-
-    return _ObjectTextureAttack(**kwargs)
-
-
-def object_shape_attack(vertex_mask: torch.Tensor, **kwargs: Any) -> Any:
-    """A :class:`meshadv.attacks.ShapeAttack` that moves only the vertices in ``vertex_mask`` (one object of a scene).
-
-    The parameters of the other vertices are multiplied by zero before the attack's parametrisation (smoothing,
-    clamp) is applied, so they get no gradient and stay at zero; the objects of a merged scene share no edge, so
-    neither the smoothing nor the Laplacian loss crosses from one object to another.
-
-    Args:
-        vertex_mask: bool (N,) vertices that may move.
-        **kwargs: the attack's hyper-parameters (:class:`~meshadv.attacks.ShapeAttack`).
-
-    Raises:
-        ValueError: ``vertex_mask`` is not a non-empty 1-D bool tensor.
-    """
-    from meshadv.attacks import ShapeAttack
-
-    if not isinstance(vertex_mask, torch.Tensor) or vertex_mask.dtype != torch.bool or vertex_mask.dim() != 1:
-        raise ValueError("vertex_mask must be a 1-D bool tensor")
-    if not bool(vertex_mask.any()):
-        raise ValueError("vertex_mask selects no vertex")
-    keep = vertex_mask[None, :, None].float()
-
-    class _ObjectShapeAttack(ShapeAttack):
-        def _apply(self, params: torch.Tensor, mesh: Any, edges: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-            return super()._apply(params * keep, mesh, edges)
-
-        def _perceptual(self, params: torch.Tensor, mesh: Any, edges: torch.Tensor, images: torch.Tensor,
-                        alpha: torch.Tensor, num_views: int) -> torch.Tensor:
-            return super()._perceptual(params * keep, mesh, edges, images, alpha, num_views)
-
-        def _distance(self, params: torch.Tensor, mesh: Any, edges: torch.Tensor) -> torch.Tensor:
-            return super()._distance(params * keep, mesh, edges)
-
-    return _ObjectShapeAttack(**kwargs)
-
-
 def detection_scores(victim: Any, images: torch.Tensor, class_name: str) -> list[float]:
     """Best score of ``class_name`` among a detector's outputs, per image (0 when absent).
 
@@ -1111,27 +664,3 @@ def public_row(row: dict[str, Any]) -> dict[str, Any]:
             continue
         out[k] = None if isinstance(v, float) and math.isnan(v) else v
     return out
-
-
-__all__ = [
-    "DEFAULT_JITTER",
-    "Estimation",
-    "HiddenScene",
-    "Robustness",
-    "TransferCase",
-    "blackbox_classifier",
-    "blackbox_detector",
-    "cases_from_store",
-    "composite",
-    "controlled_transfer",
-    "detection_scores",
-    "estimate_parameters",
-    "estimated_view_spec",
-    "evaluate_case",
-    "mitsuba_specs_for_case",
-    "object_shape_attack",
-    "object_texture_attack",
-    "occlusion_mask",
-    "public_row",
-    "save_images",
-]

@@ -1,0 +1,297 @@
+"""Controlled-parameter transfer: re-render a sweep's adversarial meshes with Mitsuba 3 and test the victims.
+
+Every adversarial mesh is re-rendered under the *same* camera and lights it was attacked with (the paper's Table 3
+and Fig. 5). Every Mitsuba render runs in a child process (:mod:`meshadv.transfer.render`), so a crash fails one
+evaluation, never the sweep.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Optional, Sequence, Union
+
+import numpy as np
+import torch
+
+from meshadv.transfer.render import MitsubaImage, MitsubaRenderError, render_scenes
+from meshadv.transfer.scene import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
+
+__all__ = [
+    "TransferCase",
+    "cases_from_store",
+    "controlled_transfer",
+    "evaluate_case",
+    "mitsuba_specs_for_case",
+    "save_images",
+]
+
+
+@dataclass(frozen=True)
+class TransferCase:
+    """One adversarial mesh to transfer, with the views it was attacked under.
+
+    Attributes:
+        case_id: identifier (the sweep job id, or any string).
+        mesh: the adversarial ``meshadv.mesh.Mesh``.
+        views: ``ViewSet.to_records()`` records of the views (camera + lights).
+        victim: victim name (``meshadv.victims.load_victim``).
+        true_class: the class of the benign object (PASCAL3D+ name or ImageNet spec).
+        target: the target class of a targeted attack, or None for an untargeted one.
+        attack_type: ``"shape"`` or ``"texture"``.
+        image_size: (H, W) of the renders.
+        background: RGB background of the renders.
+        benign_correct: whether the victim classified the benign render correctly (from the sweep), if known.
+        antialias: meshadv's supersampling factor for the reference render (the attack's own, so that
+            ``success_meshadv`` is the attack's success).
+    """
+
+    case_id: str
+    mesh: Any
+    views: tuple[dict[str, Any], ...]
+    victim: str
+    true_class: str
+    target: Optional[str] = None
+    attack_type: str = ""
+    image_size: tuple[int, int] = (224, 224)
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    benign_correct: Optional[bool] = None
+    antialias: int = 1
+
+    def __post_init__(self) -> None:
+        if not self.views:
+            raise ValueError("views must hold at least one view record")
+        object.__setattr__(self, "views", tuple(self.views))
+        size = self.image_size
+        size = (int(size), int(size)) if isinstance(size, (int, float)) else (int(size[0]), int(size[1]))
+        object.__setattr__(self, "image_size", size)
+
+
+def cases_from_store(
+    db_path: Union[str, Path], *, limit: Optional[int] = None, only_successful: bool = True
+) -> list[TransferCase]:
+    """Collect the adversarial meshes of a finished sweep (single-view attack jobs) as transfer cases.
+
+    Reads the ``jobs`` table of the sweep database (``meshadv.experiments.ResultStore``); for each done job, the
+    adversarial mesh ``adversarial.ply`` and the views of its ``result.json`` in the job's folder.
+
+    Args:
+        db_path: the sweep's ``results.db``.
+        limit: at most this many cases.
+        only_successful: keep only attacks that succeeded in meshadv (as the paper does).
+
+    Returns:
+        The cases, in database order.
+
+    Raises:
+        FileNotFoundError: ``db_path`` does not exist.
+    """
+    from meshadv.experiments import ResultStore
+    from meshadv.mesh import load_mesh
+
+    if not Path(db_path).is_file():
+        raise FileNotFoundError(f"db_path {db_path} does not exist")
+    cases: list[TransferCase] = []
+    with ResultStore(db_path) as store:
+        rows = store.rows("done")
+    for row in rows:
+        spec, record = row.spec, row.record or {}
+        if spec.get("kind", "single") != "single" or record.get("skipped") or not row.out_dir:
+            continue
+        if only_successful and not record.get("success"):
+            continue
+        out = Path(row.out_dir)
+        result_path = out / "result.json"
+        if not result_path.is_file():
+            continue
+        result = json.loads(result_path.read_text())
+        meshes = result.get("meshes") or [["adversarial.ply", "adversarial.obj"]]
+        mesh_path = out / meshes[0][0]
+        if not mesh_path.is_file() or not result.get("views"):
+            continue
+        target = spec.get("target")
+        if target in ("", "untargeted", None):
+            target = None
+        size = result.get("config", {}).get("image_size") or spec.get("image_size") or 224
+        cases.append(
+            TransferCase(
+                case_id=row.job_id,
+                mesh=load_mesh(mesh_path),
+                views=tuple(result["views"]),
+                victim=str(spec.get("victim", result.get("victim"))),
+                true_class=str(spec.get("source_class", spec.get("mesh", {}).get("class", ""))),
+                target=None if target is None else str(target),
+                attack_type=str(spec.get("perturbation", result.get("perturbation", ""))),
+                image_size=tuple(size) if isinstance(size, (list, tuple)) else (int(size), int(size)),
+                benign_correct=None if record.get("benign_correct") is None else bool(record["benign_correct"]),
+                antialias=int(result.get("config", {}).get("antialias") or 1),
+            )
+        )
+        if limit is not None and len(cases) >= limit:
+            break
+    return cases
+
+
+def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int = 8, seed: int = 0) -> list[SceneSpec]:
+    """One Mitsuba scene per view of ``case``: same camera, lights, image size and background."""
+    obj = MeshObject.from_mesh(case.mesh)
+    return [
+        SceneSpec(
+            objects=(obj,),
+            camera=MitsubaCamera.from_record(rec),
+            lights=MitsubaLights.from_record(rec),
+            image_size=case.image_size,
+            spp=spp,
+            max_depth=max_depth,
+            background=case.background,
+            seed=seed + i,
+        )
+        for i, rec in enumerate(case.views)
+    ]
+
+
+def _images_tensor(images: Sequence[MitsubaImage]) -> torch.Tensor:
+    return torch.from_numpy(np.stack([im.chw() for im in images])).float()
+
+
+def _criteria(case: TransferCase, victim: Any) -> tuple[Any, Optional[Any]]:
+    from meshadv.attacks import Misclassification, TargetedMisclassification
+
+    untargeted = Misclassification(case.true_class).bind(victim)
+    targeted = TargetedMisclassification(case.target).bind(victim) if case.target else None
+    return untargeted, targeted
+
+
+def _top1_names(victim: Any, logits: torch.Tensor) -> list[str]:
+    names = list(getattr(victim, "class_names", []) or [])
+    top = logits.argmax(dim=1).tolist()
+    return [names[i] if i < len(names) else str(i) for i in top]
+
+
+def evaluate_case(
+    case: TransferCase,
+    victim: Any,
+    mitsuba_images: Sequence[MitsubaImage],
+) -> list[dict[str, Any]]:
+    """Evaluate one case on its meshadv renders and its Mitsuba renders (classifier victims).
+
+    Returns:
+        One row per view with ``success_meshadv`` / ``success_mitsuba`` (targeted when the case has a target, else
+        untargeted), ``untargeted_meshadv`` / ``untargeted_mitsuba``, the top-1 labels and the Mitsuba variant.
+    """
+    from meshadv.render import ViewSet, render
+
+    views = ViewSet.from_records(list(case.views))
+    mesh = case.mesh
+    with torch.no_grad():
+        ours = render(mesh.vertices, mesh.faces, mesh.face_colors, views.camera, views.lights, case.image_size,
+                      background=case.background, antialias=case.antialias).image
+        theirs = _images_tensor(mitsuba_images)
+        logits_ours, logits_theirs = victim(ours), victim(theirs)
+    untargeted, targeted = _criteria(case, victim)
+    un_ours = untargeted.is_adversarial(logits_ours).tolist()
+    un_theirs = untargeted.is_adversarial(logits_theirs).tolist()
+    if targeted is not None:
+        t_ours = targeted.is_adversarial(logits_ours).tolist()
+        t_theirs = targeted.is_adversarial(logits_theirs).tolist()
+    else:
+        t_ours, t_theirs = un_ours, un_theirs
+    top_ours, top_theirs = _top1_names(victim, logits_ours), _top1_names(victim, logits_theirs)
+    diff = (ours - theirs).abs().mean(dim=(1, 2, 3)).tolist()
+    rows = []
+    for v in range(len(case.views)):
+        rows.append(
+            {
+                "case_id": case.case_id,
+                "victim": case.victim,
+                "true_class": case.true_class,
+                "target": case.target or "",
+                "attack_type": case.attack_type,
+                "view": v,
+                "success_meshadv": bool(t_ours[v]),
+                "success_mitsuba": bool(t_theirs[v]),
+                "untargeted_meshadv": bool(un_ours[v]),
+                "untargeted_mitsuba": bool(un_theirs[v]),
+                "top1_meshadv": top_ours[v],
+                "top1_mitsuba": top_theirs[v],
+                "mean_abs_image_difference": float(diff[v]),
+                "variant": mitsuba_images[v].variant,
+                "benign_correct": case.benign_correct,
+            }
+        )
+    return rows
+
+
+def controlled_transfer(
+    cases: Sequence[TransferCase],
+    *,
+    spp: int = 64,
+    max_depth: int = 8,
+    variant: Optional[str] = None,
+    timeout: float = 1800.0,
+    victim_loader: Optional[Callable[[str], Any]] = None,
+    image_dir: Optional[Union[str, Path]] = None,
+    on_error: str = "record",
+) -> list[dict[str, Any]]:
+    """Re-render each case with Mitsuba under its own camera and lights and test the victims (Table 3 / Fig. 5).
+
+    Args:
+        cases: the adversarial meshes (see :func:`cases_from_store`).
+        spp: Mitsuba samples per pixel.
+        max_depth: path depth (>= 3 adds interreflection; 2 is direct light with shadows only).
+        variant: Mitsuba variant (default: the best that works).
+        timeout: seconds per case.
+        victim_loader: ``name -> victim`` (default ``meshadv.victims.load_victim``); victims are loaded once.
+        image_dir: when given, Mitsuba renders are saved there as ``<case_id>_v<view>.png``.
+        on_error: ``"record"`` keeps going and records a row with an ``error`` for a failed render; ``"raise"``
+            re-raises.
+
+    Returns:
+        One row per (case, view) (see :func:`evaluate_case`); failed renders give rows with ``error`` and no success.
+
+    Raises:
+        ValueError: unknown ``on_error``.
+        MitsubaRenderError: a render failed and ``on_error == "raise"``.
+    """
+    if on_error not in ("record", "raise"):
+        raise ValueError(f"on_error must be 'record' or 'raise', got {on_error!r}")
+    if victim_loader is None:
+        from meshadv.victims import load_victim
+
+        victim_loader = load_victim
+    victims: dict[str, Any] = {}
+    rows: list[dict[str, Any]] = []
+    for case in cases:
+        try:
+            images = render_scenes(mitsuba_specs_for_case(case, spp=spp, max_depth=max_depth), variant=variant,
+                                   timeout=timeout)
+        except MitsubaRenderError as exc:
+            if on_error == "raise":
+                raise
+            rows.extend(
+                {"case_id": case.case_id, "victim": case.victim, "true_class": case.true_class,
+                 "target": case.target or "", "attack_type": case.attack_type, "view": v,
+                 "success_meshadv": None, "success_mitsuba": None, "error": str(exc)}
+                for v in range(len(case.views))
+            )
+            continue
+        if case.victim not in victims:
+            victims[case.victim] = victim_loader(case.victim)
+        rows.extend(evaluate_case(case, victims[case.victim], images))
+        if image_dir is not None:
+            save_images(images, Path(image_dir), case.case_id)
+    return rows
+
+
+def save_images(images: Sequence[MitsubaImage], out_dir: Path, stem: str) -> list[Path]:
+    """Save Mitsuba renders as 8-bit PNGs ``<stem>_v<i>.png`` (linear values, as meshadv's images)."""
+    from PIL import Image
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i, im in enumerate(images):
+        path = out_dir / f"{stem}_v{i}.png"
+        Image.fromarray(np.round(im.image * 255).astype(np.uint8)).save(path)
+        paths.append(path)
+    return paths
