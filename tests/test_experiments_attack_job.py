@@ -59,3 +59,31 @@ def test_attack_job_sweep_and_report(tmp_path: Path) -> None:
                      "curvature_efficientnet_lite0.png"}
     for path in rep.figures:
         assert np.asarray(Image.open(path).convert("L")).std() > 1.0
+
+
+def test_attack_job_required_margin_wraps_the_criterion(tmp_path: Path) -> None:
+    import json
+
+    from meshadv.experiments.jobs import run_attack_job
+
+    try:
+        from meshadv.victims import load_victim
+
+        load_victim("efficientnet_lite0")
+    except (ImportError, ValueError, OSError) as err:
+        pytest.skip(f"victim efficientnet_lite0 unavailable: {err}")
+    spec = next(j for j in expand_jobs(parse_config(TINY)) if j["perturbation"] == "texture")
+    records = {}
+    for margin in (0.0, 1000.0):
+        out = tmp_path / f"m{margin:g}"
+        out.mkdir()
+        job = {**spec, "attack": {**spec["attack"], "steps": 2, "required_margin": margin}}
+        records[margin] = (run_attack_job(job, out), json.loads((out / "result.json").read_text()))
+    plain, plain_json = records[0.0]
+    strict, strict_json = records[1000.0]
+    assert "required_margin" not in plain_json["criteria"][0]
+    assert strict_json["criteria"][0]["required_margin"] == 1000.0
+    assert strict_json["criteria"][0]["criterion"] == "WithMargin(TargetedMisclassification)"
+    assert strict["success"] is False  # no render leads its runner-up by 1000 logits
+    margins = np.asarray(strict_json["margins"][0])
+    assert (margins < 0).all() and (margins < np.asarray(plain_json["margins"][0])).all()

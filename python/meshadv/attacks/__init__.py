@@ -13,7 +13,13 @@ Several targets are attacked together as a batch by passing a list of criteria.
 from __future__ import annotations
 
 from meshadv.attacks.base import MeshAttack, StepInfo
-from meshadv.attacks.criteria import Criterion, Disappearance, Misclassification, TargetedMisclassification
+from meshadv.attacks.criteria import (
+    Criterion,
+    Disappearance,
+    Misclassification,
+    TargetedMisclassification,
+    WithMargin,
+)
 from meshadv.attacks.distances import color_rmse, displacement_stats, laplacian_distance, mesh_distances
 from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import (
@@ -39,6 +45,7 @@ __all__ = [
     "TargetedMisclassification",
     "Misclassification",
     "Disappearance",
+    "WithMargin",
     "AttackResult",
     "load_result_record",
     "LambdaSearch",

@@ -20,6 +20,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar, Dict, Optional, Sequence, Tuple, Union
@@ -35,6 +36,7 @@ __all__ = [
     "TargetedMisclassification",
     "Misclassification",
     "Disappearance",
+    "WithMargin",
     "resolve_imagenet_classes",
 ]
 
@@ -328,3 +330,68 @@ class Disappearance(Criterion):
         """JSON-able description."""
         return {**super().to_record(), "class_name": self.class_name, "threshold": float(self.threshold),
                 "indices": None if self.indices is None else list(self.indices)}
+
+
+@dataclass(frozen=True)
+class WithMargin(Criterion):
+    """``base`` with a confidence margin: adversarial when ``base.margin(output) > required``.
+
+    The loss is ``base``'s (so the attack keeps pushing past the margin with ``loss="ce"``; with ``loss="cw"`` give
+    ``kappa >= required``), the score is ``base``'s.
+
+    Args:
+        base: the criterion to strengthen (any :class:`~meshadv.attacks.criteria.Criterion`).
+        required: the margin it must hold with, ``>= 0`` (0 = ``base`` itself). Classifier criteria measure their
+            margin in logits (best target logit minus best other logit), :class:`~meshadv.attacks.Disappearance` in
+            detection score (``threshold - best score``).
+
+    Raises:
+        ValueError: ``base`` is not a criterion, or ``required`` is negative or not finite.
+
+    Example:
+        >>> from meshadv.attacks import Misclassification
+        >>> crit = WithMargin(Misclassification("aeroplane"), 3.0)
+        >>> crit.label
+        'untargeted(true=aeroplane)+margin3'
+    """
+
+    base: Criterion
+    required: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.base, Criterion):
+            raise ValueError(f"base must be a Criterion, got {type(self.base).__name__}")
+        if not (isinstance(self.required, (int, float)) and math.isfinite(self.required) and self.required >= 0):
+            raise ValueError(f"required must be a finite number >= 0, got {self.required!r}")
+        object.__setattr__(self, "required", float(self.required))
+
+    @property
+    def victim_kind(self) -> str:  # type: ignore[override]
+        """The wrapped criterion's victim kind."""
+        return self.base.victim_kind
+
+    def bind(self, victim: Any) -> "WithMargin":
+        """Bind the wrapped criterion to ``victim`` (see :meth:`Criterion.bind`)."""
+        return replace(self, base=self.base.bind(victim))
+
+    def loss(self, output: Any, *, loss: str = "ce", kappa: float = 0.0) -> Tensor:
+        """The wrapped criterion's loss."""
+        return self.base.loss(output, loss=loss, kappa=kappa)
+
+    def margin(self, output: Any) -> Tensor:
+        """``base.margin(output) - required``."""
+        return self.base.margin(output) - self.required
+
+    def score(self, output: Any) -> Tensor:
+        """The wrapped criterion's score."""
+        return self.base.score(output)
+
+    @property
+    def label(self) -> str:
+        """``"<base label>+margin<required>"``."""
+        return f"{self.base.label}+margin{self.required:g}"
+
+    def to_record(self) -> Dict[str, Any]:
+        """JSON-able description: the wrapped criterion's record plus ``required_margin``."""
+        return {**self.base.to_record(), "criterion": f"WithMargin({type(self.base).__name__})",
+                "label": self.label, "required_margin": self.required}

@@ -4,7 +4,9 @@
 :func:`meshadv.experiments.config.expand_jobs`), checks that the benign render is classified as the mesh's class (the
 paper attacks correctly classified inputs; otherwise the job is recorded as ``skipped``), runs
 :class:`~meshadv.attacks.ShapeAttack` or :class:`~meshadv.attacks.TextureAttack` towards
-``TargetedMisclassification(target)`` over the spec's views (and evaluates on the unseen views of a multi-view job),
+``TargetedMisclassification(target)`` over the spec's views (and evaluates on the unseen views of a multi-view job;
+the attack option ``required_margin`` > 0 wraps the criterion in :class:`~meshadv.attacks.WithMargin`, so success
+means the target leads by that many logits and the kept mesh is the least distorted one that does),
 and writes into ``out_dir``: ``benign.ply``, ``benign_v{j}.png`` and everything :meth:`AttackResult.save` writes
 (``result.json`` last, so artefacts are complete before the runner records the job).
 
@@ -109,7 +111,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     """
     import torch
 
-    from meshadv.attacks import ShapeAttack, TargetedMisclassification, TextureAttack
+    from meshadv.attacks import Criterion, ShapeAttack, TargetedMisclassification, TextureAttack, WithMargin
     from meshadv.attacks.result import save_png
     from meshadv.mesh import save_mesh
     from meshadv.render import ViewSet
@@ -143,9 +145,14 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         record.update(skipped=True, success=False, distance=None, steps=0, time=time.perf_counter() - start,
                       reason=f"benign render classified as {benign_top1}, not {spec['source_class']}")
         return record
-    kwargs = {"image_size": size, "seed": int(spec.get("seed", 0)), **spec.get("attack", {})}
+    options = dict(spec.get("attack", {}))
+    required_margin = float(options.pop("required_margin", 0.0))
+    kwargs = {"image_size": size, "seed": int(spec.get("seed", 0)), **options}
     attack = ShapeAttack(**kwargs) if ptype == "shape" else TextureAttack(**kwargs)
-    result = attack(mesh, views, victim, TargetedMisclassification(spec["target"]), eval_views=eval_views)
+    criterion: Criterion = TargetedMisclassification(spec["target"])
+    if required_margin > 0:
+        criterion = WithMargin(criterion, required_margin)
+    result = attack(mesh, views, victim, criterion, eval_views=eval_views)
     result.save(out)
     distances = dict(result.distances[0])
     ply, obj = result.mesh_filenames(0)

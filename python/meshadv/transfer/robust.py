@@ -3,7 +3,8 @@
 Tools of the black-box pipeline (:mod:`meshadv.transfer.blackbox`), built on the public attack API without
 changing it:
 
-* :class:`WithMargin` -- a criterion that counts an image as adversarial only when the wrapped criterion holds with a
+* :class:`~meshadv.attacks.WithMargin` (defined with the other criteria in :mod:`meshadv.attacks.criteria`,
+  re-exported here) -- a criterion that counts an image as adversarial only when the wrapped criterion holds with a
   margin ``required`` (logit units for classifiers, score units for detectors). The attacks keep the *least
   distorted* successful step, which with a plain criterion is the first, borderline one (a logit margin of ~0.5),
   and a borderline success does not survive anti-aliasing, Monte-Carlo noise or a slightly different light. With
@@ -24,83 +25,18 @@ changing it:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from typing import Any, Callable, Dict, Optional
+from dataclasses import dataclass
+from typing import Any, Callable, Optional
 
 import torch
 from torch import Tensor
 
-from meshadv.attacks.criteria import Criterion
+from meshadv.attacks.criteria import WithMargin
 
 __all__ = ["DEFAULT_JITTER", "NoisyVictim", "Occluded", "Robustness", "WithMargin", "eot_views"]
 
 #: Jitter of the estimated camera and lights at every attack step (the paper's step 3).
 DEFAULT_JITTER = {"azimuth": 5.0, "elevation": 5.0, "distance": 0.05, "light_direction": 0.2, "light_intensity": 0.2}
-
-
-@dataclass(frozen=True)
-class WithMargin(Criterion):
-    """``base`` with a confidence margin: adversarial when ``base.margin(output) > required``.
-
-    The loss is ``base``'s (so the attack keeps pushing past the margin with ``loss="ce"``; with ``loss="cw"`` give
-    ``kappa >= required``), the score is ``base``'s.
-
-    Args:
-        base: the criterion to strengthen (any :class:`~meshadv.attacks.criteria.Criterion`).
-        required: the margin it must hold with, ``>= 0`` (0 = ``base`` itself). Classifier criteria measure their
-            margin in logits (best target logit minus best other logit), :class:`~meshadv.attacks.Disappearance` in
-            detection score (``threshold - best score``).
-
-    Raises:
-        ValueError: ``base`` is not a criterion, or ``required`` is negative or not finite.
-
-    Example:
-        >>> from meshadv.attacks import Misclassification
-        >>> crit = WithMargin(Misclassification("aeroplane"), 3.0)
-        >>> crit.label
-        'untargeted(true=aeroplane)+margin3'
-    """
-
-    base: Criterion
-    required: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.base, Criterion):
-            raise ValueError(f"base must be a Criterion, got {type(self.base).__name__}")
-        if not (isinstance(self.required, (int, float)) and math.isfinite(self.required) and self.required >= 0):
-            raise ValueError(f"required must be a finite number >= 0, got {self.required!r}")
-        object.__setattr__(self, "required", float(self.required))
-
-    @property
-    def victim_kind(self) -> str:  # type: ignore[override]
-        """The wrapped criterion's victim kind."""
-        return self.base.victim_kind
-
-    def bind(self, victim: Any) -> "WithMargin":
-        """Bind the wrapped criterion to ``victim`` (see :meth:`Criterion.bind`)."""
-        return replace(self, base=self.base.bind(victim))
-
-    def loss(self, output: Any, *, loss: str = "ce", kappa: float = 0.0) -> Tensor:
-        """The wrapped criterion's loss."""
-        return self.base.loss(output, loss=loss, kappa=kappa)
-
-    def margin(self, output: Any) -> Tensor:
-        """``base.margin(output) - required``."""
-        return self.base.margin(output) - self.required
-
-    def score(self, output: Any) -> Tensor:
-        """The wrapped criterion's score."""
-        return self.base.score(output)
-
-    @property
-    def label(self) -> str:
-        """``"<base label>+margin<required>"``."""
-        return f"{self.base.label}+margin{self.required:g}"
-
-    def to_record(self) -> Dict[str, Any]:
-        """JSON-able description: the wrapped criterion's record plus ``required_margin``."""
-        return {**self.base.to_record(), "criterion": f"WithMargin({type(self.base).__name__})",
-                "label": self.label, "required_margin": self.required}
 
 
 def eot_views(views: Any, samples: int) -> Any:
@@ -249,7 +185,7 @@ class Robustness:
         eot: jittered samples of the estimated view per Adam step, rendered as one batch (expectation over
             transformation); success at a step needs all of them. ``>= 1``.
         margin: margin with which the criterion must hold on every sample of a step for the step to count as a
-            success (:class:`~meshadv.transfer.robust.WithMargin`): logits for classifiers, detection score for
+            success (:class:`~meshadv.attacks.WithMargin`): logits for classifiers, detection score for
             detectors. ``>= 0``.
         pixel_noise: standard deviation of the Gaussian noise added to the rendered object's pixels of every image
             the victim sees during the attack (:class:`~meshadv.transfer.robust.NoisyVictim`; the photo behind it
