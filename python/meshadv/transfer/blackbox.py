@@ -291,6 +291,23 @@ def _hwc(image: torch.Tensor) -> np.ndarray:
     return image.detach().permute(1, 2, 0).cpu().numpy()
 
 
+def _finish_row(row: dict[str, Any], attack: Any, result: Any, robustness: Robustness, est: Estimation,
+                images: Sequence[MitsubaImage], estimated_image: torch.Tensor, ours_image: torch.Tensor,
+                adversarial: Any) -> dict[str, Any]:
+    """Add what every black-box row shares to ``row``: robustness and attack settings, estimation errors, and the
+    private ``_images`` (Mitsuba benign / adversarial / adversarial under the estimates, meshadv's render),
+    ``_adversarial_mesh`` and ``_result`` entries; returns ``row``."""
+    row.update(robustness.to_record())
+    row["pixel_noise_on"] = _noise_where(attack, robustness)
+    row.update(_attack_record(attack, result))
+    row.update({k: float(v) for k, v in est.errors.items()})
+    row["_images"] = {"benign_mitsuba": images[0].image, "adversarial_mitsuba": images[1].image,
+                      "adversarial_mitsuba_estimated": _hwc(estimated_image), "adversarial_meshadv": _hwc(ours_image)}
+    row["_adversarial_mesh"] = adversarial
+    row["_result"] = result
+    return row
+
+
 def blackbox_classifier(
     mesh: Any,
     hidden: HiddenScene,
@@ -410,15 +427,7 @@ def blackbox_classifier(
         "spp": hidden.spp,
         "variant": images[0].variant,
     }
-    row.update(robustness.to_record())
-    row["pixel_noise_on"] = _noise_where(attack, robustness)
-    row.update(_attack_record(attack, result))
-    row.update({k: float(v) for k, v in est.errors.items()})
-    row["_images"] = {"benign_mitsuba": images[0].image, "adversarial_mitsuba": images[1].image,
-                      "adversarial_mitsuba_estimated": _hwc(estimated_image), "adversarial_meshadv": _hwc(ours_image)}
-    row["_adversarial_mesh"] = adversarial
-    row["_result"] = result
-    return row
+    return _finish_row(row, attack, result, robustness, est, images, estimated_image, ours_image, adversarial)
 
 
 def occlusion_mask(objects: Sequence[Any], index: int, views: Any, image_size: Any) -> torch.Tensor:
@@ -632,15 +641,7 @@ def blackbox_detector(
         "spp": hidden.spp,
         "variant": images[0].variant,
     }
-    row.update(robustness.to_record())
-    row["pixel_noise_on"] = _noise_where(attack, robustness)
-    row.update(_attack_record(attack, result))
-    row.update({k: float(v) for k, v in est.errors.items()})
-    row["_images"] = {"benign_mitsuba": images[0].image, "adversarial_mitsuba": images[1].image,
-                      "adversarial_mitsuba_estimated": _hwc(estimated_image), "adversarial_meshadv": _hwc(ours_image)}
-    row["_adversarial_mesh"] = adversarial
-    row["_result"] = result
-    return row
+    return _finish_row(row, attack, result, robustness, est, images, estimated_image, ours_image, adversarial)
 
 
 def detection_scores(victim: Any, images: torch.Tensor, class_name: str) -> list[float]:
