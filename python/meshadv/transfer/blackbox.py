@@ -118,7 +118,8 @@ class Estimation:
         errors: camera errors (``azimuth_error``, ``elevation_error`` in degrees, ``distance_error`` relative), the
             masked RMSE of meshadv's re-render under the estimates vs the photo (``light_rmse``), the mask IoU
             (``mask_iou``) and, when the true lights are directional, ``direction_error`` etc.
-        photo: (3, H, W) the Mitsuba photo; mask: (H, W) the object's mask.
+        photo: (3, H, W) the Mitsuba photo (the benign object under the hidden parameters; the pipelines score
+            it as the benign render); mask: (H, W) the object's mask.
     """
 
     views: Any
@@ -292,16 +293,17 @@ def _hwc(image: torch.Tensor) -> np.ndarray:
 
 
 def _finish_row(row: dict[str, Any], attack: Any, result: Any, robustness: Robustness, est: Estimation,
-                images: Sequence[MitsubaImage], estimated_image: torch.Tensor, ours_image: torch.Tensor,
+                adversarial_render: MitsubaImage, estimated_image: torch.Tensor, ours_image: torch.Tensor,
                 adversarial: Any) -> dict[str, Any]:
     """Add what every black-box row shares to ``row``: robustness and attack settings, estimation errors, and the
-    private ``_images`` (Mitsuba benign / adversarial / adversarial under the estimates, meshadv's render),
-    ``_adversarial_mesh`` and ``_result`` entries; returns ``row``."""
+    private ``_images`` (Mitsuba benign = the estimation's photo / adversarial under the hidden parameters /
+    adversarial under the estimates, meshadv's render), ``_adversarial_mesh`` and ``_result`` entries; returns
+    ``row``."""
     row.update(robustness.to_record())
     row["pixel_noise_on"] = _noise_where(attack, robustness)
     row.update(_attack_record(attack, result))
     row.update({k: float(v) for k, v in est.errors.items()})
-    row["_images"] = {"benign_mitsuba": images[0].image, "adversarial_mitsuba": images[1].image,
+    row["_images"] = {"benign_mitsuba": _hwc(est.photo), "adversarial_mitsuba": adversarial_render.image,
                       "adversarial_mitsuba_estimated": _hwc(estimated_image), "adversarial_meshadv": _hwc(ours_image)}
     row["_adversarial_mesh"] = adversarial
     row["_result"] = result
@@ -394,11 +396,12 @@ def blackbox_classifier(
         ours_top1 = _top1_names(victim, victim(ours_image[None]))[0]
     robust_rate = _robust_rate(attack, adversarial, est.views, victim, bound, robustness)
     record = est.views.to_records()[0]
-    images = render_scenes([hidden.spec(mesh), hidden.spec(adversarial),
-                            estimated_view_spec(adversarial, record, hidden)], variant=variant, timeout=timeout)
-    estimated_image = composite(images[2], background)
+    # the benign render under the hidden parameters is the photo the estimation was made from
+    images = render_scenes([hidden.spec(adversarial), estimated_view_spec(adversarial, record, hidden)],
+                           variant=variant, timeout=timeout)
+    estimated_image = composite(images[1], background)
     with torch.no_grad():
-        logits = victim(torch.cat([_images_tensor(images[:2]), estimated_image[None]]))
+        logits = victim(torch.cat([est.photo[None], _images_tensor(images[:1]), estimated_image[None]]))
     margins = bound.margin(logits).tolist()
     bound_untargeted = Misclassification(true_class).bind(victim)
     names = _top1_names(victim, logits)
@@ -427,7 +430,7 @@ def blackbox_classifier(
         "spp": hidden.spp,
         "variant": images[0].variant,
     }
-    return _finish_row(row, attack, result, robustness, est, images, estimated_image, ours_image, adversarial)
+    return _finish_row(row, attack, result, robustness, est, images[0], estimated_image, ours_image, adversarial)
 
 
 def occlusion_mask(objects: Sequence[Any], index: int, views: Any, image_size: Any) -> torch.Tensor:
@@ -610,13 +613,15 @@ def blackbox_detector(
     ours_margin, ours_image = _meshadv_margins(attack, seen, est.views, seen_victim, bound)
     robust_rate = _robust_rate(attack, seen, est.views, seen_victim, bound, robustness)
     record = est.views.to_records()[0]
-    images = render_scenes([hidden.spec(target_obj), hidden.spec(adversarial),
-                            estimated_view_spec(seen, record, hidden)], variant=variant, timeout=timeout)
-    estimated_image = composite(images[2], background)
+    # the benign render under the hidden parameters is the photo the estimation was made from
+    images = render_scenes([hidden.spec(adversarial), estimated_view_spec(seen, record, hidden)], variant=variant,
+                           timeout=timeout)
+    estimated_image = composite(images[1], background)
     if occluded is not None:
         estimated_image = estimated_image * (1.0 - occluded) + est.photo * occluded
         ours_image = ours_image * (1.0 - occluded) + est.photo * occluded
-    scores = detection_scores(victim, torch.cat([_images_tensor(images[:2]), estimated_image[None]]), hide_class)
+    scores = detection_scores(victim, torch.cat([est.photo[None], _images_tensor(images[:1]), estimated_image[None]]),
+                              hide_class)
     row: dict[str, Any] = {
         "case_id": case_id,
         "victim": getattr(victim, "name", type(victim).__name__),
@@ -641,7 +646,7 @@ def blackbox_detector(
         "spp": hidden.spp,
         "variant": images[0].variant,
     }
-    return _finish_row(row, attack, result, robustness, est, images, estimated_image, ours_image, adversarial)
+    return _finish_row(row, attack, result, robustness, est, images[0], estimated_image, ours_image, adversarial)
 
 
 def detection_scores(victim: Any, images: torch.Tensor, class_name: str) -> list[float]:

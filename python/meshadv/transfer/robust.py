@@ -226,16 +226,21 @@ class Robustness:
                 "verify_samples": self.verify_samples, "robust_seed": self.seed}
 
 
+def _photo_background(attack: Any) -> Optional[Tensor]:
+    """The attack's background when it is a ``(3, H, W)`` photo (the pixel noise then goes on rendered pixels
+    only), else ``None`` (a plain colour: the noise goes everywhere)."""
+    background = attack.background
+    return background if isinstance(background, Tensor) and background.dim() == 3 else None
+
+
 def _attack_estimated(attack: Any, mesh: Any, views: Any, victim: Any, criterion: Any,
                       robustness: Robustness, callback: Optional[Callable[[Any], None]] = None) -> Any:
     """Run ``attack`` on the estimated ``views`` with the EOT batch, the margin and the pixel noise of
     ``robustness``."""
     attack_victim = victim
     if robustness.pixel_noise > 0:
-        background = attack.background if isinstance(attack.background, torch.Tensor) else None
-        if background is not None and background.dim() != 3:
-            background = None
-        attack_victim = NoisyVictim(victim, robustness.pixel_noise, seed=robustness.seed, background=background)
+        attack_victim = NoisyVictim(victim, robustness.pixel_noise, seed=robustness.seed,
+                                    background=_photo_background(attack))
     return attack(mesh, eot_views(views, robustness.eot), attack_victim, WithMargin(criterion, robustness.margin),
                   callback=callback)
 
@@ -244,8 +249,7 @@ def _noise_where(attack: Any, robustness: Robustness) -> Optional[str]:
     """Where :func:`_attack_estimated` puts the pixel noise: ``"rendered pixels"``, ``"whole image"`` or None."""
     if robustness.pixel_noise == 0:
         return None
-    background = attack.background
-    return "rendered pixels" if isinstance(background, torch.Tensor) and background.dim() == 3 else "whole image"
+    return "rendered pixels" if _photo_background(attack) is not None else "whole image"
 
 
 def _meshadv_margins(attack: Any, mesh: Any, views: Any, victim: Any, bound: Any,
