@@ -244,17 +244,23 @@ def test_estimated_view_spec_is_the_attack_view_with_direct_light_only() -> None
     np.testing.assert_allclose(spec.lights.ambient, [0.3] * 3)
 
 
+def _side_by_side(name: str, color: tuple, *, scale: float, half_gap: float) -> tuple:
+    """Two copies of a builtin mesh, scaled and centred at x = -half_gap and +half_gap, and their merged mesh."""
+    from meshadv.mesh import builtin_mesh
+    from meshadv.transfer.blackbox import _merge_meshes
+
+    left = builtin_mesh(name, color=color)
+    left = left.with_vertices(left.vertices * scale + torch.tensor([-half_gap, 0.0, 0.0]))
+    right = left.with_vertices(left.vertices + torch.tensor([2 * half_gap, 0.0, 0.0]))
+    return left, right, _merge_meshes([left, right])
+
+
 @needs_native
 def test_object_shape_attack_moves_only_the_masked_object() -> None:
-    from meshadv.mesh import builtin_mesh
     from meshadv.render import ViewSet
-    from meshadv.transfer.blackbox import _merge_meshes
     from meshadv.transfer.object_attacks import object_shape_attack
 
-    left = builtin_mesh("cube", color=(0.15, 0.15, 0.15))
-    left = left.with_vertices(left.vertices * 0.4 + torch.tensor([-0.6, 0.0, 0.0]))
-    right = left.with_vertices(left.vertices + torch.tensor([1.2, 0.0, 0.0]))
-    merged = _merge_meshes([left, right])
+    left, right, merged = _side_by_side("cube", (0.15, 0.15, 0.15), scale=0.4, half_gap=0.6)
     mask = torch.zeros(merged.num_vertices, dtype=torch.bool)
     mask[8:] = True  # the right cube
     attack = object_shape_attack(mask, steps=15, lr=0.02, lambda_perceptual=0.0, image_size=64)
@@ -500,15 +506,10 @@ def test_smooth_texture_starts_at_the_original_colours_and_spreads_a_vertex_offs
 
 @needs_native
 def test_smooth_texture_attack_with_a_face_mask_changes_only_those_faces() -> None:
-    from meshadv.mesh import builtin_mesh
     from meshadv.render import ViewSet
-    from meshadv.transfer.blackbox import _merge_meshes
     from meshadv.transfer.smooth_texture import SmoothTextureAttack
 
-    left = builtin_mesh("sphere", color=(0.5, 0.5, 0.5))
-    left = left.with_vertices(left.vertices * 0.45 + torch.tensor([-0.5, 0.0, 0.0]))
-    right = left.with_vertices(left.vertices + torch.tensor([1.0, 0.0, 0.0]))
-    merged = _merge_meshes([left, right])
+    left, right, merged = _side_by_side("sphere", (0.5, 0.5, 0.5), scale=0.45, half_gap=0.5)
     mask = torch.zeros(merged.num_faces, dtype=torch.bool)
     mask[left.num_faces:] = True
     views = ViewSet.orbit([0.0], elevation=10.0, distance=3.5)
