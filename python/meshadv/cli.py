@@ -31,6 +31,7 @@ SUBCOMMANDS: Dict[str, str] = {
     "report": "report:report",
     "transfer": "transfer:transfer",
     "rendering-set": "rendering_set:build",
+    "study": "study:register",
 }
 
 
