@@ -129,7 +129,7 @@ def print_convergence(records: List[Dict[str, Any]], budgets: List[int]) -> None
             f"{sum(1 for run in ok if run['steps_to_success'] <= b)}/{len(runs)}" for b in budgets
         )
         steps = ", ".join("-" if run["steps_to_success"] is None else str(run["steps_to_success"]) for run in runs)
-        lap = _median([run["distances"]["laplacian"] for run in ok])
+        lap = _median([run["distances"]["laplacian_sum"] for run in ok])
         dmax = _median([run["distances"]["max_displacement"] for run in ok])
         dmean = _median([run["distances"]["mean_displacement"] for run in ok])
         print(f"| {r['mesh']} | {r['smoothing']} | {r['lr']:g} | {counts} | {steps} | {_fmt(lap, '.3g')} | "

@@ -16,7 +16,7 @@ from meshadv.attacks.criteria import (
     TargetedMisclassification,
     resolve_imagenet_classes,
 )
-from meshadv.attacks.distances import color_rmse, displacement_stats, mesh_distances
+from meshadv.attacks.distances import color_rmse, displacement_stats, laplacian_pair_mean, mesh_distances
 from meshadv.attacks.search import LambdaSearch
 
 # Two triangles sharing the edge (0, 2): neighbours N(0)={1,2,3}, N(1)={0,2}, N(2)={0,1,3}, N(3)={0,2}.
@@ -143,7 +143,12 @@ def test_distances_by_hand() -> None:
     assert float(stats["max_displacement"]) == pytest.approx(1.0 / 5.0)
     assert float(stats["mean_displacement"]) == pytest.approx(0.25 / 5.0)
     d = mesh_distances(verts, torch.zeros(2, 3), verts + dv, adv, vertex_edges(QUAD_FACES))
-    assert d["laplacian"] == pytest.approx(_hand_laplacian(dv))
+    assert d["laplacian_sum"] == pytest.approx(_hand_laplacian(dv))
+    num_edges = vertex_edges(QUAD_FACES).shape[0]
+    assert d["num_edges"] == num_edges == 5
+    assert d["laplacian_pair_mean"] == pytest.approx(_hand_laplacian(dv) / (2 * num_edges))
+    assert float(laplacian_pair_mean(dv, vertex_edges(QUAD_FACES))) == pytest.approx(d["laplacian_pair_mean"])
+    assert d["color_rmse_per_channel"] == pytest.approx(math.sqrt(0.125 / 3))
     assert d["color_rmse"] == pytest.approx(math.sqrt(0.125))
 
 

@@ -43,7 +43,7 @@ def test_attack_job_sweep_and_report(tmp_path: Path) -> None:
     for row in store.rows():
         rec = row.record
         assert isinstance(rec["success"], bool) and rec["steps"] >= 1 and rec["time"] > 0
-        key = "laplacian" if row.spec["perturbation"] == "shape" else "color_rmse"
+        key = "laplacian_pair_mean" if row.spec["perturbation"] == "shape" else "color_rmse"
         assert rec["distance"] == pytest.approx(rec["distances"][key])
         assert rec["distance"] >= 0.0
         if row.spec["perturbation"] == "shape":  # the Laplacian is zero exactly when nothing moved

@@ -132,7 +132,8 @@ def test_tiny_sweep_commands_tables_and_figures(tmp_path: Path) -> None:
     for name in ("table1.md", "table1.csv", "table2.md", "table2.csv", "settings.json", "README.md"):
         assert (out / name).is_file(), name
     table1 = (out / "table1.md").read_text()
-    assert "| v1 | shape | laplacian |" in table1 and "| v1 | texture | color_rmse |" in table1
+    assert "| v1 | shape | laplacian_pair_mean | yes |" in table1 and "| v1 | shape | laplacian_sum | no |" in table1
+    assert "| v1 | texture | color_rmse | yes |" in table1
     assert "100.0%" in table1
     assert "45°–60°" in (out / "table2.md").read_text()
     figs = {p.name for p in (out / "figures").glob("*.png")}

@@ -11,7 +11,7 @@ from meshadv.experiments.tables import AttackRow, attack_rows, table1, table2, t
 
 def _row(inst: str, target: str, success: bool, dist: float, victim: str = "v", ptype: str = "shape") -> AttackRow:
     return AttackRow(victim=victim, perturbation=ptype, instance=(inst,), source="src", target=target,
-                     success=success, distance=dist)
+                     success=success, distance=dist, measure="color_rmse" if ptype == "texture" else "laplacian_sum")
 
 
 def test_three_cases_by_hand() -> None:
@@ -49,7 +49,7 @@ def test_groups_and_incomplete_instances() -> None:
     assert tex.average.n == 2 and tex.average.distance == pytest.approx((1 + 2 + 0.5) / 3)
     assert w.best.success_rate == 0.0 and math.isnan(w.best.distance)
     md = to_markdown([tex, w])
-    assert "| v | texture | color_rmse | 1 | 100.0% |" in md and "1 incomplete" in md
+    assert "| v | texture | color_rmse | yes | 1 | 100.0% |" in md and "1 incomplete" in md
     csv = to_csv([tex, w]).splitlines()
     assert csv[0].startswith("victim,perturbation,distance_name,instances,incomplete,targets,best_success_rate")
     assert len(csv) == 3
@@ -60,15 +60,33 @@ def test_attack_rows_from_job_records() -> None:
     jobs = [
         {"spec": {"kind": "single", "mesh": mesh, "config_index": 0, "seed": 0, "victim": "v", "perturbation": "shape",
                   "source_class": "chair", "target": "sofa"},
-         "record": {"success": True, "distance": 9.0, "distances": {"laplacian": 0.25, "color_rmse": 0.0}}},
+         "record": {"success": True, "distance": 9.0, "distances": {"laplacian_sum": 0.25, "laplacian_pair_mean": 0.01,
+                                                                      "color_rmse": 0.0}}},
         {"spec": {"kind": "single", "mesh": mesh, "config_index": 1, "seed": 0, "victim": "v",
                   "perturbation": "texture", "source_class": "chair", "target": "sofa"},
          "record": {"skipped": True, "success": False}},
         {"spec": {"kind": "single", "mesh": mesh, "config_index": 2, "seed": 0, "victim": "v", "perturbation": "shape",
                   "source_class": "chair", "target": "boat"}, "record": None},
     ]
-    (row,) = attack_rows(jobs)
-    assert row.distance == 0.25 and row.success and row.instance == ("pascal3d/chair/01.ply", 0, 0)
+    pair, total = attack_rows(jobs)
+    assert (pair.measure, pair.distance, total.measure, total.distance) == ("laplacian_pair_mean", 0.01,
+                                                                            "laplacian_sum", 0.25)
+    assert pair.success and pair.instance == ("pascal3d/chair/01.ply", 0, 0)
+    pair_row, sum_row = table1([pair, total])
+    assert pair_row.paper_measure and not sum_row.paper_measure
+    assert pair_row.best.success_rate == sum_row.best.success_rate == 1.0
+
+
+def test_old_records_read_both_conventions() -> None:
+    """A record written before both conventions (one key ``laplacian``, the Eq. 4 sum) still fills the tables."""
+    mesh = {"source": "pascal3d", "path": "p.ply", "class": "chair"}
+    spec = {"kind": "single", "mesh": mesh, "config_index": 0, "seed": 0, "victim": "v", "perturbation": "shape",
+            "source_class": "chair", "target": "sofa"}
+    old = [{"spec": spec, "record": {"success": True, "distances": {"laplacian": 0.5, "color_rmse": 0.0}}}]
+    pair, total = attack_rows(old)
+    assert total.distance == 0.5 and pair.distance is None  # the edge count is unknown: no per-pair mean
+    with_edges = [{"spec": spec, "record": {"success": True, "distances": {"laplacian": 0.5, "num_edges": 5}}}]
+    assert attack_rows(with_edges)[0].distance == pytest.approx(0.05)
 
 
 def test_table2_by_hand() -> None:
@@ -91,9 +109,9 @@ def test_benign_correct_filter() -> None:
     def job(ci: int, correct: bool) -> dict:
         return {"spec": {"kind": "single", "mesh": mesh, "config_index": ci, "seed": 0, "victim": "v",
                          "perturbation": "shape", "source_class": "chair", "target": "sofa"},
-                "record": {"success": True, "benign_correct": correct, "distances": {"laplacian": float(ci)}}}
+                "record": {"success": True, "benign_correct": correct, "distances": {"color_rmse": float(ci)}}}
 
     jobs = [job(0, True), job(1, False)]
-    assert len(attack_rows(jobs)) == 2
-    (only,) = attack_rows(jobs, benign_correct_only=True)
+    assert len(attack_rows(jobs)) == 4  # two jobs x two Laplacian conventions
+    only, _ = attack_rows(jobs, benign_correct_only=True)
     assert only.instance[1] == 0

@@ -5,7 +5,7 @@ returns an :class:`AttackResult`:
 
     >>> from meshadv.attacks import ShapeAttack, TargetedMisclassification
     >>> result = ShapeAttack(steps=300)(mesh, views, victim, TargetedMisclassification("bicycle"))  # doctest: +SKIP
-    >>> result.succeeded, result.distances[0]["laplacian"]                                           # doctest: +SKIP
+    >>> result.succeeded, result.distances[0]["laplacian_pair_mean"]                                 # doctest: +SKIP
 
 Several targets are attacked together as a batch by passing a list of criteria.
 """
@@ -20,7 +20,15 @@ from meshadv.attacks.criteria import (
     TargetedMisclassification,
     WithMargin,
 )
-from meshadv.attacks.distances import color_rmse, displacement_stats, laplacian_distance, mesh_distances
+from meshadv.attacks.distances import (
+    PAPER_COMPARABLE,
+    color_rmse,
+    displacement_stats,
+    laplacian_distance,
+    laplacian_pair_mean,
+    mesh_distances,
+    read_distance,
+)
 from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import (
     cw_targeted_margin,
@@ -57,6 +65,9 @@ __all__ = [
     "cw_untargeted_margin",
     "disappearance_loss",
     "laplacian_distance",
+    "laplacian_pair_mean",
+    "read_distance",
+    "PAPER_COMPARABLE",
     "color_rmse",
     "displacement_stats",
     "mesh_distances",

@@ -101,7 +101,8 @@ class AttackResult:
         original_top1: int64 ``(V,)`` top-1 classes of the pristine renders (classifiers) or ``None``.
         eval_success: bool ``(T, V_eval)`` on the held-out views, or ``None``.
         eval_scores: ``(T, V_eval)`` or ``None``.
-        distances: one dict per target: ``laplacian``, ``color_rmse``, ``max_displacement``, ``mean_displacement``.
+        distances: one dict per target: ``laplacian_sum``, ``laplacian_pair_mean``, ``color_rmse``, ...
+            (``attacks.distances.mesh_distances``).
         lambdas: the ``lambda`` that produced each kept mesh (``nan`` when no round succeeded).
         loss_history: one JSON-able dict per optimiser step (round, step, per-target loss, adversarial and
             perceptual terms, distance, worst-view margin; ``None`` for targets no longer optimised).
@@ -179,8 +180,8 @@ class AttackResult:
             d = self.distances[t]
             status = "SUCCESS" if bool(self.succeeded[t]) else "failed"
             line = (f"  {crit.get('label', '?')}: {status} on {int(self.success[t].sum())}/{self.success.shape[1]} "
-                    f"views; laplacian={d.get('laplacian', float('nan')):.4g} rmse={d['color_rmse']:.4g} "
-                    f"max_disp={d['max_displacement']:.4g}")
+                    f"views; laplacian_pair_mean={d.get('laplacian_pair_mean', float('nan')):.4g} "
+                    f"rmse={d['color_rmse']:.4g} max_disp={d['max_displacement']:.4g}")
             if self.eval_success is not None:
                 line += f"; held-out {int(self.eval_success[t].sum())}/{self.eval_success.shape[1]}"
             lines.append(line)

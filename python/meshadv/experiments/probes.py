@@ -118,19 +118,20 @@ def mesh_probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     shape = spec.get("perturbation", "shape") == "shape"
     va = v + flow if shape else v
     edges = sphere.edges_unique
-    lap = float(np.mean(np.sum((flow[edges[:, 0]] - flow[edges[:, 1]]) ** 2, axis=1))) if shape else 0.0
+    lap_sum = 2.0 * float(np.sum((flow[edges[:, 0]] - flow[edges[:, 1]]) ** 2)) if shape else 0.0  # Eq. 4
     rmse = 0.0 if shape else amplitude
     trimesh.Trimesh(v, f, process=False).export(out_dir / "benign.ply")
     trimesh.Trimesh(va, f, process=False).export(out_dir / "adversarial.ply")
     for name, key in (("benign_v0.png", spec.get("source_class", "a")), ("after_v0.png", spec.get("target", "b"))):
         colour = [zlib.crc32(str(key).encode()) >> s & 255 for s in (0, 8, 16)]
         Image.new("RGB", (16, 16), tuple(colour)).save(out_dir / name)
-    distances = {"laplacian": lap, "color_rmse": rmse, "max_displacement": float(np.linalg.norm(flow, axis=1).max())}
+    distances = {"laplacian_sum": lap_sum, "laplacian_pair_mean": lap_sum / (2 * len(edges)), "color_rmse": rmse,
+                 "num_edges": len(edges), "max_displacement": float(np.linalg.norm(flow, axis=1).max())}
     return {
         "success": bool(spec.get("success", True)),
         "skipped": False,
         "benign_correct": True,
-        "distance": distances["laplacian" if shape else "color_rmse"],
+        "distance": distances["laplacian_pair_mean" if shape else "color_rmse"],
         "distances": distances,
         "steps": 1,
         "time": time.perf_counter() - start,

@@ -37,9 +37,11 @@ seed) attacked towards every other class. Best case: the instance succeeds when 
 smallest distance among its successful targets. Worst case: the instance succeeds only when every target succeeds;
 distance = the largest distance among them. Average case: a random target, i.e. the mean over instances of the
 fraction of successful targets; distance = the mean over all successful attacks. Mean distances are over successful
-instances / attacks. Distance: Laplacian loss (shape), face-colour RMSE (texture). The paper attacks only instances
-whose benign render the victim classifies correctly (sweep option benign_correct_only = true); when a sweep attacked
-every instance, the table restricted to those is given too."""
+instances / attacks. Distances: shape, the Laplacian loss of the vertex flow (Eq. 4) in two conventions,
+laplacian_pair_mean (divided by the 2E vertex-neighbour pairs: the scale of the paper's Table 1, the one to compare)
+and laplacian_sum (the literal sum); texture, the face-colour RMSE over faces (the paper's measure). The paper
+attacks only instances whose benign render the victim classifies correctly (sweep option benign_correct_only =
+true); when a sweep attacked every instance, the table restricted to those is given too."""
 
 
 def environment_versions() -> Dict[str, str]:
@@ -299,6 +301,7 @@ def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[An
     for victim, corr in out.correlations.items():
         lines.append(f"Flow magnitude vs. mean curvature ({victim}, job {corr['job_id']}): Pearson r = "
                      f"{corr['pearson']:.3f}, Spearman ρ = {corr['spearman']:.3f} over {corr['vertices']} vertices.")
-    lines += ["", f"Distances: {', '.join(f'{k} → {v}' for k, v in DISTANCE_NAMES.items())}. "
+    lines += ["", f"Distances: {'; '.join(f'{k} → ' + ', '.join(v) for k, v in DISTANCE_NAMES.items())} "
+              "(the first of each is the paper's measure). "
               "Settings and versions: settings.json.", ""]
     (out.out_dir / "README.md").write_text("\n".join(lines), encoding="utf-8")

@@ -13,8 +13,10 @@ seed); it is attacked towards every target class (the other classes of the sweep
   attack.
 
 Success rates are fractions of instances; a case's mean distance is taken over its successful instances (successful
-attacks for the average case), as in C&W. Distances are the Laplacian loss for shape attacks and the face-colour RMSE
-for texture attacks. Instances attacked towards fewer targets than the others of their group (a job still missing or
+attacks for the average case), as in C&W. Each measure of :data:`DISTANCE_NAMES` gets its own row (same success
+columns): shape attacks in both conventions of the Laplacian loss (``laplacian_pair_mean``, the one comparable with
+the paper, and the literal Eq. 4 ``laplacian_sum``; see :mod:`meshadv.attacks.distances`), texture attacks by the
+face-colour RMSE. Instances attacked towards fewer targets than the others of their group (a job still missing or
 crashed) are left out of the best and worst cases and counted as ``incomplete``; crashed jobs are not results and
 never count as failed attacks.
 
@@ -31,6 +33,8 @@ from collections import defaultdict
 from dataclasses import asdict, dataclass
 from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 
+from meshadv.attacks.distances import PAPER_COMPARABLE, read_distance
+
 __all__ = [
     "AttackRow",
     "CaseStats",
@@ -44,8 +48,9 @@ __all__ = [
     "DISTANCE_NAMES",
 ]
 
-#: The distance reported per perturbation type.
-DISTANCE_NAMES = {"shape": "laplacian", "texture": "color_rmse"}
+#: The distances reported per perturbation type, the one comparable with the paper first.
+DISTANCE_NAMES: Dict[str, Tuple[str, ...]] = {"shape": ("laplacian_pair_mean", "laplacian_sum"),
+                                              "texture": ("color_rmse",)}
 
 
 @dataclass(frozen=True)
@@ -54,7 +59,8 @@ class AttackRow:
 
     Attributes:
         victim, perturbation: the group. instance: hashable key of the benign input (mesh, configuration, seed).
-        source, target: classes. success: the target was reached. distance: the case distance (or ``None``).
+        source, target: classes. success: the target was reached. distance: the value of ``measure`` (or
+        ``None``). measure: the distance's name (a key of :func:`meshadv.attacks.distances.mesh_distances`).
     """
 
     victim: str
@@ -64,6 +70,7 @@ class AttackRow:
     target: str
     success: bool
     distance: Optional[float]
+    measure: str = "distance"
 
 
 @dataclass(frozen=True)
@@ -77,7 +84,10 @@ class CaseStats:
 
 @dataclass(frozen=True)
 class Table1Row:
-    """One row of Table 1: a victim and a perturbation type, with its three cases."""
+    """One row of Table 1: a victim, a perturbation type and a distance measure, with its three cases.
+
+    ``paper_measure`` says whether ``distance_name`` is the measure comparable with the paper's Table 1.
+    """
 
     victim: str
     perturbation: str
@@ -88,6 +98,7 @@ class Table1Row:
     best: CaseStats
     average: CaseStats
     worst: CaseStats
+    paper_measure: bool = False
 
 
 @dataclass(frozen=True)
@@ -110,8 +121,10 @@ def _mean(values: Sequence[float]) -> float:
 def attack_rows(jobs: Iterable[Any], *, benign_correct_only: bool = False) -> List[AttackRow]:
     """Flatten finished single-view jobs (``JobRow`` objects or ``{"spec", "record"}`` dicts) into :class:`AttackRow`.
 
-    Jobs that are not done, multi-view jobs, and jobs whose record says ``skipped`` (e.g. the benign render was not
-    classified as its class) are left out; with ``benign_correct_only`` also those whose record says
+    Each job gives one row per measure of :data:`DISTANCE_NAMES` for its perturbation type (records written before
+    the two Laplacian conventions are read by :func:`meshadv.attacks.distances.read_distance`). Jobs that
+    are not done, multi-view jobs, and jobs whose record says ``skipped`` (e.g. the benign render was not classified
+    as its class) are left out; with ``benign_correct_only`` also those whose record says
     ``benign_correct: false`` (the paper's protocol when the sweep attacked every configuration).
     """
     out = []
@@ -125,10 +138,12 @@ def attack_rows(jobs: Iterable[Any], *, benign_correct_only: bool = False) -> Li
         ptype = spec["perturbation"]
         mesh = spec["mesh"]
         key = (mesh.get("path") or mesh.get("name"), spec.get("config_index"), spec.get("seed"))
-        dist = record.get("distances", {}).get(DISTANCE_NAMES.get(ptype, ""), record.get("distance"))
-        out.append(AttackRow(victim=spec["victim"], perturbation=ptype, instance=key, source=spec["source_class"],
-                             target=spec["target"], success=bool(record.get("success")),
-                             distance=None if dist is None else float(dist)))
+        distances = record.get("distances") or {}
+        for measure in DISTANCE_NAMES.get(ptype, ("distance",)):
+            dist = read_distance(distances, measure) if distances else record.get("distance")
+            out.append(AttackRow(victim=spec["victim"], perturbation=ptype, instance=key,
+                                 source=spec["source_class"], target=spec["target"],
+                                 success=bool(record.get("success")), distance=dist, measure=measure))
     return out
 
 
@@ -141,11 +156,11 @@ def table1(rows: Iterable[AttackRow]) -> List[Table1Row]:
     Returns:
         One row per (victim, perturbation), sorted.
     """
-    groups: Dict[Tuple[str, str], Dict[Any, List[AttackRow]]] = defaultdict(lambda: defaultdict(list))
+    groups: Dict[Tuple[str, str, str], Dict[Any, List[AttackRow]]] = defaultdict(lambda: defaultdict(list))
     for row in rows:
-        groups[(row.victim, row.perturbation)][row.instance].append(row)
+        groups[(row.victim, row.perturbation, row.measure)][row.instance].append(row)
     out = []
-    for (victim, ptype), instances in sorted(groups.items()):
+    for (victim, ptype, measure), instances in sorted(groups.items()):
         n_targets = max(len(v) for v in instances.values())
         best_s, best_d, worst_s, worst_d, avg_s, avg_d = [], [], [], [], [], []
         incomplete = 0
@@ -165,11 +180,12 @@ def table1(rows: Iterable[AttackRow]) -> List[Table1Row]:
             if all_won and dists:
                 worst_d.append(max(dists))
         out.append(Table1Row(
-            victim=victim, perturbation=ptype, distance_name=DISTANCE_NAMES.get(ptype, "distance"),
+            victim=victim, perturbation=ptype, distance_name=measure,
             instances=len(instances), incomplete=incomplete, targets=n_targets,
             best=CaseStats(_mean(best_s), _mean(best_d), len(best_s)),
             average=CaseStats(_mean(avg_s), _mean(avg_d), len(avg_s)),
             worst=CaseStats(_mean(worst_s), _mean(worst_d), len(worst_s)),
+            paper_measure=PAPER_COMPARABLE.get(ptype) == measure,
         ))
     return out
 
@@ -237,12 +253,13 @@ def to_markdown(rows: Sequence[Any]) -> str:
     if not rows:
         return "_no results_\n"
     if isinstance(rows[0], Table1Row):
-        lines = ["| victim | type | distance | best: dist | best: success | average: dist | average: success | "
-                 "worst: dist | worst: success | instances | targets |",
-                 "|---|---|---|---|---|---|---|---|---|---|---|"]
+        lines = ["| victim | type | distance | paper's measure | best: dist | best: success | average: dist | "
+                 "average: success | worst: dist | worst: success | instances | targets |",
+                 "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in rows:
             lines.append(
-                f"| {r.victim} | {r.perturbation} | {r.distance_name} | {_fmt(r.best.distance, 'num')} | "
+                f"| {r.victim} | {r.perturbation} | {r.distance_name} | {'yes' if r.paper_measure else 'no'} | "
+                f"{_fmt(r.best.distance, 'num')} | "
                 f"{_fmt(r.best.success_rate, 'pct')} | {_fmt(r.average.distance, 'num')} | "
                 f"{_fmt(r.average.success_rate, 'pct')} | {_fmt(r.worst.distance, 'num')} | "
                 f"{_fmt(r.worst.success_rate, 'pct')} | {r.instances}"

@@ -85,7 +85,8 @@ class SceneAttackResult:
         image_before: (1, 3, H, W) the pristine scene image; image_after: the adversarial one.
         detections_before / detections_after: the victim's NMS-filtered detections on those images.
         score_before / score_after: best score of the hidden class(es).
-        distances: ``laplacian``, ``color_rmse``, ``max_displacement``, ``mean_displacement``.
+        distances: ``attacks.distances.mesh_distances`` (``laplacian_sum``, ``laplacian_pair_mean``,
+            ``color_rmse``, ...).
         loss_history: total loss per step; steps: steps taken; wall_time: seconds.
     """
 
