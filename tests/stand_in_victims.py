@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from meshadv.victims.base import DetectorOutput, DetectorVictim
+from meshadv.victims.base import ClassifierVictim, DetectorOutput, DetectorVictim
 
 
 class DarkBlobDetector(DetectorVictim):
@@ -27,3 +27,21 @@ class DarkBlobDetector(DetectorVictim):
         ij = torch.stack(torch.meshgrid(torch.arange(4.0), torch.arange(4.0), indexing="ij"), -1).reshape(16, 2)
         boxes = torch.cat([ij[:, [1, 0]] / 4, (ij[:, [1, 0]] + 1) / 4], dim=1).expand(b, 16, 4)
         return DetectorOutput(boxes=boxes, objectness=None, class_probs=torch.stack([dark, light], dim=-1))
+
+
+class PooledLinearClassifier(ClassifierVictim):
+    """Stand-in ImageNet classifier: a fixed random linear map (seed 0) of the 4x4 average-pooled image.
+
+    Differentiable, deterministic and weight-free, so the attack loop is covered on a bare machine; the logits depend
+    smoothly on colours and on where the object covers the image.
+    """
+
+    def __init__(self) -> None:
+        super().__init__("pooled_linear", (32, 32))
+        generator = torch.Generator().manual_seed(0)
+        self.register_buffer("weight", torch.randn(1000, 48, generator=generator))
+        self.register_buffer("bias", torch.randn(1000, generator=generator) * 0.1)
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        x = F.avg_pool2d(self.resize(images), 8).flatten(1)  # (B, 48)
+        return x @ self.weight.t() + self.bias
