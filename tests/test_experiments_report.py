@@ -129,8 +129,12 @@ def test_tiny_sweep_commands_tables_and_figures(tmp_path: Path) -> None:
     out = tmp_path / "report"
     res = runner.invoke(_app(), ["report", str(db), "-o", str(out)])
     assert res.exit_code == 0, res.output
-    for name in ("table1.md", "table1.csv", "table2.md", "table2.csv", "settings.json", "README.md"):
+    for name in ("table1.md", "table1.csv", "table2.md", "table2.csv", "settings.json", "README.md",
+                 "paper_comparison.md"):
         assert (out / name).is_file(), name
+    comparison = (out / "paper_comparison.md").read_text()
+    assert "| ours: v1 | shape | laplacian_pair_mean (paper's measure) |" in comparison
+    assert "| paper: DenseNet | shape |" in comparison and "## Beside the paper" in (out / "README.md").read_text()
     table1 = (out / "table1.md").read_text()
     assert "| v1 | shape | laplacian_pair_mean | yes |" in table1 and "| v1 | shape | laplacian_sum | no |" in table1
     assert "| v1 | texture | color_rmse | yes |" in table1

@@ -7,10 +7,12 @@ Output folder layout::
     table1_benign_correct.*    the same over instances whose benign render was classified correctly (written when
                                the sweep also attacked misclassified ones, benign_correct_only = false)
     table2.md / table2.csv     multi-view robustness (when the sweep had multi-view jobs)
+    paper_comparison.md        Tables 1-3 beside the paper's numbers (meshadv.experiments.paper), shortfalls
     figures/grid_<victim>_<type>.png        classes x classes renders (diagonal benign)
     figures/flow_heatmap_<victim>.png       flow magnitude, rendered and canonical views
     figures/flow_quiver_<victim>.png        flow directions around the most displaced vertex
     figures/curvature_<victim>.png          flow magnitude vs. mean curvature (+ correlation in README)
+    proxies.csv                SSIM / PSNR of benign vs. adversarial render per attack (meshadv.study.proxies)
     settings.json              the sweep config, database meta (versions at sweep time) and versions now
 """
 
@@ -26,6 +28,7 @@ from typing import Any, Dict, List, Optional, Tuple, Union
 
 import numpy as np
 
+from meshadv.experiments.compare import paper_comparison
 from meshadv.experiments.store import JobRow, ResultStore
 from meshadv.experiments.tables import DISTANCE_NAMES, attack_rows, table1, table2, to_csv, to_markdown
 
@@ -213,7 +216,17 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
             path = out.out_dir / f"{name}.{ext}"
             path.write_text(text, encoding="utf-8")
             out.tables.append(path)
-    transfer = _transfer_section(db)
+    transfer_rows = _transfer_rows(db)
+    if transfer_rows:
+        from meshadv.transfer.results import transfer_report
+
+        transfer = transfer_report(transfer_rows)
+    else:
+        transfer = ""
+    comparison = paper_comparison(t1_correct if mixed else t1, t2, transfer_rows)
+    path = out.out_dir / "paper_comparison.md"
+    path.write_text(comparison, encoding="utf-8")
+    out.tables.append(path)
     if transfer:
         path = out.out_dir / "transfer.md"
         path.write_text(transfer, encoding="utf-8")
@@ -233,25 +246,32 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
                                                title=f"{ptype} attacks on {victim} (rows: benign class, "
                                                      f"columns: target; diagonal: benign)"))
         _flow_figures(single, fig_dir, out)
+    from meshadv.study.proxies import proxy_section
+
+    proxies = proxy_section(done, out.out_dir)  # SSIM / PSNR of every attack's renders (proxies.csv)
+    if proxies:
+        out.tables.append(out.out_dir / "proxies.csv")
     settings = {"database": str(db.resolve()), "meta": meta, "report_versions": environment_versions(),
                 "counts": out.counts, "correlations": out.correlations}
     (out.out_dir / "settings.json").write_text(json.dumps(settings, indent=2, sort_keys=True), encoding="utf-8")
-    _write_readme(out, t1, t1_correct if mixed else None, t2, meta, _run_stats(done), transfer)
+    _write_readme(out, t1, t1_correct if mixed else None, t2, meta, _run_stats(done), transfer, comparison)
+    if proxies:  # the perceptual proxies close the README
+        with open(out.out_dir / "README.md", "a", encoding="utf-8") as fh:
+            fh.write("\n" + proxies)
     return out
 
 
-def _transfer_section(db: Path) -> str:
-    """The Mitsuba transfer section (``meshadv transfer`` rows in the same database), or ``""`` when there are none."""
+def _transfer_rows(db: Path) -> List[Dict[str, Any]]:
+    """The Mitsuba transfer rows (``meshadv transfer`` rows in the same database); empty when there are none."""
     import sqlite3
 
     with sqlite3.connect(str(db)) as conn:
         has_table = conn.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'transfer'").fetchone()
     if not has_table:
-        return ""
-    from meshadv.transfer.results import load_transfer_rows, transfer_report
+        return []
+    from meshadv.transfer.results import load_transfer_rows
 
-    rows = load_transfer_rows(db)
-    return transfer_report(rows) if rows else ""
+    return load_transfer_rows(db)
 
 
 def _run_stats(done: List[JobRow]) -> List[str]:
@@ -277,7 +297,7 @@ def _run_stats(done: List[JobRow]) -> List[str]:
 
 
 def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[Any]], t2: List[Any],
-                  meta: Dict[str, Any], stats: List[str], transfer: str = "") -> None:
+                  meta: Dict[str, Any], stats: List[str], transfer: str = "", comparison: str = "") -> None:
     c = out.counts
     lines = [f"# Results: {meta.get('name', 'sweep')}", "",
              f"Jobs: {c.get('total', 0)} total, {c.get('done', 0)} done ({c.get('successes', 0)} successful), "
@@ -294,6 +314,8 @@ def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[An
         lines += ["## Table 2: multi-view robustness (success on unseen views)", "", to_markdown(t2)]
     if transfer:
         lines += [transfer, ""]
+    if comparison:
+        lines += [comparison, ""]
     if out.figures:
         lines += ["## Figures", ""]
         lines += [f"- [{p.name}](figures/{p.name})" for p in out.figures]
