@@ -19,11 +19,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
+from meshadv.experiments.paper import HUMAN_STUDY
+
 __all__ = ["PAPER", "GroupStat", "StudySummary", "load_answers", "analyze", "write_analysis"]
 
-#: The paper's user study: share choosing the true class (percent, mean and std over participants), answers,
-#: participants.
-PAPER = {"mean_pct": 99.29, "std_pct": 1.96, "answers": 3820, "participants": 49}
+#: The paper's user study (from :data:`meshadv.experiments.paper.HUMAN_STUDY`): share choosing the true class in
+#: percent (mean and std over participants), answers, participants.
+PAPER = {"mean_pct": 100 * HUMAN_STUDY["true_class_rate"], "std_pct": 100 * HUMAN_STUDY["std"],
+         "answers": HUMAN_STUDY["answers"], "participants": HUMAN_STUDY["participants"]}
 
 _BOOL = {"true": True, "false": False, "1": True, "0": False}
 _FLOATS = ("distance", "fixation_ms", "exposure_ms", "exposure_target_ms", "frame_ms", "onset_ms", "rt_ms")
