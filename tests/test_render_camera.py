@@ -132,7 +132,6 @@ def test_batching_and_indexing() -> None:
         ({"distance": 2.0, "viewing_angle": 180.0}, "viewing_angle"),
         ({"distance": [2.0, 3.0], "azimuth": [0.0, 1.0, 2.0]}, "batch"),
         ({"distance": [[2.0]]}, "distance"),
-        ({"distance": "far"}, "distance"),
     ],
 )
 def test_spherical_rejects_bad_input(kwargs: dict, match: str) -> None:
@@ -194,3 +193,27 @@ def test_look_at_degenerate_up_is_finite() -> None:
     assert torch.isfinite(out).all() and torch.isfinite(eye.grad).all()
     rot = Camera.look_at(eye.detach(), torch.zeros(3), torch.tensor([0.0, 1.0, 0.0])).rotation()[0]
     torch.testing.assert_close(rot @ rot.T, torch.eye(3), atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("value", ["far", None, 2.0 + 1.0j, torch.tensor([2.0 + 1.0j])])
+def test_camera_refuses_wrong_types_with_type_error(value: object) -> None:
+    with pytest.raises(TypeError, match="^distance must be"):
+        Camera.spherical(value)
+    with pytest.raises(TypeError, match="^eye must be"):
+        Camera.look_at([value, 0.0, 1.0] if not isinstance(value, torch.Tensor) else value.expand(3))
+
+
+def test_look_at_with_huge_finite_vectors_keeps_an_orthonormal_rotation() -> None:
+    # float32 squares of 1e20 overflow: normalising naively gave zero rotation rows and an empty image.
+    for cam in (Camera.look_at([0.0, 0.0, -2.7], up=[0.0, 1e20, 0.0]), Camera.look_at([0.0, 0.0, -2e19])):
+        rot = cam.rotation()[0]
+        torch.testing.assert_close(rot @ rot.T, torch.eye(3))
+    with pytest.raises(ValueError, match="at - eye overflows"):
+        Camera.look_at([0.0, 0.0, -3e38], at=[0.0, 0.0, 3e38])
+
+
+def test_a_camera_of_zero_views_is_refused() -> None:
+    with pytest.raises(ValueError, match="eye must hold at least one view"):
+        Camera.look_at(torch.ones(0, 3))
+    with pytest.raises(ValueError, match="at least one view"):
+        Camera.spherical(torch.ones(0))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from meshadv.render import Camera, Lights, face_normals, orient_normals, shade
+from meshadv.render import Camera, Lights, ViewSet, face_normals, orient_normals, shade
 
 F64 = torch.float64
 
@@ -124,3 +124,31 @@ def test_lights_constructors_and_validation() -> None:
     with pytest.raises(ValueError, match="camera"):
         verts, faces = tetra()
         shade(verts, faces, torch.ones(4, 3, dtype=F64), Lights.default(), None)
+
+
+def test_list_indexing_of_lights_and_views() -> None:
+    assert len(Lights.default()[[0]]) == 1
+    views = ViewSet.orbit([0.0, 90.0, 180.0])
+    assert len(views[[0, 2]]) == 2 and len(views[torch.tensor([True, False, True])]) == 2
+    with pytest.raises(TypeError, match="lights index must hold integers"):
+        Lights.default()[[0.5]]
+    with pytest.raises(IndexError, match="camera index \\[5\\] out of range"):
+        views[[5]]
+    with pytest.raises(ValueError, match="selects no items"):
+        views[[]]
+
+
+def test_lights_refuse_complex_and_empty_batches() -> None:
+    with pytest.raises(TypeError, match="^direction must be real"):
+        Lights.single(direction=torch.tensor([0.0, 0.0, -1.0 + 1.0j]))
+    with pytest.raises(ValueError, match="batch size 0"):
+        Lights(torch.ones(0, 1, 3), torch.ones(0, 1, 3), torch.ones(0, 3))
+
+
+def test_huge_light_direction_is_normalised_without_overflow() -> None:
+    verts = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    faces = torch.tensor([[0, 1, 2]])
+    colors = torch.ones(1, 3)
+    unit = shade(verts, faces, colors, Lights.single(direction=(0.0, 0.0, -1.0)), two_sided=False)
+    huge = shade(verts, faces, colors, Lights.single(direction=(0.0, 0.0, -1e30)), two_sided=False)
+    torch.testing.assert_close(huge, unit)

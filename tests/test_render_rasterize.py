@@ -134,7 +134,6 @@ NAN = float("nan")
         ({"verts_screen": torch.zeros(1, 5, 3, dtype=torch.int64)}, "verts_screen"),
         ({"verts_screen": torch.full((1, 5, 3), NAN)}, "verts_screen"),
         ({"verts_screen": torch.zeros(1, 0, 3)}, "verts_screen"),
-        ({"verts_screen": [[0.0, 0.0, 1.0]]}, "verts_screen"),
         ({"faces": torch.tensor([[0, 1, 5]])}, "faces"),
         ({"faces": torch.tensor([[0, -1, 2]])}, "faces"),
         ({"faces": torch.zeros(0, 3, dtype=torch.int64)}, "faces"),
@@ -147,7 +146,6 @@ NAN = float("nan")
         ({"image_size": 0}, "image_size"),
         ({"image_size": 100_000}, "image_size"),
         ({"image_size": (8, 8, 8)}, "image_size"),
-        ({"image_size": 8.0}, "image_size"),
         ({"background": [0.0, 0.0]}, "background"),
         ({"background": [NAN] * 4}, "background"),
         ({"near": -1.0}, "near"),
@@ -161,6 +159,26 @@ def test_bad_input_raises_value_error_naming_argument(change: dict, match: str) 
     kwargs = {"verts_screen": verts, "faces": faces, "face_attrs": attrs, "image_size": 8}
     kwargs.update(change)
     with pytest.raises(ValueError, match=match):
+        rasterize(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        ({"verts_screen": [[0.0, 0.0, 1.0]]}, "verts_screen"),
+        ({"num_threads": "1"}, "num_threads"),
+        ({"num_threads": 1.5}, "num_threads"),
+        ({"num_threads": True}, "num_threads"),
+        ({"image_size": 8.0}, "image_size"),
+        ({"near": "0.1"}, "near"),
+        ({"background": "white"}, "background"),
+    ],
+)
+def test_wrong_types_raise_type_error_naming_argument(change: dict, match: str) -> None:
+    verts, faces, attrs = scene()
+    kwargs = {"verts_screen": verts, "faces": faces, "face_attrs": attrs, "image_size": 8}
+    kwargs.update(change)
+    with pytest.raises(TypeError, match=match):
         rasterize(**kwargs)
 
 
@@ -198,3 +216,21 @@ def test_attribute_only_backward_matches_full_backward() -> None:
         (rasterize(v, faces, a, (14, 15)).image * cot).sum().backward()
         grads.append(a.grad)
     assert torch.equal(grads[0], grads[1])
+
+
+def test_huge_thread_count_is_a_value_error() -> None:
+    verts, faces, attrs = scene()
+    with pytest.raises(ValueError, match="num_threads"):
+        rasterize(verts, faces, attrs, 8, num_threads=2**64)
+
+
+def test_attributes_near_float32_max_raise_a_clear_error_instead_of_inf_gradients() -> None:
+    verts, faces, attrs = scene()
+    verts = verts.clone().requires_grad_(True)
+    signs = torch.tensor([[1.0, -1.0, 1.0, -1.0], [-1.0, 1.0, -1.0, 1.0], [0.5, 1.0, -0.5, 1.0]])
+    big = (signs * 3e38).unsqueeze(0).requires_grad_(True)
+    out = rasterize(verts, faces, big, 16)
+    with pytest.raises(ValueError, match="face_attrs: the vertex gradient overflows float32"):
+        (out.image * torch.randn_like(out.image)).sum().backward()
+    with pytest.raises(ValueError, match="beyond float32's range"):
+        rasterize(verts, faces, attrs.double() * 1e300, 16)

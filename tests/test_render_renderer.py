@@ -98,8 +98,6 @@ def test_bad_input_raises_value_error() -> None:
         ({"faces": faces.float()}, "faces"),
         ({"face_colors": colors[:5]}, "face_colors"),
         ({"face_colors": colors * float("nan")}, "face_colors"),
-        ({"camera": "camera"}, "camera"),
-        ({"lights": None}, "lights"),
         ({"image_size": 0}, "image_size"),
         ({"antialias": 0}, "antialias"),
         ({"background": (1.0, 1.0)}, "background"),
@@ -124,6 +122,11 @@ def test_bad_input_raises_value_error() -> None:
         }
         kwargs.update(change)
         with pytest.raises(ValueError, match=match):
+            render(**kwargs)
+    for change, match in [({"camera": "camera"}, "camera"), ({"lights": None}, "lights")]:
+        kwargs = {"vertices": verts, "faces": faces, "face_colors": colors, "camera": cam, "lights": lights}
+        kwargs.update(change)
+        with pytest.raises(TypeError, match=match):
             render(**kwargs)
 
 

@@ -25,7 +25,7 @@ def test_lights_broadcast_and_mismatch() -> None:
     assert len(views.lights) == 3
     with pytest.raises(ValueError, match="lights batch size"):
         ViewSet(cam, Lights.default(cam[:2]))
-    with pytest.raises(ValueError, match="camera"):
+    with pytest.raises(TypeError, match="camera"):
         ViewSet("camera", Lights.default())  # type: ignore[arg-type]
 
 

@@ -4,16 +4,29 @@ from __future__ import annotations
 
 from typing import Any, Optional
 
+import numpy as np
 import torch
+
+from .. import _validate
 
 
 def require_instance(value: Any, cls: type, name: str) -> None:
-    """Raise ``ValueError`` naming ``name`` when ``value`` is not an instance of ``cls``.
+    """Raise ``TypeError`` naming ``name`` when ``value`` is not an instance of ``cls``.
 
-    The project rule is that bad user input raises ``ValueError`` naming the argument (also for wrong types).
+    The project rule (see :mod:`meshadv._validate`): wrong types raise ``TypeError``, bad values ``ValueError``.
     """
     if not isinstance(value, cls):
-        raise ValueError(f"{name} must be a {cls.__name__}, got {type(value).__name__}")  # noqa: TRY004
+        raise TypeError(f"{name} must be a {cls.__name__}, got {type(value).__name__}")
+
+
+def _is_complex(value: Any) -> bool:
+    """True when ``value`` (a number, array or nested sequence) holds complex numbers."""
+    if isinstance(value, complex):
+        return True
+    try:
+        return bool(np.iscomplexobj(value))
+    except (TypeError, ValueError, RuntimeError):
+        return False
 
 
 def as_float_tensor(
@@ -22,9 +35,12 @@ def as_float_tensor(
     """Convert ``value`` to a finite floating tensor, keeping autograd history when it already is a tensor.
 
     Raises:
-        ValueError: ``value`` (named ``name`` in the message) is not numeric, or not finite.
+        TypeError: ``value`` (named ``name`` in the message) is not numeric, or is complex.
+        ValueError: ``value`` is not finite.
     """
     if isinstance(value, torch.Tensor):
+        if value.is_complex():
+            raise TypeError(f"{name} must be real, got a complex tensor ({value.dtype})")
         t = value
         if not t.is_floating_point():
             t = t.to(dtype or torch.float32)
@@ -33,10 +49,58 @@ def as_float_tensor(
         if device is not None and t.device != device:
             t = t.to(device)
     else:
+        if value is None or isinstance(value, (str, bytes)):
+            raise TypeError(f"{name} must be a number, a sequence of numbers or a tensor, got {value!r}")
+        if _is_complex(value):
+            raise TypeError(f"{name} must be real, got complex values {value!r}")
         try:
             t = torch.as_tensor(value, dtype=dtype or torch.float32, device=device)
         except (TypeError, ValueError, RuntimeError) as exc:
-            raise ValueError(f"{name} must be a number, a sequence of numbers or a tensor, got {value!r}") from exc
+            raise TypeError(f"{name} must be a number, a sequence of numbers or a tensor, got {value!r}") from exc
     if not torch.isfinite(t.detach()).all():
         raise ValueError(f"{name} must be finite, got {t.detach().cpu().tolist()}")
     return t
+
+
+def batch_selector(index: Any, batch: int, what: str, device: torch.device) -> slice | torch.Tensor:
+    """Turn a batch index (int, slice, sequence of ints, integer or boolean tensor) into a slice or long tensor.
+
+    An integer keeps a batch of one (a slice). The result never selects zero items.
+
+    Raises:
+        TypeError: ``index`` is not an int, slice, sequence of ints or integer/boolean tensor (e.g. floats).
+        IndexError: an index is outside ``[-batch, batch)`` or a boolean mask has the wrong length.
+        ValueError: the selection is empty.
+    """
+    if _validate_is_int(index):
+        i = _validate.index(f"{what} index", index, batch)
+        return slice(i, i + 1)
+    if isinstance(index, slice):
+        if len(range(*index.indices(batch))) == 0:
+            raise ValueError(f"{what} index {index} selects no items of a batch of {batch}")
+        return index
+    if isinstance(index, (str, bytes)) or index is None:
+        raise TypeError(f"{what} index must be an int, a slice or a sequence of ints, got {index!r}")
+    try:
+        t = index if isinstance(index, torch.Tensor) else torch.as_tensor(index)
+    except (TypeError, ValueError, RuntimeError) as exc:
+        raise TypeError(f"{what} index must be an int, a slice or a sequence of ints, got {index!r}") from exc
+    if t.numel() == 0:
+        raise ValueError(f"{what} index selects no items (an empty selection)")
+    if t.dtype == torch.bool:
+        if t.shape != (batch,):
+            raise IndexError(f"{what} boolean mask must have shape ({batch},), got {tuple(t.shape)}")
+        t = torch.nonzero(t).flatten()
+    elif t.is_floating_point() or t.is_complex():
+        raise TypeError(f"{what} index must hold integers, got {t.dtype}")
+    t = t.reshape(-1).to(torch.long)
+    if t.numel() == 0:
+        raise ValueError(f"{what} index selects no items (an empty selection)")
+    if bool(((t < -batch) | (t >= batch)).any()):
+        raise IndexError(f"{what} index {t.tolist()} out of range for batch size {batch}")
+    return torch.remainder(t, batch).to(device)
+
+
+def _validate_is_int(value: Any) -> bool:
+    """True for Python/NumPy integers (not bool)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)

@@ -29,7 +29,7 @@ from typing import Union
 
 import torch
 
-from ._checks import as_float_tensor, require_instance
+from ._checks import as_float_tensor, batch_selector, require_instance
 from ._ops import small_matmul
 
 __all__ = ["Camera", "TensorLike"]
@@ -85,6 +85,8 @@ def _batch_vectors(named: dict, dtype: torch.dtype, device: torch.device, batch:
             t = t.unsqueeze(0)
         if t.dim() != 2 or t.shape[1] != 3:
             raise ValueError(f"{name} must have shape (3,) or (B, 3), got {tuple(t.shape)}")
+        if t.shape[0] == 0:
+            raise ValueError(f"{name} must hold at least one view (batch size 0)")
         out[name] = t
     sizes = {t.shape[0] for t in out.values()} | {batch}
     sizes.discard(1)
@@ -96,7 +98,14 @@ def _batch_vectors(named: dict, dtype: torch.dtype, device: torch.device, batch:
 
 
 def _normalize(v: torch.Tensor) -> torch.Tensor:
-    """Normalise the last axis, eps-safe (zero vectors stay zero with zero gradient)."""
+    """Normalise the last axis, eps-safe (zero vectors stay zero with zero gradient) and overflow-safe.
+
+    The vector is first divided by its largest absolute component, so squaring inside the norm cannot overflow
+    (``[0, 1e20, 0]`` in float32 would otherwise have an infinite norm and normalise to zero).
+    """
+    scale = v.detach().abs().amax(dim=-1, keepdim=True)
+    scale = torch.where(scale > 0, scale, torch.ones_like(scale))
+    v = v / scale
     return v / v.norm(dim=-1, keepdim=True).clamp_min(_EPS)
 
 
@@ -254,9 +263,12 @@ class Camera:
         v = _batch_vectors({"eye": eye, "at": at, "up": up}, dtype, device, batch)
         b = v["eye"].shape[0]
         p = {k: t.expand(b) if t.shape[0] != b else t for k, t in p.items()}
-        if bool(((v["at"] - v["eye"]).detach().norm(dim=-1) <= 1e-9).any()):
+        direction = (v["at"] - v["eye"]).detach()
+        if not bool(torch.isfinite(direction).all()):
+            raise ValueError(f"at - eye overflows {dtype} (got {direction.cpu().tolist()}); use smaller coordinates")
+        if bool((direction.abs().amax(dim=-1) <= 1e-9).any()):
             raise ValueError("eye and at must differ (the viewing direction is undefined)")
-        if bool((v["up"].detach().norm(dim=-1) <= 1e-9).any()):
+        if bool((v["up"].detach().abs().amax(dim=-1) <= 1e-9).any()):
             raise ValueError("up must be a non-zero vector")
         cam = cls(
             viewing_angle=p["viewing_angle"],
@@ -342,14 +354,14 @@ class Camera:
         return self._replace(lambda t: t.detach())
 
     def __getitem__(self, index: int | slice | torch.Tensor | Sequence[int]) -> Camera:
-        """Select views; an integer keeps a batch of one."""
-        if isinstance(index, int):
-            b = self.batch_size
-            if not -b <= index < b:
-                raise IndexError(f"camera index {index} out of range for batch size {b}")
-            index = slice(index % b, index % b + 1)
-        elif not isinstance(index, slice):
-            index = torch.as_tensor(index, dtype=torch.long, device=self.device)
+        """Select views; an integer keeps a batch of one.
+
+        Raises:
+            TypeError: ``index`` is not an int, slice, sequence of ints or integer/boolean tensor.
+            IndexError: an index is out of range.
+            ValueError: the selection is empty.
+        """
+        index = batch_selector(index, self.batch_size, "camera", self.device)
         return self._replace(lambda t: t[index])
 
     @staticmethod
@@ -400,7 +412,7 @@ class Camera:
             x0 = torch.stack([ca, torch.zeros_like(ca), sa], dim=-1) * sign.unsqueeze(-1)
         else:
             z = _normalize(self.at - self.eye_position)
-            up = self.up
+            up = _normalize(self.up)
             cross = torch.cross(up, z, dim=-1)
             bad = cross.detach().norm(dim=-1) < _DEGENERATE * up.detach().norm(dim=-1).clamp_min(_EPS)
             if bool(bad.any()):

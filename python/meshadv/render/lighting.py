@@ -14,9 +14,9 @@ from typing import Union
 
 import torch
 
-from ._checks import as_float_tensor
+from ._checks import as_float_tensor, batch_selector
 from ._ops import small_matmul
-from .camera import Camera
+from .camera import Camera, _normalize
 
 __all__ = ["Lights", "face_normals", "orient_normals", "shade"]
 
@@ -84,7 +84,9 @@ class Lights:
                 f"colors {tuple(c.shape)}, ambient {tuple(a.shape)}"
             )
         b = sizes.pop() if sizes else 1
-        if bool((d.detach().norm(dim=-1) <= 1e-9).any()):
+        if b == 0:
+            raise ValueError("lights must hold at least one light set (batch size 0)")
+        if bool((d.detach().abs().amax(dim=-1) <= 1e-9).any()):
             raise ValueError("directions must be non-zero vectors")
         object.__setattr__(self, "directions", d.expand(b, -1, -1) if d.shape[0] != b else d)
         object.__setattr__(self, "colors", c.expand(b, -1, -1) if c.shape[0] != b else c)
@@ -153,14 +155,14 @@ class Lights:
         return Lights(self.directions.detach(), self.colors.detach(), self.ambient.detach())
 
     def __getitem__(self, index: int | slice | torch.Tensor | Sequence[int]) -> Lights:
-        """Select light sets; an integer keeps a batch of one."""
-        if isinstance(index, int):
-            b = self.batch_size
-            if not -b <= index < b:
-                raise IndexError(f"lights index {index} out of range for batch size {b}")
-            index = slice(index % b, index % b + 1)
-        elif not isinstance(index, slice):
-            index = torch.asas_float_tensor(index, dtype=torch.long, device=self.ambient.device)
+        """Select light sets; an integer keeps a batch of one.
+
+        Raises:
+            TypeError: ``index`` is not an int, slice, sequence of ints or integer/boolean tensor.
+            IndexError: an index is out of range.
+            ValueError: the selection is empty.
+        """
+        index = batch_selector(index, self.batch_size, "lights", self.ambient.device)
         return Lights(self.directions[index], self.colors[index], self.ambient[index])
 
     @staticmethod
@@ -256,7 +258,7 @@ def shade(
         normals = orient_normals(normals, verts_world, faces, camera)
     dtype = normals.dtype
     dirs = lights.directions.to(dtype)
-    dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+    dirs = _normalize(dirs)
     b = max(normals.shape[0], dirs.shape[0])
     if normals.shape[0] not in (1, b) or dirs.shape[0] not in (1, b):
         raise ValueError(

@@ -17,13 +17,16 @@ from typing import Any
 import numpy as np
 import torch
 
-from ._checks import require_instance
+from .. import _validate
+from ._checks import as_float_tensor, require_instance
+from ._memory import check_memory, estimate_forward_bytes
 
 __all__ = ["MAX_IMAGE_SIDE", "RasterOutput", "native_available", "parse_image_size", "rasterize"]
 
 #: Largest accepted image side in pixels.
 MAX_IMAGE_SIDE = 16384
 _MAX_PIXELS_TIMES_CHANNELS = 2**31 - 1
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def _native() -> ModuleType:
@@ -69,18 +72,17 @@ def parse_image_size(image_size: int | Sequence[int], name: str = "image_size") 
     """Validate an image size given as ``int`` or ``(H, W)`` and return ``(H, W)``.
 
     Raises:
-        ValueError: not a positive integer or a pair of them, or larger than ``MAX_IMAGE_SIDE``.
+        TypeError: not an integer or a pair of integers.
+        ValueError: not positive, or larger than ``MAX_IMAGE_SIDE``.
     """
-    if isinstance(image_size, (int, np.integer)) and not isinstance(image_size, bool):
+    if isinstance(image_size, (tuple, list)):
+        if len(image_size) != 2:
+            raise ValueError(f"{name} must be an int or a pair (H, W) of ints, got {len(image_size)} values")
+        hw = (_validate.integer(f"{name}[0]", image_size[0]), _validate.integer(f"{name}[1]", image_size[1]))
+    elif isinstance(image_size, (int, np.integer)) and not isinstance(image_size, bool):
         hw = (int(image_size), int(image_size))
-    elif (
-        isinstance(image_size, (tuple, list))
-        and len(image_size) == 2
-        and all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in image_size)
-    ):
-        hw = (int(image_size[0]), int(image_size[1]))
     else:
-        raise ValueError(f"{name} must be an int or a pair (H, W) of ints, got {image_size!r}")
+        raise TypeError(f"{name} must be an int or a pair (H, W) of ints, got {image_size!r}")
     if min(hw) < 1 or max(hw) > MAX_IMAGE_SIDE:
         raise ValueError(f"{name} must be between 1 and {MAX_IMAGE_SIDE} pixels per side, got {hw}")
     return hw
@@ -95,6 +97,8 @@ def _check_float_tensor(t: Any, name: str, ndims: tuple[int, ...], shape_doc: st
         raise ValueError(f"{name} must have shape {shape_doc}, got {tuple(t.shape)}")
     if not bool(torch.isfinite(t.detach()).all()):
         raise ValueError(f"{name} contains NaN or Inf")
+    if t.dtype == torch.float64 and t.numel() and float(t.detach().abs().max()) > _FLOAT32_MAX:
+        raise ValueError(f"{name} holds values beyond float32's range (the native op computes in float32)")
     return t
 
 
@@ -167,6 +171,13 @@ class _Rasterize(torch.autograd.Function):
             orthographic,
             **extra,
         )
+        if need_v and not np.isfinite(grad_v).all() and bool(torch.isfinite(grad_image).all()):
+            peak = float(face_attrs.detach().abs().max())
+            raise ValueError(
+                f"face_attrs: the vertex gradient overflows float32 (max |face_attrs| = {peak:.3g}); "
+                "scale the attributes down (the gradient grows with the attribute jump across an edge times the "
+                "image size)"
+            )
         gv = torch.from_numpy(grad_v).to(device=verts_screen.device, dtype=verts_screen.dtype) if need_v else None
         ga = torch.from_numpy(grad_a).to(device=face_attrs.device, dtype=face_attrs.dtype) if need_a else None
         return gv, ga, None, None, None, None, None, None, None, None, None
@@ -256,9 +267,7 @@ def rasterize(
     if background is None:
         bg = torch.zeros(c, dtype=torch.float32)
     else:
-        bg = background if isinstance(background, torch.Tensor) else torch.as_tensor(background, dtype=torch.float32)
-        if not (bg.is_floating_point() or bg.dtype in (torch.int32, torch.int64)):
-            raise ValueError(f"background must be numeric, got {bg.dtype}")
+        bg = as_float_tensor(background, "background")
         bg = bg.detach().to(torch.float32).reshape(-1)
         if bg.numel() == 1:
             bg = bg.expand(c)
@@ -267,19 +276,12 @@ def rasterize(
         if not bool(torch.isfinite(bg).all()):
             raise ValueError("background contains NaN or Inf")
 
-    for name, value in (("near", near), ("far", far)):
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, (int, float, np.floating, np.integer))
-            or not np.isfinite(value)
-        ):
-            raise ValueError(f"{name} must be a finite number, got {value!r}")
-    if near < 0:
-        raise ValueError(f"near must be >= 0, got {near}")
+    near = _validate.finite_float("near", near, low=0.0)
+    far = _validate.finite_float("far", far)
     if not far > near:
         raise ValueError(f"far must be > near, got near={near} far={far}")
-    if isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer)) or num_threads < 0:
-        raise ValueError(f"num_threads must be an int >= 0, got {num_threads!r}")
+    num_threads = _validate.num_threads("num_threads", num_threads)
+    check_memory(estimate_forward_bytes(b, height, width, c, n, m), "rasterize")
 
     image, face_index, depth = _Rasterize.apply(
         verts_screen,

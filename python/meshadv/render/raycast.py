@@ -7,7 +7,9 @@ from dataclasses import dataclass
 
 import torch
 
+from .. import _validate
 from ._checks import require_instance
+from ._memory import check_memory, estimate_forward_bytes
 from .camera import Camera
 from .rasterize import _native, _to_numpy_f32, _to_numpy_i32, parse_image_size
 
@@ -52,13 +54,18 @@ def raycast(
         :class:`RayCastOutput` on the device of ``vertices``.
 
     Raises:
-        ValueError: bad input (shapes, dtypes, indices, image size).
+        TypeError: an argument of the wrong type (e.g. ``num_threads="1"`` or ``1.5``).
+        ValueError: bad input (shapes, dtypes, indices, image size, thread count).
+        MemoryError: the image would not fit in the memory left.
     """
     from .renderer import _check_mesh
 
     verts, faces = _check_mesh(vertices, faces)
     require_instance(camera, Camera, "camera")
     height, width = parse_image_size(image_size)
+    num_threads = _validate.num_threads("num_threads", num_threads)
+    cull_backfaces = _validate.boolean("cull_backfaces", cull_backfaces)
+    check_memory(estimate_forward_bytes(len(camera), height, width, 0, verts.shape[-2], faces.shape[0]), "raycast")
     with torch.no_grad():
         verts_view = camera.world_to_view(verts)
     b = verts_view.shape[0]

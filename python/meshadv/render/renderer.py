@@ -9,7 +9,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from ._checks import require_instance
+from ._checks import as_float_tensor, require_instance
 from .camera import Camera
 from .lighting import Lights, shade
 from .rasterize import RasterOutput, parse_image_size, rasterize
@@ -157,9 +157,9 @@ def _rasterize_views(
 
 
 def _background(background: Any, dtype: torch.dtype) -> torch.Tensor:
-    bg = background if isinstance(background, torch.Tensor) else torch.as_tensor(background, dtype=torch.float32)
-    if bg.is_complex() or bg.dtype == torch.bool:
-        raise ValueError(f"background must be numeric, got {bg.dtype}")
+    if isinstance(background, torch.Tensor) and background.dtype == torch.bool:
+        raise TypeError(f"background must be numeric, got {background.dtype}")
+    bg = as_float_tensor(background, "background")
     bg = bg.detach().to(dtype=dtype, device="cpu").reshape(-1)
     if bg.numel() == 1:
         bg = bg.expand(3)

@@ -1,0 +1,56 @@
+"""Resource limits of the render ops: memory is estimated before allocating, thread pools are bounded."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import pytest
+import torch
+
+from meshadv.render import Camera, Lights, render
+from meshadv.render._memory import check_memory, estimate_forward_bytes
+
+
+def tetrahedron() -> tuple[torch.Tensor, torch.Tensor]:
+    """A small closed mesh around the origin."""
+    verts = torch.tensor([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]]) * 0.5
+    return verts, torch.tensor([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+
+
+def test_memory_estimate_counts_every_per_pixel_buffer() -> None:
+    # 16384^2 pixels with 4 channels: 16 + 8*4 bytes per pixel.
+    assert estimate_forward_bytes(1, 16384, 16384, 4, 0, 0) == 16384 * 16384 * 48
+    with pytest.raises(MemoryError, match=r"render needs about 1024\.00 GiB"):
+        check_memory(2**40, "render")
+
+
+def test_background_of_the_wrong_type_is_a_type_error() -> None:
+    verts, faces = tetrahedron()
+    colors = torch.full((faces.shape[0], 3), 0.5)
+    for bad in ("white", None):
+        with pytest.raises(TypeError, match="^background must be"):
+            render(verts, faces, colors, Camera.spherical(3.0), Lights.default(), 8, background=bad)
+
+
+def test_huge_render_under_an_address_space_limit_raises_memory_error_not_abort() -> None:
+    code = textwrap.dedent(
+        """
+        import resource, torch
+        from meshadv.render import Camera, Lights, render
+        from meshadv.render._memory import _vm_size_bytes
+        verts = torch.tensor([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]]) * 0.5
+        faces = torch.tensor([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+        colors = torch.full((faces.shape[0], 3), 0.5)
+        used = _vm_size_bytes()
+        resource.setrlimit(resource.RLIMIT_AS, (used + 2**30, resource.RLIM_INFINITY))
+        try:
+            render(verts, faces, colors, Camera.spherical(3.0), Lights.default(), 16384)
+        except MemoryError as exc:
+            print("MemoryError:", exc)
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "MemoryError: rasterize needs about 12.00 GiB" in done.stdout
