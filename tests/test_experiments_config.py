@@ -85,3 +85,44 @@ def test_packaged_set_expands_to_the_papers_72_per_class() -> None:
     jobs = expand_jobs(parse_config(raw))
     assert len(jobs) == 7 * 72 * 2 * 6  # classes x configurations x types x targets: Table 1's protocol
     assert len({(j["mesh"]["path"], json.dumps(j["views"][0])) for j in jobs}) == 7 * 72
+
+
+def test_victim_caps_protocols_grid_and_per_class_targets(tmp_path: Path) -> None:
+    """paper_medium's keys: a per-victim configuration cap, an extra protocol on a subset, the 3 x 3 multi-view grid
+    and one multi-view target per class."""
+    _write_set(tmp_path / "set.json", RECORDS)
+    raw = _config(rendering_set="set.json", configurations=2)
+    raw["victims"] = {"names": ["v0", "v2"], "configurations": {"v2": 1}}
+    raw["attack"] = {"types": ["texture"], "texture": {"steps": 5},
+                     "protocols": {"paper": {"configurations": 1, "victims": ["v0"], "texture": {"steps": 50}}}}
+    raw["multiview"] = {"enabled": True, "grid": True, "view_counts": [5, 10], "azimuth_ranges": [[45, 60], [15, 75]],
+                        "eval_views": 2, "types": ["shape"], "victims": ["v0"], "targets": {"chair": "sofa"}}
+    jobs = expand_jobs(parse_config(raw, base_dir=tmp_path))
+    single = [j for j in jobs if j["kind"] == "single"]
+    main = [(j["victim"], j["config_index"]) for j in single if "protocol" not in j]
+    assert sorted(main) == sorted([("v0", 0), ("v0", 1), ("v2", 0)] * 2)  # 2 classes; v2 capped at 1 configuration
+    paper = [j for j in single if j.get("protocol") == "paper"]
+    assert [(j["victim"], j["config_index"], j["attack"]["steps"]) for j in paper] == [("v0", 0, 50)] * 2
+    mv = [j for j in jobs if j["kind"] == "multiview"]
+    assert {(j["num_views"], tuple(j["azimuth_range"])) for j in mv} == {
+        (5, (45.0, 60.0)), (5, (15.0, 75.0)), (10, (45.0, 60.0)), (10, (15.0, 75.0))}
+    assert {(j["source_class"], j["target"], j["victim"]) for j in mv} == {("chair", "sofa", "v0")}
+    with pytest.raises(ValueError, match="victims.configurations"):
+        parse_config({**raw, "victims": {"names": ["v0"], "configurations": {"v0": 0}}}, base_dir=tmp_path)
+
+
+def test_paper_medium_has_the_issue_scale() -> None:
+    """configs/paper_medium.toml: >= 1,344 targeted attacks, the paper's protocol on 2 configurations per class, and
+    Table 2 for every class over the 3 x 3 grid."""
+    from meshadv.experiments.config import load_config
+
+    jobs = expand_jobs(load_config(Path(__file__).parents[1] / "configs" / "paper_medium.toml"))
+    main = [j for j in jobs if j["kind"] == "single" and "protocol" not in j]
+    assert len(main) == 1344
+    per_class = {(j["victim"], j["source_class"]): set() for j in main}
+    for j in main:
+        per_class[(j["victim"], j["source_class"])].add(j["config_index"])
+    assert {v: len(c) for (v, _), c in per_class.items()} == {"efficientnet_lite0": 12, "efficientnet_lite2": 4}
+    assert len([j for j in jobs if j.get("protocol") == "paper"]) == 7 * 2 * 6 * 2
+    mv = [j for j in jobs if j["kind"] == "multiview"]
+    assert len({j["source_class"] for j in mv}) == 7 and len(mv) == 7 * 9 * 2

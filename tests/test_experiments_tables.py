@@ -115,3 +115,14 @@ def test_benign_correct_filter() -> None:
     assert len(attack_rows(jobs)) == 4  # two jobs x two Laplacian conventions
     only, _ = attack_rows(jobs, benign_correct_only=True)
     assert only.instance[1] == 0
+
+
+def test_protocol_jobs_are_rows_of_their_own() -> None:
+    mesh = {"source": "pascal3d", "path": "p.ply", "class": "chair"}
+    spec = {"kind": "single", "mesh": mesh, "config_index": 0, "seed": 0, "victim": "v", "perturbation": "texture",
+            "source_class": "chair", "target": "sofa"}
+    jobs = [{"spec": spec, "record": {"success": True, "distances": {"color_rmse": 0.1}}},
+            {"spec": {**spec, "protocol": "paper"}, "record": {"success": False, "distances": {"color_rmse": 0.2}}}]
+    main, paper_row = table1(attack_rows(jobs))
+    assert (main.victim, main.targets, main.best.success_rate) == ("v", 1, 1.0)
+    assert (paper_row.victim, paper_row.targets, paper_row.best.success_rate) == ("v [paper]", 1, 0.0)

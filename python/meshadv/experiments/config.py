@@ -13,11 +13,17 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
                   light_intensity = [0.4, 0.8], ambient = [0.3, 0.6], light_jitter = 30,
                   rendering_set = "packaged" | "path/to/set.json" (optional, see below)
     [victims]     names = ["efficientnet_lite0"] (required), weights = {densenet121 = "densenet121.pth"}
-                  (weights files for victims that need them, relative to the file; the path is part of the job)
+                  (weights files for victims that need them, relative to the file; the path is part of the job),
+                  configurations = {efficientnet_lite2 = 4} (per-victim cap on render.configurations)
     [attack]      types = ["shape", "texture"], targets = "others" | [...], benign_correct_only = true
     [attack.shape] / [attack.texture]   keyword arguments of ShapeAttack / TextureAttack (steps, lr, ...)
+    [attack.protocols.<name>]   extra attack settings on a subset: configurations = 2 (first configurations per
+                  class), victims = [...] (default all), shape = {...}, texture = {...}; their jobs carry
+                  ``"protocol": "<name>"`` and the tables report them as separate rows
     [multiview]   enabled = false, view_counts = [5, 10, 15], azimuth_ranges = [[45, 60], [35, 70], [15, 75]],
-                  eval_views = 20, types = ["shape", "texture"], classes = [...], targets = [...],
+                  grid = false (true: every view count with every range, the paper's 3 x 3 Table 2; false: pairs),
+                  eval_views = 20, types = ["shape", "texture"], classes = [...],
+                  targets = [...] | {chair = "sofa", ...} (one target per class), victims = [...] (default all),
                   elevation = 20, distance = 4.0
     [runner]      job = "meshadv.experiments.jobs:run_attack_job", max_attempts = 2, timeout = 0, workers = 0,
                   threads_per_job = 0, max_jobs_per_worker = 0
@@ -180,9 +186,16 @@ def parse_config(raw: Dict[str, Any], *, base_dir: Union[str, Path] = ".", text:
     if not isinstance(weights, dict) or not all(isinstance(v, str) for v in weights.values()):
         raise ValueError(f"victims.weights must map victim names to weights files, got {weights!r}")
     weights = {k: str((base / v).resolve()) for k, v in weights.items()}
+    caps = raw.get("victims", {}).get("configurations", {})
+    if not isinstance(caps, dict) or not all(isinstance(v, int) and v >= 1 for v in caps.values()):
+        raise ValueError(f"victims.configurations must map victim names to counts >= 1, got {caps!r}")
+    render["victim_configurations"] = dict(caps)
 
     attack = {"types": list(_TYPES), "targets": "others", "benign_correct_only": True, "shape": {}, "texture": {},
-              **raw.get("attack", {})}
+              "protocols": {}, **raw.get("attack", {})}
+    for pname, proto in attack["protocols"].items():
+        if not isinstance(proto, dict) or int(proto.get("configurations", 1)) < 1:
+            raise ValueError(f"attack.protocols.{pname} must be a table with configurations >= 1, got {proto!r}")
     bad = [t for t in attack["types"] if t not in _TYPES]
     if bad or not attack["types"]:
         raise ValueError(f"attack.types must be a non-empty subset of {list(_TYPES)}, got {attack['types']!r}")
@@ -190,9 +203,9 @@ def parse_config(raw: Dict[str, Any], *, base_dir: Union[str, Path] = ".", text:
         raise ValueError(f"attack.targets must be 'others' or a list of classes, got {attack['targets']!r}")
 
     multiview = {"enabled": False, "view_counts": [5, 10, 15], "azimuth_ranges": [[45, 60], [35, 70], [15, 75]],
-                 "eval_views": 20, "types": list(_TYPES), "classes": None, "targets": None, "elevation": 20.0,
-                 "distance": 4.0, **raw.get("multiview", {})}
-    if len(multiview["view_counts"]) != len(multiview["azimuth_ranges"]):
+                 "grid": False, "eval_views": 20, "types": list(_TYPES), "classes": None, "targets": None,
+                 "victims": None, "elevation": 20.0, "distance": 4.0, **raw.get("multiview", {})}
+    if not multiview["grid"] and len(multiview["view_counts"]) != len(multiview["azimuth_ranges"]):
         raise ValueError("multiview.view_counts and multiview.azimuth_ranges must have the same length")
     for rng in multiview["azimuth_ranges"]:
         if len(rng) != 2 or rng[1] <= rng[0]:
@@ -336,6 +349,8 @@ def _mesh_entries(meshes: Dict[str, Any]) -> List[Dict[str, Any]]:
 
 
 def _targets(spec: Any, source: str, classes: Sequence[str]) -> List[str]:
+    if isinstance(spec, dict):  # one target per source class
+        return [spec[source]] if source in spec and spec[source] != source else []
     if spec in (None, "others"):
         return [c for c in classes if c != source]
     return [c for c in spec if c != source]
@@ -358,30 +373,45 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
         configs = rendering_configurations(config.render)
         instances = [(mesh, ci, view) for mesh in meshes for ci, view in enumerate(configs)]
     size = int(config.render["image_size"])
+    caps = config.render.get("victim_configurations", {})
+    # the main setting, then every protocol on its subset: (name or None, config cap, victims, attack options)
+    settings: List[Tuple[Optional[str], Dict[str, int], Sequence[str], Dict[str, Any]]] = [
+        (None, caps, config.victims, config.attack)]
+    for pname, proto in sorted(config.attack["protocols"].items()):
+        settings.append((pname, {v: int(proto.get("configurations", 1)) for v in config.victims},
+                         proto.get("victims") or config.victims, proto))
     jobs: List[Dict[str, Any]] = []
-    for mesh, ci, view in instances:
-        for victim in config.victims:
-            for ptype in config.attack["types"]:
-                for target in _targets(config.attack["targets"], mesh["class"], classes):
-                    for seed in config.seeds:
-                        jobs.append({
-                            "kind": "single", "mesh": mesh, "source_class": mesh["class"], "target": target,
-                            "victim": victim, "perturbation": ptype, "views": [view], "eval_views": [],
-                            "image_size": size, "attack": dict(config.attack.get(ptype, {})), "seed": seed,
-                            "config_index": ci,
-                            "benign_correct_only": bool(config.attack["benign_correct_only"]),
-                        })
+    for protocol, limit, victims, options in settings:
+        for mesh, ci, view in instances:
+            for victim in (v for v in victims if ci < limit.get(v, ci + 1)):
+                for ptype in config.attack["types"]:
+                    for target in _targets(config.attack["targets"], mesh["class"], classes):
+                        for seed in config.seeds:
+                            job = {
+                                "kind": "single", "mesh": mesh, "source_class": mesh["class"], "target": target,
+                                "victim": victim, "perturbation": ptype, "views": [view], "eval_views": [],
+                                "image_size": size, "attack": dict(options.get(ptype, {})), "seed": seed,
+                                "config_index": ci,
+                                "benign_correct_only": bool(config.attack["benign_correct_only"]),
+                            }
+                            if protocol is not None:
+                                job["protocol"] = protocol
+                            jobs.append(job)
     mv = config.multiview
     if mv["enabled"]:
         mv_classes = mv["classes"] or classes
         for mesh in meshes:
             if mesh["class"] not in mv_classes:
                 continue
-            for victim in config.victims:
+            for victim in mv["victims"] or config.victims:
                 for ptype in mv["types"]:
                     targets = _targets(mv["targets"] or config.attack["targets"], mesh["class"], classes)
                     for target in targets:
-                        for count, (lo, hi) in zip(mv["view_counts"], mv["azimuth_ranges"]):
+                        if mv["grid"]:
+                            cells = [(c, r) for c in mv["view_counts"] for r in mv["azimuth_ranges"]]
+                        else:
+                            cells = list(zip(mv["view_counts"], mv["azimuth_ranges"]))
+                        for count, (lo, hi) in cells:
                             for seed in config.seeds:
                                 rng = random.Random(f"{seed}:{count}:{lo}:{hi}")
                                 views = [view_record(mv["distance"], rng.uniform(lo, hi), mv["elevation"],

@@ -30,7 +30,15 @@ import numpy as np
 
 from meshadv.experiments.compare import paper_comparison
 from meshadv.experiments.store import JobRow, ResultStore
-from meshadv.experiments.tables import DISTANCE_NAMES, attack_rows, table1, table2, to_csv, to_markdown
+from meshadv.experiments.tables import (
+    DISTANCE_NAMES,
+    attack_rows,
+    table1,
+    table2,
+    to_csv,
+    to_markdown,
+    victim_label,
+)
 
 __all__ = ["write_report", "ReportOutput", "environment_versions"]
 
@@ -93,7 +101,8 @@ def _art(row: JobRow, key: str, index: int = 0) -> Optional[Path]:
 
 def _instance(row: JobRow) -> Tuple[Any, ...]:
     mesh = row.spec["mesh"]
-    return (mesh.get("path") or mesh.get("name"), row.spec.get("config_index"), row.spec.get("seed"))
+    return (mesh.get("path") or mesh.get("name"), row.spec.get("config_index"), row.spec.get("seed"),
+            row.spec.get("protocol"))
 
 
 def _grid_cells(rows: List[JobRow]) -> Tuple[Dict[Tuple[str, str], Path], List[str]]:
@@ -236,7 +245,7 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         single = [r for r in done if r.spec.get("kind", "single") == "single" and not r.record.get("skipped")]
         groups: Dict[Tuple[str, str], List[JobRow]] = defaultdict(list)
         for r in single:
-            groups[(r.spec["victim"], r.spec["perturbation"])].append(r)
+            groups[(victim_label(r.spec), r.spec["perturbation"])].append(r)
         from meshadv.experiments.figures import render_grid
 
         for (victim, ptype), grows in sorted(groups.items()):
@@ -280,7 +289,7 @@ def _run_stats(done: List[JobRow]) -> List[str]:
     groups: Dict[Tuple[str, str], List[JobRow]] = defaultdict(list)
     for r in done:
         if r.spec.get("kind", "single") == "single":
-            groups[(r.spec["victim"], r.spec["perturbation"])].append(r)
+            groups[(victim_label(r.spec), r.spec["perturbation"])].append(r)
     for (victim, ptype), rows in sorted(groups.items()):
         instances = {_instance(r): bool(r.record.get("benign_correct")) for r in rows if "benign_correct" in r.record}
         attacked = [r for r in rows if not r.record.get("skipped")]

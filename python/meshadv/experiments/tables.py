@@ -45,6 +45,7 @@ __all__ = [
     "table2",
     "to_markdown",
     "to_csv",
+    "victim_label",
     "DISTANCE_NAMES",
 ]
 
@@ -118,6 +119,11 @@ def _mean(values: Sequence[float]) -> float:
     return sum(values) / len(values) if values else math.nan
 
 
+def victim_label(spec: Dict[str, Any]) -> str:
+    """The victim column of a job: its victim, with ``[protocol]`` for jobs of an extra attack protocol."""
+    return spec["victim"] + (f" [{spec['protocol']}]" if spec.get("protocol") else "")
+
+
 def attack_rows(jobs: Iterable[Any], *, benign_correct_only: bool = False) -> List[AttackRow]:
     """Flatten finished single-view jobs (``JobRow`` objects or ``{"spec", "record"}`` dicts) into :class:`AttackRow`.
 
@@ -139,9 +145,10 @@ def attack_rows(jobs: Iterable[Any], *, benign_correct_only: bool = False) -> Li
         mesh = spec["mesh"]
         key = (mesh.get("path") or mesh.get("name"), spec.get("config_index"), spec.get("seed"))
         distances = record.get("distances") or {}
+        victim = victim_label(spec)
         for measure in DISTANCE_NAMES.get(ptype, ("distance",)):
             dist = read_distance(distances, measure) if distances else record.get("distance")
-            out.append(AttackRow(victim=spec["victim"], perturbation=ptype, instance=key,
+            out.append(AttackRow(victim=victim, perturbation=ptype, instance=key,
                                  source=spec["source_class"], target=spec["target"],
                                  success=bool(record.get("success")), distance=dist, measure=measure))
     return out
