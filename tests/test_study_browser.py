@@ -12,7 +12,8 @@ import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from typing import Any, Callable, Iterator, List
+from typing import Any, Callable, Dict, Iterator, List
+from urllib.parse import parse_qs
 
 import pytest
 import typer
@@ -181,3 +182,65 @@ def test_page_runs_the_2afc_protocol_in_chromium(browser: Any, tmp_path: Path) -
     assert summary["adversarial"][0]["mean"] == pytest.approx(sum(a["correct"] for a in adversarial) / len(adversarial))
     assert summary["dropped_attention"] == 0 and all(a["correct"] for a in answers if a["kind"] == "attention")
     assert abs(summary["exposure"]["mean_ms"] - EXPOSURE_MS) < 20.0
+
+
+class _FormCollector(BaseHTTPRequestHandler):
+    """Records form POSTs (a crowdsourcing site's external-submit URL) and answers with a small page."""
+
+    forms: List[Dict[str, List[str]]] = []
+
+    def do_POST(self) -> None:  # noqa: N802 - http.server's naming
+        body = self.rfile.read(int(self.headers.get("Content-Length", 0))).decode()
+        self.forms.append(parse_qs(body))
+        self.send_response(200)
+        self.send_header("Content-Type", "text/html")
+        self.end_headers()
+        self.wfile.write(b"<html><body id='received'>received</body></html>")
+
+    def log_message(self, *args: Any) -> None:
+        pass
+
+
+def test_random_participant_form_post_and_inattentive_participant(browser: Any, tmp_path: Path) -> None:
+    server = ThreadingHTTPServer(("127.0.0.1", 0), _FormCollector)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        db = make_study_db(tmp_path / "sweep")
+        url = f"http://127.0.0.1:{server.server_address[1]}/externalSubmit"
+        export_study(db, tmp_path / "study", per_image=1, max_trials=4, attention_checks=1, seed=1, post_url=url,
+                     post_mode="form", exposure_ms=200, fixation_ms=50)
+        plan = json.loads((tmp_path / "study" / "plan.json").read_text())
+        browser.get((tmp_path / "study" / "index.html").as_uri() + "?assignmentId=A1")
+        _wait(browser, lambda d: _phase(d) == "ready")
+        state = browser.execute_script("return window.STUDY_STATE")
+        assert state["source"] == "random" and 0 <= state["participant"] < len(plan["participants"])
+        assert "picked at random" in browser.find_element(By.ID, "participant-line").text
+        trials = plan["participants"][state["participant"]]["trials"]
+        browser.find_element(By.ID, "start").click()
+        for trial in trials:
+            _wait(browser, lambda d: _phase(d) == "choice")
+            stim = plan["stimuli"][trial["image_id"]]
+            wrong_left = not trial["true_first"]
+            if stim["kind"] == "attention":  # this participant fails the attention check
+                ActionChains(browser).send_keys("f" if wrong_left else "j").perform()
+            else:
+                ActionChains(browser).send_keys("1" if trial["true_first"] else "2").perform()
+        _wait(browser, lambda d: d.find_elements(By.ID, "received"))  # the form left the page for the site
+    finally:
+        server.shutdown()
+        server.server_close()
+    form = _FormCollector.forms[-1]
+    assert form["assignmentId"] == ["A1"]
+    posted = json.loads(form["answers"][0])
+    assert len(posted["answers"]) == len(trials) and posted["participant_source"] == "random"
+    (tmp_path / "answers.json").write_text(json.dumps(posted))
+    (tmp_path / "attentive.json").write_text(json.dumps([{**a, "session": "other", "correct": True}
+                                                         for a in posted["answers"]]))
+    app = typer.Typer()
+    study_cmd.register(app)
+    res = CliRunner().invoke(app, ["study", "analyze", str(tmp_path / "answers.json"), str(tmp_path / "attentive.json"),
+                                   "-o", str(tmp_path / "analysis")])
+    assert res.exit_code == 0, res.output
+    assert "1 dropped for attention checks" in res.output
+    summary = json.loads((tmp_path / "analysis" / "summary.json").read_text())
+    assert summary["sessions"] == 2 and summary["adversarial"][0]["participants"] == 1

@@ -144,8 +144,11 @@ def attention_image(word: str, path: Union[str, Path], size: int = 224) -> Path:
 
     image = Image.new("RGB", (size, size), (255, 255, 255))
     draw = ImageDraw.Draw(image)
-    font_size = max(8, int(size * 0.9 / max(len(word), 4)))
+    font_size = max(8, size // 4)
     font = ImageFont.load_default(size=font_size)
+    while font_size > 8 and draw.textlength(word.upper(), font=font) > 0.85 * size:  # shrink until it fits
+        font_size -= 2
+        font = ImageFont.load_default(size=font_size)
     draw.text((size / 2, size / 2), word.upper(), fill=(0, 0, 0), font=font, anchor="mm")
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -197,9 +200,13 @@ def select_stimuli(db_path: Union[str, Path], work_dir: Union[str, Path], *, con
     for row in rng.sample(rows, controls):
         out.append(_stimulus(row, "control", job_render(row, "benign", work)))
     classes = sorted({r.spec["source_class"] for r in rows} | {r.spec["target"] for r in rows})
+    from PIL import Image
+
+    with Image.open(out[0].source) as first:
+        side = max(first.size)  # attention pictures as large as the renders
     for i in range(attention_checks):
         word, other = _attention_pair(classes, rng)
-        path = attention_image(word, work / f"attention_{i}.png")
+        path = attention_image(word, work / f"attention_{i}.png", size=side)
         out.append(Stimulus(f"attention_{i}", "attention", word, other, "", "", None, "", str(path)))
     return out
 
