@@ -155,8 +155,8 @@
     var chosen = side === "left" ? c.left : c.right;
     state.answers.push({
       study_id: S.study_id, session: state.session, participant: state.participant,
-      participant_source: state.source, trial: state.index, image_id: c.trial.image_id, kind: c.stim.kind, true_class: c.stim.true_class,
-      target: c.stim.target, victim: c.stim.victim, perturbation: c.stim.perturbation,
+      participant_source: state.source, trial: state.index, image_id: c.trial.image_id, kind: c.stim.kind,
+      true_class: c.stim.true_class, target: c.stim.target, victim: c.stim.victim, perturbation: c.stim.perturbation,
       distance: c.stim.distance, job_id: c.stim.job_id, left: c.left, right: c.right, true_first: c.trial.true_first,
       choice: chosen, chosen_side: side, correct: chosen === c.stim.true_class, input: input,
       fixation_ms: round(c.fixation_ms), exposure_ms: round(c.times.offset - c.times.onset),
@@ -171,8 +171,8 @@
 
   function round(x) { return x === null || x === undefined ? null : Math.round(x * 1000) / 1000; }
 
-  var COLUMNS = ["study_id", "session", "participant", "participant_source", "trial", "image_id", "kind", "true_class", "target",
-                 "victim", "perturbation", "distance", "job_id", "left", "right", "true_first", "choice",
+  var COLUMNS = ["study_id", "session", "participant", "participant_source", "trial", "image_id", "kind",
+                 "true_class", "target", "victim", "perturbation", "distance", "job_id", "left", "right", "true_first", "choice",
                  "chosen_side", "correct", "input", "fixation_ms", "exposure_ms", "exposure_target_ms", "frame_ms",
                  "onset_ms", "rt_ms", "answered_at", "user_agent", "query"];
 
@@ -188,8 +188,8 @@
   }
 
   function payload() {
-    return { study_id: S.study_id, session: state.session, participant: state.participant, participant_source: state.source,
-             query: state.query, finished_at: new Date().toISOString(), answers: state.answers };
+    return { study_id: S.study_id, session: state.session, participant: state.participant,
+             participant_source: state.source, query: state.query, finished_at: new Date().toISOString(), answers: state.answers };
   }
 
   function download(text, type, name) {
