@@ -19,6 +19,9 @@ from typing import Dict, List, Optional
 
 import typer
 
+from meshadv.commands._common_options import install as install_common_options
+from meshadv.threads import prepare_environment
+
 __all__ = ["app", "main", "SUBCOMMANDS", "build_app"]
 
 #: Subcommand name -> ``"module:function"`` (module relative to ``meshadv.commands``).
@@ -29,6 +32,7 @@ SUBCOMMANDS: Dict[str, str] = {
     "attack-scene": "attack_scene:attack_scene",
     "sweep": "sweep:sweep",
     "report": "report:report",
+    "regenerate": "regenerate:regenerate",
     "transfer": "transfer:transfer",
     "rendering-set": "rendering_set:build",
     "study": "study:register",
@@ -64,7 +68,24 @@ def build_app(subcommands: Optional[Dict[str, str]] = None) -> typer.Typer:
             module.register(application)
         else:
             application.command(name)(getattr(module, func_name))
+    application.callback()(_root)
+    install_common_options(application)  # --threads and one-line errors on every command
     return application
+
+
+def _version(value: bool) -> None:
+    if value:
+        from meshadv import __version__
+
+        typer.echo(f"meshadv {__version__}")
+        raise typer.Exit()
+
+
+def _root(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                 help="Print the version and exit."),
+) -> None:
+    """Differentiable mesh rendering and MeshAdv adversarial meshes (Xiao et al., CVPR 2019)."""
 
 
 app = build_app()
@@ -76,6 +97,7 @@ def main(argv: Optional[List[str]] = None) -> None:
     Args:
         argv: arguments (default ``sys.argv[1:]``).
     """
+    prepare_environment()  # OpenMP wait policy and pool sizes: must precede torch's import (meshadv.threads)
     app(args=argv, prog_name="meshadv")
 
 

@@ -148,15 +148,14 @@ def controlled_cmd(
 
     if not results.is_file():
         raise typer.BadParameter(f"{results} does not exist", param_hint="RESULTS")
-    cases = cases_from_store(results, only_successful=not all_attacks)
-    if not cases:
-        typer.echo("no finished single-view attacks with an adversarial mesh in this database")
-        raise typer.Exit(code=1)
     done = {r["case_id"] for r in load_transfer_rows(results, experiment=experiment, kind="controlled")
             if r.get("error") is None}
-    todo = [c for c in cases if c.case_id not in done][:limit]
-    typer.echo(f"{len(cases)} adversarial meshes, {len(cases) - len([c for c in cases if c.case_id not in done])} "
-               f"already transferred, transferring {len(todo)}")
+    # artefacts missing here (another machine's sweep) are regenerated from the stored specs next to the database
+    todo = cases_from_store(results, only_successful=not all_attacks, skip=done, limit=limit)
+    if not todo and not done:
+        typer.echo("no finished single-view attacks with an adversarial mesh in this database")
+        raise typer.Exit(code=1)
+    typer.echo(f"{len(done)} adversarial meshes already transferred, transferring {len(todo)}")
     for case in todo:  # one case at a time, saved at once: an interrupted run resumes where it stopped
         rows = controlled_transfer([case], spp=spp, max_depth=max_depth, variant=variant, image_dir=images)
         save_transfer_rows(results, rows, experiment=experiment, kind="controlled")

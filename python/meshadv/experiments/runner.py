@@ -25,7 +25,11 @@ from meshadv.experiments.progress import Progress
 from meshadv.experiments.spec import JobFn, job_ref
 from meshadv.experiments.store import ResultStore, driver_lock
 
-__all__ = ["SweepSummary", "run_sweep", "job_out_dir"]
+__all__ = ["SweepSummary", "run_sweep", "job_out_dir", "CHECKPOINT_EVERY"]
+
+#: The runner copies the write-ahead log into the ``.db`` file after this many attempts (and at the end), so a copy of
+#: the ``.db`` file alone (e.g. committed to git) misses at most this many recent results, which then run again.
+CHECKPOINT_EVERY = 8
 
 
 @dataclass(frozen=True)
@@ -101,7 +105,7 @@ def run_sweep(
         bar = Progress(total=counts["total"], done=counts["done"], successes=counts["successes"],
                        failed=0, enabled=progress)
         in_flight: Dict[Any, str] = {}
-        ran = 0
+        ran = finished = 0
         try:
             while queue or in_flight:
                 while queue and len(in_flight) < be.capacity:
@@ -124,7 +128,11 @@ def run_sweep(
                             bar.update(failed=1)
                     if on_outcome is not None:
                         on_outcome(jid, outcome.ok)
+                    finished += 1
+                    if finished % CHECKPOINT_EVERY == 0:
+                        store.checkpoint()  # the .db file alone stays a resumable copy of the sweep
         finally:
+            store.checkpoint()
             bar.close()
             if own_backend:
                 be.close()

@@ -115,8 +115,16 @@ class ResultStore:
             raise ValueError(f"path {self.path!r} is not a meshadv results database: {err}") from err
 
     def close(self) -> None:
-        """Close the connection."""
+        """Close the connection (after a checkpoint, so the ``.db`` file alone holds every result)."""
+        self.checkpoint()
         self._conn.close()
+
+    def checkpoint(self) -> None:
+        """Copy the write-ahead log into the ``.db`` file, so that a copy of that one file (committed to git, moved
+        to another machine) holds every recorded result. A busy database is left for the next checkpoint."""
+        if self.path != ":memory:":
+            with contextlib.suppress(sqlite3.OperationalError):
+                self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
 
     def __enter__(self) -> "ResultStore":
         return self

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Optional, Sequence, Union
+from typing import Any, Callable, Collection, Optional, Sequence, Union
 
 import numpy as np
 import torch
@@ -69,17 +69,23 @@ class TransferCase:
 
 
 def cases_from_store(
-    db_path: Union[str, Path], *, limit: Optional[int] = None, only_successful: bool = True
+    db_path: Union[str, Path], *, limit: Optional[int] = None, only_successful: bool = True,
+    skip: Collection[str] = (), artifact_root: Optional[Union[str, Path]] = None, regenerate: bool = True,
 ) -> list[TransferCase]:
     """Collect the adversarial meshes of a finished sweep (single-view attack jobs) as transfer cases.
 
     Reads the ``jobs`` table of the sweep database (``meshadv.experiments.ResultStore``); for each done job, the
-    adversarial mesh ``adversarial.ply`` and the views of its ``result.json`` in the job's folder.
+    adversarial mesh ``adversarial.ply`` and the views of its ``result.json`` in the job's folder. A job whose folder
+    is missing (the database was moved to another machine, or the sweep ran on a cluster) is regenerated from its
+    stored spec and seed into ``<artifact_root>/jobs/..`` (:func:`meshadv.experiments.regenerate.ensure_artifacts`).
 
     Args:
         db_path: the sweep's ``results.db``.
         limit: at most this many cases.
         only_successful: keep only attacks that succeeded in meshadv (as the paper does).
+        skip: job ids to leave out (e.g. those already transferred).
+        artifact_root: root of regenerated artefact folders (default: the database's folder).
+        regenerate: regenerate missing artefacts (else such jobs are left out).
 
     Returns:
         The cases, in database order.
@@ -97,11 +103,16 @@ def cases_from_store(
         rows = store.rows("done")
     for row in rows:
         spec, record = row.spec, row.record or {}
-        if spec.get("kind", "single") != "single" or record.get("skipped") or not row.out_dir:
+        if spec.get("kind", "single") != "single" or record.get("skipped") or row.job_id in skip:
             continue
         if only_successful and not record.get("success"):
             continue
-        out = Path(row.out_dir)
+        out = Path(row.out_dir or "")
+        if regenerate and not (out / "result.json").is_file():
+            from meshadv.experiments.regenerate import ensure_artifacts
+
+            root = Path(artifact_root) if artifact_root is not None else Path(db_path).parent
+            out = ensure_artifacts(db_path, row.job_id, root, row.out_dir)
         result_path = out / "result.json"
         if not result_path.is_file():
             continue
