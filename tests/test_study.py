@@ -83,8 +83,14 @@ def test_selection_finds_successful_attacks_controls_and_checks(study_db: Path, 
             assert s.true_class != s.target
             img = np.asarray(Image.open(s.source).convert("L"))
             assert img.min() < 50 and img.max() > 200  # the word is written, dark on white
+    sample = select_stimuli(study_db, tmp_path, max_images=4, controls=4, seed=1)
+    adv = [s.job_id for s in sample if s.kind == "adversarial"]
+    assert len(adv) == 4 and adv == [s.job_id for s in stimuli if s.kind == "adversarial" and s.job_id in adv]
+    assert {s.job_id for s in sample if s.kind == "control"} == set(adv)  # controls come from the attacks shown
     with pytest.raises(ValueError, match="controls"):
         select_stimuli(study_db, tmp_path, controls=10)
+    with pytest.raises(ValueError, match="max_images"):
+        select_stimuli(study_db, tmp_path, max_images=0)
     with pytest.raises(FileNotFoundError):
         select_stimuli(tmp_path / "none.db", tmp_path)
 
@@ -152,6 +158,9 @@ def test_analysis_mean_std_over_participants_and_attention_filter() -> None:
     kept = analyze(rows, drop_failed_attention=False)
     assert kept.dropped_attention == 0 and kept.adversarial[0].participants == 3
     assert kept.adversarial[0].mean == pytest.approx((1.0 + 0.75 + 0.0) / 3)
+    assert summary.exposure["off_target_trials"] == 0 and summary.exposure["mean_ms"] == 2000.0
+    late = [{**r, "exposure_ms": 2600.0} if r["session"] == "a" and r["trial"] == 1 else r for r in rows]
+    assert analyze(late).exposure["off_target_trials"] == 1  # e.g. a tab switched away during the exposure
     with pytest.raises(ValueError, match="no adversarial"):
         analyze(_answers("a", [True], kind="control"))
 
@@ -207,9 +216,10 @@ def test_study_commands(study_db: Path, tmp_path: Path) -> None:
     study_cmd.register(app)
     runner = CliRunner()
     res = runner.invoke(app, ["study", "export", str(study_db), "-o", str(tmp_path / "s"), "--per-image", "2",
-                              "--max-trials", "10", "--attention-checks", "1", "--controls", "1", "--seed", "3"])
+                              "--max-trials", "10", "--attention-checks", "1", "--controls", "1", "--seed", "3",
+                              "--max-images", "7"])
     assert res.exit_code == 0, res.output
-    assert "9 adversarial images, 1 controls, 1 attention checks; 3 participants" in res.output
+    assert "7 adversarial images, 1 controls, 1 attention checks; 2 participants" in res.output
     res = runner.invoke(app, ["study", "export", str(tmp_path / "missing.db"), "-o", str(tmp_path / "t")])
     assert res.exit_code != 0 and "does not exist" in res.output
     (tmp_path / "a.json").write_text(json.dumps(_answers("a", [True, False])))
@@ -218,3 +228,12 @@ def test_study_commands(study_db: Path, tmp_path: Path) -> None:
     assert "50.00 ± 0.00%" in res.output and (tmp_path / "an" / "README.md").is_file()
     res = runner.invoke(app, ["study", "analyze", str(tmp_path / "nope.csv"), "-o", str(tmp_path / "an")])
     assert res.exit_code != 0 and "missing answer files" in res.output
+
+
+def test_sweep_report_shows_the_proxies(study_db: Path, tmp_path: Path) -> None:
+    from meshadv.experiments.report import write_report
+
+    out = write_report(study_db, tmp_path / "report", figures=False)
+    readme = (tmp_path / "report" / "README.md").read_text()
+    assert "## Perceptual proxies: SSIM and PSNR" in readme and "| v1 | texture | 3 |" in readme
+    assert tmp_path / "report" / "proxies.csv" in out.tables

@@ -20,6 +20,8 @@ def export(
     controls: int = typer.Option(0, "--controls", min=0, help="Benign renders shown as controls."),
     attention_checks: int = typer.Option(0, "--attention-checks", min=0,
                                          help="Obvious pictures (a written class name) each participant sees."),
+    max_images: Optional[int] = typer.Option(None, "--max-images", min=1,
+                                             help="Show at most this many attacks (a seeded sample); default all."),
     post_url: Optional[str] = typer.Option(None, "--post-url", help="POST the answers here at the end."),
     post_mode: str = typer.Option("json", "--post-mode",
                                   help="json: fetch with the JSON answers; form: a form POST (answers, assignmentId)."),
@@ -34,8 +36,8 @@ def export(
         raise typer.BadParameter(f"{results} does not exist", param_hint="RESULTS")
     try:
         study = export_study(results, out, per_image=per_image, max_trials=max_trials, seed=seed, controls=controls,
-                             attention_checks=attention_checks, post_url=post_url, post_mode=post_mode,
-                             exposure_ms=exposure_ms, image_px=image_px, overwrite=overwrite)
+                             attention_checks=attention_checks, max_images=max_images, post_url=post_url,
+                             post_mode=post_mode, exposure_ms=exposure_ms, image_px=image_px, overwrite=overwrite)
     except (ValueError, FileExistsError) as err:
         raise typer.BadParameter(str(err)) from err
     counts = study.counts()

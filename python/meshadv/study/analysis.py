@@ -60,7 +60,8 @@ class StudySummary:
         sessions: sessions read. dropped_attention: sessions dropped for failing an attention check.
         answers_read: answer rows read (after removing duplicates).
         exposure: exposure timing over all kept trials (``mean_ms``, ``std_ms``, ``min_ms``, ``max_ms``,
-            ``target_ms``).
+            ``target_ms``, and ``off_target_trials``: trials shown more than ``tolerance_ms`` away from the target,
+            e.g. because the participant switched tabs and the browser stopped drawing).
     """
 
     adversarial: List[GroupStat] = field(default_factory=list)
@@ -163,12 +164,15 @@ def _distance_bins(rows: List[Dict[str, Any]], bins: int = 3) -> Dict[int, str]:
     return labels
 
 
-def analyze(rows: List[Dict[str, Any]], *, drop_failed_attention: bool = True) -> StudySummary:
+def analyze(rows: List[Dict[str, Any]], *, drop_failed_attention: bool = True,
+            exposure_tolerance_ms: float = 50.0) -> StudySummary:
     """The paper's statistics over answers from :func:`load_answers`.
 
     Args:
         rows: the answers.
         drop_failed_attention: drop every session that answered an attention check wrong.
+        exposure_tolerance_ms: a trial whose measured exposure is further than this from its target is counted in
+            ``exposure["off_target_trials"]``.
 
     Returns:
         A :class:`StudySummary`.
@@ -198,12 +202,15 @@ def analyze(rows: List[Dict[str, Any]], *, drop_failed_attention: bool = True) -
     out.adversarial += [_stat(name, groups[name]) for name in names]
     controls = [r for r in rows if r["kind"] == "control"]
     out.controls = _stat("benign controls", controls) if controls else None
-    times = [r["exposure_ms"] for r in rows if r.get("exposure_ms") is not None]
-    if times:
+    timed = [r for r in rows if r.get("exposure_ms") is not None]
+    if timed:
+        times = [r["exposure_ms"] for r in timed]
         mean = sum(times) / len(times)
+        off = sum(abs(r["exposure_ms"] - (r.get("exposure_target_ms") or 0.0)) > exposure_tolerance_ms for r in timed)
         out.exposure = {"mean_ms": mean, "std_ms": math.sqrt(sum((t - mean) ** 2 for t in times) / len(times)),
                         "min_ms": min(times), "max_ms": max(times),
-                        "target_ms": float(rows[0].get("exposure_target_ms") or 0.0)}
+                        "target_ms": float(timed[0].get("exposure_target_ms") or 0.0), "off_target_trials": off,
+                        "tolerance_ms": float(exposure_tolerance_ms)}
     return out
 
 
@@ -233,7 +240,8 @@ def _markdown(summary: StudySummary) -> str:
         e = summary.exposure
         lines += ["", f"Exposure measured in the page (requestAnimationFrame frame times): mean {e['mean_ms']:.1f} ms, "
                       f"std {e['std_ms']:.1f} ms, range {e['min_ms']:.1f}-{e['max_ms']:.1f} ms "
-                      f"(target {e['target_ms']:.0f} ms)."]
+                      f"(target {e['target_ms']:.0f} ms); {e['off_target_trials']} trials off by more than "
+                      f"{e['tolerance_ms']:.0f} ms."]
     lines += ["", "Figure: [true_class_share.png](true_class_share.png). Numbers: summary.json.", ""]
     return "\n".join(lines)
 

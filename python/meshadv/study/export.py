@@ -114,7 +114,8 @@ def write_study_folder(out_dir: Union[str, Path], stimuli: List[Stimulus], plan:
 
 
 def export_study(db_path: Union[str, Path], out_dir: Union[str, Path], *, per_image: int = 5, max_trials: int = 50,
-                 seed: int = 0, controls: int = 0, attention_checks: int = 0, post_url: Optional[str] = None,
+                 seed: int = 0, controls: int = 0, attention_checks: int = 0, max_images: Optional[int] = None,
+                 post_url: Optional[str] = None,
                  post_mode: str = "json", exposure_ms: float = 2000.0, fixation_ms: float = 500.0,
                  image_px: int = 299, overwrite: bool = False) -> ExportedStudy:
     """Pick the study's images from a sweep's results database and write the study folder.
@@ -127,6 +128,7 @@ def export_study(db_path: Union[str, Path], out_dir: Union[str, Path], *, per_im
         seed: seed of the control sample, the assignment, the trial order and the answers' order.
         controls: number of benign controls.
         attention_checks: attention checks each participant sees.
+        max_images: show at most this many adversarial images (a seeded sample); ``None``: every successful attack.
         post_url: where the page POSTs the answers at the end (``None``: only downloads).
         post_mode: ``"json"`` (a ``fetch`` with the JSON answers as body) or ``"form"`` (a form POST with fields
             ``answers`` and ``assignmentId``, as crowdsourcing sites' external-submit URLs expect).
@@ -145,11 +147,13 @@ def export_study(db_path: Union[str, Path], out_dir: Union[str, Path], *, per_im
     """
     _check_settings(exposure_ms, fixation_ms, image_px, post_mode, post_url)
     with tempfile.TemporaryDirectory(prefix="meshadv-study-") as work:
-        stimuli = select_stimuli(db_path, work, controls=controls, attention_checks=attention_checks, seed=seed)
+        stimuli = select_stimuli(db_path, work, controls=controls, attention_checks=attention_checks, seed=seed,
+                                 max_images=max_images)
         study_ids = [s.image_id for s in stimuli if s.kind != "attention"]
         checks = [s.image_id for s in stimuli if s.kind == "attention"]
         plan = make_plan(study_ids, per_image=per_image, max_trials=max_trials, attention_ids=checks, seed=seed)
-        settings = {"exposure_ms": float(exposure_ms), "fixation_ms": float(fixation_ms), "image_px": int(image_px),
+        settings = {"max_images": max_images, "exposure_ms": float(exposure_ms), "fixation_ms": float(fixation_ms),
+                    "image_px": int(image_px),
                     "post_url": post_url, "post_mode": post_mode, "study_id": f"{Path(db_path).stem}-s{seed}",
                     "database": str(Path(db_path).resolve())}
         path = write_study_folder(out_dir, stimuli, plan, settings, overwrite=overwrite)

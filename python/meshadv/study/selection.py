@@ -162,7 +162,7 @@ def _successful(rows: List[JobRow]) -> List[JobRow]:
 
 
 def select_stimuli(db_path: Union[str, Path], work_dir: Union[str, Path], *, controls: int = 0,
-                   attention_checks: int = 0, seed: int = 0) -> List[Stimulus]:
+                   attention_checks: int = 0, seed: int = 0, max_images: Optional[int] = None) -> List[Stimulus]:
     """The study's images from a sweep's results database.
 
     Args:
@@ -171,14 +171,17 @@ def select_stimuli(db_path: Union[str, Path], work_dir: Union[str, Path], *, con
         controls: number of benign controls (a seeded sample of the successful jobs' benign renders; at most one
             per job).
         attention_checks: number of attention-check pictures.
-        seed: seed of the control sample and the attention checks' words.
+        seed: seed of the samples (attacks, controls) and the attention checks' words.
+        max_images: show at most this many adversarial images (a seeded sample of the successful attacks, kept in
+            database order); ``None`` shows them all.
 
     Returns:
         The stimuli: adversarial ones in database order, then controls, then attention checks.
 
     Raises:
         FileNotFoundError: no database at ``db_path``.
-        ValueError: no successful attack in the database, a negative count, or more controls than attacks.
+        ValueError: no successful attack in the database, a negative count, ``max_images < 1``, or more controls
+            than attacks shown.
         MissingRenderError: a render can neither be found nor made again.
     """
     db = Path(db_path)
@@ -186,17 +189,22 @@ def select_stimuli(db_path: Union[str, Path], work_dir: Union[str, Path], *, con
         raise FileNotFoundError(f"results database {db} does not exist")
     if controls < 0 or attention_checks < 0:
         raise ValueError(f"controls and attention_checks must be >= 0, got {controls} and {attention_checks}")
+    if max_images is not None and max_images < 1:
+        raise ValueError(f"max_images must be >= 1 or None, got {max_images}")
     with ResultStore(db) as store:
         rows = _successful(store.rows("done"))
     if not rows:
         raise ValueError(f"results database {db} holds no successful attack (done, success, not skipped)")
+    rng = random.Random(seed)
+    if max_images is not None and max_images < len(rows):
+        keep = set(rng.sample(range(len(rows)), max_images))
+        rows = [r for i, r in enumerate(rows) if i in keep]
     if controls > len(rows):
         raise ValueError(f"controls must be <= the number of successful attacks ({len(rows)}), got {controls}")
     work = Path(work_dir)
     out: List[Stimulus] = []
     for row in rows:
         out.append(_stimulus(row, "adversarial", job_render(row, "adversarial", work)))
-    rng = random.Random(seed)
     for row in rng.sample(rows, controls):
         out.append(_stimulus(row, "control", job_render(row, "benign", work)))
     classes = sorted({r.spec["source_class"] for r in rows} | {r.spec["target"] for r in rows})
