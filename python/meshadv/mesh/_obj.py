@@ -12,6 +12,8 @@ from typing import Optional
 
 import numpy as np
 
+from meshadv.mesh.errors import MeshLoadError
+
 
 def encode_obj(
     vertices: np.ndarray, faces: np.ndarray, face_colors: np.ndarray, mtl_name: str, comment: str
@@ -59,20 +61,42 @@ def strip_materials(text: str) -> str:
     return "\n".join(keep) + "\n"
 
 
-def _parse_mtl(path: Path) -> "dict[str, np.ndarray]":
+def _parse_mtl(path: Path, warnings: "list[str]") -> "dict[str, np.ndarray]":
+    """Read the ``Kd`` colour of each material of an MTL file.
+
+    Colours must be 3 finite numbers; values outside ``[0, 1]`` are clamped with a warning appended to
+    ``warnings``.
+
+    Raises:
+        MeshLoadError: a ``Kd`` line without 3 numbers, or with NaN/infinite values (naming file and line).
+    """
     colors: dict = {}
     name = None
-    for line in path.read_text(errors="replace").splitlines():
-        tokens = line.split()
+    clamped = []
+    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+        tokens = line.split("#", 1)[0].split()
         if not tokens:
             continue
         if tokens[0] == "newmtl" and len(tokens) > 1:
             name = " ".join(tokens[1:])
-        elif tokens[0] == "Kd" and name is not None and len(tokens) >= 4:
-            try:
-                colors[name] = np.array([float(t) for t in tokens[1:4]], dtype=np.float32)
-            except ValueError:
+        elif tokens[0] == "Kd" and name is not None:
+            if tokens[1:2] == ["spectral"] or tokens[1:2] == ["xyz"]:
+                warnings.append(f"{path.name}:{lineno}: Kd {tokens[1]} colours are not supported; ignored")
                 continue
+            try:
+                values = [float(t) for t in tokens[1:]]
+            except ValueError:
+                values = []
+            if len(values) != 3:
+                raise MeshLoadError(f"{path}:{lineno}: Kd needs 3 numbers (r g b), got {line.strip()!r}")
+            rgb = np.array(values, dtype=np.float64)
+            if not np.isfinite(rgb).all():
+                raise MeshLoadError(f"{path}:{lineno}: Kd colour must be finite, got {line.strip()!r}")
+            if (rgb < 0).any() or (rgb > 1).any():
+                clamped.append(name)
+            colors[name] = np.clip(rgb, 0.0, 1.0).astype(np.float32)
+    if clamped:
+        warnings.append(f"{path.name}: Kd colours outside [0, 1] clamped for materials {', '.join(clamped[:5])}")
     return colors
 
 
@@ -91,6 +115,9 @@ def face_colors_in_file_order(
     Returns:
         ``(colors, triangles, warnings)``: ``colors`` is ``(T, 3)`` float32, or ``None`` when the file uses
         no material; ``triangles`` the number of triangles the face statements describe.
+
+    Raises:
+        MeshLoadError: a malformed or non-finite ``Kd`` colour in a material library.
     """
     library: dict = {}
     warnings: "list[str]" = []
@@ -106,7 +133,7 @@ def face_colors_in_file_order(
             for name in tokens[1:]:
                 mtl_path = folder / name
                 if mtl_path.is_file():
-                    library.update(_parse_mtl(mtl_path))
+                    library.update(_parse_mtl(mtl_path, warnings))
                 else:
                     warnings.append(f"material library {name} not found beside the OBJ file")
         elif head == "usemtl":

@@ -17,7 +17,7 @@ import numpy as np
 import trimesh
 
 from meshadv import __version__
-from meshadv.mesh import _obj, _ply
+from meshadv.mesh import _obj, _ply, _strict
 from meshadv.mesh._atomic import write_bytes_atomic
 from meshadv.mesh.cleanup import clean_arrays
 from meshadv.mesh.errors import MeshLoadError
@@ -107,8 +107,13 @@ def _check_binary_stl(path: Path) -> None:
 def _trimesh_load(path: Path, ext: str) -> object:
     if ext == ".stl":
         _check_binary_stl(path)
+    if ext == ".off":
+        _strict.check_off(path.read_text(errors="replace"), path)
+    if ext == ".ply":
+        _strict.check_ascii_ply(path.read_bytes(), path)
     if ext == ".obj":
         text = path.read_text(errors="replace")
+        _strict.check_obj(text, path)
         # Material statements removed: one geometry, faces in file order (colours are recovered separately).
         return trimesh.load(
             _io.StringIO(_obj.strip_materials(text)), file_type="obj", process=False, maintain_order=True

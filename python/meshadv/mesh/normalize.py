@@ -19,11 +19,14 @@ from typing import Union
 import numpy as np
 import torch
 
+from meshadv import _validate
 from meshadv.mesh.structure import Mesh
 
 ArrayLike = Union[torch.Tensor, np.ndarray]
 
 #: Rotation taking a Z-up model into the renderer's Y-up world: ``(x, y, z) -> (x, z, -y)``.
+#: Largest accepted ``extent`` of :func:`normalize_mesh`; float32 vertices (max 3.4e38) stay far from overflow.
+_MAX_EXTENT = 1e30
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
 
@@ -143,14 +146,18 @@ def normalize_mesh(mesh: Mesh, *, z_up: bool = False, extent: float = 1.0) -> "t
         ``(normalised mesh, transform)``; ``transform.to_original`` maps vertices back.
 
     Raises:
-        ValueError: ``extent`` is not positive, or the mesh is a single point (no extent to scale).
+        TypeError: ``mesh`` is not a :class:`Mesh`, ``extent`` not a real number or ``z_up`` not a bool.
+        ValueError: ``extent`` is not positive and finite or exceeds ``1e30`` (float32 vertices would overflow),
+            or the mesh is a single point (no extent to scale).
 
     Example:
         >>> unit, tf = normalize_mesh(builtin_mesh("cube"))  # doctest: +SKIP
         >>> torch.allclose(tf.to_original(unit.vertices), cube.vertices, atol=1e-6)  # doctest: +SKIP
     """
-    if not extent > 0:
-        raise ValueError(f"extent must be positive, got {extent!r}")
+    if not isinstance(mesh, Mesh):
+        raise TypeError(f"mesh must be a Mesh, got {type(mesh).__name__}")
+    extent = _validate.positive_float("extent", extent, high=_MAX_EXTENT)
+    z_up = _validate.boolean("z_up", z_up)
     verts = mesh.vertices.detach().double().cpu().numpy()
     lo, hi = verts.min(axis=0), verts.max(axis=0)
     center = (lo + hi) / 2.0

@@ -35,7 +35,10 @@ from pathlib import Path
 from typing import Optional, Union
 
 import numpy as np
+import torch
 from scipy.spatial import cKDTree
+
+from meshadv import _validate
 
 from meshadv.mesh._atomic import write_bytes_atomic
 from meshadv.mesh.adjacency import is_watertight
@@ -216,33 +219,33 @@ def resample_mesh_with_info(
         ``(mesh, info)``; the mesh is on the input's device.
 
     Raises:
-        ValueError: invalid arguments or an input without faces.
+        TypeError: an argument of the wrong type (``mesh`` not a Mesh, ``target_faces=4.5``, ...).
+        ValueError: invalid arguments, an input without faces or with NaN/infinite vertices.
         MeshProcessingError: MeshLab failed, crashed, timed out or produced an empty mesh.
 
     Example:
         >>> dense, info = resample_mesh_with_info(builtin_mesh("sphere"), target_faces=5000)  # doctest: +SKIP
     """
     start = time.perf_counter()
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    if not isinstance(mesh, Mesh):
+        raise TypeError(f"mesh must be a Mesh, got {type(mesh).__name__}")
+    _validate.choice("method", method, METHODS)
     if target_faces is not None and edge_length is not None:
         raise ValueError("give target_faces or edge_length, not both")
-    if target_faces is not None and (
-        isinstance(target_faces, bool) or not isinstance(target_faces, int) or target_faces < 4
-    ):
-        raise ValueError(f"target_faces must be an integer >= 4, got {target_faces!r}")
-    if edge_length is not None and not (np.isfinite(edge_length) and edge_length > 0):
-        raise ValueError(f"edge_length must be a positive finite number, got {edge_length!r}")
-    if not timeout > 0:
-        raise ValueError(f"timeout must be positive, got {timeout!r}")
-    if not 0 < max_deviation < 1:
-        raise ValueError(f"max_deviation must be in (0, 1), got {max_deviation!r}")
-    if not 0 < max_hausdorff < 1:
-        raise ValueError(f"max_hausdorff must be in (0, 1), got {max_hausdorff!r}")
-    if iterations < 1:
-        raise ValueError(f"iterations must be >= 1, got {iterations!r}")
+    if target_faces is not None:
+        _validate.integer("target_faces", target_faces, low=4)
+    if edge_length is not None:
+        _validate.positive_float("edge_length", edge_length)
+    _validate.positive_float("timeout", timeout)
+    _validate.finite_float("max_deviation", max_deviation, low=0.0, high=1.0, low_open=True, high_open=True)
+    _validate.finite_float("max_hausdorff", max_hausdorff, low=0.0, high=1.0, low_open=True, high_open=True)
+    _validate.positive_int("iterations", iterations)
     if mesh.num_faces == 0:
         raise ValueError("mesh has no faces; there is nothing to resample")
+    finite = torch.isfinite(mesh.vertices.detach()).all(dim=1)
+    if not bool(finite.all()):
+        bad = int((~finite).sum())
+        raise ValueError(f"mesh has {bad} vertices with NaN or infinite coordinates; MeshLab cannot resample it")
 
     vertices, faces, colors = mesh.numpy()
     # MeshLab's uniform resampling runs out of memory on duplicate faces; send it a clean copy.
