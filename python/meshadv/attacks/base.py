@@ -9,7 +9,8 @@ Per step, for the parameters *before* the update, the loop records the per-view 
 whose views are adversarial (at least ``success_fraction`` of them) within the distortion budget keeps those
 parameters when their distortion is the least seen so far. ``lambda`` is searched per target over
 ``binary_search_steps`` rounds (:class:`~meshadv.attacks.search.LambdaSearch`), each round restarting from the
-pristine mesh with the same seed.
+pristine mesh with the same seed. How losses become updates is the attack's update rule (``method=``,
+:mod:`meshadv.attacks.update`); the loop above is the paper's rule, ``"adam"``, and the only loop.
 
 The result's success and scores are measured on the final meshes re-rendered from scratch (without jitter), never on
 the optimiser's last images. Ctrl-C (``KeyboardInterrupt``) inside the loop stops the attack and returns the best
@@ -27,11 +28,11 @@ from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 import torch
 from torch import Tensor
 
-from meshadv.attacks._compat import vertex_edges
 from meshadv.attacks.criteria import CLASSIFIER_LOSSES, Criterion
 from meshadv.attacks.distances import mesh_distances
 from meshadv.attacks.result import AttackResult
-from meshadv.attacks.search import LambdaSearch
+from meshadv.attacks.update import make_update_rule, update_rules
+from meshadv.mesh.adjacency import vertex_edges
 
 __all__ = ["MeshAttack", "StepInfo", "slice_output", "render_views"]
 
@@ -125,6 +126,66 @@ def render_views(
     return image, out.alpha
 
 
+@dataclass
+class _Target:
+    """Per-target state of one attack call: its criterion, the best result so far and the current round's flags."""
+
+    criterion: Criterion
+    best_params: Optional[Tensor] = None
+    best_distance: float = math.inf
+    best_lambda: float = math.nan
+    fallback: Optional[Tensor] = None
+    fallback_key: Tuple[float, float] = (-math.inf, -math.inf)
+    first_step: Optional[int] = None
+    first_time: Optional[float] = None
+    active: bool = True
+    hold: int = 0
+    round_success: bool = False
+
+    def start_round(self) -> None:
+        """Every target is optimised again from the pristine mesh."""
+        self.active, self.hold, self.round_success = True, 0, False
+
+    def observe(self, params: Tensor, distance: float, fraction: float, margins: Tensor, lam: float,
+                attack: "MeshAttack", total_steps: int, elapsed: float) -> None:
+        """Record one step's parameters (before the update), distortion and per-view margins."""
+        ok = fraction >= attack.success_fraction - 1e-9
+        within = attack.max_distortion is None or distance <= attack.max_distortion
+        if ok and within:
+            self.round_success = True
+            if self.first_step is None:
+                self.first_step, self.first_time = total_steps, elapsed
+            if distance < self.best_distance:
+                self.best_distance = distance
+                self.best_params = params.detach().clone()
+                self.best_lambda = lam
+        key = (fraction, float(margins.mean()))
+        if self.best_params is None and key > self.fallback_key:
+            self.fallback_key = key
+            self.fallback = params.detach().clone()
+        self.hold = self.hold + 1 if ok and float(margins.min()) >= attack.early_stop_margin else 0
+        if attack.early_stop is not None and self.hold >= attack.early_stop:
+            self.active = False
+        if not within:
+            self.active = False
+
+    def chosen(self, pristine: Tensor) -> Tensor:
+        """The least distorted success, else the step closest to success, else ``pristine``."""
+        if self.best_params is not None:
+            return self.best_params
+        return self.fallback if self.fallback is not None else pristine
+
+
+@dataclass(frozen=True)
+class _RunInfo:
+    """What the loop hands to the final evaluation besides the chosen parameters."""
+
+    history: Tuple[Dict[str, Any], ...]
+    steps: int
+    wall_time: float
+    interrupted: bool
+
+
 def _parse_image_size(image_size: ImageSize) -> Tuple[int, int]:
     if isinstance(image_size, int):
         size = (image_size, image_size)
@@ -159,6 +220,9 @@ class MeshAttack(ABC):
         background: RGB background colour, or a ``(3, H, W)`` image tensor composited behind the object.
         antialias: supersampling factor of the renderer.
         seed: seed of the jitter generator (the attack is otherwise deterministic).
+        method: the update rule (:mod:`meshadv.attacks.update`): ``"adam"`` (default) is the paper's Adam on
+            ``L_adv + lambda * L_perceptual`` with the ``lambda`` binary search; others are registered there.
+        method_options: extra keyword options of the update rule (JSON-able), ``None`` for none.
 
     Raises:
         ValueError: any hyper-parameter out of range, naming it.
@@ -184,6 +248,8 @@ class MeshAttack(ABC):
         background: Union[Tuple[float, float, float], Tensor] = (1.0, 1.0, 1.0),
         antialias: int = 1,
         seed: int = 0,
+        method: str = "adam",
+        method_options: Optional[Dict[str, Any]] = None,
     ) -> None:
         if int(steps) < 1:
             raise ValueError(f"steps must be >= 1, got {steps}")
@@ -231,6 +297,12 @@ class MeshAttack(ABC):
         self.background = background if isinstance(background, Tensor) else tuple(float(c) for c in background)
         self.antialias = int(antialias)
         self.seed = int(seed)
+        if method not in update_rules():
+            raise ValueError(f"method must be one of {update_rules()}, got {method!r}")
+        if method_options is not None and not isinstance(method_options, dict):
+            raise TypeError(f"method_options must be a dict or None, got {type(method_options).__name__}")
+        self.method = method
+        self.method_options = dict(method_options or {})
 
     # ------------------------------------------------------------------ family hooks
     @abstractmethod
@@ -261,7 +333,8 @@ class MeshAttack(ABC):
             "early_stop_margin": self.early_stop_margin, "max_distortion": self.max_distortion,
             "success_fraction": self.success_fraction, "jitter": self.jitter, "image_size": list(self.image_size),
             "background": "image" if isinstance(bg, Tensor) and bg.dim() == 3 else [float(c) for c in bg],
-            "antialias": self.antialias, "seed": self.seed,
+            "antialias": self.antialias, "seed": self.seed, "method": self.method,
+            "method_options": dict(self.method_options),
         }
 
     def __repr__(self) -> str:
@@ -320,32 +393,25 @@ class MeshAttack(ABC):
              callback: Optional[Callable[[StepInfo], None]]) -> AttackResult:
         t_start = time.perf_counter()
         num_t, num_v = len(criteria), len(views)
-        edges = vertex_edges(mesh.faces)
+        edges = vertex_edges(mesh.faces).long()
         views = views.detach()
-        search = LambdaSearch(self.lambda_perceptual, num_t)
-        best_params: List[Optional[Tensor]] = [None] * num_t
-        best_dist = [math.inf] * num_t
-        best_lambda = [math.nan] * num_t
-        fallback: List[Optional[Tensor]] = [None] * num_t
-        fallback_key = [(-math.inf, -math.inf)] * num_t
-        first_step: List[Optional[int]] = [None] * num_t
-        first_time: List[Optional[float]] = [None] * num_t
+        rule = make_update_rule(self.method, attack=self, num_targets=num_t, **self.method_options)
+        targets = [_Target(c) for c in criteria]
         history: List[Dict[str, Any]] = []
         total_steps = 0
         interrupted = False
         classifier = getattr(victim, "kind", "") == "classifier"
 
         try:
-            for rnd in range(self.binary_search_steps):
+            for rnd in range(rule.rounds):
                 generator = torch.Generator().manual_seed(self.seed)
-                lambdas = search.lambdas
                 params = self._init_params(mesh, num_t).detach().clone().requires_grad_(True)
-                optimiser = torch.optim.Adam([params], lr=self.lr)
-                active = [True] * num_t
-                hold = [0] * num_t
-                round_success = [False] * num_t
+                rule.start_round(params)
+                lambdas = rule.lambdas
+                for target in targets:
+                    target.start_round()
                 for step in range(self.steps):
-                    act = [t for t in range(num_t) if active[t]]
+                    act = [t for t in range(num_t) if targets[t].active]
                     if not act:
                         break
                     try:
@@ -353,27 +419,24 @@ class MeshAttack(ABC):
                         idx = torch.tensor(act, dtype=torch.long)
                         p = params[idx]
                         images, alpha, output = self._forward(p, mesh, edges, step_views, victim)
-                        adv = torch.stack([
-                            criteria[t].loss(slice_output(output, a * num_v, (a + 1) * num_v),
-                                             loss=self.loss, kappa=self.kappa).mean()
-                            for a, t in enumerate(act)
-                        ])
+                        parts = [slice_output(output, a * num_v, (a + 1) * num_v) for a in range(len(act))]
+                        adv = torch.stack([targets[t].criterion.loss(o, loss=self.loss, kappa=self.kappa).mean()
+                                           for t, o in zip(act, parts)])
                         perc = self._perceptual(p, mesh, edges, images, alpha, num_v)
-                        total = adv + lambdas[idx] * perc
-                        optimiser.zero_grad(set_to_none=True)
-                        total.sum().backward()
-                        optimiser.step()
+                        dist = self._distance(p, mesh, edges)
+                        with torch.no_grad():
+                            margins = torch.stack([targets[t].criterion.margin(o).detach() for t, o in zip(act, parts)])
+                            fractions = (margins > 0).float().mean(dim=1)
+                            is_adv = fractions >= self.success_fraction - 1e-9
+                        rule.objective(adv, perc, dist, idx).backward()
+                        rule.step(params, idx, is_adv)
                     except KeyboardInterrupt:
                         interrupted = True
                         break
                     total_steps += 1
-                    total, adv, perc = total.detach(), adv.detach(), perc.detach()
                     with torch.no_grad():
-                        dist = self._distance(p.detach(), mesh, edges)
-                        margins = torch.stack([
-                            criteria[t].margin(slice_output(output, a * num_v, (a + 1) * num_v)).detach()
-                            for a, t in enumerate(act)
-                        ])
+                        adv, perc, dist = adv.detach(), perc.detach(), dist.detach()
+                        total = adv + lambdas[idx] * perc
                         top = output.detach().argmax(dim=1).view(len(act), num_v)[:, 0] if classifier else None
                     row: Dict[str, Any] = {"round": rnd, "step": step, "loss": [None] * num_t, "adv": [None] * num_t,
                                            "perceptual": [None] * num_t, "distance": [None] * num_t,
@@ -381,27 +444,8 @@ class MeshAttack(ABC):
                     top1: List[Optional[int]] = [None] * num_t
                     for a, t in enumerate(act):
                         d = float(dist[a])
-                        frac = float((margins[a] > 0).float().mean())
-                        ok = frac >= self.success_fraction - 1e-9
-                        within = self.max_distortion is None or d <= self.max_distortion
-                        if ok and within:
-                            round_success[t] = True
-                            if first_step[t] is None:
-                                first_step[t] = total_steps
-                                first_time[t] = time.perf_counter() - t_start
-                            if d < best_dist[t]:
-                                best_dist[t] = d
-                                best_params[t] = p[a].detach().clone()
-                                best_lambda[t] = float(lambdas[t])
-                        key = (frac, float(margins[a].mean()))
-                        if best_params[t] is None and key > fallback_key[t]:
-                            fallback_key[t] = key
-                            fallback[t] = p[a].detach().clone()
-                        hold[t] = hold[t] + 1 if ok and float(margins[a].min()) >= self.early_stop_margin else 0
-                        if self.early_stop is not None and hold[t] >= self.early_stop:
-                            active[t] = False
-                        if not within:
-                            active[t] = False
+                        targets[t].observe(p[a], d, float(fractions[a]), margins[a], float(lambdas[t]), self,
+                                           total_steps, time.perf_counter() - t_start)
                         row["loss"][t] = float(total[a])
                         row["adv"][t] = float(adv[a])
                         row["perceptual"][t] = float(perc[a])
@@ -412,11 +456,12 @@ class MeshAttack(ABC):
                     history.append(row)
                     if callback is not None:
                         info = StepInfo(
-                            round=rnd, rounds=self.binary_search_steps, step=step, steps=self.steps,
+                            round=rnd, rounds=rule.rounds, step=step, steps=self.steps,
                             total_step=total_steps, lambdas=tuple(lambdas.tolist()), loss=tuple(row["loss"]),
                             distance=tuple(row["distance"]), margin=tuple(row["margin"]), top1=tuple(top1),
-                            best_distance=tuple(None if math.isinf(b) else b for b in best_dist),
-                            active=sum(active),
+                            best_distance=tuple(None if math.isinf(tg.best_distance) else tg.best_distance
+                                                for tg in targets),
+                            active=sum(tg.active for tg in targets),
                         )
                         try:
                             callback(info)
@@ -425,22 +470,16 @@ class MeshAttack(ABC):
                             break
                 if interrupted:
                     break
-                search.update(round_success)
+                rule.end_round([tg.round_success for tg in targets])
 
         except KeyboardInterrupt:  # Ctrl-C between steps: keep what we have
             interrupted = True
 
-        chosen = []
-        for t in range(num_t):
-            if best_params[t] is not None:
-                chosen.append(best_params[t])
-            elif fallback[t] is not None:
-                chosen.append(fallback[t])
-            else:
-                chosen.append(self._init_params(mesh, 1)[0].detach())
-        return self._finish(mesh, views, victim, criteria, eval_views, edges, torch.stack(chosen), best_lambda,
-                            history, total_steps, first_step, first_time, time.perf_counter() - t_start,
-                            interrupted)
+        pristine = self._init_params(mesh, 1)[0].detach()
+        chosen = torch.stack([tg.chosen(pristine) for tg in targets])
+        run = _RunInfo(history=tuple(history), steps=total_steps, wall_time=time.perf_counter() - t_start,
+                       interrupted=interrupted)
+        return self._finish(mesh, views, victim, targets, eval_views, edges, chosen, run)
 
     # ------------------------------------------------------------------ final evaluation
     def _evaluate(self, meshes: Sequence[Any], views: Any, victim: Any, criteria: List[Criterion],
@@ -471,10 +510,8 @@ class MeshAttack(ABC):
             top1 = output.argmax(dim=1).view(len(meshes), num_v) if isinstance(output, Tensor) else None
         return margins, scores, images.view(len(meshes), num_v, *images.shape[1:]), top1
 
-    def _finish(self, mesh: Any, views: Any, victim: Any, criteria: List[Criterion], eval_views: Any,
-                edges: Tensor, params: Tensor, best_lambda: List[float], history: List[Dict[str, Any]],
-                total_steps: int, first_step: List[Optional[int]], first_time: List[Optional[float]],
-                wall_time: float, interrupted: bool) -> AttackResult:
+    def _finish(self, mesh: Any, views: Any, victim: Any, targets: List[_Target], eval_views: Any, edges: Tensor,
+                params: Tensor, run: _RunInfo) -> AttackResult:
         from meshadv.mesh import Mesh
 
         num_t = params.shape[0]
@@ -487,6 +524,7 @@ class MeshAttack(ABC):
                  colors[t].detach().clone().float().contiguous())
             for t in range(num_t)
         )
+        criteria = [tg.criterion for tg in targets]
         margins, scores, images, top1 = self._evaluate(adversarial, views, victim, criteria)
         _, orig_scores, orig_images, orig_top1 = self._evaluate([mesh], views, victim, criteria, shared=True)
         eval_success = eval_scores = None
@@ -510,13 +548,13 @@ class MeshAttack(ABC):
             eval_success=eval_success,
             eval_scores=eval_scores,
             distances=distances,
-            lambdas=tuple(best_lambda),
-            loss_history=tuple(history),
-            steps=total_steps,
-            steps_to_success=tuple(first_step),
-            time_to_success=tuple(first_time),
-            wall_time=wall_time,
-            interrupted=interrupted,
+            lambdas=tuple(tg.best_lambda for tg in targets),
+            loss_history=run.history,
+            steps=run.steps,
+            steps_to_success=tuple(tg.first_step for tg in targets),
+            time_to_success=tuple(tg.first_time for tg in targets),
+            wall_time=run.wall_time,
+            interrupted=run.interrupted,
             success_fraction=self.success_fraction,
             original_images=orig_images[0],
             images=images,

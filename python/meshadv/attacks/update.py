@@ -1,0 +1,177 @@
+"""Update rules: how the attack loop turns losses into parameter updates (pluggable, chosen by ``method=``).
+
+The loop in :mod:`meshadv.attacks.base` owns everything a rule should not care about: rendering, the victim, the
+criteria, the per-target bookkeeping (best result, early stopping, budget) and the final evaluation. A rule owns the
+optimisation itself. Contract, per attack call with ``T`` targets:
+
+1. ``rule = make_update_rule(method, attack=attack, num_targets=T, **method_options)`` -- one rule object per call.
+2. For ``round`` in ``range(rule.rounds)``: the loop resets the parameters to the pristine mesh
+   (``params (T, ...)``, a leaf tensor with ``requires_grad``) and calls ``rule.start_round(params)``.
+3. Per step, with ``idx`` the int64 indices ``(K,)`` of the targets still active, the loop renders ``params[idx]``
+   and computes per-target terms, each ``(K,)`` and differentiable: ``adv`` (criterion loss, mean over the views),
+   ``perceptual`` (the paper's perceptual loss of the family) and ``distance`` (the family's distortion measure, the
+   one the budget and the best result use). ``rule.objective(adv, perceptual, distance, idx)`` returns the scalar to
+   differentiate; the loop calls ``backward()`` on it.
+4. The loop then calls ``rule.step(params, idx, is_adversarial)``: ``is_adversarial (K,) bool`` says which active
+   targets met the criterion (``success_fraction`` of the views) *before* this update, measured on the images the
+   objective was computed from. The rule updates ``params`` in place (an optimiser step, a projection, ...).
+5. After a round, ``rule.end_round(successes)`` with one flag per target (did the round reach a success within the
+   distortion budget?) drives any outer search.
+
+``rule.lambdas`` (float32 ``(T,)``) is the current perceptual weight per target, recorded in the loss history and in
+the result (a rule without one returns zeros). ``rule.config()`` is the JSON-able description that the attack's
+``config()`` shows under ``method_options``.
+
+The reference rule, :class:`AdamLambdaRule` (``method="adam"``), is the paper's: minimise
+``sum_k adv_k + lambda_k * perceptual_k`` with Adam (element-wise, so batched targets behave as if run one at a time),
+``lambda`` searched per target over ``binary_search_steps`` rounds by :class:`~meshadv.attacks.search.LambdaSearch`.
+
+Adding a rule: subclass :class:`UpdateRule` and register a factory with :func:`register_update_rule`; the factory
+receives the attack (for its ``lr``, ``lambda_perceptual``, ``binary_search_steps``, ...) and ``num_targets`` plus
+any ``method_options`` given to the attack.
+
+Example:
+    >>> rule = AdamLambdaRule(lr=0.1, lambda_perceptual=1.0, rounds=2, num_targets=1)
+    >>> p = torch.zeros(1, 3, requires_grad=True); rule.start_round(p)
+    >>> idx = torch.tensor([0])
+    >>> rule.objective((p[idx] - 1).pow(2).sum(1), p[idx].pow(2).sum(1), p[idx].pow(2).sum(1), idx).backward()
+    >>> rule.step(p, idx, torch.tensor([False])); [round(v, 3) for v in p[0].tolist()]
+    [0.1, 0.1, 0.1]
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any, Callable, Dict, List, Sequence
+
+import torch
+from torch import Tensor
+
+from meshadv.attacks.search import LambdaSearch
+
+__all__ = ["UpdateRule", "AdamLambdaRule", "register_update_rule", "make_update_rule", "update_rules"]
+
+
+class UpdateRule(ABC):
+    """How one attack call optimises its parameters (see the module docstring for the contract).
+
+    Attributes:
+        rounds: number of rounds (restarts from the pristine mesh) the loop runs.
+    """
+
+    rounds: int = 1
+
+    @property
+    @abstractmethod
+    def lambdas(self) -> Tensor:
+        """Current perceptual weight per target, float32 ``(T,)``."""
+
+    @abstractmethod
+    def start_round(self, params: Tensor) -> None:
+        """A round starts from ``params (T, ...)`` (pristine, a leaf tensor with ``requires_grad``)."""
+
+    @abstractmethod
+    def objective(self, adv: Tensor, perceptual: Tensor, distance: Tensor, active: Tensor) -> Tensor:
+        """The scalar to differentiate from the per-target terms ``(K,)`` of the ``active`` targets (int64 ``(K,)``)."""
+
+    @abstractmethod
+    def step(self, params: Tensor, active: Tensor, is_adversarial: Tensor) -> None:
+        """Update ``params`` in place after ``backward()``; ``is_adversarial (K,) bool`` per active target."""
+
+    def end_round(self, successes: Sequence[bool]) -> None:
+        """A round ended; ``successes`` has one flag per target. The default does nothing."""
+
+    def config(self) -> Dict[str, Any]:
+        """JSON-able options of the rule (shown by the attack's ``config()``)."""
+        return {}
+
+
+class AdamLambdaRule(UpdateRule):
+    """The paper's rule: Adam on ``adv + lambda * perceptual``, ``lambda`` binary-searched per target over rounds.
+
+    Args:
+        lr: Adam learning rate.
+        lambda_perceptual: initial ``lambda``.
+        rounds: binary-search rounds (1 = a single run at ``lambda_perceptual``).
+        num_targets: ``T``.
+    """
+
+    def __init__(self, *, lr: float, lambda_perceptual: float, rounds: int, num_targets: int) -> None:
+        self.lr = float(lr)
+        self.rounds = int(rounds)
+        self._search = LambdaSearch(lambda_perceptual, num_targets)
+        self._lambdas = self._search.lambdas
+        self._optimiser: Any = None
+
+    @property
+    def lambdas(self) -> Tensor:
+        """Current ``lambda`` per target (fixed during a round)."""
+        return self._lambdas
+
+    def start_round(self, params: Tensor) -> None:
+        """A fresh Adam state for the round's parameters."""
+        self._lambdas = self._search.lambdas
+        self._optimiser = torch.optim.Adam([params], lr=self.lr)
+        self._optimiser.zero_grad(set_to_none=True)
+
+    def objective(self, adv: Tensor, perceptual: Tensor, distance: Tensor, active: Tensor) -> Tensor:
+        """``sum_k adv_k + lambda_k perceptual_k`` (``distance`` is not used)."""
+        return (adv + self._lambdas[active] * perceptual).sum()
+
+    def step(self, params: Tensor, active: Tensor, is_adversarial: Tensor) -> None:
+        """One Adam step (finished targets have no gradient, so Adam leaves them alone)."""
+        self._optimiser.step()
+        self._optimiser.zero_grad(set_to_none=True)
+
+    def end_round(self, successes: Sequence[bool]) -> None:
+        """Move each target's ``lambda`` (:meth:`LambdaSearch.update`)."""
+        self._search.update(list(successes))
+
+    def config(self) -> Dict[str, Any]:
+        """No options beyond the attack's own ``lr``, ``lambda_perceptual`` and ``binary_search_steps``."""
+        return {}
+
+
+RuleFactory = Callable[..., UpdateRule]
+_RULES: Dict[str, RuleFactory] = {}
+
+
+def register_update_rule(name: str, factory: RuleFactory) -> None:
+    """Make ``method=name`` available to the attacks.
+
+    Args:
+        name: the method name.
+        factory: ``factory(attack=attack, num_targets=T, **method_options) -> UpdateRule``.
+
+    Raises:
+        ValueError: ``name`` is empty or already registered.
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"name must be a non-empty string, got {name!r}")
+    if name in _RULES:
+        raise ValueError(f"update rule {name!r} is already registered")
+    _RULES[name] = factory
+
+
+def update_rules() -> List[str]:
+    """Names of the registered update rules."""
+    return sorted(_RULES)
+
+
+def make_update_rule(method: str, *, attack: Any, num_targets: int, **options: Any) -> UpdateRule:
+    """The rule ``method`` for one attack call.
+
+    Raises:
+        ValueError: unknown ``method``.
+    """
+    if method not in _RULES:
+        raise ValueError(f"method must be one of {update_rules()}, got {method!r}")
+    return _RULES[method](attack=attack, num_targets=num_targets, **options)
+
+
+def _adam(*, attack: Any, num_targets: int) -> UpdateRule:
+    return AdamLambdaRule(lr=attack.lr, lambda_perceptual=attack.lambda_perceptual,
+                          rounds=attack.binary_search_steps, num_targets=num_targets)
+
+
+register_update_rule("adam", _adam)
