@@ -29,3 +29,5 @@ def test_ray_backend_tiny_sweep(tmp_path: Path) -> None:
     assert rows[job_id(specs[0])].record["distance"] == 1.5
     assert "RuntimeError: probe job asked to fail" in rows[job_id(specs[1])].error
     assert (tmp_path / "jobs" / job_id(specs[0])[:2] / job_id(specs[0]) / "artefact.json").is_file()
+    # the task ran in a temporary folder of its node; the driver wrote the files it returned
+    assert not str(rows[job_id(specs[0])].record["artifacts"]["artefact"]).startswith(str(tmp_path))

@@ -4,8 +4,12 @@
   do not mix), fed by a ``concurrent.futures`` thread pool; a segfault or an ``os._exit`` in one job (a native
   renderer crash, Mitsuba, an OOM kill) is recorded as that job's crash, its worker is replaced and the sweep goes on.
   A per-job timeout kills the worker. Workers exit by themselves when the driver dies.
-- :class:`RayBackend`: Ray tasks (``ray.init(address)`` on a cluster, a local Ray instance when no address is given);
-  the artefact folder must be on a file system every node can write (the driver only records paths).
+- :class:`RayBackend`: Ray tasks (``ray.init(address)`` on a cluster, a local Ray instance when no address is given).
+  No shared file system is needed: each task runs its job in a temporary folder of its node and its artefacts come
+  back to the driver with the task's result (or go to a URL, e.g. ``s3://bucket/run``, through fsspec); the driver
+  alone writes the artefact folders and the database (:mod:`meshadv.experiments.artifacts`). Tasks can be pinned to
+  nodes by custom resources (``ray start --resources '{"meshadv": 4}'``); a task lost with its node is recorded as a
+  failed attempt and retried by the runner on another node.
 - :class:`SerialBackend`: runs jobs one by one inside the driver process (debugging, profiling; no crash isolation).
 """
 
@@ -20,6 +24,7 @@ import threading
 import time
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
+from meshadv.experiments.artifacts import run_detached
 from meshadv.experiments.worker import Outcome, execute
 
 __all__ = ["Backend", "LocalBackend", "SerialBackend", "RayBackend", "make_backend", "BACKENDS"]
@@ -262,20 +267,33 @@ class RayBackend(Backend):
         address: the cluster address (``"auto"``, ``"ray://host:10001"``, ...); ``None`` starts a local Ray instance.
         num_cpus: CPUs of the local instance (ignored with an address; ``None`` = every core).
         cpus_per_job: CPUs reserved per task (and its intra-op threads).
-        max_in_flight: tasks submitted at once (0 = the cluster's CPUs / cpus_per_job).
+        max_in_flight: tasks submitted at once (0 = what the cluster's CPUs and ``resources`` allow at once).
+        artifacts: ``"return"`` (default): jobs run in a temporary folder of their node and their files come back
+            with the task's result, the driver writes them; an fsspec URL (``s3://bucket/run``): files are uploaded
+            to ``<URL>/jobs/<id[:2]>/<id>/`` and that location is recorded; ``"shared"``: the job writes the
+            driver's folder directly (every node must see it).
+        resources: custom Ray resources each task needs, e.g. ``{"meshadv": 1}`` to run only on nodes started
+            with ``--resources '{"meshadv": N}'``.
 
     Raises:
         ImportError: Ray is not installed (``pip install 'ray>=2.9'``).
+        ValueError: bad ``cpus_per_job`` or ``resources``.
     """
 
     def __init__(self, address: Optional[str] = None, *, num_cpus: Optional[int] = None, cpus_per_job: int = 1,
-                 max_in_flight: int = 0) -> None:
+                 max_in_flight: int = 0, artifacts: str = "return",
+                 resources: Optional[Dict[str, float]] = None) -> None:
         try:
             import ray
         except ImportError as err:
             raise ImportError("the ray backend needs Ray: pip install 'ray>=2.9'") from err
         if cpus_per_job < 1:
             raise ValueError(f"cpus_per_job must be >= 1, got {cpus_per_job}")
+        resources = dict(resources or {})
+        if any(not isinstance(v, (int, float)) or v <= 0 for v in resources.values()):
+            raise ValueError(f"resources must map resource names to amounts > 0, got {resources}")
+        if not artifacts:
+            raise ValueError("artifacts must be 'return', 'shared' or an fsspec URL")
         self._ray = ray
         self._owns = False
         if not ray.is_initialized():
@@ -284,15 +302,23 @@ class RayBackend(Backend):
             else:
                 ray.init(num_cpus=num_cpus, include_dashboard=False)
             self._owns = True
-        cpus = int(ray.cluster_resources().get("CPU", 1))
-        self.capacity = max_in_flight or max(1, cpus // cpus_per_job)
+        total = ray.cluster_resources()
+        slots = [int(total.get("CPU", 1)) // cpus_per_job] + [int(total.get(k, 0) // v) for k, v in resources.items()]
+        self.capacity = max_in_flight or max(1, min(slots))
         self.cpus_per_job = cpus_per_job
-        self._remote = ray.remote(num_cpus=cpus_per_job, max_retries=0)(execute)
+        self.artifacts = artifacts
+        options = {"num_cpus": cpus_per_job, "max_retries": 0, **({"resources": resources} if resources else {})}
+        self._remote = ray.remote(**options)(execute if artifacts == "shared" else run_detached)
         self._ids: Dict[Any, str] = {}
 
     def submit(self, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str) -> Any:
-        """Submit one job as a Ray task; return its object ref."""
-        ref = self._remote.remote(job_ref, job_id, spec, out_dir, self.cpus_per_job)
+        """Submit one job as a Ray task; return its object ref (the driver's ``out_dir`` travels only in
+        ``"shared"`` mode)."""
+        if self.artifacts == "shared":
+            ref = self._remote.remote(job_ref, job_id, spec, out_dir, self.cpus_per_job)
+        else:
+            destination = None if self.artifacts == "return" else self.artifacts
+            ref = self._remote.remote(job_ref, job_id, spec, self.cpus_per_job, destination)
         self._ids[ref] = job_id
         return ref
 
@@ -317,7 +343,8 @@ class RayBackend(Backend):
 
 
 def make_backend(name: str, *, workers: int = 0, threads_per_job: int = 0, timeout: float = 0.0,
-                 address: Optional[str] = None, max_jobs_per_worker: int = 0) -> Backend:
+                 address: Optional[str] = None, max_jobs_per_worker: int = 0, artifacts: str = "return",
+                 resources: Optional[Dict[str, float]] = None) -> Backend:
     """Build a backend by name.
 
     Args:
@@ -327,6 +354,7 @@ def make_backend(name: str, *, workers: int = 0, threads_per_job: int = 0, timeo
         timeout: per-job timeout in seconds for the local backend (0 = none).
         address: Ray cluster address (ray only).
         max_jobs_per_worker: local backend: restart a worker process after this many jobs (0 = never).
+        artifacts, resources: ray only (see :class:`RayBackend`).
 
     Raises:
         ValueError: unknown name, or an address given to a non-Ray backend.
@@ -340,4 +368,5 @@ def make_backend(name: str, *, workers: int = 0, threads_per_job: int = 0, timeo
                             max_jobs_per_worker=max_jobs_per_worker)
     if name == "serial":
         return SerialBackend(threads_per_job=threads_per_job)
-    return RayBackend(address, num_cpus=workers or None, cpus_per_job=max(1, threads_per_job))
+    return RayBackend(address, num_cpus=workers or None, cpus_per_job=max(1, threads_per_job), artifacts=artifacts,
+                      resources=resources)

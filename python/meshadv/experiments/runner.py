@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Dict, Iterable, Optional, Union
 
+from meshadv.experiments.artifacts import deliver
 from meshadv.experiments.backends import Backend, LocalBackend
 from meshadv.experiments.progress import Progress
 from meshadv.experiments.spec import JobFn, job_ref
@@ -76,8 +77,9 @@ def run_sweep(
         jobs: job specs (JSON-able dicts); ids are hashes of their canonical form.
         job: the job function (module-level) or its reference ``"package.module:function"``; called as
             ``job(spec, out_dir) -> record`` in a worker.
-        out_root: root folder of the job artefact folders (:func:`job_out_dir`); made absolute. With Ray on a
-            cluster it must be on a file system every node shares.
+        out_root: root folder of the job artefact folders (:func:`job_out_dir`); made absolute. Backends whose
+            workers do not share it (Ray) return the artefacts with the outcome and the driver writes them here, or
+            upload them to a URL that is then recorded instead.
         backend: where jobs run; default a :class:`LocalBackend` over every core (closed at the end).
         max_attempts: attempts per job, >= 1 (a crash or exception counts one; a killed run's attempt does not).
         progress: show a progress bar (jobs done, successes, failures, ETA) on stderr.
@@ -118,7 +120,8 @@ def run_sweep(
                 for handle, outcome in be.wait(list(in_flight)):
                     jid = in_flight.pop(handle)
                     if outcome.ok and outcome.record is not None:
-                        store.mark_done(jid, outcome.record, os.fspath(job_out_dir(out_root, jid)))
+                        location = deliver(outcome, job_out_dir(out_root, jid))  # artefacts in place first
+                        store.mark_done(jid, outcome.record, location)
                         bar.update(done=1, successes=int(bool(outcome.record.get("success"))))
                     else:
                         store.mark_failed(jid, outcome.error or "unknown error")

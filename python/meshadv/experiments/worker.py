@@ -32,6 +32,9 @@ class Outcome:
         record: the JSON-able record (``None`` when not ok).
         error: the traceback or crash reason (``None`` when ok).
         seconds: wall time of the attempt.
+        artifacts: the job folder's files (relative path -> bytes) when the job ran away from the driver's file
+            system and its artefacts travel back with the outcome (:mod:`meshadv.experiments.artifacts`).
+        location: where the artefacts were uploaded (a URL) instead; ``None`` when they are in the job's folder.
     """
 
     job_id: str
@@ -39,6 +42,8 @@ class Outcome:
     record: Optional[Dict[str, Any]]
     error: Optional[str]
     seconds: float
+    artifacts: Optional[Dict[str, bytes]] = None
+    location: Optional[str] = None
 
 
 def set_thread_limits(threads: int) -> None:
