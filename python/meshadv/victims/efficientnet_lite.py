@@ -22,6 +22,7 @@ from torch import Tensor, nn
 from torch.nn import functional as F
 
 from meshadv.victims.base import ClassifierVictim, freeze
+from meshadv.victims.torchvision_models import read_state_dict
 from meshadv.victims.preprocess import Preprocess
 
 __all__ = [
@@ -257,7 +258,7 @@ class EfficientNetLiteVictim(ClassifierVictim):
                 raise FileNotFoundError(f"weights file {path} does not exist (the {name} state_dict .pth)")
         self.preprocess = Preprocess((resolution, resolution), LITE_MEAN, LITE_STD)
         self.net = EfficientNetLite(width, depth)
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        state = read_state_dict(path)
         try:
             self.net.load_state_dict(state, strict=True)
         except RuntimeError as exc:

@@ -26,6 +26,8 @@ from typing import Callable, Optional, Union
 
 import torch
 
+from meshadv import _validate
+from meshadv.victims._weights import check_device
 from meshadv.victims.base import Victim
 
 __all__ = ["available_victims", "load_victim"]
@@ -116,10 +118,13 @@ def load_victim(
         A :class:`~meshadv.victims.base.ClassifierVictim` or :class:`~meshadv.victims.base.DetectorVictim`.
 
     Raises:
-        ValueError: unknown ``name``, or a required ``weights`` / ``cfg`` not given (the message says what to pass).
+        ValueError: unknown ``name`` (the closest is suggested), a required ``weights`` / ``cfg`` not given (the
+            message says what to pass), a weights file that is empty, truncated, not a torch file or carries
+            pickled objects (naming the file), or a ``device`` this machine does not have.
+        TypeError: ``name`` or ``device`` of the wrong type.
         FileNotFoundError: ``weights`` or ``cfg`` does not exist.
         ImportError: the package that ships the weights is not installed (the message says what to install).
     """
-    if name not in _REGISTRY:
-        raise ValueError(f"name must be one of {', '.join(_REGISTRY)}, got {name!r}")
+    _validate.choice("name", name, list(_REGISTRY))
+    check_device(device)  # before any weights are read
     return _REGISTRY[name](weights, cfg, device)

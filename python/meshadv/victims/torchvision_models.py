@@ -17,6 +17,7 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
+from meshadv.victims._weights import read_torch_state
 from meshadv.victims.base import ClassifierVictim, freeze
 from meshadv.victims.preprocess import IMAGENET_MEAN, IMAGENET_STD, Preprocess
 
@@ -42,17 +43,11 @@ def read_state_dict(path: str | Path) -> dict[str, Tensor]:
 
     Raises:
         FileNotFoundError: ``path`` does not exist.
-        ValueError: the file does not hold a state_dict.
+        ValueError: the file is empty, truncated, not a torch file, carries pickled objects or does not hold a
+            state_dict (the message names the file).
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"weights file {path} does not exist")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise ValueError(
-            f"weights {path} is not a state_dict saved with torch.save(model.state_dict(), path): {exc}"
-        ) from exc
+    state = read_torch_state(path)
     for key in ("state_dict", "model"):
         if isinstance(state, dict) and key in state and isinstance(state[key], dict):
             state = state[key]
