@@ -396,6 +396,7 @@ class MeshAttack(ABC):
         edges = vertex_edges(mesh.faces).long()
         views = views.detach()
         rule = make_update_rule(self.method, attack=self, num_targets=num_t, **self.method_options)
+        rule.prepare(mesh, edges)
         targets = [_Target(c) for c in criteria]
         history: List[Dict[str, Any]] = []
         total_steps = 0

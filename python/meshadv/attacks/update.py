@@ -4,7 +4,8 @@ The loop in :mod:`meshadv.attacks.base` owns everything a rule should not care a
 criteria, the per-target bookkeeping (best result, early stopping, budget) and the final evaluation. A rule owns the
 optimisation itself. Contract, per attack call with ``T`` targets:
 
-1. ``rule = make_update_rule(method, attack=attack, num_targets=T, **method_options)`` -- one rule object per call.
+1. ``rule = make_update_rule(method, attack=attack, num_targets=T, **method_options)`` -- one rule object per call;
+   then ``rule.prepare(mesh, edges)`` with the pristine mesh and its unique edges.
 2. For ``round`` in ``range(rule.rounds)``: the loop resets the parameters to the pristine mesh
    (``params (T, ...)``, a leaf tensor with ``requires_grad``) and calls ``rule.start_round(params)``.
 3. Per step, with ``idx`` the int64 indices ``(K,)`` of the targets still active, the loop renders ``params[idx]``
@@ -77,6 +78,10 @@ class UpdateRule(ABC):
     @abstractmethod
     def step(self, params: Tensor, active: Tensor, is_adversarial: Tensor) -> None:
         """Update ``params`` in place after ``backward()``; ``is_adversarial (K,) bool`` per active target."""
+
+    def prepare(self, mesh: Any, edges: Tensor) -> None:
+        """Called once per attack call, before the first round, with the pristine mesh and its unique edges
+        ``(E, 2)`` (for rules whose geometry depends on the mesh, e.g. a Laplacian). The default does nothing."""
 
     def end_round(self, successes: Sequence[bool]) -> None:
         """A round ended; ``successes`` has one flag per target. The default does nothing."""
