@@ -1,0 +1,117 @@
+"""What every ``meshadv`` command shares: the ``--threads`` option and one-line errors for natural mistakes.
+
+:func:`install` walks a typer application (its commands and command groups, recursively) and wraps each command
+callback so that
+
+- it gains ``--threads N`` (unless it already has a ``threads`` parameter), applied through
+  :func:`meshadv.threads.apply_threads` before the command runs;
+- the exceptions a user's mistake raises (a missing file, a bad value, an optional package not installed) end the
+  command with one line, ``Error: <message>`` and exit status 1, instead of a traceback. Set ``MESHADV_DEBUG=1`` to
+  get the traceback.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import os
+from typing import Any, Callable, Dict, Optional
+
+import typer
+
+__all__ = ["DEBUG_ENV_VAR", "OPTIONAL_PACKAGES", "install", "one_line_error", "wrap_command"]
+
+#: Environment variable that turns the one-line errors back into tracebacks.
+DEBUG_ENV_VAR = "MESHADV_DEBUG"
+#: Top-level module of an optional dependency -> the pip install line that provides it.
+OPTIONAL_PACKAGES: Dict[str, str] = {
+    "mitsuba": "pip install 'meshadv[transfer]'  (Mitsuba 3, for `meshadv transfer`)",
+    "drjit": "pip install 'meshadv[transfer]'  (Mitsuba 3, for `meshadv transfer`)",
+    "ray": "pip install 'meshadv[cluster]'  (Ray, for `--backend ray`)",
+    "cv2": "pip install opencv-python-headless",
+    "selenium": "pip install selenium",
+}
+_WRAPPED = "__meshadv_common_options__"
+#: click's ClickException as typer uses it (typer >= 0.20 vendors click, older typer uses the click package).
+_ClickException = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
+_THREADS_HELP = ("Threads for the renderer and torch (default: $MESHADV_THREADS, else the CPUs available); results "
+                 "are reproducible for a given --seed and --threads.")
+
+
+def one_line_error(exc: BaseException) -> Optional[str]:
+    """The one-line message for an exception a user's mistake raises, or ``None`` for anything else (a bug).
+
+    Args:
+        exc: the exception.
+
+    Returns:
+        The message (with the fix where one is known), or ``None``.
+    """
+    if isinstance(exc, ModuleNotFoundError):
+        module = (exc.name or "").split(".")[0]
+        if not module or module == "meshadv":
+            return None  # a broken installation or a bug, not a user's mistake
+        hint = OPTIONAL_PACKAGES.get(module, f"pip install {module}  (or reinstall meshadv: pip install meshadv)")
+        return f"this needs the package '{module}', which is not installed: {hint}"
+    if isinstance(exc, (FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError)):
+        if exc.filename is not None:
+            return f"{exc.strerror or 'cannot open'}: {exc.filename}"
+        return str(exc)
+    if isinstance(exc, ValueError):
+        return str(exc)
+    return None
+
+
+def wrap_command(func: Callable[..., Any]) -> Callable[..., Any]:
+    """``func`` with ``--threads`` added (unless it has a ``threads`` parameter) and one-line errors.
+
+    Args:
+        func: a typer command callback.
+
+    Returns:
+        The wrapped callback (``func`` itself when it is already wrapped).
+    """
+    if getattr(func, _WRAPPED, False):
+        return func
+    signature = inspect.signature(func, eval_str=True)
+    adds_threads = "threads" not in signature.parameters
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        if adds_threads:
+            from meshadv.threads import apply_threads
+
+            apply_threads(kwargs.pop("threads", None))
+        try:
+            return func(*args, **kwargs)
+        except (_ClickException, typer.Exit, typer.Abort):
+            raise
+        except Exception as exc:
+            message = one_line_error(exc)
+            if message is None or os.environ.get(DEBUG_ENV_VAR):
+                raise
+            raise _ClickException(f"{message}  [{DEBUG_ENV_VAR}=1 shows the traceback]") from exc
+
+    params = list(signature.parameters.values())
+    annotations = {p.name: p.annotation for p in params if p.annotation is not inspect.Parameter.empty}
+    if adds_threads:
+        option = typer.Option(None, "--threads", min=1, help=_THREADS_HELP, show_default=False)
+        params.append(inspect.Parameter("threads", inspect.Parameter.KEYWORD_ONLY, default=option,
+                                        annotation=Optional[int]))
+        annotations["threads"] = Optional[int]
+    if signature.return_annotation is not inspect.Signature.empty:
+        annotations["return"] = signature.return_annotation
+    wrapper.__signature__ = signature.replace(parameters=params)  # type: ignore[attr-defined]
+    wrapper.__annotations__ = annotations
+    setattr(wrapper, _WRAPPED, True)
+    return wrapper
+
+
+def install(app: typer.Typer) -> None:
+    """Wrap every command of ``app`` and of its command groups (recursively) with :func:`wrap_command`."""
+    for info in app.registered_commands:
+        if info.callback is not None:
+            info.callback = wrap_command(info.callback)
+    for group in app.registered_groups:
+        if group.typer_instance is not None:
+            install(group.typer_instance)
