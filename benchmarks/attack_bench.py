@@ -38,20 +38,14 @@ from typing import Any, Dict, List, Optional, Tuple
 
 import torch
 
+from meshadv.render import RenderSetup, render_views
+
 
 def _ranked_classes(mesh: Any, views: Any, victim: Any, image_size: int, count: int) -> List[int]:
     """Classes ranked 2nd..count+1 by the mean softmax of the pristine renders."""
-    from meshadv.attacks.base import render_views
-
     with torch.no_grad():
-        images, _ = render_views(
-            mesh.vertices.unsqueeze(0),
-            mesh.faces,
-            mesh.face_colors,
-            views,
-            image_size=image_size,
-            background=(1.0, 1.0, 1.0),
-        )
+        images, _ = render_views(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views,
+                                 RenderSetup(image_size=image_size))
         probs = torch.softmax(victim(images), dim=1).mean(dim=0)
     return [int(i) for i in probs.topk(count + 1).indices.tolist()[1:]]
 
@@ -91,10 +85,10 @@ def convergence_case(mesh_name: str, smoothing: int, lr: float, args: argparse.N
     runs = []
     t_case = time.perf_counter()
     for target in targets:
-        attack = _make_attack("shape", smoothing=smoothing, shape_lr=lr, steps=args.max_steps, early_stop=1,
-                              image_size=args.image_size)
+        attack = _make_attack("shape", smoothing=smoothing, shape_lr=lr, steps=args.max_steps, early_stop=1)
         t0 = time.perf_counter()
-        result = attack(mesh, views, victim, TargetedMisclassification(target))
+        result = attack(mesh, views, victim, TargetedMisclassification(target),
+                        setup=RenderSetup(image_size=args.image_size))
         runs.append({
             "target": target,
             "succeeded": bool(result.succeeded[0]),
@@ -178,11 +172,11 @@ def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: A
 
     # throughput
     for label, crit in (("single", crits[:1]), ("batched", crits)):
-        attack = _make_attack(perturb, **shape_kw, steps=args.steps, image_size=args.image_size)
+        attack = _make_attack(perturb, **shape_kw, steps=args.steps)
         if label == "single" and args.warmup:
-            attack(mesh, views, victim, crit)
+            attack(mesh, views, victim, crit, setup=RenderSetup(image_size=args.image_size))
         t0 = time.perf_counter()
-        result = attack(mesh, views, victim, crit)
+        result = attack(mesh, views, victim, crit, setup=RenderSetup(image_size=args.image_size))
         dt = time.perf_counter() - t0
         record[f"{label}_steps_per_s"] = result.steps / dt
         record[f"{label}_target_steps_per_s"] = result.steps * len(crit) / dt
@@ -190,15 +184,15 @@ def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: A
     # time to success
     seq_time, seq_ok, seq_first = 0.0, 0, []
     for crit in crits:
-        attack = _make_attack(perturb, **shape_kw, steps=args.max_steps, early_stop=1, image_size=args.image_size)
+        attack = _make_attack(perturb, **shape_kw, steps=args.max_steps, early_stop=1)
         t0 = time.perf_counter()
-        result = attack(mesh, views, victim, crit)
+        result = attack(mesh, views, victim, crit, setup=RenderSetup(image_size=args.image_size))
         seq_time += time.perf_counter() - t0
         seq_ok += int(result.succeeded[0])
         seq_first.append(result.time_to_success[0])
-    attack = _make_attack(perturb, **shape_kw, steps=args.max_steps, early_stop=1, image_size=args.image_size)
+    attack = _make_attack(perturb, **shape_kw, steps=args.max_steps, early_stop=1)
     t0 = time.perf_counter()
-    result = attack(mesh, views, victim, crits)
+    result = attack(mesh, views, victim, crits, setup=RenderSetup(image_size=args.image_size))
     record.update(
         sequential_time_s=seq_time,
         sequential_successes=seq_ok,

@@ -21,9 +21,10 @@ from meshadv.attacks import (
     TextureAttack,
     load_result_record,
 )
-from meshadv.attacks.base import render_views
+from meshadv.render import RenderSetup, render_views
 
 IMAGE_SIZE = 128
+SETUP = RenderSetup(image_size=IMAGE_SIZE)
 EASY_MESH = ("sofa", "01")
 
 
@@ -48,7 +49,7 @@ def _ranking(mesh: Any, views: Any, victim: Any) -> Tuple[int, int, int]:
     """Top-3 ImageNet classes of the pristine renders (mean softmax over the views)."""
     with torch.no_grad():
         images, _ = render_views(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views,
-                                 image_size=IMAGE_SIZE, background=(1.0, 1.0, 1.0))
+                                 SETUP)
         probs = torch.softmax(victim(images), dim=1).mean(dim=0)
     top = probs.topk(3).indices.tolist()
     return int(top[0]), int(top[1]), int(top[2])
@@ -58,15 +59,15 @@ def _fresh_top1(mesh: Any, views: Any, victim: Any) -> torch.Tensor:
     """Top-1 of a render of ``mesh`` made here, independently of the attack."""
     with torch.no_grad():
         images, _ = render_views(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views,
-                                 image_size=IMAGE_SIZE, background=(1.0, 1.0, 1.0))
+                                 SETUP)
         return victim(images).argmax(dim=1)
 
 
 def test_shape_attack_reaches_runner_up(mesh: Any, victim: Any) -> None:
     views = _views(1)
     top1, second, _ = _ranking(mesh, views, victim)
-    attack = ShapeAttack(steps=150, lr=2e-3, lambda_perceptual=0.05, early_stop=3, image_size=IMAGE_SIZE)
-    result = attack(mesh, views, victim, TargetedMisclassification(second))
+    attack = ShapeAttack(steps=150, lr=2e-3, lambda_perceptual=0.05, early_stop=3)
+    result = attack(mesh, views, victim, TargetedMisclassification(second), setup=SETUP)
     assert bool(result.succeeded[0]), result.summary()
     assert result.top1[0].tolist() == [second]
     assert _fresh_top1(result.mesh, views, victim).tolist() == [second]
@@ -80,8 +81,8 @@ def test_shape_attack_reaches_runner_up(mesh: Any, victim: Any) -> None:
 def test_texture_attack_reaches_runner_up(mesh: Any, victim: Any) -> None:
     views = _views(1)
     _, second, _ = _ranking(mesh, views, victim)
-    attack = TextureAttack(steps=150, lr=0.1, lambda_perceptual=1e-4, early_stop=3, image_size=IMAGE_SIZE)
-    result = attack(mesh, views, victim, TargetedMisclassification(second))
+    attack = TextureAttack(steps=150, lr=0.1, lambda_perceptual=1e-4, early_stop=3)
+    result = attack(mesh, views, victim, TargetedMisclassification(second), setup=SETUP)
     assert bool(result.succeeded[0]), result.summary()
     assert _fresh_top1(result.mesh, views, victim).tolist() == [second]
     colors = result.mesh.face_colors
@@ -93,8 +94,8 @@ def test_texture_attack_reaches_runner_up(mesh: Any, victim: Any) -> None:
 def test_untargeted_cw_attack_changes_label(mesh: Any, victim: Any) -> None:
     views = _views(1)
     top1, _, _ = _ranking(mesh, views, victim)
-    attack = ShapeAttack(steps=150, lr=2e-3, loss="cw", kappa=1.0, early_stop=3, image_size=IMAGE_SIZE)
-    result = attack(mesh, views, victim, Misclassification(top1))
+    attack = ShapeAttack(steps=150, lr=2e-3, loss="cw", kappa=1.0, early_stop=3)
+    result = attack(mesh, views, victim, Misclassification(top1), setup=SETUP)
     assert bool(result.succeeded[0]), result.summary()
     assert int(_fresh_top1(result.mesh, views, victim)[0]) != top1
 
@@ -102,10 +103,12 @@ def test_untargeted_cw_attack_changes_label(mesh: Any, victim: Any) -> None:
 def test_binary_search_reduces_distance(mesh: Any, victim: Any) -> None:
     views = _views(1)
     _, second, _ = _ranking(mesh, views, victim)
-    kwargs = dict(steps=40, lr=2e-3, lambda_perceptual=0.01, early_stop=3, image_size=IMAGE_SIZE)
-    single = ShapeAttack(binary_search_steps=1, **kwargs)(mesh, views, victim, TargetedMisclassification(second))
+    kwargs = dict(steps=40, lr=2e-3, lambda_perceptual=0.01, early_stop=3)
+    single = ShapeAttack(binary_search_steps=1, **kwargs)(mesh, views, victim, TargetedMisclassification(second),
+                                                          setup=SETUP)
     assert bool(single.succeeded[0]), single.summary()
-    searched = ShapeAttack(binary_search_steps=3, **kwargs)(mesh, views, victim, TargetedMisclassification(second))
+    searched = ShapeAttack(binary_search_steps=3, **kwargs)(mesh, views, victim, TargetedMisclassification(second),
+                                                            setup=SETUP)
     assert bool(searched.succeeded[0]), searched.summary()
     # the search kept a larger successful lambda than the starting one, and its result is less distorted
     assert searched.lambdas[0] > 0.01
@@ -115,12 +118,12 @@ def test_binary_search_reduces_distance(mesh: Any, victim: Any) -> None:
 def test_batched_targets_equal_separate_runs(mesh: Any, victim: Any) -> None:
     views = _views(1)
     _, second, third = _ranking(mesh, views, victim)
-    attack = ShapeAttack(steps=3, lr=2e-3, image_size=IMAGE_SIZE)
+    attack = ShapeAttack(steps=3, lr=2e-3)
     crits = [TargetedMisclassification(second), TargetedMisclassification(third)]
-    batched = attack(mesh, views, victim, crits)
+    batched = attack(mesh, views, victim, crits, setup=SETUP)
     assert batched.num_targets == 2 and batched.success.shape == (2, 1)
     for t, crit in enumerate(crits):
-        alone = attack(mesh, views, victim, crit)
+        alone = attack(mesh, views, victim, crit, setup=SETUP)
         moved = (alone.mesh.vertices - mesh.vertices).abs()
         diff = (batched.adversarial[t].vertices - alone.mesh.vertices).abs()
         # equal up to float rounding of the batched victim (Adam's first steps amplify the sign of tiny gradients)
@@ -137,8 +140,8 @@ def test_reproducible_under_seed_with_jitter(mesh: Any, victim: Any) -> None:
     jitter = dict(azimuth=5.0, elevation=3.0, light_direction=0.2)
 
     def run(seed: int) -> Any:
-        attack = ShapeAttack(steps=4, lr=2e-3, jitter=jitter, seed=seed, image_size=IMAGE_SIZE)
-        return attack(mesh, views, victim, TargetedMisclassification(second))
+        attack = ShapeAttack(steps=4, lr=2e-3, jitter=jitter, seed=seed)
+        return attack(mesh, views, victim, TargetedMisclassification(second), setup=SETUP)
 
     a, b, c = run(0), run(0), run(1)
     assert torch.equal(a.mesh.vertices, b.mesh.vertices)
@@ -158,8 +161,8 @@ def test_interrupted_attack_leaves_valid_saved_result(mesh: Any, victim: Any, tm
         if info.total_step == 3:
             raise KeyboardInterrupt
 
-    attack = ShapeAttack(steps=100, lr=2e-3, image_size=IMAGE_SIZE)
-    result = attack(mesh, views, victim, TargetedMisclassification(second), callback=ctrl_c)
+    attack = ShapeAttack(steps=100, lr=2e-3)
+    result = attack(mesh, views, victim, TargetedMisclassification(second), callback=ctrl_c, setup=SETUP)
     assert result.interrupted and result.steps == 3 and seen == [1, 2, 3]
     result.save(tmp_path)
     record = load_result_record(tmp_path)
@@ -176,12 +179,12 @@ def test_budget_and_early_stop(mesh: Any, victim: Any) -> None:
     views = _views(1)
     _, second, _ = _ranking(mesh, views, victim)
     crit = TargetedMisclassification(second)
-    tiny = ShapeAttack(steps=100, lr=5e-3, lambda_perceptual=0.0, max_distortion=1e-9, image_size=IMAGE_SIZE)
-    result = tiny(mesh, views, victim, crit)
+    tiny = ShapeAttack(steps=100, lr=5e-3, lambda_perceptual=0.0, max_distortion=1e-9)
+    result = tiny(mesh, views, victim, crit, setup=SETUP)
     assert not bool(result.succeeded[0])
     assert result.steps < 100  # stopped at the ceiling, not at the step limit
     assert math.isnan(result.lambdas[0])
-    easy = ShapeAttack(steps=150, lr=2e-3, early_stop=2, image_size=IMAGE_SIZE)(mesh, views, victim, crit)
+    easy = ShapeAttack(steps=150, lr=2e-3, early_stop=2)(mesh, views, victim, crit, setup=SETUP)
     assert bool(easy.succeeded[0])
     assert easy.steps < 150 and easy.steps_to_success[0] is not None and easy.steps_to_success[0] <= easy.steps
 
@@ -194,6 +197,6 @@ def test_bad_arguments_raise_value_error(mesh: Any, victim: Any) -> None:
     with pytest.raises(ValueError, match="jitter"):
         ShapeAttack(jitter={"zoom": 1.0})
     with pytest.raises(ValueError, match="criterion"):
-        ShapeAttack(steps=1)(mesh, _views(1), victim, [])
+        ShapeAttack(steps=1)(mesh, _views(1), victim, [], setup=SETUP)
     with pytest.raises(ValueError, match="target_class"):
-        ShapeAttack(steps=1)(mesh, _views(1), victim, TargetedMisclassification("no such class"))
+        ShapeAttack(steps=1)(mesh, _views(1), victim, TargetedMisclassification("no such class"), setup=SETUP)

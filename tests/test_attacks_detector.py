@@ -15,7 +15,7 @@ import torch
 from stand_in_victims import DarkBlobDetector
 
 from meshadv.attacks import Disappearance, ShapeAttack, TextureAttack
-from meshadv.attacks.base import render_views
+from meshadv.render import RenderSetup, render_views
 
 
 def _require_renderer() -> None:
@@ -40,19 +40,19 @@ def test_disappearance_with_stand_in_detector() -> None:
     detector = DarkBlobDetector()
     crit = Disappearance("blob", threshold=0.5)
     with torch.no_grad():
-        images, _ = render_views(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views, image_size=64,
-                                 background=(1.0, 1.0, 1.0))
+        images, _ = render_views(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views,
+                                 RenderSetup(image_size=64))
         before = detector.detect(images, score_threshold=0.5)
     assert all("blob" in d.names() for d in before)
-    result = TextureAttack(steps=80, lr=0.2, lambda_perceptual=0.0, early_stop=2, image_size=64)(
-        mesh, views, detector, crit)
+    result = TextureAttack(steps=80, lr=0.2, lambda_perceptual=0.0, early_stop=2)(
+        mesh, views, detector, crit, setup=RenderSetup(image_size=64))
     losses = [row["adv"][0] for row in result.loss_history]
     assert losses[-1] < losses[0] - 0.3
     assert bool(result.succeeded[0]), result.summary()
     assert result.scores.max() < 0.5 < result.original_scores.min()
     with torch.no_grad():
         images, _ = render_views(result.mesh.vertices.unsqueeze(0), mesh.faces, result.mesh.face_colors, views,
-                                 image_size=64, background=(1.0, 1.0, 1.0))
+                                 RenderSetup(image_size=64))
         after = detector.detect(images, score_threshold=0.5)
     assert all("blob" not in d.names() for d in after)
 
@@ -84,18 +84,18 @@ def test_disappearance_with_ssd(shared_data: Path, ssd: Any) -> None:
     views = _views([30.0])
     with torch.no_grad():
         images, _ = render_views(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views,
-                                 image_size=SSD_SIZE, background=(1.0, 1.0, 1.0))
+                                 RenderSetup(image_size=SSD_SIZE))
         before = ssd.detect(images, score_threshold=0.3)[0]
     if coco not in before.names():
         pytest.skip(f"SSD does not detect the pristine {cls} render (got {before.names()}); no case to attack")
     crit = Disappearance(coco, threshold=0.3)
-    result = ShapeAttack(steps=120, lr=3e-3, lambda_perceptual=0.01, early_stop=2, image_size=SSD_SIZE)(
-        mesh, views, ssd, crit)
+    result = ShapeAttack(steps=120, lr=3e-3, lambda_perceptual=0.01, early_stop=2)(
+        mesh, views, ssd, crit, setup=RenderSetup(image_size=SSD_SIZE))
     losses = [row["adv"][0] for row in result.loss_history]
     assert min(losses) < losses[0]
     assert bool(result.succeeded[0]), result.summary()
     with torch.no_grad():
         images, _ = render_views(result.mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views,
-                                 image_size=SSD_SIZE, background=(1.0, 1.0, 1.0))
+                                 RenderSetup(image_size=SSD_SIZE))
         after = ssd.detect(images, score_threshold=0.3)[0]
     assert coco not in after.names()

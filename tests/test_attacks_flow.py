@@ -18,7 +18,7 @@ from conftest import load_shared_pascal_mesh
 
 from meshadv.attacks import ShapeAttack, TargetedMisclassification
 from meshadv.mesh import vertex_edges
-from meshadv.attacks.base import render_views
+from meshadv.render import RenderSetup, render_views
 from meshadv.attacks.distances import displacement_stats
 from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import laplacian_flow_loss
@@ -150,15 +150,15 @@ def test_smoothed_shape_attack_reaches_runner_up_and_reports_applied_distances(s
     views = ViewSet.orbit(torch.tensor([150.0]), elevation=15.0, distance=4.5)
     with torch.no_grad():
         images, _ = render_views(sofa.vertices.unsqueeze(0), sofa.faces, sofa.face_colors, views,
-                                 image_size=IMAGE_SIZE, background=(1.0, 1.0, 1.0))
+                                 RenderSetup(image_size=IMAGE_SIZE))
         second = int(victim(images).softmax(dim=1).topk(2).indices[0, 1])
     # a smoothed flow moves less per step than the per-vertex one, hence the larger learning rate
-    attack = ShapeAttack(smoothing=8, lr=1e-2, steps=60, early_stop=1, image_size=IMAGE_SIZE)
-    result = attack(sofa, views, victim, TargetedMisclassification(second))
+    attack = ShapeAttack(smoothing=8, lr=1e-2, steps=60, early_stop=1)
+    result = attack(sofa, views, victim, TargetedMisclassification(second), setup=RenderSetup(image_size=IMAGE_SIZE))
     assert bool(result.succeeded[0]), result.summary()
     with torch.no_grad():
         images, _ = render_views(result.mesh.vertices.unsqueeze(0), sofa.faces, sofa.face_colors, views,
-                                 image_size=IMAGE_SIZE, background=(1.0, 1.0, 1.0))
+                                 RenderSetup(image_size=IMAGE_SIZE))
         assert victim(images).argmax(dim=1).tolist() == [second]
     # early_stop=1 keeps the parameters of the first success, i.e. of the last step: the distance the loop measured
     # (and the budget would use) is the Laplacian of the displacement actually applied to the returned mesh

@@ -25,7 +25,7 @@ from typing import Any, Callable, Dict
 import pytest
 import torch
 
-from meshadv.render import native_available
+from meshadv.render import RenderSetup, native_available
 
 REFERENCE = Path(__file__).parent / "data" / "engine_reference.json"
 RTOL = 1e-3
@@ -70,10 +70,11 @@ def stand_in_shape() -> Dict[str, Any]:
     from meshadv.mesh import builtin_mesh
 
     victim = PooledLinearClassifier()
-    attack = ShapeAttack(steps=6, lr=3e-2, lambda_perceptual=0.01, binary_search_steps=2, image_size=64, seed=0,
+    attack = ShapeAttack(steps=6, lr=3e-2, lambda_perceptual=0.01, binary_search_steps=2, seed=0,
                          jitter={"azimuth": 2.0})
     result = attack(builtin_mesh("chair"), _views(2), victim, [TargetedMisclassification(728),
-                                                                TargetedMisclassification(247)])
+                                                                TargetedMisclassification(247)],
+                    setup=RenderSetup(image_size=64))
     return _attack_summary(result)
 
 
@@ -88,8 +89,9 @@ def stand_in_texture() -> Dict[str, Any]:
     mesh = builtin_mesh("sofa")
     with torch.no_grad():
         true_class = int(victim(_render(mesh, _views(1), 32)).argmax())
-    attack = TextureAttack(steps=20, lr=0.05, image_size=32, early_stop=3)
-    return _attack_summary(attack(mesh, _views(1), victim, Misclassification(true_class)))
+    attack = TextureAttack(steps=20, lr=0.05, early_stop=3)
+    return _attack_summary(attack(mesh, _views(1), victim, Misclassification(true_class),
+                                  setup=RenderSetup(image_size=32)))
 
 
 def stand_in_detector() -> Dict[str, Any]:
@@ -100,8 +102,9 @@ def stand_in_detector() -> Dict[str, Any]:
     from meshadv.mesh import builtin_mesh
 
     mesh = builtin_mesh("cube").with_face_colors(torch.full((12, 3), 0.2))
-    attack = TextureAttack(steps=30, lr=0.5, lambda_perceptual=0.0, image_size=32)
-    return _attack_summary(attack(mesh, _views(1), DarkBlobDetector(), Disappearance("blob")))
+    attack = TextureAttack(steps=30, lr=0.5, lambda_perceptual=0.0)
+    return _attack_summary(attack(mesh, _views(1), DarkBlobDetector(), Disappearance("blob"),
+                                  setup=RenderSetup(image_size=32)))
 
 
 def _render(mesh: Any, views: Any, size: int) -> torch.Tensor:
@@ -135,16 +138,18 @@ def pascal_shape() -> Dict[str, Any]:
     """Shape attack on the shared chair/01 against EfficientNet-Lite0 (the runner-up, "potter's wheel", 739)."""
     from meshadv.attacks import ShapeAttack, TargetedMisclassification
 
-    attack = ShapeAttack(steps=20, lr=2e-3, image_size=96, seed=0)
-    return _attack_summary(attack(_shared_chair(), _views(1), _lite0(), TargetedMisclassification(739)))
+    attack = ShapeAttack(steps=20, lr=2e-3, seed=0)
+    return _attack_summary(attack(_shared_chair(), _views(1), _lite0(), TargetedMisclassification(739),
+                                  setup=RenderSetup(image_size=96)))
 
 
 def pascal_texture() -> Dict[str, Any]:
     """Texture attack on the shared chair/01 against EfficientNet-Lite0 (a sofa target)."""
     from meshadv.attacks import TargetedMisclassification, TextureAttack
 
-    attack = TextureAttack(steps=20, lr=0.05, image_size=96, seed=0)
-    return _attack_summary(attack(_shared_chair(), _views(1), _lite0(), TargetedMisclassification("sofa")))
+    attack = TextureAttack(steps=20, lr=0.05, seed=0)
+    return _attack_summary(attack(_shared_chair(), _views(1), _lite0(), TargetedMisclassification("sofa"),
+                                  setup=RenderSetup(image_size=96)))
 
 
 def indoor_scene() -> Dict[str, Any]:

@@ -97,22 +97,21 @@ def test_with_margin_detector_margin_is_in_score_units() -> None:
 @needs_native
 def test_attack_with_margin_keeps_a_step_that_holds_the_margin() -> None:
     """The attacks keep the least distorted success: a borderline one, unless the criterion asks for a margin."""
-    from meshadv.attacks.base import render_views
     from meshadv.mesh import builtin_mesh
-    from meshadv.render import ViewSet
+    from meshadv.render import RenderSetup, ViewSet, render_views
 
     mesh = builtin_mesh("sphere", color=(0.5, 0.5, 0.5))
     views = ViewSet.orbit([30.0], elevation=10.0, distance=3.0)
     victim = RedClassifier()
-    attack = TextureAttack(steps=60, lr=0.05, lambda_perceptual=0.0, image_size=32)
+    attack = TextureAttack(steps=60, lr=0.05, lambda_perceptual=0.0)
     base = Misclassification(0).bind(victim)
 
     def final_margin(criterion) -> float:
-        result = attack(mesh, views, victim, criterion)
+        result = attack(mesh, views, victim, criterion, setup=RenderSetup(image_size=32))
         adv = result.mesh
         with torch.no_grad():
-            images, _ = render_views(adv.vertices[None], adv.faces, adv.face_colors[None], views, image_size=32,
-                                     background=(1.0, 1.0, 1.0))
+            images, _ = render_views(adv.vertices[None], adv.faces, adv.face_colors[None], views,
+                                     RenderSetup(image_size=32))
             return float(base.margin(victim(images))[0])
 
     plain = final_margin(Misclassification(0))
@@ -257,21 +256,22 @@ def _side_by_side(name: str, color: tuple, *, scale: float, half_gap: float) -> 
 
 @needs_native
 def test_object_shape_attack_moves_only_the_masked_object() -> None:
-    from meshadv.render import ViewSet
-    from meshadv.transfer.object_attacks import object_shape_attack
+    from meshadv.attacks import ShapeAttack
+    from meshadv.render import RenderSetup, ViewSet
 
     left, right, merged = _side_by_side("cube", (0.15, 0.15, 0.15), scale=0.4, half_gap=0.6)
     mask = torch.zeros(merged.num_vertices, dtype=torch.bool)
     mask[8:] = True  # the right cube
-    attack = object_shape_attack(mask, steps=15, lr=0.02, lambda_perceptual=0.0, image_size=64)
+    attack = ShapeAttack(vertex_mask=mask, steps=15, lr=0.02, lambda_perceptual=0.0)
     views = ViewSet.orbit([10.0], elevation=10.0, distance=4.0)
-    result = attack(merged, views, DarkBlobDetector(), Disappearance("blob", threshold=0.5))
+    result = attack(merged, views, DarkBlobDetector(), Disappearance("blob", threshold=0.5),
+                    setup=RenderSetup(image_size=64))
     moved = (result.mesh.vertices - merged.vertices).abs().amax(dim=1)
     assert float(moved[:8].max()) == 0.0
     assert float(moved[8:].max()) > 1e-3
     for bad in (torch.zeros(16, dtype=torch.bool), torch.ones(16), torch.ones(2, 8, dtype=torch.bool)):
         with pytest.raises(ValueError, match="vertex_mask"):
-            object_shape_attack(bad, steps=1)
+            ShapeAttack(vertex_mask=bad, steps=1)
 
 
 def test_scale_on_base_keeps_the_base_centre() -> None:
@@ -472,7 +472,7 @@ def test_occlusion_mask_marks_what_is_behind_another_object() -> None:
 
 def test_smooth_texture_starts_at_the_original_colours_and_spreads_a_vertex_offset() -> None:
     from meshadv.mesh import builtin_mesh, vertex_edges
-    from meshadv.transfer.smooth_texture import SmoothTextureAttack
+    from meshadv.attacks import SmoothTextureAttack
 
     mesh = builtin_mesh("sphere")
     gen = torch.Generator().manual_seed(0)
@@ -492,7 +492,7 @@ def test_smooth_texture_starts_at_the_original_colours_and_spreads_a_vertex_offs
     assert int(changed_smooth) > 10 * faces_of_vertex  # smoothed: a patch around it
     colors = smooth.colors(bump * 100, mesh, edges)
     assert float(colors.min()) >= 0.0 and float(colors.max()) <= 1.0  # always valid reflectances
-    assert smooth.config()["smoothing"] == 16 and smooth.config()["face_mask"] is False
+    assert smooth.config()["smoothing"] == 16 and smooth.config()["face_mask"] is None
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="smoothing"):
             SmoothTextureAttack(smoothing=bad)  # type: ignore[arg-type]
@@ -501,21 +501,20 @@ def test_smooth_texture_starts_at_the_original_colours_and_spreads_a_vertex_offs
     with pytest.raises(ValueError, match="face_mask"):
         SmoothTextureAttack(face_mask=torch.ones(3))
     with pytest.raises(ValueError, match="face_mask has 3 entries"):
-        SmoothTextureAttack(face_mask=torch.ones(3, dtype=torch.bool))._init_params(mesh, 1)
+        SmoothTextureAttack(face_mask=torch.ones(3, dtype=torch.bool))._check_mesh(mesh)
 
 
 @needs_native
 def test_smooth_texture_attack_with_a_face_mask_changes_only_those_faces() -> None:
-    from meshadv.render import ViewSet
-    from meshadv.transfer.smooth_texture import SmoothTextureAttack
+    from meshadv.attacks import SmoothTextureAttack
+    from meshadv.render import RenderSetup, ViewSet
 
     left, right, merged = _side_by_side("sphere", (0.5, 0.5, 0.5), scale=0.45, half_gap=0.5)
     mask = torch.zeros(merged.num_faces, dtype=torch.bool)
     mask[left.num_faces:] = True
     views = ViewSet.orbit([0.0], elevation=10.0, distance=3.5)
-    attack = SmoothTextureAttack(smoothing=4, face_mask=mask, steps=30, lr=0.1, lambda_perceptual=0.0,
-                                 image_size=32)
-    result = attack(merged, views, RedClassifier(), Misclassification(0))
+    attack = SmoothTextureAttack(smoothing=4, face_mask=mask, steps=30, lr=0.1, lambda_perceptual=0.0)
+    result = attack(merged, views, RedClassifier(), Misclassification(0), setup=RenderSetup(image_size=32))
     change = (result.mesh.face_colors - merged.face_colors).abs().amax(dim=1)
     assert float(change[:left.num_faces].max()) == 0.0
     assert float(change[left.num_faces:].max()) > 0.05

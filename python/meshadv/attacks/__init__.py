@@ -12,7 +12,7 @@ Several targets are attacked together as a batch by passing a list of criteria.
 
 from __future__ import annotations
 
-from meshadv.attacks.base import MeshAttack, StepInfo
+from meshadv.attacks.base import Evaluation, MeshAttack, StepInfo, evaluate
 from meshadv.attacks.criteria import (
     Criterion,
     Disappearance,
@@ -41,14 +41,29 @@ from meshadv.attacks.losses import (
 )
 from meshadv.attacks.result import AttackResult, load_result_record
 from meshadv.attacks.search import LambdaSearch
+from meshadv.attacks.budget import DDNRule  # noqa: F401  (registers method="ddn")
+from meshadv.attacks.families import PERTURBATIONS, attack_class, make_attack, perturbations
 from meshadv.attacks.shape import ShapeAttack
+from meshadv.attacks.smooth_texture import SmoothTextureAttack
 from meshadv.attacks.texture import TextureAttack
+from meshadv.attacks.update import AdamLambdaRule, UpdateRule, register_update_rule, update_rules
 
 __all__ = [
     "MeshAttack",
     "ShapeAttack",
     "TextureAttack",
+    "SmoothTextureAttack",
     "StepInfo",
+    "Evaluation",
+    "evaluate",
+    "PERTURBATIONS",
+    "perturbations",
+    "attack_class",
+    "make_attack",
+    "UpdateRule",
+    "AdamLambdaRule",
+    "register_update_rule",
+    "update_rules",
     "Criterion",
     "TargetedMisclassification",
     "Misclassification",

@@ -33,10 +33,10 @@ from meshadv.attacks.distances import mesh_distances
 from meshadv.attacks.result import AttackResult
 from meshadv.attacks.update import make_update_rule, update_rules
 from meshadv.mesh.adjacency import vertex_edges
+from meshadv.render.setup import RenderSetup
 
-__all__ = ["MeshAttack", "StepInfo", "slice_output", "render_views"]
+__all__ = ["MeshAttack", "StepInfo", "Evaluation", "evaluate", "slice_output"]
 
-ImageSize = Union[int, Tuple[int, int]]
 _JITTER_KEYS = ("azimuth", "elevation", "distance", "tilt", "light_direction", "light_intensity")
 
 
@@ -79,51 +79,6 @@ def slice_output(output: Any, start: int, stop: int) -> Any:
     obj = output.objectness
     return cls(boxes=output.boxes[start:stop], objectness=None if obj is None else obj[start:stop],
                class_probs=output.class_probs[start:stop])
-
-
-def render_views(
-    vertices: Tensor,
-    faces: Tensor,
-    face_colors: Tensor,
-    views: Any,
-    *,
-    image_size: ImageSize,
-    background: Union[Tuple[float, float, float], Tensor],
-    antialias: int = 1,
-) -> Tuple[Tensor, Tensor]:
-    """Render ``K`` meshes (one topology) from each of ``V`` views in one batched call.
-
-    The batch is mesh-major: image ``k * V + v`` is mesh ``k`` seen from view ``v``. A background given as an image
-    ``(3, H, W)`` (e.g. a photo) is composited behind the object with the render's alpha.
-
-    Args:
-        vertices: ``(K, N, 3)``.
-        faces: int ``(M, 3)``.
-        face_colors: ``(M, 3)`` shared, or ``(K, M, 3)``.
-        views: a ``ViewSet`` of ``V`` views.
-        image_size: ``int`` or ``(H, W)``.
-        background: RGB colour or a ``(3, H, W)`` image.
-        antialias: supersampling factor.
-
-    Returns:
-        ``(images (K*V, 3, H, W), alpha (K*V, 1, H, W))``.
-    """
-    from meshadv.render import ViewSet, render
-
-    k, v = vertices.shape[0], len(views)
-    batched = ViewSet.cat([views] * k) if k > 1 else views
-    verts = vertices.repeat_interleave(v, dim=0) if v > 1 else vertices
-    colors = face_colors
-    if face_colors.dim() == 3:
-        colors = face_colors.repeat_interleave(v, dim=0) if v > 1 else face_colors
-    photo = isinstance(background, Tensor) and background.dim() == 3
-    bg = (0.0, 0.0, 0.0) if photo else background
-    out = render(verts, faces, colors, batched.camera, batched.lights, image_size=image_size, background=bg,
-                 antialias=antialias)
-    image = out.image
-    if photo:
-        image = image + (1.0 - out.alpha) * background.to(image.dtype).unsqueeze(0)
-    return image, out.alpha
 
 
 @dataclass
@@ -186,16 +141,6 @@ class _RunInfo:
     interrupted: bool
 
 
-def _parse_image_size(image_size: ImageSize) -> Tuple[int, int]:
-    if isinstance(image_size, int):
-        size = (image_size, image_size)
-    else:
-        size = tuple(int(s) for s in image_size)  # type: ignore[assignment]
-    if len(size) != 2 or min(size) < 8:
-        raise ValueError(f"image_size must be an int or (H, W) of at least 8 pixels, got {image_size!r}")
-    return size  # type: ignore[return-value]
-
-
 class MeshAttack(ABC):
     """Base class of mesh attacks: holds hyper-parameters only (keyword-only); the mesh, views, victim and criterion
     are passed per call.
@@ -216,9 +161,6 @@ class MeshAttack(ABC):
         success_fraction: fraction of the victim views that must be adversarial (1.0 = all).
         jitter: random view / light jitter at every step, keys of ``ViewSet.jitter`` (``azimuth``, ``elevation``,
             ``distance``, ``tilt``, ``light_direction``, ``light_intensity``); ``None`` for none.
-        image_size: rendered image size, ``int`` or ``(H, W)`` (the victim resizes internally).
-        background: RGB background colour, or a ``(3, H, W)`` image tensor composited behind the object.
-        antialias: supersampling factor of the renderer.
         seed: seed of the jitter generator (the attack is otherwise deterministic).
         method: the update rule (:mod:`meshadv.attacks.update`): ``"adam"`` (default) is the paper's Adam on
             ``L_adv + lambda * L_perceptual`` with the ``lambda`` binary search; others are registered there.
@@ -244,9 +186,6 @@ class MeshAttack(ABC):
         max_distortion: Optional[float] = None,
         success_fraction: float = 1.0,
         jitter: Optional[Dict[str, float]] = None,
-        image_size: ImageSize = 224,
-        background: Union[Tuple[float, float, float], Tensor] = (1.0, 1.0, 1.0),
-        antialias: int = 1,
         seed: int = 0,
         method: str = "adam",
         method_options: Optional[Dict[str, Any]] = None,
@@ -273,13 +212,6 @@ class MeshAttack(ABC):
             unknown = set(jitter) - set(_JITTER_KEYS)
             if unknown:
                 raise ValueError(f"jitter has unknown keys {sorted(unknown)}; known: {_JITTER_KEYS}")
-        if int(antialias) < 1:
-            raise ValueError(f"antialias must be >= 1, got {antialias}")
-        if isinstance(background, Tensor):
-            if not (background.dim() == 3 and background.shape[0] == 3) and background.shape != (3,):
-                raise ValueError(f"background must be 3 values or a (3, H, W) image, got {tuple(background.shape)}")
-        elif len(tuple(background)) != 3:
-            raise ValueError(f"background must be 3 values or a (3, H, W) image, got {background!r}")
         self.steps = int(steps)
         self.lr = float(lr)
         self.lambda_perceptual = float(lambda_perceptual)
@@ -291,11 +223,6 @@ class MeshAttack(ABC):
         self.max_distortion = None if max_distortion is None else float(max_distortion)
         self.success_fraction = float(success_fraction)
         self.jitter = None if jitter is None else {k: float(v) for k, v in jitter.items()}
-        self.image_size = _parse_image_size(image_size)
-        if isinstance(background, Tensor) and background.dim() == 3 and tuple(background.shape[1:]) != self.image_size:
-            raise ValueError(f"background image {tuple(background.shape[1:])} must match image_size {self.image_size}")
-        self.background = background if isinstance(background, Tensor) else tuple(float(c) for c in background)
-        self.antialias = int(antialias)
         self.seed = int(seed)
         if method not in update_rules():
             raise ValueError(f"method must be one of {update_rules()}, got {method!r}")
@@ -325,15 +252,12 @@ class MeshAttack(ABC):
     # ------------------------------------------------------------------ public
     def config(self) -> Dict[str, Any]:
         """The hyper-parameters as a JSON-able dict."""
-        bg = self.background
         return {
             "perturbation": self.perturbation, "steps": self.steps, "lr": self.lr,
             "lambda_perceptual": self.lambda_perceptual, "binary_search_steps": self.binary_search_steps,
             "loss": self.loss, "kappa": self.kappa, "early_stop": self.early_stop,
             "early_stop_margin": self.early_stop_margin, "max_distortion": self.max_distortion,
-            "success_fraction": self.success_fraction, "jitter": self.jitter, "image_size": list(self.image_size),
-            "background": "image" if isinstance(bg, Tensor) and bg.dim() == 3 else [float(c) for c in bg],
-            "antialias": self.antialias, "seed": self.seed, "method": self.method,
+            "success_fraction": self.success_fraction, "jitter": self.jitter, "seed": self.seed, "method": self.method,
             "method_options": dict(self.method_options),
         }
 
@@ -348,6 +272,7 @@ class MeshAttack(ABC):
         victim: Any,
         criterion: Union[Criterion, Sequence[Criterion]],
         *,
+        setup: Optional[RenderSetup] = None,
         eval_views: Any = None,
         callback: Optional[Callable[[StepInfo], None]] = None,
     ) -> AttackResult:
@@ -358,6 +283,8 @@ class MeshAttack(ABC):
             views: a ``meshadv.render.ViewSet`` of the ``V`` victim views optimised over.
             victim: a classifier or detector victim (``meshadv.victims``).
             criterion: one criterion, or a sequence of ``T`` criteria attacked together as a batch.
+            setup: how the mesh is rendered (:class:`~meshadv.render.setup.RenderSetup`: image size, background
+                colour or photo, supersampling, static scene objects); default ``RenderSetup()`` (224 px, white).
             eval_views: optional held-out ``ViewSet`` on which the final meshes are also evaluated.
             callback: called after every step with a :class:`StepInfo`; raising ``KeyboardInterrupt`` from it stops
                 the attack like Ctrl-C.
@@ -378,30 +305,36 @@ class MeshAttack(ABC):
             raise ValueError("views must be a non-empty meshadv.render.ViewSet")
         if eval_views is not None and (not hasattr(eval_views, "camera") or len(eval_views) < 1):
             raise ValueError("eval_views must be None or a non-empty meshadv.render.ViewSet")
+        if setup is None:
+            setup = RenderSetup()
+        elif not isinstance(setup, RenderSetup):
+            raise TypeError(f"setup must be a meshadv.render.RenderSetup or None, got {type(setup).__name__}")
+        self._check_mesh(mesh)
         bound = [c.bind(victim) for c in criteria]
-        return self._run(mesh, views, victim, bound, eval_views, callback)
+        return self._run(_Call(mesh, views.detach(), victim, setup, vertex_edges(mesh.faces).long()), bound,
+                         eval_views, callback)
+
+    def _check_mesh(self, mesh: Any) -> None:
+        """Family hook: raise ``ValueError`` when the attack's masks do not fit ``mesh``."""
 
     # ------------------------------------------------------------------ loop
-    def _forward(self, params: Tensor, mesh: Any, edges: Tensor, views: Any,
-                 victim: Any) -> Tuple[Tensor, Tensor, Any]:
-        verts, colors = self._apply(params, mesh, edges)
-        images, alpha = render_views(verts, mesh.faces, colors, views, image_size=self.image_size,
-                                     background=self.background, antialias=self.antialias)
-        return images, alpha, victim(images)
+    def _forward(self, params: Tensor, call: "_Call", views: Any) -> Tuple[Tensor, Tensor, Any]:
+        verts, colors = self._apply(params, call.mesh, call.edges)
+        images, alpha = call.setup.render(verts, call.mesh.faces, colors, views)
+        return images, alpha, call.victim(images)
 
-    def _run(self, mesh: Any, views: Any, victim: Any, criteria: List[Criterion], eval_views: Any,
+    def _run(self, call: "_Call", criteria: List[Criterion], eval_views: Any,
              callback: Optional[Callable[[StepInfo], None]]) -> AttackResult:
         t_start = time.perf_counter()
+        mesh, views, edges = call.mesh, call.views, call.edges
         num_t, num_v = len(criteria), len(views)
-        edges = vertex_edges(mesh.faces).long()
-        views = views.detach()
         rule = make_update_rule(self.method, attack=self, num_targets=num_t, **self.method_options)
         rule.prepare(mesh, edges)
         targets = [_Target(c) for c in criteria]
         history: List[Dict[str, Any]] = []
         total_steps = 0
         interrupted = False
-        classifier = getattr(victim, "kind", "") == "classifier"
+        classifier = getattr(call.victim, "kind", "") == "classifier"
 
         try:
             for rnd in range(rule.rounds):
@@ -419,7 +352,7 @@ class MeshAttack(ABC):
                         step_views = views.jitter(generator, **self.jitter) if self.jitter else views
                         idx = torch.tensor(act, dtype=torch.long)
                         p = params[idx]
-                        images, alpha, output = self._forward(p, mesh, edges, step_views, victim)
+                        images, alpha, output = self._forward(p, call, step_views)
                         parts = [slice_output(output, a * num_v, (a + 1) * num_v) for a in range(len(act))]
                         adv = torch.stack([targets[t].criterion.loss(o, loss=self.loss, kappa=self.kappa).mean()
                                            for t, o in zip(act, parts)])
@@ -480,44 +413,17 @@ class MeshAttack(ABC):
         chosen = torch.stack([tg.chosen(pristine) for tg in targets])
         run = _RunInfo(history=tuple(history), steps=total_steps, wall_time=time.perf_counter() - t_start,
                        interrupted=interrupted)
-        return self._finish(mesh, views, victim, targets, eval_views, edges, chosen, run)
+        return self._finish(call, targets, eval_views, chosen, run)
 
     # ------------------------------------------------------------------ final evaluation
-    def _evaluate(self, meshes: Sequence[Any], views: Any, victim: Any, criteria: List[Criterion],
-                  shared: bool = False) -> Tuple[Tensor, Tensor, Tensor, Optional[Tensor]]:
-        """Re-render ``meshes`` from scratch and score them against each criterion.
-
-        Args:
-            meshes: one mesh per criterion, or (``shared=True``) a single mesh scored against every criterion.
-            views: the ``V`` views.
-            victim: the victim.
-            criteria: ``T`` bound criteria.
-            shared: score the single mesh against every criterion.
-
-        Returns:
-            ``(margins (T, V), scores (T, V), images (K, V, 3, H, W), top1 (K, V) or None)`` with ``K`` meshes.
-        """
-        num_v = len(views)
-        verts = torch.stack([m.vertices for m in meshes])
-        colors = torch.stack([m.face_colors for m in meshes])
-        with torch.no_grad():
-            images, _ = render_views(verts, meshes[0].faces, colors, views, image_size=self.image_size,
-                                     background=self.background, antialias=self.antialias)
-            output = victim(images)
-            parts = [slice_output(output, 0, num_v) if shared else slice_output(output, t * num_v, (t + 1) * num_v)
-                     for t in range(len(criteria))]
-            margins = torch.stack([c.margin(o) for c, o in zip(criteria, parts)])
-            scores = torch.stack([c.score(o) for c, o in zip(criteria, parts)])
-            top1 = output.argmax(dim=1).view(len(meshes), num_v) if isinstance(output, Tensor) else None
-        return margins, scores, images.view(len(meshes), num_v, *images.shape[1:]), top1
-
-    def _finish(self, mesh: Any, views: Any, victim: Any, targets: List[_Target], eval_views: Any, edges: Tensor,
-                params: Tensor, run: _RunInfo) -> AttackResult:
+    def _finish(self, call: "_Call", targets: List[_Target], eval_views: Any, params: Tensor,
+                run: _RunInfo) -> AttackResult:
         from meshadv.mesh import Mesh
 
+        mesh, views, victim = call.mesh, call.views, call.victim
         num_t = params.shape[0]
         with torch.no_grad():
-            verts, colors = self._apply(params, mesh, edges)
+            verts, colors = self._apply(params, mesh, call.edges)
             if colors.dim() == 2:
                 colors = colors.unsqueeze(0).expand(num_t, -1, -1)
         adversarial = tuple(
@@ -526,26 +432,26 @@ class MeshAttack(ABC):
             for t in range(num_t)
         )
         criteria = [tg.criterion for tg in targets]
-        margins, scores, images, top1 = self._evaluate(adversarial, views, victim, criteria)
-        _, orig_scores, orig_images, orig_top1 = self._evaluate([mesh], views, victim, criteria, shared=True)
+        after = evaluate(adversarial, views, victim, criteria, setup=call.setup)
+        before = evaluate([mesh], views, victim, criteria, setup=call.setup)
         eval_success = eval_scores = None
         if eval_views is not None:
-            ev_margins, eval_scores, _, _ = self._evaluate(adversarial, eval_views.detach(), victim, criteria)
-            eval_success = ev_margins > 0
+            held_out = evaluate(adversarial, eval_views.detach(), victim, criteria, setup=call.setup)
+            eval_success, eval_scores = held_out.success, held_out.scores
         distances = tuple(
-            mesh_distances(mesh.vertices, mesh.face_colors, m.vertices, m.face_colors, edges) for m in adversarial
+            mesh_distances(mesh.vertices, mesh.face_colors, m.vertices, m.face_colors, call.edges) for m in adversarial
         )
         return AttackResult(
             original=mesh,
             adversarial=adversarial,
             perturbation=self.perturbation,
             criteria=tuple(c.to_record() for c in criteria),
-            success=margins > 0,
-            scores=scores,
-            original_scores=orig_scores,
-            margins=margins,
-            top1=top1,
-            original_top1=None if orig_top1 is None else orig_top1[0],
+            success=after.success,
+            scores=after.scores,
+            original_scores=before.scores,
+            margins=after.margins,
+            top1=after.top1,
+            original_top1=None if before.top1 is None else before.top1[0],
             eval_success=eval_success,
             eval_scores=eval_scores,
             distances=distances,
@@ -557,11 +463,84 @@ class MeshAttack(ABC):
             wall_time=run.wall_time,
             interrupted=run.interrupted,
             success_fraction=self.success_fraction,
-            original_images=orig_images[0],
-            images=images,
+            original_images=before.images[0],
+            images=after.images,
             view_records=tuple(views.to_records()),
             eval_view_records=None if eval_views is None else tuple(eval_views.to_records()),
-            config=self.config(),
+            config={**self.config(), **call.setup.config()},
             victim=str(getattr(victim, "name", type(victim).__name__)),
             class_names=tuple(getattr(victim, "class_names", ()) or ()),
         )
+
+
+@dataclass(frozen=True)
+class _Call:
+    """What one attack call works on: the mesh, the views, the victim, the render setup and the mesh's edges."""
+
+    mesh: Any
+    views: Any
+    victim: Any
+    setup: RenderSetup
+    edges: Tensor
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Meshes re-rendered from scratch and scored against criteria (:func:`evaluate`).
+
+    Attributes:
+        margins: ``(T, V)`` criterion margins (``> 0``: adversarial).
+        scores: ``(T, V)`` criterion scores.
+        images: ``(K, V, 3, H, W)`` the renders (``K`` meshes).
+        top1: ``(K, V)`` top-1 classes for a classifier, else ``None``.
+    """
+
+    margins: Tensor
+    scores: Tensor
+    images: Tensor
+    top1: Optional[Tensor]
+
+    @property
+    def success(self) -> Tensor:
+        """``(T, V)`` bool: ``margins > 0``."""
+        return self.margins > 0
+
+
+def evaluate(meshes: Union[Any, Sequence[Any]], views: Any, victim: Any,
+             criterion: Union[Criterion, Sequence[Criterion]], *, setup: Optional[RenderSetup] = None) -> Evaluation:
+    """Render ``meshes`` from ``views`` with ``setup`` (no gradients) and score them against each criterion.
+
+    One mesh is scored against every criterion; ``T`` meshes are scored one-to-one against ``T`` criteria.
+
+    Args:
+        meshes: a ``Mesh`` or a sequence of meshes sharing one topology.
+        views: a ``ViewSet`` of ``V`` views.
+        victim: the victim.
+        criterion: a criterion (bound or not) or a sequence of them.
+        setup: the render setup (default ``RenderSetup()``).
+
+    Returns:
+        An :class:`Evaluation`.
+
+    Raises:
+        ValueError: several meshes but a different number of criteria.
+    """
+    meshes = [meshes] if hasattr(meshes, "vertices") else list(meshes)
+    criteria = [criterion] if isinstance(criterion, Criterion) else list(criterion)
+    shared = len(meshes) == 1
+    if not shared and len(meshes) != len(criteria):
+        raise ValueError(f"meshes ({len(meshes)}) must be one mesh or one per criterion ({len(criteria)})")
+    criteria = [c.bind(victim) for c in criteria]  # binding is idempotent
+    setup = setup or RenderSetup()
+    num_v = len(views)
+    verts = torch.stack([m.vertices for m in meshes])
+    colors = torch.stack([m.face_colors for m in meshes])
+    with torch.no_grad():
+        images, _ = setup.render(verts, meshes[0].faces, colors, views)
+        output = victim(images)
+        parts = [slice_output(output, 0, num_v) if shared else slice_output(output, t * num_v, (t + 1) * num_v)
+                 for t in range(len(criteria))]
+        margins = torch.stack([c.margin(o) for c, o in zip(criteria, parts)])
+        scores = torch.stack([c.score(o) for c, o in zip(criteria, parts)])
+        top1 = output.argmax(dim=1).view(len(meshes), num_v) if isinstance(output, Tensor) else None
+    return Evaluation(margins, scores, images.view(len(meshes), num_v, *images.shape[1:]), top1)

@@ -33,6 +33,7 @@ from torch import Tensor
 from meshadv.attacks.base import MeshAttack
 from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import laplacian_flow_loss
+from meshadv.attacks.masks import check_mask, check_mask_fits, mask_config
 
 __all__ = ["ShapeAttack", "DEFAULT_SMOOTHING", "DEFAULT_SHAPE_LR"]
 
@@ -54,6 +55,9 @@ class ShapeAttack(MeshAttack):
             flow. Smoothed flows move less per step: use a larger ``lr`` with them (e.g. 1e-2 for ``k = 8``).
         max_step: optional per-coordinate bound on the applied ``|dv|`` (a clamp inside the parametrisation);
             ``None`` = unbounded.
+        vertex_mask: optional bool ``(N,)``: only these vertices may move (e.g. one object of a merged scene). The
+            other vertices' parameters are multiplied by zero before the parametrisation, so they get no gradient;
+            objects of a merged scene share no edge, so neither the smoothing nor the Laplacian crosses them.
         **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.base.MeshAttack`; the default
             ``lr`` is :data:`DEFAULT_SHAPE_LR` and ``lambda_perceptual`` 0.05 (meshes scaled to ``[-1, 1]``).
 
@@ -64,7 +68,7 @@ class ShapeAttack(MeshAttack):
     perturbation = "shape"
 
     def __init__(self, *, smoothing: int = DEFAULT_SMOOTHING, max_step: Optional[float] = None,
-                 **kwargs: Any) -> None:
+                 vertex_mask: Optional[Tensor] = None, **kwargs: Any) -> None:
         kwargs.setdefault("lr", DEFAULT_SHAPE_LR)
         kwargs.setdefault("lambda_perceptual", 0.05)
         super().__init__(**kwargs)
@@ -74,10 +78,15 @@ class ShapeAttack(MeshAttack):
             raise ValueError(f"max_step must be None or > 0, got {max_step}")
         self.smoothing = int(smoothing)
         self.max_step = None if max_step is None else float(max_step)
+        self.vertex_mask = check_mask(vertex_mask, "vertex_mask", "vertex")
 
     def config(self) -> dict:
-        """Hyper-parameters, including ``smoothing`` and ``max_step``."""
-        return {**super().config(), "smoothing": self.smoothing, "max_step": self.max_step}
+        """Hyper-parameters, including ``smoothing``, ``max_step`` and ``vertex_mask``."""
+        return {**super().config(), "smoothing": self.smoothing, "max_step": self.max_step,
+                "vertex_mask": mask_config(self.vertex_mask)}
+
+    def _check_mesh(self, mesh: Any) -> None:
+        check_mask_fits(self.vertex_mask, "vertex_mask", mesh.vertices.shape[0], "vertices")
 
     def displacement(self, params: Tensor, edges: Tensor) -> Tensor:
         """The displacement ``dv`` applied to the mesh for parameters ``params``.
@@ -89,6 +98,8 @@ class ShapeAttack(MeshAttack):
         Returns:
             ``clamp(S^smoothing params, -max_step, max_step)``, the shape of ``params``.
         """
+        if self.vertex_mask is not None:
+            params = params * self.vertex_mask.to(params.device)[..., :, None].to(params.dtype)
         dv = smooth_flow(params, edges, self.smoothing)
         return dv if self.max_step is None else dv.clamp(-self.max_step, self.max_step)
 

@@ -14,7 +14,7 @@ Example:
 
 from __future__ import annotations
 
-from typing import Any, Tuple
+from typing import Any, Optional, Tuple
 
 import torch
 from torch import Tensor
@@ -22,6 +22,7 @@ from torch import Tensor
 from meshadv.attacks.base import MeshAttack
 from meshadv.attacks.distances import color_rmse
 from meshadv.attacks.losses import image_smoothness_loss
+from meshadv.attacks.masks import check_mask, check_mask_fits, mask_config
 
 __all__ = ["TextureAttack"]
 
@@ -32,6 +33,8 @@ class TextureAttack(MeshAttack):
     """Adversarial per-face colours (the paper's texture attack); hyper-parameters as in :class:`MeshAttack`.
 
     Args:
+        face_mask: optional bool ``(M,)``: only these faces change colour (one object of a merged scene); the
+            distance is then measured on them only.
         **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.base.MeshAttack`; the default
             ``lr`` is 0.05 (in logit space) and ``lambda_perceptual`` 1e-4 (the image loss sums over pixels).
 
@@ -41,22 +44,46 @@ class TextureAttack(MeshAttack):
 
     perturbation = "texture"
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, *, face_mask: Optional[Tensor] = None, **kwargs: Any) -> None:
         kwargs.setdefault("lr", 0.05)
         kwargs.setdefault("lambda_perceptual", 1e-4)
         super().__init__(**kwargs)
+        self.face_mask = check_mask(face_mask, "face_mask", "face")
+
+    def config(self) -> dict:
+        """Hyper-parameters, including ``face_mask``."""
+        return {**super().config(), "face_mask": mask_config(self.face_mask)}
+
+    def _check_mesh(self, mesh: Any) -> None:
+        check_mask_fits(self.face_mask, "face_mask", mesh.faces.shape[0], "faces")
 
     def _init_params(self, mesh: Any, num_targets: int) -> Tensor:
         logits = torch.logit(mesh.face_colors.clamp(_EPS, 1 - _EPS))
         return logits.unsqueeze(0).repeat(num_targets, 1, 1)
 
+    def colors(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
+        """Face colours ``(K, M, 3)`` for parameters ``params`` (faces outside ``face_mask`` keep theirs)."""
+        colors = self._colors(params, mesh, edges)
+        if self.face_mask is None:
+            return colors
+        mask = self.face_mask.to(colors.device)[None, :, None]
+        return torch.where(mask, colors, mesh.face_colors.unsqueeze(0).expand_as(colors))
+
+    def _colors(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
+        """Unmasked face colours of the parametrisation: ``sigmoid(params)``."""
+        return torch.sigmoid(params)
+
     def _apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
         verts = mesh.vertices.unsqueeze(0).expand(params.shape[0], -1, -1)
-        return verts, torch.sigmoid(params)
+        return verts, self.colors(params, mesh, edges)
 
     def _perceptual(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
                     num_views: int) -> Tensor:
         return image_smoothness_loss(images).view(params.shape[0], num_views).mean(dim=1)
 
     def _distance(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
-        return color_rmse(torch.sigmoid(params), mesh.face_colors)
+        colors = self._colors(params, mesh, edges)
+        if self.face_mask is None:
+            return color_rmse(colors, mesh.face_colors)
+        mask = self.face_mask.to(colors.device)
+        return color_rmse(colors[:, mask], mesh.face_colors[mask])

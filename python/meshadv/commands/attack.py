@@ -2,7 +2,7 @@
 
 Example:
     $ meshadv attack ../shared/data/pascal3d/chair/01.ply --victim efficientnet_lite0 --target bicycle \\
-          --perturb shape --views 5 --steps 300 -o out/chair-bicycle
+          --perturbation shape --views 5 --steps 300 -o out/chair-bicycle
 """
 
 from __future__ import annotations
@@ -23,21 +23,18 @@ from meshadv.commands._common import (
 
 __all__ = ["attack", "build_attack", "build_criteria", "run_with_progress"]
 
-PERTURBATIONS = ("shape", "texture")
 
 
-def build_attack(perturb: str, **kwargs: Any) -> Any:
-    """The attack object for ``perturb`` (``"shape"`` or ``"texture"``); ``None`` values fall back to defaults.
+
+def build_attack(perturbation: str, **kwargs: Any) -> Any:
+    """The attack object for ``perturbation`` (the family registry); ``None`` values fall back to defaults.
 
     Raises:
-        ValueError: unknown ``perturb``.
+        ValueError: unknown ``perturbation``.
     """
-    from meshadv.attacks import ShapeAttack, TextureAttack
+    from meshadv.attacks import make_attack
 
-    if perturb not in PERTURBATIONS:
-        raise ValueError(f"perturb must be one of {PERTURBATIONS}, got {perturb!r}")
-    kwargs = {k: v for k, v in kwargs.items() if v is not None}
-    return (ShapeAttack if perturb == "shape" else TextureAttack)(**kwargs)
+    return make_attack(perturbation, **{k: v for k, v in kwargs.items() if v is not None})
 
 
 def build_criteria(
@@ -72,6 +69,7 @@ def run_with_progress(
     criteria: Sequence[Any],
     *,
     eval_views: Any = None,
+    setup: Any = None,
     quiet: bool = False,
     extra_callback: Optional[Callable[[Any], None]] = None,
 ) -> Any:
@@ -104,7 +102,8 @@ def run_with_progress(
             if extra_callback is not None:
                 extra_callback(info)
 
-        return attack_obj(mesh, views, victim, list(criteria), eval_views=eval_views, callback=callback)
+        return attack_obj(mesh, views, victim, list(criteria), setup=setup, eval_views=eval_views,
+                          callback=callback)
 
 
 def _azimuth_range(text: str) -> Tuple[float, float]:
@@ -122,7 +121,8 @@ def attack(
                                               "several targets are attacked together as a batch)"),
     untargeted: Optional[str] = typer.Option(None, help="untargeted attack away from this true class"),
     disappear: Optional[str] = typer.Option(None, help="detector: class to hide, or 'all'"),
-    perturb: str = typer.Option("shape", help="shape or texture"),
+    perturbation: str = typer.Option("shape", "--perturbation", "--perturb",
+                                     help="shape or texture (--perturb is the old name)"),
     views: int = typer.Option(5, help="number of victim views"),
     azimuths: str = typer.Option("150:210", help="azimuth range LOW:HIGH (degrees) of the victim views; 180 faces "
                                                        "the front of a PASCAL3D+ model"),
@@ -156,12 +156,13 @@ def attack(
     result so far. Writes the adversarial mesh (PLY, OBJ), before/after PNGs and result.json into OUTPUT."""
     import torch
 
+    from meshadv.render import RenderSetup
     from meshadv.victims import load_victim
 
     torch.manual_seed(seed)
     try:
-        if smoothing is not None and perturb != "shape":
-            raise ValueError("--smoothing applies to --perturb shape only")
+        if smoothing is not None and perturbation != "shape":
+            raise ValueError("--smoothing applies to --perturbation shape only")
         mesh_obj, label = load_mesh_arg(mesh, z_up=z_up)
         az = _azimuth_range(azimuths)
         view_set = make_views(views, az, elevation, distance)
@@ -171,12 +172,12 @@ def attack(
         victim_obj = load_victim(victim)
         if early_stop_margin is None:
             early_stop_margin = 0.05 if victim_obj.kind == "detector" else 0.5
-        shape_only = {"smoothing": smoothing} if perturb == "shape" else {}
+        shape_only = {"smoothing": smoothing} if perturbation == "shape" else {}
+        setup = RenderSetup(image_size=image_size, background=parse_color(background))
         attack_obj = build_attack(
-            perturb, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
+            perturbation, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
-            max_distortion=budget, jitter=jitter_cfg, image_size=image_size, background=parse_color(background),
-            seed=seed, **shape_only,
+            max_distortion=budget, jitter=jitter_cfg, seed=seed, **shape_only,
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
         for crit in criteria:
@@ -186,7 +187,7 @@ def attack(
     typer.echo(f"mesh {label}: {mesh_obj.num_vertices} vertices, {mesh_obj.num_faces} faces; "
                f"{attack_obj!r}")
     result = run_with_progress(attack_obj, mesh_obj, view_set, victim_obj, criteria, eval_views=held_out,
-                               quiet=quiet)
+                               setup=setup, quiet=quiet)
     path = result.save(output)
     typer.echo(result.summary())
     if result.interrupted:

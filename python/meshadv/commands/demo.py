@@ -56,7 +56,7 @@ def demo(
     import torch
 
     from meshadv.attacks import ShapeAttack, TargetedMisclassification
-    from meshadv.attacks.base import render_views
+    from meshadv.render import RenderSetup, render_views
     from meshadv.attacks.result import save_png
     from meshadv.commands.attack import run_with_progress
     from meshadv.victims import load_victim
@@ -73,16 +73,17 @@ def demo(
     names = list(model.class_names)
     with torch.no_grad():
         images, _ = render_views(mesh_obj.vertices.unsqueeze(0), mesh_obj.faces, mesh_obj.face_colors, view_set,
-                                 image_size=image_size, background=(1.0, 1.0, 1.0))
+                                 RenderSetup(image_size=image_size))
         top1, runner_up = pick_target(model(images))
     goal = target if target is not None else runner_up
     typer.echo(f"mesh {label} ({mesh_obj.num_faces} faces), {views} views at {image_size} px; "
                f"pristine top-1 '{names[top1]}', target '{goal if target is not None else names[runner_up]}'")
     attack_obj = ShapeAttack(steps=steps, lr=5e-3, lambda_perceptual=0.01, loss="cw", early_stop=2,
-                             early_stop_margin=0.5, image_size=image_size, seed=seed)
+                             early_stop_margin=0.5, seed=seed)
     try:
         criterion = TargetedMisclassification(goal)
-        result = run_with_progress(attack_obj, mesh_obj, view_set, model, [criterion], quiet=quiet)
+        result = run_with_progress(attack_obj, mesh_obj, view_set, model, [criterion],
+                                   setup=RenderSetup(image_size=image_size), quiet=quiet)
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from exc
     path = result.save(output)

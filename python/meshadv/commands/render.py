@@ -41,7 +41,7 @@ def render(
     """Render MESH from VIEWS azimuths and write view_{j}.png (+ predictions.json with --victim) into OUTPUT."""
     import torch
 
-    from meshadv.attacks.base import render_views
+    from meshadv.render import RenderSetup, render_views
     from meshadv.attacks.result import save_png, write_json_atomic
 
     try:
@@ -54,7 +54,7 @@ def render(
     output.mkdir(parents=True, exist_ok=True)
     with torch.no_grad():
         images, _ = render_views(mesh_obj.vertices.unsqueeze(0), mesh_obj.faces, mesh_obj.face_colors, view_set,
-                                 image_size=image_size, background=bg)
+                                 RenderSetup(image_size=image_size, background=bg))
     records = []
     for j, rec in enumerate(view_set.to_records()):
         name = f"view_{j}.png"

@@ -79,23 +79,15 @@ def _victim(name: str, weights: Any = None) -> Any:
     return _VICTIM_CACHE[key]
 
 
-def _benign_check(mesh: Any, views: Any, victim: Any, source: str, image_size: int,
-                  antialias: int = 1) -> Tuple[bool, List[str], Any]:
-    import torch
+def _benign_check(mesh: Any, views: Any, victim: Any, source: str, setup: Any) -> Tuple[bool, List[str], Any]:
+    from meshadv.attacks import TargetedMisclassification, evaluate
 
-    from meshadv.attacks import TargetedMisclassification
-    from meshadv.attacks.base import render_views
-
-    with torch.no_grad():
-        images, _ = render_views(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views,
-                                 image_size=image_size, background=(1.0, 1.0, 1.0), antialias=antialias)
-        logits = victim(images)
-        crit = TargetedMisclassification(source).bind(victim)
-        correct = bool((crit.margin(logits) > 0).all())
-        names = getattr(victim, "class_names", None)
-        top1 = logits.argmax(dim=1).tolist()
-        labels = [names[i] if names and i < len(names) else str(i) for i in top1]
-    return correct, labels, images
+    benign = evaluate(mesh, views, victim, TargetedMisclassification(source), setup=setup)
+    correct = bool(benign.success.all())
+    names = getattr(victim, "class_names", None)
+    top1 = benign.top1[0].tolist() if benign.top1 is not None else []
+    labels = [names[i] if names and i < len(names) else str(i) for i in top1]
+    return correct, labels, benign.images[0]
 
 
 def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
@@ -113,24 +105,25 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     """
     import torch
 
-    from meshadv.attacks import Criterion, ShapeAttack, TargetedMisclassification, TextureAttack, WithMargin
+    from meshadv.attacks import Criterion, TargetedMisclassification, WithMargin, make_attack
+    from meshadv.attacks.families import check_perturbation
     from meshadv.attacks.result import save_png
     from meshadv.mesh import save_mesh
     from meshadv.render import ViewSet
+    from meshadv.render.setup import RenderSetup, split_setup_options
 
     start = time.perf_counter()
     out = Path(out_dir)
-    ptype = spec["perturbation"]
-    if ptype not in DISTANCE_KEYS:
-        raise ValueError(f"spec['perturbation'] must be shape or texture, got {ptype!r}")
+    perturbation = check_perturbation(spec["perturbation"], "spec['perturbation']")
     torch.manual_seed(int(spec.get("seed", 0)))
     mesh = load_job_mesh(spec["mesh"])
     views = ViewSet.from_records(spec["views"])
     eval_views = ViewSet.from_records(spec["eval_views"]) if spec.get("eval_views") else None
     victim = _victim(spec["victim"], spec.get("victim_weights"))
-    size = int(spec.get("image_size", 224))
-    antialias = int(spec.get("attack", {}).get("antialias", 1))  # judge the benign render as the attack renders it
-    correct, benign_top1, benign_images = _benign_check(mesh, views, victim, spec["source_class"], size, antialias)
+    setup_options, options = split_setup_options(dict(spec.get("attack", {})))
+    setup = RenderSetup(image_size=int(spec.get("image_size", 224)), **setup_options)
+    # judge the benign render as the attack renders it
+    correct, benign_top1, benign_images = _benign_check(mesh, views, victim, spec["source_class"], setup)
     save_mesh(mesh, out / "benign.ply")
     benign_pngs = []
     for j in range(benign_images.shape[0]):
@@ -147,14 +140,12 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         record.update(skipped=True, success=False, distance=None, steps=0, time=time.perf_counter() - start,
                       reason=f"benign render classified as {benign_top1}, not {spec['source_class']}")
         return record
-    options = dict(spec.get("attack", {}))
     required_margin = float(options.pop("required_margin", 0.0))
-    kwargs = {"image_size": size, "seed": int(spec.get("seed", 0)), **options}
-    attack = ShapeAttack(**kwargs) if ptype == "shape" else TextureAttack(**kwargs)
+    attack = make_attack(perturbation, **{"seed": int(spec.get("seed", 0)), **options})
     criterion: Criterion = TargetedMisclassification(spec["target"])
     if required_margin > 0:
         criterion = WithMargin(criterion, required_margin)
-    result = attack(mesh, views, victim, criterion, eval_views=eval_views)
+    result = attack(mesh, views, victim, criterion, setup=setup, eval_views=eval_views)
     result.save(out)
     distances = dict(result.distances[0])
     ply, obj = result.mesh_filenames(0)
@@ -162,7 +153,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     record.update(
         skipped=False,
         success=bool(result.succeeded[0]),
-        distance=distances.get(DISTANCE_KEYS[ptype]),
+        distance=distances.get(DISTANCE_KEYS[perturbation]),
         distances=distances,
         steps=int(result.steps),
         time=float(result.wall_time),

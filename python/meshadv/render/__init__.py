@@ -9,6 +9,7 @@ from .lighting import Lights, face_normals, orient_normals, shade
 from .rasterize import RasterOutput, native_available, rasterize
 from .raycast import RayCastOutput, raycast
 from .renderer import RenderOutput, render, render_silhouette
+from .setup import RenderSetup, StaticObject, render_views
 from .views import ViewSet
 
 __all__ = [
@@ -17,6 +18,8 @@ __all__ = [
     "RasterOutput",
     "RayCastOutput",
     "RenderOutput",
+    "RenderSetup",
+    "StaticObject",
     "ViewSet",
     "face_normals",
     "native_available",
@@ -25,5 +28,6 @@ __all__ = [
     "raycast",
     "render",
     "render_silhouette",
+    "render_views",
     "shade",
 ]

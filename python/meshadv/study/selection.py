@@ -82,7 +82,7 @@ def _rerender(row: JobRow, mesh_path: Path, out_png: Path) -> Path:
     """Render ``mesh_path`` from the job's first view as the attack job did (white background) into ``out_png``."""
     import torch
 
-    from meshadv.attacks.base import render_views
+    from meshadv.render import RenderSetup, render_views
     from meshadv.attacks.result import save_png
     from meshadv.mesh import load_mesh
     from meshadv.render import ViewSet
@@ -92,8 +92,8 @@ def _rerender(row: JobRow, mesh_path: Path, out_png: Path) -> Path:
     size = int(row.spec.get("image_size", 224))
     antialias = int(row.spec.get("attack", {}).get("antialias", 1))
     with torch.no_grad():
-        images, _ = render_views(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views, image_size=size,
-                                 background=(1.0, 1.0, 1.0), antialias=antialias)
+        images, _ = render_views(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views,
+                                 RenderSetup(image_size=size, antialias=antialias))
     out_png.parent.mkdir(parents=True, exist_ok=True)
     save_png(images[0], out_png)
     return out_png

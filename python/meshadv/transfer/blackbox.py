@@ -17,12 +17,8 @@ import numpy as np
 import torch
 
 from meshadv.transfer.controlled import _images_tensor, _top1_names
-from meshadv.transfer.object_attacks import (
-    _check_smoothing,
-    _texture_attack,
-    object_shape_attack,
-    object_texture_attack,
-)
+from meshadv.render.setup import RenderSetup, split_setup_options
+from meshadv.transfer.object_attacks import _check_smoothing, _texture_attack
 from meshadv.transfer.render import MitsubaImage, render_mask, render_scenes
 from meshadv.transfer.robust import (
     DEFAULT_JITTER,
@@ -278,10 +274,11 @@ def composite(image: MitsubaImage, background: torch.Tensor) -> torch.Tensor:
     return (rgb + (1.0 - alpha) * background.to(rgb.dtype)).clamp(0.0, 1.0)
 
 
-def _attack_record(attack: Any, result: Any) -> dict[str, Any]:
-    """Hyper-parameters and cost of the attack, as result-row entries."""
+def _attack_record(attack: Any, setup: RenderSetup, result: Any) -> dict[str, Any]:
+    """Hyper-parameters and cost of the attack (and the setup's supersampling), as result-row entries."""
     config = attack.config()
-    record = {k: config[k] for k in ("steps", "lr", "lambda_perceptual", "loss", "kappa", "antialias", "early_stop")}
+    record = {k: config[k] for k in ("steps", "lr", "lambda_perceptual", "loss", "kappa", "early_stop")}
+    record["antialias"] = setup.antialias
     record.update(steps_run=int(result.steps), steps_to_success=result.steps_to_success[0],
                   attack_time=float(result.wall_time))
     record.update({k: float(v) for k, v in result.distances[0].items()})
@@ -292,7 +289,8 @@ def _hwc(image: torch.Tensor) -> np.ndarray:
     return image.detach().permute(1, 2, 0).cpu().numpy()
 
 
-def _finish_row(row: dict[str, Any], attack: Any, result: Any, robustness: Robustness, est: Estimation,
+def _finish_row(row: dict[str, Any], attack: Any, setup: RenderSetup, result: Any, robustness: Robustness,
+                est: Estimation,
                 adversarial_render: MitsubaImage, estimated_image: torch.Tensor, ours_image: torch.Tensor,
                 adversarial: Any) -> dict[str, Any]:
     """Add what every black-box row shares to ``row``: robustness and attack settings, estimation errors, and the
@@ -300,8 +298,8 @@ def _finish_row(row: dict[str, Any], attack: Any, result: Any, robustness: Robus
     adversarial under the estimates, meshadv's render), ``_adversarial_mesh`` and ``_result`` entries; returns
     ``row``."""
     row.update(robustness.to_record())
-    row["pixel_noise_on"] = _noise_where(attack, robustness)
-    row.update(_attack_record(attack, result))
+    row["pixel_noise_on"] = _noise_where(setup, robustness)
+    row.update(_attack_record(attack, setup, result))
     row.update({k: float(v) for k, v in est.errors.items()})
     row["_images"] = {"benign_mitsuba": _hwc(est.photo), "adversarial_mitsuba": adversarial_render.image,
                       "adversarial_mitsuba_estimated": _hwc(estimated_image), "adversarial_meshadv": _hwc(ours_image)}
@@ -350,7 +348,7 @@ def blackbox_classifier(
         robustness: EOT samples, required margin, pixel noise (default
             :class:`~meshadv.transfer.robust.Robustness` ``()``, the plain pipeline).
         texture_smoothing: ``None`` for the paper's per-face texture; an int ``k >= 0`` for a smoothed per-vertex
-            colour field (:class:`~meshadv.transfer.smooth_texture.SmoothTextureAttack`, ``k`` rounds), for meshes
+            colour field (:class:`~meshadv.attacks.SmoothTextureAttack`, ``k`` rounds), for meshes
             with many faces per pixel. Texture attacks only.
         num_lights: directional lights to estimate.
         camera_steps: camera estimation steps.
@@ -382,19 +380,18 @@ def blackbox_classifier(
     est = estimate_parameters(mesh, hidden, num_lights=num_lights, camera_steps=camera_steps,
                               light_steps=light_steps, variant=variant, timeout=timeout)
     background = _background_image(hidden, (), variant, timeout)
-    kwargs = dict(attack_kwargs or {})
-    kwargs.setdefault("image_size", hidden.image_size)
-    kwargs.setdefault("background", background)
+    setup_options, kwargs = split_setup_options(dict(attack_kwargs or {}))
+    setup = RenderSetup(**{"image_size": hidden.image_size, "background": background, **setup_options})
     kwargs.setdefault("jitter", jitter or None)
-    attack = ShapeAttack(**kwargs) if attack_type == "shape" else _texture_attack(texture_smoothing, None, kwargs)
+    attack = _texture_attack(texture_smoothing, None, kwargs) if attack_type == "texture" else ShapeAttack(**kwargs)
     criterion = TargetedMisclassification(target) if target else Misclassification(true_class)
-    result = _attack_estimated(attack, mesh, est.views, victim, criterion, robustness, callback)
+    result = _attack_estimated(attack, mesh, est.views, victim, criterion, robustness, setup, callback)
     adversarial = result.mesh
     bound = criterion.bind(victim)
-    ours_margin, ours_image = _meshadv_margins(attack, adversarial, est.views, victim, bound)
+    ours_margin, ours_image = _meshadv_margins(setup, adversarial, est.views, victim, bound)
     with torch.no_grad():
         ours_top1 = _top1_names(victim, victim(ours_image[None]))[0]
-    robust_rate = _robust_rate(attack, adversarial, est.views, victim, bound, robustness)
+    robust_rate = _robust_rate(setup, adversarial, est.views, victim, bound, robustness)
     record = est.views.to_records()[0]
     # the benign render under the hidden parameters is the photo the estimation was made from
     images = render_scenes([hidden.spec(adversarial), estimated_view_spec(adversarial, record, hidden)],
@@ -430,7 +427,8 @@ def blackbox_classifier(
         "spp": hidden.spp,
         "variant": images[0].variant,
     }
-    return _finish_row(row, attack, result, robustness, est, images[0], estimated_image, ours_image, adversarial)
+    return _finish_row(row, attack, setup, result, robustness, est, images[0], estimated_image, ours_image,
+                       adversarial)
 
 
 def occlusion_mask(objects: Sequence[Any], index: int, views: Any, image_size: Any) -> torch.Tensor:
@@ -524,7 +522,7 @@ def blackbox_detector(
         robustness: EOT samples, required margin (score units), pixel noise (default
             :class:`~meshadv.transfer.robust.Robustness` ``()``).
         texture_smoothing: ``None`` for the paper's per-face texture; an int ``k >= 0`` for a smoothed per-vertex
-            colour field (:class:`~meshadv.transfer.smooth_texture.SmoothTextureAttack`, ``k`` rounds), for meshes
+            colour field (:class:`~meshadv.attacks.SmoothTextureAttack`, ``k`` rounds), for meshes
             with many faces per pixel. Texture attacks only.
         num_lights: directional lights to estimate.
         camera_steps: camera estimation steps.
@@ -568,14 +566,14 @@ def blackbox_detector(
     light_faces = (first_face, first_face + int(target_obj.faces.shape[0])) if light_fit == "object" else None
     est = estimate_parameters(target_obj, hidden, known=merged, light_faces=light_faces, num_lights=num_lights,
                               camera_steps=camera_steps, light_steps=light_steps, variant=variant, timeout=timeout)
-    kwargs = dict(attack_kwargs or {})
-    kwargs.setdefault("image_size", hidden.image_size)
+    setup_options, kwargs = split_setup_options(dict(attack_kwargs or {}))
+    setup_options.setdefault("image_size", hidden.image_size)
     kwargs.setdefault("jitter", jitter or None)
     occluded: Optional[torch.Tensor] = None
     seen_victim = victim
     if context == "photo":
         background = est.photo
-        kwargs.setdefault("background", background)
+        setup_options.setdefault("background", background)
         occluded = occlusion_mask(objects, object_index, est.views, hidden.image_size)
         if bool(occluded.any()):
             seen_victim = Occluded(victim, est.photo, occluded)
@@ -584,23 +582,23 @@ def blackbox_detector(
         start, stop = 0, None
     else:
         background = _background_image(hidden, background_exclude, variant, timeout)
-        kwargs.setdefault("background", background)
+        setup_options.setdefault("background", background)
         attacked = merged
         if attack_type == "texture":
             start = sum(int(o.faces.shape[0]) for o in objects[:object_index])
             stop = start + int(target_obj.faces.shape[0])
             face_mask = torch.zeros(int(merged.faces.shape[0]), dtype=torch.bool)
             face_mask[start:stop] = True
-            attack = (object_texture_attack(face_mask, **kwargs) if texture_smoothing is None
-                      else _texture_attack(texture_smoothing, face_mask, kwargs))
+            attack = _texture_attack(texture_smoothing, face_mask, kwargs)
         else:
             start = sum(int(o.vertices.shape[0]) for o in objects[:object_index])
             stop = start + int(target_obj.vertices.shape[0])
             vertex_mask = torch.zeros(int(merged.vertices.shape[0]), dtype=torch.bool)
             vertex_mask[start:stop] = True
-            attack = object_shape_attack(vertex_mask, **kwargs)
+            attack = ShapeAttack(vertex_mask=vertex_mask, **kwargs)
+    setup = RenderSetup(**setup_options)
     criterion = Disappearance(hide_class, threshold=score_threshold)
-    result = _attack_estimated(attack, attacked, est.views, seen_victim, criterion, robustness, callback)
+    result = _attack_estimated(attack, attacked, est.views, seen_victim, criterion, robustness, setup, callback)
     if attack_type == "texture":
         adversarial = target_obj.with_face_colors(result.mesh.face_colors.detach()[start:stop].clone())
     else:
@@ -610,8 +608,8 @@ def blackbox_detector(
     else:
         seen = _merge_meshes([adversarial if i == object_index else o for i, o in enumerate(objects)])
     bound = criterion.bind(victim)
-    ours_margin, ours_image = _meshadv_margins(attack, seen, est.views, seen_victim, bound)
-    robust_rate = _robust_rate(attack, seen, est.views, seen_victim, bound, robustness)
+    ours_margin, ours_image = _meshadv_margins(setup, seen, est.views, seen_victim, bound)
+    robust_rate = _robust_rate(setup, seen, est.views, seen_victim, bound, robustness)
     record = est.views.to_records()[0]
     # the benign render under the hidden parameters is the photo the estimation was made from
     images = render_scenes([hidden.spec(adversarial), estimated_view_spec(seen, record, hidden)], variant=variant,
@@ -646,7 +644,8 @@ def blackbox_detector(
         "spp": hidden.spp,
         "variant": images[0].variant,
     }
-    return _finish_row(row, attack, result, robustness, est, images[0], estimated_image, ours_image, adversarial)
+    return _finish_row(row, attack, setup, result, robustness, est, images[0], estimated_image, ours_image,
+                       adversarial)
 
 
 def detection_scores(victim: Any, images: torch.Tensor, class_name: str) -> list[float]:
