@@ -98,7 +98,8 @@ def test_scene_attack_hides_the_target_class(shared_data: Path) -> None:
     """On the shared dog photo with an inserted object, the dog's best score falls below the threshold."""
     from meshadv.attacks.criteria import Disappearance
     from meshadv.mesh import builtin_mesh
-    from meshadv.scenes.attack import SceneAttack
+    from meshadv.attacks import TextureAttack
+    from meshadv.scenes.attack import attack_scene
     from meshadv.scenes.photo import photo_setup
     from meshadv.victims import load_victim
 
@@ -113,8 +114,8 @@ def test_scene_attack_hides_the_target_class(shared_data: Path) -> None:
         height_fraction=0.35,
         width=320,
     )
-    attack = SceneAttack(perturb="texture", steps=60, lr=0.5, lambda_perceptual=0.0, seed=0)
-    result = attack(setup, victim, Disappearance("dog", threshold=0.5))
+    attack = TextureAttack(steps=60, lr=0.5, lambda_perceptual=0.0, early_stop=5, early_stop_margin=0.05, seed=0)
+    result = attack_scene(attack, setup, victim, Disappearance("dog", threshold=0.5))
     assert result.score_before >= 0.5, "the pristine composite must still show the dog"
     assert result.score_after < 0.5
     assert result.success

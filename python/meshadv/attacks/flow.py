@@ -1,5 +1,5 @@
-"""The smoothed vertex-flow parametrisation shared by the shape attacks (:class:`~meshadv.attacks.ShapeAttack` and
-:class:`~meshadv.scenes.attack.SceneAttack`).
+"""The smoothed vertex-flow parametrisation of :class:`~meshadv.attacks.ShapeAttack` (``smoothing=k``) and of
+:class:`~meshadv.attacks.SmoothTextureAttack`'s per-vertex colour offset: the one place it lives.
 
 Instead of optimising the displacement ``dv`` itself, an attack may optimise parameters ``p`` and apply
 ``dv = S^k p`` with ``S p = p + 0.5 * L p`` (``L`` the uniform Laplacian, ``L p_i = mean_{j in N(i)} p_j - p_i``), i.e.

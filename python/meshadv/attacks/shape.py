@@ -5,8 +5,8 @@
 
 Parametrisation: Adam optimises parameters ``p`` (``T x N x 3``) and the applied displacement is ``dv = clamp(S^k p,
 -max_step, max_step)`` with ``S p = p + 0.5 * L p`` (``k = smoothing`` rounds of neighbour averaging over mesh
-edges, :func:`meshadv.attacks.flow.smooth_flow`, the low-pass reparametrisation of
-:class:`~meshadv.scenes.attack.SceneAttack`). ``smoothing=0``, the default, is the paper's exact method (``dv =
+edges, :func:`meshadv.attacks.flow.smooth_flow`, the low-pass reparametrisation used for the dense bunny of the
+indoor scene). ``smoothing=0``, the default, is the paper's exact method (``dv =
 p``). ``smoothing > 0`` makes every Adam step move smooth patches of the surface instead of single vertices: it
 keeps a dense mesh from roughening, but it also removes the perturbation's high frequencies, and on the 1.2k-face
 PASCAL3D+ meshes against EfficientNet-Lite0 those are what changes the label fastest (a sub-pixel per-vertex jitter

@@ -21,15 +21,17 @@ def attack_scene(
     scene: str = typer.Argument(..., help=SCENE_HELP),
     victim: str = typer.Option("ssd_mobilenet_v2_coco", help="detector victim name"),
     hide: str = typer.Option("all", help="COCO class to hide (e.g. 'dining table', 'dog') or 'all'"),
-    perturb: str = typer.Option("shape", help="shape or texture"),
+    perturbation: str = typer.Option("shape", "--perturbation", "--perturb",
+                                     help="shape or texture (--perturb is the old name)"),
     obj: str = typer.Option(
         "bunny", "--object", help="object to perturb (scene object name, or a mesh file for photos)"
     ),
     place: str = typer.Option("0.5,0.75,0.3", help="photo only: u,v,height_fraction of the inserted object"),
     steps: int = typer.Option(300, help="maximum Adam steps"),
-    lr: Optional[float] = typer.Option(None, help="Adam learning rate (default: 5e-4 for shape, 0.05 for texture)"),
+    lr: Optional[float] = typer.Option(None, help="Adam learning rate (default: 5e-4 for shape, in units of the "
+                                                   "object's bounding-box diagonal; 0.05 for texture, logit units)"),
     smoothing: int = typer.Option(8, help="shape only: neighbour-averaging iterations of the flow parameters"),
-    lambda_perceptual: float = typer.Option(1.0, "--lambda", help="perceptual loss weight"),
+    lambda_perceptual: float = typer.Option(1.0, "--lambda", help="perceptual loss weight (texture: per pixel)"),
     threshold: float = typer.Option(0.5, help="detection score threshold"),
     width: Optional[int] = typer.Option(None, help="render width (default: the scene's / photo's own)"),
     seed: int = typer.Option(0, help="random seed"),
@@ -37,27 +39,38 @@ def attack_scene(
 ) -> None:
     """Hide CLASS (or everything) from a detector by perturbing only one object; writes before/after images with
     detections drawn, the adversarial object mesh and a JSON record."""
-    from meshadv.attacks.criteria import Disappearance
+    from meshadv.attacks import Disappearance, make_attack
+    from meshadv.attacks.families import check_perturbation
     from meshadv.attacks.result import write_json_atomic
     from meshadv.mesh import save_mesh
+    from meshadv.scenes.attack import attack_scene
     from meshadv.scenes.draw import draw_detections, save_png_atomic
     from meshadv.scenes.setups import build_setup
-    from meshadv.scenes.attack import SceneAttack
     from meshadv.victims import load_victim
 
-    setup = build_setup(scene, obj, place, width)
+    try:
+        check_perturbation(perturbation, "--perturbation")
+        setup = build_setup(scene, obj, place, width)
+    except (ValueError, FileNotFoundError) as exc:
+        raise typer.BadParameter(str(exc)) from exc
     detector = load_victim(victim)
     if lr is None:
-        lr = DEFAULT_LR.get(perturb, 3e-4)
-    attack = SceneAttack(
-        perturb=perturb, steps=steps, lr=lr, lambda_perceptual=lambda_perceptual, smoothing=smoothing, seed=seed
-    )
+        lr = DEFAULT_LR[perturbation]
+    # the same attacks as everywhere: stop once the hidden score stayed 0.05 below the threshold for 5 steps
+    common = dict(steps=steps, early_stop=5, early_stop_margin=0.05, seed=seed)
+    if perturbation == "shape":  # lr in units of the object's bounding-box diagonal
+        attack = make_attack("shape", lr=lr * float(setup.mesh.bbox_diagonal()), smoothing=smoothing,
+                             lambda_perceptual=lambda_perceptual, **common)
+    else:  # the image smoothness loss sums over pixels: --lambda is per pixel
+        pixels = setup.camera.width * setup.camera.height
+        attack = make_attack("texture", lr=lr, lambda_perceptual=lambda_perceptual / pixels, **common)
 
-    def progress(step: int, loss: float, score: float) -> None:
+    def progress(info: object) -> None:
+        step = info.total_step  # type: ignore[attr-defined]
         if step == 1 or step % 10 == 0:
-            typer.echo(f"step {step:4d}  loss {loss:.4f}  hidden score {score:.3f}")
+            typer.echo(f"step {step:4d}  loss {info.loss[0]:.4f}  margin {info.margin[0]:.3f}")  # type: ignore
 
-    result = attack(setup, detector, Disappearance(hide, threshold=threshold), progress=progress)
+    result = attack_scene(attack, setup, detector, Disappearance(hide, threshold=threshold), callback=progress)
     output.mkdir(parents=True, exist_ok=True)
     save_png_atomic(draw_detections(result.image_before, result.detections_before), output / "before.png")
     save_png_atomic(draw_detections(result.image_after, result.detections_after), output / "after.png")
@@ -67,7 +80,7 @@ def attack_scene(
         "object": setup.object_name,
         "victim": victim,
         "hide": hide,
-        "perturb": perturb,
+        "perturbation": perturbation,
         **result.to_record(),
     }
     write_json_atomic(record, output / "result.json")

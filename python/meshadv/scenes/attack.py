@@ -2,31 +2,34 @@
 
 The paper's detector experiments: the Stanford Bunny sits on a desk and a barely visible change of the bunny makes
 the detector miss the table (or every object); inserted into a real photo, a changed object hides the dog or the
-bicycle. The objective is the disappearance loss ``max_{z,b} score_{y'}(z, b)`` plus ``lambda`` times the shape
-(Laplacian flow) or texture (image 4-neighbour smoothness) perceptual loss, minimised with Adam. The attack stops
-early once the hidden class's best score stays ``margin`` below the threshold for ``patience`` steps; success is
-measured on a fresh render of the final object, not on the optimiser's last image.
+bicycle. There is no scene-specific attack: a :class:`SceneSetup` turns the scene into the attacked object's mesh,
+one view and a :class:`~meshadv.render.setup.RenderSetup` whose static objects are the rest of the scene (rendered
+with it, with occlusion) and whose background is the photo if any; :func:`attack_scene` runs an ordinary
+:class:`~meshadv.attacks.ShapeAttack` / :class:`~meshadv.attacks.TextureAttack` with a
+:class:`~meshadv.attacks.Disappearance` criterion on them and reports detections before and after.
+
+Example:
+    >>> attack = ShapeAttack(steps=200, smoothing=8, early_stop=5, early_stop_margin=0.05)   # doctest: +SKIP
+    >>> result = attack_scene(attack, setup, victim, Disappearance("dining table"))          # doctest: +SKIP
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
-from typing import Callable, Dict, List, Optional
+from typing import Any, Callable, Dict, List, Optional
 
 import torch
 
+from meshadv.attacks.base import MeshAttack, StepInfo
 from meshadv.attacks.criteria import Disappearance
-from meshadv.attacks.distances import mesh_distances
-from meshadv.attacks.flow import smooth_flow
-from meshadv.attacks.losses import image_smoothness_loss, laplacian_flow_loss
-from meshadv.mesh import Mesh, vertex_edges
-from meshadv.render import Lights
+from meshadv.mesh import Mesh
+from meshadv.render import Lights, ViewSet
+from meshadv.render.setup import RenderSetup, static_objects
 from meshadv.scenes.composite import composite_over_photo
 from meshadv.scenes.scene import Scene, SceneCamera
-from meshadv.victims.base import Detections, DetectorVictim
+from meshadv.victims.base import Detections
 
-PERTURBATIONS = ("shape", "texture")
+__all__ = ["SceneSetup", "SceneAttackResult", "attack_scene"]
 
 
 @dataclass(frozen=True)
@@ -74,6 +77,25 @@ class SceneSetup:
             return out.image
         return composite_over_photo(out.image, out.alpha, self.photo)
 
+    @property
+    def mesh(self) -> Mesh:
+        """The attacked object's mesh (model space)."""
+        return self.scene[self.object_name].mesh
+
+    def views(self) -> ViewSet:
+        """The one view of the scene camera under the scene's lights."""
+        return ViewSet(self.camera.to_camera(), self.lights)
+
+    def render_setup(self, antialias: int = 1) -> RenderSetup:
+        """The attack's render setup: the other objects static, the object's transform, the camera's crop and the
+        photo (or the background colour)."""
+        index = self.scene.index_of(self.object_name)
+        others = [o for i, o in enumerate(self.scene.objects) if i != index]
+        background: Any = self.background if self.photo is None else self.photo[0]
+        return RenderSetup(image_size=self.camera.width, background=background, antialias=antialias,
+                           static=static_objects(others), transform=self.scene.objects[index].transform,
+                           crop_rows=(self.camera.crop_rows().start, self.camera.crop_rows().stop))
+
 
 @dataclass
 class SceneAttackResult:
@@ -88,6 +110,7 @@ class SceneAttackResult:
         distances: ``attacks.distances.mesh_distances`` (``laplacian_sum``, ``laplacian_pair_mean``,
             ``color_rmse``, ...).
         loss_history: total loss per step; steps: steps taken; wall_time: seconds.
+        config: the attack's hyper-parameters and render setup.
     """
 
     success: bool
@@ -102,6 +125,7 @@ class SceneAttackResult:
     loss_history: List[float] = field(default_factory=list)
     steps: int = 0
     wall_time: float = 0.0
+    config: Dict[str, Any] = field(default_factory=dict)
 
     def to_record(self) -> dict:
         """JSON-able summary (detections, scores, distances, steps, time)."""
@@ -115,156 +139,49 @@ class SceneAttackResult:
             "steps": self.steps,
             "wall_time": self.wall_time,
             "loss_history": self.loss_history,
+            "attack": self.config,
         }
 
 
-@dataclass(frozen=True)
-class SceneAttack:
-    """Disappearance attack through one object of a scene (hyper-parameters only; keyword-only).
+def attack_scene(attack: MeshAttack, setup: SceneSetup, victim: Any, criterion: Disappearance, *,
+                 antialias: int = 1, callback: Optional[Callable[[StepInfo], None]] = None) -> SceneAttackResult:
+    """Run ``attack`` on the object of ``setup`` against a detector and report detections before and after.
 
     Args:
-        perturb: ``"shape"`` (vertex displacement) or ``"texture"`` (per-face colours kept in [0, 1] by a sigmoid).
-        steps: maximum Adam steps.
-        lr: Adam learning rate: for shape in units of the object's bounding-box diagonal (the displacement is
-            ``diagonal * smooth(p)``), for texture in logit units.
-        smoothing: shape only: iterations of neighbour averaging ``p <- p + 0.5 * L p`` applied to the optimised
-            per-vertex parameters before they become displacements (0 = the paper's plain per-vertex flow;
-            :func:`meshadv.attacks.flow.smooth_flow`, shared with :class:`~meshadv.attacks.ShapeAttack`). NMR's
-            rasterization gradients are sparse and heavy-tailed and Adam moves every vertex that receives any
-            gradient by about ``lr`` per step, which roughens a dense mesh such as the bunny; smoothing the
-            parametrisation (in the spirit of Nicolet et al., "Large Steps in Inverse Rendering", 2021) spreads
-            each step over a neighbourhood and keeps the perturbation smooth.
-        lambda_perceptual: weight of the perceptual loss.
-        margin: stop once the best hidden score is ``threshold - margin`` or lower ...
-        patience: ... for this many consecutive steps.
-        seed: seeds the (tiny) initial noise that breaks symmetry.
+        attack: a shape or texture attack (hyper-parameters only).
+        setup: the scene, the object to perturb, camera, lights and background.
+        victim: a detector victim.
+        criterion: which class(es) to hide and the detection threshold.
+        antialias: supersampling factor of the renders.
+        callback: called after every step (see :class:`~meshadv.attacks.StepInfo`).
 
-    Example:
-        >>> attack = SceneAttack(perturb="shape", steps=200)                           # doctest: +SKIP
-        >>> result = attack(setup, victim, Disappearance("dining table"))              # doctest: +SKIP
+    Returns:
+        A :class:`SceneAttackResult`; success is measured on a fresh render of the final object.
+
+    Raises:
+        ValueError: ``victim`` is not a detector.
     """
-
-    perturb: str = "shape"
-    steps: int = 300
-    lr: float = 5e-4
-    lambda_perceptual: float = 1.0
-    smoothing: int = 8
-    margin: float = 0.05
-    patience: int = 5
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if self.perturb not in PERTURBATIONS:
-            raise ValueError(f"perturb must be one of {PERTURBATIONS}, got {self.perturb!r}")
-        if self.steps < 1:
-            raise ValueError(f"steps must be >= 1, got {self.steps}")
-        if self.lr <= 0:
-            raise ValueError(f"lr must be > 0, got {self.lr}")
-        if self.lambda_perceptual < 0:
-            raise ValueError(f"lambda_perceptual must be >= 0, got {self.lambda_perceptual}")
-        if self.patience < 1:
-            raise ValueError(f"patience must be >= 1, got {self.patience}")
-        if self.smoothing < 0:
-            raise ValueError(f"smoothing must be >= 0, got {self.smoothing}")
-
-    def __call__(
-        self,
-        setup: SceneSetup,
-        victim: DetectorVictim,
-        criterion: Disappearance,
-        *,
-        progress: Optional[Callable[[int, float, float], None]] = None,
-    ) -> SceneAttackResult:
-        """Run the attack.
-
-        Args:
-            setup: the scene, the object to perturb, camera, lights and background.
-            victim: a detector victim.
-            criterion: which class(es) to hide and the detection threshold.
-            progress: optional callback ``(step, loss, hidden_score)``.
-
-        Returns:
-            A ``SceneAttackResult``; an interrupted run (Ctrl-C) returns the best result so far.
-        """
-        if getattr(victim, "kind", None) != "detector":
-            raise ValueError(f"victim must be a detector, got kind {getattr(victim, 'kind', None)!r}")
-        bound = criterion.bind(victim)
-        start = time.perf_counter()
-        obj = setup.scene[setup.object_name]
-        mesh = obj.mesh
-        edges = vertex_edges(mesh.faces)
-        generator = torch.Generator().manual_seed(self.seed)
-
-        diagonal = float((mesh.vertices.max(0).values - mesh.vertices.min(0).values).norm())
-
-        def displacement(p: torch.Tensor) -> torch.Tensor:
-            return diagonal * smooth_flow(p, edges, self.smoothing)
-
-        if self.perturb == "shape":
-            param = (1e-6 * torch.randn(mesh.vertices.shape, generator=generator)).requires_grad_(True)
-        else:
-            base = mesh.face_colors.clamp(1e-3, 1 - 1e-3)
-            param = torch.logit(base).clone().requires_grad_(True)
-        optimizer = torch.optim.Adam([param], lr=self.lr)
-
-        def parameters_to_mesh(p: torch.Tensor) -> Mesh:
-            if self.perturb == "shape":
-                return mesh.with_vertices((mesh.vertices + displacement(p)).detach())
-            return mesh.with_face_colors(torch.sigmoid(p).detach())
-
-        with torch.no_grad():
-            image_before = setup.image()
-            score_before = float(bound.score(victim(image_before))[0])
-        best_param = param.detach().clone()
-        best_score = score_before
-        history: List[float] = []
-        held = 0
-        step = 0
-        try:
-            for step in range(1, self.steps + 1):
-                optimizer.zero_grad()
-                if self.perturb == "shape":
-                    flow = displacement(param)
-                    image = setup.image(vertices=mesh.vertices + flow)
-                    perceptual = laplacian_flow_loss(flow, edges)
-                else:
-                    image = setup.image(face_colors=torch.sigmoid(param))
-                    perceptual = image_smoothness_loss(image)[0] / image[0, 0].numel()
-                hidden = bound.loss(victim(image))[0]
-                loss = hidden + self.lambda_perceptual * perceptual
-                hidden_value = float(hidden.detach())
-                if hidden_value < best_score:
-                    best_score = hidden_value
-                    best_param = param.detach().clone()
-                history.append(float(loss.detach()))
-                if progress is not None:
-                    progress(step, history[-1], hidden_value)
-                held = held + 1 if hidden_value <= bound.threshold - self.margin else 0
-                if held >= self.patience:
-                    break
-                loss.backward()
-                optimizer.step()
-        except KeyboardInterrupt:
-            pass
-
-        adversarial = parameters_to_mesh(best_param)
-        with torch.no_grad():
-            image_after = setup.image(vertices=adversarial.vertices, face_colors=adversarial.face_colors)
-            score_after = float(bound.score(victim(image_after))[0])
-            detections = victim.detect(torch.cat([image_before, image_after]), score_threshold=bound.threshold)
-        return SceneAttackResult(
-            success=score_after < bound.threshold,
-            object_mesh=adversarial,
-            image_before=image_before,
-            image_after=image_after,
-            detections_before=detections[0],
-            detections_after=detections[1],
-            score_before=score_before,
-            score_after=score_after,
-            distances=mesh_distances(
-                mesh.vertices, mesh.face_colors, adversarial.vertices, adversarial.face_colors, edges
-            ),
-            loss_history=history,
-            steps=step,
-            wall_time=time.perf_counter() - start,
-        )
+    if getattr(victim, "kind", None) != "detector":
+        raise ValueError(f"victim must be a detector, got kind {getattr(victim, 'kind', None)!r}")
+    result = attack(setup.mesh, setup.views(), victim, criterion, setup=setup.render_setup(antialias),
+                    callback=callback)
+    image_before = result.original_images[0][None]
+    image_after = result.images[0, 0][None]
+    bound = criterion.bind(victim)
+    with torch.no_grad():
+        detections = victim.detect(torch.cat([image_before, image_after]), score_threshold=bound.threshold)
+    return SceneAttackResult(
+        success=bool(result.success[0, 0]),
+        object_mesh=result.mesh,
+        image_before=image_before,
+        image_after=image_after,
+        detections_before=detections[0],
+        detections_after=detections[1],
+        score_before=float(result.original_scores[0, 0]),
+        score_after=float(result.scores[0, 0]),
+        distances=dict(result.distances[0]),
+        loss_history=[row["loss"][0] for row in result.loss_history],
+        steps=result.steps,
+        wall_time=result.wall_time,
+        config=dict(result.config),
+    )
