@@ -28,6 +28,7 @@ from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 import torch
 from torch import Tensor
 
+from meshadv import _validate
 from meshadv.attacks.criteria import CLASSIFIER_LOSSES, Criterion
 from meshadv.attacks.distances import mesh_distances
 from meshadv.attacks.result import AttackResult
@@ -79,6 +80,23 @@ def slice_output(output: Any, start: int, stop: int) -> Any:
     obj = output.objectness
     return cls(boxes=output.boxes[start:stop], objectness=None if obj is None else obj[start:stop],
                class_probs=output.class_probs[start:stop])
+
+
+def _check_jitter(jitter: Any) -> Optional[Dict[str, float]]:
+    """``None`` or a dict of known ``ViewSet.jitter`` keys to finite amounts ``>= 0``.
+
+    Raises:
+        TypeError: not a dict (e.g. ``[]``), or an amount that is not a real number.
+        ValueError: unknown keys, or an amount that is negative or not finite.
+    """
+    if jitter is None:
+        return None
+    if not isinstance(jitter, dict):
+        raise TypeError(f"jitter must be None or a dict of {_JITTER_KEYS}, got {type(jitter).__name__} {jitter!r}")
+    unknown = set(jitter) - set(_JITTER_KEYS)
+    if unknown:
+        raise ValueError(f"jitter has unknown keys {sorted(map(str, unknown))}; known: {_JITTER_KEYS}")
+    return {k: _validate.finite_float(f"jitter[{k!r}]", v, low=0.0) for k, v in jitter.items()}
 
 
 @dataclass
@@ -167,7 +185,10 @@ class MeshAttack(ABC):
         method_options: extra keyword options of the update rule (JSON-able), ``None`` for none.
 
     Raises:
-        ValueError: any hyper-parameter out of range, naming it.
+        TypeError: a hyper-parameter of the wrong type (``lr="0.1"``, ``steps=1.9``, ``steps=None``, ``jitter=[]``),
+            naming it; floats are never truncated to integers.
+        ValueError: a hyper-parameter out of range or not finite (``steps=0``, ``lr=inf``, ``seed=2**70``), naming
+            it.
     """
 
     perturbation: str = ""
@@ -190,45 +211,23 @@ class MeshAttack(ABC):
         method: str = "adam",
         method_options: Optional[Dict[str, Any]] = None,
     ) -> None:
-        if int(steps) < 1:
-            raise ValueError(f"steps must be >= 1, got {steps}")
-        if not lr > 0:
-            raise ValueError(f"lr must be > 0, got {lr}")
-        if not lambda_perceptual >= 0 or not math.isfinite(lambda_perceptual):
-            raise ValueError(f"lambda_perceptual must be a finite number >= 0, got {lambda_perceptual}")
-        if int(binary_search_steps) < 1:
-            raise ValueError(f"binary_search_steps must be >= 1, got {binary_search_steps}")
-        if loss not in CLASSIFIER_LOSSES:
-            raise ValueError(f"loss must be one of {CLASSIFIER_LOSSES}, got {loss!r}")
-        if not kappa >= 0:
-            raise ValueError(f"kappa must be >= 0, got {kappa}")
-        if early_stop is not None and int(early_stop) < 1:
-            raise ValueError(f"early_stop must be None or >= 1, got {early_stop}")
-        if max_distortion is not None and not max_distortion > 0:
-            raise ValueError(f"max_distortion must be None or > 0, got {max_distortion}")
-        if not 0 < success_fraction <= 1:
-            raise ValueError(f"success_fraction must be in (0, 1], got {success_fraction}")
-        if jitter is not None:
-            unknown = set(jitter) - set(_JITTER_KEYS)
-            if unknown:
-                raise ValueError(f"jitter has unknown keys {sorted(unknown)}; known: {_JITTER_KEYS}")
-        self.steps = int(steps)
-        self.lr = float(lr)
-        self.lambda_perceptual = float(lambda_perceptual)
-        self.binary_search_steps = int(binary_search_steps)
-        self.loss = loss
-        self.kappa = float(kappa)
-        self.early_stop = None if early_stop is None else int(early_stop)
-        self.early_stop_margin = float(early_stop_margin)
-        self.max_distortion = None if max_distortion is None else float(max_distortion)
-        self.success_fraction = float(success_fraction)
-        self.jitter = None if jitter is None else {k: float(v) for k, v in jitter.items()}
-        self.seed = int(seed)
-        if method not in update_rules():
-            raise ValueError(f"method must be one of {update_rules()}, got {method!r}")
+        self.steps = _validate.positive_int("steps", steps)
+        self.lr = _validate.positive_float("lr", lr)
+        self.lambda_perceptual = _validate.finite_float("lambda_perceptual", lambda_perceptual, low=0.0)
+        self.binary_search_steps = _validate.positive_int("binary_search_steps", binary_search_steps)
+        self.loss = _validate.choice("loss", loss, CLASSIFIER_LOSSES)
+        self.kappa = _validate.finite_float("kappa", kappa, low=0.0)
+        self.early_stop = None if early_stop is None else _validate.positive_int("early_stop", early_stop)
+        self.early_stop_margin = _validate.finite_float("early_stop_margin", early_stop_margin)
+        self.max_distortion = (None if max_distortion is None
+                               else _validate.positive_float("max_distortion", max_distortion))
+        self.success_fraction = _validate.finite_float("success_fraction", success_fraction, low=0.0, high=1.0,
+                                                       low_open=True)
+        self.jitter = _check_jitter(jitter)
+        self.seed = _validate.seed("seed", seed)
+        self.method = _validate.choice("method", method, update_rules())
         if method_options is not None and not isinstance(method_options, dict):
             raise TypeError(f"method_options must be a dict or None, got {type(method_options).__name__}")
-        self.method = method
         self.method_options = dict(method_options or {})
 
     # ------------------------------------------------------------------ family hooks

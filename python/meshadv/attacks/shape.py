@@ -30,6 +30,7 @@ from typing import Any, Optional, Tuple
 
 from torch import Tensor
 
+from meshadv import _validate
 from meshadv.attacks.base import MeshAttack
 from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import laplacian_flow_loss
@@ -72,12 +73,8 @@ class ShapeAttack(MeshAttack):
         kwargs.setdefault("lr", DEFAULT_SHAPE_LR)
         kwargs.setdefault("lambda_perceptual", 0.05)
         super().__init__(**kwargs)
-        if isinstance(smoothing, bool) or int(smoothing) != smoothing or smoothing < 0:
-            raise ValueError(f"smoothing must be an integer >= 0, got {smoothing!r}")
-        if max_step is not None and not max_step > 0:
-            raise ValueError(f"max_step must be None or > 0, got {max_step}")
-        self.smoothing = int(smoothing)
-        self.max_step = None if max_step is None else float(max_step)
+        self.smoothing = _validate.non_negative_int("smoothing", smoothing)
+        self.max_step = None if max_step is None else _validate.positive_float("max_step", max_step)
         self.vertex_mask = check_mask(vertex_mask, "vertex_mask", "vertex")
 
     def config(self) -> dict:

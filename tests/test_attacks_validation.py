@@ -1,0 +1,82 @@
+"""Attack hyper-parameters are checked at construction: wrong types raise TypeError, bad values ValueError, each
+naming the argument (issue 17's list); masks, the update rule and the perturbation registry likewise."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Dict
+
+import pytest
+import torch
+
+from meshadv.attacks import ShapeAttack, SmoothTextureAttack, TextureAttack, make_attack, perturbations
+
+BAD: Dict[str, Any] = {
+    "lr='0.1'": ({"lr": "0.1"}, TypeError, "lr"),
+    "steps=None": ({"steps": None}, TypeError, "steps"),
+    "steps=inf": ({"steps": math.inf}, TypeError, "steps"),
+    "steps=1.9": ({"steps": 1.9}, TypeError, "steps"),
+    "steps=2.0": ({"steps": 2.0}, TypeError, "steps"),
+    "steps='10'": ({"steps": "10"}, TypeError, "steps"),
+    "steps=True": ({"steps": True}, TypeError, "steps"),
+    "steps=0": ({"steps": 0}, ValueError, "steps"),
+    "lr=inf": ({"lr": math.inf}, ValueError, "lr"),
+    "lr=nan": ({"lr": math.nan}, ValueError, "lr"),
+    "lr=0": ({"lr": 0.0}, ValueError, "lr"),
+    "jitter=[]": ({"jitter": []}, TypeError, "jitter"),
+    "jitter={'zoom': 1}": ({"jitter": {"zoom": 1.0}}, ValueError, "jitter"),
+    "jitter={'azimuth': -1}": ({"jitter": {"azimuth": -1.0}}, ValueError, "jitter"),
+    "seed=2**70": ({"seed": 2**70}, ValueError, "seed"),
+    "seed=-1": ({"seed": -1}, ValueError, "seed"),
+    "seed=0.5": ({"seed": 0.5}, TypeError, "seed"),
+    "binary_search_steps=1.5": ({"binary_search_steps": 1.5}, TypeError, "binary_search_steps"),
+    "lambda_perceptual=-1": ({"lambda_perceptual": -1.0}, ValueError, "lambda_perceptual"),
+    "success_fraction=0": ({"success_fraction": 0.0}, ValueError, "success_fraction"),
+    "success_fraction=1.5": ({"success_fraction": 1.5}, ValueError, "success_fraction"),
+    "early_stop=0": ({"early_stop": 0}, ValueError, "early_stop"),
+    "max_distortion=-1": ({"max_distortion": -1.0}, ValueError, "max_distortion"),
+    "loss='hinge'": ({"loss": "hinge"}, ValueError, "loss"),
+    "method='sgd'": ({"method": "sgd"}, ValueError, "method"),
+    "method_options=[]": ({"method_options": []}, TypeError, "method_options"),
+}
+
+
+@pytest.mark.parametrize("cls", [ShapeAttack, TextureAttack, SmoothTextureAttack])
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_hyper_parameters_raise_at_construction_naming_the_argument(cls: Any, case: str) -> None:
+    kwargs, error, name = BAD[case]
+    with pytest.raises(error, match=name):
+        cls(**kwargs)
+
+
+def test_shape_only_hyper_parameters_and_masks() -> None:
+    with pytest.raises(TypeError, match="smoothing"):
+        ShapeAttack(smoothing=1.5)
+    with pytest.raises(ValueError, match="max_step"):
+        ShapeAttack(max_step=math.inf)
+    with pytest.raises(TypeError, match="vertex_mask"):
+        ShapeAttack(vertex_mask=[True, False])
+    with pytest.raises(ValueError, match="face_mask selects no face"):
+        TextureAttack(face_mask=torch.zeros(4, dtype=torch.bool))
+
+
+def test_masks_and_method_are_shown_in_config() -> None:
+    mask = torch.tensor([False, True, True, False])
+    config = TextureAttack(face_mask=mask).config()
+    assert config["face_mask"] == {"size": 4, "indices": [1, 2]}
+    assert config["method"] == "adam" and config["method_options"] == {}
+    assert ShapeAttack().config()["vertex_mask"] is None
+
+
+def test_valid_values_are_kept_with_python_types() -> None:
+    attack = ShapeAttack(steps=torch.tensor(5), lr=torch.tensor(0.5), seed=2**63 - 1, jitter={"azimuth": 2})
+    assert attack.steps == 5 and isinstance(attack.steps, int)
+    assert attack.lr == 0.5 and isinstance(attack.lr, float)
+    assert attack.jitter == {"azimuth": 2.0}
+
+
+def test_perturbation_registry() -> None:
+    assert perturbations() == ["shape", "texture"]
+    assert isinstance(make_attack("shape", steps=3), ShapeAttack)
+    with pytest.raises(ValueError, match="perturbation"):
+        make_attack("colour")
