@@ -3,13 +3,16 @@
 All arrays must be C-contiguous numpy arrays; float arrays are float32 and index arrays int32 (``TypeError`` naming the
 argument otherwise; arrays are borrowed read-only, never copied). Errors: ``ValueError`` (bad shape,
 value, NaN/Inf, image size, near/far, all geometry behind the camera) and ``IndexError`` (face or face-index map entry
-out of range), each naming the argument; ``RuntimeError`` only for an internal error.
+out of range), each naming the argument; ``MemoryError`` when an output buffer cannot be allocated; ``RuntimeError``
+only for an internal error.
 """
 
 import numpy as np
 import numpy.typing as npt
 
 MAX_IMAGE_SIZE: int
+#: How many explicitly sized thread pools the native module keeps for reuse.
+MAX_CACHED_POOLS: int
 
 def rasterize_forward(
     verts_screen: npt.NDArray[np.float32],

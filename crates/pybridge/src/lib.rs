@@ -17,7 +17,7 @@ use numpy::ndarray::{Array, IxDyn};
 use numpy::{
     Element, IntoPyArray, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods,
 };
-use pyo3::exceptions::{PyIndexError, PyRuntimeError, PyTypeError, PyValueError};
+use pyo3::exceptions::{PyIndexError, PyMemoryError, PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 
 /// Local newtype so the core error converts into precise Python exceptions.
@@ -29,6 +29,7 @@ impl From<PyRasterError> for PyErr {
         match e.0.kind() {
             ErrorKind::Index => PyIndexError::new_err(msg),
             ErrorKind::Value => PyValueError::new_err(msg),
+            ErrorKind::Memory => PyMemoryError::new_err(msg),
         }
     }
 }
@@ -515,5 +516,6 @@ fn _raster(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(raycast, m)?)?;
     m.add_function(wrap_pyfunction!(render_full, m)?)?;
     m.add("MAX_IMAGE_SIZE", meshadv_raster::MAX_IMAGE_SIZE)?;
+    m.add("MAX_CACHED_POOLS", meshadv_raster::MAX_CACHED_POOLS)?;
     Ok(())
 }

@@ -9,6 +9,8 @@ pub enum ErrorKind {
     Value,
     /// An index out of range (`IndexError`).
     Index,
+    /// An output buffer could not be allocated (`MemoryError`).
+    Memory,
 }
 
 /// Errors of the raster core. Bad input never panics; it returns one of these.
@@ -96,6 +98,14 @@ pub enum RasterError {
         /// Batch element.
         batch: usize,
     },
+    /// An output buffer could not be allocated (the image is too large for the memory left).
+    #[error("{what}: cannot allocate {bytes} bytes ({gib:.2} GiB); use a smaller image size or batch", gib = *.bytes as f64 / 1073741824.0)]
+    OutOfMemory {
+        /// The buffer, e.g. `image`.
+        what: &'static str,
+        /// Bytes requested.
+        bytes: usize,
+    },
     /// The rayon thread pool could not be created.
     #[error("num_threads: could not create a thread pool with {threads} threads: {message}")]
     ThreadPool {
@@ -113,6 +123,7 @@ impl RasterError {
             RasterError::FaceIndexOutOfRange { .. } | RasterError::FaceMapOutOfRange { .. } => {
                 ErrorKind::Index
             }
+            RasterError::OutOfMemory { .. } => ErrorKind::Memory,
             _ => ErrorKind::Value,
         }
     }
@@ -127,5 +138,32 @@ impl RasterError {
     }
 }
 
+/// A vector of `len` copies of `value`, or [`RasterError::OutOfMemory`] instead of aborting the process when
+/// the allocation fails (e.g. under an address-space limit).
+pub fn try_filled_vec<T: Clone>(len: usize, value: T, what: &'static str) -> Result<Vec<T>> {
+    let bytes = len.saturating_mul(std::mem::size_of::<T>());
+    let mut v = Vec::new();
+    v.try_reserve_exact(len)
+        .map_err(|_| RasterError::OutOfMemory { what, bytes })?;
+    v.resize(len, value);
+    Ok(v)
+}
+
 /// Result alias of the raster core.
 pub type Result<T> = std::result::Result<T, RasterError>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_impossible_allocation_is_a_typed_error() {
+        let err = try_filled_vec(usize::MAX / 2, 0f32, "image").expect_err("cannot allocate");
+        assert!(matches!(
+            err,
+            RasterError::OutOfMemory { what: "image", .. }
+        ));
+        assert_eq!(err.kind(), ErrorKind::Memory);
+        assert!(err.to_string().starts_with("image: cannot allocate"));
+    }
+}

@@ -21,7 +21,7 @@ pub mod setup;
 pub mod shading;
 
 pub use backward::{rasterize_backward, BackwardInputs, Gradients};
-pub use error::{ErrorKind, RasterError, Result};
+pub use error::{try_filled_vec, ErrorKind, RasterError, Result};
 pub use input::{FaceAttrs, Projection, RasterParams, ScreenMesh, MAX_IMAGE_SIZE};
-pub use parallel::with_threads;
+pub use parallel::{with_threads, MAX_CACHED_POOLS};
 pub use raster::{rasterize, rasterize_fragments, Fragments, RasterOutput};

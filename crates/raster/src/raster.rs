@@ -6,7 +6,7 @@
 
 use rayon::prelude::*;
 
-use crate::error::Result;
+use crate::error::{try_filled_vec, Result};
 use crate::input::{FaceAttrs, RasterParams, ScreenMesh};
 use crate::setup::{setup_faces, FaceSetup};
 
@@ -124,8 +124,9 @@ pub fn rasterize_fragments(mesh: &ScreenMesh<'_>, params: &RasterParams) -> Resu
     mesh.validate()?;
     params.validate()?;
     let hw = params.pixels();
-    let mut face_index = vec![-1i32; mesh.batch * hw];
-    let mut depth = vec![0f32; mesh.batch * hw];
+    let len = mesh.batch.saturating_mul(hw);
+    let mut face_index = try_filled_vec(len, -1i32, "face_index")?;
+    let mut depth = try_filled_vec(len, 0f32, "depth")?;
     face_index
         .par_chunks_mut(hw)
         .zip(depth.par_chunks_mut(hw))
@@ -160,7 +161,7 @@ pub fn rasterize(
     let Fragments { face_index, depth } = rasterize_fragments(mesh, params)?;
     let c = attrs.channels;
     let m = mesh.num_faces();
-    let mut image = vec![0f32; face_index.len() * c];
+    let mut image = try_filled_vec(face_index.len().saturating_mul(c), 0f32, "image")?;
     image
         .par_chunks_mut(params.width * c)
         .enumerate()

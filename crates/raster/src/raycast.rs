@@ -21,7 +21,7 @@ use obvhs::ray::{Ray, RayHit};
 use obvhs::BvhBuildParams;
 use rayon::prelude::*;
 
-use crate::error::{RasterError, Result};
+use crate::error::{try_filled_vec, RasterError, Result};
 use crate::input::{RasterParams, ScreenMesh};
 use crate::raster::Fragments;
 
@@ -163,8 +163,9 @@ pub fn raycast(
     let hw = h * w;
     let ortho = camera.orthographic;
     let tw = (camera.viewing_angle.to_radians() / 2.0).tan();
-    let mut face_index = vec![-1i32; mesh_view.batch * hw];
-    let mut depth = vec![params.far as f32; mesh_view.batch * hw];
+    let len = mesh_view.batch.saturating_mul(hw);
+    let mut face_index = try_filled_vec(len, -1i32, "face_index")?;
+    let mut depth = try_filled_vec(len, params.far as f32, "depth")?;
     face_index
         .par_chunks_mut(hw)
         .zip(depth.par_chunks_mut(hw))
