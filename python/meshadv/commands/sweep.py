@@ -10,7 +10,7 @@ from __future__ import annotations
 import shlex
 import sys
 from pathlib import Path
-from typing import Optional
+from typing import Dict, List, Optional
 
 import typer
 
@@ -21,6 +21,11 @@ def sweep(
     config: Path = typer.Argument(..., help="Sweep file (.toml, .yaml or .yml)."),
     backend: str = typer.Option("local", help="local (process pool, default), ray or serial."),
     address: Optional[str] = typer.Option(None, help="Ray cluster address; without it Ray starts locally."),
+    ray_artifacts: str = typer.Option("return", help="Ray: 'return' (artefacts come back to this machine through "
+                                      "Ray: no shared file system needed), an fsspec URL to upload them to "
+                                      "(s3://bucket/run), or 'shared' (every node writes the output folder)."),
+    ray_resource: Optional[List[str]] = typer.Option(None, help="Ray: a custom resource NAME=AMOUNT each job needs, "
+                                                     "to pin jobs to nodes started with it (repeatable)."),
     workers: int = typer.Option(-1, help="Parallel jobs (0 = every core; default: the config's runner.workers)."),
     db: Optional[Path] = typer.Option(None, help="Results database (default: from the config)."),
     output: Optional[Path] = typer.Option(None, help="Artefact folder (default: from the config)."),
@@ -49,10 +54,18 @@ def sweep(
     runner = cfg.runner
     n_workers = int(runner["workers"]) if workers < 0 else workers
     attempts = int(runner["max_attempts"]) if max_attempts is None else max_attempts
+    resources: Dict[str, float] = {}
+    for item in ray_resource or []:
+        name, sep, amount = item.partition("=")
+        try:
+            resources[name] = float(amount) if sep else 1.0
+        except ValueError as err:
+            raise typer.BadParameter(f"expected NAME=AMOUNT, got {item!r}", param_hint="--ray-resource") from err
     try:
         be = make_backend(backend, workers=n_workers, threads_per_job=int(runner["threads_per_job"]),
                           timeout=float(runner["timeout"] if timeout is None else timeout), address=address,
-                          max_jobs_per_worker=int(runner["max_jobs_per_worker"]))
+                          max_jobs_per_worker=int(runner["max_jobs_per_worker"]), artifacts=ray_artifacts,
+                          resources=resources or None)
     except ValueError as err:
         raise typer.BadParameter(str(err), param_hint="--backend / --address") from err
     with ResultStore(db_path) as store:

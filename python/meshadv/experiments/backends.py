@@ -292,8 +292,8 @@ class RayBackend(Backend):
         resources = dict(resources or {})
         if any(not isinstance(v, (int, float)) or v <= 0 for v in resources.values()):
             raise ValueError(f"resources must map resource names to amounts > 0, got {resources}")
-        if not artifacts:
-            raise ValueError("artifacts must be 'return', 'shared' or an fsspec URL")
+        if artifacts not in ("return", "shared") and "://" not in str(artifacts):
+            raise ValueError(f"artifacts must be 'return', 'shared' or an fsspec URL (s3://...), got {artifacts!r}")
         self._ray = ray
         self._owns = False
         if not ray.is_initialized():

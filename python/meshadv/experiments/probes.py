@@ -87,8 +87,9 @@ def mesh_probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
 
     It moves the vertices of an icosphere by a smooth, seeded displacement field (amplitude ``spec["amplitude"]``,
     default 0.02), writes ``benign.ply`` / ``adversarial.ply`` and flat-coloured ``benign_v0.png`` / ``after_v0.png``
-    and reports ``success`` from ``spec["success"]`` (default: ``True``) and distances computed from the field. Use
-    it to check reports and figures without rendering.
+    and reports ``success`` from ``spec["success"]`` (default: ``True``) and distances computed from the field (after
+    ``spec["sleep"]`` seconds; ``job_dir`` in the record is the folder it wrote). Use it to check reports, figures and
+    clusters without rendering.
 
     Args:
         spec: a job spec as made by ``expand_jobs`` (``source_class``, ``target``, ``perturbation``, ``seed``...).
@@ -105,6 +106,7 @@ def mesh_probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
 
     start = time.perf_counter()
     out_dir = Path(out_dir)
+    time.sleep(float(spec.get("sleep", 0.0)))
     seed = zlib.crc32(json.dumps(spec, sort_keys=True).encode())
     rng = np.random.default_rng(seed)
     sphere = trimesh.creation.icosphere(subdivisions=2)
@@ -136,6 +138,7 @@ def mesh_probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         "steps": 1,
         "time": time.perf_counter() - start,
         "eval_success_rate": 0.5 if spec.get("kind") == "multiview" else None,
+        "job_dir": str(out_dir),
         "artifacts": {"benign_mesh": "benign.ply", "benign_images": ["benign_v0.png"],
                       "adversarial_mesh": "adversarial.ply", "adversarial_images": ["after_v0.png"]},
     }

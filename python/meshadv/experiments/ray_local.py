@@ -1,0 +1,152 @@
+"""A multi-node Ray cluster on one machine, for checking the Ray backend before renting a real one.
+
+:class:`LocalRayCluster` starts a head node (no CPUs: it only schedules) and worker nodes with ``ray start``, each a
+separate set of processes with its own ``--temp-dir`` and its own scratch folder (``TMPDIR``, where its jobs write
+their artefacts before sending them back), and offers each worker a custom resource (default ``meshadv_worker``) so
+that jobs can be pinned to worker nodes (``RayBackend(resources={"meshadv_worker": 1})``). A worker node can be
+killed (every process of its temp dir, SIGKILL: what a lost machine looks like to the cluster) to check that the
+sweep retries and loses nothing.
+
+Example:
+    >>> with LocalRayCluster(root="/tmp/cluster") as cluster:                 # doctest: +SKIP
+    ...     cluster.add_worker(); cluster.add_worker()
+    ...     ray.init(address=cluster.address)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import time
+from pathlib import Path
+from typing import Dict, List, Optional, Union
+
+__all__ = ["LocalRayCluster", "WORKER_RESOURCE"]
+
+#: The custom resource worker nodes offer (one unit per CPU).
+WORKER_RESOURCE = "meshadv_worker"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _pids_using(marker: str) -> List[int]:
+    """Processes whose command line contains ``marker`` (a temp dir unique to one node), and their descendants
+    (Ray's worker processes rename themselves ``ray::...`` but are children of their node's raylet)."""
+    found, parents = set(), {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        parents[int(entry.name)] = int(stat.rsplit(")", 1)[1].split()[1])
+        if marker in cmd:
+            found.add(int(entry.name))
+    grew = True
+    while grew:
+        children = {pid for pid, ppid in parents.items() if ppid in found} - found
+        found |= children
+        grew = bool(children)
+    found.discard(os.getpid())
+    return sorted(found)
+
+
+class LocalRayCluster:
+    """A head and worker nodes started with ``ray start`` as separate processes (see the module docstring).
+
+    Args:
+        root: folder for the nodes' temp dirs, scratch folders and logs (short paths: Ray's socket paths are
+            limited to about 100 characters).
+        env: extra environment of every node and of :meth:`driver_env` (``RAY_AUTH_MODE`` defaults to ``token``,
+            which Ray's recent releases need between nodes started separately on one machine).
+
+    Raises:
+        RuntimeError: ``ray start`` failed (its output in the message).
+    """
+
+    def __init__(self, root: Union[str, Path], env: Optional[Dict[str, str]] = None) -> None:
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_USAGE_STATS_ENABLED": "0", **(env or {})}
+        self.port = _free_port()
+        self.workers: Dict[str, Path] = {}
+        self._head_dir = self.root / "head"
+        self._run(["--head", "--port", str(self.port), "--num-cpus", "0", "--include-dashboard", "false",
+                   "--temp-dir", str(self._head_dir)], self._head_dir, self.env)
+        self.address = f"{self._node_ip()}:{self.port}"
+
+    def _node_ip(self) -> str:
+        info = self._head_dir / "ray_current_cluster"
+        if info.is_file():
+            text = info.read_text().strip()
+            if ":" in text:
+                return text.rsplit(":", 1)[0]
+        return socket.gethostbyname(socket.gethostname())
+
+    def _run(self, args: List[str], temp_dir: Path, env: Dict[str, str]) -> None:
+        temp_dir.mkdir(parents=True, exist_ok=True)
+        proc = subprocess.run(["ray", "start", "--disable-usage-stats", *args], env=env, capture_output=True,
+                              text=True, timeout=300)
+        (temp_dir.parent / f"{temp_dir.name}.start.log").write_text(proc.stdout + proc.stderr)
+        if proc.returncode != 0:
+            raise RuntimeError(f"ray start {' '.join(args)} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
+
+    def add_worker(self, name: Optional[str] = None, *, cpus: int = 1) -> str:
+        """Start a worker node with ``cpus`` CPUs and as many units of :data:`WORKER_RESOURCE`; return its name."""
+        name = name or f"w{len(self.workers) + 1}"
+        temp_dir = self.root / name
+        scratch = self.root / f"{name}_scratch"
+        scratch.mkdir(parents=True, exist_ok=True)
+        env = {**self.env, "TMPDIR": str(scratch)}
+        self._run(["--address", self.address, "--num-cpus", str(cpus), "--temp-dir", str(temp_dir),
+                   "--resources", json.dumps({WORKER_RESOURCE: cpus})], temp_dir, env)
+        self.workers[name] = temp_dir
+        return name
+
+    def scratch(self, name: str) -> Path:
+        """The scratch folder (``TMPDIR``) of worker node ``name``: where its jobs run."""
+        return self.root / f"{name}_scratch"
+
+    def kill_worker(self, name: str) -> int:
+        """SIGKILL every process of worker node ``name`` (a lost machine); return how many were killed."""
+        pids = _pids_using(f"{self.workers.pop(name)}/")
+        for pid in pids:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        return len(pids)
+
+    def driver_env(self) -> Dict[str, str]:
+        """Environment variables a driver process needs to join (``RAY_AUTH_MODE``)."""
+        return {"RAY_AUTH_MODE": self.env["RAY_AUTH_MODE"]}
+
+    def shutdown(self) -> None:
+        """Kill every node of this cluster (and nothing else: only processes of its own temp dirs)."""
+        for name in list(self.workers):
+            self.kill_worker(name)
+        for _ in range(3):
+            pids = _pids_using(f"{self._head_dir}/")
+            if not pids:
+                break
+            for pid in pids:
+                try:
+                    os.kill(pid, signal.SIGTERM if _ == 0 else signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            time.sleep(1.0)
+
+    def __enter__(self) -> "LocalRayCluster":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
