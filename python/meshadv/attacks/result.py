@@ -26,11 +26,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
-import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["AttackResult", "load_result_record", "save_png", "write_json_atomic", "RESULT_FILE"]
+from meshadv.util.atomic import write_json_atomic
+from meshadv.util.png import save_png
+
+__all__ = ["AttackResult", "load_result_record", "RESULT_FILE"]
 
 #: Name of the JSON record inside a result folder.
 RESULT_FILE = "result.json"
@@ -40,36 +42,6 @@ def _json_float(value: float) -> Optional[float]:
     """A float for JSON (``None`` for nan / inf)."""
     value = float(value)
     return value if math.isfinite(value) else None
-
-
-def save_png(image: Tensor, path: Union[str, Path]) -> None:
-    """Write a ``(3, H, W)`` image in ``[0, 1]`` as an 8-bit PNG (not atomic; see :meth:`AttackResult.save`).
-
-    Raises:
-        ValueError: wrong shape.
-    """
-    from PIL import Image
-
-    if image.dim() != 3 or image.shape[0] != 3:
-        raise ValueError(f"image must have shape (3, H, W), got {tuple(image.shape)}")
-    arr = (image.detach().float().clamp(0, 1) * 255).round().to(torch.uint8).permute(1, 2, 0).cpu().numpy()
-    Image.fromarray(np.ascontiguousarray(arr)).save(str(path))
-
-
-def write_json_atomic(record: Dict[str, Any], path: Union[str, Path]) -> None:
-    """Write ``record`` as JSON to ``path`` atomically (temporary file in the same folder, then ``os.replace``)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=str(path.parent))
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(record, fh, indent=2)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def load_result_record(out_dir: Union[str, Path]) -> Dict[str, Any]:

@@ -41,10 +41,11 @@ def attack_scene(
     detections drawn, the adversarial object mesh and a JSON record."""
     from meshadv.attacks import Disappearance, make_attack
     from meshadv.attacks.families import check_perturbation
-    from meshadv.attacks.result import write_json_atomic
     from meshadv.mesh import save_mesh
     from meshadv.scenes.attack import attack_scene
-    from meshadv.scenes.draw import draw_detections, save_png_atomic
+    from meshadv.scenes.draw import draw_detections
+    from meshadv.util.atomic import write_json_atomic
+    from meshadv.util.png import save_png
     from meshadv.scenes.setups import build_setup
     from meshadv.victims import load_victim
 
@@ -72,8 +73,8 @@ def attack_scene(
 
     result = attack_scene(attack, setup, detector, Disappearance(hide, threshold=threshold), callback=progress)
     output.mkdir(parents=True, exist_ok=True)
-    save_png_atomic(draw_detections(result.image_before, result.detections_before), output / "before.png")
-    save_png_atomic(draw_detections(result.image_after, result.detections_after), output / "after.png")
+    save_png(draw_detections(result.image_before, result.detections_before), output / "before.png")
+    save_png(draw_detections(result.image_after, result.detections_after), output / "after.png")
     save_mesh(result.object_mesh, output / "adversarial.ply")
     record = {
         "scene": scene,

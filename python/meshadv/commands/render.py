@@ -42,7 +42,8 @@ def render(
     import torch
 
     from meshadv.render import RenderSetup, render_views
-    from meshadv.attacks.result import save_png, write_json_atomic
+    from meshadv.util.atomic import write_json_atomic
+    from meshadv.util.png import save_png
 
     try:
         mesh_obj, label = load_mesh_arg(mesh, z_up=z_up)

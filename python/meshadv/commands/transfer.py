@@ -78,12 +78,11 @@ def check_cmd(
     result = conversion_check(mesh_obj, record, image_size=size, spp=spp)
     _echo_json(result.summary())
     if out is not None:
-        import numpy as np
-        from PIL import Image
+        from meshadv.util.png import save_png
 
         out.mkdir(parents=True, exist_ok=True)
         for name, img in (("meshadv.png", result.meshadv_image), ("mitsuba.png", result.mitsuba_image)):
-            Image.fromarray(np.round(np.clip(img, 0, 1) * 255).astype(np.uint8)).save(out / name)
+            save_png(img, out / name)
         (out / "check.json").write_text(json.dumps(result.summary(), indent=2))
 
 
@@ -103,11 +102,11 @@ def render_cmd(
 ) -> None:
     """Render MESH with Mitsuba under meshadv's camera conventions and a head light."""
     import numpy as np
-    from PIL import Image
 
     from meshadv.commands._common import load_mesh_arg
     from meshadv.data import require_shared_data
     from meshadv.transfer import MitsubaCamera, MitsubaLights, render_scene, scene_spec
+    from meshadv.util.png import save_png
 
     if size < 8:
         raise typer.BadParameter("size must be >= 8", param_hint="--size")
@@ -127,7 +126,7 @@ def render_cmd(
                       background=(1.0, 1.0, 1.0) if base is None else None)
     image = render_scene(spec, variant=variant)
     out.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.round(image.image * 255).astype(np.uint8)).save(out)
+    save_png(image.image, out)
     typer.echo(f"wrote {out} ({image.variant})")
 
 
@@ -231,18 +230,16 @@ def _settings_suffix(jitter: float, eot: int, margin: float, pixel_noise: float,
 
 
 def _save_blackbox(row: dict, db: Optional[Path], out: Optional[Path], experiment: str) -> None:
-    import numpy as np
-    from PIL import Image
-
     from meshadv.transfer.blackbox import public_row
     from meshadv.transfer.results import save_transfer_rows
+    from meshadv.util.png import save_png
 
     public = public_row(row)
     _echo_json(public)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         for name, im in row["_images"].items():
-            Image.fromarray(np.round(np.clip(im, 0.0, 1.0) * 255).astype(np.uint8)).save(out / f"{name}.png")
+            save_png(im, out / f"{name}.png")
         (out / "blackbox.json").write_text(json.dumps(public, indent=2, default=str))
         from meshadv.mesh import save_mesh
 

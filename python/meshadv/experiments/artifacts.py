@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Dict, Optional, Union
 
 from meshadv.experiments.worker import Outcome, execute
+from meshadv.util.atomic import write_bytes_atomic
 
 __all__ = ["collect_files", "write_files", "upload_folder", "run_detached", "deliver", "LAST_FILES"]
 
@@ -54,9 +55,7 @@ def write_files(files: Dict[str, bytes], folder: Union[str, Path]) -> Path:
             raise ValueError(f"artefact path {name!r} must be relative and stay inside the job folder")
         path = root / rel
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.part")
-        tmp.write_bytes(files[name])
-        os.replace(tmp, path)
+        write_bytes_atomic(path, files[name])
     return root
 
 

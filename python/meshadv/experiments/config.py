@@ -48,12 +48,13 @@ over several views, evaluated on unseen views (Table 2).
 
 from __future__ import annotations
 
-import math
 import os
 import random
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+
+from meshadv.util.spherical import spherical_direction
 
 __all__ = [
     "SweepConfig",
@@ -253,8 +254,7 @@ def load_config(path: Union[str, Path]) -> SweepConfig:
 
 
 def _direction(azimuth: float, elevation: float) -> List[float]:
-    az, el = math.radians(azimuth), math.radians(elevation)
-    return [math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)]
+    return list(spherical_direction(azimuth, elevation))
 
 
 def view_record(distance: float, azimuth: float, elevation: float, *, viewing_angle: float = 30.0,

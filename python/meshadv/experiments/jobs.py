@@ -107,7 +107,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
 
     from meshadv.attacks import Criterion, TargetedMisclassification, WithMargin, make_attack
     from meshadv.attacks.families import check_perturbation
-    from meshadv.attacks.result import save_png
+    from meshadv.util.png import save_png
     from meshadv.mesh import save_mesh
     from meshadv.render import ViewSet
     from meshadv.render.setup import RenderSetup, split_setup_options

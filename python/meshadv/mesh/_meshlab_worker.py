@@ -22,6 +22,8 @@ import time
 
 import numpy as np
 
+from meshadv.util.atomic import atomic_path
+
 #: Accept a face count within this relative tolerance of the target.
 TARGET_TOLERANCE = 0.2
 #: Maximum number of runs spent adjusting the cell size or edge length toward a target face count.
@@ -182,9 +184,8 @@ def main(argv: "list[str]") -> int:
     except Exception as exc:  # noqa: BLE001 - report any pymeshlab failure as one line
         print(f"{type(exc).__name__}: {exc}", file=sys.stderr)
         return 2
-    tmp = req["output"] + ".part.npz"
-    np.savez(tmp, vertices=out_v, faces=out_f, info=np.array(json.dumps(info)))
-    os.replace(tmp, req["output"])
+    with atomic_path(req["output"], suffix=".npz") as tmp:
+        np.savez(tmp, vertices=out_v, faces=out_f, info=np.array(json.dumps(info)))
     return 0
 
 

@@ -18,7 +18,7 @@ import trimesh
 
 from meshadv import __version__
 from meshadv.mesh import _obj, _ply, _strict
-from meshadv.mesh._atomic import write_bytes_atomic
+from meshadv.util.atomic import write_bytes_atomic
 from meshadv.mesh.cleanup import clean_arrays
 from meshadv.mesh.errors import MeshLoadError
 from meshadv.mesh.structure import Mesh

@@ -40,7 +40,7 @@ from scipy.spatial import cKDTree
 
 from meshadv import _validate
 
-from meshadv.mesh._atomic import write_bytes_atomic
+from meshadv.util.atomic import write_bytes_atomic
 from meshadv.mesh.adjacency import is_watertight
 from meshadv.mesh.cleanup import clean_arrays
 from meshadv.mesh.errors import MeshProcessingError

@@ -29,6 +29,7 @@ from typing import Union
 
 import torch
 
+from ..util.spherical import spherical_direction
 from ._checks import as_float_tensor, batch_selector, require_instance
 from ._ops import small_matmul
 
@@ -387,10 +388,7 @@ class Camera:
     def eye(self) -> torch.Tensor:
         """Camera positions in world space, shape (B,3)."""
         if self.is_spherical:
-            az, el = torch.deg2rad(self.azimuth), torch.deg2rad(self.elevation)
-            return torch.stack(
-                [torch.cos(el) * torch.sin(az), torch.sin(el), -torch.cos(el) * torch.cos(az)], dim=-1
-            ) * self.distance.unsqueeze(-1)
+            return spherical_direction(self.azimuth, self.elevation) * self.distance.unsqueeze(-1)
         return self.eye_position
 
     def target(self) -> torch.Tensor:

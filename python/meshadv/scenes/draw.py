@@ -2,10 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
-from pathlib import Path
-from typing import Union
 
 import numpy as np
 import torch
@@ -41,18 +37,3 @@ def draw_detections(image: torch.Tensor, detections: Detections) -> Image.Image:
         draw.rectangle([x1, y1, x2, y2], outline=color, width=2)
         draw.text((x1 + 3, y1 + 2), f"{label} {score:.2f}", fill=color)
     return pil
-
-
-def save_png_atomic(image: Image.Image, path: Union[str, Path]) -> Path:
-    """Write ``image`` to ``path`` as PNG through a temporary file and an atomic rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".png.tmp")
-    os.close(fd)
-    try:
-        image.save(tmp, format="PNG")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path

@@ -290,7 +290,7 @@ def write_analysis(paths: Sequence[Union[str, Path]], out_dir: Union[str, Path],
     Raises:
         FileNotFoundError, ValueError: as :func:`load_answers` and :func:`analyze`.
     """
-    from meshadv.mesh._atomic import write_bytes_atomic
+    from meshadv.util.atomic import write_bytes_atomic
 
     summary = analyze(load_answers(paths), drop_failed_attention=drop_failed_attention)
     out = Path(out_dir)

@@ -142,7 +142,7 @@ def proxy_section(rows: Sequence[Any], out_dir: Union[str, Path]) -> str:
     Returns:
         The Markdown section.
     """
-    from meshadv.mesh._atomic import write_bytes_atomic
+    from meshadv.util.atomic import write_bytes_atomic
 
     proxies, missing = attack_proxies(rows)
     if not proxies:

@@ -83,7 +83,7 @@ def _rerender(row: JobRow, mesh_path: Path, out_png: Path) -> Path:
     import torch
 
     from meshadv.render import RenderSetup, render_views
-    from meshadv.attacks.result import save_png
+    from meshadv.util.png import save_png
     from meshadv.mesh import load_mesh
     from meshadv.render import ViewSet
 

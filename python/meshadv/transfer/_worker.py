@@ -12,6 +12,8 @@ import sys
 
 import numpy as np
 
+from meshadv.util.atomic import atomic_path
+
 
 def main(argv: list) -> int:
     """Render every spec of ``argv[0]`` (a pickled list) with variant ``argv[2]`` into the npz ``argv[1]``."""
@@ -38,9 +40,8 @@ def main(argv: list) -> int:
             rgb = rgb + (1.0 - alpha)[..., None] * np.asarray(spec.background, dtype=np.float32)
         arrays[f"image_{i}"] = np.clip(np.nan_to_num(rgb), 0.0, 1.0).astype(np.float32)
         arrays[f"alpha_{i}"] = alpha.astype(np.float32)
-    tmp = out_path + ".part.npz"
-    np.savez(tmp, **arrays)
-    os.replace(tmp, out_path)
+    with atomic_path(out_path, suffix=".npz") as tmp:
+        np.savez(tmp, **arrays)
     return 0
 
 

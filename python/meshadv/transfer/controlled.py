@@ -297,12 +297,12 @@ def controlled_transfer(
 
 def save_images(images: Sequence[MitsubaImage], out_dir: Path, stem: str) -> list[Path]:
     """Save Mitsuba renders as 8-bit PNGs ``<stem>_v<i>.png`` (linear values, as meshadv's images)."""
-    from PIL import Image
+    from meshadv.util.png import save_png
 
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     for i, im in enumerate(images):
         path = out_dir / f"{stem}_v{i}.png"
-        Image.fromarray(np.round(im.image * 255).astype(np.uint8)).save(path)
+        save_png(im.image, path)
         paths.append(path)
     return paths

@@ -19,6 +19,8 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any, Iterable, Optional, Sequence, Union
 
+from meshadv.util.markdown import markdown_table as _markdown_table
+
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS transfer (
     id              INTEGER PRIMARY KEY AUTOINCREMENT,
@@ -244,17 +246,13 @@ def markdown_table(table: Sequence[dict[str, Any]], columns: Optional[Sequence[s
     if not table:
         return "(no rows)\n"
     cols = list(columns) if columns is not None else list(table[0].keys())
-    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
-    lines += ["| " + " | ".join(_fmt(row.get(c)) for c in cols) + " |" for row in table]
-    return "\n".join(lines) + "\n"
+    return _markdown_table(cols, [[_fmt(row.get(c)) for c in cols] for row in table]) + "\n"
 
 
 def markdown_confusion(names: Sequence[str], matrix: Sequence[Sequence[Optional[float]]]) -> str:
     """Render a confusion matrix (rows: true class, columns: target class) as markdown."""
-    lines = ["| true \\ target | " + " | ".join(names) + " |", "|---|" + "|".join("---" for _ in names) + "|"]
-    for name, row in zip(names, matrix):
-        lines.append(f"| {name} | " + " | ".join(_fmt(v) for v in row) + " |")
-    return "\n".join(lines) + "\n"
+    rows = [[name, *(_fmt(v) for v in row)] for name, row in zip(names, matrix)]
+    return _markdown_table(["true \\ target", *names], rows) + "\n"
 
 
 #: Columns of the black-box tables: outcome, classifier margins, detector scores, attack settings, estimation errors.

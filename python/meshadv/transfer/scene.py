@@ -31,6 +31,8 @@ from typing import Any, Mapping, Optional, Sequence, Union
 
 import numpy as np
 
+from meshadv.util.spherical import spherical_direction
+
 ArrayLike = Union[np.ndarray, Sequence[float], Any]
 
 
@@ -101,8 +103,7 @@ class MitsubaCamera:
         """
         if not distance > 0:
             raise ValueError(f"distance must be positive, got {distance}")
-        az, el = math.radians(azimuth), math.radians(elevation)
-        eye = distance * np.array([math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)])
+        eye = distance * np.array(spherical_direction(azimuth, elevation))
         up = _tilted_up(eye, np.zeros(3), np.array([0.0, 1.0, 0.0]), tilt)
         return cls(tuple(eye.tolist()), (0.0, 0.0, 0.0), tuple(up.tolist()), viewing_angle, near, far)
 
@@ -579,8 +580,7 @@ def outdoor_environment(
     t = np.clip(up, 0, 1)[..., None] ** 0.5
     env = (1 - t) * np.asarray(horizon) + t * np.asarray(sky)
     env = np.where(up[..., None] < 0, np.asarray(ground), env)
-    el, az = math.radians(sun_elevation), math.radians(sun_azimuth)
-    sun = np.array([math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)])
+    sun = np.array(spherical_direction(sun_azimuth, sun_elevation))
     cos_angle = dirs @ sun
     env = env + sun_strength * (cos_angle > math.cos(math.radians(4.0)))[..., None]
     return env.astype(np.float32)

@@ -17,6 +17,7 @@ import numpy as np
 
 from meshadv.transfer.blackbox import HiddenScene
 from meshadv.transfer.scene import MitsubaLights, outdoor_environment
+from meshadv.util.spherical import spherical_direction
 
 #: The hidden camera of the outdoor setup (degrees; distance in object units): slightly below a flying airliner,
 #: against the sky (EfficientNet-Lite0 says "airliner" with p = 0.8 for PASCAL3D+ aeroplane/01 here).
@@ -27,8 +28,7 @@ INDOOR_CAMERA = {"distance": 3.4, "azimuth": 145.0, "elevation": 24.0}
 
 
 def _sun(elevation: float, azimuth: float, strength: float) -> MitsubaLights:
-    el, az = math.radians(elevation), math.radians(azimuth)
-    direction = [math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)]
+    direction = spherical_direction(azimuth, elevation)
     return MitsubaLights(np.array([direction]), np.full((1, 3), strength), np.zeros(3))
 
 

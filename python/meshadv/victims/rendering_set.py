@@ -49,8 +49,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -59,6 +57,9 @@ from typing import Any, Callable, Optional, Union
 import numpy as np
 import torch
 
+from meshadv.util.atomic import write_json_atomic
+from meshadv.util.markdown import markdown_table
+from meshadv.util.spherical import spherical_direction
 from meshadv.victims.base import ClassifierVictim, DetectorVictim, Victim
 from meshadv.victims.labels import PASCAL3D_CLASSES, PASCAL3D_TO_COCO, PASCAL3D_TO_IMAGENET, imagenet_class_names
 
@@ -195,8 +196,7 @@ def sample_view(rng: np.random.Generator, vertices: np.ndarray, config: Renderin
     azimuth = float(rng.uniform(*config.azimuth_range))
     elevation = float(rng.uniform(*config.elevation_range))
     fill = float(rng.uniform(*config.fill_range))
-    az, el = math.radians(azimuth), math.radians(elevation)
-    to_eye = np.array([math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)])
+    to_eye = np.array(spherical_direction(azimuth, elevation))
     distance = frame_distance(vertices, to_eye, fill, config.viewing_angle)
     # uniform direction on the cap of half-angle light_max_angle around to_eye
     cos_max = math.cos(math.radians(config.light_max_angle))
@@ -224,23 +224,6 @@ def sample_view(rng: np.random.Generator, vertices: np.ndarray, config: Renderin
         "light_colors": [[light, light, light]],
         "ambient": [ambient, ambient, ambient],
     }
-
-
-def _write_json_atomic(path: Path, doc: dict[str, Any]) -> None:
-    data = json.dumps(doc, indent=1).encode("utf-8")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual permissions
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def packaged_rendering_set_path() -> Path:
@@ -614,11 +597,11 @@ def build_rendering_set(
                         break
             stats["pass_rate"] = {k: n / stats["tried"] for k, n in stats["passed"].items()}
             stats["exhausted"] = stats["kept"] < per_class and stats["next_candidate"] >= max_candidates
-            _write_json_atomic(out_path, doc)
+            write_json_atomic(doc, out_path, indent=1)
             if progress is not None:
                 progress(cls, stats)
     doc["complete"] = True
-    _write_json_atomic(out_path, doc)
+    write_json_atomic(doc, out_path, indent=1)
     return doc
 
 
@@ -639,8 +622,6 @@ def pass_rate_table(doc: Mapping[str, Any], *, markdown: bool = False) -> str:
             + ["-" if rates[k] is None else f"{100 * rates[k]:.1f}%" for k in [*victims, "all"]]
         )
     if markdown:
-        lines = ["| " + " | ".join(row) + " |" for row in rows]
-        lines.insert(1, "|" + "---|" * len(header))
-        return "\n".join(lines)
+        return markdown_table(header, rows[1:])
     widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
     return "\n".join("  ".join(cell.ljust(w) for cell, w in zip(row, widths)) for row in rows)

@@ -27,7 +27,7 @@ def contact_sheet(rows: Mapping[str, torch.Tensor], path: Union[str, Path], tile
     """
     from PIL import Image, ImageDraw
 
-    from meshadv.scenes.draw import save_png_atomic
+    from meshadv.util.png import save_png
 
     if not rows:
         raise ValueError("rows must not be empty")
@@ -44,4 +44,4 @@ def contact_sheet(rows: Mapping[str, torch.Tensor], path: Union[str, Path], tile
             arr = (image.detach().float().clamp(0, 1) * 255).round().to(torch.uint8).permute(1, 2, 0).numpy()
             pil = Image.fromarray(np.ascontiguousarray(arr)).resize((tile, tile), Image.BILINEAR)
             sheet.paste(pil, (LABEL_WIDTH + c * tile, r * tile))
-    return save_png_atomic(sheet, path)
+    return save_png(sheet, path)

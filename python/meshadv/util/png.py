@@ -1,0 +1,53 @@
+"""Save an image as an 8-bit RGB PNG, atomically (:mod:`meshadv.util.atomic`).
+
+Accepts what the package produces: a ``(3, H, W)`` or ``(1, 3, H, W)`` torch tensor in ``[0, 1]``, a ``(H, W, 3)``
+float array in ``[0, 1]`` or uint8 array, or a PIL image. Floats are clipped to ``[0, 1]`` and rounded to the
+nearest 8-bit value.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Union
+
+import numpy as np
+
+from meshadv.util.atomic import atomic_path
+
+__all__ = ["to_uint8_hwc", "save_png"]
+
+
+def to_uint8_hwc(image: Any) -> np.ndarray:
+    """The image as a ``(H, W, 3)`` uint8 array (see the module docstring for accepted inputs).
+
+    Raises:
+        ValueError: a shape that is not one RGB image.
+    """
+    if hasattr(image, "detach"):  # torch tensor, channels first
+        if image.dim() == 4 and image.shape[0] == 1:
+            image = image[0]
+        if image.dim() != 3 or image.shape[0] != 3:
+            raise ValueError(f"image must have shape (3, H, W), got {tuple(image.shape)}")
+        image = image.detach().float().cpu().permute(1, 2, 0).numpy()
+    array = np.asarray(image)
+    if array.ndim != 3 or array.shape[2] != 3:
+        raise ValueError(f"image must have shape (H, W, 3), got {array.shape}")
+    if array.dtype != np.uint8:
+        array = np.round(np.clip(np.nan_to_num(array.astype(np.float64)), 0.0, 1.0) * 255.0).astype(np.uint8)
+    return np.ascontiguousarray(array)
+
+
+def save_png(image: Any, path: Union[str, Path]) -> Path:
+    """Write ``image`` to ``path`` as PNG atomically (creating the folder); returns the path.
+
+    Raises:
+        ValueError: not one RGB image.
+    """
+    from PIL import Image
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pil = image if isinstance(image, Image.Image) else Image.fromarray(to_uint8_hwc(image))
+    with atomic_path(path, suffix=".png") as tmp:
+        pil.save(tmp, format="PNG")
+    return path
