@@ -7,9 +7,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-
+from meshadv.datasets.rendering_set import FORMAT, VERSION, packaged_rendering_set_path
 from meshadv.experiments.config import expand_jobs, parse_config
-from meshadv.victims.rendering_set import FORMAT, VERSION, packaged_rendering_set_path
 
 
 def _view(azimuth: float) -> dict[str, Any]:

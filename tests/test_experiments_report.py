@@ -183,7 +183,9 @@ def test_report_counts_failed_and_unsuccessful_jobs(tmp_path: Path) -> None:
     row = {"case_id": "c", "victim": "v", "true_class": "boat", "target": "chair", "attack_type": "shape", "view": 0,
            "success_meshadv": True, "success_mitsuba": False, "untargeted_meshadv": True, "untargeted_mitsuba": True}
     save_transfer_rows(tmp_path / "r.db", [row], experiment="controlled")
-    write_report(tmp_path / "r.db", tmp_path / "rep", figures=False)
+    from meshadv.commands.report import write_full_report
+
+    write_full_report(tmp_path / "r.db", tmp_path / "rep", figures=False)
     transfer = (tmp_path / "rep" / "transfer.md").read_text()
     assert "Transfer to Mitsuba 3" in transfer and "chair" in transfer
     assert "Transfer to Mitsuba 3" in (tmp_path / "rep" / "README.md").read_text()

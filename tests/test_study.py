@@ -231,9 +231,9 @@ def test_study_commands(study_db: Path, tmp_path: Path) -> None:
 
 
 def test_sweep_report_shows_the_proxies(study_db: Path, tmp_path: Path) -> None:
-    from meshadv.experiments.report import write_report
+    from meshadv.commands.report import write_full_report
 
-    out = write_report(study_db, tmp_path / "report", figures=False)
+    out = write_full_report(study_db, tmp_path / "report", figures=False)
     readme = (tmp_path / "report" / "README.md").read_text()
     assert "## Perceptual proxies: SSIM and PSNR" in readme and "| v1 | texture | 3 |" in readme
     assert tmp_path / "report" / "proxies.csv" in out.tables

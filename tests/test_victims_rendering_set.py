@@ -1,4 +1,4 @@
-"""Tests of meshadv.victims.rendering_set: the sampling law, determinism, batching independence, resuming after an
+"""Tests of meshadv.datasets.rendering_set: the sampling law, determinism, batching independence, resuming after an
 interruption, the versioned file, and a tiny real build with a real victim on PASCAL3D+ meshes."""
 
 from __future__ import annotations
@@ -10,15 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
-from meshadv.victims.base import ClassifierVictim
-from meshadv.victims.rendering_set import (
+from meshadv.datasets.rendering_set import (
     FORMAT,
     VERSION,
     RenderingSetConfig,
     build_rendering_set,
     candidate_seed,
-    frame_distance,
     load_rendering_set,
     packaged_rendering_set_path,
     pascal3d_mesh_paths,
@@ -29,6 +26,8 @@ from meshadv.victims.rendering_set import (
     sample_view,
     sampling_config,
 )
+from meshadv.render.views import frame_distance
+from meshadv.victims.base import ClassifierVictim
 
 pytest.importorskip("meshadv._raster", reason="the native renderer is not built (maturin develop)")
 
@@ -249,9 +248,8 @@ def test_markdown_pass_rate_table(tmp_path: Path, sofa_meshes: list[Path]) -> No
 
 
 def test_contact_sheet(tmp_path: Path) -> None:
+    from meshadv.datasets.rendering_set_sheet import LABEL_WIDTH, contact_sheet
     from PIL import Image
-
-    from meshadv.victims.rendering_set_sheet import LABEL_WIDTH, contact_sheet
 
     rows = {"a": torch.zeros(2, 3, 16, 16), "b": torch.ones(3, 3, 16, 16)}
     path = contact_sheet(rows, tmp_path / "sheet.png", tile=20)

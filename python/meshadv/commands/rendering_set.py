@@ -2,7 +2,7 @@
 
 ``build`` samples camera and lighting configurations per class until ``--per-class`` of them are classified correctly
 by every victim (resumable: run it again after a kill), ``report`` writes the pass-rate table (Markdown) and a
-contact sheet of kept renders. See :mod:`meshadv.victims.rendering_set` for the sampling law and the file format.
+contact sheet of kept renders. See :mod:`meshadv.datasets.rendering_set` for the sampling law and the file format.
 
 Example:
     $ meshadv rendering-set build -o data/pascal3d_renderings_v1.json
@@ -39,7 +39,7 @@ def build(
 ) -> None:
     """Build (or resume) the PASCAL3D+ rendering set and print its pass rates."""
     from meshadv.data import shared_data_dir
-    from meshadv.victims.rendering_set import (
+    from meshadv.datasets.rendering_set import (
         RenderingSetConfig,
         build_rendering_set,
         pascal3d_mesh_paths,
@@ -81,8 +81,8 @@ def report(
     mesh_root: Optional[Path] = typer.Option(None, help="Folder of the set's relative mesh paths (default: shared)."),
 ) -> None:
     """Write the pass-rate table and a contact sheet (rows = classes) of a rendering set."""
-    from meshadv.victims.rendering_set import load_rendering_set, pass_rate_table, render_records
-    from meshadv.victims.rendering_set_sheet import contact_sheet
+    from meshadv.datasets.rendering_set import load_rendering_set, pass_rate_table, render_records
+    from meshadv.datasets.rendering_set_sheet import contact_sheet
 
     try:
         doc = load_rendering_set(rendering_set)

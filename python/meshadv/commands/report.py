@@ -6,7 +6,30 @@ from pathlib import Path
 
 import typer
 
-__all__ = ["register", "report"]
+__all__ = ["register", "report", "write_full_report"]
+
+
+def write_full_report(results: Path, out: Path, *, figures: bool = True) -> object:
+    """The sweep report with what other packages add: the Mitsuba transfer section (rows of ``meshadv transfer``
+    in the same database) and the perceptual proxies (SSIM / PSNR, ``proxies.csv``).
+
+    Returns:
+        The :class:`~meshadv.experiments.report.ReportOutput`.
+
+    Raises:
+        FileNotFoundError: ``results`` does not exist.
+    """
+    from meshadv.experiments.report import write_report
+    from meshadv.study.proxies import proxy_section
+    from meshadv.transfer.results import load_transfer_rows_if_any, transfer_report
+
+    def proxies(rows: list, out_dir: Path) -> tuple:
+        text = proxy_section(rows, out_dir)
+        return text, [out_dir / "proxies.csv"] if text else []
+
+    rows = load_transfer_rows_if_any(results) if Path(results).is_file() else []
+    return write_report(results, out, figures=figures, transfer_rows=rows,
+                        transfer_markdown=transfer_report(rows) if rows else "", sections=[proxies])
 
 
 def report(
@@ -15,11 +38,9 @@ def report(
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Draw the figures."),
 ) -> None:
     """Write Table 1, Table 2, the figures and the run's settings from RESULTS."""
-    from meshadv.experiments.report import write_report
-
     if not results.is_file():
         raise typer.BadParameter(f"{results} does not exist", param_hint="RESULTS")
-    output = write_report(results, out, figures=figures)
+    output = write_full_report(results, out, figures=figures)
     typer.echo(f"wrote {len(output.tables)} table files and {len(output.figures)} figures to {output.out_dir}")
 
 

@@ -36,7 +36,7 @@ with a 30° field of view the camera must be about ``1 / tan(15°) + 1 ≈ 4.7``
 frame; the default distances (3.6 to 4.4) show it nearly whole and large.
 
 With ``render.rendering_set`` the configurations come from a PASCAL3D+ rendering set instead
-(:mod:`meshadv.victims.rendering_set`; ``"packaged"`` = the set shipped with meshadv, built with EfficientNet-Lite0
+(:mod:`meshadv.datasets.rendering_set`; ``"packaged"`` = the set shipped with meshadv, built with EfficientNet-Lite0
 and -Lite2): for each class in ``meshes.classes`` the first ``render.configurations`` kept renderings (restricted to
 ``meshes.models`` when given), each with its own mesh and view, exactly as the paper picks its 72 configurations per
 class. The sampling keys above are then unused; ``render.image_size`` still sets the attack's render size.
@@ -307,7 +307,7 @@ def rendering_set_instances(config: SweepConfig) -> List[Tuple[Dict[str, Any], i
         FileNotFoundError: the rendering-set file does not exist. ValueError: not a rendering-set file, or a class
             with fewer kept renderings than ``render.configurations``.
     """
-    from meshadv.victims.rendering_set import load_rendering_set, packaged_rendering_set_path
+    from meshadv.datasets.rendering_set import load_rendering_set, packaged_rendering_set_path
 
     spec = config.render["rendering_set"]
     doc = load_rendering_set(packaged_rendering_set_path() if spec == "packaged" else spec)

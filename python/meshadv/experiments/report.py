@@ -24,7 +24,7 @@ import sys
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple, Union
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -190,13 +190,28 @@ def _flow_figures(rows: List[JobRow], fig_dir: Path, out: ReportOutput) -> None:
             break
 
 
-def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figures: bool = True) -> ReportOutput:
+#: A section a caller adds to the report: ``section(done_rows, out_dir) -> (markdown, files written)``; the
+#: Markdown closes the README (``""``: no section). The report command composes them (the perceptual proxies of
+#: :mod:`meshadv.study`), so this package imports neither ``meshadv.study`` nor ``meshadv.transfer``.
+ReportSection = Callable[[List[JobRow], Path], Tuple[str, List[Path]]]
+
+
+def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figures: bool = True,
+                 transfer_rows: Sequence[Dict[str, Any]] = (), transfer_markdown: str = "",
+                 sections: Sequence[ReportSection] = ()) -> ReportOutput:
     """Write the tables, figures and settings of a sweep's results database.
+
+    The full report (with the Mitsuba transfer rows and the perceptual proxies) is composed by
+    :func:`meshadv.commands.report.write_full_report`.
 
     Args:
         db_path: the results database (``results.db``).
         out_dir: the report folder (created).
         figures: also draw the figures.
+        transfer_rows: Mitsuba transfer rows (``meshadv.transfer.results.load_transfer_rows``) for the paper
+            comparison's Table 3.
+        transfer_markdown: the transfer section (written to ``transfer.md`` and into the README), ``""`` for none.
+        sections: extra sections, in order (see :data:`ReportSection`).
 
     Returns:
         A :class:`ReportOutput`.
@@ -225,14 +240,8 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
             path = out.out_dir / f"{name}.{ext}"
             path.write_text(text, encoding="utf-8")
             out.tables.append(path)
-    transfer_rows = _transfer_rows(db)
-    if transfer_rows:
-        from meshadv.transfer.results import transfer_report
-
-        transfer = transfer_report(transfer_rows)
-    else:
-        transfer = ""
-    comparison = paper_comparison(t1_correct if mixed else t1, t2, transfer_rows)
+    transfer = transfer_markdown
+    comparison = paper_comparison(t1_correct if mixed else t1, t2, list(transfer_rows))
     path = out.out_dir / "paper_comparison.md"
     path.write_text(comparison, encoding="utf-8")
     out.tables.append(path)
@@ -255,32 +264,20 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
                                                title=f"{ptype} attacks on {victim} (rows: benign class, "
                                                      f"columns: target; diagonal: benign)"))
         _flow_figures(single, fig_dir, out)
-    from meshadv.study.proxies import proxy_section
-
-    proxies = proxy_section(done, out.out_dir)  # SSIM / PSNR of every attack's renders (proxies.csv)
-    if proxies:
-        out.tables.append(out.out_dir / "proxies.csv")
+    extra = []
+    for section in sections:
+        text, files = section(done, out.out_dir)
+        out.tables.extend(files)
+        if text:
+            extra.append(text)
     settings = {"database": str(db.resolve()), "meta": meta, "report_versions": environment_versions(),
                 "counts": out.counts, "correlations": out.correlations}
     (out.out_dir / "settings.json").write_text(json.dumps(settings, indent=2, sort_keys=True), encoding="utf-8")
     _write_readme(out, t1, t1_correct if mixed else None, t2, meta, _run_stats(done), transfer, comparison)
-    if proxies:  # the perceptual proxies close the README
+    for text in extra:  # the callers' sections close the README
         with open(out.out_dir / "README.md", "a", encoding="utf-8") as fh:
-            fh.write("\n" + proxies)
+            fh.write("\n" + text)
     return out
-
-
-def _transfer_rows(db: Path) -> List[Dict[str, Any]]:
-    """The Mitsuba transfer rows (``meshadv transfer`` rows in the same database); empty when there are none."""
-    import sqlite3
-
-    with sqlite3.connect(str(db)) as conn:
-        has_table = conn.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'transfer'").fetchone()
-    if not has_table:
-        return []
-    from meshadv.transfer.results import load_transfer_rows
-
-    return load_transfer_rows(db)
 
 
 def _run_stats(done: List[JobRow]) -> List[str]:

@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import torch
 
 from ._checks import require_instance
 from .camera import Camera, TensorLike
 from .lighting import Lights
 
-__all__ = ["ViewSet"]
+__all__ = ["ViewSet", "frame_distance"]
 
 _SPHERICAL_KEYS = ("distance", "azimuth", "elevation")
 _LOOK_AT_KEYS = ("eye", "at", "up")
@@ -260,3 +262,29 @@ class ViewSet:
             cols = torch.as_tensor(rec["light_colors"], dtype=torch.float32).reshape(-1, 3)
             views.append(cls(camera, Lights(dirs, cols, torch.as_tensor(rec["ambient"], dtype=torch.float32))))
         return cls.cat(views)
+
+
+def frame_distance(vertices: np.ndarray, to_eye: np.ndarray, fill: float, viewing_angle: float) -> float:
+    """Camera distance at which the mesh's widest projected half-extent is exactly ``fill`` of the half view.
+
+    With the NMR look-at basis ``(x, y, z)`` of a camera on the unit direction ``to_eye`` (up = +Y), a vertex with view
+    coordinates ``(a, b, c)`` relative to the origin projects to ``a / ((d + c) tan(fov / 2))``, so the distance is
+    ``max_i(max(|a_i|, |b_i|) / (fill tan(fov / 2)) - c_i)`` (exact for the perspective camera).
+
+    Args:
+        vertices: ``(N, 3)`` world-space vertices (object centred at the origin).
+        to_eye: unit vector from the origin toward the camera.
+        fill: wanted half-extent in NDC, in ``(0, 1]``.
+        viewing_angle: field of view in degrees.
+    """
+    z_axis = -to_eye
+    up = np.array([0.0, 1.0, 0.0])
+    x_axis = np.cross(up, z_axis)
+    if np.linalg.norm(x_axis) < 1e-9:  # looking straight down or up: any horizontal x works
+        x_axis = np.array([1.0, 0.0, 0.0])
+    x_axis /= np.linalg.norm(x_axis)
+    y_axis = np.cross(z_axis, x_axis)
+    a, b, c = vertices @ x_axis, vertices @ y_axis, vertices @ z_axis
+    tan_half = math.tan(math.radians(viewing_angle) / 2.0)
+    distance = float(np.max(np.maximum(np.abs(a), np.abs(b)) / (fill * tan_half) - c))
+    return max(distance, float(np.max(-c)) + 0.5)  # keep every vertex well beyond the near plane

@@ -104,6 +104,20 @@ def save_transfer_rows(
     return len(rows)
 
 
+def load_transfer_rows_if_any(db_path: Union[str, Path]) -> list[dict[str, Any]]:
+    """Every transfer row of ``db_path`` (a sweep's database), ``[]`` when it has no ``transfer`` table; the
+    database is only read (no table is created).
+
+    Raises:
+        FileNotFoundError: ``db_path`` does not exist.
+    """
+    if not Path(db_path).is_file():
+        raise FileNotFoundError(f"db_path {db_path} does not exist")
+    with sqlite3.connect(str(db_path)) as conn:
+        found = conn.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'transfer'").fetchone()
+    return load_transfer_rows(db_path) if found else []
+
+
 def load_transfer_rows(
     db_path: Union[str, Path], *, experiment: Optional[str] = None, kind: Optional[str] = None
 ) -> list[dict[str, Any]]:
@@ -317,6 +331,7 @@ def transfer_report(rows: Sequence[dict[str, Any]]) -> str:
 
 
 __all__ = [
+    "load_transfer_rows_if_any",
     "BLACKBOX_ESTIMATION_COLUMNS",
     "BLACKBOX_MARGIN_COLUMNS",
     "BLACKBOX_OUTCOME_COLUMNS",

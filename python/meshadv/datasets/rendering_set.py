@@ -6,7 +6,8 @@ samples, in this order:
 
 - azimuth ``U[0, 360)``, elevation ``U[0, 90]`` degrees (configurable);
 - a distance that frames the object: the mesh (normalised into ``[-1, 1]``) is placed so that its widest projected
-  half-extent is a fraction ``fill ~ U[fill_range]`` of the image (exact perspective framing, :func:`frame_distance`);
+  half-extent is a fraction ``fill ~ U[fill_range]`` of the image (exact perspective framing,
+  :func:`meshadv.render.views.frame_distance`);
 - one directional light within ``light_max_angle`` (60 degrees) of the view direction (uniform on that spherical cap
   around the object-to-camera direction), grey intensity ``U[light_range]``, plus grey ambient ``U[ambient_range]``.
 
@@ -22,7 +23,7 @@ are often product shots on white, and white keeps the silhouette, the strongest 
 contrast), the mesh's own colours (light grey 0.7 for the uncoloured PASCAL3D+ files), ambient ``U[0.45, 0.65]`` plus
 a light ``U[0.35, 0.55]`` near the view direction so that the faces the camera sees are lit without saturating and
 shading shows the 3-D shape, and ``fill`` ``U[0.7, 0.95]`` so the object fills most of the frame as in ImageNet
-photos. The packaged set (``meshadv/victims/data/pascal3d_renderings_v1.json``, :func:`packaged_rendering_set_path`;
+photos. The packaged set (``meshadv/datasets/data/pascal3d_renderings_v1.json``, :func:`packaged_rendering_set_path`;
 made by ``meshadv rendering-set build -o ...`` with these defaults, seed 0, EfficientNet-Lite0 and -Lite2) kept 72 per
 class after 175 (aeroplane), 663 (bicycle), 1335 (boat), 263 (bottle), 205 (chair), 1119 (dining table) and 505 (sofa)
 candidates: both victims right on 41%, 11%, 5%, 27%, 35%, 6% and 14%. Low elevations pass most (a table seen from
@@ -57,6 +58,7 @@ from typing import Any, Callable, Optional, Union
 import numpy as np
 import torch
 
+from meshadv.render.views import frame_distance
 from meshadv.util.atomic import write_json_atomic
 from meshadv.util.markdown import markdown_table
 from meshadv.util.spherical import spherical_direction
@@ -69,7 +71,6 @@ __all__ = [
     "RenderingSetConfig",
     "build_rendering_set",
     "candidate_seed",
-    "frame_distance",
     "load_rendering_set",
     "pascal3d_mesh_paths",
     "rendering_mesh_path",
@@ -156,32 +157,6 @@ def candidate_seed(seed: int, class_index: int, candidate: int) -> int:
     return int(np.random.SeedSequence([int(seed), int(class_index), int(candidate)]).generate_state(1)[0])
 
 
-def frame_distance(vertices: np.ndarray, to_eye: np.ndarray, fill: float, viewing_angle: float) -> float:
-    """Camera distance at which the mesh's widest projected half-extent is exactly ``fill`` of the half view.
-
-    With the NMR look-at basis ``(x, y, z)`` of a camera on the unit direction ``to_eye`` (up = +Y), a vertex with view
-    coordinates ``(a, b, c)`` relative to the origin projects to ``a / ((d + c) tan(fov / 2))``, so the distance is
-    ``max_i(max(|a_i|, |b_i|) / (fill tan(fov / 2)) - c_i)`` (exact for the perspective camera).
-
-    Args:
-        vertices: ``(N, 3)`` world-space vertices (object centred at the origin).
-        to_eye: unit vector from the origin toward the camera.
-        fill: wanted half-extent in NDC, in ``(0, 1]``.
-        viewing_angle: field of view in degrees.
-    """
-    z_axis = -to_eye
-    up = np.array([0.0, 1.0, 0.0])
-    x_axis = np.cross(up, z_axis)
-    if np.linalg.norm(x_axis) < 1e-9:  # looking straight down or up: any horizontal x works
-        x_axis = np.array([1.0, 0.0, 0.0])
-    x_axis /= np.linalg.norm(x_axis)
-    y_axis = np.cross(z_axis, x_axis)
-    a, b, c = vertices @ x_axis, vertices @ y_axis, vertices @ z_axis
-    tan_half = math.tan(math.radians(viewing_angle) / 2.0)
-    distance = float(np.max(np.maximum(np.abs(a), np.abs(b)) / (fill * tan_half) - c))
-    return max(distance, float(np.max(-c)) + 0.5)  # keep every vertex well beyond the near plane
-
-
 def sample_view(rng: np.random.Generator, vertices: np.ndarray, config: RenderingSetConfig) -> dict[str, Any]:
     """Draw one camera + lighting configuration as a ViewSet record (see the module docstring for the law).
 
@@ -234,7 +209,7 @@ def packaged_rendering_set_path() -> Path:
     """
     from importlib import resources
 
-    path = Path(str(resources.files("meshadv.victims").joinpath("data").joinpath(PACKAGED_FILE)))
+    path = Path(str(resources.files("meshadv.datasets").joinpath("data").joinpath(PACKAGED_FILE)))
     if not path.is_file():
         raise FileNotFoundError(f"the packaged rendering set {path} is missing from this installation")
     return path
