@@ -39,11 +39,6 @@ def _native() -> ModuleType:
         ) from exc
 
 
-def _backward_has_vertex_grad_flag() -> bool:
-    """True when the built ``rasterize_backward`` accepts ``vertex_grad`` (skip the NMR sweep when not needed)."""
-    return "vertex_grad" in (getattr(_native().rasterize_backward, "__text_signature__", None) or "")
-
-
 def native_available() -> bool:
     """True when the native module ``meshadv._raster`` can be imported."""
     try:
@@ -153,7 +148,6 @@ class _Rasterize(torch.autograd.Function):
         if grad_image is None or not (need_v or need_a):
             return (None,) * 11
         # Attribute-only backward (e.g. texture attacks) skips the NMR vertex sweep, the expensive part.
-        extra = {"vertex_grad": False} if not need_v and _backward_has_vertex_grad_flag() else {}
         grad_v, grad_a = _native().rasterize_backward(
             _to_numpy_f32(verts_screen),
             _to_numpy_i32(faces),
@@ -169,7 +163,7 @@ class _Rasterize(torch.autograd.Function):
             _to_numpy_f32(grad_image),
             num_threads,
             orthographic,
-            **extra,
+            vertex_grad=bool(need_v),
         )
         if need_v and not np.isfinite(grad_v).all() and bool(torch.isfinite(grad_image).all()):
             peak = float(face_attrs.detach().abs().max())
