@@ -10,10 +10,10 @@ means the target leads by that many logits and the kept mesh is the least distor
 and writes into ``out_dir``: ``benign.ply``, ``benign_v{j}.png`` and everything :meth:`AttackResult.save` writes
 (``result.json`` last, so artefacts are complete before the runner records the job).
 
-The returned record holds ``success``, ``distance`` (per-pair-mean Laplacian loss for shape, face-colour RMSE for
-texture: the paper's measures),
-``distances``, ``steps``, ``time``, ``benign_correct``, the top-1 labels, ``eval_success_rate`` (multi-view) and
-``artifacts`` (file names relative to ``out_dir``).
+The returned record holds ``success``, ``cpu_time`` (CPU seconds of the job's process), ``distance``
+(per-pair-mean Laplacian loss for shape, face-colour RMSE for texture: the paper's measures), ``distances``,
+``steps``, ``time``, ``benign_correct``, the top-1 labels, ``eval_success_rate`` (multi-view) and ``artifacts``
+(file names relative to ``out_dir``).
 """
 
 from __future__ import annotations
@@ -112,7 +112,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     from meshadv.render import ViewSet
     from meshadv.render.setup import RenderSetup, split_setup_options
 
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     out = Path(out_dir)
     perturbation = check_perturbation(spec["perturbation"], "spec['perturbation']")
     torch.manual_seed(int(spec.get("seed", 0)))
@@ -158,6 +158,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         steps=int(result.steps),
         time=float(result.wall_time),
         job_time=time.perf_counter() - start,
+        cpu_time=time.process_time() - cpu_start,  # CPU seconds of this process (every thread): cost projections
         steps_to_success=result.steps_to_success[0],
         adversarial_top1=(rec.get("top1_names") or [None])[0],
         target_score=[float(s) for s in result.scores[0].tolist()],
