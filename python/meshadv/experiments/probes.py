@@ -23,17 +23,9 @@ import time
 from pathlib import Path
 from typing import Any, Dict
 
-__all__ = ["probe_job", "mesh_probe_job", "atomic_write_text"]
+from meshadv.util.atomic import write_text_atomic
 
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (temporary file in the same folder, fsync, rename)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+__all__ = ["probe_job", "mesh_probe_job"]
 
 
 def probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
@@ -70,7 +62,7 @@ def probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     if kind not in ("ok", "flaky"):
         raise ValueError(f"spec['probe'] must be ok, raise, segfault, exit or flaky, got {kind!r}")
     artefact = out_dir / "artefact.json"
-    atomic_write_text(artefact, json.dumps(spec, sort_keys=True))
+    write_text_atomic(artefact, json.dumps(spec, sort_keys=True))
     return {
         "success": bool(spec.get("success", True)),
         "distance": float(spec.get("distance", 0.0)),

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-
-import numpy as np
 import torch
 from PIL import Image, ImageDraw
 
+from meshadv.util.png import to_uint8_hwc
 from meshadv.victims.base import Detections
 
 _PALETTE = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240)]
@@ -14,14 +13,9 @@ _PALETTE = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 3
 
 def to_pil(image: torch.Tensor) -> Image.Image:
     """Convert a (3, H, W) or (1, 3, H, W) tensor in [0, 1] to a PIL RGB image."""
-    if image.dim() == 4:
-        if image.shape[0] != 1:
-            raise ValueError(f"image must hold a single image, got batch {image.shape[0]}")
-        image = image[0]
-    if image.dim() != 3 or image.shape[0] != 3:
-        raise ValueError(f"image must have shape (3, H, W), got {tuple(image.shape)}")
-    array = (image.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255.0 + 0.5).astype(np.uint8)
-    return Image.fromarray(array)
+    if image.dim() == 4 and image.shape[0] != 1:
+        raise ValueError(f"image must hold a single image, got batch {image.shape[0]}")
+    return Image.fromarray(to_uint8_hwc(image))
 
 
 def draw_detections(image: torch.Tensor, detections: Detections) -> Image.Image:
