@@ -77,8 +77,12 @@ def resolve_imagenet_classes(spec: ClassSpec, name: str = "class") -> Tuple[Tupl
             for i, full in enumerate(names):
                 if low in (s.strip().lower() for s in full.split(",")):
                     return (i,), full
+            from meshadv._validate import suggest
+
+            close = suggest(low, [*PASCAL3D_TO_IMAGENET, *(n.lower() for n in names)])
             raise ValueError(f"{name} {spec!r} is neither an ImageNet class name, a PASCAL3D+ class "
-                             f"({', '.join(PASCAL3D_TO_IMAGENET)}) nor an index")
+                             f"({', '.join(PASCAL3D_TO_IMAGENET)}) nor an index"
+                             + (f"; did you mean {close!r}?" if close else ""))
     if isinstance(spec, (int,)) and not isinstance(spec, bool):
         idx: Tuple[int, ...] = (int(spec),)
     else:
