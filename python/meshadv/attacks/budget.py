@@ -58,7 +58,7 @@ __all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS
 
 #: Default options of ``method="ddn"`` per perturbation (norm units, see the module docstring).
 DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {
-    "shape": {"init_budget": 1e-3, "gamma": 0.05, "step_size": 5e-4, "final_step_size": 5e-5, "min_budget": 1e-7,
+    "shape": {"init_budget": 1e-3, "gamma": 0.05, "step_size": 1e-3, "final_step_size": 1e-4, "min_budget": 1e-7,
               "smoothness": 1.0},
     "texture": {"init_budget": 5e-3, "gamma": 0.1, "step_size": 5e-3, "final_step_size": 5e-4, "min_budget": 1e-6},
 }
@@ -336,7 +336,8 @@ class DDNRule(UpdateRule):
         else:
             self.norm = ColorNorm(getattr(attack, "face_mask", None))
             self._origin = mesh.face_colors.detach().clamp(_COLOR_EPS, 1 - _COLOR_EPS)
-        cap = None if attack.max_distortion is None else self.norm.from_distance(attack.max_distortion)
+        # a hair inside max_distortion, so float rounding never pushes a target past it (the loop would stop it)
+        cap = None if attack.max_distortion is None else self.norm.from_distance(attack.max_distortion) * (1 - 1e-6)
         self.state = BudgetState(self.num_targets, attack.steps, cap=cap, **self._budget_options)
 
     def start_round(self, params: Tensor) -> None:

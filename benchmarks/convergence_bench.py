@@ -1,0 +1,434 @@
+"""Convergence benchmark (issue 14): success rate and distance at success against optimiser steps, per method.
+
+Benchmark set: the first ``--instances`` (default 2) configurations of each of the 7 classes of the packaged
+PASCAL3D+ rendering set (the instances of ``configs/paper_small.toml``), meshes resampled to about 4000 faces,
+224 px, 2x antialiasing, EfficientNet-Lite0, every other class as a target (6 targets, attacked together as one
+batch: the targets are independent per-target problems, so batching changes nothing but the wall time).
+
+Methods (``--methods``):
+
+* ``paper``: the paper's protocol, Adam + a ``lambda`` binary search, 5 rounds x 1000 steps, no early stopping
+  (:class:`~meshadv.attacks.ShapeAttack` / :class:`~meshadv.attacks.TextureAttack` defaults otherwise);
+* ``small``: the settings of ``configs/paper_small.toml`` (Adam, 100 steps, early stop after 3 steps held, one
+  ``lambda``), read from that file;
+* ``ddn``: the distortion-budget method (``method="ddn"``, :mod:`meshadv.attacks.budget`), 300 steps for shape and
+  100 for texture.
+
+Curves come from the attack's per-step history (the parameters *before* each update, as the engine records them):
+``success(k)`` = the target held at some step ``<= k``; ``distance(k)`` = the least distortion of a step ``<= k``
+where it held. Shape distances are given in both conventions, the Eq. 4 sum and the per-pair mean (sum / 2E,
+comparable with the paper); texture the face-colour RMSE. The final result (re-rendered from scratch) is stored too.
+
+Each run (method, perturbation, instance) is one row of an SQLite file (``--db``), committed when the run ends; a
+rerun skips finished rows, so the benchmark resumes after an interruption. ``--shard i/n`` splits the pending runs
+between processes sharing the file. ``--report`` prints the summary table (Markdown) and writes one PNG per method.
+
+Usage:
+    python benchmarks/convergence_bench.py --methods ddn small --perturbations texture shape
+    python benchmarks/convergence_bench.py --report --plots benchmarks/convergence
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sqlite3
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence, Tuple
+
+import torch
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_DB = ROOT / "benchmarks" / "convergence" / "runs.sqlite"
+CLASSES = ("aeroplane", "bicycle", "boat", "bottle", "chair", "diningtable", "sofa")
+METHODS = ("paper", "small", "ddn")
+#: Step budgets of the issue's targets: shape <= 300, texture <= 100 steps per target.
+STEP_TARGETS = {"shape": 300, "texture": 100}
+#: Steps of the ddn runs (the step budgets of the issue's targets).
+DDN_STEPS = STEP_TARGETS
+
+
+def _small_settings() -> Dict[str, Dict[str, Any]]:
+    try:
+        import tomllib
+    except ImportError:  # Python < 3.11
+        import tomli as tomllib  # type: ignore[no-redef]
+    with open(ROOT / "configs" / "paper_small.toml", "rb") as f:
+        raw = tomllib.load(f)
+    return {p: dict(raw["attack"][p]) for p in ("shape", "texture")}
+
+
+def method_settings(method: str, perturbation: str) -> Dict[str, Any]:
+    """The attack keyword arguments of ``method`` for ``perturbation`` (224 px and 2x antialias added by the caller).
+
+    Raises:
+        ValueError: unknown method or perturbation.
+    """
+    if perturbation not in STEP_TARGETS:
+        raise ValueError(f"perturbation must be shape or texture, got {perturbation!r}")
+    if method == "paper":
+        return {"steps": 1000, "binary_search_steps": 5}
+    if method == "small":
+        return _small_settings()[perturbation]
+    if method == "ddn":
+        return {"method": "ddn", "steps": DDN_STEPS[perturbation]}
+    raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+
+
+def make_attack(method: str, perturbation: str) -> Any:
+    """The attack object of ``method`` (the render settings of a config are left to :data:`SETUP`)."""
+    from meshadv.attacks import make_attack as make_family_attack
+
+    kwargs = {k: v for k, v in method_settings(method, perturbation).items() if k not in ("antialias", "image_size")}
+    return make_family_attack(perturbation, **kwargs)
+
+
+def render_setup() -> Any:
+    """224 px, 2x antialiasing, white background (the rendering set's settings)."""
+    from meshadv.render import RenderSetup
+
+    return RenderSetup(image_size=224, antialias=2)
+
+
+def instances(per_class: int, classes: Sequence[str]) -> List[Tuple[str, int, Dict[str, Any]]]:
+    """``(class, configuration index, rendering record)`` of the benchmark set: every class's first configuration, then
+    every class's second, ... (so a partial run covers every class)."""
+    from meshadv.datasets.rendering_set import load_rendering_set, packaged_rendering_set_path
+
+    doc = load_rendering_set(packaged_rendering_set_path())
+    by_class = {cls: [r for r in doc["renderings"] if r["class"] == cls][:per_class] for cls in classes}
+    return [(cls, i, by_class[cls][i]) for i in range(per_class) for cls in classes if i < len(by_class[cls])]
+
+
+def _curves(history: Sequence[Dict[str, Any]], num_targets: int) -> List[Dict[str, Any]]:
+    """Per target: the first step that held and every step where the least distance at success fell.
+
+    Steps are 1-based counts of optimiser steps (over all rounds of a ``lambda`` search).
+    """
+    out: List[Dict[str, Any]] = [{"first": None, "improvements": []} for _ in range(num_targets)]
+    best = [math.inf] * num_targets
+    for k, row in enumerate(history, start=1):
+        for t in range(num_targets):
+            margin, dist = row["margin"][t], row["distance"][t]
+            if margin is None or dist is None or not margin > 0:
+                continue
+            if out[t]["first"] is None:
+                out[t]["first"] = k
+            if dist < best[t]:
+                best[t] = dist
+                out[t]["improvements"].append([k, float(dist)])
+    return out
+
+
+def run_one(method: str, perturbation: str, cls: str, index: int, record: Dict[str, Any], victim: Any,
+            target_faces: int) -> Dict[str, Any]:
+    """Attack one instance towards its 6 targets with ``method``; the JSON-able row."""
+    from meshadv.attacks import TargetedMisclassification
+    from meshadv.mesh import vertex_edges
+    from meshadv.experiments.jobs import load_job_mesh
+    from meshadv.render import ViewSet
+
+    mesh = load_job_mesh({"source": "pascal3d", "path": record["mesh"], "target_faces": target_faces,
+                          "max_faces": 100000})
+    views = ViewSet.from_records([record["view"]])
+    targets = [c for c in CLASSES if c != cls]
+    attack = make_attack(method, perturbation)
+    start = time.perf_counter()
+    result = attack(mesh, views, victim, [TargetedMisclassification(t) for t in targets], setup=render_setup())
+    wall = time.perf_counter() - start
+    num_edges = int(vertex_edges(mesh.faces).shape[0])
+    return {
+        "method": method, "perturbation": perturbation, "class": cls, "index": index, "mesh": record["mesh"],
+        "candidate": record.get("candidate"), "targets": targets, "num_vertices": int(mesh.vertices.shape[0]),
+        "num_faces": int(mesh.faces.shape[0]), "num_edges": num_edges, "steps": int(result.steps),
+        "history_len": len(result.loss_history), "wall_time": wall, "config": attack.config(),
+        "curves": _curves(result.loss_history, len(targets)),
+        "final_success": [bool(s) for s in result.succeeded.tolist()],
+        "final_distances": [dict(d) for d in result.distances],
+        "threads": torch.get_num_threads(), "setup": render_setup().config(),
+    }
+
+
+def _connect(db: Path) -> sqlite3.Connection:
+    db.parent.mkdir(parents=True, exist_ok=True)
+    con = sqlite3.connect(str(db), timeout=60.0)
+    con.execute("CREATE TABLE IF NOT EXISTS runs (key TEXT PRIMARY KEY, row TEXT NOT NULL, finished TEXT NOT NULL)")
+    con.commit()
+    return con
+
+
+def _key(method: str, perturbation: str, cls: str, index: int) -> str:
+    return f"{method}/{perturbation}/{cls}/{index}"
+
+
+def load_rows(db: Path) -> List[Dict[str, Any]]:
+    """Every finished row of the benchmark file."""
+    if not db.exists():
+        return []
+    con = _connect(db)
+    try:
+        return [json.loads(r) for (r,) in con.execute("SELECT row FROM runs ORDER BY key")]
+    finally:
+        con.close()
+
+
+def run(args: argparse.Namespace) -> None:
+    """Run the pending runs of this shard, one committed row each."""
+    from meshadv.victims import load_victim
+
+    con = _connect(args.db)
+    done = {k for (k,) in con.execute("SELECT key FROM runs")}
+    plan = [(m, p, c, i, r) for m in args.methods for p in args.perturbations
+            for c, i, r in instances(args.instances, args.classes)]
+    pending = [job for job in plan if _key(*job[:4]) not in done]
+    shard, shards = args.shard
+    pending = pending[shard::shards]
+    print(f"{len(plan)} runs planned, {len(plan) - len(pending)} finished or in other shards, {len(pending)} to run",
+          flush=True)
+    victim = load_victim("efficientnet_lite0")
+    for method, ptype, cls, index, record in pending:
+        key = _key(method, ptype, cls, index)
+        if con.execute("SELECT 1 FROM runs WHERE key = ?", (key,)).fetchone():
+            continue
+        row = run_one(method, ptype, cls, index, record, victim, args.target_faces)
+        with con:
+            con.execute("INSERT OR REPLACE INTO runs VALUES (?, ?, ?)",
+                        (key, json.dumps(row), time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())))
+        ok = sum(row["final_success"])
+        print(f"{key}: {ok}/{len(row['targets'])} final successes, {row['steps']} steps, {row['wall_time']:.0f} s",
+              flush=True)
+    con.close()
+
+
+def import_sweep(sweep_db: Path, db: Path) -> int:
+    """Store the finished single-view jobs of a ``configs/paper_small.toml`` sweep as ``small`` rows.
+
+    That sweep attacks the same instances with the ``small`` settings, one target per job; its records hold each
+    target's first successful step and the distances of the kept (least distorted) success, which give the success
+    curve exactly and the distance curve from the first success on (with early stopping after 3 held steps, the kept
+    success is one of the first 3). Instances whose benign render the sweep skipped, or with unfinished jobs, are
+    left out. Returns the number of rows written.
+    """
+    from meshadv.experiments.config import load_config
+
+    settings = _small_settings()
+    con = sqlite3.connect(str(sweep_db), timeout=60.0)
+    jobs = [(json.loads(spec), json.loads(rec)) for spec, rec in
+            con.execute("SELECT spec, record FROM jobs WHERE state = 'done' AND record IS NOT NULL")]
+    con.close()
+    sweep_steps = {p: int(load_config(ROOT / "configs" / "paper_small.toml").attack[p]["steps"]) for p in STEP_TARGETS}
+    groups: Dict[Tuple[str, str, int], Dict[str, Any]] = {}
+    for spec, rec in jobs:
+        if spec.get("kind") != "single":
+            continue
+        key = (spec["perturbation"], spec["source_class"], int(spec["config_index"]))
+        groups.setdefault(key, {"spec": spec, "targets": {}})["targets"][spec["target"]] = rec
+    out = _connect(db)
+    written = 0
+    for (ptype, cls, index), group in sorted(groups.items()):
+        targets = [c for c in CLASSES if c != cls]
+        recs = group["targets"]
+        if set(recs) != set(targets) or any(r.get("skipped") for r in recs.values()):
+            continue
+        curves, final, dists = [], [], []
+        for t in targets:
+            r = recs[t]
+            d = dict(r.get("distances") or {})
+            first = r.get("steps_to_success")
+            dist = d.get("laplacian_sum" if ptype == "shape" else "color_rmse")
+            curves.append({"first": first, "improvements": [[first, dist]] if first is not None and r["success"]
+                           else []})
+            final.append(bool(r["success"]))
+            dists.append(d)
+        first_rec = recs[targets[0]]
+        row = {
+            "method": "small", "perturbation": ptype, "class": cls, "index": index,
+            "mesh": group["spec"]["mesh"]["path"], "candidate": None, "targets": targets,
+            "num_vertices": first_rec["num_vertices"], "num_faces": first_rec["num_faces"],
+            "num_edges": int(dists[0]["num_edges"]), "steps": sum(int(recs[t]["steps"]) for t in targets),
+            "history_len": sweep_steps[ptype], "wall_time": sum(float(recs[t]["time"]) for t in targets),
+            "config": settings[ptype], "curves": curves, "final_success": final, "final_distances": dists,
+            "threads": None, "source": f"imported from the sweep {sweep_db.name} (one job per target)",
+        }
+        with out:
+            out.execute("INSERT OR REPLACE INTO runs VALUES (?, ?, ?)",
+                        (_key("small", ptype, cls, index), json.dumps(row),
+                         time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())))
+        written += 1
+    out.close()
+    return written
+
+
+# ---------------------------------------------------------------------------------------------------- report
+def _distance_key(perturbation: str) -> str:
+    return "laplacian_pair_mean" if perturbation == "shape" else "color_rmse"
+
+
+def target_curves(row: Dict[str, Any], max_steps: int) -> Tuple[List[List[bool]], List[List[float]]]:
+    """Per target, success (held at some step <= k) and least distance at success for k = 1..max_steps.
+
+    Shape distances are converted to the per-pair mean (sum / 2E); ``nan`` before the first success.
+    """
+    scale = 1.0 / (2.0 * row["num_edges"]) if row["perturbation"] == "shape" else 1.0
+    succ, dist = [], []
+    for c in row["curves"]:
+        s, d = [False] * max_steps, [math.nan] * max_steps
+        imps = c["improvements"]
+        j, cur = 0, math.nan
+        for k in range(1, max_steps + 1):
+            while j < len(imps) and imps[j][0] <= k:
+                cur = imps[j][1] * scale
+                j += 1
+            s[k - 1] = c["first"] is not None and c["first"] <= k
+            d[k - 1] = cur
+        succ.append(s)
+        dist.append(d)
+    return succ, dist
+
+
+def summarize(rows: Sequence[Dict[str, Any]], method: str, perturbation: str,
+              budget: Optional[int] = None) -> Optional[Dict[str, Any]]:
+    """The issue's measures for one method and perturbation within ``budget`` steps per target.
+
+    Returns:
+        ``None`` without rows, else a dict with ``instances``, ``targets``, ``success`` (mean over targets),
+        ``worst`` (fraction of instances whose every target held), ``median_distance`` (over targets that held, at
+        their least distance), ``sum_median`` (the Eq. 4 sum, shape only), ``final_success`` and ``steps``.
+    """
+    sel = [r for r in rows if r["method"] == method and r["perturbation"] == perturbation]
+    if not sel:
+        return None
+    budget = budget or max(r["history_len"] for r in sel)
+    held, worst, dists, sums, final = [], [], [], [], []
+    for r in sel:
+        succ, dist = target_curves(r, budget)
+        row_held = [s[-1] for s in succ]
+        held.extend(row_held)
+        worst.append(all(row_held))
+        for ok, d in zip(row_held, dist):
+            if ok:
+                dists.append(d[-1])
+                if r["perturbation"] == "shape":
+                    sums.append(d[-1] * 2.0 * r["num_edges"])
+        final.extend(r["final_success"])
+    return {
+        "instances": len(sel), "targets": len(held), "success": sum(held) / len(held),
+        "worst": sum(worst) / len(worst), "median_distance": statistics.median(dists) if dists else math.nan,
+        "sum_median": statistics.median(sums) if sums else math.nan, "final_success": sum(final) / len(final),
+        "steps": budget, "wall_time": sum(r["wall_time"] for r in sel),
+    }
+
+
+def report(rows: Sequence[Dict[str, Any]], plots: Optional[Path]) -> str:
+    """The Markdown summary table (and one PNG per method into ``plots``)."""
+    lines = ["| method | perturbation | instances | targets | steps per target | success | worst case (all 6 held) "
+             "| median distance at success | median Eq. 4 sum | final re-render success | CPU wall time |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for method in METHODS:
+        for ptype in ("shape", "texture"):
+            horizons = [r["history_len"] for r in rows if r["method"] == method and r["perturbation"] == ptype]
+            budgets = sorted({b for b in (50, 100, 300) if horizons and b < max(horizons)} | set(horizons[:1])
+                             | ({max(horizons)} if horizons else set()))
+            for budget in budgets:
+                s = summarize(rows, method, ptype, budget)
+                if s is None:
+                    continue
+                name = "Laplacian pair mean" if ptype == "shape" else "colour RMSE"
+                sums = f"{s['sum_median']:.3g}" if ptype == "shape" else "-"
+                lines.append(f"| {method} | {ptype} | {s['instances']} | {s['targets']} | {budget} | "
+                             f"{100 * s['success']:.1f}% | {100 * s['worst']:.0f}% | {name} {s['median_distance']:.3g}"
+                             f" | {sums} | {100 * s['final_success']:.1f}% | {s['wall_time']:.0f} s |")
+    if plots is not None:
+        for method in METHODS:
+            if any(r["method"] == method for r in rows):
+                plot_method(rows, method, plots / f"convergence_{method}.png")
+    return "\n".join(lines)
+
+
+def plot_method(rows: Sequence[Dict[str, Any]], method: str, path: Path) -> None:
+    """Success rate and median distance at success against steps, shape and texture, one PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7), constrained_layout=True)
+    for col, ptype in enumerate(("shape", "texture")):
+        sel = [r for r in rows if r["method"] == method and r["perturbation"] == ptype]
+        ax_s, ax_d = axes[0, col], axes[1, col]
+        ax_s.set_title(f"{method}, {ptype} ({len(sel)} instances)")
+        if not sel:
+            continue
+        horizon = max(r["history_len"] for r in sel)
+        succ_all: List[List[bool]] = []
+        dist_all: List[List[float]] = []
+        for r in sel:
+            s, d = target_curves(r, horizon)
+            succ_all.extend(s)
+            dist_all.extend(d)
+        steps = list(range(1, horizon + 1))
+        rate = [100.0 * sum(s[k] for s in succ_all) / len(succ_all) for k in range(horizon)]
+        med = []
+        for k in range(horizon):
+            vals = [d[k] for d in dist_all if not math.isnan(d[k])]
+            med.append(statistics.median(vals) if vals else math.nan)
+        ax_s.plot(steps, rate)
+        ax_s.set_ylabel("targets reached (%)")
+        ax_s.set_ylim(0, 101)
+        ax_d.plot(steps, med)
+        ax_d.set_yscale("log")
+        ax_d.set_ylabel("median least distance at success\n" + (
+            "(Laplacian per-pair mean)" if ptype == "shape" else "(colour RMSE)"))
+        paper = 1.8e-4 if ptype == "shape" else 1.1e-2
+        ax_d.axhline(paper, color="grey", linestyle="--", linewidth=1, label="paper average")
+        ax_d.legend()
+        for ax in (ax_s, ax_d):
+            ax.set_xlabel("optimiser steps per target")
+            ax.set_xscale("log")
+            ax.axvline(STEP_TARGETS[ptype], color="red", linestyle=":", linewidth=1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _shard(text: str) -> Tuple[int, int]:
+    i, n = (int(x) for x in text.split("/"))
+    if not 0 <= i < n:
+        raise argparse.ArgumentTypeError(f"--shard must be i/n with 0 <= i < n, got {text}")
+    return i, n
+
+
+def main(argv: Optional[Sequence[str]] = None) -> None:
+    """Command line (see the module docstring)."""
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=["ddn", "small"])
+    parser.add_argument("--perturbations", nargs="+", choices=("shape", "texture"), default=["texture", "shape"])
+    parser.add_argument("--classes", nargs="+", choices=CLASSES, default=list(CLASSES))
+    parser.add_argument("--instances", type=int, default=2, help="rendering-set configurations per class")
+    parser.add_argument("--target-faces", type=int, default=4000)
+    parser.add_argument("--db", type=Path, default=DEFAULT_DB)
+    parser.add_argument("--shard", type=_shard, default=(0, 1))
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--report", action="store_true", help="print the summary and write the plots; run nothing")
+    parser.add_argument("--plots", type=Path, default=None)
+    parser.add_argument("--import-sweep", type=Path, default=None, metavar="RESULTS_DB",
+                        help="store a paper_small sweep's finished jobs as 'small' rows; run nothing")
+    args = parser.parse_args(argv)
+    if args.import_sweep is not None:
+        print(f"{import_sweep(args.import_sweep, args.db)} rows imported")
+        return
+    if args.report:
+        print(report(load_rows(args.db), args.plots))
+        return
+    torch.set_num_threads(args.threads)
+    os.environ.setdefault("RAYON_NUM_THREADS", str(args.threads))
+    run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
