@@ -192,11 +192,12 @@ def blackbox() -> Dict[str, Any]:
     mesh = builtin_mesh("chair")
     hidden = outdoor_classifier_setup(mesh, camera={"distance": 3.2, "azimuth": 50.0, "elevation": 20.0},
                                       image_size=64, spp=8)
-    row = blackbox_classifier(mesh, hidden, victim=_lite0(), true_class="chair", attack_type="texture",
+    row = blackbox_classifier(mesh, hidden, victim=_lite0(), true_class="chair", perturbation="texture",
                               attack_kwargs={"steps": 6, "antialias": 2}, robustness=Robustness(eot=2),
                               camera_steps=20, light_steps=20)
-    return {"success": [bool(row["success_meshadv"])], "margin_meshadv": row["margin_meshadv"],
-            "color_rmse": [row["color_rmse"]], "steps": row["steps_run"]}
+    record = row.to_record()
+    return {"success": [bool(record["success_meshadv"])], "margin_meshadv": record["margin_meshadv"],
+            "color_rmse": [record["color_rmse"]], "steps": record["steps_run"]}
 
 
 def sweep() -> Dict[str, Any]:

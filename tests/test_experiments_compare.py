@@ -62,11 +62,11 @@ def test_table2_cells_show_ours_and_the_paper() -> None:
 
 def test_table3_untargeted_per_target() -> None:
     def row(target: str, ok: bool, **kw: object) -> dict:
-        return {"kind": "controlled", "attack_type": "shape", "victim": "v", "target": target,
+        return {"kind": "controlled", "perturbation": "shape", "victim": "v", "target": target,
                 "untargeted_mitsuba": ok, **kw}
 
     rows = [row("boat", True), row("boat", False), row("chair", True), row("chair", True, error="crash"),
-            row("sofa", None), {**row("sofa", True), "attack_type": "texture"}]
+            row("sofa", None), {**row("sofa", True), "perturbation": "texture"}]
     rates = untargeted_by_target(rows)["v"]
     assert rates["boat"] == (0.5, 2) and rates["chair"] == (1.0, 1) and "sofa" not in rates
     assert rates["average"] == (0.75, 3)

@@ -180,7 +180,7 @@ def test_report_counts_failed_and_unsuccessful_jobs(tmp_path: Path) -> None:
     # Mitsuba transfer rows in the same database join the report.
     from meshadv.transfer.results import save_transfer_rows
 
-    row = {"case_id": "c", "victim": "v", "true_class": "boat", "target": "chair", "attack_type": "shape", "view": 0,
+    row = {"case_id": "c", "victim": "v", "true_class": "boat", "target": "chair", "perturbation": "shape", "view": 0,
            "success_meshadv": True, "success_mitsuba": False, "untargeted_meshadv": True, "untargeted_mitsuba": True}
     save_transfer_rows(tmp_path / "r.db", [row], experiment="controlled")
     from meshadv.commands.report import write_full_report

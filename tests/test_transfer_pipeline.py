@@ -22,7 +22,7 @@ needs_native = pytest.mark.skipif(not native_available(), reason="native module 
 
 
 def _row(case: str, view: int, true: str, target: str, ok_ours: bool, ok_theirs: bool, victim: str = "v1") -> dict:
-    return {"case_id": case, "victim": victim, "true_class": true, "target": target, "attack_type": "shape",
+    return {"case_id": case, "victim": victim, "true_class": true, "target": target, "perturbation": "shape",
             "view": view, "success_meshadv": ok_ours, "success_mitsuba": ok_theirs,
             "untargeted_meshadv": True, "untargeted_mitsuba": ok_theirs or view == 0}
 
@@ -85,7 +85,7 @@ def test_controlled_transfer_tiny_run_produces_its_table(tmp_path, victim) -> No
     from meshadv.victims.labels import PASCAL3D_TO_IMAGENET, imagenet_class_names
 
     case = TransferCase("case0", builtin_mesh("bottle"), tuple(_views(2)), "efficientnet_lite0", "bottle",
-                        target="chair", attack_type="texture", image_size=64)
+                        target="chair", perturbation="texture", image_size=64)
     rows = controlled_transfer([case], spp=8, victim_loader=lambda name: victim, image_dir=tmp_path / "img")
     assert len(rows) == 2 and (tmp_path / "img" / "case0_v1.png").is_file()
     names = imagenet_class_names()
@@ -154,7 +154,7 @@ def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
     cases = cases_from_store(db)
     assert len(cases) == 1
     case = cases[0]
-    assert (case.victim, case.true_class, case.target, case.attack_type) == ("efficientnet_lite0", "bottle",
+    assert (case.victim, case.true_class, case.target, case.perturbation) == ("efficientnet_lite0", "bottle",
                                                                               "chair", "texture")
     assert case.image_size == (64, 64) and case.views[0]["azimuth"] == pytest.approx(views[0]["azimuth"])
     assert case.benign_correct is True
@@ -169,7 +169,7 @@ def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
 def test_blackbox_classifier_tiny_run(victim) -> None:
     pytest.importorskip("mitsuba")
     from meshadv.mesh import builtin_mesh
-    from meshadv.transfer.blackbox import blackbox_classifier, public_row
+    from meshadv.transfer.blackbox import blackbox_classifier
     from meshadv.transfer.robust import Robustness
     from meshadv.transfer.setups import outdoor_classifier_setup
 
@@ -178,10 +178,10 @@ def test_blackbox_classifier_tiny_run(victim) -> None:
                                       image_size=64, spp=8)
     steps = []
     robustness = Robustness(eot=2, margin=1.5, pixel_noise=0.01, verify_samples=3)
-    row = blackbox_classifier(mesh, hidden, victim=victim, true_class="chair", attack_type="texture",
+    row = blackbox_classifier(mesh, hidden, victim=victim, true_class="chair", perturbation="texture",
                               attack_kwargs={"steps": 2, "antialias": 2}, robustness=robustness,
                               camera_steps=20, light_steps=20, callback=lambda info: steps.append(info.step))
-    public = public_row(row)
+    public = row.to_record()
     json.dumps(public)  # JSON-able
     for key in ("azimuth_error", "elevation_error", "distance_error", "light_rmse", "mask_iou", "direction_error",
                 "success_meshadv", "success_mitsuba", "success_mitsuba_estimated", "benign_correct_mitsuba",
@@ -196,12 +196,12 @@ def test_blackbox_classifier_tiny_run(victim) -> None:
         assert public[f"success_{where}"] == (public[f"margin_{where}"] > 0)
     rate = public["robust_rate_meshadv"]
     assert rate is not None and round(rate * 3) == rate * 3 and 0.0 <= rate <= 1.0  # 3 verification views
-    assert set(row["_images"]) == {"benign_mitsuba", "adversarial_mitsuba", "adversarial_mitsuba_estimated",
+    assert set(row.images) == {"benign_mitsuba", "adversarial_mitsuba", "adversarial_mitsuba_estimated",
                                    "adversarial_meshadv"}
-    assert all(im.shape == (64, 64, 3) for im in row["_images"].values())
-    assert torch.as_tensor(row["_adversarial_mesh"].face_colors).shape == mesh.face_colors.shape
+    assert all(im.shape == (64, 64, 3) for im in row.images.values())
+    assert torch.as_tensor(row.adversarial_mesh.face_colors).shape == mesh.face_colors.shape
     # Mitsuba under the estimates differs from meshadv's render (renderer mismatch) but not by much.
-    diff = abs(row["_images"]["adversarial_mitsuba_estimated"] - row["_images"]["adversarial_meshadv"]).mean()
+    diff = abs(row.images["adversarial_mitsuba_estimated"] - row.images["adversarial_meshadv"]).mean()
     assert 0.0 < diff < 0.1
 
 

@@ -292,12 +292,12 @@ def test_scale_on_base_keeps_the_base_centre() -> None:
 
 
 @needs_native
-@pytest.mark.parametrize("context,attack_type", [("photo", "shape"), ("render", "texture")])
-def test_blackbox_detector_tiny_run(context: str, attack_type: str) -> None:
+@pytest.mark.parametrize("context,perturbation", [("photo", "shape"), ("render", "texture")])
+def test_blackbox_detector_tiny_run(context: str, perturbation: str) -> None:
     """Two known objects (a dark cube 'table' and a sphere); the sphere is attacked so that 'blob' disappears."""
     pytest.importorskip("mitsuba")
     from meshadv.mesh import builtin_mesh
-    from meshadv.transfer.blackbox import HiddenScene, blackbox_detector, public_row
+    from meshadv.transfer.blackbox import HiddenScene, blackbox_detector
     from meshadv.transfer.robust import Robustness
     from meshadv.transfer.scene import MeshObject, MitsubaLights
 
@@ -309,12 +309,12 @@ def test_blackbox_detector_tiny_run(context: str, attack_type: str) -> None:
     hidden = HiddenScene(camera={"distance": 3.5, "azimuth": 20.0, "elevation": 15.0}, lights=lights,
                          extra_objects=(MeshObject.from_mesh(cube),), image_size=64, spp=8, max_depth=2)
     row = blackbox_detector([cube, sphere], 1, hidden, victim=DarkBlobDetector(), hide_class="blob",
-                            attack_type=attack_type, context=context, attack_kwargs={"steps": 2},
+                            perturbation=perturbation, context=context, attack_kwargs={"steps": 2},
                             robustness=Robustness(eot=2, margin=0.05, verify_samples=2),
                             camera_steps=20, light_steps=20, score_threshold=0.5)
-    public = public_row(row)
+    public = row.to_record()
     json.dumps(public)  # JSON-able
-    assert public["attack_type"] == attack_type and public["score_threshold"] == 0.5
+    assert public["perturbation"] == perturbation and public["score_threshold"] == 0.5
     assert public["context"] == context
     assert public["occluded_pixels"] == (0 if context == "photo" else None)  # side by side: nothing in front
     for key in ("hide_score_meshadv", "hide_score_mitsuba_estimated", "hide_score_benign_mitsuba",
@@ -322,9 +322,9 @@ def test_blackbox_detector_tiny_run(context: str, attack_type: str) -> None:
         assert 0.0 <= public[key] <= 1.0, key
     assert public["success_mitsuba"] == (public["hide_score_adversarial_mitsuba"] < 0.5)
     assert public["success_meshadv"] == (public["hide_score_meshadv"] < 0.5)
-    adversarial = row["_adversarial_mesh"]
+    adversarial = row.adversarial_mesh
     assert adversarial.vertices.shape == sphere.vertices.shape  # only the attacked object comes back
-    if attack_type == "shape":
+    if perturbation == "shape":
         assert torch.equal(adversarial.face_colors, sphere.face_colors)
     else:
         assert torch.equal(adversarial.vertices, sphere.vertices)
@@ -338,17 +338,17 @@ def test_blackbox_detector_tiny_run(context: str, attack_type: str) -> None:
     sil = torch.maximum(render_silhouette(adversarial.vertices, adversarial.faces, cam, 64),
                         render_silhouette(sphere.vertices, sphere.faces, cam, 64))
     outside = F.max_pool2d(sil, 3, stride=1, padding=1)[0, 0] == 0
-    seen = torch.from_numpy(row["_images"]["adversarial_meshadv"]).permute(2, 0, 1)
-    photo = torch.from_numpy(row["_images"]["benign_mitsuba"]).permute(2, 0, 1)
+    seen = torch.from_numpy(row.images["adversarial_meshadv"]).permute(2, 0, 1)
+    photo = torch.from_numpy(row.images["benign_mitsuba"]).permute(2, 0, 1)
     diff = (seen - photo).abs().amax(dim=0)[outside]
     assert int(outside.sum()) > 2000
     if context == "photo":
         assert float(diff.max()) < 1e-6
     else:
         assert float(diff.max()) > 0.05
-    with pytest.raises(ValueError, match="attack_type"):
+    with pytest.raises(ValueError, match="perturbation"):
         blackbox_detector([cube, sphere], 1, hidden, victim=DarkBlobDetector(), hide_class="blob",
-                          attack_type="paint")
+                          perturbation="paint")
     with pytest.raises(ValueError, match="context"):
         blackbox_detector([cube, sphere], 1, hidden, victim=DarkBlobDetector(), hide_class="blob",
                           context="room")
@@ -365,7 +365,7 @@ def test_blackbox_detector_tiny_run(context: str, attack_type: str) -> None:
 def test_blackbox_report_shows_each_section_with_the_columns_some_row_has() -> None:
     from meshadv.transfer.results import blackbox_report, transfer_report
 
-    old = {"case_id": "old", "victim": "v", "true_class": "aeroplane", "target": "", "attack_type": "texture",
+    old = {"case_id": "old", "victim": "v", "true_class": "aeroplane", "target": "", "perturbation": "texture",
            "view": 0, "success_meshadv": True, "success_mitsuba": False, "azimuth_error": 0.2, "kind": "blackbox"}
     new = dict(old, case_id="new", success_mitsuba=True, success_mitsuba_estimated=True, margin_meshadv=7.5,
                margin_mitsuba=1.25, eot=8, required_margin=10.0)

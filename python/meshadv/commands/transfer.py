@@ -209,13 +209,13 @@ def _robustness(eot: int, margin: float, pixel_noise: float, verify: int, seed: 
     return Robustness(eot=eot, margin=margin, pixel_noise=pixel_noise, verify_samples=verify, seed=seed)
 
 
-def _check_smoothing(texture_smoothing: Optional[int], perturb: str) -> None:
+def _check_smoothing(texture_smoothing: Optional[int], perturbation: str) -> None:
     if texture_smoothing is None:
         return
     if texture_smoothing < 0:
         raise typer.BadParameter("texture-smoothing must be >= 0", param_hint="--texture-smoothing")
-    if perturb != "texture":
-        raise typer.BadParameter("texture-smoothing needs --perturb texture", param_hint="--texture-smoothing")
+    if perturbation != "texture":
+        raise typer.BadParameter("texture-smoothing needs --perturbation texture", param_hint="--texture-smoothing")
 
 
 def _settings_suffix(jitter: float, eot: int, margin: float, pixel_noise: float, antialias: int, steps: int,
@@ -229,23 +229,21 @@ def _settings_suffix(jitter: float, eot: int, margin: float, pixel_noise: float,
     return "".join(parts)
 
 
-def _save_blackbox(row: dict, db: Optional[Path], out: Optional[Path], experiment: str) -> None:
-    from meshadv.transfer.blackbox import public_row
+def _save_blackbox(result: Any, db: Optional[Path], out: Optional[Path], experiment: str) -> None:
     from meshadv.transfer.results import save_transfer_rows
     from meshadv.util.png import save_png
 
-    public = public_row(row)
+    public = result.to_record()
     _echo_json(public)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-        for name, im in row["_images"].items():
+        for name, im in result.images.items():
             save_png(im, out / f"{name}.png")
         (out / "blackbox.json").write_text(json.dumps(public, indent=2, default=str))
         from meshadv.mesh import save_mesh
 
-        save_mesh(row["_adversarial_mesh"].detach(), out / "adversarial.ply")
-        if row.get("_result") is not None:
-            (out / "loss_history.json").write_text(json.dumps(list(row["_result"].loss_history), default=str))
+        save_mesh(result.adversarial_mesh.detach(), out / "adversarial.ply")
+        (out / "loss_history.json").write_text(json.dumps(list(result.attack_result.loss_history), default=str))
     if db is not None:
         save_transfer_rows(db, [public], experiment=experiment, kind="blackbox")
 
@@ -285,7 +283,8 @@ def blackbox_classifier_cmd(
     true_class: str = typer.Option("aeroplane", help="The object's class."),
     target: Optional[str] = typer.Option(None, help="Target class (default: untargeted)."),
     victim: str = typer.Option("efficientnet_lite0", help="Classifier victim."),
-    perturb: str = typer.Option("texture", help="shape or texture."),
+    perturbation: str = typer.Option("texture", "--perturbation", "--perturb",
+                                     help="shape or texture (--perturb is the old name)."),
     steps: int = typer.Option(100, help="Attack steps."),
     lr: Optional[float] = typer.Option(None, help="Attack learning rate (default: the attack's)."),
     lambda_perceptual: Optional[float] = typer.Option(None, help="Perceptual loss weight (default: the attack's)."),
@@ -315,13 +314,17 @@ def blackbox_classifier_cmd(
     from meshadv.transfer.setups import default_aeroplane, outdoor_classifier_setup
     from meshadv.victims import load_victim
 
-    if perturb not in ("shape", "texture"):
-        raise typer.BadParameter("perturb must be shape or texture", param_hint="--perturb")
+    from meshadv.attacks.families import check_perturbation
+
+    try:
+        check_perturbation(perturbation, "--perturbation")
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--perturbation") from exc
     if size < 8:
         raise typer.BadParameter("size must be >= 8", param_hint="--size")
     if spp < 1:
         raise typer.BadParameter("spp must be >= 1", param_hint="--spp")
-    _check_smoothing(texture_smoothing, perturb)
+    _check_smoothing(texture_smoothing, perturbation)
     kwargs = _attack_kwargs(steps, lr, lambda_perceptual, antialias, loss, kappa, early_stop, seed)
     robustness = _robustness(eot, margin, pixel_noise, verify, seed)
     callback = _progress(progress)
@@ -329,12 +332,12 @@ def blackbox_classifier_cmd(
     mesh_obj = default_aeroplane() if mesh == "aeroplane" else load_mesh_arg(mesh)[0]
     hidden = outdoor_classifier_setup(mesh_obj, image_size=size, spp=spp)
     if case_id is None:
-        case_id = (f"outdoor_{Path(mesh).stem}_{perturb}_{target or 'untargeted'}"
+        case_id = (f"outdoor_{Path(mesh).stem}_{perturbation}_{target or 'untargeted'}"
                    + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed)
                    + (f"_smooth{texture_smoothing}" if texture_smoothing is not None else "")
                    + (f"_spp{spp}" if spp != 64 else ""))
     row = blackbox_classifier(mesh_obj, hidden, victim=load_victim(victim), true_class=true_class, target=target,
-                              attack_type=perturb, attack_kwargs=kwargs, jitter=jitter_dict,
+                              perturbation=perturbation, attack_kwargs=kwargs, jitter=jitter_dict,
                               robustness=robustness, texture_smoothing=texture_smoothing, case_id=case_id,
                               callback=callback)
     _save_blackbox(row, db, out, experiment)
@@ -344,7 +347,8 @@ def blackbox_classifier_cmd(
 def blackbox_detector_cmd(
     hide: str = typer.Option("dining table", help="Class to hide (detector class name), e.g. 'chair'."),
     victim: str = typer.Option("ssd_mobilenet_v2_coco", help="Detector victim."),
-    perturb: str = typer.Option("texture", help="texture or shape (of the bunny)."),
+    perturbation: str = typer.Option("texture", "--perturbation", "--perturb",
+                                     help="texture or shape (of the bunny; --perturb is the old name)."),
     context: str = typer.Option("photo", help="photo: only the bunny is rendered by meshadv, over the Mitsuba photo; "
                                 "render: desk, chair and bunny are rendered by meshadv over the empty room."),
     light_fit: str = typer.Option("object", help="object: fit the lights on the bunny's pixels (the light where it "
@@ -377,8 +381,12 @@ def blackbox_detector_cmd(
     from meshadv.transfer.setups import indoor_detector_setup
     from meshadv.victims import load_victim
 
-    if perturb not in ("shape", "texture"):
-        raise typer.BadParameter("perturb must be shape or texture", param_hint="--perturb")
+    from meshadv.attacks.families import check_perturbation
+
+    try:
+        check_perturbation(perturbation, "--perturbation")
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--perturbation") from exc
     if size < 8:
         raise typer.BadParameter("size must be >= 8", param_hint="--size")
     if spp < 1:
@@ -391,14 +399,15 @@ def blackbox_detector_cmd(
         raise typer.BadParameter("score-threshold must be in (0, 1]", param_hint="--score-threshold")
     if not object_scale > 0:
         raise typer.BadParameter("object-scale must be > 0", param_hint="--object-scale")
-    _check_smoothing(texture_smoothing, perturb)
+    _check_smoothing(texture_smoothing, perturbation)
     kwargs = _attack_kwargs(steps, lr, lambda_perceptual, antialias, early_stop=early_stop, seed=seed)
     robustness = _robustness(eot, margin, pixel_noise, verify, seed)
     callback = _progress(progress)
     jitter_dict = _jitter(jitter, light_jitter)
     setup = indoor_detector_setup(image_size=size, spp=spp, object_scale=object_scale)
     if case_id is None:
-        case_id = (f"indoor_bunny_hide_{hide.replace(' ', '_')}" + (f"_{perturb}" if perturb != "texture" else "")
+        case_id = (f"indoor_bunny_hide_{hide.replace(' ', '_')}"
+                   + (f"_{perturbation}" if perturbation != "texture" else "")
                    + (f"_{context}" if context != "photo" else "")
                    + ("_lightsknown" if light_fit != "object" else "")
                    + (f"_scale{object_scale:g}" if object_scale != 1.0 else "")
@@ -406,7 +415,7 @@ def blackbox_detector_cmd(
                    + (f"_smooth{texture_smoothing}" if texture_smoothing is not None else "")
                    + (f"_spp{spp}" if spp != 64 else ""))
     row = blackbox_detector(setup.objects, setup.object_index, setup.hidden, victim=load_victim(victim),
-                            hide_class=hide, attack_type=perturb, context=context, light_fit=light_fit,
+                            hide_class=hide, perturbation=perturbation, context=context, light_fit=light_fit,
                             background_exclude=setup.background_exclude,
                             attack_kwargs=kwargs, jitter=jitter_dict, robustness=robustness,
                             texture_smoothing=texture_smoothing,

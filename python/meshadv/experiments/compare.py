@@ -135,7 +135,7 @@ def untargeted_by_target(transfer_rows: Sequence[Dict[str, Any]]) -> Dict[str, D
     """
     groups: Dict[str, Dict[str, List[bool]]] = defaultdict(lambda: defaultdict(list))
     for row in transfer_rows:
-        if row.get("kind", "controlled") != "controlled" or row.get("attack_type") != "shape":
+        if row.get("kind", "controlled") != "controlled" or row.get("perturbation") != "shape":
             continue
         if not row.get("target") or row.get("untargeted_mitsuba") is None or row.get("error"):
             continue

@@ -9,7 +9,6 @@ tested. Every Mitsuba render runs in a child process (:mod:`meshadv.transfer.ren
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Optional, Sequence
 
@@ -17,9 +16,11 @@ import numpy as np
 import torch
 
 from meshadv.transfer.controlled import _images_tensor, _top1_names
+from meshadv.attacks.families import check_perturbation
 from meshadv.render.setup import RenderSetup, split_setup_options
 from meshadv.transfer.object_attacks import _check_smoothing, _texture_attack
 from meshadv.transfer.render import MitsubaImage, render_mask, render_scenes
+from meshadv.transfer.results import BlackBoxResult
 from meshadv.transfer.robust import (
     DEFAULT_JITTER,
     Occluded,
@@ -41,7 +42,6 @@ __all__ = [
     "estimate_parameters",
     "estimated_view_spec",
     "occlusion_mask",
-    "public_row",
 ]
 
 #: A one-triangle stand-in used where a scene spec needs a mesh that is then dropped.
@@ -292,20 +292,17 @@ def _hwc(image: torch.Tensor) -> np.ndarray:
 def _finish_row(row: dict[str, Any], attack: Any, setup: RenderSetup, result: Any, robustness: Robustness,
                 est: Estimation,
                 adversarial_render: MitsubaImage, estimated_image: torch.Tensor, ours_image: torch.Tensor,
-                adversarial: Any) -> dict[str, Any]:
-    """Add what every black-box row shares to ``row``: robustness and attack settings, estimation errors, and the
-    private ``_images`` (Mitsuba benign = the estimation's photo / adversarial under the hidden parameters /
-    adversarial under the estimates, meshadv's render), ``_adversarial_mesh`` and ``_result`` entries; returns
-    ``row``."""
+                adversarial: Any) -> BlackBoxResult:
+    """Add what every black-box row shares to ``row`` (robustness and attack settings, estimation errors) and wrap
+    it with the images (Mitsuba benign = the estimation's photo / adversarial under the hidden parameters /
+    adversarial under the estimates, meshadv's render), the adversarial mesh and the attack's result."""
     row.update(robustness.to_record())
     row["pixel_noise_on"] = _noise_where(setup, robustness)
     row.update(_attack_record(attack, setup, result))
     row.update({k: float(v) for k, v in est.errors.items()})
-    row["_images"] = {"benign_mitsuba": _hwc(est.photo), "adversarial_mitsuba": adversarial_render.image,
-                      "adversarial_mitsuba_estimated": _hwc(estimated_image), "adversarial_meshadv": _hwc(ours_image)}
-    row["_adversarial_mesh"] = adversarial
-    row["_result"] = result
-    return row
+    images = {"benign_mitsuba": _hwc(est.photo), "adversarial_mitsuba": adversarial_render.image,
+              "adversarial_mitsuba_estimated": _hwc(estimated_image), "adversarial_meshadv": _hwc(ours_image)}
+    return BlackBoxResult(row=dict(row), images=images, adversarial_mesh=adversarial, attack_result=result)
 
 
 def blackbox_classifier(
@@ -315,7 +312,7 @@ def blackbox_classifier(
     victim: Any,
     true_class: str,
     target: Optional[str] = None,
-    attack_type: str = "texture",
+    perturbation: str = "texture",
     attack_kwargs: Optional[dict[str, Any]] = None,
     jitter: Optional[dict[str, float]] = None,
     robustness: Optional[Robustness] = None,
@@ -327,7 +324,7 @@ def blackbox_classifier(
     timeout: float = 1800.0,
     case_id: str = "blackbox_classifier",
     callback: Optional[Callable[[Any], None]] = None,
-) -> dict[str, Any]:
+) -> BlackBoxResult:
     """The paper's black-box pipeline against a classifier (e.g. an aeroplane in an outdoor scene).
 
     1-2. :func:`estimate_parameters`; 3. attack in meshadv on the estimated view with jitter (``robustness.eot``
@@ -341,7 +338,7 @@ def blackbox_classifier(
         victim: a classifier victim.
         true_class: the object's class.
         target: target class (None = untargeted).
-        attack_type: ``"shape"`` or ``"texture"``.
+        perturbation: ``"shape"`` or ``"texture"``.
         attack_kwargs: keyword arguments of the attack (steps, lr, antialias, ...).
         jitter: per-step jitter of the estimates (default :data:`~meshadv.transfer.robust.DEFAULT_JITTER`; ``{}`` =
             none).
@@ -364,17 +361,17 @@ def blackbox_classifier(
         ``success_mitsuba_estimated`` (Mitsuba, estimated camera and lights), ``success_mitsuba`` (Mitsuba, hidden
         parameters), the matching ``margin_*`` (logits, > 0 = adversarial) and ``top1_*``, ``robust_rate_meshadv``
         (fresh views around the estimate, :data:`~meshadv.transfer.robust.DEFAULT_JITTER`),
-        ``benign_correct_mitsuba``, the attack's settings and distortion. Private entries: ``_images`` (name ->
-        (H, W, 3) image), ``_adversarial_mesh``, ``_result`` (the AttackResult).
+        ``benign_correct_mitsuba``, the attack's settings and distortion. Wrapped in a
+        :class:`~meshadv.transfer.results.BlackBoxResult` with the images, the adversarial mesh and the
+        AttackResult.
 
     Raises:
-        ValueError: unknown ``attack_type``, or ``texture_smoothing`` given for a shape attack or negative.
+        ValueError: unknown ``perturbation``, or ``texture_smoothing`` given for a shape attack or negative.
     """
     from meshadv.attacks import Misclassification, ShapeAttack, TargetedMisclassification
 
-    if attack_type not in ("shape", "texture"):
-        raise ValueError(f"attack_type must be 'shape' or 'texture', got {attack_type!r}")
-    _check_smoothing(texture_smoothing, attack_type)
+    check_perturbation(perturbation)
+    _check_smoothing(texture_smoothing, perturbation)
     robustness = Robustness() if robustness is None else robustness
     jitter = dict(DEFAULT_JITTER if jitter is None else jitter)
     est = estimate_parameters(mesh, hidden, num_lights=num_lights, camera_steps=camera_steps,
@@ -383,7 +380,7 @@ def blackbox_classifier(
     setup_options, kwargs = split_setup_options(dict(attack_kwargs or {}))
     setup = RenderSetup(**{"image_size": hidden.image_size, "background": background, **setup_options})
     kwargs.setdefault("jitter", jitter or None)
-    attack = _texture_attack(texture_smoothing, None, kwargs) if attack_type == "texture" else ShapeAttack(**kwargs)
+    attack = _texture_attack(texture_smoothing, None, kwargs) if perturbation == "texture" else ShapeAttack(**kwargs)
     criterion = TargetedMisclassification(target) if target else Misclassification(true_class)
     result = _attack_estimated(attack, mesh, est.views, victim, criterion, robustness, setup, callback)
     adversarial = result.mesh
@@ -407,7 +404,7 @@ def blackbox_classifier(
         "victim": getattr(victim, "name", type(victim).__name__),
         "true_class": true_class,
         "target": target or "",
-        "attack_type": attack_type,
+        "perturbation": perturbation,
         "view": 0,
         "success_meshadv": bool(ours_margin[0] > 0),
         "success_mitsuba_estimated": margins[2] > 0,
@@ -469,7 +466,7 @@ def blackbox_detector(
     *,
     victim: Any,
     hide_class: str,
-    attack_type: str = "texture",
+    perturbation: str = "texture",
     context: str = "photo",
     light_fit: str = "object",
     background_exclude: Sequence[str] = (),
@@ -485,7 +482,7 @@ def blackbox_detector(
     score_threshold: float = 0.3,
     case_id: str = "blackbox_detector",
     callback: Optional[Callable[[Any], None]] = None,
-) -> dict[str, Any]:
+) -> BlackBoxResult:
     """The black-box pipeline against a detector: change one object so that ``hide_class`` disappears.
 
     The attacker knows the geometry of ``scene_objects`` (world space; e.g. the indoor scene's desk, chair and bunny)
@@ -512,7 +509,7 @@ def blackbox_detector(
         hidden: the hidden world.
         victim: a detector victim.
         hide_class: the class to hide (a name of ``victim.class_names``, e.g. ``"chair"``).
-        attack_type: ``"texture"`` (the object's face colours) or ``"shape"`` (its vertices).
+        perturbation: ``"texture"`` (the object's face colours) or ``"shape"`` (its vertices).
         context: ``"photo"`` or ``"render"`` (see above).
         light_fit: ``"object"``: fit the lights on the attacked object's visible pixels only (the light where it
             stands); ``"known"``: on every known object (one lighting for the whole scene).
@@ -538,10 +535,10 @@ def blackbox_detector(
         view (``hide_score_meshadv``), of Mitsuba's under the estimates (``hide_score_mitsuba_estimated``, in the
         same context) and under the hidden parameters (benign and adversarial), the matching ``success_*`` (score
         below the threshold), ``robust_rate_meshadv``, ``occluded_pixels`` (``"photo"``) and the attack's settings.
-        Private entries as :func:`blackbox_classifier`.
+        Wrapped in a :class:`~meshadv.transfer.results.BlackBoxResult` as by :func:`blackbox_classifier`.
 
     Raises:
-        ValueError: ``object_index`` out of range, unknown ``attack_type``, ``context`` or ``light_fit``, a bad
+        ValueError: ``object_index`` out of range, unknown ``perturbation``, ``context`` or ``light_fit``, a bad
             ``score_threshold``, or ``texture_smoothing`` given for a shape attack or negative.
     """
     from meshadv.attacks import Disappearance, ShapeAttack
@@ -549,13 +546,12 @@ def blackbox_detector(
     objects = list(scene_objects)
     if not 0 <= object_index < len(objects):
         raise ValueError(f"object_index {object_index} out of range for {len(objects)} objects")
-    if attack_type not in ("shape", "texture"):
-        raise ValueError(f"attack_type must be 'shape' or 'texture', got {attack_type!r}")
+    check_perturbation(perturbation)
     if context not in ("photo", "render"):
         raise ValueError(f"context must be 'photo' or 'render', got {context!r}")
     if light_fit not in ("object", "known"):
         raise ValueError(f"light_fit must be 'object' or 'known', got {light_fit!r}")
-    _check_smoothing(texture_smoothing, attack_type)
+    _check_smoothing(texture_smoothing, perturbation)
     if not 0.0 < score_threshold <= 1.0:
         raise ValueError(f"score_threshold must be in (0, 1], got {score_threshold}")
     robustness = Robustness() if robustness is None else robustness
@@ -578,13 +574,14 @@ def blackbox_detector(
         if bool(occluded.any()):
             seen_victim = Occluded(victim, est.photo, occluded)
         attacked = target_obj
-        attack = _texture_attack(texture_smoothing, None, kwargs) if attack_type == "texture" else ShapeAttack(**kwargs)
+        attack = (_texture_attack(texture_smoothing, None, kwargs) if perturbation == "texture"
+                  else ShapeAttack(**kwargs))
         start, stop = 0, None
     else:
         background = _background_image(hidden, background_exclude, variant, timeout)
         setup_options.setdefault("background", background)
         attacked = merged
-        if attack_type == "texture":
+        if perturbation == "texture":
             start = sum(int(o.faces.shape[0]) for o in objects[:object_index])
             stop = start + int(target_obj.faces.shape[0])
             face_mask = torch.zeros(int(merged.faces.shape[0]), dtype=torch.bool)
@@ -599,7 +596,7 @@ def blackbox_detector(
     setup = RenderSetup(**setup_options)
     criterion = Disappearance(hide_class, threshold=score_threshold)
     result = _attack_estimated(attack, attacked, est.views, seen_victim, criterion, robustness, setup, callback)
-    if attack_type == "texture":
+    if perturbation == "texture":
         adversarial = target_obj.with_face_colors(result.mesh.face_colors.detach()[start:stop].clone())
     else:
         adversarial = target_obj.with_vertices(result.mesh.vertices.detach()[start:stop].clone())
@@ -625,7 +622,7 @@ def blackbox_detector(
         "victim": getattr(victim, "name", type(victim).__name__),
         "true_class": hide_class,
         "target": "",
-        "attack_type": attack_type,
+        "perturbation": perturbation,
         "view": 0,
         "context": context,
         "light_fit": light_fit,
@@ -661,11 +658,3 @@ def detection_scores(victim: Any, images: torch.Tensor, class_name: str) -> list
     return [float(v) for v in scores[..., k].amax(dim=-1).tolist()]
 
 
-def public_row(row: dict[str, Any]) -> dict[str, Any]:
-    """``row`` without the private (non-JSON) entries whose keys start with ``_``; NaN floats become None."""
-    out = {}
-    for k, v in row.items():
-        if k.startswith("_"):
-            continue
-        out[k] = None if isinstance(v, float) and math.isnan(v) else v
-    return out

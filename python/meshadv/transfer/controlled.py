@@ -39,7 +39,7 @@ class TransferCase:
         victim: victim name (``meshadv.victims.load_victim``).
         true_class: the class of the benign object (PASCAL3D+ name or ImageNet spec).
         target: the target class of a targeted attack, or None for an untargeted one.
-        attack_type: ``"shape"`` or ``"texture"``.
+        perturbation: ``"shape"`` or ``"texture"``.
         image_size: (H, W) of the renders.
         background: RGB background of the renders.
         benign_correct: whether the victim classified the benign render correctly (from the sweep), if known.
@@ -53,7 +53,7 @@ class TransferCase:
     victim: str
     true_class: str
     target: Optional[str] = None
-    attack_type: str = ""
+    perturbation: str = ""
     image_size: tuple[int, int] = (224, 224)
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
     benign_correct: Optional[bool] = None
@@ -133,7 +133,7 @@ def cases_from_store(
                 victim=str(spec.get("victim", result.get("victim"))),
                 true_class=str(spec.get("source_class", spec.get("mesh", {}).get("class", ""))),
                 target=None if target is None else str(target),
-                attack_type=str(spec.get("perturbation", result.get("perturbation", ""))),
+                perturbation=str(spec.get("perturbation", result.get("perturbation", ""))),
                 image_size=tuple(size) if isinstance(size, (list, tuple)) else (int(size), int(size)),
                 benign_correct=None if record.get("benign_correct") is None else bool(record["benign_correct"]),
                 antialias=int(result.get("config", {}).get("antialias") or 1),
@@ -218,7 +218,7 @@ def evaluate_case(
                 "victim": case.victim,
                 "true_class": case.true_class,
                 "target": case.target or "",
-                "attack_type": case.attack_type,
+                "perturbation": case.perturbation,
                 "view": v,
                 "success_meshadv": bool(t_ours[v]),
                 "success_mitsuba": bool(t_theirs[v]),
@@ -282,7 +282,7 @@ def controlled_transfer(
                 raise
             rows.extend(
                 {"case_id": case.case_id, "victim": case.victim, "true_class": case.true_class,
-                 "target": case.target or "", "attack_type": case.attack_type, "view": v,
+                 "target": case.target or "", "perturbation": case.perturbation, "view": v,
                  "success_meshadv": None, "success_mitsuba": None, "error": str(exc)}
                 for v in range(len(case.views))
             )

@@ -14,12 +14,12 @@ import torch
 __all__: list[str] = []
 
 
-def _check_smoothing(texture_smoothing: Optional[int], attack_type: str) -> None:
-    """Raise ValueError unless ``texture_smoothing`` is None, or an int >= 0 with ``attack_type == "texture"``."""
+def _check_smoothing(texture_smoothing: Optional[int], perturbation: str) -> None:
+    """Raise ValueError unless ``texture_smoothing`` is None, or an int >= 0 with ``perturbation == "texture"``."""
     if texture_smoothing is None:
         return
-    if attack_type != "texture":
-        raise ValueError("texture_smoothing applies to texture attacks only (attack_type='texture')")
+    if perturbation != "texture":
+        raise ValueError("texture_smoothing applies to texture attacks only (perturbation='texture')")
     if isinstance(texture_smoothing, bool) or not isinstance(texture_smoothing, int) or texture_smoothing < 0:
         raise ValueError(f"texture_smoothing must be None or an int >= 0, got {texture_smoothing!r}")
 

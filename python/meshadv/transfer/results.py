@@ -4,7 +4,7 @@ The rows live in their own table ``transfer`` of the same database file as the s
 transaction per insert), so the report can read both. One row per (case, view) evaluation::
 
     transfer(id INTEGER PRIMARY KEY, experiment TEXT, kind TEXT, case_id TEXT, victim TEXT, true_class TEXT,
-             target TEXT, attack_type TEXT, view INTEGER, success_meshadv INTEGER, success_mitsuba INTEGER,
+             target TEXT, perturbation TEXT, view INTEGER, success_meshadv INTEGER, success_mitsuba INTEGER,
              record TEXT (JSON), created REAL, UNIQUE(experiment, kind, case_id, view))
 
 ``kind`` is ``"controlled"`` or ``"blackbox"``; ``target`` is ``""`` for untargeted attacks.
@@ -13,11 +13,13 @@ transaction per insert), so the report can read both. One row per (case, view) e
 from __future__ import annotations
 
 import json
+import math
 import sqlite3
 import time
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Optional, Sequence, Union
+from typing import Any, Iterable, Mapping, Optional, Sequence, Union
 
 from meshadv.util.markdown import markdown_table as _markdown_table
 
@@ -30,7 +32,7 @@ CREATE TABLE IF NOT EXISTS transfer (
     victim          TEXT NOT NULL,
     true_class      TEXT NOT NULL,
     target          TEXT NOT NULL,
-    attack_type     TEXT NOT NULL,
+    perturbation     TEXT NOT NULL,
     view            INTEGER NOT NULL,
     success_meshadv INTEGER,
     success_mitsuba INTEGER,
@@ -40,14 +42,30 @@ CREATE TABLE IF NOT EXISTS transfer (
 );
 """
 
-_COLUMNS = ("case_id", "victim", "true_class", "target", "attack_type", "view")
+_COLUMNS = ("case_id", "victim", "true_class", "target", "perturbation", "view")
+
+
+#: The column's name before issue 13 gave the concept one name (``perturbation``); old databases are migrated.
+_LEGACY_PERTURBATION = "attack_type"
 
 
 def _connect(db_path: Union[str, Path]) -> sqlite3.Connection:
     conn = sqlite3.connect(str(db_path), timeout=30.0)
     conn.execute("PRAGMA journal_mode=WAL")
+    columns = {r[1] for r in conn.execute("PRAGMA table_info(transfer)")}
+    if _LEGACY_PERTURBATION in columns and "perturbation" not in columns:  # a database written before issue 13
+        with conn:
+            conn.execute(f"ALTER TABLE transfer RENAME COLUMN {_LEGACY_PERTURBATION} TO perturbation")
     conn.executescript(_SCHEMA)
     return conn
+
+
+def _with_perturbation(row: dict[str, Any]) -> dict[str, Any]:
+    """A stored record with the perturbation under its one name (old records say ``attack_type``)."""
+    if _LEGACY_PERTURBATION in row and "perturbation" not in row:
+        row = dict(row)
+        row["perturbation"] = row.pop(_LEGACY_PERTURBATION)
+    return row
 
 
 def save_transfer_rows(
@@ -57,7 +75,7 @@ def save_transfer_rows(
 
     Args:
         db_path: the SQLite database (the sweep's ``results.db``; created if missing).
-        rows: dicts with at least ``case_id, victim, true_class, target, attack_type, view`` and the booleans
+        rows: dicts with at least ``case_id, victim, true_class, target, perturbation, view`` and the booleans
             ``success_meshadv`` / ``success_mitsuba`` (any other keys are kept in the JSON record).
         experiment: experiment name (several transfer runs can share a database).
         kind: ``"controlled"`` or ``"blackbox"``.
@@ -82,7 +100,7 @@ def save_transfer_rows(
             for row in rows:
                 conn.execute(
                     "INSERT OR REPLACE INTO transfer (experiment, kind, case_id, victim, true_class, target, "
-                    "attack_type, view, success_meshadv, success_mitsuba, record, created) "
+                    "perturbation, view, success_meshadv, success_mitsuba, record, created) "
                     "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                     (
                         experiment,
@@ -91,7 +109,7 @@ def save_transfer_rows(
                         str(row["victim"]),
                         str(row["true_class"]),
                         str(row["target"] or ""),
-                        str(row["attack_type"]),
+                        str(row["perturbation"]),
                         int(row["view"]),
                         None if row.get("success_meshadv") is None else int(bool(row["success_meshadv"])),
                         None if row.get("success_mitsuba") is None else int(bool(row["success_mitsuba"])),
@@ -102,6 +120,30 @@ def save_transfer_rows(
     finally:
         conn.close()
     return len(rows)
+
+
+@dataclass(frozen=True)
+class BlackBoxResult:
+    """One black-box run (:func:`~meshadv.transfer.blackbox.blackbox_classifier` / ``blackbox_detector``).
+
+    Attributes:
+        row: the JSON-able result row (outcome, margins / scores, attack settings, estimation errors); the
+            columns are described in :data:`BLACKBOX_OUTCOME_COLUMNS` and the neighbouring tuples.
+        images: ``(H, W, 3)`` float images in ``[0, 1]``: ``benign_mitsuba`` (the estimation's photo),
+            ``adversarial_mitsuba`` (under the hidden parameters), ``adversarial_mitsuba_estimated`` (under the
+            estimates) and ``adversarial_meshadv`` (meshadv's render the victim saw).
+        adversarial_mesh: the attacked object's adversarial mesh.
+        attack_result: the attack's :class:`~meshadv.attacks.AttackResult`.
+    """
+
+    row: Mapping[str, Any]
+    images: Mapping[str, Any]
+    adversarial_mesh: Any
+    attack_result: Any
+
+    def to_record(self) -> dict[str, Any]:
+        """The row as a JSON-able dict (NaN floats become ``None``)."""
+        return {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in self.row.items()}
 
 
 def load_transfer_rows_if_any(db_path: Union[str, Path]) -> list[dict[str, Any]]:
@@ -144,7 +186,7 @@ def load_transfer_rows(
             args.append(kind)
         out = []
         for exp, knd, record in conn.execute(query + " ORDER BY id", args):
-            row = json.loads(record)
+            row = _with_perturbation(json.loads(record))
             row.update(experiment=exp, kind=knd)
             out.append(row)
         return out
@@ -164,21 +206,21 @@ def transfer_table(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     rate through ``untargeted_meshadv`` / ``untargeted_mitsuba`` (top-1 not in the true group).
 
     Returns:
-        One dict per (victim, attack_type): ``n``, ``untargeted_meshadv``, ``untargeted_mitsuba``,
+        One dict per (victim, perturbation): ``n``, ``untargeted_meshadv``, ``untargeted_mitsuba``,
         ``targeted_meshadv``, ``targeted_mitsuba`` (rates in [0, 1] or None), ``n_benign_correct`` (rows whose benign
         render the victim classified correctly) and ``untargeted_mitsuba_benign_correct`` (the untargeted rate over
         those rows only: a misclassified benign object makes untargeted success trivial).
     """
     groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
     for row in rows:
-        groups[(row["victim"], row["attack_type"])].append(row)
+        groups[(row["victim"], row["perturbation"])].append(row)
     table = []
-    for (victim, attack_type), items in sorted(groups.items()):
+    for (victim, perturbation), items in sorted(groups.items()):
         targeted = [r for r in items if r.get("target")]
         table.append(
             {
                 "victim": victim,
-                "attack_type": attack_type,
+                "perturbation": perturbation,
                 "n": len(items),
                 "untargeted_meshadv": _rate([r.get("untargeted_meshadv") for r in items]),
                 "untargeted_mitsuba": _rate([r.get("untargeted_mitsuba") for r in items]),
@@ -270,7 +312,7 @@ def markdown_confusion(names: Sequence[str], matrix: Sequence[Sequence[Optional[
 
 
 #: Columns of the black-box tables: outcome, classifier margins, detector scores, attack settings, estimation errors.
-BLACKBOX_OUTCOME_COLUMNS = ("case_id", "victim", "true_class", "target", "attack_type", "context", "success_meshadv",
+BLACKBOX_OUTCOME_COLUMNS = ("case_id", "victim", "true_class", "target", "perturbation", "context", "success_meshadv",
                             "robust_rate_meshadv", "success_mitsuba_estimated", "success_mitsuba",
                             "benign_correct_mitsuba", "top1_adversarial_mitsuba")
 BLACKBOX_MARGIN_COLUMNS = ("case_id", "margin_meshadv", "margin_mitsuba_estimated", "margin_mitsuba",
@@ -331,6 +373,7 @@ def transfer_report(rows: Sequence[dict[str, Any]]) -> str:
 
 
 __all__ = [
+    "BlackBoxResult",
     "load_transfer_rows_if_any",
     "BLACKBOX_ESTIMATION_COLUMNS",
     "BLACKBOX_MARGIN_COLUMNS",
