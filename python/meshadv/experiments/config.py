@@ -15,14 +15,15 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
     [victims]     names = ["efficientnet_lite0"] (required), weights = {densenet121 = "densenet121.pth"}
                   (weights files for victims that need them, relative to the file; the path is part of the job),
                   configurations = {efficientnet_lite2 = 4} (per-victim cap on render.configurations)
-    [attack]      types = ["shape", "texture"], targets = "others" | [...], benign_correct_only = true
+    [attack]      perturbations = ["shape", "texture"] (the old key ``types`` is read too), targets = "others" | [...],
+                  benign_correct_only = true
     [attack.shape] / [attack.texture]   keyword arguments of ShapeAttack / TextureAttack (steps, lr, ...)
     [attack.protocols.<name>]   extra attack settings on a subset: configurations = 2 (first configurations per
                   class), victims = [...] (default all), shape = {...}, texture = {...}; their jobs carry
                   ``"protocol": "<name>"`` and the tables report them as separate rows
     [multiview]   enabled = false, view_counts = [5, 10, 15], azimuth_ranges = [[45, 60], [35, 70], [15, 75]],
                   grid = false (true: every view count with every range, the paper's 3 x 3 Table 2; false: pairs),
-                  eval_views = 20, types = ["shape", "texture"], classes = [...],
+                  eval_views = 20, perturbations = ["shape", "texture"] (or ``types``), classes = [...],
                   targets = [...] | {chair = "sofa", ...} (one target per class), victims = [...] (default all),
                   elevation = 20, distance = 4.0
     [runner]      job = "meshadv.experiments.jobs:run_attack_job", max_attempts = 2, timeout = 0, workers = 0,
@@ -73,7 +74,17 @@ PASCAL3D_CLASSES = ("aeroplane", "bicycle", "boat", "bottle", "chair", "diningta
 DEFAULT_JOB = "meshadv.experiments.jobs:run_attack_job"
 
 _SECTIONS = ("experiment", "meshes", "render", "victims", "attack", "multiview", "runner")
-_TYPES = ("shape", "texture")
+def _perturbations_key(table: Dict[str, Any], section: str) -> Tuple[Dict[str, Any], str]:
+    """``table`` with the perturbation list under its one name, and the key the user wrote (for messages).
+
+    Configs written before issue 13 call it ``types``; giving both is an error.
+    """
+    if "types" not in table:
+        return table, f"{section}.perturbations"
+    if "perturbations" in table:
+        raise ValueError(f"{section}.types is the old name of {section}.perturbations; give only one of them")
+    table["perturbations"] = table.pop("types")
+    return table, f"{section}.types"
 
 
 @dataclass(frozen=True)
@@ -192,20 +203,25 @@ def parse_config(raw: Dict[str, Any], *, base_dir: Union[str, Path] = ".", text:
         raise ValueError(f"victims.configurations must map victim names to counts >= 1, got {caps!r}")
     render["victim_configurations"] = dict(caps)
 
-    attack = {"types": list(_TYPES), "targets": "others", "benign_correct_only": True, "shape": {}, "texture": {},
-              "protocols": {}, **raw.get("attack", {})}
+    from meshadv.attacks.families import PERTURBATIONS, perturbations
+
+    attack_raw, attack_key = _perturbations_key(dict(raw.get("attack", {})), "attack")
+    attack = {"perturbations": perturbations(), "targets": "others", "benign_correct_only": True, "shape": {},
+              "texture": {}, "protocols": {}, **attack_raw}
     for pname, proto in attack["protocols"].items():
         if not isinstance(proto, dict) or int(proto.get("configurations", 1)) < 1:
             raise ValueError(f"attack.protocols.{pname} must be a table with configurations >= 1, got {proto!r}")
-    bad = [t for t in attack["types"] if t not in _TYPES]
-    if bad or not attack["types"]:
-        raise ValueError(f"attack.types must be a non-empty subset of {list(_TYPES)}, got {attack['types']!r}")
+    bad = [t for t in attack["perturbations"] if t not in PERTURBATIONS]
+    if bad or not attack["perturbations"]:
+        raise ValueError(f"{attack_key} must be a non-empty subset of {perturbations()}, "
+                         f"got {attack['perturbations']!r}")
     if attack["targets"] != "others" and not isinstance(attack["targets"], list):
         raise ValueError(f"attack.targets must be 'others' or a list of classes, got {attack['targets']!r}")
 
+    multiview_raw, _ = _perturbations_key(dict(raw.get("multiview", {})), "multiview")
     multiview = {"enabled": False, "view_counts": [5, 10, 15], "azimuth_ranges": [[45, 60], [35, 70], [15, 75]],
-                 "grid": False, "eval_views": 20, "types": list(_TYPES), "classes": None, "targets": None,
-                 "victims": None, "elevation": 20.0, "distance": 4.0, **raw.get("multiview", {})}
+                 "grid": False, "eval_views": 20, "perturbations": perturbations(), "classes": None,
+                 "targets": None, "victims": None, "elevation": 20.0, "distance": 4.0, **multiview_raw}
     if not multiview["grid"] and len(multiview["view_counts"]) != len(multiview["azimuth_ranges"]):
         raise ValueError("multiview.view_counts and multiview.azimuth_ranges must have the same length")
     for rng in multiview["azimuth_ranges"]:
@@ -384,7 +400,7 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
     for protocol, limit, victims, options in settings:
         for mesh, ci, view in instances:
             for victim in (v for v in victims if ci < limit.get(v, ci + 1)):
-                for ptype in config.attack["types"]:
+                for ptype in config.attack["perturbations"]:
                     for target in _targets(config.attack["targets"], mesh["class"], classes):
                         for seed in config.seeds:
                             job = {
@@ -404,7 +420,7 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
             if mesh["class"] not in mv_classes:
                 continue
             for victim in mv["victims"] or config.victims:
-                for ptype in mv["types"]:
+                for ptype in mv["perturbations"]:
                     targets = _targets(mv["targets"] or config.attack["targets"], mesh["class"], classes)
                     for target in targets:
                         if mv["grid"]:
