@@ -100,17 +100,18 @@ def indoor_detector_setup(
     camera: Optional[dict[str, float]] = None,
     image_size: int = 256,
     spp: int = 64,
-    max_faces: int = 200_000,
     object_scale: float = 1.0,
 ) -> IndoorSetup:
     """The paper's indoor detection setup from ``scenes/indoor`` in the shared data.
+
+    The known objects come from the one model of the indoor scene, :func:`meshadv.scenes.indoor.load_indoor_scene`
+    (the desk, chair and bunny of ``scene.xml`` in world coordinates with their colours).
 
     Args:
         scene_dir: folder with ``scene.xml`` and ``meshes/`` (default: the shared data's ``scenes/indoor``).
         camera: hidden spherical camera; default :data:`INDOOR_CAMERA`.
         image_size: square image side.
         spp: Mitsuba samples per pixel.
-        max_faces: passed to ``load_mesh``.
         object_scale: scale of the attacked object (the bunny, 0.25 m tall in the scene file) about the centre of
             its base, so that it stays on the desk; > 0. The hidden world holds the scaled object too.
 
@@ -122,7 +123,8 @@ def indoor_detector_setup(
         ValueError: ``object_scale`` is not a positive finite number.
     """
     from meshadv.data import require_shared_data
-    from meshadv.mesh import load_mesh
+    from meshadv.mesh import Mesh
+    from meshadv.scenes.indoor import load_indoor_scene
 
     root = Path(scene_dir) if scene_dir is not None else require_shared_data("scenes/indoor")
     xml = root / "scene.xml"
@@ -130,8 +132,9 @@ def indoor_detector_setup(
         raise FileNotFoundError(f"scene_dir {root} has no scene.xml")
     if not (math.isfinite(object_scale) and object_scale > 0):
         raise ValueError(f"object_scale must be a positive finite number, got {object_scale}")
+    scene = load_indoor_scene(root).scene
     objects = tuple(
-        load_mesh(root / "meshes" / f"{name}.ply", max_faces=max_faces, default_color=(0.6, 0.6, 0.6))
+        Mesh(scene[name].world_vertices().detach(), scene[name].mesh.faces, scene[name].mesh.face_colors)
         for name in ("desk", "chair", "bunny")
     )
     if object_scale != 1.0:
