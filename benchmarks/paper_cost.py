@@ -3,10 +3,11 @@
 1. ``--measure``: run a stratified sample of a config's jobs (the first ``--per-group`` jobs of each victim x
    perturbation type x kind) one at a time in this process into ``<out>/results.db`` (resumable), with 1 thread.
 2. Project: per group, the measured CPU seconds (the record's ``cpu_time``; wall time for older records) per
-   optimisation step and image (a step renders and classifies
-   ``views`` images) and the measured fraction of the step budget used (early stopping), applied to every job of each
-   config: ``seconds = per_step_image x views x steps x rounds x fraction`` (+ the multi-view jobs' unseen views, one
-   forward pass each, negligible). Groups without a measurement borrow the nearest one (same type, other victim)
+   optimisation step and image (a step renders and classifies ``views`` images) and the mean number of steps an
+   attack ran (early stopping), applied to every job of each config: expected ``seconds = per_step_image x views x
+   rounds x min(steps budget, measured mean steps)``, upper bound ``per_step_image x views x rounds x steps budget``
+   (no early stop at all); the multi-view jobs' unseen views (one forward pass each) are negligible. Groups without a
+   measurement borrow the nearest one (same type and kind with the other victim, else the same victim and type)
    and say so.
 
     python benchmarks/paper_cost.py --measure --config configs/paper_medium.toml --out out/cost
@@ -63,32 +64,39 @@ def measured(db: Path) -> Dict[Group, Dict[str, float]]:
         views = len(r.spec["views"])
         seconds = r.record.get("cpu_time") or r.record["time"]  # CPU time when recorded: robust to a loaded machine
         per_step_image = seconds / (r.record["steps"] * views)
-        acc[_group(r.spec)].append((per_step_image, r.record["steps"] / (steps * rounds)))
+        acc[_group(r.spec)].append((per_step_image, r.record["steps"] / rounds))
     return {g: {"per_step_image": statistics.median(v[0] for v in vals),
-                "fraction": statistics.mean(v[1] for v in vals), "n": len(vals)} for g, vals in acc.items()}
+                "steps": statistics.mean(v[1] for v in vals), "n": len(vals)} for g, vals in acc.items()}
 
 
 def project(config: Path, costs: Dict[Group, Dict[str, float]]) -> Dict[str, Any]:
-    """CPU-hours of every job of ``config`` (see the module docstring)."""
-    total = 0.0
-    per_group: Dict[str, float] = defaultdict(float)
+    """Expected and upper-bound CPU-hours of every job of ``config`` (see the module docstring)."""
+    total = upper = 0.0
+    per_group: Dict[str, List[float]] = defaultdict(lambda: [0.0, 0.0])
     borrowed = set()
     jobs = expand_jobs(load_config(config))
     for job in jobs:
         g = _group(job)
         cost = costs.get(g)
-        if cost is None:  # same type and kind, another victim
-            cost = next((c for k, c in costs.items() if k[1:] == g[1:]), None)
+        if cost is None:  # borrow: same type and kind (another victim), else same victim and type, else same type
+            for same in (lambda k: k[1:] == g[1:], lambda k: k[:2] == g[:2], lambda k: k[1] == g[1]):
+                cost = next((c for k, c in sorted(costs.items()) if same(k)), None)
+                if cost is not None:
+                    break
             borrowed.add(g)
         if cost is None:
             continue
         steps, rounds = _budget(job)
-        seconds = cost["per_step_image"] * len(job["views"]) * steps * rounds * cost["fraction"]
+        step_cost = cost["per_step_image"] * len(job["views"]) * rounds
+        seconds, most = step_cost * min(steps, cost["steps"]), step_cost * steps
         total += seconds
+        upper += most
         label = f"{g[0]} {g[1]} {g[2]}" + (f" [{job['protocol']}]" if job.get("protocol") else "")
-        per_group[label] += seconds
-    return {"config": str(config), "jobs": len(jobs), "cpu_hours": total / 3600.0,
-            "groups": {k: v / 3600.0 for k, v in sorted(per_group.items())}, "borrowed": sorted(borrowed)}
+        per_group[label][0] += seconds
+        per_group[label][1] += most
+    return {"config": str(config), "jobs": len(jobs), "cpu_hours": total / 3600.0, "upper_cpu_hours": upper / 3600.0,
+            "groups": {k: (v[0] / 3600.0, v[1] / 3600.0) for k, v in sorted(per_group.items())},
+            "borrowed": sorted(borrowed)}
 
 
 def main(argv: List[str]) -> int:
@@ -107,16 +115,18 @@ def main(argv: List[str]) -> int:
             run_sweep(store, sample, "meshadv.experiments.jobs:run_attack_job", out_root=args.out,
                       backend=SerialBackend(threads_per_job=1), max_attempts=1, progress=False)
     costs = measured(db)
-    print("| victim | type | kind | attacks measured | s per step and image | fraction of the budget used |")
+    print("| victim | type | kind | attacks measured | CPU s per step and image | mean steps per round |")
     print("|---|---|---|---|---|---|")
     for (victim, ptype, kind), c in sorted(costs.items()):
-        print(f"| {victim} | {ptype} | {kind} | {c['n']} | {c['per_step_image']:.3f} | {c['fraction']:.2f} |")
+        print(f"| {victim} | {ptype} | {kind} | {c['n']} | {c['per_step_image']:.3f} | {c['steps']:.0f} |")
     for config in args.config:
         p = project(config, costs)
-        print(f"\n{p['config']}: {p['jobs']} jobs, {p['cpu_hours']:.0f} CPU-hours"
-              + (f" (costs borrowed from the other victim for {p['borrowed']})" if p["borrowed"] else ""))
-        for label, hours in p["groups"].items():
-            print(f"  {label}: {hours:.1f} h")
+        print(f"\n{p['config']}: {p['jobs']} jobs, {p['cpu_hours']:.1f} CPU-hours expected, "
+              f"{p['upper_cpu_hours']:.1f} at most"
+              + (f" (borrowed costs for {p['borrowed']})" if p["borrowed"] else ""))
+        print("| group | expected CPU-hours | at most (no early stop) |\n|---|---|---|")
+        for label, (hours, most) in p["groups"].items():
+            print(f"| {label} | {hours:.1f} | {most:.1f} |")
     return 0
 
 
