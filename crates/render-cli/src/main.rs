@@ -7,14 +7,42 @@
 //! ```
 //! Errors (missing or malformed file, bad arguments) print one line and exit with status 1 (2 for usage errors).
 
-mod meshio;
-
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
 use meshadv_raster::camera::SphericalCamera;
 use meshadv_raster::pipeline::{render, Lights, RenderSettings};
+use meshadv_raster::RasterError;
+use meshadv_render_cli::meshio::{self, MeshError};
+use thiserror::Error;
+
+/// Everything that can make the binary fail after its arguments parsed.
+#[derive(Debug, Error)]
+enum CliError {
+    /// A bad argument value.
+    #[error("{arg}: {message}")]
+    Argument {
+        /// The option, e.g. `--size`.
+        arg: &'static str,
+        /// What is expected.
+        message: String,
+    },
+    /// The mesh file cannot be used.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// The renderer refused the input.
+    #[error("render: {0}")]
+    Render(#[from] RasterError),
+    /// The PNG cannot be written.
+    #[error("{path}: cannot write PNG: {message}")]
+    WritePng {
+        /// The output path.
+        path: PathBuf,
+        /// Why.
+        message: String,
+    },
+}
 
 /// Render a triangle mesh (OBJ, OFF or PLY) to a PNG image.
 #[derive(Debug, Parser)]
@@ -111,13 +139,16 @@ fn normalize(v: &mut [f32]) {
     }
 }
 
-fn run(args: Args) -> Result<(), String> {
+fn run(args: Args) -> Result<(), CliError> {
     if args.size == 0 || args.size as usize > meshadv_raster::MAX_IMAGE_SIZE {
-        return Err(format!(
-            "--size must be in [1, {}], got {}",
-            meshadv_raster::MAX_IMAGE_SIZE,
-            args.size
-        ));
+        return Err(CliError::Argument {
+            arg: "--size",
+            message: format!(
+                "must be in [1, {}], got {}",
+                meshadv_raster::MAX_IMAGE_SIZE,
+                args.size
+            ),
+        });
     }
     let mut mesh = meshio::load_mesh(&args.mesh)?;
     if args.z_up {
@@ -165,8 +196,7 @@ fn run(args: Args) -> Result<(), String> {
         &camera,
         &lights,
         &settings,
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     let to_u8 = |x: f32| (x.clamp(0.0, 1.0) * 255.0).round() as u8;
     let (w, h) = (args.size, args.size);
     let result = if args.mask {
@@ -200,9 +230,13 @@ fn run(args: Args) -> Result<(), String> {
         let px: Vec<u8> = out.image.iter().map(|&c| to_u8(c)).collect();
         image::RgbImage::from_raw(w, h, px).map(|img| img.save(&args.output))
     };
+    let write_err = |message: String| CliError::WritePng {
+        path: args.output.clone(),
+        message,
+    };
     match result {
-        None => Err("internal error: image buffer size".into()),
-        Some(Err(e)) => Err(format!("{}: cannot write PNG: {e}", args.output.display())),
+        None => Err(write_err("internal error: image buffer size".into())),
+        Some(Err(e)) => Err(write_err(e.to_string())),
         Some(Ok(())) => Ok(()),
     }
 }

@@ -1,10 +1,95 @@
-//! Mesh readers for the render binary: OBJ (tobj), OFF and PLY (ASCII and binary, careful hand-written parsers).
+//! Mesh readers for the render binary: OBJ (tobj, without its MTL reader), OFF and PLY (ASCII and binary,
+//! careful hand-written parsers).
 //!
 //! Polygons are fan-triangulated. PLY per-face `red/green/blue` properties become face colours; otherwise faces get
-//! the default colour.
+//! the default colour. Every failure is a [`MeshError`]; no input makes these readers panic, hang or read
+//! without bound: only regular files are opened (not FIFOs or devices), at most [`MAX_FILE_BYTES`] are read, and
+//! declared counts are checked against the file's content.
 
 use std::fs;
-use std::path::Path;
+use std::io::{BufReader, Read};
+use std::path::{Path, PathBuf};
+
+use thiserror::Error;
+
+/// Largest mesh file the binary reads, in bytes (1 GiB).
+pub const MAX_FILE_BYTES: u64 = 1 << 30;
+
+/// Errors of the mesh readers, each naming the file (when there is one) and what is wrong.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum MeshError {
+    /// The path does not exist.
+    #[error("{path}: no such file")]
+    NotFound {
+        /// The path given.
+        path: PathBuf,
+    },
+    /// The path is a directory, FIFO, device or socket (reading it could block or never end).
+    #[error("{path}: not a regular file ({kind}); give a mesh file")]
+    NotRegularFile {
+        /// The path given.
+        path: PathBuf,
+        /// What it is instead.
+        kind: &'static str,
+    },
+    /// The file is larger than [`MAX_FILE_BYTES`].
+    #[error("{path}: the file is larger than the {limit}-byte limit")]
+    TooLarge {
+        /// The path given.
+        path: PathBuf,
+        /// The limit.
+        limit: u64,
+    },
+    /// Reading failed.
+    #[error("{path}: cannot read: {message}")]
+    Io {
+        /// The path given.
+        path: PathBuf,
+        /// The operating system's message.
+        message: String,
+    },
+    /// The extension is not one of `.obj`, `.off`, `.ply`.
+    #[error("{path}: unsupported mesh format {ext:?} (expected .obj, .off or .ply)")]
+    UnsupportedFormat {
+        /// The path given.
+        path: PathBuf,
+        /// Its extension.
+        ext: String,
+    },
+    /// The content does not follow the format.
+    #[error("malformed {format}: {message}")]
+    Malformed {
+        /// `OBJ`, `OFF` or `PLY`.
+        format: &'static str,
+        /// What is wrong, with the line, element or face.
+        message: String,
+    },
+    /// The mesh parsed but cannot be rendered (empty, non-finite, bad index).
+    #[error("{message}")]
+    InvalidMesh {
+        /// What is wrong.
+        message: String,
+    },
+    /// Another error, with the file it concerns.
+    #[error("{path}: {source}")]
+    InFile {
+        /// The path given.
+        path: PathBuf,
+        /// The error.
+        source: Box<MeshError>,
+    },
+}
+
+impl MeshError {
+    fn malformed(format: &'static str, message: String) -> Self {
+        let prefix = format!("malformed {format}: ");
+        let message = message
+            .strip_prefix(&prefix)
+            .map(str::to_string)
+            .unwrap_or(message);
+        MeshError::Malformed { format, message }
+    }
+}
 
 /// A triangle mesh with per-face colours, flat arrays.
 #[derive(Debug, Clone, PartialEq)]
@@ -17,70 +102,139 @@ pub struct Mesh {
     pub face_colors: Option<Vec<f32>>,
 }
 
+/// Reads a whole regular file of at most `limit` bytes.
+///
+/// FIFOs, devices, directories and sockets are refused before opening (a FIFO would block, `/dev/zero` never
+/// ends); symbolic links are followed and judged by their target.
+pub fn read_regular_file(path: &Path, limit: u64) -> Result<Vec<u8>, MeshError> {
+    let meta = match fs::metadata(path) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(MeshError::NotFound {
+                path: path.to_path_buf(),
+            })
+        }
+        Err(e) => {
+            return Err(MeshError::Io {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            })
+        }
+    };
+    if !meta.is_file() {
+        return Err(MeshError::NotRegularFile {
+            path: path.to_path_buf(),
+            kind: file_kind(&meta),
+        });
+    }
+    let io = |e: std::io::Error| MeshError::Io {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    let file = fs::File::open(path).map_err(io)?;
+    let meta = file.metadata().map_err(io)?;
+    if !meta.is_file() {
+        return Err(MeshError::NotRegularFile {
+            path: path.to_path_buf(),
+            kind: file_kind(&meta),
+        });
+    }
+    if meta.len() > limit {
+        return Err(MeshError::TooLarge {
+            path: path.to_path_buf(),
+            limit,
+        });
+    }
+    let mut bytes = Vec::new();
+    file.take(limit + 1).read_to_end(&mut bytes).map_err(io)?;
+    if bytes.len() as u64 > limit {
+        return Err(MeshError::TooLarge {
+            path: path.to_path_buf(),
+            limit,
+        });
+    }
+    Ok(bytes)
+}
+
+fn file_kind(meta: &fs::Metadata) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    let t = meta.file_type();
+    if t.is_dir() {
+        "a directory"
+    } else if t.is_fifo() {
+        "a FIFO"
+    } else if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_socket() {
+        "a socket"
+    } else {
+        "not a regular file"
+    }
+}
+
 /// Reads a mesh, choosing the parser from the extension (`.obj`, `.off`, `.ply`, case-insensitive).
-pub fn load_mesh(path: &Path) -> Result<Mesh, String> {
+pub fn load_mesh(path: &Path) -> Result<Mesh, MeshError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(|e| e.to_ascii_lowercase())
         .unwrap_or_default();
-    if !path.exists() {
-        return Err(format!("{}: no such file", path.display()));
+    if !matches!(ext.as_str(), "obj" | "off" | "ply") {
+        return Err(MeshError::UnsupportedFormat {
+            path: path.to_path_buf(),
+            ext,
+        });
     }
+    let bytes = read_regular_file(path, MAX_FILE_BYTES)?;
+    let in_file = |e: MeshError| MeshError::InFile {
+        path: path.to_path_buf(),
+        source: Box::new(e),
+    };
     let mesh = match ext.as_str() {
-        "obj" => load_obj(path),
-        "off" => {
-            let bytes =
-                fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
-            parse_off(&bytes)
-        }
-        "ply" => {
-            let bytes =
-                fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
-            parse_ply(&bytes)
-        }
-        _ => Err(format!(
-            "unsupported mesh format {ext:?} (expected .obj, .off or .ply)"
-        )),
+        "obj" => parse_obj(&bytes),
+        "off" => parse_off(&bytes),
+        _ => parse_ply(&bytes),
     }
-    .map_err(|e| {
-        if e.starts_with(&path.display().to_string()) {
-            e
-        } else {
-            format!("{}: {e}", path.display())
-        }
-    })?;
-    check_mesh(&mesh)?;
+    .map_err(in_file)?;
+    check_mesh(&mesh).map_err(in_file)?;
     Ok(mesh)
 }
 
 /// Checks that the mesh is non-empty, finite and that faces refer to existing vertices.
-pub fn check_mesh(mesh: &Mesh) -> Result<(), String> {
+pub fn check_mesh(mesh: &Mesh) -> Result<(), MeshError> {
+    let bad = |message: String| MeshError::InvalidMesh { message };
     let n = mesh.vertices.len() / 3;
     if n == 0 || mesh.faces.is_empty() {
-        return Err("the mesh has no vertices or no faces".into());
+        return Err(bad("the mesh has no vertices or no faces".into()));
     }
     if let Some(i) = mesh.vertices.iter().position(|v| !v.is_finite()) {
-        return Err(format!("vertex {} has a non-finite coordinate", i / 3));
+        return Err(bad(format!("vertex {} has a non-finite coordinate", i / 3)));
     }
     if let Some(i) = mesh.faces.iter().position(|&f| f < 0 || f as usize >= n) {
-        return Err(format!(
+        return Err(bad(format!(
             "face {} refers to vertex {}, but there are {n} vertices",
             i / 3,
             mesh.faces[i]
-        ));
+        )));
     }
     Ok(())
 }
 
-fn load_obj(path: &Path) -> Result<Mesh, String> {
+/// Parses OBJ text with tobj. Material libraries are not read (the binary does not use them, and tobj's MTL
+/// reader panics on some malformed lines such as `Kd 0 0`); OBJ indices must be 1-based, so `f 0 1 2` is refused.
+pub fn parse_obj(bytes: &[u8]) -> Result<Mesh, MeshError> {
+    obj_precheck(bytes).map_err(|m| MeshError::malformed("OBJ", m))?;
     let opts = tobj::LoadOptions {
         triangulate: true,
         single_index: true,
         ..Default::default()
     };
+    let mut reader = BufReader::new(bytes);
     let (models, _materials) =
-        tobj::load_obj(path, &opts).map_err(|e| format!("malformed OBJ: {e}"))?;
+        tobj::load_obj_buf(&mut reader, &opts, |_| Err(tobj::LoadError::GenericFailure))
+            .map_err(|e| MeshError::malformed("OBJ", e.to_string()))?;
     let mut vertices = Vec::new();
     let mut faces = Vec::new();
     for m in models {
@@ -88,7 +242,10 @@ fn load_obj(path: &Path) -> Result<Mesh, String> {
         vertices.extend_from_slice(&m.mesh.positions);
         for &i in &m.mesh.indices {
             let v = offset + i as i64;
-            faces.push(i32::try_from(v).map_err(|_| "too many vertices".to_string())?);
+            faces.push(
+                i32::try_from(v)
+                    .map_err(|_| MeshError::malformed("OBJ", "too many vertices".into()))?,
+            );
         }
     }
     Ok(Mesh {
@@ -96,6 +253,58 @@ fn load_obj(path: &Path) -> Result<Mesh, String> {
         faces,
         face_colors: None,
     })
+}
+
+/// Line checks tobj does not make: `v` needs 3 numbers, face indices are non-zero and within the vertices.
+fn obj_precheck(bytes: &[u8]) -> Result<(), String> {
+    let text = String::from_utf8_lossy(bytes);
+    let mut vertices: i64 = 0;
+    let mut faces: Vec<(usize, i64)> = Vec::new();
+    for (lineno, raw) in text.lines().enumerate() {
+        let line = raw.split('#').next().unwrap_or("");
+        let mut tokens = line.split_whitespace();
+        match tokens.next() {
+            Some("v") => {
+                let nums: Vec<&str> = tokens.collect();
+                if nums.len() < 3 || nums.iter().any(|t| t.parse::<f64>().is_err()) {
+                    return Err(format!(
+                        "line {}: a vertex needs 3 numbers, got {:?}",
+                        lineno + 1,
+                        raw.trim()
+                    ));
+                }
+                vertices += 1;
+            }
+            Some("f") | Some("l") | Some("p") => {
+                for corner in tokens {
+                    let head = corner.split('/').next().unwrap_or("");
+                    let i: i64 = head
+                        .parse()
+                        .map_err(|_| format!("line {}: bad vertex index {corner:?}", lineno + 1))?;
+                    if i == 0 {
+                        return Err(format!(
+                            "line {}: OBJ vertex indices start at 1, got 0",
+                            lineno + 1
+                        ));
+                    }
+                    if i < 0 && i.checked_neg().is_none_or(|n| n > vertices) {
+                        return Err(format!(
+                            "line {}: relative index {i} refers before the first vertex",
+                            lineno + 1
+                        ));
+                    }
+                    faces.push((lineno + 1, i));
+                }
+            }
+            _ => {}
+        }
+    }
+    if let Some((lineno, i)) = faces.iter().find(|(_, i)| *i > vertices) {
+        return Err(format!(
+            "line {lineno}: vertex index {i} is out of range (the file has {vertices} vertices)"
+        ));
+    }
+    Ok(())
 }
 
 fn fan(poly: &[i64], faces: &mut Vec<i32>, what: &str) -> Result<(), String> {
@@ -116,8 +325,13 @@ fn fan(poly: &[i64], faces: &mut Vec<i32>, what: &str) -> Result<(), String> {
 }
 
 /// Parses an ASCII OFF file: `OFF` header (counts on the same or the next line), one vertex per line (extra values
-/// such as colours ignored), one face per line `k i1 .. ik` (trailing colours ignored); `#` comments.
-pub fn parse_off(bytes: &[u8]) -> Result<Mesh, String> {
+/// such as colours ignored), one face per line `k i1 .. ik` (trailing colours ignored); `#` comments. The file
+/// must hold exactly the declared number of vertex and face lines.
+pub fn parse_off(bytes: &[u8]) -> Result<Mesh, MeshError> {
+    off_body(bytes).map_err(|m| MeshError::malformed("OFF", m))
+}
+
+fn off_body(bytes: &[u8]) -> Result<Mesh, String> {
     let text =
         std::str::from_utf8(bytes).map_err(|_| "malformed OFF: not UTF-8 text".to_string())?;
     let mut lines = text
@@ -180,7 +394,7 @@ pub fn parse_off(bytes: &[u8]) -> Result<Mesh, String> {
         let k: usize = nums[0]
             .parse()
             .map_err(|_| format!("malformed OFF: face {fi}: bad vertex count {:?}", nums[0]))?;
-        if nums.len() < k + 1 {
+        if k >= nums.len() {
             return Err(format!(
                 "malformed OFF: face {fi}: expected {k} indices in {l:?}"
             ));
@@ -193,6 +407,11 @@ pub fn parse_off(bytes: &[u8]) -> Result<Mesh, String> {
             })
             .collect();
         fan(&poly?, &mut faces, &format!("malformed OFF: face {fi}"))?;
+    }
+    if let Some(extra) = lines.next() {
+        return Err(format!(
+            "malformed OFF: the header declares {nv} vertices and {nf} faces, but more lines follow: {extra:?}"
+        ));
     }
     Ok(Mesh {
         vertices,
@@ -304,8 +523,13 @@ impl Reader<'_> {
 }
 
 /// Parses a PLY file (ASCII, binary little or big endian): `vertex` x/y/z, `face` `vertex_indices` (or
-/// `vertex_index`) lists, optional face `red/green/blue` (uchar 0-255 or float 0-1).
-pub fn parse_ply(bytes: &[u8]) -> Result<Mesh, String> {
+/// `vertex_index`) lists, optional face `red/green/blue` (uchar 0-255 or float 0-1). The body must hold exactly
+/// the values the header declares.
+pub fn parse_ply(bytes: &[u8]) -> Result<Mesh, MeshError> {
+    ply_body(bytes).map_err(|m| MeshError::malformed("PLY", m))
+}
+
+fn ply_body(bytes: &[u8]) -> Result<Mesh, String> {
     const END: &[u8] = b"end_header";
     let end = bytes
         .windows(END.len())
@@ -479,6 +703,18 @@ pub fn parse_ply(bytes: &[u8]) -> Result<Mesh, String> {
     if !have_vertex {
         return Err("malformed PLY: no vertex element".into());
     }
+    if format == Format::Ascii {
+        if let Some(extra) = rd.tokens.next() {
+            return Err(format!(
+                "malformed PLY: the body holds more values than the header declares (next: {extra:?})"
+            ));
+        }
+    } else if rd.pos != body.len() {
+        return Err(format!(
+            "malformed PLY: {} bytes after the last declared element (wrong counts in the header?)",
+            body.len() - rd.pos
+        ));
+    }
     let face_colors = (!colors.is_empty() && colors.len() == faces.len()).then_some(colors);
     Ok(Mesh {
         vertices,
@@ -503,12 +739,15 @@ mod tests {
     fn off_errors_say_what_is_wrong() {
         assert!(parse_off(b"OFF\n3 1 0\n0 0 0\n1 0 x\n0 1 0\n3 0 1 2\n")
             .expect_err("bad")
+            .to_string()
             .contains("vertex 1"));
         assert!(parse_off(b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n")
             .expect_err("bad")
+            .to_string()
             .contains("expected 1 faces"));
         assert!(parse_off(b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n")
             .expect_err("bad")
+            .to_string()
             .contains("at least 3"));
     }
 
@@ -559,6 +798,7 @@ mod tests {
         cut.truncate(cut.len() - 2);
         assert!(parse_ply(&cut)
             .expect_err("truncated")
+            .to_string()
             .contains("truncated"));
     }
 
