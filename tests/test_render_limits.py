@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
+import time
 
 import pytest
 import torch
 
 from meshadv.render import Camera, Lights, render
 from meshadv.render._memory import check_memory, estimate_forward_bytes
+from meshadv.render.rasterize import rasterize
 
 
 def tetrahedron() -> tuple[torch.Tensor, torch.Tensor]:
@@ -54,3 +57,28 @@ def test_huge_render_under_an_address_space_limit_raises_memory_error_not_abort(
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "MemoryError: rasterize needs about 12.00 GiB" in done.stdout
+
+
+def _threads_of_this_process() -> int:
+    return len(os.listdir("/proc/self/task"))
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="counts threads through Linux /proc")
+def test_distinct_thread_counts_do_not_accumulate_threads() -> None:
+    import meshadv._raster as native
+
+    if not hasattr(native, "MAX_CACHED_POOLS"):
+        pytest.skip("the native module predates the bounded pool cache; rebuild it (pip install -e .)")
+    verts = torch.tensor([[[-0.9, -0.9, 1.0], [0.9, -0.9, 1.0], [0.0, 0.9, 1.0]]])
+    faces, attrs = torch.tensor([[0, 2, 1]]), torch.ones(1, 1, 1)
+    rasterize(verts, faces, attrs, 8)
+    before = _threads_of_this_process()
+    for n in range(1, 65):
+        rasterize(verts, faces, attrs, 8, num_threads=n)
+    # Only the most recently used pools survive (64 + 63 threads); before the fix 64 values left 2,083 threads.
+    bound = before + 64 + 63 + 4
+    for _ in range(100):  # evicted pools' threads exit asynchronously
+        if _threads_of_this_process() <= bound:
+            break
+        time.sleep(0.05)
+    assert _threads_of_this_process() <= bound
