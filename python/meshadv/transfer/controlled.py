@@ -191,24 +191,28 @@ def evaluate_case(
         One row per view with ``success_meshadv`` / ``success_mitsuba`` (targeted when the case has a target, else
         untargeted), ``untargeted_meshadv`` / ``untargeted_mitsuba``, the top-1 labels and the Mitsuba variant.
     """
-    from meshadv.render import ViewSet, render
+    from meshadv.attacks import evaluate
+    from meshadv.render import RenderSetup, ViewSet
 
     views = ViewSet.from_records(list(case.views))
-    mesh = case.mesh
-    with torch.no_grad():
-        ours = render(mesh.vertices, mesh.faces, mesh.face_colors, views.camera, views.lights, case.image_size,
-                      background=case.background, antialias=case.antialias).image
-        theirs = _images_tensor(mitsuba_images)
-        logits_ours, logits_theirs = victim(ours), victim(theirs)
     untargeted, targeted = _criteria(case, victim)
-    un_ours = untargeted.is_adversarial(logits_ours).tolist()
+    criteria = [untargeted] if targeted is None else [untargeted, targeted]
+    setup = RenderSetup(image_size=case.image_size, background=case.background, antialias=case.antialias)
+    scored = evaluate(case.mesh, views, victim, criteria, setup=setup)  # meshadv's side, as the attack scores it
+    ours = scored.images[0]
+    with torch.no_grad():
+        theirs = _images_tensor(mitsuba_images)
+        logits_theirs = victim(theirs)
+    un_ours = (scored.margins[0] > 0).tolist()
     un_theirs = untargeted.is_adversarial(logits_theirs).tolist()
     if targeted is not None:
-        t_ours = targeted.is_adversarial(logits_ours).tolist()
+        t_ours = (scored.margins[1] > 0).tolist()
         t_theirs = targeted.is_adversarial(logits_theirs).tolist()
     else:
         t_ours, t_theirs = un_ours, un_theirs
-    top_ours, top_theirs = _top1_names(victim, logits_ours), _top1_names(victim, logits_theirs)
+    names = list(getattr(victim, "class_names", []) or [])
+    top_ours = [names[i] if i < len(names) else str(i) for i in scored.top1[0].tolist()]
+    top_theirs = _top1_names(victim, logits_theirs)
     diff = (ours - theirs).abs().mean(dim=(1, 2, 3)).tolist()
     rows = []
     for v in range(len(case.views)):
