@@ -8,7 +8,7 @@ command functions, keeping ``meshadv --help`` fast.
 
 Example:
     $ meshadv demo -o out/demo
-    $ meshadv attack pascal3d/chair/01.ply --victim efficientnet_lite0 --target bicycle --perturb shape -o out/a
+    $ meshadv attack pascal3d/chair/01.ply --victim efficientnet_lite0 --target bicycle --perturbation shape -o out/a
     $ meshadv render builtin:sphere --views 4 -o out/r
 """
 

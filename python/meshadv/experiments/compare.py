@@ -49,15 +49,15 @@ def table1_beside_paper(rows: Sequence[Table1Row]) -> str:
         return "_no results_\n"
     lines = ["| source | type | distance | best: dist | best: success | average: dist | average: success | "
              "worst: dist | worst: success |", "|---|---|---|---|---|---|---|---|---|"]
-    for ptype in sorted({r.perturbation for r in rows}):
-        for r in (r for r in rows if r.perturbation == ptype):
+    for perturbation in sorted({r.perturbation for r in rows}):
+        for r in (r for r in rows if r.perturbation == perturbation):
             mark = " (paper's measure)" if r.paper_measure else ""
             cells = " | ".join(f"{_num(getattr(r, c).distance)} | {_pct(getattr(r, c).success_rate)}" for c in _CASES)
-            lines.append(f"| ours: {r.victim} | {ptype} | {r.distance_name}{mark} | {cells} |")
-        for p in (p for p in paper.TABLE1 if p.perturbation == ptype):
-            measure = "laplacian (pair-mean scale)" if ptype == "shape" else "color_rmse"
+            lines.append(f"| ours: {r.victim} | {perturbation} | {r.distance_name}{mark} | {cells} |")
+        for p in (p for p in paper.TABLE1 if p.perturbation == perturbation):
+            measure = "laplacian (pair-mean scale)" if perturbation == "shape" else "color_rmse"
             cells = " | ".join(f"{_num(getattr(p, c)[0])} | {_pct(getattr(p, c)[1])}" for c in _CASES)
-            lines.append(f"| paper: {p.model} | {ptype} | {measure} | {cells} |")
+            lines.append(f"| paper: {p.model} | {perturbation} | {measure} | {cells} |")
     return "\n".join(lines) + "\n"
 
 
@@ -106,16 +106,16 @@ def table2_beside_paper(rows: Sequence[Table2Row]) -> str:
     counts = sorted(set(paper.TABLE2_VIEW_COUNTS) | {r.num_views for r in rows})
     head = " | ".join(f"{a:g}°–{b:g}°" for a, b in ranges)
     parts = []
-    for victim, ptype in sorted({(r.victim, r.perturbation) for r in rows}):
-        ours = {(r.num_views, r.azimuth_range): r for r in rows if (r.victim, r.perturbation) == (victim, ptype)}
-        lines = [f"**{victim}, {ptype}**: success on unseen views, ours (paper, shape attacks); "
+    for victim, perturbation in sorted({(r.victim, r.perturbation) for r in rows}):
+        ours = {(r.num_views, r.azimuth_range): r for r in rows if (r.victim, r.perturbation) == (victim, perturbation)}
+        lines = [f"**{victim}, {perturbation}**: success on unseen views, ours (paper, shape attacks); "
                  "attacks per cell in brackets", "", f"| attack views | {head} |",
                  "|---|" + "---|" * len(ranges)]
         for n in counts:
             cells = []
             for rng in ranges:
                 mine = ours.get((n, rng))
-                theirs = paper.TABLE2.get((n, rng)) if ptype == "shape" else None
+                theirs = paper.TABLE2.get((n, rng)) if perturbation == "shape" else None
                 text = "–" if mine is None else f"{_pct(mine.unseen_success)} [{mine.attacks}]"
                 cells.append(f"{text} ({_pct(theirs)})")
             lines.append(f"| {n} | " + " | ".join(cells) + " |")

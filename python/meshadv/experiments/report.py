@@ -257,11 +257,11 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
             groups[(victim_label(r.spec), r.spec["perturbation"])].append(r)
         from meshadv.experiments.figures import render_grid
 
-        for (victim, ptype), grows in sorted(groups.items()):
+        for (victim, perturbation), grows in sorted(groups.items()):
             cells, classes = _grid_cells(grows)
             if cells:
-                out.figures.append(render_grid(cells, classes, fig_dir / f"grid_{_slug(victim)}_{ptype}.png",
-                                               title=f"{ptype} attacks on {victim} (rows: benign class, "
+                out.figures.append(render_grid(cells, classes, fig_dir / f"grid_{_slug(victim)}_{perturbation}.png",
+                                               title=f"{perturbation} attacks on {victim} (rows: benign class, "
                                                      f"columns: target; diagonal: benign)"))
         _flow_figures(single, fig_dir, out)
     extra = []
@@ -287,12 +287,12 @@ def _run_stats(done: List[JobRow]) -> List[str]:
     for r in done:
         if r.spec.get("kind", "single") == "single":
             groups[(victim_label(r.spec), r.spec["perturbation"])].append(r)
-    for (victim, ptype), rows in sorted(groups.items()):
+    for (victim, perturbation), rows in sorted(groups.items()):
         instances = {_instance(r): bool(r.record.get("benign_correct")) for r in rows if "benign_correct" in r.record}
         attacked = [r for r in rows if not r.record.get("skipped")]
         steps = [r.record["steps"] for r in attacked if r.record.get("steps") is not None]
         secs = [r.record["time"] for r in attacked if r.record.get("time") is not None]
-        line = f"- {victim}, {ptype}: {len(attacked)} attacks"
+        line = f"- {victim}, {perturbation}: {len(attacked)} attacks"
         if instances:
             line += (f"; benign renders classified as their class: {sum(instances.values())}/{len(instances)} "
                      f"instances")

@@ -141,14 +141,14 @@ def attack_rows(jobs: Iterable[Any], *, benign_correct_only: bool = False) -> Li
             continue
         if benign_correct_only and record.get("benign_correct") is False:
             continue
-        ptype = spec["perturbation"]
+        perturbation = spec["perturbation"]
         mesh = spec["mesh"]
         key = (mesh.get("path") or mesh.get("name"), spec.get("config_index"), spec.get("seed"))
         distances = record.get("distances") or {}
         victim = victim_label(spec)
-        for measure in DISTANCE_NAMES.get(ptype, ("distance",)):
+        for measure in DISTANCE_NAMES.get(perturbation, ("distance",)):
             dist = read_distance(distances, measure) if distances else record.get("distance")
-            out.append(AttackRow(victim=victim, perturbation=ptype, instance=key,
+            out.append(AttackRow(victim=victim, perturbation=perturbation, instance=key,
                                  source=spec["source_class"], target=spec["target"],
                                  success=bool(record.get("success")), distance=dist, measure=measure))
     return out
@@ -167,7 +167,7 @@ def table1(rows: Iterable[AttackRow]) -> List[Table1Row]:
     for row in rows:
         groups[(row.victim, row.perturbation, row.measure)][row.instance].append(row)
     out = []
-    for (victim, ptype, measure), instances in sorted(groups.items()):
+    for (victim, perturbation, measure), instances in sorted(groups.items()):
         n_targets = max(len(v) for v in instances.values())
         best_s, best_d, worst_s, worst_d, avg_s, avg_d = [], [], [], [], [], []
         incomplete = 0
@@ -187,12 +187,12 @@ def table1(rows: Iterable[AttackRow]) -> List[Table1Row]:
             if all_won and dists:
                 worst_d.append(max(dists))
         out.append(Table1Row(
-            victim=victim, perturbation=ptype, distance_name=measure,
+            victim=victim, perturbation=perturbation, distance_name=measure,
             instances=len(instances), incomplete=incomplete, targets=n_targets,
             best=CaseStats(_mean(best_s), _mean(best_d), len(best_s)),
             average=CaseStats(_mean(avg_s), _mean(avg_d), len(avg_s)),
             worst=CaseStats(_mean(worst_s), _mean(worst_d), len(worst_s)),
-            paper_measure=PAPER_COMPARABLE.get(ptype) == measure,
+            paper_measure=PAPER_COMPARABLE.get(perturbation) == measure,
         ))
     return out
 

@@ -153,14 +153,14 @@ def _distance_bins(rows: List[Dict[str, Any]], bins: int = 3) -> Dict[int, str]:
     for i, r in enumerate(rows):
         if r.get("distance") is not None:
             by_type[r.get("perturbation") or "?"].append(i)
-    for ptype, idx in by_type.items():
+    for perturbation, idx in by_type.items():
         values = sorted({rows[i]["distance"] for i in idx})
         k = min(bins, len(values))
         edges = [values[min(len(values) - 1, (j * len(values)) // k)] for j in range(k)] + [values[-1]]
         for i in idx:
             d = rows[i]["distance"]
             j = max(b for b in range(k) if d >= edges[b])
-            labels[i] = f"distance: {ptype} bin {j + 1}/{k} [{edges[j]:.3g}, {edges[j + 1]:.3g}]"
+            labels[i] = f"distance: {perturbation} bin {j + 1}/{k} [{edges[j]:.3g}, {edges[j + 1]:.3g}]"
     return labels
 
 

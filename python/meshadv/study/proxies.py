@@ -162,9 +162,9 @@ def proxy_section(rows: Sequence[Any], out_dir: Union[str, Path]) -> str:
              "[proxies.csv](proxies.csv). A human 2AFC study of the same renders: `meshadv study export`.", "",
              "| victim | type | successful attacks | SSIM (successful) | PSNR dB (successful) | all attacks | "
              "SSIM (all) | PSNR dB (all) |", "|---|---|---|---|---|---|---|---|"]
-    for (victim, ptype), group in sorted(groups.items()):
+    for (victim, perturbation), group in sorted(groups.items()):
         ok = [p for p in group if p.success]
-        lines.append(f"| {victim} | {ptype} | {len(ok)} | {_mean([p.ssim for p in ok])} | "
+        lines.append(f"| {victim} | {perturbation} | {len(ok)} | {_mean([p.ssim for p in ok])} | "
                      f"{_mean([p.psnr for p in ok])} | {len(group)} | {_mean([p.ssim for p in group])} | "
                      f"{_mean([p.psnr for p in group])} |")
     if missing:
