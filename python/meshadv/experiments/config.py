@@ -55,6 +55,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
+from meshadv.experiments.config_keys import check_attack_values, check_keys
 from meshadv.util.spherical import spherical_direction
 
 __all__ = [
@@ -141,9 +142,9 @@ def parse_config(raw: Dict[str, Any], *, base_dir: Union[str, Path] = ".", text:
     """
     if not isinstance(raw, dict):
         raise ValueError(f"a sweep config must be a mapping, got {type(raw).__name__}")
-    unknown = sorted(set(raw) - set(_SECTIONS))
-    if unknown:
-        raise ValueError(f"unknown config sections {unknown}; expected some of {list(_SECTIONS)}")
+    from meshadv.attacks.families import PERTURBATIONS as _FAMILIES
+
+    check_keys(raw, _FAMILIES)  # misspelt keys fail here, with the closest valid key
     base = Path(base_dir)
     exp = dict(raw.get("experiment", {}))
     name = str(exp.get("name", "sweep"))
@@ -217,6 +218,7 @@ def parse_config(raw: Dict[str, Any], *, base_dir: Union[str, Path] = ".", text:
                          f"got {attack['perturbations']!r}")
     if attack["targets"] != "others" and not isinstance(attack["targets"], list):
         raise ValueError(f"attack.targets must be 'others' or a list of classes, got {attack['targets']!r}")
+    check_attack_values(attack, PERTURBATIONS)
 
     multiview_raw, _ = _perturbations_key(dict(raw.get("multiview", {})), "multiview")
     multiview = {"enabled": False, "view_counts": [5, 10, 15], "azimuth_ranges": [[45, 60], [35, 70], [15, 75]],
