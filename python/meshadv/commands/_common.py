@@ -5,10 +5,16 @@ Heavy imports (torch, the renderer, victims) happen inside the functions so ``me
 
 from __future__ import annotations
 
+import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, List, Optional, Sequence, Tuple
 
 __all__ = [
+    "VICTIMS",
+    "MeshInput",
+    "load_mesh_input",
+    "parse_azimuth_range",
     "DEFAULT_DISTANCE",
     "DEFAULT_ELEVATION",
     "DEFAULT_BACKGROUND",
@@ -26,36 +32,87 @@ DEFAULT_ELEVATION = 15.0
 DEFAULT_BACKGROUND = "1,1,1"
 
 
-def load_mesh_arg(spec: str, *, z_up: Optional[bool] = None) -> Tuple[Any, str]:
-    """Load the mesh named on the command line and normalise it into ``[-1, 1]``.
+#: The victims' names, for ``--victim`` help texts (kept equal to ``meshadv.victims.available_victims()`` by a
+#: test; listed here so that ``--help`` does not import torch).
+VICTIMS = ("efficientnet_lite0", "efficientnet_lite2", "ssd_mobilenet_v2_coco", "densenet121", "inception_v3",
+           "yolov3")
+
+
+@dataclass(frozen=True)
+class MeshInput:
+    """A mesh named on the command line, normalised into ``[-1, 1]``.
+
+    Attributes:
+        mesh: the normalised, Y-up mesh the attack works on.
+        label: how the command line named it.
+        path: the resolved input file, ``None`` for built-ins.
+        transform: the ``NormalizeTransform`` from the input file's frame (``None`` for built-ins).
+        z_up: whether the file was taken as Z-up.
+    """
+
+    mesh: Any
+    label: str
+    path: Optional[Path]
+    transform: Any
+    z_up: bool
+
+
+def load_mesh_input(spec: str, *, z_up: Optional[bool] = None, say: bool = True) -> MeshInput:
+    """Load the mesh named on the command line and normalise it into ``[-1, 1]``, saying which axis was taken as up.
 
     Args:
-        spec: a mesh file (PLY/OBJ/OFF), ``builtin:NAME`` (a generated shape) or ``default`` (the shared PASCAL3D+
-            default when present, else a built-in).
-        z_up: the file is Z-up (rotate to Y-up); ``None`` guesses True for files under a ``pascal3d`` folder.
-
-    Returns:
-        ``(mesh, label)``.
+        spec: a mesh file (PLY/OBJ/OFF/STL/glTF), ``builtin:NAME`` (a generated shape) or ``default`` (the shared
+            PASCAL3D+ default when present, else a built-in).
+        z_up: the file is Z-up (rotate to Y-up); ``None`` guesses True for files under a ``pascal3d`` folder and
+            prints the guess and how to change it (``--z-up`` / ``--y-up``) on stderr.
+        say: print that note.
 
     Raises:
         FileNotFoundError: the file does not exist.
         ValueError: unknown built-in name or unreadable mesh.
     """
+    import typer
+
     from meshadv.mesh import load_mesh, normalize_mesh
     from meshadv.mesh.shapes import builtin_mesh, default_mesh
 
     if spec == "default":
-        return default_mesh(), "default"
+        return MeshInput(default_mesh(), "default", None, None, False)
     if spec.startswith("builtin:"):
-        name = spec.split(":", 1)[1]
-        return builtin_mesh(name), spec
+        return MeshInput(builtin_mesh(spec.split(":", 1)[1]), spec, None, None, False)
     path = Path(spec)
     if not path.is_file():
         raise FileNotFoundError(f"MESH {spec} does not exist (give a mesh file, builtin:NAME or default)")
     if z_up is None:
         z_up = "pascal3d" in (p.lower() for p in path.resolve().parts)
-    mesh, _ = normalize_mesh(load_mesh(path), z_up=bool(z_up))
-    return mesh, str(path)
+        if say:
+            why = "its path has a 'pascal3d' folder" if z_up else "the renderer's convention"
+            other = "--y-up" if z_up else "--z-up"
+            typer.echo(f"note: {path.name} taken as {'Z' if z_up else 'Y'}-up ({why}); if it renders lying on its "
+                       f"side or back, pass {other}", err=True)
+    mesh, transform = normalize_mesh(load_mesh(path), z_up=bool(z_up))
+    return MeshInput(mesh, str(path), path.resolve(), transform, bool(z_up))
+
+
+def load_mesh_arg(spec: str, *, z_up: Optional[bool] = None) -> Tuple[Any, str]:
+    """``(mesh, label)`` of :func:`load_mesh_input` (the normalised mesh and how the command line named it)."""
+    loaded = load_mesh_input(spec, z_up=z_up)
+    return loaded.mesh, loaded.label
+
+
+def parse_azimuth_range(text: str, name: str = "--azimuths") -> Tuple[float, float]:
+    """``"LOW:HIGH"`` or ``"LOW-HIGH"`` (degrees, LOW <= HIGH; negative values allowed, e.g. ``-30:30``).
+
+    Raises:
+        ValueError: anything else (the message names ``name``).
+    """
+    match = re.fullmatch(r"\s*(-?\d+(?:\.\d*)?)\s*[:-]\s*(-?\d+(?:\.\d*)?)\s*", text)
+    if match is None:
+        raise ValueError(f"{name} must be a range LOW:HIGH or LOW-HIGH in degrees (e.g. 150:210), got {text!r}")
+    lo, hi = float(match.group(1)), float(match.group(2))
+    if hi < lo:
+        raise ValueError(f"{name} must have LOW <= HIGH, got {text!r}")
+    return lo, hi
 
 
 def make_views(

@@ -8,7 +8,7 @@ Example:
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable, List, Optional, Sequence, Tuple
+from typing import Any, Callable, List, Optional, Sequence
 
 import typer
 
@@ -16,8 +16,9 @@ from meshadv.commands._common import (
     DEFAULT_BACKGROUND,
     DEFAULT_DISTANCE,
     DEFAULT_ELEVATION,
-    load_mesh_arg,
+    load_mesh_input,
     make_views,
+    parse_azimuth_range,
     parse_color,
 )
 
@@ -78,7 +79,10 @@ def run_with_progress(
     Returns:
         The ``AttackResult`` (``interrupted=True`` after Ctrl-C: the best result so far).
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                               TimeRemainingColumn)
+    from rich.console import Console
+    from rich.table import Column
 
     names = list(getattr(victim, "class_names", ()) or ())
     total = attack_obj.steps * attack_obj.binary_search_steps
@@ -86,8 +90,14 @@ def run_with_progress(
     def fmt(v: Optional[float]) -> str:
         return "-" if v is None else f"{v:.4g}"
 
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  TextColumn("{task.fields[info]}"), disable=quiet) as progress:
+    # Counter, elapsed time and ETA keep their width (about 54 columns with a 4-digit total); only the info text
+    # is cut, with an ellipsis, to what is left of the terminal (80 columns included).
+    info_width = max(8, Console().width - 56)
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(bar_width=16), MofNCompleteColumn(),
+                  TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
+                  TextColumn("{task.fields[info]}",
+                             table_column=Column(no_wrap=True, overflow="ellipsis", max_width=info_width)),
+                  disable=quiet) as progress:
         task = progress.add_task("attack", total=total, info="")
 
         def callback(info: Any) -> None:
@@ -95,9 +105,9 @@ def run_with_progress(
             top_name = "-" if top is None else (names[top] if top < len(names) else str(top))
             progress.update(
                 task, completed=info.round * info.steps + info.step + 1,
-                description=f"round {info.round + 1}/{info.rounds}",
-                info=(f"loss {fmt(info.loss[0])}  top-1 {top_name[:24]}  dist {fmt(info.distance[0])}  "
-                      f"margin {fmt(info.margin[0])}  best {fmt(info.best_distance[0])}"),
+                description=f"r{info.round + 1}/{info.rounds}",
+                info=(f"top-1 {top_name[:24]}  margin {fmt(info.margin[0])}  loss {fmt(info.loss[0])}  "
+                      f"dist {fmt(info.distance[0])}  best {fmt(info.best_distance[0])}"),
             )
             if extra_callback is not None:
                 extra_callback(info)
@@ -106,17 +116,12 @@ def run_with_progress(
                           callback=callback)
 
 
-def _azimuth_range(text: str) -> Tuple[float, float]:
-    try:
-        lo, hi = (float(v) for v in text.split(":"))
-    except ValueError:
-        raise typer.BadParameter(f"azimuth range must be LOW:HIGH in degrees, got {text!r}") from None
-    return lo, hi
-
-
 def attack(
     mesh: str = typer.Argument(..., help="mesh file (PLY/OBJ/OFF), builtin:NAME, or 'default'"),
-    victim: str = typer.Option("efficientnet_lite0", help="victim name (see meshadv.victims.available_victims)"),
+    victim: str = typer.Option("efficientnet_lite0", help="victim name (the list is above)"),
+    weights: Optional[Path] = typer.Option(None, help="weights file: a state_dict for densenet121 / inception_v3, "
+                                                      "Darknet .weights for yolov3"),
+    cfg: Optional[Path] = typer.Option(None, help="Darknet .cfg file (yolov3 only)"),
     target: List[str] = typer.Option([], help="target class: ImageNet name/index or PASCAL3D+ class (repeatable: "
                                               "several targets are attacked together as a batch)"),
     untargeted: Optional[str] = typer.Option(None, help="untargeted attack away from this true class"),
@@ -124,8 +129,8 @@ def attack(
     perturbation: str = typer.Option("shape", "--perturbation", "--perturb",
                                      help="shape or texture (--perturb is the old name)"),
     views: int = typer.Option(5, help="number of victim views"),
-    azimuths: str = typer.Option("150:210", help="azimuth range LOW:HIGH (degrees) of the victim views; 180 faces "
-                                                       "the front of a PASCAL3D+ model"),
+    azimuths: str = typer.Option("150:210", help="azimuth range LOW:HIGH or LOW-HIGH (degrees) of the victim views; "
+                                                 "180 faces the front of a PASCAL3D+ model"),
     eval_views: int = typer.Option(0, help="held-out views in the same range (between the victim views)"),
     elevation: float = typer.Option(DEFAULT_ELEVATION, help="camera elevation (degrees)"),
     distance: float = typer.Option(DEFAULT_DISTANCE, help="camera distance (mesh normalised to [-1, 1])"),
@@ -144,7 +149,7 @@ def attack(
                    "0.05 below the threshold for detectors)"),
     budget: Optional[float] = typer.Option(None, help="distortion ceiling (Laplacian for shape, RMSE for texture)"),
     jitter: bool = typer.Option(False, help="random camera/light jitter at every step (robustness)"),
-    image_size: int = typer.Option(224, help="rendered image size in pixels"),
+    image_size: int = typer.Option(224, min=1, max=16384, help="rendered image size in pixels"),
     background: str = typer.Option(DEFAULT_BACKGROUND, help="background colour r,g,b in [0, 1]"),
     threshold: float = typer.Option(0.5, help="detector score threshold (--disappear)"),
     z_up: Optional[bool] = typer.Option(None, "--z-up/--y-up", help="mesh file is Z-up (default: guess)"),
@@ -153,8 +158,14 @@ def attack(
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
 ) -> None:
     """Attack MESH so that VICTIM sees the target class (shape or texture perturbation); Ctrl-C saves the best
-    result so far. Writes the adversarial mesh (PLY, OBJ), before/after PNGs and result.json into OUTPUT."""
+    result so far. Writes the adversarial mesh (PLY, OBJ; and in the input file's frame), before/after PNGs, a
+    labelled comparison.png and result.json into OUTPUT.
+
+    Victims: efficientnet_lite0, efficientnet_lite2, ssd_mobilenet_v2_coco (weights included); densenet121,
+    inception_v3 (--weights STATE_DICT.pth), yolov3 (--weights FILE.weights --cfg FILE.cfg)."""
     import torch
+
+    from meshadv.commands._comparison import write_attack_outputs
 
     from meshadv.render import RenderSetup
     from meshadv.victims import load_victim
@@ -163,13 +174,14 @@ def attack(
     try:
         if smoothing is not None and perturbation != "shape":
             raise ValueError("--smoothing applies to --perturbation shape only")
-        mesh_obj, label = load_mesh_arg(mesh, z_up=z_up)
-        az = _azimuth_range(azimuths)
+        loaded = load_mesh_input(mesh, z_up=z_up)
+        mesh_obj, label = loaded.mesh, loaded.label
+        az = parse_azimuth_range(azimuths)
         view_set = make_views(views, az, elevation, distance)
         held_out = make_views(eval_views + 1, az, elevation, distance, offset=0.5) if eval_views > 0 else None
         jitter_cfg = dict(azimuth=5.0, elevation=3.0, distance=0.05, light_direction=0.2,
                           light_intensity=0.2) if jitter else None
-        victim_obj = load_victim(victim)
+        victim_obj = load_victim(victim, weights=weights, cfg=cfg)
         if early_stop_margin is None:
             early_stop_margin = 0.05 if victim_obj.kind == "detector" else 0.5
         shape_only = {"smoothing": smoothing} if perturbation == "shape" else {}
@@ -189,7 +201,11 @@ def attack(
     result = run_with_progress(attack_obj, mesh_obj, view_set, victim_obj, criteria, eval_views=held_out,
                                setup=setup, quiet=quiet)
     path = result.save(output)
+    status = "succeeded" if bool(result.succeeded[0]) else "did not succeed"
+    comparison = write_attack_outputs(result, victim_obj, output, loaded,
+                                      f"{label}: {perturbation} attack ({result.criteria[0].get('label', '')}) "
+                                      f"{status} ({result.steps} steps)")
     typer.echo(result.summary())
     if result.interrupted:
         typer.echo("interrupted: saved the best result so far")
-    typer.echo(f"wrote {path}")
+    typer.echo(f"wrote {path} and {comparison}")

