@@ -116,6 +116,15 @@ def test_attack_saves_the_input_frame_and_a_comparison(tmp_path: Path, monkeypat
         assert image.width >= 2 * 320 and image.height >= 2 * 320  # two views, each cell at least 320 px
     assert (out / "comparison.png").stat().st_mode & 0o777 == 0o666 & ~_umask()
 
+    pytest.importorskip("mitsuba", reason="Mitsuba 3 not installed (pip install 'meshadv[transfer]')")
+    from meshadv.commands._single_transfer import transfer_attack_folder
+
+    rows = transfer_attack_folder(out, spp=4, max_depth=2, victim_loader=lambda name: PooledLinearClassifier())
+    assert [r["view"] for r in rows] == [0, 1]
+    assert all(isinstance(r["success_mitsuba"], bool) for r in rows)
+    assert json.loads((out / "transfer.json").read_text())["rows"] == rows
+    assert (out / "mitsuba_v0.png").is_file() and (out / "mitsuba_v1.png").is_file()
+
 
 def _umask() -> int:
     import os

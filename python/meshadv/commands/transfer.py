@@ -90,12 +90,13 @@ def check_cmd(
 def render_cmd(
     mesh: str = typer.Argument(..., help="Mesh file, builtin:NAME or default."),
     out: Path = typer.Option(..., "-o", "--out", help="Output PNG."),
-    size: int = typer.Option(224, help="Image side in pixels."),
+    size: int = typer.Option(224, help="Image side in pixels (as `meshadv attack`)."),
     spp: int = typer.Option(64, help="Samples per pixel."),
     max_depth: int = typer.Option(8, help="Path depth (2 = direct light only)."),
-    distance: float = typer.Option(3.0, help="Camera distance."),
-    azimuth: float = typer.Option(30.0, help="Camera azimuth (degrees)."),
-    elevation: float = typer.Option(20.0, help="Camera elevation (degrees)."),
+    distance: float = typer.Option(4.5, help="Camera distance (as `meshadv attack`)."),
+    azimuth: float = typer.Option(180.0, help="Camera azimuth (degrees; 180 = the centre of `meshadv attack`'s "
+                                              "views)."),
+    elevation: float = typer.Option(15.0, help="Camera elevation (degrees, as `meshadv attack`)."),
     viewing_angle: float = typer.Option(30.0, help="Field of view (degrees)."),
     scene: str = typer.Option("none", help="none, indoor, living-room, or a Mitsuba scene XML to place the mesh in."),
     variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
@@ -130,6 +131,26 @@ def render_cmd(
     typer.echo(f"wrote {out} ({image.variant})")
 
 
+@transfer_app.command("attack")
+def attack_cmd(
+    folder: Path = typer.Argument(..., help="Output folder of `meshadv attack` or `meshadv demo` (result.json)."),
+    spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
+    max_depth: int = typer.Option(8, help="Path depth (>= 3 adds interreflection)."),
+    variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
+) -> None:
+    """Re-render one `meshadv attack` result with Mitsuba under the attack's own views and test its victim; writes
+    FOLDER/transfer.json and FOLDER/mitsuba_v<view>.png."""
+    from meshadv.commands._single_transfer import transfer_attack_folder
+
+    rows = transfer_attack_folder(folder, spp=spp, max_depth=max_depth, variant=variant)
+    for row in rows:
+        typer.echo(f"view {row['view']}: meshadv {'adversarial' if row['success_meshadv'] else 'benign'} "
+                   f"({row['top1_meshadv']}), Mitsuba {'adversarial' if row['success_mitsuba'] else 'benign'} "
+                   f"({row['top1_mitsuba']})")
+    typer.echo(f"transferred {sum(r['success_mitsuba'] for r in rows)}/{len(rows)} views; "
+               f"wrote {folder / 'transfer.json'}")
+
+
 @transfer_app.command("controlled")
 def controlled_cmd(
     results: Path = typer.Argument(..., help="Results database of a finished `meshadv sweep`."),
@@ -152,7 +173,8 @@ def controlled_cmd(
     # artefacts missing here (another machine's sweep) are regenerated from the stored specs next to the database
     todo = cases_from_store(results, only_successful=not all_attacks, skip=done, limit=limit)
     if not todo and not done:
-        typer.echo("no finished single-view attacks with an adversarial mesh in this database")
+        hint = "" if all_attacks else " (none succeeded in meshadv; add --all to transfer the failed attacks too)"
+        typer.echo(f"no finished single-view attacks with an adversarial mesh in this database{hint}")
         raise typer.Exit(code=1)
     typer.echo(f"{len(done)} adversarial meshes already transferred, transferring {len(todo)}")
     for case in todo:  # one case at a time, saved at once: an interrupted run resumes where it stopped
