@@ -402,13 +402,13 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
     for protocol, limit, victims, options in settings:
         for mesh, ci, view in instances:
             for victim in (v for v in victims if ci < limit.get(v, ci + 1)):
-                for ptype in config.attack["perturbations"]:
+                for perturbation in config.attack["perturbations"]:
                     for target in _targets(config.attack["targets"], mesh["class"], classes):
                         for seed in config.seeds:
                             job = {
                                 "kind": "single", "mesh": mesh, "source_class": mesh["class"], "target": target,
-                                "victim": victim, "perturbation": ptype, "views": [view], "eval_views": [],
-                                "image_size": size, "attack": dict(options.get(ptype, {})), "seed": seed,
+                                "victim": victim, "perturbation": perturbation, "views": [view], "eval_views": [],
+                                "image_size": size, "attack": dict(options.get(perturbation, {})), "seed": seed,
                                 "config_index": ci,
                                 "benign_correct_only": bool(config.attack["benign_correct_only"]),
                             }
@@ -422,7 +422,7 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
             if mesh["class"] not in mv_classes:
                 continue
             for victim in mv["victims"] or config.victims:
-                for ptype in mv["perturbations"]:
+                for perturbation in mv["perturbations"]:
                     targets = _targets(mv["targets"] or config.attack["targets"], mesh["class"], classes)
                     for target in targets:
                         if mv["grid"]:
@@ -440,9 +440,9 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
                                           for _ in range(int(mv["eval_views"]))]
                                 jobs.append({
                                     "kind": "multiview", "mesh": mesh, "source_class": mesh["class"],
-                                    "target": target, "victim": victim, "perturbation": ptype, "views": views,
+                                    "target": target, "victim": victim, "perturbation": perturbation, "views": views,
                                     "eval_views": unseen, "image_size": size,
-                                    "attack": dict(config.attack.get(ptype, {})), "seed": seed,
+                                    "attack": dict(config.attack.get(perturbation, {})), "seed": seed,
                                     "num_views": int(count), "azimuth_range": [float(lo), float(hi)],
                                     "benign_correct_only": False,
                                 })
