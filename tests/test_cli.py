@@ -94,11 +94,25 @@ def test_attack_smoothing_option(tmp_path: Path) -> None:
     _require_renderer()
     _require_victim()
     out = tmp_path / "s"
-    result = runner.invoke(app, ["attack", "builtin:chair", "--target", "bicycle", "--smoothing", "3", "--views", "1",
-                                 "--steps", "2", "--image-size", "64", "--quiet", "-o", str(out)])
+    result = runner.invoke(app, ["attack", "builtin:chair", "--target", "bicycle", "--method", "adam", "--smoothing",
+                                 "3", "--views", "1", "--steps", "2", "--image-size", "64", "--quiet", "-o", str(out)])
     assert result.exit_code == 0, result.output
     record = json.loads((out / "result.json").read_text())
     assert record["config"]["smoothing"] == 3 and record["perturbation"] == "shape"
+
+
+def test_attack_method_option(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["attack", "builtin:cube", "--method", "ddn", "--lr", "0.1", "--target", "1",
+                                 "-o", str(tmp_path / "m")])
+    assert result.exit_code == 2 and "--method adam" in result.output
+    _require_renderer()
+    _require_victim()
+    out = tmp_path / "ddn"
+    result = runner.invoke(app, ["attack", "builtin:chair", "--target", "bicycle", "--views", "1", "--steps", "3",
+                                 "--image-size", "64", "--quiet", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "result.json").read_text())
+    assert record["config"]["method"] == "ddn" and record["config"]["early_stop"] is None and record["steps"] == 3
 
 
 def test_demo_runs_end_to_end(tmp_path: Path) -> None:

@@ -134,16 +134,21 @@ def attack(
     eval_views: int = typer.Option(0, help="held-out views in the same range (between the victim views)"),
     elevation: float = typer.Option(DEFAULT_ELEVATION, help="camera elevation (degrees)"),
     distance: float = typer.Option(DEFAULT_DISTANCE, help="camera distance (mesh normalised to [-1, 1])"),
-    steps: int = typer.Option(300, help="maximum Adam steps per binary-search round"),
-    lr: Optional[float] = typer.Option(None, help="Adam learning rate (default: the attack's)"),
-    lambda_: Optional[float] = typer.Option(None, "--lambda", help="initial perceptual weight lambda"),
+    method: str = typer.Option("ddn", help="update rule: ddn (least distortion: a per-target budget that shrinks "
+                                           "while the target holds, no lambda; benchmarks/RESULTS.md) or adam (the "
+                                           "paper's Adam + lambda search)"),
+    steps: int = typer.Option(300, help="maximum steps (per binary-search round with --method adam)"),
+    lr: Optional[float] = typer.Option(None, help="--method adam: Adam learning rate (default: the attack's)"),
+    lambda_: Optional[float] = typer.Option(None, "--lambda", help="--method adam: initial perceptual weight lambda"),
     smoothing: Optional[int] = typer.Option(
         None, help="shape only: rounds of neighbour averaging of the optimised vertex flow (default: the attack's; "
                    "0 = the paper's exact per-vertex flow)"),
-    binary_search: int = typer.Option(1, help="binary-search rounds over lambda (paper: 5)"),
+    binary_search: int = typer.Option(1, help="--method adam: binary-search rounds over lambda (paper: 5)"),
     loss: str = typer.Option("ce", help="classifier loss: ce or cw"),
     kappa: float = typer.Option(0.0, help="C&W confidence"),
-    early_stop: int = typer.Option(10, help="stop once the target held for this many steps (0: never)"),
+    early_stop: Optional[int] = typer.Option(
+        None, help="stop once the target held for this many steps (0: never; default: 10 with adam, never with ddn, "
+                   "which keeps lowering the distortion after the first success)"),
     early_stop_margin: Optional[float] = typer.Option(
         None, help="margin the target must hold with for early stopping (default: 0.5 logits for classifiers, "
                    "0.05 below the threshold for detectors)"),
@@ -174,6 +179,10 @@ def attack(
     try:
         if smoothing is not None and perturbation != "shape":
             raise ValueError("--smoothing applies to --perturbation shape only")
+        if method == "ddn" and (lr is not None or lambda_ is not None or binary_search != 1 or smoothing):
+            raise ValueError("--lr, --lambda, --binary-search and --smoothing apply to --method adam only")
+        if early_stop is None:
+            early_stop = 0 if method == "ddn" else 10
         loaded = load_mesh_input(mesh, z_up=z_up)
         mesh_obj, label = loaded.mesh, loaded.label
         az = parse_azimuth_range(azimuths)
@@ -189,7 +198,7 @@ def attack(
         attack_obj = build_attack(
             perturbation, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
-            max_distortion=budget, jitter=jitter_cfg, seed=seed, **shape_only,
+            max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, **shape_only,
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
         for crit in criteria:
