@@ -91,7 +91,7 @@ def test_expansion_counts_and_determinism(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("raw", "match"),
     [
-        ({"victims": {"names": ["v"]}, "bogus": {}}, "unknown config sections"),
+        ({"victims": {"names": ["v"]}, "bogus": {}}, r"unknown config section \[bogus\]"),
         ({}, "victims.names"),
         ({"victims": {"names": ["v"]}, "meshes": {"classes": ["cat"]}}, "PASCAL3D"),
         ({"victims": {"names": ["v"]}, "attack": {"types": ["colour"]}}, "attack.types"),

@@ -26,15 +26,18 @@ def sweep(
                                       "(s3://bucket/run), or 'shared' (every node writes the output folder)."),
     ray_resource: Optional[List[str]] = typer.Option(None, help="Ray: a custom resource NAME=AMOUNT each job needs, "
                                                      "to pin jobs to nodes started with it (repeatable)."),
-    workers: int = typer.Option(-1, help="Parallel jobs (0 = every core; default: the config's runner.workers)."),
+    workers: Optional[int] = typer.Option(None, help="Parallel jobs (0 = every core; default: the config's "
+                                          "runner.workers)."),
     db: Optional[Path] = typer.Option(None, help="Results database (default: from the config)."),
     output: Optional[Path] = typer.Option(None, help="Artefact folder (default: from the config)."),
     max_attempts: Optional[int] = typer.Option(None, help="Attempts per job (default: the config's)."),
     timeout: Optional[float] = typer.Option(None, help="Per-job timeout in seconds, local backend (0 = none)."),
-    dry_run: bool = typer.Option(False, "--dry-run", help="Only expand the jobs and print how many there are."),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Only expand and check the jobs (victim names, mesh "
+                                 "files, target classes) and print how many there are."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the progress bar."),
 ) -> None:
     """Run (or resume) the attack sweep described by CONFIG."""
+    from meshadv.commands._job_index import write_job_index
     from meshadv.experiments import ResultStore, make_backend, run_sweep
     from meshadv.experiments.config import expand_jobs, load_config
     from meshadv.experiments.report import environment_versions
@@ -47,12 +50,19 @@ def sweep(
     db_path = db or cfg.db
     out_root = output or cfg.output
     if dry_run:
+        from meshadv.commands._sweep_check import check_jobs
+
         kinds = {k: sum(j["kind"] == k for j in jobs) for k in ("single", "multiview")}
         typer.echo(f"{len(jobs)} jobs ({kinds['single']} single-view, {kinds['multiview']} multi-view); "
                    f"database {db_path}; artefacts {out_root}")
+        problems = check_jobs(jobs)
+        for problem in problems:
+            typer.echo(f"error: {problem}", err=True)
+        if problems:
+            raise typer.Exit(1)
         return
     runner = cfg.runner
-    n_workers = int(runner["workers"]) if workers < 0 else workers
+    n_workers = int(runner["workers"]) if workers is None else workers
     attempts = int(runner["max_attempts"]) if max_attempts is None else max_attempts
     resources: Dict[str, float] = {}
     for item in ray_resource or []:
@@ -68,7 +78,12 @@ def sweep(
                           resources=resources or None)
     except ValueError as err:
         raise typer.BadParameter(str(err), param_hint="--backend / --address") from err
-    with ResultStore(db_path) as store:
+    try:
+        store = ResultStore(db_path)
+    except ValueError as err:  # an empty, truncated or WAL-less database: one line saying what to do
+        typer.echo(f"meshadv sweep: error: {err}", err=True)
+        raise typer.Exit(1) from None
+    with store:
         store.set_meta("name", cfg.name)
         store.set_meta("config_path", str(Path(config).resolve()))
         store.set_meta("config_text", cfg.text)
@@ -77,6 +92,15 @@ def sweep(
         try:
             summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be, max_attempts=attempts,
                                 progress=progress)
+            write_job_index(store, out_root, out_root)  # index.csv / index.md: job id -> folder and settings
+        except KeyboardInterrupt:
+            be.close()
+            requeued = store.requeue_running()
+            counts = store.counts()
+            typer.echo(f"\ninterrupted: {counts.get('done', 0)} finished job(s) are kept in {db_path}; "
+                       f"{requeued} running job(s) were put back to pending; run the same command again to resume",
+                       err=True)
+            raise typer.Exit(130) from None
         finally:
             be.close()
     typer.echo(f"{summary.done}/{summary.total} done ({summary.successes} successful), {summary.failed} failed; "
@@ -84,6 +108,7 @@ def sweep(
                f"results in {db_path}")
     if summary.failed:
         typer.echo(f"{summary.failed} job(s) failed: see the 'error' column of {db_path}", err=True)
+        raise typer.Exit(1)
 
 
 def register(app: typer.Typer) -> None:

@@ -64,6 +64,33 @@ CREATE TABLE IF NOT EXISTS meta (
 """
 
 
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def _check_existing_file(path: Path) -> bool:
+    """True when ``path`` exists; refuse an empty or non-SQLite file with advice instead of overwriting it.
+
+    Raises:
+        ValueError: ``path`` is a directory, an empty file or not an SQLite database.
+    """
+    if not path.exists():
+        return False
+    if not path.is_file():
+        raise ValueError(f"path {str(path)!r} is not a file (a results database was expected)")
+    size = path.stat().st_size
+    if size == 0:
+        raise ValueError(
+            f"path {str(path)!r} is an empty file (0 bytes), not a results database: it was truncated or copied "
+            "while being written; restore it from a backup or the machine that ran the sweep, or delete it to "
+            "start a new sweep"
+        )
+    with path.open("rb") as fh:
+        head = fh.read(len(_SQLITE_MAGIC))
+    if head != _SQLITE_MAGIC:
+        raise ValueError(f"path {str(path)!r} is not an SQLite database (it does not start with the SQLite header)")
+    return True
+
+
 @dataclass(frozen=True)
 class JobRow:
     """One row of the ``jobs`` table.
@@ -103,19 +130,55 @@ class ResultStore:
 
     def __init__(self, path: Union[str, Path], *, timeout: float = 30.0) -> None:
         self.path = str(path)
+        existed = wal_present = False
         if self.path != ":memory:":
+            existed = _check_existing_file(Path(self.path))
+            wal_present = Path(self.path + "-wal").exists()  # before connecting: connecting creates it
             Path(self.path).parent.mkdir(parents=True, exist_ok=True)
         self._conn = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)
         try:
+            if existed and not wal_present:
+                self._check_not_a_lost_wal_copy()
             self._conn.execute("PRAGMA journal_mode=WAL")
             self._conn.execute("PRAGMA synchronous=NORMAL")
             self._conn.executescript(_SCHEMA)
         except sqlite3.DatabaseError as err:
             self._conn.close()
             raise ValueError(f"path {self.path!r} is not a meshadv results database: {err}") from err
+        except ValueError:
+            self._conn.close()
+            raise
+        if self.path != ":memory:":
+            # Mark the database open in its main file: a copy taken without its -wal file then shows the mark.
+            self._conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('open', '1')")
+            self.checkpoint()
+
+    def _check_not_a_lost_wal_copy(self) -> None:
+        """Refuse a database whose write-ahead log is missing (copied without ``<db>-wal``)."""
+        wal = Path(self.path + "-wal")
+        tables = {r[0] for r in self._conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        advice = (
+            f"copy {wal.name} (and {Path(self.path).name}-shm) from where the sweep ran next to it, or open the "
+            "original; to start over instead, delete the file"
+        )
+        if "jobs" not in tables:
+            raise ValueError(
+                f"path {self.path!r} is an SQLite database without a jobs table: it looks like a copy made "
+                f"without its write-ahead log ({wal.name}), which held every result; {advice}"
+            )
+        if "meta" in tables:
+            row = self._conn.execute("SELECT value FROM meta WHERE key = 'open'").fetchone()
+            if row is not None and row[0] == "1":
+                raise ValueError(
+                    f"path {self.path!r} was not closed cleanly and its write-ahead log {wal.name} is missing: "
+                    f"results recorded since the last checkpoint are not in this file; {advice}"
+                )
 
     def close(self) -> None:
         """Close the connection (after a checkpoint, so the ``.db`` file alone holds every result)."""
+        if self.path != ":memory:":
+            with contextlib.suppress(sqlite3.Error):
+                self._conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('open', '0')")
         self.checkpoint()
         self._conn.close()
 

@@ -1,0 +1,115 @@
+"""Damaged results databases are detected with advice; sweeps with failed jobs or Ctrl-C say so in the exit code."""
+
+from __future__ import annotations
+
+import shutil
+import sqlite3
+from pathlib import Path
+from typing import Any
+
+import pytest
+from typer.testing import CliRunner
+
+import meshadv.experiments as experiments
+from meshadv.cli import app
+from meshadv.experiments import ResultStore
+from meshadv.experiments.runner import SweepSummary
+
+CONFIG = """
+[experiment]
+name = "t"
+output = "out"
+[meshes]
+source = "builtin"
+builtin = [{name = "sphere", class = "bottle"}]
+[render]
+image_size = 32
+configurations = 1
+[victims]
+names = ["efficientnet_lite0"]
+[attack]
+perturbations = ["texture"]
+targets = ["chair"]
+[attack.texture]
+steps = 1
+"""
+
+
+def test_an_empty_file_is_not_taken_as_a_new_database(tmp_path: Path) -> None:
+    path = tmp_path / "results.db"
+    path.write_bytes(b"")
+    with pytest.raises(ValueError, match="is an empty file .*delete it to start a new sweep"):
+        ResultStore(path)
+    assert path.stat().st_size == 0  # left untouched
+
+
+def test_a_file_that_is_not_sqlite_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "results.db"
+    path.write_text("not a database")
+    with pytest.raises(ValueError, match="is not an SQLite database"):
+        ResultStore(path)
+
+
+def test_a_copy_without_its_wal_file_is_detected(tmp_path: Path) -> None:
+    src = tmp_path / "run" / "results.db"
+    store = ResultStore(src)
+    store.add_jobs([{"a": 1}, {"a": 2}])
+    # Copy while the sweep is running (the WAL holds the jobs), leaving the -wal file behind.
+    copy = tmp_path / "copy" / "results.db"
+    copy.parent.mkdir()
+    shutil.copy(src, copy)
+    store.close()
+    with pytest.raises(ValueError, match="was not closed cleanly and its write-ahead log results.db-wal is missing"):
+        ResultStore(copy)
+    # A database closed cleanly needs no -wal file: the checkpoint moved everything into the .db file.
+    with ResultStore(src) as reopened:
+        assert reopened.counts()["pending"] == 2
+
+
+def test_a_wal_mode_file_without_tables_is_reported_as_a_wal_less_copy(tmp_path: Path) -> None:
+    path = tmp_path / "results.db"
+    conn = sqlite3.connect(path)
+    conn.execute("PRAGMA journal_mode=WAL")
+    conn.close()
+    with pytest.raises(ValueError, match="without a jobs table: it looks like a copy made without its write-ahead"):
+        ResultStore(path)
+
+
+def _sweep(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, behaviour: Any) -> Any:
+    config = tmp_path / "sweep.toml"
+    config.write_text(CONFIG)
+    monkeypatch.setattr(experiments, "run_sweep", behaviour)
+    return CliRunner().invoke(app, ["sweep", str(config), "--backend", "serial", "--no-progress"])
+
+
+def test_a_sweep_with_failed_jobs_exits_non_zero(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def one_failed(*_args: Any, **_kwargs: Any) -> SweepSummary:
+        return SweepSummary(total=2, done=1, successes=1, failed=1, ran=2, skipped=0, requeued=0)
+
+    result = _sweep(tmp_path, monkeypatch, one_failed)
+    assert result.exit_code == 1, result.output
+    assert "1 job(s) failed" in result.output
+
+
+def test_ctrl_c_says_what_was_kept_and_requeues(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def interrupted(store: ResultStore, jobs: list, *_args: Any, **_kwargs: Any) -> SweepSummary:
+        store.add_jobs(jobs)
+        store.mark_running(store.runnable(1)[0])
+        raise KeyboardInterrupt
+
+    result = _sweep(tmp_path, monkeypatch, interrupted)
+    assert result.exit_code == 130
+    assert "interrupted: 0 finished job(s) are kept" in result.output
+    assert "1 running job(s) were put back to pending" in result.output
+    with ResultStore(tmp_path / "out" / "results.db") as store:
+        assert store.counts()["running"] == 0
+
+
+def test_a_damaged_database_is_a_one_line_cli_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "results.db").write_bytes(b"")
+    result = _sweep(tmp_path, monkeypatch, None)
+    assert result.exit_code == 1
+    assert "Traceback" not in result.output
+    assert result.output.strip().startswith("meshadv sweep: error: path")
+    assert len(result.output.strip().splitlines()) == 1
