@@ -132,3 +132,46 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def test_sweep_dry_run_finds_what_would_fail_every_job(tmp_path: Path) -> None:
+    import copy
+
+    from meshadv.commands._sweep_check import check_jobs
+    from meshadv.experiments.config import expand_jobs, load_config
+
+    config = Path(__file__).resolve().parents[1] / "configs" / "paper_small.toml"
+    jobs = expand_jobs(load_config(config))[:3]
+    bad = copy.deepcopy(jobs)
+    bad[0]["victim"] = "efficientnet_lite3"
+    bad[1]["mesh"] = {"source": "files", "path": str(tmp_path / "missing.ply")}
+    bad[2]["target"] = "bicylce"
+    problems = check_jobs(bad)
+    assert len(problems) == 3
+    assert "did you mean 'efficientnet_lite2'" in problems[0]
+    assert "missing.ply does not exist" in problems[1] and "did you mean 'bicycle'" in problems[2]
+    text = config.read_text().replace('names = ["efficientnet_lite0"]', 'names = ["efficientnet_lite3"]')
+    (tmp_path / "bad.toml").write_text(text.replace('output = "../out/paper_small"', 'output = "out"'))
+    result = runner.invoke(app, ["sweep", str(tmp_path / "bad.toml"), "--dry-run"])
+    assert result.exit_code != 0 and "efficientnet_lite2" in result.output
+
+
+def test_report_explains_a_config_and_lists_failed_jobs(tmp_path: Path) -> None:
+    from meshadv.experiments import ResultStore
+    from meshadv.experiments.config import expand_jobs, load_config
+
+    config = Path(__file__).resolve().parents[1] / "configs" / "paper_small.toml"
+    result = runner.invoke(app, ["report", str(config), "-o", str(tmp_path / "r")])
+    assert result.exit_code == 2 and "run `meshadv sweep" in " ".join(result.output.replace("│", " ").split())
+    jobs = expand_jobs(load_config(config))[:2]
+    with ResultStore(tmp_path / "results.db") as store:
+        store.add_jobs(jobs)
+        failed = store.rows()[0].job_id
+        store.mark_running(failed)
+        store.mark_failed(failed, "Traceback (most recent call last):\n  ...\nValueError: no such class")
+    result = runner.invoke(app, ["report", str(tmp_path / "results.db"), "-o", str(tmp_path / "r")])
+    assert result.exit_code == 0, result.output
+    assert f"{failed[:12]} (1 attempts): ValueError: no such class" in result.output
+    index = (tmp_path / "r" / "index.csv").read_text().splitlines()
+    assert len(index) == 3 and any(line.startswith(failed) and "no such class" in line for line in index)
+    assert str(tmp_path / "jobs" / failed[:2] / failed) in "\n".join(index)

@@ -37,11 +37,40 @@ def report(
     out: Path = typer.Option(..., "-o", "--out", help="Report folder."),
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Draw the figures."),
 ) -> None:
-    """Write Table 1, Table 2, the figures and the run's settings from RESULTS."""
+    """Write Table 1, Table 2, the figures and the run's settings from RESULTS; index.csv / index.md map the job
+    folders (named by hash) to their settings; failed jobs' errors are printed."""
+    from meshadv.commands._job_index import failed_jobs, write_job_index
+    from meshadv.experiments import ResultStore
+
+    if results.suffix.lower() in (".toml", ".yaml", ".yml"):
+        raise typer.BadParameter(f"{results} is a sweep config, not a results database: run `meshadv sweep "
+                                 f"{results}` first, then `meshadv report {_database_of(results)} -o {out}`",
+                                 param_hint="RESULTS")
     if not results.is_file():
-        raise typer.BadParameter(f"{results} does not exist", param_hint="RESULTS")
+        raise typer.BadParameter(f"{results} does not exist (give the results.db that `meshadv sweep` wrote)",
+                                 param_hint="RESULTS")
+    with ResultStore(results) as store:  # a file that is not a results database fails here, in one line
+        failed = failed_jobs(store)
+        index = write_job_index(store, out, results.parent)  # the default config puts the db in the output folder
     output = write_full_report(results, out, figures=figures)
     typer.echo(f"wrote {len(output.tables)} table files and {len(output.figures)} figures to {output.out_dir}")
+    typer.echo(f"job index (job id -> folder, settings, state): {index}")
+    if failed:
+        typer.echo(f"{len(failed)} job(s) failed:", err=True)
+        for job in failed[:10]:
+            typer.echo(f"  {job['job_id'][:12]} ({job['attempts']} attempts): {job['error']}", err=True)
+        if len(failed) > 10:
+            typer.echo(f"  ... {len(failed) - 10} more in {index}", err=True)
+
+
+def _database_of(config: Path) -> str:
+    """The results database a sweep config names (``<output>/results.db`` by default), or a placeholder."""
+    try:
+        from meshadv.experiments.config import load_config
+
+        return str(load_config(config).db)
+    except Exception:  # noqa: BLE001 - only for the hint of an error message
+        return "RESULTS.db"
 
 
 def register(app: typer.Typer) -> None:
