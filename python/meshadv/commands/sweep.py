@@ -78,7 +78,12 @@ def sweep(
                           resources=resources or None)
     except ValueError as err:
         raise typer.BadParameter(str(err), param_hint="--backend / --address") from err
-    with ResultStore(db_path) as store:
+    try:
+        store = ResultStore(db_path)
+    except ValueError as err:  # an empty, truncated or WAL-less database: one line saying what to do
+        typer.echo(f"meshadv sweep: error: {err}", err=True)
+        raise typer.Exit(1) from None
+    with store:
         store.set_meta("name", cfg.name)
         store.set_meta("config_path", str(Path(config).resolve()))
         store.set_meta("config_text", cfg.text)
@@ -88,6 +93,14 @@ def sweep(
             summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be, max_attempts=attempts,
                                 progress=progress)
             write_job_index(store, out_root, out_root)  # index.csv / index.md: job id -> folder and settings
+        except KeyboardInterrupt:
+            be.close()
+            requeued = store.requeue_running()
+            counts = store.counts()
+            typer.echo(f"\ninterrupted: {counts.get('done', 0)} finished job(s) are kept in {db_path}; "
+                       f"{requeued} running job(s) were put back to pending; run the same command again to resume",
+                       err=True)
+            raise typer.Exit(130) from None
         finally:
             be.close()
     typer.echo(f"{summary.done}/{summary.total} done ({summary.successes} successful), {summary.failed} failed; "
@@ -95,6 +108,7 @@ def sweep(
                f"results in {db_path}")
     if summary.failed:
         typer.echo(f"{summary.failed} job(s) failed: see the 'error' column of {db_path}", err=True)
+        raise typer.Exit(1)
 
 
 def register(app: typer.Typer) -> None:
