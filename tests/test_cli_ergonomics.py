@@ -120,9 +120,9 @@ def test_attack_saves_the_input_frame_and_a_comparison(tmp_path: Path, monkeypat
     from meshadv.commands._single_transfer import transfer_attack_folder
 
     rows = transfer_attack_folder(out, spp=4, max_depth=2, victim_loader=lambda name: PooledLinearClassifier())
-    assert [r["view"] for r in rows] == [0, 1]
-    assert all(isinstance(r["success_mitsuba"], bool) for r in rows)
-    assert json.loads((out / "transfer.json").read_text())["rows"] == rows
+    assert [r.view for r in rows] == [0, 1]
+    assert all(isinstance(r.success_mitsuba, bool) for r in rows)
+    assert json.loads((out / "transfer.json").read_text())["rows"] == [r.to_record() for r in rows]
     assert (out / "mitsuba_v0.png").is_file() and (out / "mitsuba_v1.png").is_file()
 
 
@@ -175,3 +175,28 @@ def test_report_explains_a_config_and_lists_failed_jobs(tmp_path: Path) -> None:
     index = (tmp_path / "r" / "index.csv").read_text().splitlines()
     assert len(index) == 3 and any(line.startswith(failed) and "no such class" in line for line in index)
     assert str(tmp_path / "jobs" / failed[:2] / failed) in "\n".join(index)
+
+
+def test_attack_scene_refuses_when_nothing_is_detected() -> None:
+    pytest.importorskip("meshadv._raster")
+    import types
+
+    import typer
+    from stand_in_victims import DarkBlobDetector
+
+    from meshadv.attacks import Disappearance
+    from meshadv.commands.attack_scene import _require_something_to_hide
+    from meshadv.mesh.shapes import builtin_mesh
+    from meshadv.render import RenderSetup, ViewSet
+
+    dark = builtin_mesh("sphere", color=(0.05, 0.05, 0.05))
+
+    def setup_at(distance: float) -> object:
+        views = ViewSet.orbit([0.0], distance=distance)
+        return types.SimpleNamespace(mesh=dark, views=lambda: views,
+                                     render_setup=lambda antialias: RenderSetup(image_size=64))
+
+    detector = DarkBlobDetector()
+    _require_something_to_hide(setup_at(3.0), detector, Disappearance("blob", threshold=0.5), "blob", 0.5)
+    with pytest.raises(typer.BadParameter, match="nothing to hide: the detector finds no 'blob'"):
+        _require_something_to_hide(setup_at(80.0), detector, Disappearance("blob", threshold=0.5), "blob", 0.5)

@@ -19,7 +19,10 @@ SCENE_HELP = (
 
 def attack_scene(
     scene: str = typer.Argument(..., help=SCENE_HELP),
-    victim: str = typer.Option("ssd_mobilenet_v2_coco", help="detector victim name"),
+    victim: str = typer.Option("ssd_mobilenet_v2_coco", help="detector victim: ssd_mobilenet_v2_coco (weights "
+                                                             "included) or yolov3 (--weights, --cfg)"),
+    weights: Optional[Path] = typer.Option(None, help="yolov3: the Darknet .weights file"),
+    cfg: Optional[Path] = typer.Option(None, help="yolov3: the Darknet .cfg file"),
     hide: str = typer.Option("all", help="COCO class to hide (e.g. 'dining table', 'dog') or 'all'"),
     perturbation: str = typer.Option("shape", "--perturbation", "--perturb",
                                      help="shape or texture (--perturb is the old name)"),
@@ -54,7 +57,9 @@ def attack_scene(
         setup = build_setup(scene, obj, place, width)
     except (ValueError, FileNotFoundError) as exc:
         raise typer.BadParameter(str(exc)) from exc
-    detector = load_victim(victim)
+    detector = load_victim(victim, weights=weights, cfg=cfg)
+    criterion = Disappearance(hide, threshold=threshold)
+    _require_something_to_hide(setup, detector, criterion, hide, threshold)
     if lr is None:
         lr = DEFAULT_LR[perturbation]
     # the same attacks as everywhere: stop once the hidden score stayed 0.05 below the threshold for 5 steps
@@ -71,7 +76,7 @@ def attack_scene(
         if step == 1 or step % 10 == 0:
             typer.echo(f"step {step:4d}  loss {info.loss[0]:.4f}  margin {info.margin[0]:.3f}")  # type: ignore
 
-    result = attack_scene(attack, setup, detector, Disappearance(hide, threshold=threshold), callback=progress)
+    result = attack_scene(attack, setup, detector, criterion, callback=progress)
     output.mkdir(parents=True, exist_ok=True)
     save_png(draw_detections(result.image_before, result.detections_before), output / "before.png")
     save_png(draw_detections(result.image_after, result.detections_after), output / "after.png")
@@ -89,6 +94,27 @@ def attack_scene(
         f"{'success' if result.success else 'failure'}: hidden score {result.score_before:.3f} -> "
         f"{result.score_after:.3f} in {result.steps} steps; wrote {output}"
     )
+
+
+def _require_something_to_hide(setup: object, detector: object, criterion: object, hide: str,
+                               threshold: float) -> None:
+    """Refuse (one line) when the benign scene has no detection of ``hide`` above ``threshold``: nothing to hide."""
+    import torch
+
+    from meshadv.attacks import evaluate
+
+    bound = criterion.bind(detector)  # type: ignore[attr-defined]
+    benign = evaluate(setup.mesh, setup.views(), detector, bound,  # type: ignore[attr-defined]
+                      setup=setup.render_setup(1))  # type: ignore[attr-defined]
+    if float(benign.scores[0].max()) >= threshold:
+        return
+    with torch.no_grad():
+        seen = detector.detect(benign.images[0][:1], score_threshold=0.05)[0].to_records()  # type: ignore
+    seen = sorted(seen, key=lambda r: -r["score"])[:5]
+    listed = ", ".join(f"{r['label']} {r['score']:.2f}" for r in seen) or "nothing above 0.05"
+    raise typer.BadParameter(f"nothing to hide: the detector finds no {hide!r} above {threshold} in the benign "
+                             f"image (it sees: {listed}); choose --hide among those or lower --threshold",
+                             param_hint="--hide")
 
 
 def register(app: typer.Typer) -> None:
