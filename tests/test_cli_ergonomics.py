@@ -200,3 +200,11 @@ def test_attack_scene_refuses_when_nothing_is_detected() -> None:
     _require_something_to_hide(setup_at(3.0), detector, Disappearance("blob", threshold=0.5), "blob", 0.5)
     with pytest.raises(typer.BadParameter, match="nothing to hide: the detector finds no 'blob'"):
         _require_something_to_hide(setup_at(80.0), detector, Disappearance("blob", threshold=0.5), "blob", 0.5)
+
+
+def test_missing_shared_data_says_what_it_is(monkeypatch: pytest.MonkeyPatch) -> None:
+    import meshadv.data as data
+
+    monkeypatch.setattr(data, "shared_data_dir", lambda: None)
+    with pytest.raises(FileNotFoundError, match="PASCAL3D\\+ CAD models.*Set MESHADV_DATA"):
+        data.require_shared_data("pascal3d/chair/01.ply")

@@ -1,5 +1,6 @@
 """A transfer table written before the concept had one name (column and record key ``attack_type``) stays readable:
-it is migrated to ``perturbation`` when opened, and new rows can be added to it."""
+it is migrated to ``perturbation`` when opened, and new rows can be added to it. The typed controlled-transfer result
+stores records of the same format as the plain rows written before it."""
 
 from __future__ import annotations
 
@@ -35,3 +36,34 @@ def test_old_transfer_table_is_read_and_extended(tmp_path: Path) -> None:
     with sqlite3.connect(db) as conn:
         columns = {r[1] for r in conn.execute("PRAGMA table_info(transfer)")}
     assert "perturbation" in columns and "attack_type" not in columns
+
+
+#: The keys of a controlled-transfer row as evaluate_case wrote it (a plain dict) before ControlledResult existed.
+OLD_CONTROLLED_KEYS = {"case_id", "victim", "true_class", "target", "perturbation", "view", "success_meshadv",
+                       "success_mitsuba", "untargeted_meshadv", "untargeted_mitsuba", "top1_meshadv", "top1_mitsuba",
+                       "mean_abs_image_difference", "variant", "benign_correct"}
+
+
+def test_controlled_result_records_keep_the_old_row_format(tmp_path: Path) -> None:
+    import dataclasses
+
+    import pytest
+
+    from meshadv.transfer.results import ControlledResult
+
+    ok = ControlledResult(case_id="a", victim="v", true_class="boat", target="chair", perturbation="shape", view=1,
+                          success_meshadv=True, success_mitsuba=False, untargeted_meshadv=True,
+                          untargeted_mitsuba=True, top1_meshadv="folding chair", top1_mitsuba="canoe",
+                          mean_abs_image_difference=0.03, variant="scalar_rgb", benign_correct=True)
+    failed = ControlledResult(case_id="b", victim="v", true_class="boat", target="", perturbation="texture", view=0,
+                              success_meshadv=None, success_mitsuba=None, error="killed by signal 6")
+    assert set(ok.to_record()) == OLD_CONTROLLED_KEYS  # "error" only on a failed render, as before
+    assert failed.to_record()["error"] == "killed by signal 6" and failed.to_record()["success_mitsuba"] is None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        ok.view = 2  # type: ignore[misc]
+    db = tmp_path / "r.db"
+    save_transfer_rows(db, [ok.to_record(), failed.to_record()], experiment="e")
+    loaded = load_transfer_rows(db)
+    assert [{k: v for k, v in r.items() if k not in ("experiment", "kind")} for r in loaded] == [
+        ok.to_record(), failed.to_record()]
+    assert ControlledResult(**{k: v for k, v in loaded[0].items() if k not in ("experiment", "kind")}) == ok

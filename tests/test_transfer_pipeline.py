@@ -92,12 +92,12 @@ def test_controlled_transfer_tiny_run_produces_its_table(tmp_path, victim) -> No
     bottle = {names[i] for i in PASCAL3D_TO_IMAGENET["bottle"]}
     chair = {names[i] for i in PASCAL3D_TO_IMAGENET["chair"]}
     for row in rows:
-        assert row["untargeted_mitsuba"] == (row["top1_mitsuba"] not in bottle)
-        assert row["success_mitsuba"] == (row["top1_mitsuba"] in chair)
-        assert row["untargeted_meshadv"] == (row["top1_meshadv"] not in bottle)
-        assert 0.0 <= row["mean_abs_image_difference"] < 0.2
+        assert row.untargeted_mitsuba == (row.top1_mitsuba not in bottle)
+        assert row.success_mitsuba == (row.top1_mitsuba in chair)
+        assert row.untargeted_meshadv == (row.top1_meshadv not in bottle)
+        assert 0.0 <= row.mean_abs_image_difference < 0.2
     db = tmp_path / "results.db"
-    save_transfer_rows(db, rows, experiment="tiny")
+    save_transfer_rows(db, [row.to_record() for row in rows], experiment="tiny")
     table = transfer_table(load_transfer_rows(db))
     assert table[0]["n"] == 2 and table[0]["victim"] == "efficientnet_lite0"
     assert "efficientnet_lite0" in confusion_matrices(load_transfer_rows(db))
@@ -115,7 +115,7 @@ def test_controlled_transfer_survives_a_crashed_render(monkeypatch, victim) -> N
     monkeypatch.setattr(controlled, "render_scenes", crash)
     case = controlled.TransferCase("c", builtin_mesh("cube"), tuple(_views(1)), "efficientnet_lite0", "bottle")
     rows = controlled.controlled_transfer([case], victim_loader=lambda name: victim)
-    assert len(rows) == 1 and "signal 6" in rows[0]["error"] and rows[0]["success_mitsuba"] is None
+    assert len(rows) == 1 and "signal 6" in rows[0].error and rows[0].success_mitsuba is None
     with pytest.raises(MitsubaRenderError):
         controlled.controlled_transfer([case], victim_loader=lambda name: victim, on_error="raise")
 

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional
+from typing import TYPE_CHECKING, Any, Callable, List, Optional
+
+if TYPE_CHECKING:
+    from meshadv.transfer.results import ControlledResult
 
 __all__ = ["case_from_attack_folder", "transfer_attack_folder"]
 
@@ -45,14 +48,14 @@ def case_from_attack_folder(folder: Path) -> Any:
 
 
 def transfer_attack_folder(folder: Path, *, spp: int = 64, max_depth: int = 8, variant: Optional[str] = None,
-                           victim_loader: Optional[Callable[[str], Any]] = None) -> List[Dict[str, Any]]:
+                           victim_loader: Optional[Callable[[str], Any]] = None) -> List[ControlledResult]:
     """Render ``folder``'s adversarial mesh with Mitsuba under the attack's views and test the victim.
 
-    Writes ``transfer.json`` (one row per view, see ``meshadv.transfer.controlled.evaluate_case``) and the Mitsuba
-    renders ``mitsuba_v<view>.png`` into ``folder``.
+    Writes ``transfer.json`` (one record per view, see ``meshadv.transfer.controlled.evaluate_case``) and the
+    Mitsuba renders ``mitsuba_v<view>.png`` into ``folder``.
 
     Returns:
-        The rows.
+        One :class:`~meshadv.transfer.results.ControlledResult` per view.
 
     Raises:
         FileNotFoundError / ValueError: see :func:`case_from_attack_folder`.
@@ -66,6 +69,6 @@ def transfer_attack_folder(folder: Path, *, spp: int = 64, max_depth: int = 8, v
     case = case_from_attack_folder(folder)
     rows = controlled_transfer([case], spp=spp, max_depth=max_depth, variant=variant, victim_loader=victim_loader,
                                image_dir=folder, on_error="raise")
-    write_json_atomic({"folder": str(Path(folder).resolve()), "spp": spp, "max_depth": max_depth, "rows": rows},
-                      Path(folder) / "transfer.json")
+    write_json_atomic({"folder": str(Path(folder).resolve()), "spp": spp, "max_depth": max_depth,
+                       "rows": [row.to_record() for row in rows]}, Path(folder) / "transfer.json")
     return rows

@@ -144,10 +144,10 @@ def attack_cmd(
 
     rows = transfer_attack_folder(folder, spp=spp, max_depth=max_depth, variant=variant)
     for row in rows:
-        typer.echo(f"view {row['view']}: meshadv {'adversarial' if row['success_meshadv'] else 'benign'} "
-                   f"({row['top1_meshadv']}), Mitsuba {'adversarial' if row['success_mitsuba'] else 'benign'} "
-                   f"({row['top1_mitsuba']})")
-    typer.echo(f"transferred {sum(r['success_mitsuba'] for r in rows)}/{len(rows)} views; "
+        typer.echo(f"view {row.view}: meshadv {'adversarial' if row.success_meshadv else 'benign'} "
+                   f"({row.top1_meshadv}), Mitsuba {'adversarial' if row.success_mitsuba else 'benign'} "
+                   f"({row.top1_mitsuba})")
+    typer.echo(f"transferred {sum(bool(r.success_mitsuba) for r in rows)}/{len(rows)} views; "
                f"wrote {folder / 'transfer.json'}")
 
 
@@ -179,7 +179,7 @@ def controlled_cmd(
     typer.echo(f"{len(done)} adversarial meshes already transferred, transferring {len(todo)}")
     for case in todo:  # one case at a time, saved at once: an interrupted run resumes where it stopped
         rows = controlled_transfer([case], spp=spp, max_depth=max_depth, variant=variant, image_dir=images)
-        save_transfer_rows(results, rows, experiment=experiment, kind="controlled")
+        save_transfer_rows(results, [row.to_record() for row in rows], experiment=experiment, kind="controlled")
     typer.echo(transfer_report(load_transfer_rows(results, experiment=experiment, kind="controlled")))
 
 

@@ -16,9 +16,11 @@ import numpy as np
 import torch
 
 from meshadv.transfer.render import MitsubaImage, MitsubaRenderError, render_scenes
+from meshadv.transfer.results import ControlledResult
 from meshadv.transfer.scene import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
 
 __all__ = [
+    "ControlledResult",
     "TransferCase",
     "cases_from_store",
     "controlled_transfer",
@@ -184,12 +186,13 @@ def evaluate_case(
     case: TransferCase,
     victim: Any,
     mitsuba_images: Sequence[MitsubaImage],
-) -> list[dict[str, Any]]:
+) -> list[ControlledResult]:
     """Evaluate one case on its meshadv renders and its Mitsuba renders (classifier victims).
 
     Returns:
-        One row per view with ``success_meshadv`` / ``success_mitsuba`` (targeted when the case has a target, else
-        untargeted), ``untargeted_meshadv`` / ``untargeted_mitsuba``, the top-1 labels and the Mitsuba variant.
+        One :class:`~meshadv.transfer.results.ControlledResult` per view: ``success_meshadv`` / ``success_mitsuba``
+        (targeted when the case has a target, else untargeted), ``untargeted_meshadv`` / ``untargeted_mitsuba``, the
+        top-1 labels and the Mitsuba variant.
     """
     from meshadv.attacks import evaluate
     from meshadv.render import RenderSetup, ViewSet
@@ -214,28 +217,26 @@ def evaluate_case(
     top_ours = [names[i] if i < len(names) else str(i) for i in scored.top1[0].tolist()]
     top_theirs = _top1_names(victim, logits_theirs)
     diff = (ours - theirs).abs().mean(dim=(1, 2, 3)).tolist()
-    rows = []
-    for v in range(len(case.views)):
-        rows.append(
-            {
-                "case_id": case.case_id,
-                "victim": case.victim,
-                "true_class": case.true_class,
-                "target": case.target or "",
-                "perturbation": case.perturbation,
-                "view": v,
-                "success_meshadv": bool(t_ours[v]),
-                "success_mitsuba": bool(t_theirs[v]),
-                "untargeted_meshadv": bool(un_ours[v]),
-                "untargeted_mitsuba": bool(un_theirs[v]),
-                "top1_meshadv": top_ours[v],
-                "top1_mitsuba": top_theirs[v],
-                "mean_abs_image_difference": float(diff[v]),
-                "variant": mitsuba_images[v].variant,
-                "benign_correct": case.benign_correct,
-            }
+    return [
+        ControlledResult(
+            case_id=case.case_id,
+            victim=case.victim,
+            true_class=case.true_class,
+            target=case.target or "",
+            perturbation=case.perturbation,
+            view=v,
+            success_meshadv=bool(t_ours[v]),
+            success_mitsuba=bool(t_theirs[v]),
+            untargeted_meshadv=bool(un_ours[v]),
+            untargeted_mitsuba=bool(un_theirs[v]),
+            top1_meshadv=top_ours[v],
+            top1_mitsuba=top_theirs[v],
+            mean_abs_image_difference=float(diff[v]),
+            variant=mitsuba_images[v].variant,
+            benign_correct=case.benign_correct,
         )
-    return rows
+        for v in range(len(case.views))
+    ]
 
 
 def controlled_transfer(
@@ -248,7 +249,7 @@ def controlled_transfer(
     victim_loader: Optional[Callable[[str], Any]] = None,
     image_dir: Optional[Union[str, Path]] = None,
     on_error: str = "record",
-) -> list[dict[str, Any]]:
+) -> list[ControlledResult]:
     """Re-render each case with Mitsuba under its own camera and lights and test the victims (Table 3 / Fig. 5).
 
     Args:
@@ -259,11 +260,12 @@ def controlled_transfer(
         timeout: seconds per case.
         victim_loader: ``name -> victim`` (default ``meshadv.victims.load_victim``); victims are loaded once.
         image_dir: when given, Mitsuba renders are saved there as ``<case_id>_v<view>.png``.
-        on_error: ``"record"`` keeps going and records a row with an ``error`` for a failed render; ``"raise"``
+        on_error: ``"record"`` keeps going and records a result with an ``error`` for a failed render; ``"raise"``
             re-raises.
 
     Returns:
-        One row per (case, view) (see :func:`evaluate_case`); failed renders give rows with ``error`` and no success.
+        One :class:`~meshadv.transfer.results.ControlledResult` per (case, view) (see :func:`evaluate_case`); a
+        failed render gives results with ``error`` set and no success.
 
     Raises:
         ValueError: unknown ``on_error``.
@@ -276,7 +278,7 @@ def controlled_transfer(
 
         victim_loader = load_victim
     victims: dict[str, Any] = {}
-    rows: list[dict[str, Any]] = []
+    rows: list[ControlledResult] = []
     for case in cases:
         try:
             images = render_scenes(mitsuba_specs_for_case(case, spp=spp, max_depth=max_depth), variant=variant,
@@ -285,9 +287,9 @@ def controlled_transfer(
             if on_error == "raise":
                 raise
             rows.extend(
-                {"case_id": case.case_id, "victim": case.victim, "true_class": case.true_class,
-                 "target": case.target or "", "perturbation": case.perturbation, "view": v,
-                 "success_meshadv": None, "success_mitsuba": None, "error": str(exc)}
+                ControlledResult(case_id=case.case_id, victim=case.victim, true_class=case.true_class,
+                                 target=case.target or "", perturbation=case.perturbation, view=v,
+                                 success_meshadv=None, success_mitsuba=None, error=str(exc))
                 for v in range(len(case.views))
             )
             continue

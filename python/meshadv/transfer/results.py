@@ -17,7 +17,7 @@ import math
 import sqlite3
 import time
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Optional, Sequence, Union
 
@@ -144,6 +144,58 @@ class BlackBoxResult:
     def to_record(self) -> dict[str, Any]:
         """The row as a JSON-able dict (NaN floats become ``None``)."""
         return {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in self.row.items()}
+
+
+@dataclass(frozen=True)
+class ControlledResult:
+    """One (case, view) evaluation of the controlled transfer (:func:`~meshadv.transfer.controlled.evaluate_case`).
+
+    The successes are targeted when the case has a target, else untargeted; they are ``None`` (and ``error`` says
+    why) when the Mitsuba render failed. The stored record (:meth:`to_record`) has the same keys as the rows written
+    before this type existed, so old and new rows of the ``transfer`` table read alike.
+
+    Attributes:
+        case_id: the case (the sweep job id, or any string).
+        victim: the victim's name.
+        true_class: the class of the benign object.
+        target: the target class, ``""`` for an untargeted attack.
+        perturbation: ``"shape"`` or ``"texture"``.
+        view: index of the view in the case's views.
+        success_meshadv: the attack succeeds on meshadv's render of the adversarial mesh.
+        success_mitsuba: the attack succeeds on Mitsuba's render.
+        untargeted_meshadv: meshadv's top-1 is outside the true class.
+        untargeted_mitsuba: Mitsuba's top-1 is outside the true class.
+        top1_meshadv: the victim's top-1 class name on meshadv's render.
+        top1_mitsuba: the victim's top-1 class name on Mitsuba's render.
+        mean_abs_image_difference: mean absolute difference of the two renders (linear values in [0, 1]).
+        variant: the Mitsuba variant that rendered the view.
+        benign_correct: whether the victim classified the benign render correctly (from the sweep), if known.
+        error: why the Mitsuba render failed, ``None`` when it did not.
+    """
+
+    case_id: str
+    victim: str
+    true_class: str
+    target: str
+    perturbation: str
+    view: int
+    success_meshadv: Optional[bool]
+    success_mitsuba: Optional[bool]
+    untargeted_meshadv: Optional[bool] = None
+    untargeted_mitsuba: Optional[bool] = None
+    top1_meshadv: Optional[str] = None
+    top1_mitsuba: Optional[str] = None
+    mean_abs_image_difference: Optional[float] = None
+    variant: Optional[str] = None
+    benign_correct: Optional[bool] = None
+    error: Optional[str] = None
+
+    def to_record(self) -> dict[str, Any]:
+        """The row as a JSON-able dict (the ``transfer`` table's record); ``error`` only when the render failed."""
+        record = {f.name: getattr(self, f.name) for f in fields(self)}
+        if record["error"] is None:
+            del record["error"]
+        return record
 
 
 def load_transfer_rows_if_any(db_path: Union[str, Path]) -> list[dict[str, Any]]:
@@ -374,6 +426,7 @@ def transfer_report(rows: Sequence[dict[str, Any]]) -> str:
 
 __all__ = [
     "BlackBoxResult",
+    "ControlledResult",
     "load_transfer_rows_if_any",
     "BLACKBOX_ESTIMATION_COLUMNS",
     "BLACKBOX_MARGIN_COLUMNS",
