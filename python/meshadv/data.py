@@ -12,6 +12,10 @@ from typing import Optional
 
 #: Environment variable that points at the shared data folder.
 DATA_ENV_VAR = "MESHADV_DATA"
+#: What the shared data are and where they come from (for error messages).
+DATA_WHAT = ("pascal3d/<class>/NN.ply (the PASCAL3D+ CAD models, public), bunny/ (the Stanford Bunny), "
+             "scenes/indoor/ (a desk scene built for the paper's detector experiment), scenes/living-room/ "
+             "(Bitterli's living room) and photos/ (darknet's sample photos)")
 
 _REPO_ROOT = Path(__file__).resolve().parents[2]
 
@@ -46,9 +50,11 @@ def require_shared_data(subpath: str = "") -> Path:
     root = shared_data_dir()
     if root is None:
         raise FileNotFoundError(
-            f"shared data folder not found: set {DATA_ENV_VAR} or place it at ../shared/data beside the checkout"
+            f"{subpath or 'this'} is part of meshadv's shared data, which the package does not ship: {DATA_WHAT}. "
+            f"Set {DATA_ENV_VAR} to a folder holding it (README, 'Shared data'), or use a built-in mesh "
+            "(builtin:sofa, builtin:chair, ...) or your own files instead"
         )
     path = root / subpath
     if not path.exists():
-        raise FileNotFoundError(f"{path} does not exist in the shared data folder {root}")
+        raise FileNotFoundError(f"{path} does not exist in the shared data folder {root} ({DATA_WHAT})")
     return path
