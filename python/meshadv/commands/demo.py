@@ -143,7 +143,8 @@ def demo(
     subject = demo_subject(mesh)
     size = subject.image_size if image_size is None else image_size
     loaded = load_mesh_input(subject.mesh)
-    mesh_obj, label = loaded.mesh, loaded.label
+    mesh_obj = loaded.mesh
+    label = "PASCAL3D+ chair 01" if subject is SHARED_CHAIR else loaded.label
     if subject.max_edge is not None:
         mesh_obj = subdivide(mesh_obj, subject.max_edge)
     model = load_victim(victim, weights=weights)
