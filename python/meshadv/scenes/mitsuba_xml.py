@@ -14,7 +14,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
+import defusedxml.ElementTree as _safe_xml
 import torch
+from defusedxml import DefusedXmlException
 
 from meshadv.mesh import Mesh, load_mesh
 from meshadv.scenes.scene import Scene, SceneCamera, SceneObject
@@ -129,9 +131,9 @@ def read_mitsuba_scene(path: Path, *, names: Optional[Dict[str, str]] = None) ->
     if not path.is_file():
         raise FileNotFoundError(f"scene file not found: {path}")
     try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise ValueError(f"scene file {path} is not valid XML: {exc}") from exc
+        root = _safe_xml.parse(path).getroot()
+    except (ET.ParseError, DefusedXmlException) as exc:
+        raise ValueError(f"scene file {path} is not valid XML, or uses entities/DTDs (refused): {exc}") from exc
     if root.tag != "scene":
         raise ValueError(f"{path} is not a Mitsuba scene (root element <{root.tag}>)")
     bsdfs = {b.attrib["id"]: b for b in root.findall("bsdf") if "id" in b.attrib}
