@@ -73,6 +73,8 @@ def test_one_line_error_messages() -> None:
     assert "meshadv[cluster]" in one_line_error(ModuleNotFoundError("x", name="ray"))
     assert one_line_error(ModuleNotFoundError("x", name="meshadv.nothing")) is None  # a bug: keep the traceback
     assert one_line_error(ImportError("cannot import name 'x'")) is None
+    assert one_line_error(ImportError("the ray backend needs Ray: pip install 'ray>=2.9'")) == \
+        "the ray backend needs Ray: pip install 'ray>=2.9'"
     assert one_line_error(FileNotFoundError(2, "No such file or directory", "a.ply")) == \
         "No such file or directory: a.ply"
     assert one_line_error(ValueError("steps must be >= 1")) == "steps must be >= 1"
@@ -208,3 +210,21 @@ def test_missing_shared_data_says_what_it_is(monkeypatch: pytest.MonkeyPatch) ->
     monkeypatch.setattr(data, "shared_data_dir", lambda: None)
     with pytest.raises(FileNotFoundError, match="PASCAL3D\\+ CAD models.*Set MESHADV_DATA"):
         data.require_shared_data("pascal3d/chair/01.ply")
+
+
+@pytest.mark.parametrize("module, argv, hint", [
+    ("mitsuba", ["transfer", "attack", "."], "meshadv[transfer]"),
+    ("ray", ["sweep", "CONFIG", "--backend", "ray"], "pip install 'ray"),
+])
+def test_missing_optional_packages_are_one_line(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, module: str,
+                                                argv: list, hint: str) -> None:
+    import sys
+
+    monkeypatch.setitem(sys.modules, module, None)  # `import module` now fails as if it were not installed
+    config = Path(__file__).resolve().parents[1] / "configs" / "paper_small.toml"
+    argv = [str(config) if a == "CONFIG" else a for a in argv] + (["--db", str(tmp_path / "r.db"), "--output",
+                                                                    str(tmp_path)] if argv[0] == "sweep" else [])
+    monkeypatch.chdir(tmp_path)
+    result = runner.invoke(app, argv)
+    assert result.exit_code == 1 and "Traceback" not in result.output, result.output
+    assert hint in " ".join(result.output.replace("│", " ").split())

@@ -47,6 +47,8 @@ def one_line_error(exc: BaseException) -> Optional[str]:
     Returns:
         The message (with the fix where one is known), or ``None``.
     """
+    if isinstance(exc, ImportError) and not isinstance(exc, ModuleNotFoundError):
+        return str(exc) if "pip install" in str(exc) else None  # our own "needs X: pip install X" errors
     if isinstance(exc, ModuleNotFoundError):
         module = (exc.name or "").split(".")[0]
         if not module or module == "meshadv":
