@@ -125,7 +125,7 @@ def test_same_seed_and_threads_reproduce_an_attack(clean_env: None) -> None:
 
     from meshadv.attacks import ShapeAttack, TargetedMisclassification
     from meshadv.mesh.shapes import builtin_mesh
-    from meshadv.render import ViewSet
+    from meshadv.render import RenderSetup, ViewSet
 
     mesh = builtin_mesh("chair")
     views = ViewSet.orbit([170.0, 190.0], elevation=15.0, distance=4.5)
@@ -133,7 +133,7 @@ def test_same_seed_and_threads_reproduce_an_attack(clean_env: None) -> None:
     runs = []
     for _ in range(2):
         threads.apply_threads(1)
-        attack = ShapeAttack(steps=2, lr=5e-3, seed=3, early_stop=None)
-        runs.append(attack(mesh, views, victim, [TargetedMisclassification(7)]))
+        attack = ShapeAttack(steps=3, lr=5e-3, seed=3, early_stop=None)
+        runs.append(attack(mesh, views, victim, [TargetedMisclassification(7)], setup=RenderSetup(image_size=32)))
     assert torch.equal(runs[0].adversarial[0].vertices, runs[1].adversarial[0].vertices)
     assert not torch.equal(runs[0].adversarial[0].vertices, mesh.vertices)

@@ -8,7 +8,6 @@ atomically) before returning its JSON-able record.
 from __future__ import annotations
 
 import json
-import os
 import time
 import traceback
 from dataclasses import dataclass
@@ -18,9 +17,6 @@ from typing import Any, Dict, Optional
 from meshadv.experiments.spec import canonical, resolve_job
 
 __all__ = ["Outcome", "execute", "set_thread_limits"]
-
-_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "RAYON_NUM_THREADS")
-
 
 @dataclass(frozen=True)
 class Outcome:
@@ -47,20 +43,17 @@ class Outcome:
 
 
 def set_thread_limits(threads: int) -> None:
-    """Limit the intra-op threads of this process (OpenMP/MKL/BLAS, rayon, and torch when already imported).
+    """Limit the intra-op threads of this process (OpenMP/MKL/BLAS, rayon, and torch when already imported), with
+    idle OpenMP threads sleeping rather than spinning (:func:`meshadv.threads.apply_threads`).
 
     Args:
         threads: threads per job (>= 1), so that parallel jobs do not oversubscribe the cores.
     """
     if threads < 1:
         raise ValueError(f"threads must be >= 1, got {threads}")
-    for var in _THREAD_VARS:
-        os.environ[var] = str(threads)
-    import sys
+    from meshadv.threads import apply_threads
 
-    torch = sys.modules.get("torch")
-    if torch is not None:
-        torch.set_num_threads(threads)
+    apply_threads(threads)
 
 
 def execute(job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str, threads: int = 0) -> Outcome:
