@@ -228,3 +228,14 @@ def test_missing_optional_packages_are_one_line(monkeypatch: pytest.MonkeyPatch,
     result = runner.invoke(app, argv)
     assert result.exit_code == 1 and "Traceback" not in result.output, result.output
     assert hint in " ".join(result.output.replace("│", " ").split())
+
+
+def test_transfer_controlled_without_successes_mentions_all(tmp_path: Path) -> None:
+    from meshadv.experiments import ResultStore
+    from meshadv.experiments.config import expand_jobs, load_config
+
+    config = Path(__file__).resolve().parents[1] / "configs" / "paper_small.toml"
+    with ResultStore(tmp_path / "results.db") as store:
+        store.add_jobs(expand_jobs(load_config(config))[:1])
+    result = runner.invoke(app, ["transfer", "controlled", str(tmp_path / "results.db")])
+    assert result.exit_code == 1 and "--all" in result.output
