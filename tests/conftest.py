@@ -9,6 +9,19 @@ import pytest
 
 from meshadv.data import DATA_ENV_VAR, shared_data_dir
 
+try:  # the property-based suite's budget: bounded and derandomised so CI time and results are repeatable
+    from hypothesis import HealthCheck, settings
+
+    settings.register_profile(
+        "ci", max_examples=40, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow]
+    )
+    settings.register_profile("fuzz", max_examples=2000, deadline=None)  # HYPOTHESIS_PROFILE=fuzz for long runs
+    import os as _os
+
+    settings.load_profile(_os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+except ImportError:  # hypothesis is a test dependency; test_properties.py skips without it
+    pass
+
 
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
