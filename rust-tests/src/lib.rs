@@ -1,5 +1,7 @@
 //! Helpers shared by the integration tests of `meshadv-raster`: a tiny deterministic RNG, mesh generators and
-//! convenience wrappers around the core API.
+//! convenience wrappers around the core API, and the pre-SIMD backward pass as a reference ([`nmr_reference`]).
+
+pub mod nmr_reference;
 
 use meshadv_raster::camera::project;
 use meshadv_raster::{

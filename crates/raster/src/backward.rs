@@ -7,33 +7,39 @@
 //!
 //! Determinism: each face's contribution is computed independently (in parallel) into its own partial, and the
 //! partials are added to the vertices in increasing face order; pixels are summed in row-major order for
-//! `grad_face_attrs`. Results are therefore bit-identical for any thread count.
+//! `grad_face_attrs`. Results are therefore bit-identical for any thread count, and for any [`Isa`].
 //!
 //! # Implementation notes (precomputations; same numbers as the definition up to float rounding)
 //!
 //! * Once per batch element, per pixel: the depth-test key of the drawn face (`1/z` in perspective, `-z` in
 //!   orthographic, `z` from the barycentric depth exactly as the forward computes it; larger = nearer) and
-//!   `gI[P] = sum_c G[P, c] I[P, c]`, so that the OUT sweep's `delta = sum_c G[P, c] A[f, c] - gI[P]`. These and the
-//!   face index and cotangent are stored as f64 planes along sweep lines: row lines for the row sweeps, a transposed
-//!   copy for the column sweeps, so the inner loops read contiguous memory and vectorise.
+//!   `gI[P] = sum_c G[P, c] I[P, c]`, so that the OUT sweep's `delta = sum_c G[P, c] A[f, c] - gI[P]`. These, the
+//!   face index and the cotangent are stored along sweep lines (`lines::Lines`): row lines for the row sweeps, a
+//!   transposed copy for the column sweeps, so the inner loops read contiguous memory and vectorise.
 //! * Per line, the range of pixels with a non-zero cotangent: an OUT sweep is cut to it (elsewhere `delta = 0`).
 //! * Per OUT sweep: the face's key along the line is `key0 + key_step * d` (its plane in pixel space); the pixels
 //!   whose key lies in the clip range form one interval (the computed key is monotone in `d`), found once, so the
-//!   inner loop only tests the depth order (`key > key(P)`, or equal keys and the lower face index) and `delta < 0`.
+//!   inner loop only tests the depth order and `delta < 0`.
 //! * Per pixel of an OUT or IN sweep, `delta / dist_a` and `delta / dist_c` (the two endpoint displacements) use one
-//!   division, `q = delta / (dist_a * dist_c)`, times `dist_c` and `dist_a`. The inner loop is branch-free (skipped
-//!   pixels add 0) and writes per-pixel terms to a scratch buffer that is summed in a fixed order, so each sweep is
-//!   added to the face's accumulators as one sum.
+//!   division, `q = delta / (dist_a * dist_c)`, times `dist_c` and `dist_a`. The OUT loop is branch-free (skipped
+//!   pixels add 0) and sums in eight lanes added in a fixed order (see `sweep`).
+//! * The per-face work is compiled twice, for the portable baseline and for AVX2 (x86-64), and the instruction set
+//!   is picked at run time (`Isa`), so one portable wheel still uses 256-bit vectors; on arm64 NEON is the baseline.
 //!
 //! The exact, step-by-step definition (the same text as `docs/NMR_GRADIENT.md`) follows.
 //!
 #![doc = include_str!("../../../docs/NMR_GRADIENT.md")]
+
+mod lines;
+mod sweep;
 
 use rayon::prelude::*;
 
 use crate::error::{RasterError, Result};
 use crate::input::{check_finite, FaceAttrs, RasterParams, ScreenMesh};
 use crate::setup::{setup_faces, FaceSetup};
+use lines::{depth_keys, Lines};
+use sweep::{in_sweep, OutSweep, Positions};
 
 /// NMR's `eps` added to the signed displacement (NDC units) before dividing.
 pub const EPS: f64 = 1e-4;
@@ -102,138 +108,35 @@ impl BackwardInputs<'_> {
     }
 }
 
-/// Line field: index of the drawn face (as f64, -1 on background).
-const FACE: usize = 0;
-/// Line field: depth-test key of the drawn face (see [`depth_keys`]).
-const KEY: usize = 1;
-/// Line field: `sum_c G[P, c] * I[P, c]`.
-const GI: usize = 2;
-/// Line field: first cotangent channel (channel `k` is field `GRAD + k`).
-const GRAD: usize = 3;
-
-/// Depth-test key of the face drawn at each pixel (row-major; larger = nearer): `1/z` in perspective, `-z` in
-/// orthographic, with `z` recomputed from the positions exactly as the forward computes it; `-inf` on background.
-fn depth_keys(setups: &[FaceSetup], face_index: &[i32], params: &RasterParams) -> Vec<f64> {
-    let w = params.width;
-    let mut key = vec![f64::NEG_INFINITY; face_index.len()];
-    key.par_chunks_mut(w)
-        .zip(face_index.par_chunks(w))
-        .enumerate()
-        .for_each(|(i, (key, faces))| {
-            for (j, (k, &f)) in key.iter_mut().zip(faces).enumerate() {
-                if f >= 0 {
-                    let s = &setups[f as usize];
-                    *k = match s.depth_at(i as i32, j as i32) {
-                        Some(z) if s.ortho => -z,
-                        Some(z) => 1.0 / z,
-                        None => f64::NEG_INFINITY,
-                    };
-                }
-            }
-        });
-    key
+/// Instruction set the vertex-gradient sweeps run on. Every choice gives the same bits (see `sweep`'s docs); only
+/// the speed differs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Isa {
+    /// The target's baseline (SSE2 on x86-64, NEON on arm64).
+    Portable,
+    /// AVX2 (x86-64 only; [`Isa::detect`] picks it when the CPU has it).
+    Avx2,
 }
 
-/// Per-pixel buffers of one batch element laid out along sweep lines (image rows for the row sweeps, axis V, or
-/// image columns for the column sweeps, axis U), so that the inner loops read memory contiguously: line `d0` holds
-/// the planes of its fields ([`FACE`], [`KEY`], [`GI`], then the `C` cotangent channels), `len` f64 values each.
-struct Lines {
-    /// The planes, line after line, field after field.
-    data: Vec<f64>,
-    /// Line length in pixels.
-    len: usize,
-    /// Fields per pixel, `GRAD + C`.
-    fields: usize,
-    /// Per line, the range `[first, last + 1)` of pixels whose cotangent is not all zero (`[0, 0]` when none):
-    /// pixels outside it have `delta = 0` and never contribute.
-    nonzero: Vec<[usize; 2]>,
-}
-
-impl Lines {
-    /// Builds the buffers; `transpose` gives column lines.
-    fn new(
-        key: &[f64],
-        face_index: &[i32],
-        image: &[f32],
-        grad: &[f32],
-        c: usize,
-        params: &RasterParams,
-        transpose: bool,
-    ) -> Lines {
-        let (h, w) = (params.height, params.width);
-        let (lines, len) = if transpose { (w, h) } else { (h, w) };
-        let fields = GRAD + c;
-        let mut data = vec![0f64; lines * fields * len];
-        let mut nonzero = vec![[0usize; 2]; lines];
-        data.par_chunks_mut(fields * len)
-            .zip(nonzero.par_iter_mut())
-            .enumerate()
-            .for_each(|(d0, (line, nz))| {
-                let (mut first, mut last) = (len, 0);
-                for d in 0..len {
-                    let p = if transpose { d * w + d0 } else { d0 * w + d };
-                    line[FACE * len + d] = face_index[p] as f64;
-                    line[KEY * len + d] = key[p];
-                    let (gp, ip) = (&grad[p * c..(p + 1) * c], &image[p * c..(p + 1) * c]);
-                    let mut gi = 0f64;
-                    for k in 0..c {
-                        gi += gp[k] as f64 * ip[k] as f64;
-                        line[(GRAD + k) * len + d] = gp[k] as f64;
-                    }
-                    line[GI * len + d] = gi;
-                    if gp.iter().any(|&x| x != 0.0) {
-                        first = first.min(d);
-                        last = d + 1;
-                    }
-                }
-                *nz = if first < last { [first, last] } else { [0, 0] };
-            });
-        Lines {
-            data,
-            len,
-            fields,
-            nonzero,
+impl Isa {
+    /// The fastest instruction set this CPU supports.
+    pub fn detect() -> Isa {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Isa::Avx2;
         }
+        Isa::Portable
     }
 
-    /// Field `field` of the pixels `range` of line `d0`.
-    #[inline(always)]
-    fn plane(&self, d0: usize, field: usize, range: std::ops::Range<usize>) -> &[f64] {
-        let o = (d0 * self.fields + field) * self.len;
-        &self.data[o + range.start..o + range.end]
-    }
-
-    /// Field `field` of pixel `d` of line `d0`.
-    #[inline(always)]
-    fn get(&self, d0: usize, d: usize, field: usize) -> f64 {
-        self.data[(d0 * self.fields + field) * self.len + d]
+    /// Whether this CPU can run `self`.
+    pub fn available(self) -> bool {
+        self == Isa::Portable || Isa::detect() == Isa::Avx2
     }
 }
 
-/// Per-task scratch buffers of the OUT sweeps (one line each), reused across faces.
+/// Per-task scratch of the sweeps, reused across faces: `sum_c G A` of one line (more than four channels only).
 struct Scratch {
-    /// `sum_c G[P, c] A[f, c]` per pixel of the sweep.
     ga: Vec<f64>,
-    /// Contribution to endpoint `a` per pixel.
-    out_a: Vec<f64>,
-    /// Contribution to endpoint `c` per pixel.
-    out_c: Vec<f64>,
-}
-
-impl Scratch {
-    /// Buffers for lines of up to `len` pixels.
-    fn new(len: usize) -> Scratch {
-        Scratch {
-            ga: vec![0.0; len],
-            out_a: vec![0.0; len],
-            out_c: vec![0.0; len],
-        }
-    }
-}
-
-/// `0, 1, 2, ...` as f64 (pixel positions along a line).
-fn positions(len: usize) -> Vec<f64> {
-    (0..len).map(|d| d as f64).collect()
 }
 
 /// Per-batch-element context of the gradient sweeps.
@@ -245,8 +148,8 @@ struct Ctx<'a> {
     attrs: &'a [f64],
     /// `(H, W, C)` image (row-major, as given).
     image: &'a [f32],
-    /// Pixel positions along a line, see [`positions`].
-    pos: &'a [f64],
+    /// Pixel positions along a line.
+    pos: &'a Positions,
     channels: usize,
     params: &'a RasterParams,
 }
@@ -258,9 +161,32 @@ enum Axis {
     V,
 }
 
+/// [`Ctx::face_grad`] compiled for AVX2.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(unsafe_code)]
+unsafe fn face_grad_avx2(ctx: &Ctx<'_>, f: usize, scratch: &mut Scratch) -> [[f64; 2]; 3] {
+    ctx.face_grad(f, scratch, Isa::Avx2)
+}
+
 impl Ctx<'_> {
+    /// [`Ctx::face_grad`] on the instruction set `isa` (which the caller has checked is available).
+    fn face_grad_on(&self, isa: Isa, f: usize, scratch: &mut Scratch) -> [[f64; 2]; 3] {
+        match isa {
+            #[cfg(target_arch = "x86_64")]
+            #[allow(unsafe_code)]
+            // SAFETY: `rasterize_backward_on` only passes `Isa::Avx2` when the CPU supports AVX2.
+            Isa::Avx2 => unsafe { face_grad_avx2(self, f, scratch) },
+            _ => self.face_grad(f, scratch, Isa::Portable),
+        }
+    }
+
     /// NMR gradient partial of face `f`: `[corner][x or y]`.
-    fn face_grad(&self, f: usize, scratch: &mut Scratch) -> [[f64; 2]; 3] {
+    #[inline(always)]
+    fn face_grad(&self, f: usize, scratch: &mut Scratch, isa: Isa) -> [[f64; 2]; 3] {
         let s = &self.setups[f];
         let (h, w) = (self.params.height as i64, self.params.width as i64);
         // Depth-test keys (1/z in perspective, -z in orthographic) allowed by the clip range [near, far].
@@ -273,7 +199,7 @@ impl Ctx<'_> {
         // The key is `sgn * plane(u, v)`: the plane interpolates 1/z (perspective) or z (orthographic).
         let sgn = if s.ortho { -1.0 } else { 1.0 };
         let c = self.channels;
-        let fi = f as i32;
+        let fi = f as f64;
         let attrs_f = &self.attrs[f * c..(f + 1) * c];
         let mut g = [[0.0f64; 2]; 3];
         for e in 0..3 {
@@ -323,7 +249,7 @@ impl Ctx<'_> {
                     let ka = (pc != d0f).then(|| ndc * (pc - pa) / (pc - d0f));
                     let kc = (pa != d0f).then(|| ndc * (pc - pa) / (d0f - pa));
                     // OUT: pixels beyond the edge that the face would cover (only where the cotangent is not zero).
-                    if ln.get(line, d_in as usize, FACE) == fi as f64 {
+                    if ln.face(line)[d_in as usize] == fi {
                         let (start, end) = if dir > 0 {
                             (d_out as usize, ln.len)
                         } else {
@@ -339,7 +265,7 @@ impl Ctx<'_> {
                             };
                             let ((ka_, ea), (kc_, ec)) = (split(ka), split(kc));
                             let sweep = OutSweep {
-                                fi: fi as f64,
+                                fi,
                                 key0: sgn * (pl_line * d0f + s.plane[2]),
                                 key_step: sgn * pl_step,
                                 key_lo,
@@ -351,7 +277,8 @@ impl Ctx<'_> {
                                 ec,
                                 attrs: attrs_f,
                             };
-                            let (sa, sc) = sweep.run(ln, line, start, end, self.pos, scratch);
+                            let (sa, sc) =
+                                sweep.run(ln, line, start, end, self.pos, &mut scratch.ga, isa);
                             if ka.is_some() {
                                 g[a][comp] += sa;
                             }
@@ -381,7 +308,7 @@ impl Ctx<'_> {
                             ln,
                             line,
                             from as usize..to as usize + 1,
-                            fi as f64,
+                            fi,
                             out_color,
                             cross,
                             ka.unwrap_or(0.0),
@@ -399,232 +326,6 @@ impl Ctx<'_> {
         }
         g
     }
-}
-
-/// One OUT sweep along a line (see the module docs), with local accumulators for the two edge endpoints.
-struct OutSweep<'a> {
-    /// The face, as f64 (compared with the [`FACE`] field).
-    fi: f64,
-    /// Depth-test key of the face's plane at pixel 0 of the line.
-    key0: f64,
-    /// Key increment per pixel along the line.
-    key_step: f64,
-    /// Smallest key allowed by the clip range.
-    key_lo: f64,
-    /// Largest key allowed by the clip range.
-    key_hi: f64,
-    /// Where the edge crosses the line.
-    cross: f64,
-    /// `to_ndc` motion of endpoint `a` per pixel of crossing motion (0 when `a` is on the line).
-    ka: f64,
-    /// `sign(ka dir) EPS` (1 when `a` is on the line, so that its denominator never vanishes).
-    ea: f64,
-    /// As `ka`, endpoint `c`.
-    kc: f64,
-    /// As `ea`, endpoint `c`.
-    ec: f64,
-    /// The face's attributes.
-    attrs: &'a [f64],
-}
-
-/// First index in `lo..hi` where `pred` is false, for a predicate that is true then false (`hi` if none).
-#[inline]
-fn partition_point(mut lo: usize, mut hi: usize, pred: impl Fn(usize) -> bool) -> usize {
-    while lo < hi {
-        let mid = lo + (hi - lo) / 2;
-        if pred(mid) {
-            lo = mid + 1;
-        } else {
-            hi = mid;
-        }
-    }
-    lo
-}
-
-/// Sum of `v` in a fixed order (eight interleaved partial sums, then added pairwise).
-#[inline(always)]
-fn fixed_sum(v: &[f64]) -> f64 {
-    let mut acc = [0f64; 8];
-    let mut chunks = v.chunks_exact(8);
-    for ch in &mut chunks {
-        for l in 0..8 {
-            acc[l] += ch[l];
-        }
-    }
-    for (l, &x) in chunks.remainder().iter().enumerate() {
-        acc[l] += x;
-    }
-    ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
-}
-
-impl OutSweep<'_> {
-    /// Depth-test key of the face's plane at pixel `d` of the line.
-    #[inline(always)]
-    fn key(&self, d: usize) -> f64 {
-        self.key0 + self.key_step * d as f64
-    }
-
-    /// The pixels of `start..end` where the face's key is within the clip range. Exact: the computed key is a
-    /// monotone function of `d` (products and sums round monotonically), so these pixels form one range.
-    fn clip(&self, start: usize, end: usize) -> (usize, usize) {
-        let above_lo = |d: usize| self.key(d) >= self.key_lo;
-        let below_hi = |d: usize| self.key(d) <= self.key_hi;
-        let inside = |d: usize| above_lo(d) && below_hi(d);
-        if start >= end || (inside(start) && inside(end - 1)) {
-            (start, end)
-        } else if self.key_step > 0.0 {
-            let s = partition_point(start, end, |d| !above_lo(d));
-            (s, partition_point(s, end, below_hi))
-        } else if self.key_step < 0.0 {
-            let s = partition_point(start, end, |d| !below_hi(d));
-            (s, partition_point(s, end, above_lo))
-        } else {
-            (start, start)
-        }
-    }
-
-    /// Sums the contributions of pixels `start..end` of line `d0`. Returns the sums for endpoints `a` and `c`
-    /// (meaningful only when their `k` is defined), each added in a fixed order.
-    fn run(
-        &self,
-        ln: &Lines,
-        d0: usize,
-        start: usize,
-        end: usize,
-        pos: &[f64],
-        scratch: &mut Scratch,
-    ) -> (f64, f64) {
-        let (start, end) = self.clip(start, end);
-        if start >= end {
-            return (0.0, 0.0);
-        }
-        let r = start..end;
-        match self.attrs.len() {
-            1 => self.kernel_ties::<1>(ln, d0, r, pos, scratch),
-            2 => self.kernel_ties::<2>(ln, d0, r, pos, scratch),
-            3 => self.kernel_ties::<3>(ln, d0, r, pos, scratch),
-            4 => self.kernel_ties::<4>(ln, d0, r, pos, scratch),
-            _ => {
-                // Any channel count: sum_c G[P, c] A[f, c] into the scratch buffer first, channel by channel.
-                let ga = &mut scratch.ga[..r.len()];
-                ga.fill(0.0);
-                for (k, &ak) in self.attrs.iter().enumerate() {
-                    for (x, &g) in ga.iter_mut().zip(ln.plane(d0, GRAD + k, r.clone())) {
-                        *x += g * ak;
-                    }
-                }
-                self.kernel_ties::<0>(ln, d0, r, pos, scratch)
-            }
-        }
-    }
-
-    /// [`OutSweep::kernel`] without the exact-tie rule of the depth test, then with it if some pixel's key equals
-    /// the face's (rare: coplanar neighbours), which is cheaper than testing ties at every pixel.
-    #[inline(always)]
-    fn kernel_ties<const C: usize>(
-        &self,
-        ln: &Lines,
-        d0: usize,
-        r: std::ops::Range<usize>,
-        pos: &[f64],
-        scratch: &mut Scratch,
-    ) -> (f64, f64) {
-        match self.kernel::<C, false>(ln, d0, r.clone(), pos, scratch) {
-            Some(sums) => sums,
-            None => self
-                .kernel::<C, true>(ln, d0, r, pos, scratch)
-                .unwrap_or((0.0, 0.0)),
-        }
-    }
-
-    /// The OUT sweep over the pixels `r` of line `d0` (already clipped), for `C` channels (`C = 0`: with
-    /// `sum_c G[P, c] A[f, c]` precomputed in `scratch.ga`). Without `TIES`, pixels whose key equals the face's are
-    /// not handled and their presence gives `None`.
-    #[inline(always)]
-    fn kernel<const C: usize, const TIES: bool>(
-        &self,
-        ln: &Lines,
-        d0: usize,
-        r: std::ops::Range<usize>,
-        pos: &[f64],
-        scratch: &mut Scratch,
-    ) -> Option<(f64, f64)> {
-        let n = r.len();
-        let mut tie = false;
-        let g: [&[f64]; C] = std::array::from_fn(|k| &ln.plane(d0, GRAD + k, r.clone())[..n]);
-        let a: [f64; C] = std::array::from_fn(|k| self.attrs[k]);
-        let Scratch { ga, out_a, out_c } = scratch;
-        let (pre, out_a, out_c) = (&ga[..n], &mut out_a[..n], &mut out_c[..n]);
-        let face = &ln.plane(d0, FACE, r.clone())[..n];
-        let key = &ln.plane(d0, KEY, r.clone())[..n];
-        let gi = &ln.plane(d0, GI, r.clone())[..n];
-        let pos = &pos[r][..n];
-        for i in 0..n {
-            let mut ga = if C == 0 { pre[i] } else { g[0][i] * a[0] };
-            for k in 1..C {
-                ga += g[k][i] * a[k];
-            }
-            let (fp, kp, d) = (face[i], key[i], pos[i]);
-            let kf = self.key0 + self.key_step * d;
-            let delta = ga - gi[i];
-            // covers(f, P) (the clip range is handled by `clip`) and delta < 0.
-            let nearer = if TIES {
-                (kf > kp) | ((kf == kp) & (self.fi < fp))
-            } else {
-                tie |= kf == kp;
-                kf > kp
-            };
-            let take = (fp != self.fi) & nearer & (delta < 0.0);
-            let m = if take { delta } else { 0.0 };
-            let t = d - self.cross;
-            let (da, dc) = (self.ka * t + self.ea, self.kc * t + self.ec);
-            // m / da and m / dc with one division.
-            let q = m / (da * dc);
-            out_a[i] = q * dc;
-            out_c[i] = q * da;
-        }
-        (!tie).then(|| (fixed_sum(out_a), fixed_sum(out_c)))
-    }
-}
-
-/// The IN sweep of one line over the pixels `range` (see the module docs): sums of the contributions to the edge
-/// endpoints `a` and `c`, whose crossing-motion factors are `ka` and `kc` (meaningful only when defined).
-#[allow(clippy::too_many_arguments)]
-fn in_sweep(
-    ln: &Lines,
-    line: usize,
-    range: std::ops::Range<usize>,
-    fi: f64,
-    out_color: &[f32],
-    cross: f64,
-    ka: f64,
-    kc: f64,
-) -> (f64, f64) {
-    let (face, gi) = (
-        ln.plane(line, FACE, range.clone()),
-        ln.plane(line, GI, range.clone()),
-    );
-    let (mut sa, mut sc) = (0f64, 0f64);
-    for (i, (&fp, &gi)) in face.iter().zip(gi).enumerate() {
-        let d = range.start + i;
-        let mut go = 0f64;
-        for (k, &oc) in out_color.iter().enumerate() {
-            go += ln.get(line, d, GRAD + k) * oc as f64;
-        }
-        let delta = go - gi;
-        // Branch-free form of `if F[P] == f && delta < 0 { contribute(d, delta) }`.
-        let m = if (fp == fi) & (delta < 0.0) {
-            delta
-        } else {
-            0.0
-        };
-        let t = d as f64 - cross;
-        let (da, dc) = (nudge(ka * t), nudge(kc * t));
-        let q = m / (da * dc);
-        sa += q * dc;
-        sc += q * da;
-    }
-    (sa, sc)
 }
 
 /// `x.floor()` without a library call (the baseline x86-64 target has no rounding instruction).
@@ -649,13 +350,8 @@ fn ceil(x: f64) -> f64 {
     -floor(-x)
 }
 
-/// NMR's `dist = dist + eps` if positive else `dist - eps`.
-#[inline(always)]
-fn nudge(dist: f64) -> f64 {
-    dist + if dist > 0.0 { EPS } else { -EPS }
-}
-
-/// Backward pass: exact attribute gradient and NMR's approximate vertex gradient (see the module docs).
+/// Backward pass: exact attribute gradient and NMR's approximate vertex gradient (see the module docs), on the
+/// fastest instruction set of this CPU.
 ///
 /// `mesh`, `attrs` and `params` must be those of the forward pass; `inputs` holds its outputs and the cotangent.
 pub fn rasterize_backward(
@@ -664,6 +360,24 @@ pub fn rasterize_backward(
     params: &RasterParams,
     inputs: &BackwardInputs<'_>,
 ) -> Result<Gradients> {
+    rasterize_backward_on(Isa::detect(), mesh, attrs, params, inputs)
+}
+
+/// [`rasterize_backward`] on the instruction set `isa` (for tests and benchmarks: every choice gives the same bits).
+/// An `isa` this CPU lacks is an error naming the argument.
+pub fn rasterize_backward_on(
+    isa: Isa,
+    mesh: &ScreenMesh<'_>,
+    attrs: &FaceAttrs<'_>,
+    params: &RasterParams,
+    inputs: &BackwardInputs<'_>,
+) -> Result<Gradients> {
+    if !isa.available() {
+        return Err(RasterError::Parameter {
+            arg: "isa",
+            message: format!("{isa:?} is not supported by this CPU"),
+        });
+    }
     mesh.validate()?;
     params.validate()?;
     attrs.validate(mesh)?;
@@ -701,15 +415,14 @@ pub fn rasterize_backward(
             // NMR vertex gradient: per-face partials in parallel, reduced in face order.
             let setups = setup_faces(mesh, b, params);
             let key = depth_keys(&setups, face_index, params);
-            let (rows, cols) = rayon::join(
-                || Lines::new(&key, face_index, image, grad, c, params, false),
-                || Lines::new(&key, face_index, image, grad, c, params, true),
-            );
+            let rows = Lines::rows(key, face_index, image, grad, c, params);
+            let cols = Lines::columns(&rows);
             let attrs_b: Vec<f64> = attrs.values[b * m * c..(b + 1) * m * c]
                 .iter()
                 .map(|&x| x as f64)
                 .collect();
-            let pos = positions(params.height.max(params.width));
+            let longest = params.height.max(params.width);
+            let pos = Positions::new(longest);
             let ctx = Ctx {
                 setups: &setups,
                 rows: &rows,
@@ -723,10 +436,12 @@ pub fn rasterize_backward(
             let partials: Vec<[[f64; 2]; 3]> = (0..m)
                 .into_par_iter()
                 .map_init(
-                    || Scratch::new(params.height.max(params.width)),
+                    || Scratch {
+                        ga: vec![0.0; if c > 4 { longest } else { 0 }],
+                    },
                     |scratch, f| {
                         if visible[f] && setups[f].active {
-                            ctx.face_grad(f, scratch)
+                            ctx.face_grad_on(isa, f, scratch)
                         } else {
                             [[0.0; 2]; 3]
                         }
@@ -795,30 +510,25 @@ mod tests {
         assert!(floor(f64::NAN).is_nan() && ceil(f64::NAN).is_nan());
     }
 
-    /// An OUT sweep with random parameters; the clip range is `[lo, hi]` on the key.
-    fn sweep<'a>(rng: &mut Rng, attrs: &'a [f64], lo: f64, hi: f64) -> OutSweep<'a> {
-        OutSweep {
-            fi: 3.0,
-            key0: rng.next() * 4.0 - 1.0,
-            key_step: (rng.next() - 0.5) * 0.05 * (rng.next() < 0.9) as i32 as f64,
-            key_lo: lo,
-            key_hi: hi,
-            cross: rng.next() * 2.0 - 1.5,
-            ka: (rng.next() - 0.5) * 0.1,
-            ea: EPS,
-            kc: (rng.next() - 0.5) * 0.1,
-            ec: -EPS,
-            attrs,
-        }
-    }
-
     #[test]
     fn clip_keeps_exactly_the_pixels_in_the_clip_range() {
         let mut rng = Rng(2);
         let attrs = [0.5];
         for _ in 0..2000 {
             let (lo, hi) = (rng.next(), 1.0 + rng.next() * 2.0);
-            let s = sweep(&mut rng, &attrs, lo, hi);
+            let s = OutSweep {
+                fi: 3.0,
+                key0: rng.next() * 4.0 - 1.0,
+                key_step: (rng.next() - 0.5) * 0.05 * (rng.next() < 0.9) as i32 as f64,
+                key_lo: lo,
+                key_hi: hi,
+                cross: 0.0,
+                ka: 0.0,
+                ea: EPS,
+                kc: 0.0,
+                ec: -EPS,
+                attrs: &attrs,
+            };
             let (start, end) = ((rng.next() * 60.0) as usize, (rng.next() * 120.0) as usize);
             let (a, b) = s.clip(start, end);
             for d in start..end {
@@ -826,87 +536,6 @@ mod tests {
                 let inside = k >= s.key_lo && k <= s.key_hi;
                 assert_eq!(inside, a <= d && d < b, "d = {d}, range {a}..{b}");
             }
-        }
-    }
-
-    /// Buffers of one image (`h x w`, `c` channels) whose drawn faces' keys often equal the swept face's plane.
-    fn tie_lines(rng: &mut Rng, h: usize, w: usize, c: usize, key0: f64, step: f64) -> Lines {
-        let n = h * w;
-        let face: Vec<i32> = (0..n).map(|_| (rng.next() * 7.0) as i32 - 1).collect();
-        // Column lines: pixel d of line d0 is row d, so the key of the swept plane at row d is key0 + step * d.
-        let key: Vec<f64> = (0..n)
-            .map(|p| {
-                let plane = key0 + step * (p / w) as f64;
-                match (rng.next() * 3.0) as i32 {
-                    0 => plane,
-                    1 => plane + 0.01,
-                    _ => plane - 0.01,
-                }
-            })
-            .collect();
-        let image: Vec<f32> = (0..n * c).map(|_| rng.next() as f32).collect();
-        let grad: Vec<f32> = (0..n * c).map(|_| rng.next() as f32 - 0.5).collect();
-        let params = RasterParams::new(h, w, 0.1, 100.0);
-        Lines::new(&key, &face, &image, &grad, c, &params, true)
-    }
-
-    #[test]
-    fn the_tie_fallback_equals_the_exact_depth_test() {
-        let mut rng = Rng(3);
-        let (h, w) = (40, 9);
-        for c in [1, 3, 4, 5] {
-            let attrs: Vec<f64> = (0..c).map(|_| rng.next()).collect();
-            let mut s = sweep(&mut rng, &attrs, f64::NEG_INFINITY, f64::INFINITY);
-            s.cross = -0.5;
-            let ln = tie_lines(&mut rng, h, w, c, s.key0, s.key_step);
-            let pos = positions(h);
-            let mut scratch = Scratch::new(h);
-            let mut fallbacks = 0;
-            for d0 in 0..w {
-                let (start, end) = (0, h);
-                let got = s.run(&ln, d0, start, end, &pos, &mut scratch);
-                if c != 5 {
-                    // The fast path with its tie fallback gives the same bits as the exact test.
-                    let want = match c {
-                        1 => s.kernel::<1, true>(&ln, d0, start..end, &pos, &mut scratch),
-                        3 => s.kernel::<3, true>(&ln, d0, start..end, &pos, &mut scratch),
-                        _ => s.kernel::<4, true>(&ln, d0, start..end, &pos, &mut scratch),
-                    };
-                    assert_eq!(Some(got), want, "c = {c}, line {d0}");
-                    let fast = match c {
-                        1 => s.kernel::<1, false>(&ln, d0, start..end, &pos, &mut scratch),
-                        3 => s.kernel::<3, false>(&ln, d0, start..end, &pos, &mut scratch),
-                        _ => s.kernel::<4, false>(&ln, d0, start..end, &pos, &mut scratch),
-                    };
-                    fallbacks += fast.is_none() as usize;
-                }
-                // Reference: the definition's per-pixel test, summed in pixel order.
-                let (mut sa, mut sc) = (0f64, 0f64);
-                for d in start..end {
-                    let (fp, kp) = (ln.get(d0, d, FACE), ln.get(d0, d, KEY));
-                    let kf = s.key(d);
-                    let mut ga = 0f64;
-                    for (k, &ak) in attrs.iter().enumerate() {
-                        ga += ln.get(d0, d, GRAD + k) * ak;
-                    }
-                    let delta = ga - ln.get(d0, d, GI);
-                    let covers = kf > kp || (kf == kp && s.fi < fp);
-                    if fp != s.fi && covers && delta < 0.0 {
-                        let t = d as f64 - s.cross;
-                        sa += delta / (s.ka * t + s.ea);
-                        sc += delta / (s.kc * t + s.ec);
-                    }
-                }
-                let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * (1.0 + y.abs());
-                assert!(
-                    close(got.0, sa) && close(got.1, sc),
-                    "c = {c}, line {d0}: {got:?} vs ({sa}, {sc})"
-                );
-            }
-            assert!(
-                c == 5 || fallbacks > 0,
-                "the lines should contain exact ties"
-            );
         }
     }
 }

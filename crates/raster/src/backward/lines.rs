@@ -1,0 +1,203 @@
+//! Per-batch-element buffers of the backward pass laid out along sweep lines.
+
+use rayon::prelude::*;
+
+use crate::input::RasterParams;
+use crate::setup::FaceSetup;
+
+/// Depth-test key of the face drawn at each pixel (row-major; larger = nearer): `1/z` in perspective, `-z` in
+/// orthographic, with `z` recomputed from the positions exactly as the forward computes it; `-inf` on background.
+pub(super) fn depth_keys(
+    setups: &[FaceSetup],
+    face_index: &[i32],
+    params: &RasterParams,
+) -> Vec<f64> {
+    let w = params.width;
+    let mut key = vec![f64::NEG_INFINITY; face_index.len()];
+    key.par_chunks_mut(w)
+        .zip(face_index.par_chunks(w))
+        .enumerate()
+        .for_each(|(i, (key, faces))| {
+            for (j, (k, &f)) in key.iter_mut().zip(faces).enumerate() {
+                if f >= 0 {
+                    let s = &setups[f as usize];
+                    *k = match s.depth_at(i as i32, j as i32) {
+                        Some(z) if s.ortho => -z,
+                        Some(z) => 1.0 / z,
+                        None => f64::NEG_INFINITY,
+                    };
+                }
+            }
+        });
+    key
+}
+
+/// The per-pixel inputs of the sweeps of one batch element, one line after another: image rows for the row sweeps
+/// (axis V) or image columns for the column sweeps (axis U), so that the inner loops read memory contiguously.
+/// Everything is f64, as in the definition: f32 weights or `delta`s change single contributions near an edge
+/// (`delta / EPS` spikes) by more than 1e-5 of a vertex gradient whose terms cancel (measured).
+pub(super) struct Lines {
+    /// Pixels per line.
+    pub len: usize,
+    /// Channels `C`.
+    channels: usize,
+    /// Face drawn at each pixel (-1 on background), as f64 (compared in the same vectors as the depth keys).
+    face: Vec<f64>,
+    /// Depth-test key of the drawn face (see [`depth_keys`]).
+    key: Vec<f64>,
+    /// `sum_c G[P, c] * I[P, c]`, channels in order.
+    gi: Vec<f64>,
+    /// The cotangent, per line `C` planes of `len` values.
+    grad: Vec<f64>,
+    /// Per line, the range `[first, last + 1)` of pixels whose cotangent is not all zero (`[0, 0]` when none):
+    /// pixels outside it have `delta = 0` and never contribute.
+    pub nonzero: Vec<[usize; 2]>,
+}
+
+impl Lines {
+    /// Row lines from the row-major maps (`key` becomes the key planes as it is).
+    pub fn rows(
+        key: Vec<f64>,
+        face_index: &[i32],
+        image: &[f32],
+        grad: &[f32],
+        c: usize,
+        params: &RasterParams,
+    ) -> Lines {
+        let (h, w) = (params.height, params.width);
+        // Built by collecting (no zero-filled buffers to overwrite).
+        let face = face_index.par_iter().map(|&f| f as f64).collect();
+        let gi = grad
+            .par_chunks(c)
+            .zip(image.par_chunks(c))
+            .map(|(g, i)| {
+                g.iter()
+                    .zip(i)
+                    .fold(0f64, |s, (&g, &i)| s + g as f64 * i as f64)
+            })
+            .collect();
+        let mut planes = vec![0f64; h * w * c];
+        planes
+            .par_chunks_mut(w * c)
+            .zip(grad.par_chunks(w * c))
+            .for_each(|(planes, row)| {
+                for (d, g) in row.chunks_exact(c).enumerate() {
+                    for (k, &g) in g.iter().enumerate() {
+                        planes[k * w + d] = g as f64;
+                    }
+                }
+            });
+        Lines::finish(w, c, face, key, gi, planes)
+    }
+
+    /// Column lines: the transpose of `rows`.
+    pub fn columns(rows: &Lines) -> Lines {
+        let (w, h, c) = (rows.len, rows.lines(), rows.channels);
+        let column = |v: &[f64]| -> Vec<f64> {
+            let mut out = vec![0f64; w * h];
+            out.par_chunks_mut(h).enumerate().for_each(|(j, col)| {
+                for (i, x) in col.iter_mut().enumerate() {
+                    *x = v[i * w + j];
+                }
+            });
+            out
+        };
+        let mut planes = vec![0f64; w * c * h];
+        planes
+            .par_chunks_mut(c * h)
+            .enumerate()
+            .for_each(|(j, col)| {
+                // Row i's channel k is rows.grad[(i * c + k) * w..][..w].
+                for (k, plane) in col.chunks_exact_mut(h).enumerate() {
+                    for (i, x) in plane.iter_mut().enumerate() {
+                        *x = rows.grad[(i * c + k) * w + j];
+                    }
+                }
+            });
+        Lines::finish(
+            h,
+            c,
+            column(&rows.face),
+            column(&rows.key),
+            column(&rows.gi),
+            planes,
+        )
+    }
+
+    /// Lines of `len` pixels from their planes, with [`Lines::nonzero`] found.
+    fn finish(
+        len: usize,
+        channels: usize,
+        face: Vec<f64>,
+        key: Vec<f64>,
+        gi: Vec<f64>,
+        grad: Vec<f64>,
+    ) -> Lines {
+        let lines = face.len() / len;
+        let mut out = Lines {
+            len,
+            channels,
+            face,
+            key,
+            gi,
+            grad,
+            nonzero: vec![[0, 0]; lines],
+        };
+        out.find_nonzero();
+        out
+    }
+
+    /// Number of lines.
+    fn lines(&self) -> usize {
+        self.nonzero.len()
+    }
+
+    /// Fills [`Lines::nonzero`] from the cotangent planes.
+    fn find_nonzero(&mut self) {
+        let (len, c) = (self.len, self.channels);
+        self.nonzero
+            .par_iter_mut()
+            .zip(self.grad.par_chunks(len * c))
+            .for_each(|(nz, planes)| {
+                let zero = |d: usize| (0..c).all(|k| planes[k * len + d] == 0.0);
+                *nz = match (0..len).position(|d| !zero(d)) {
+                    Some(first) => [
+                        first,
+                        (0..len).rposition(|d| !zero(d)).map_or(first, |l| l) + 1,
+                    ],
+                    None => [0, 0],
+                };
+            });
+    }
+
+    /// Faces drawn along line `d0`.
+    #[inline(always)]
+    pub fn face(&self, d0: usize) -> &[f64] {
+        &self.face[d0 * self.len..(d0 + 1) * self.len]
+    }
+
+    /// Depth keys along line `d0`.
+    #[inline(always)]
+    pub fn key(&self, d0: usize) -> &[f64] {
+        &self.key[d0 * self.len..(d0 + 1) * self.len]
+    }
+
+    /// `sum_c G I` along line `d0`.
+    #[inline(always)]
+    pub fn gi(&self, d0: usize) -> &[f64] {
+        &self.gi[d0 * self.len..(d0 + 1) * self.len]
+    }
+
+    /// Cotangent channel `k` at pixel `d` of line `d0`.
+    #[inline(always)]
+    pub fn grad_at(&self, d0: usize, k: usize, d: usize) -> f64 {
+        self.grad[(d0 * self.channels + k) * self.len + d]
+    }
+
+    /// Cotangent channel `k` along line `d0`.
+    #[inline(always)]
+    pub fn grad(&self, d0: usize, k: usize) -> &[f64] {
+        let o = (d0 * self.channels + k) * self.len;
+        &self.grad[o..o + self.len]
+    }
+}
