@@ -1,14 +1,21 @@
-//! Quick timing of forward + backward on a ~10k-face sphere at 299 x 299 (the sphere fills the image; random
-//! cotangent, 4 channels), one thread by default; prints the median and the minimum of 20 runs.
+//! Quick timing of forward + backward, one thread by default; prints the median and the minimum of 20 runs.
 //!
-//! `cargo run --release -p meshadv-raster --example bench [threads] [fwd|bwd]` (the mode runs only that pass, for
-//! `perf stat`).
+//! * `sphere`: a ~10k-face sphere at 299 x 299 (the sphere fills the image; random cotangent, 4 channels).
+//! * `pascal`: an attack's render: a real PASCAL3D+ mesh (`aeroplane/03.ply`, 7,106 faces, as stored: not resampled)
+//!   scaled to [-1, 1], 6 views (azimuths 0-300 by 60, elevation 30, distance 2.732) in one batch at 448 x 448 (a
+//!   224 px image with 2x antialias), RGB + alpha, random cotangent. Read from `$MESHADV_DATA` or `../shared/data`;
+//!   skipped with a message when absent.
+//!
+//! `cargo run --release -p meshadv-raster --example bench [threads] [fwd|bwd] [sphere|pascal]` (a mode runs only that
+//! pass of one case, `sphere` by default, for `perf stat` or `valgrind --tool=callgrind`). `BENCH_ISA=portable` runs
+//! the backward without the AVX2 path.
 
 use std::time::Instant;
 
+use meshadv_raster::backward::{rasterize_backward_on, Isa};
 use meshadv_raster::camera::{project, world_to_view, SphericalCamera};
 use meshadv_raster::{
-    rasterize, rasterize_backward, with_threads, BackwardInputs, FaceAttrs, RasterParams,
+    rasterize, with_threads, BackwardInputs, FaceAttrs, Gradients, RasterError, RasterParams,
     ScreenMesh,
 };
 
@@ -35,6 +42,148 @@ fn sphere(rings: usize, segs: usize) -> (Vec<f32>, Vec<i32>) {
     (v, f)
 }
 
+/// Reads a binary little-endian PLY with float `x y z` vertices and `list uchar int` triangles (the shared
+/// PASCAL3D+ files), scaled so that the largest extent spans [-1, 1] and turned from Z-up to Y-up.
+fn read_ply(path: &std::path::Path) -> Result<(Vec<f32>, Vec<i32>), Box<dyn std::error::Error>> {
+    let bytes = std::fs::read(path)?;
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .ok_or("no PLY header")?;
+    let header = std::str::from_utf8(&bytes[..end])?;
+    let count = |name: &str| -> Result<usize, Box<dyn std::error::Error>> {
+        let line = header
+            .lines()
+            .find(|l| l.starts_with(&format!("element {name} ")))
+            .ok_or("missing element")?;
+        Ok(line.rsplit(' ').next().unwrap_or("").parse()?)
+    };
+    let (nv, nf) = (count("vertex")?, count("face")?);
+    let mut body = &bytes[end + 11..];
+    let mut take = |n: usize| -> Result<&[u8], Box<dyn std::error::Error>> {
+        let (head, rest) = body.split_at_checked(n).ok_or("truncated PLY")?;
+        body = rest;
+        Ok(head)
+    };
+    let mut v = Vec::with_capacity(nv * 3);
+    for _ in 0..nv * 3 {
+        v.push(f32::from_le_bytes(take(4)?.try_into()?));
+    }
+    let mut f = Vec::with_capacity(nf * 3);
+    for _ in 0..nf {
+        if take(1)?[0] != 3 {
+            return Err("not a triangle mesh".into());
+        }
+        for _ in 0..3 {
+            f.push(i32::from_le_bytes(take(4)?.try_into()?));
+        }
+    }
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for p in v.chunks_exact(3) {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let scale = 2.0 / (0..3).map(|k| hi[k] - lo[k]).fold(0f32, f32::max);
+    let verts = v
+        .chunks_exact(3)
+        .flat_map(|p| {
+            let c: [f32; 3] = std::array::from_fn(|k| (p[k] - (lo[k] + hi[k]) / 2.0) * scale);
+            [c[0], c[2], -c[1]]
+        })
+        .collect();
+    Ok((verts, f))
+}
+
+/// One benchmark case: a projected batch, its attributes and a cotangent.
+struct Case {
+    name: String,
+    screen: Vec<f32>,
+    faces: Vec<i32>,
+    batch: usize,
+    attrs: Vec<f32>,
+    grad: Vec<f32>,
+    params: RasterParams,
+}
+
+/// The sphere case (see the module docs).
+fn sphere_case() -> Result<Case, RasterError> {
+    let (verts, faces) = sphere(50, 100);
+    let cam = SphericalCamera {
+        distance: 2.732,
+        elevation: 30.0,
+        azimuth: 45.0,
+        ..Default::default()
+    };
+    let view = world_to_view(&verts, &cam.view()?);
+    Ok(case(
+        format!("{} faces, 299x299", faces.len() / 3),
+        project(&view, 30.0, false, 1.0),
+        faces,
+        1,
+        299,
+    ))
+}
+
+/// The PASCAL3D+ case (see the module docs); `None` when the shared data is absent.
+fn pascal_case() -> Result<Option<Case>, Box<dyn std::error::Error>> {
+    let root = std::env::var("MESHADV_DATA").unwrap_or_else(|_| {
+        concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data").to_string()
+    });
+    let path = std::path::Path::new(&root).join("pascal3d/aeroplane/03.ply");
+    if !path.exists() {
+        println!("pascal: skipped, {} not found", path.display());
+        return Ok(None);
+    }
+    let (verts, faces) = read_ply(&path)?;
+    let mut screen = Vec::new();
+    for view in 0..6 {
+        let cam = SphericalCamera {
+            distance: 2.732,
+            elevation: 30.0,
+            azimuth: 60.0 * view as f64,
+            ..Default::default()
+        };
+        screen.extend(project(
+            &world_to_view(&verts, &cam.view()?),
+            30.0,
+            false,
+            1.0,
+        ));
+    }
+    Ok(Some(case(
+        format!(
+            "aeroplane/03 ({} faces) x 6 views, 448x448",
+            faces.len() / 3
+        ),
+        screen,
+        faces,
+        6,
+        448,
+    )))
+}
+
+/// A case with deterministic attributes and cotangent, 4 channels, `size x size`.
+fn case(name: String, screen: Vec<f32>, faces: Vec<i32>, batch: usize, size: usize) -> Case {
+    let (m, c) = (faces.len() / 3, 4);
+    let attrs = (0..batch * m * c)
+        .map(|i| ((i * 7919) % 1000) as f32 / 1000.0)
+        .collect();
+    let grad = (0..batch * size * size * c)
+        .map(|i| ((i * 104729) % 2001) as f32 / 1000.0 - 1.0)
+        .collect();
+    Case {
+        name,
+        screen,
+        faces,
+        batch,
+        attrs,
+        grad,
+        params: RasterParams::new(size, size, 0.1, 100.0),
+    }
+}
+
 /// Median of `v` (sorts it in place).
 fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -47,96 +196,87 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map(|s| s.parse())
         .transpose()?
         .unwrap_or(1);
-    let (verts, faces) = sphere(50, 100);
-    let m = faces.len() / 3;
-    let cam = SphericalCamera {
-        distance: 2.732,
-        elevation: 30.0,
-        azimuth: 45.0,
-        ..Default::default()
-    };
-    let view = world_to_view(&verts, &cam.view()?);
-    let screen = project(&view, 30.0, false, 1.0);
-    let mesh = ScreenMesh::new(&screen, &faces, 1, verts.len() / 3)?;
-    let c = 4;
-    let attrs: Vec<f32> = (0..m * c)
-        .map(|i| ((i * 7919) % 1000) as f32 / 1000.0)
-        .collect();
-    let bg = [1.0f32, 1.0, 1.0, 0.0];
-    let fa = FaceAttrs {
-        values: &attrs,
-        background: &bg,
-        channels: c,
-    };
-    let p = RasterParams::new(299, 299, 0.1, 100.0);
-    let grad: Vec<f32> = (0..299 * 299 * c)
-        .map(|i| ((i * 104729) % 2001) as f32 / 1000.0 - 1.0)
-        .collect();
-    let reps = 20;
     let mode = std::env::args().nth(2).unwrap_or_default();
+    let which = std::env::args().nth(3).unwrap_or_else(|| "sphere".into());
+    let isa = match std::env::var("BENCH_ISA").as_deref() {
+        Ok("portable") => Isa::Portable,
+        _ => Isa::detect(),
+    };
+    let reps = 20;
     if !mode.is_empty() {
-        return with_threads(threads, || -> Result<(), meshadv_raster::RasterError> {
-            let out = rasterize(&mesh, &fa, &p)?;
-            let inputs = BackwardInputs {
-                face_index: &out.face_index,
-                image: &out.image,
-                grad_image: &grad,
-                vertex_grad: true,
-            };
-            for _ in 0..reps {
-                if mode == "fwd" {
-                    std::hint::black_box(rasterize(&mesh, &fa, &p)?);
-                } else {
-                    std::hint::black_box(rasterize_backward(&mesh, &fa, &p, &inputs)?);
-                }
-            }
-            Ok(())
-        })?
-        .map_err(Into::into);
+        let c = match which.as_str() {
+            "pascal" => pascal_case()?.ok_or("no PASCAL3D+ data")?,
+            _ => sphere_case()?,
+        };
+        return with_threads(threads, || run_only(&c, &mode, isa, reps))?.map_err(Into::into);
     }
-    with_threads(threads, || -> Result<(), meshadv_raster::RasterError> {
-        let (mut tf, mut tb) = (Vec::new(), Vec::new());
-        for _ in 0..reps {
-            let t0 = Instant::now();
-            let out = rasterize(&mesh, &fa, &p)?;
-            let t1 = Instant::now();
-            let inputs = BackwardInputs {
-                face_index: &out.face_index,
-                image: &out.image,
-                grad_image: &grad,
-                vertex_grad: true,
-            };
-            let g = rasterize_backward(&mesh, &fa, &p, &inputs)?;
-            let t2 = Instant::now();
-            std::hint::black_box(&g);
-            tf.push(1e3 * (t1 - t0).as_secs_f64());
-            tb.push(1e3 * (t2 - t1).as_secs_f64());
+    let mut cases = vec![sphere_case()?];
+    cases.extend(pascal_case()?);
+    println!("backward on {isa:?}");
+    for c in &cases {
+        with_threads(threads, || time_case(c, threads, isa, reps))??;
+    }
+    Ok(())
+}
+
+/// Attributes of a case as the API wants them.
+fn face_attrs(c: &Case) -> FaceAttrs<'_> {
+    const BG: [f32; 4] = [1.0, 1.0, 1.0, 0.0];
+    FaceAttrs {
+        values: &c.attrs,
+        background: &BG,
+        channels: 4,
+    }
+}
+
+/// The backward of a case from the forward's outputs.
+fn backward(
+    c: &Case,
+    mesh: &ScreenMesh<'_>,
+    out: &meshadv_raster::RasterOutput,
+    isa: Isa,
+) -> Result<Gradients, RasterError> {
+    let inputs = BackwardInputs {
+        face_index: &out.face_index,
+        image: &out.image,
+        grad_image: &c.grad,
+        vertex_grad: true,
+    };
+    rasterize_backward_on(isa, mesh, &face_attrs(c), &c.params, &inputs)
+}
+
+/// Runs only the forward (`fwd`) or the backward `reps` times.
+fn run_only(c: &Case, mode: &str, isa: Isa, reps: usize) -> Result<(), RasterError> {
+    let mesh = ScreenMesh::new(&c.screen, &c.faces, c.batch, c.screen.len() / 3 / c.batch)?;
+    let out = rasterize(&mesh, &face_attrs(c), &c.params)?;
+    for _ in 0..reps {
+        if mode == "fwd" {
+            std::hint::black_box(rasterize(&mesh, &face_attrs(c), &c.params)?);
+        } else {
+            std::hint::black_box(backward(c, &mesh, &out, isa)?);
         }
+    }
+    Ok(())
+}
+
+/// Times forward and backward of a case and prints the medians.
+fn time_case(c: &Case, threads: usize, isa: Isa, reps: usize) -> Result<(), RasterError> {
+    let mesh = ScreenMesh::new(&c.screen, &c.faces, c.batch, c.screen.len() / 3 / c.batch)?;
+    let (mut tf, mut tb) = (Vec::new(), Vec::new());
+    for _ in 0..reps {
         let t0 = Instant::now();
-        for _ in 0..reps {
-            std::hint::black_box(meshadv_raster::rasterize_fragments(&mesh, &p)?);
-        }
-        println!(
-            "fragments only: {:.2} ms",
-            1e3 * t0.elapsed().as_secs_f64() / reps as f64
-        );
-        let t0 = Instant::now();
-        for _ in 0..reps {
-            std::hint::black_box(meshadv_raster::setup::setup_faces(&mesh, 0, &p));
-        }
-        println!(
-            "setup only: {:.2} ms",
-            1e3 * t0.elapsed().as_secs_f64() / reps as f64
-        );
-        println!(
-            "{m} faces, 299x299, {threads} thread(s): forward {:.2} ms, backward {:.2} ms \
-             (median of {reps}; min {:.2} / {:.2} ms)",
-            median(&mut tf),
-            median(&mut tb),
-            tf[0],
-            tb[0]
-        );
-        Ok(())
-    })??;
+        let out = rasterize(&mesh, &face_attrs(c), &c.params)?;
+        let t1 = Instant::now();
+        let g = backward(c, &mesh, &out, isa)?;
+        let t2 = Instant::now();
+        std::hint::black_box(&g);
+        tf.push(1e3 * (t1 - t0).as_secs_f64());
+        tb.push(1e3 * (t2 - t1).as_secs_f64());
+    }
+    let (mf, mb) = (median(&mut tf), median(&mut tb));
+    println!(
+        "{}, {threads} thread(s): forward {mf:.2} ms, backward {mb:.2} ms (median of {reps}; min {:.2} / {:.2} ms)",
+        c.name, tf[0], tb[0]
+    );
     Ok(())
 }
