@@ -239,3 +239,15 @@ def test_transfer_controlled_without_successes_mentions_all(tmp_path: Path) -> N
         store.add_jobs(expand_jobs(load_config(config))[:1])
     result = runner.invoke(app, ["transfer", "controlled", str(tmp_path / "results.db")])
     assert result.exit_code == 1 and "--all" in result.output
+
+
+def test_version_and_python_dash_m() -> None:
+    import subprocess
+    import sys
+
+    from meshadv import __version__
+
+    result = runner.invoke(app, ["--version"])
+    assert result.exit_code == 0 and result.output.strip() == f"meshadv {__version__}"
+    out = subprocess.run([sys.executable, "-m", "meshadv", "--version"], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == f"meshadv {__version__}"
