@@ -8,6 +8,13 @@ Real meshes (shared PASCAL3D+ models) and a real victim (EfficientNet-Lite0). Fo
   (sum of wall times) and all together as a batch (one wall time), with early stopping; reports the time until
   every target held, and how many did within ``--max-steps``.
 
+With ``--split`` only one attack step's parts are timed, per mesh and perturbation, with ``--targets`` targets
+batched (``targets x views`` images, ``--antialias`` supersampling; wall time, or process CPU time with
+``--cpu-time``): the render's forward, the victim's forward + input gradient, the render's backward (median of
+``--steps`` steps after one warm-up); it reports the renderer's share of the step and target-steps/s beside the
+victim-alone ceiling (the victim's forward + input gradient on random images of the same batch: what a step would
+cost with a free renderer). Run it once per build (old and new extension) to compare them side by side.
+
 With ``--convergence`` only the shape attack's time to success is measured, for every combination of
 ``--smoothing`` (rounds of neighbour averaging of the flow, 0 = the paper's per-vertex flow) and ``--shape-lr``: each
 target is attacked alone for up to ``--max-steps`` steps, stopping at the first step where it holds on every view
@@ -20,6 +27,8 @@ Usage:
         --out benchmarks/attack_bench.json
     python benchmarks/attack_bench.py --convergence --meshes chair/01 sofa/01 --views 2 --image-size 128 \\
         --targets 3 --max-steps 200 --budgets 60 200 --smoothing 0 8 --shape-lr 5e-3 2e-2
+    python benchmarks/attack_bench.py --split --meshes aeroplane/03 --views 1 --image-size 224 --antialias 2 \\
+        --targets 6 --steps 10
 
 Prints a Markdown table (paste it into benchmarks/RESULTS.md with the command line) and writes a JSON record.
 """
@@ -34,7 +43,7 @@ import statistics
 import sys
 import time
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import torch
 
@@ -130,7 +139,8 @@ def print_convergence(records: List[Dict[str, Any]], budgets: List[int]) -> None
               f"{_fmt(dmax, '.3f')} / {_fmt(dmean, '.4f')} | {r['time_s']:.0f} s |")
 
 
-def victim_images_per_s(victim: Any, batch: int, image_size: int, repeats: int = 5) -> float:
+def victim_images_per_s(victim: Any, batch: int, image_size: int, repeats: int = 5,
+                        clock: Callable[[], float] = time.perf_counter) -> float:
     """Images per second of the victim's forward + backward (w.r.t. the input) on a batch of random renders.
 
     The ratio between ``batch = T x V`` and ``batch = V`` is the ceiling of what batching T targets can gain when the
@@ -140,13 +150,72 @@ def victim_images_per_s(victim: Any, batch: int, image_size: int, repeats: int =
     times = []
     for i in range(repeats + 1):
         x = images.clone().requires_grad_(True)
-        t0 = time.perf_counter()
+        t0 = clock()
         out = victim(x)
         logits = out if isinstance(out, torch.Tensor) else out[0]
         logits.float().sum().backward()
         if i > 0:  # the first call warms up
-            times.append(time.perf_counter() - t0)
+            times.append(clock() - t0)
     return batch / statistics.median(times)
+
+
+def step_split(mesh_name: str, perturb: str, args: argparse.Namespace, victim: Any) -> Dict[str, Any]:
+    """Times the parts of one attack step (render forward, victim forward + input gradient, render backward) with
+    ``args.targets`` targets batched; returns a JSON-able record (median seconds per part)."""
+    from meshadv.data import require_shared_data
+    from meshadv.mesh import load_mesh, normalize_mesh
+    from meshadv.render import ViewSet
+
+    mesh = normalize_mesh(load_mesh(require_shared_data(f"pascal3d/{mesh_name}.ply")), z_up=True)[0]
+    views = ViewSet.orbit(
+        torch.linspace(165.0, 195.0, args.views) if args.views > 1 else torch.tensor([180.0]),
+        elevation=15.0,
+        distance=4.5,
+    )
+    setup = RenderSetup(image_size=args.image_size, antialias=args.antialias)
+    t = args.targets
+    verts = mesh.vertices.unsqueeze(0).repeat(t, 1, 1)
+    colors = mesh.face_colors.unsqueeze(0).repeat(t, 1, 1)
+    param = verts if perturb == "shape" else colors
+    param.requires_grad_(True)
+    parts: Dict[str, List[float]] = {"render_fwd": [], "victim": [], "render_bwd": []}
+    clock = time.process_time if args.cpu_time else time.perf_counter
+    for step in range(args.steps + 1):
+        t0 = clock()
+        images, _ = setup.render(verts, mesh.faces, colors, views)
+        t1 = clock()
+        x = images.detach().requires_grad_(True)
+        out = victim(x)
+        logits = out if isinstance(out, torch.Tensor) else out[0]
+        (logits[:, 1].sum() - logits[:, 0].sum()).backward()
+        t2 = clock()
+        images.backward(x.grad)
+        t3 = clock()
+        param.grad = None
+        if step > 0:  # the first step warms up
+            for key, dt in zip(parts, (t1 - t0, t2 - t1, t3 - t2)):
+                parts[key].append(dt)
+    med = {key: float(statistics.median(v)) for key, v in parts.items()}
+    step_s = sum(med.values())
+    ceiling = victim_images_per_s(victim, t * args.views, args.image_size, clock=clock) / args.views
+    return {"mesh": mesh_name, "faces": mesh.num_faces, "perturb": perturb, "views": args.views,
+            "image_size": args.image_size, "antialias": args.antialias, "targets": t, "cpu_time": args.cpu_time,
+            **{f"{k}_s": v for k, v in med.items()}, "step_s": step_s,
+            "render_share": (med["render_fwd"] + med["render_bwd"]) / step_s,
+            "target_steps_per_s": t / step_s, "victim_ceiling_target_steps_per_s": ceiling}
+
+
+def print_split(records: List[Dict[str, Any]]) -> None:
+    """Markdown table of the step-split records."""
+    print("| mesh | faces | perturb | targets x views x px (antialias) | render fwd | victim fwd+bwd | render bwd | "
+          "renderer share | target-steps/s | victim-alone ceiling | ratio |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in records:
+        print(f"| {r['mesh']} | {r['faces']} | {r['perturb']} | {r['targets']} x {r['views']} x {r['image_size']} "
+              f"({r['antialias']}x) | {1e3 * r['render_fwd_s']:.0f} ms | {1e3 * r['victim_s']:.0f} ms | "
+              f"{1e3 * r['render_bwd_s']:.0f} ms | {100 * r['render_share']:.0f}% | {r['target_steps_per_s']:.2f} | "
+              f"{r['victim_ceiling_target_steps_per_s']:.2f} | "
+              f"{r['target_steps_per_s'] / r['victim_ceiling_target_steps_per_s']:.0%} |")
 
 
 def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: Any) -> Dict[str, Any]:
@@ -222,6 +291,12 @@ def main(argv: List[str]) -> int:
     parser.add_argument("--smoothing", type=int, nargs="+", default=None,
                         help="shape flow smoothing rounds (default: ShapeAttack's default)")
     parser.add_argument("--shape-lr", type=float, nargs="+", default=[5e-3], help="shape attack learning rates")
+    parser.add_argument("--split", action="store_true",
+                        help="only time one step's parts (render fwd, victim, render bwd), --targets batched")
+    parser.add_argument("--antialias", type=int, default=1, help="--split: supersampling factor of the render")
+    parser.add_argument("--cpu-time", action="store_true",
+                        help="--split: process CPU time instead of wall time (steadier on a busy machine; run with "
+                             "OMP_NUM_THREADS=1 RAYON_NUM_THREADS=1 so that it is also the 1-thread wall time)")
     parser.add_argument("--budgets", type=int, nargs="+", default=None,
                         help="--convergence: step budgets to count successes within (default: --max-steps)")
     args = parser.parse_args(argv)
@@ -232,6 +307,17 @@ def main(argv: List[str]) -> int:
     victim = load_victim(args.victim)
     command = "python benchmarks/attack_bench.py " + " ".join(argv)
     machine = f"machine: {platform.processor() or platform.machine()}, torch threads {torch.get_num_threads()}"
+    if args.split:
+        loads = [os.getloadavg()[0]]
+        records = [step_split(m, p, args, victim) for m in args.meshes for p in args.perturb]
+        loads.append(os.getloadavg()[0])
+        print(f"command: {command}")
+        print(f"{machine}; 1-minute load average {min(loads):.1f}-{max(loads):.1f}")
+        print_split(records)
+        if args.out is not None:
+            args.out.write_text(json.dumps({"command": command, "torch_threads": torch.get_num_threads(),
+                                            "load": loads, "records": records}, indent=2))
+        return 0
     if args.convergence:
         from meshadv.attacks.shape import DEFAULT_SMOOTHING
 
