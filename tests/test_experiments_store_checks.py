@@ -113,3 +113,18 @@ def test_a_damaged_database_is_a_one_line_cli_error(tmp_path: Path, monkeypatch:
     assert "Traceback" not in result.output
     assert result.output.strip().startswith("meshadv sweep: error: path")
     assert len(result.output.strip().splitlines()) == 1
+
+
+def test_a_truncated_result_json_of_a_finished_job_is_reported(tmp_path: Path) -> None:
+    with ResultStore(tmp_path / "results.db") as store:
+        store.add_jobs([{"a": 1}, {"a": 2}])
+        jobs = store.runnable(1)
+        for i, job in enumerate(jobs):
+            folder = tmp_path / job
+            folder.mkdir()
+            (folder / "result.json").write_text('{"success": true}' if i == 0 else '{"succ')
+            store.mark_running(job)
+            store.mark_done(job, {"success": True}, str(folder))
+        damaged = store.damaged_results()
+    assert [job for job, _ in damaged] == [jobs[1]]
+    assert "is truncated or not JSON" in damaged[0][1]

@@ -109,6 +109,13 @@ def sweep(
     typer.echo(f"{summary.done}/{summary.total} done ({summary.successes} successful), {summary.failed} failed; "
                f"ran {summary.ran}, skipped {summary.skipped} finished, re-queued {summary.requeued} interrupted; "
                f"results in {db_path}")
+    with ResultStore(db_path) as store:
+        damaged = store.damaged_results()
+    for job, reason in damaged[:10]:
+        typer.echo(f"warning: job {job} is recorded as done but {reason}; rebuild its artefacts with "
+                   f"`meshadv regenerate {db_path} {job}`", err=True)
+    if len(damaged) > 10:
+        typer.echo(f"warning: {len(damaged) - 10} more finished job(s) have damaged artefacts", err=True)
     if summary.failed:
         typer.echo(f"{summary.failed} job(s) failed: see the 'error' column of {db_path}", err=True)
         raise typer.Exit(1)

@@ -29,7 +29,7 @@ import sqlite3
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, Iterable, Iterator, List, Optional, Union
+from typing import Any, Dict, Iterable, Iterator, List, Optional, Tuple, Union
 
 from meshadv.experiments.spec import canonical, canonical_json, job_id
 
@@ -351,6 +351,29 @@ class ResultStore:
                 (error, time.time(), job),
             )
             return cur.rowcount == 1
+
+    def damaged_results(self, marker: str = "result.json") -> List[Tuple[str, str]]:
+        """Finished jobs whose artefact folder (on this machine) holds an unreadable ``marker`` file.
+
+        A folder that is absent is not reported (the artefacts live on another machine, or were not kept); a
+        ``result.json`` that is empty, truncated or not JSON is.
+
+        Returns:
+            ``(job_id, reason)`` pairs.
+        """
+        damaged = []
+        for job, out_dir in self._conn.execute("SELECT job_id, out_dir FROM jobs WHERE state = 'done'"):
+            if not out_dir or not Path(out_dir).is_dir():
+                continue
+            path = Path(out_dir) / marker
+            if not path.is_file():
+                damaged.append((job, f"{path} is missing"))
+                continue
+            try:
+                json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError, ValueError) as err:
+                damaged.append((job, f"{path} is truncated or not JSON ({err})"))
+        return damaged
 
     def counts(self) -> Dict[str, int]:
         """Number of jobs in each state (every state present, zero when empty), plus ``total`` and ``successes``."""
