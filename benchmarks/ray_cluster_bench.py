@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, Dict, List
 
 from meshadv.experiments import RayBackend, ResultStore, job_id, run_sweep
-from meshadv.experiments.ray_local import WORKER_RESOURCE, LocalRayCluster
+from meshadv.experiments.ray_local import WORKER_RESOURCE, LocalRayCluster, write_token
 
 
 def _connect(address: str, workers: int, timeout: float = 120.0) -> None:
@@ -141,10 +141,12 @@ def main(argv: List[str]) -> int:
     parser.add_argument("--out", type=Path, default=Path("/tmp/meshadv-raybench"))
     parser.add_argument("--skip-throughput", action="store_true", help="only the lost-node run")
     args = parser.parse_args(argv)
-    os.environ.setdefault("RAY_AUTH_MODE", "token")  # read once, when ray is first imported: before that
     if args.out.exists():
         shutil.rmtree(args.out)
     args.out.mkdir(parents=True)
+    # the clusters' own token, in the environment before ray is first imported (it reads the mode then)
+    os.environ["RAY_AUTH_MODE"] = "token"
+    os.environ["RAY_AUTH_TOKEN_PATH"] = str(write_token(args.out / "auth_token"))
     t0 = time.time()
     result = {"throughput": {} if args.skip_throughput else throughput(args.out, args.jobs, args.job_seconds),
               "lost_node": lost_node(args.out, args.kill_jobs, args.sleep)}

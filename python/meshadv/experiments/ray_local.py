@@ -24,10 +24,21 @@ import time
 from pathlib import Path
 from typing import Dict, List, Optional, Union
 
-__all__ = ["LocalRayCluster", "WORKER_RESOURCE"]
+__all__ = ["LocalRayCluster", "WORKER_RESOURCE", "write_token"]
 
 #: The custom resource worker nodes offer (one unit per CPU).
 WORKER_RESOURCE = "meshadv_worker"
+
+
+def write_token(path: Union[str, Path]) -> Path:
+    """Write a fresh random authentication token for a local cluster to ``path`` (owner-only) and return it."""
+    import secrets
+
+    token = Path(path)
+    token.parent.mkdir(parents=True, exist_ok=True)
+    token.write_text(secrets.token_hex(32))
+    token.chmod(0o600)
+    return token
 
 
 def _free_port() -> int:
@@ -66,8 +77,11 @@ class LocalRayCluster:
     Args:
         root: folder for the nodes' temp dirs, scratch folders and logs (short paths: Ray's socket paths are
             limited to about 100 characters).
-        env: extra environment of every node and of :meth:`driver_env` (``RAY_AUTH_MODE`` defaults to ``token``,
-            which Ray's recent releases need between nodes started separately on one machine).
+        env: extra environment of every node and of :meth:`driver_env`. The cluster authenticates with a token of
+            its own (``RAY_AUTH_MODE=token``, ``RAY_AUTH_TOKEN_PATH=<root>/auth_token``, written here unless the
+            environment names one), so it neither needs nor uses a token of the user's (``~/.ray/auth_token``).
+            Ray reads ``RAY_AUTH_MODE`` when it is first imported: a driver process must have :meth:`driver_env` in
+            its environment before it imports ray.
 
     Raises:
         RuntimeError: ``ray start`` failed (its output in the message).
@@ -77,6 +91,8 @@ class LocalRayCluster:
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True)
         self.env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_USAGE_STATS_ENABLED": "0", **(env or {})}
+        if not self.env.get("RAY_AUTH_TOKEN_PATH"):
+            self.env["RAY_AUTH_TOKEN_PATH"] = str(write_token(self.root / "auth_token"))
         self.port = _free_port()
         self.workers: Dict[str, Path] = {}
         self._head_dir = self.root / "head"
@@ -127,8 +143,8 @@ class LocalRayCluster:
         return len(pids)
 
     def driver_env(self) -> Dict[str, str]:
-        """Environment variables a driver process needs to join (``RAY_AUTH_MODE``)."""
-        return {"RAY_AUTH_MODE": self.env["RAY_AUTH_MODE"]}
+        """Environment variables a driver process needs to join (``RAY_AUTH_MODE``, ``RAY_AUTH_TOKEN_PATH``)."""
+        return {"RAY_AUTH_MODE": self.env["RAY_AUTH_MODE"], "RAY_AUTH_TOKEN_PATH": self.env["RAY_AUTH_TOKEN_PATH"]}
 
     def shutdown(self) -> None:
         """Kill every node of this cluster (and nothing else: only processes of its own temp dirs)."""
