@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
@@ -90,6 +90,32 @@ class Victim(nn.Module):
         self.name = name
         self.input_size = (int(input_size[0]), int(input_size[1]))
 
+    @property
+    def device(self) -> torch.device:
+        """The device the network runs on (that of its first parameter or buffer; CPU when it has none)."""
+        for tensor in self.parameters():
+            return tensor.device
+        for tensor in self.buffers():
+            return tensor.device
+        return torch.device("cpu")
+
+    def __call__(self, images: Tensor, *args: Any, **kwargs: Any) -> Any:
+        """Run :meth:`forward` on the victim's device and return the output on the device of ``images``.
+
+        Images rendered on the CPU for a victim on a GPU are copied once (from pinned memory, without blocking the
+        host), the output comes back to the CPU, and autograd moves the output's cotangent to the GPU and the
+        input gradient back to the CPU, so an attack loop that renders on the CPU needs no change. When the images
+        are already on the victim's device nothing is copied.
+        """
+        device = self.device
+        if not isinstance(images, Tensor) or images.device == device:
+            return super().__call__(images, *args, **kwargs)
+        if images.device.type == "cpu" and device.type == "cuda":
+            moved = images.pin_memory().to(device, non_blocking=True)
+        else:
+            moved = images.to(device)
+        return _to_device(super().__call__(moved, *args, **kwargs), images.device)
+
     def train(self, mode: bool = True) -> Victim:
         """Keep the victim in eval mode whatever ``mode`` is (victims are never trained).
 
@@ -117,6 +143,19 @@ class Victim(nn.Module):
         return nn.functional.interpolate(
             images, size=self.input_size, mode="bilinear", align_corners=False, antialias=shrinking
         )
+
+
+def _to_device(output: Any, device: torch.device) -> Any:
+    """A victim's output (logits or a :class:`DetectorOutput`) on ``device``, differentiably."""
+    if isinstance(output, Tensor):
+        return output.to(device)
+    if isinstance(output, DetectorOutput):
+        return DetectorOutput(
+            boxes=output.boxes.to(device),
+            objectness=None if output.objectness is None else output.objectness.to(device),
+            class_probs=output.class_probs.to(device),
+        )
+    return output
 
 
 class ClassifierVictim(Victim):
