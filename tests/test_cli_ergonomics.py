@@ -145,6 +145,9 @@ def test_sweep_dry_run_finds_what_would_fail_every_job(tmp_path: Path) -> None:
     config = Path(__file__).resolve().parents[1] / "configs" / "paper_small.toml"
     jobs = expand_jobs(load_config(config))[:3]
     bad = copy.deepcopy(jobs)
+    for job in bad:  # built-in meshes: the check does not depend on the shared data being here
+        job["mesh"] = {"source": "builtin", "name": "chair"}
+    assert check_jobs(bad) == []
     bad[0]["victim"] = "efficientnet_lite3"
     bad[1]["mesh"] = {"source": "files", "path": str(tmp_path / "missing.ply")}
     bad[2]["target"] = "bicylce"
