@@ -17,6 +17,8 @@ import torch
 
 __all__ = ["check_device", "read_torch_state"]
 
+_EXPECTED = "expected a state_dict saved with torch.save(model.state_dict(), path)"
+
 
 def check_device(device: Union[str, torch.device]) -> torch.device:
     """Return ``device`` as a ``torch.device`` after checking this machine has it.
@@ -68,11 +70,14 @@ def read_torch_state(path: Union[str, Path]) -> Any:
                 "(weights_only=True). Re-save it with torch.save(model.state_dict(), path)"
             ) from None
         raise ValueError(
-            f"weights {path} is not a torch weights file, or is corrupted (the tensor-only unpickler refused it)"
+            f"weights {path} is not a torch weights file, or is corrupted (the tensor-only unpickler refused it); "
+            f"{_EXPECTED}"
         ) from None
     except (EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"weights {path} is truncated ({size} bytes; {type(exc).__name__}); copy it again") from None
     except (RuntimeError, ValueError, OSError, AttributeError, KeyError, IndexError) as exc:
         if "central directory" in str(exc) or "failed reading zip archive" in str(exc):
             raise ValueError(f"weights {path} is truncated or corrupted ({size} bytes); copy it again") from None
-        raise ValueError(f"weights {path} cannot be read as a torch file ({type(exc).__name__}: {exc})") from None
+        raise ValueError(
+            f"weights {path} cannot be read as a torch file ({type(exc).__name__}: {exc}); {_EXPECTED}"
+        ) from None
