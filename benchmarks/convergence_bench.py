@@ -343,6 +343,26 @@ def report(rows: Sequence[Dict[str, Any]], plots: Optional[Path]) -> str:
                 lines.append(f"| {method} | {ptype} | {s['instances']} | {s['targets']} | {budget} | "
                              f"{100 * s['success']:.1f}% | {100 * s['worst']:.0f}% | {name} {s['median_distance']:.3g}"
                              f" | {sums} | {100 * s['final_success']:.1f}% | {s['wall_time']:.0f} s |")
+    lines += ["", "Same instances only (those every method listed ran):", "", *lines[:2]]
+    for ptype in ("shape", "texture"):
+        runs: Dict[str, set] = {}
+        for r in rows:
+            if r["perturbation"] == ptype:
+                runs.setdefault(r["method"], set()).add((r["class"], r["index"]))
+        if len(runs) < 2:
+            continue
+        common = set.intersection(*runs.values())
+        for method in METHODS:
+            sel = [r for r in rows if r["method"] == method and r["perturbation"] == ptype
+                   and (r["class"], r["index"]) in common]
+            s = summarize(sel, method, ptype, None) if sel else None
+            if s is None:
+                continue
+            name = "Laplacian pair mean" if ptype == "shape" else "colour RMSE"
+            sums = f"{s['sum_median']:.3g}" if ptype == "shape" else "-"
+            lines.append(f"| {method} | {ptype} | {s['instances']} | {s['targets']} | {s['steps']} | "
+                         f"{100 * s['success']:.1f}% | {100 * s['worst']:.0f}% | {name} {s['median_distance']:.3g}"
+                         f" | {sums} | {100 * s['final_success']:.1f}% | {s['wall_time']:.0f} s |")
     if plots is not None:
         for method in METHODS:
             if any(r["method"] == method for r in rows):
