@@ -8,7 +8,7 @@
 //!
 //! `cargo run --release -p meshadv-raster --example bench [threads] [fwd|bwd] [sphere|pascal]` (a mode runs only that
 //! pass of one case, `sphere` by default, for `perf stat` or `valgrind --tool=callgrind`). `BENCH_ISA=portable` runs
-//! the backward without the AVX2 path.
+//! the backward without the AVX2 path; `BENCH_REPS=n` runs `n` repetitions instead of 20.
 
 use std::time::Instant;
 
@@ -202,7 +202,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Ok("portable") => Isa::Portable,
         _ => Isa::detect(),
     };
-    let reps = 20;
+    let reps: usize = std::env::var("BENCH_REPS")
+        .ok()
+        .and_then(|r| r.parse().ok())
+        .unwrap_or(20);
     if !mode.is_empty() {
         let c = match which.as_str() {
             "pascal" => pascal_case()?.ok_or("no PASCAL3D+ data")?,

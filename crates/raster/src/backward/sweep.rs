@@ -320,8 +320,10 @@ mod avx2 {
             load(k.pre, i)
         } else {
             let mut s = _mm256_mul_pd(load(k.g[0], i), a[0]);
-            for (g, a) in k.g.iter().zip(a).skip(1) {
-                s = _mm256_add_pd(s, _mm256_mul_pd(load(g, i), *a));
+            #[allow(clippy::needless_range_loop)]
+            // a plain index loop unrolls; an iterator chain did not
+            for ch in 1..C {
+                s = _mm256_add_pd(s, _mm256_mul_pd(load(k.g[ch], i), a[ch]));
             }
             s
         };
