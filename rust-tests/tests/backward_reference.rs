@@ -169,14 +169,7 @@ fn coplanar_and_tied_faces_match_the_reference() {
     for i in 0..n {
         for j in 0..n {
             let a = i * (n + 1) + j;
-            faces.extend_from_slice(&[
-                a,
-                a + 1,
-                a + n + 2,
-                a,
-                a + n + 2,
-                a + n + 1,
-            ]);
+            faces.extend_from_slice(&[a, a + 1, a + n + 2, a, a + n + 2, a + n + 1]);
         }
     }
     // The same grid once more, exactly on top (every pixel a tie between two faces).
