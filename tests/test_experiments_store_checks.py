@@ -128,3 +128,20 @@ def test_a_truncated_result_json_of_a_finished_job_is_reported(tmp_path: Path) -
         damaged = store.damaged_results()
     assert [job for job, _ in damaged] == [jobs[1]]
     assert "is truncated or not JSON" in damaged[0][1]
+
+
+def test_report_and_sweep_name_the_damaged_job_and_the_command_that_rebuilds_it(
+        tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from meshadv.commands._job_index import warn_damaged_results
+
+    with ResultStore(tmp_path / "results.db") as store:
+        store.add_jobs([{"a": 1}])
+        (job,) = store.runnable(1)
+        (tmp_path / job).mkdir()
+        (tmp_path / job / "result.json").write_text('{"succ')  # cut short by a crash
+        store.mark_running(job)
+        store.mark_done(job, {"success": True}, str(tmp_path / job))
+        assert warn_damaged_results(store, tmp_path / "results.db") == 1
+    err = capsys.readouterr().err
+    assert f"job {job} is recorded as done but" in err and "is truncated or not JSON" in err
+    assert f"meshadv regenerate {tmp_path / 'results.db'} {job}" in err

@@ -12,7 +12,7 @@ import io
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Union
 
-__all__ = ["INDEX_COLUMNS", "error_line", "failed_jobs", "index_rows", "write_job_index"]
+__all__ = ["INDEX_COLUMNS", "error_line", "failed_jobs", "index_rows", "warn_damaged_results", "write_job_index"]
 
 #: Columns of the index.
 INDEX_COLUMNS = ("job_id", "folder", "state", "attempts", "victim", "mesh", "class", "target", "perturbation", "kind",
@@ -79,3 +79,17 @@ def write_job_index(store: Any, folder: Union[str, Path], out_root: Optional[Uni
         lines.append("| " + " | ".join(str(row[c]).replace("|", "\\|") for c in INDEX_COLUMNS) + " |")
     write_text_atomic(folder / "index.md", "# Jobs\n\n" + "\n".join(lines) + "\n")
     return folder / "index.csv"
+
+
+def warn_damaged_results(store: Any, db_path: Union[str, Path], *, limit: int = 10) -> int:
+    """Print (to stderr) the finished jobs of ``store`` whose ``result.json`` is missing or truncated, each with the
+    ``meshadv regenerate`` command that rebuilds it; returns how many there are."""
+    import typer
+
+    damaged = store.damaged_results()
+    for job, reason in damaged[:limit]:
+        typer.echo(f"warning: job {job} is recorded as done but {reason}; rebuild its artefacts with "
+                   f"`meshadv regenerate {db_path} {job}`", err=True)
+    if len(damaged) > limit:
+        typer.echo(f"warning: {len(damaged) - limit} more finished job(s) have damaged artefacts", err=True)
+    return len(damaged)

@@ -39,7 +39,7 @@ def report(
 ) -> None:
     """Write Table 1, Table 2, the figures and the run's settings from RESULTS; index.csv / index.md map the job
     folders (named by hash) to their settings; failed jobs' errors are printed."""
-    from meshadv.commands._job_index import failed_jobs, write_job_index
+    from meshadv.commands._job_index import failed_jobs, warn_damaged_results, write_job_index
     from meshadv.experiments import ResultStore
 
     if results.suffix.lower() in (".toml", ".yaml", ".yml"):
@@ -52,6 +52,7 @@ def report(
     with ResultStore(results) as store:  # a file that is not a results database fails here, in one line
         failed = failed_jobs(store)
         index = write_job_index(store, out, results.parent)  # the default config puts the db in the output folder
+        warn_damaged_results(store, results)
     output = write_full_report(results, out, figures=figures)
     typer.echo(f"wrote {len(output.tables)} table files and {len(output.figures)} figures to {output.out_dir}")
     typer.echo(f"job index (job id -> folder, settings, state): {index}")

@@ -37,7 +37,7 @@ def sweep(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the progress bar."),
 ) -> None:
     """Run (or resume) the attack sweep described by CONFIG."""
-    from meshadv.commands._job_index import write_job_index
+    from meshadv.commands._job_index import warn_damaged_results, write_job_index
     from meshadv.experiments import ResultStore, make_backend, run_sweep
     from meshadv.experiments.config import expand_jobs, load_config
     from meshadv.experiments.report import environment_versions
@@ -110,12 +110,7 @@ def sweep(
                f"ran {summary.ran}, skipped {summary.skipped} finished, re-queued {summary.requeued} interrupted; "
                f"results in {db_path}")
     with ResultStore(db_path) as store:
-        damaged = store.damaged_results()
-    for job, reason in damaged[:10]:
-        typer.echo(f"warning: job {job} is recorded as done but {reason}; rebuild its artefacts with "
-                   f"`meshadv regenerate {db_path} {job}`", err=True)
-    if len(damaged) > 10:
-        typer.echo(f"warning: {len(damaged) - 10} more finished job(s) have damaged artefacts", err=True)
+        warn_damaged_results(store, db_path)
     if summary.failed:
         typer.echo(f"{summary.failed} job(s) failed: see the 'error' column of {db_path}", err=True)
         raise typer.Exit(1)
