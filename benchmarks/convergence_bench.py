@@ -327,7 +327,7 @@ def summarize(rows: Sequence[Dict[str, Any]], method: str, perturbation: str,
 def report(rows: Sequence[Dict[str, Any]], plots: Optional[Path]) -> str:
     """The Markdown summary table (and one PNG per method into ``plots``)."""
     lines = ["| method | perturbation | instances | targets | steps per target | success | worst case (all 6 held) "
-             "| median distance at success | median Eq. 4 sum | final re-render success | CPU wall time |",
+             "| median distance at success | median Eq. 4 sum | final re-render success | wall time (loaded) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for method in METHODS:
         for ptype in ("shape", "texture"):
