@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 
 import pytest
+from cli_output import unwrapped
 from typer.testing import CliRunner
 
 from meshadv.cli import SUBCOMMANDS, app, build_app
@@ -43,27 +43,22 @@ def test_missing_subcommand_modules_are_skipped() -> None:
     assert set(SUBCOMMANDS) >= {"attack", "render", "demo"}
 
 
-def _unwrapped(output: str) -> str:
-    """``output`` with rich's panel borders and line wrapping removed (messages wrap when tmp paths are long)."""
-    return " ".join(re.sub(r"[│╭╮╰╯─]", " ", output).split())
-
-
 def test_attack_rejects_bad_input(tmp_path: Path) -> None:
     long_dir = tmp_path / ("a-long-folder-name-" * 6)  # longer than rich's 80-column box
     result = runner.invoke(app, ["attack", str(long_dir / "missing.ply"), "--target", "bicycle", "-o",
                                  str(tmp_path / "out")])
     assert result.exit_code == 2
-    assert "does not exist" in _unwrapped(result.output)
+    assert "does not exist" in unwrapped(result.output)
     _require_renderer()
     _require_victim()
     result = runner.invoke(app, ["attack", "builtin:cube", "--perturb", "colour", "--target", "1", "-o",
                                  str(tmp_path / "out")])
-    assert result.exit_code == 2 and "perturb" in _unwrapped(result.output)
+    assert result.exit_code == 2 and "perturb" in unwrapped(result.output)
     result = runner.invoke(app, ["attack", "builtin:cube", "--target", "1", "--untargeted", "2", "-o",
                                  str(tmp_path / "out")])
-    assert result.exit_code == 2 and "exactly one" in _unwrapped(result.output)
+    assert result.exit_code == 2 and "exactly one" in unwrapped(result.output)
     result = runner.invoke(app, ["attack", "builtin:cube", "--target", "no such class", "-o", str(tmp_path / "out")])
-    assert result.exit_code == 2 and "target_class" in _unwrapped(result.output)
+    assert result.exit_code == 2 and "target_class" in unwrapped(result.output)
     assert not (tmp_path / "out").exists()
 
 

@@ -189,6 +189,13 @@ def test_report_counts_failed_and_unsuccessful_jobs(tmp_path: Path) -> None:
     transfer = (tmp_path / "rep" / "transfer.md").read_text()
     assert "Transfer to Mitsuba 3" in transfer and "chair" in transfer
     assert "Transfer to Mitsuba 3" in (tmp_path / "rep" / "README.md").read_text()
+    # A report only reads: the database file stays byte-identical and no file appears beside it.
+    before, beside = (tmp_path / "r.db").read_bytes(), sorted(p.name for p in tmp_path.glob("r.db*"))
+    result = CliRunner().invoke(_app(), ["report", str(tmp_path / "r.db"), "-o", str(tmp_path / "rep2"),
+                                         "--no-figures"])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "r.db").read_bytes() == before
+    assert sorted(p.name for p in tmp_path.glob("r.db*")) == beside
 
 
 def _ellipsoid() -> tuple:

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import typer
 from PIL import Image
+from cli_output import unwrapped
 from study_fixtures import make_study_db
 from typer.testing import CliRunner
 
@@ -221,7 +222,7 @@ def test_study_commands(study_db: Path, tmp_path: Path) -> None:
     assert res.exit_code == 0, res.output
     assert "7 adversarial images, 1 controls, 1 attention checks; 2 participants" in res.output
     res = runner.invoke(app, ["study", "export", str(tmp_path / "missing.db"), "-o", str(tmp_path / "t")])
-    assert res.exit_code != 0 and "does not exist" in res.output
+    assert res.exit_code != 0 and "does not exist" in unwrapped(res.output)
     (tmp_path / "a.json").write_text(json.dumps(_answers("a", [True, False])))
     res = runner.invoke(app, ["study", "analyze", str(tmp_path / "a.json"), "-o", str(tmp_path / "an")])
     assert res.exit_code == 0, res.output

@@ -49,7 +49,7 @@ def report(
     if not results.is_file():
         raise typer.BadParameter(f"{results} does not exist (give the results.db that `meshadv sweep` wrote)",
                                  param_hint="RESULTS")
-    with ResultStore(results) as store:  # a file that is not a results database fails here, in one line
+    with ResultStore(results, read_only=True) as store:  # a file that is not a results database fails here, in one line
         failed = failed_jobs(store)
         index = write_job_index(store, out, results.parent)  # the default config puts the db in the output folder
         warn_damaged_results(store, results)

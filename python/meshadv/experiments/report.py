@@ -224,7 +224,7 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         raise FileNotFoundError(f"results database {db} does not exist")
     out = ReportOutput(out_dir=Path(out_dir))
     out.out_dir.mkdir(parents=True, exist_ok=True)
-    with ResultStore(db) as store:
+    with ResultStore(db, read_only=True) as store:
         rows = store.rows()
         meta = store.meta()
         out.counts = store.counts()

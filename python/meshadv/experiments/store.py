@@ -123,22 +123,35 @@ class ResultStore:
     Args:
         path: database file (created with its folder when missing), or ``":memory:"``.
         timeout: seconds to wait for a lock held by a reader before failing.
+        read_only: open an existing database without writing to it (reports, study export): no schema, no open
+            mark, no checkpoint, so a committed ``results.db`` stays byte-identical.
 
     Raises:
         ValueError: ``path`` exists and is not an SQLite database of this format.
+        FileNotFoundError: ``read_only`` and ``path`` does not exist.
     """
 
-    def __init__(self, path: Union[str, Path], *, timeout: float = 30.0) -> None:
+    def __init__(self, path: Union[str, Path], *, timeout: float = 30.0, read_only: bool = False) -> None:
         self.path = str(path)
+        self.read_only = bool(read_only) and self.path != ":memory:"
         existed = wal_present = False
         if self.path != ":memory:":
             existed = _check_existing_file(Path(self.path))
+            if self.read_only and not existed:
+                raise FileNotFoundError(f"path {self.path!r} does not exist (give the results.db of a sweep)")
             wal_present = Path(self.path + "-wal").exists()  # before connecting: connecting creates it
             Path(self.path).parent.mkdir(parents=True, exist_ok=True)
-        self._conn = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)
+        if self.read_only:
+            uri = Path(self.path).resolve().as_uri() + "?mode=ro"
+            self._conn = sqlite3.connect(uri, uri=True, timeout=timeout, isolation_level=None)
+        else:
+            self._conn = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)
         try:
             if existed and not wal_present:
                 self._check_not_a_lost_wal_copy()
+            if self.read_only:
+                self._conn.execute("SELECT count(*) FROM jobs").fetchone()  # not a results database: fails here
+                return
             self._conn.execute("PRAGMA journal_mode=WAL")
             self._conn.execute("PRAGMA synchronous=NORMAL")
             self._conn.executescript(_SCHEMA)
@@ -176,6 +189,9 @@ class ResultStore:
 
     def close(self) -> None:
         """Close the connection (after a checkpoint, so the ``.db`` file alone holds every result)."""
+        if self.read_only:
+            self._conn.close()
+            return
         if self.path != ":memory:":
             with contextlib.suppress(sqlite3.Error):
                 self._conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('open', '0')")

@@ -191,7 +191,7 @@ def select_stimuli(db_path: Union[str, Path], work_dir: Union[str, Path], *, con
         raise ValueError(f"controls and attention_checks must be >= 0, got {controls} and {attention_checks}")
     if max_images is not None and max_images < 1:
         raise ValueError(f"max_images must be >= 1 or None, got {max_images}")
-    with ResultStore(db) as store:
+    with ResultStore(db, read_only=True) as store:
         rows = _successful(store.rows("done"))
     if not rows:
         raise ValueError(f"results database {db} holds no successful attack (done, success, not skipped)")

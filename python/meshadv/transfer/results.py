@@ -60,6 +60,12 @@ def _connect(db_path: Union[str, Path]) -> sqlite3.Connection:
     return conn
 
 
+def _connect_read_only(db_path: Union[str, Path]) -> sqlite3.Connection:
+    """A connection that only reads: reports leave a committed database byte-identical (old column names are
+    handled when rows are read, see :func:`_with_perturbation`)."""
+    return sqlite3.connect(Path(db_path).resolve().as_uri() + "?mode=ro", uri=True, timeout=30.0)
+
+
 def _with_perturbation(row: dict[str, Any]) -> dict[str, Any]:
     """A stored record with the perturbation under its one name (old records say ``attack_type``)."""
     if _LEGACY_PERTURBATION in row and "perturbation" not in row:
@@ -207,8 +213,11 @@ def load_transfer_rows_if_any(db_path: Union[str, Path]) -> list[dict[str, Any]]
     """
     if not Path(db_path).is_file():
         raise FileNotFoundError(f"db_path {db_path} does not exist")
-    with sqlite3.connect(str(db_path)) as conn:
+    conn = _connect_read_only(db_path)
+    try:
         found = conn.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'transfer'").fetchone()
+    finally:
+        conn.close()
     return load_transfer_rows(db_path) if found else []
 
 
@@ -227,7 +236,7 @@ def load_transfer_rows(
     """
     if not Path(db_path).is_file():
         raise FileNotFoundError(f"db_path {db_path} does not exist")
-    conn = _connect(db_path)
+    conn = _connect_read_only(db_path)
     try:
         query, args = "SELECT experiment, kind, record FROM transfer WHERE 1=1", []
         if experiment is not None:
