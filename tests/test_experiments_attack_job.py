@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+from sweep_fixtures import tiny_builtin_config
 
 from meshadv.experiments import ResultStore, SerialBackend, run_sweep
 from meshadv.experiments.config import expand_jobs, parse_config
@@ -14,15 +15,7 @@ from meshadv.experiments.report import write_report
 
 pytest.importorskip("meshadv._raster", reason="the native renderer is not built (maturin develop --release)")
 
-TINY = {
-    "experiment": {"name": "tiny-attack"},
-    "meshes": {"source": "builtin", "builtin": [{"name": "chair", "class": "chair"},
-                                                {"name": "sofa", "class": "sofa"}]},
-    "render": {"image_size": 32, "configurations": 1, "distance": 2.4, "elevation": [15, 25]},
-    "victims": {"names": ["efficientnet_lite0"]},
-    "attack": {"types": ["shape", "texture"], "benign_correct_only": False,
-               "shape": {"steps": 3, "lr": 0.01}, "texture": {"steps": 3}},
-}
+TINY = tiny_builtin_config("tiny-attack")
 
 
 @pytest.mark.slow

@@ -12,6 +12,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from sweep_fixtures import tiny_builtin_config
 from typer.testing import CliRunner
 
 from meshadv.experiments import ResultStore, SerialBackend, run_sweep
@@ -20,15 +21,7 @@ from meshadv.experiments.regenerate import regenerate_job
 
 pytest.importorskip("meshadv._raster", reason="the native renderer is not built (maturin develop --release)")
 
-TINY = {
-    "experiment": {"name": "tiny-portable"},
-    "meshes": {"source": "builtin", "builtin": [{"name": "chair", "class": "chair"},
-                                                {"name": "sofa", "class": "sofa"}]},
-    "render": {"image_size": 32, "configurations": 1, "distance": 2.4, "elevation": [15, 25]},
-    "victims": {"names": ["efficientnet_lite0"]},
-    "attack": {"types": ["shape", "texture"], "benign_correct_only": False,
-               "shape": {"steps": 3, "lr": 0.01}, "texture": {"steps": 3}},
-}
+TINY = tiny_builtin_config("tiny-portable")
 JOB = "meshadv.experiments.jobs:run_attack_job"
 
 

@@ -12,6 +12,7 @@ transaction per insert), so the report can read both. One row per (case, view) e
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sqlite3
@@ -19,7 +20,7 @@ import time
 from collections import defaultdict
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Optional, Sequence, Union
+from typing import Any, Iterable, Iterator, Mapping, Optional, Sequence, Union
 
 from meshadv.util.markdown import markdown_table as _markdown_table
 
@@ -60,10 +61,21 @@ def _connect(db_path: Union[str, Path]) -> sqlite3.Connection:
     return conn
 
 
-def _connect_read_only(db_path: Union[str, Path]) -> sqlite3.Connection:
+@contextlib.contextmanager
+def _read_only(db_path: Union[str, Path]) -> Iterator[sqlite3.Connection]:
     """A connection that only reads: reports leave a committed database byte-identical (old column names are
-    handled when rows are read, see :func:`_with_perturbation`)."""
-    return sqlite3.connect(Path(db_path).resolve().as_uri() + "?mode=ro", uri=True, timeout=30.0)
+    handled when rows are read, see :func:`_with_perturbation`).
+
+    Raises:
+        FileNotFoundError: ``db_path`` does not exist.
+    """
+    if not Path(db_path).is_file():
+        raise FileNotFoundError(f"db_path {db_path} does not exist")
+    conn = sqlite3.connect(Path(db_path).resolve().as_uri() + "?mode=ro", uri=True, timeout=30.0)
+    try:
+        yield conn
+    finally:
+        conn.close()
 
 
 def _with_perturbation(row: dict[str, Any]) -> dict[str, Any]:
@@ -211,13 +223,8 @@ def load_transfer_rows_if_any(db_path: Union[str, Path]) -> list[dict[str, Any]]
     Raises:
         FileNotFoundError: ``db_path`` does not exist.
     """
-    if not Path(db_path).is_file():
-        raise FileNotFoundError(f"db_path {db_path} does not exist")
-    conn = _connect_read_only(db_path)
-    try:
+    with _read_only(db_path) as conn:
         found = conn.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'transfer'").fetchone()
-    finally:
-        conn.close()
     return load_transfer_rows(db_path) if found else []
 
 
@@ -234,10 +241,7 @@ def load_transfer_rows(
     Raises:
         FileNotFoundError: ``db_path`` does not exist.
     """
-    if not Path(db_path).is_file():
-        raise FileNotFoundError(f"db_path {db_path} does not exist")
-    conn = _connect_read_only(db_path)
-    try:
+    with _read_only(db_path) as conn:
         query, args = "SELECT experiment, kind, record FROM transfer WHERE 1=1", []
         if experiment is not None:
             query += " AND experiment = ?"
@@ -251,8 +255,6 @@ def load_transfer_rows(
             row.update(experiment=exp, kind=knd)
             out.append(row)
         return out
-    finally:
-        conn.close()
 
 
 def _rate(values: Sequence[Optional[bool]]) -> Optional[float]:

@@ -1,0 +1,20 @@
+"""Tiny sweep configurations on the built-in chair and sofa, shared by the sweep tests."""
+
+from __future__ import annotations
+
+from typing import Any, Dict, Sequence
+
+
+def tiny_builtin_config(name: str, *, image_size: int = 32, steps: int = 3,
+                        perturbations: Sequence[str] = ("shape", "texture")) -> Dict[str, Any]:
+    """A sweep config (as parsed TOML) attacking the built-in chair and sofa with EfficientNet-Lite0 for ``steps``
+    steps at ``image_size`` px, one configuration each, every job run whether or not the benign render is right."""
+    return {
+        "experiment": {"name": name},
+        "meshes": {"source": "builtin", "builtin": [{"name": "chair", "class": "chair"},
+                                                    {"name": "sofa", "class": "sofa"}]},
+        "render": {"image_size": image_size, "configurations": 1, "distance": 2.4, "elevation": [15, 25]},
+        "victims": {"names": ["efficientnet_lite0"]},
+        "attack": {"perturbations": list(perturbations), "benign_correct_only": False,
+                   "shape": {"steps": steps, "lr": 0.01}, "texture": {"steps": steps}},
+    }
