@@ -21,13 +21,13 @@ def write_full_report(results: Path, out: Path, *, figures: bool = True) -> obje
     """
     from meshadv.experiments.report import write_report
     from meshadv.study.proxies import proxy_section
-    from meshadv.transfer.results import load_transfer_rows_if_any, transfer_report
+    from meshadv.transfer.results import load_transfer_rows, transfer_report
 
     def proxies(rows: list, out_dir: Path) -> tuple:
         text = proxy_section(rows, out_dir)
         return text, [out_dir / "proxies.csv"] if text else []
 
-    rows = load_transfer_rows_if_any(results) if Path(results).is_file() else []
+    rows = load_transfer_rows(results) if Path(results).is_file() else []
     return write_report(results, out, figures=figures, transfer_rows=rows,
                         transfer_markdown=transfer_report(rows) if rows else "", sections=[proxies])
 

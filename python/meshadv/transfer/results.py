@@ -216,22 +216,11 @@ class ControlledResult:
         return record
 
 
-def load_transfer_rows_if_any(db_path: Union[str, Path]) -> list[dict[str, Any]]:
-    """Every transfer row of ``db_path`` (a sweep's database), ``[]`` when it has no ``transfer`` table; the
-    database is only read (no table is created).
-
-    Raises:
-        FileNotFoundError: ``db_path`` does not exist.
-    """
-    with _read_only(db_path) as conn:
-        found = conn.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'transfer'").fetchone()
-    return load_transfer_rows(db_path) if found else []
-
-
 def load_transfer_rows(
     db_path: Union[str, Path], *, experiment: Optional[str] = None, kind: Optional[str] = None
 ) -> list[dict[str, Any]]:
-    """Read transfer rows (their JSON records plus ``experiment`` and ``kind``).
+    """Read transfer rows (their JSON records plus ``experiment`` and ``kind``); ``[]`` when the database has no
+    ``transfer`` table yet. The database is only read (no table is created).
 
     Args:
         db_path: the database.
@@ -242,6 +231,8 @@ def load_transfer_rows(
         FileNotFoundError: ``db_path`` does not exist.
     """
     with _read_only(db_path) as conn:
+        if not conn.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'transfer'").fetchone():
+            return []  # no transfer pass has written to this database yet
         query, args = "SELECT experiment, kind, record FROM transfer WHERE 1=1", []
         if experiment is not None:
             query += " AND experiment = ?"
@@ -438,7 +429,6 @@ def transfer_report(rows: Sequence[dict[str, Any]]) -> str:
 __all__ = [
     "BlackBoxResult",
     "ControlledResult",
-    "load_transfer_rows_if_any",
     "BLACKBOX_ESTIMATION_COLUMNS",
     "BLACKBOX_MARGIN_COLUMNS",
     "BLACKBOX_OUTCOME_COLUMNS",
