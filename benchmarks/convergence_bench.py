@@ -191,11 +191,11 @@ def run(args: argparse.Namespace) -> None:
     print(f"{len(plan)} runs planned, {len(plan) - len(pending)} finished or in other shards, {len(pending)} to run",
           flush=True)
     victim = load_victim("efficientnet_lite0")
-    for method, ptype, cls, index, record in pending:
-        key = _key(method, ptype, cls, index)
+    for method, perturbation, cls, index, record in pending:
+        key = _key(method, perturbation, cls, index)
         if con.execute("SELECT 1 FROM runs WHERE key = ?", (key,)).fetchone():
             continue
-        row = run_one(method, ptype, cls, index, record, victim, args.target_faces)
+        row = run_one(method, perturbation, cls, index, record, victim, args.target_faces)
         with con:
             con.execute("INSERT OR REPLACE INTO runs VALUES (?, ?, ?)",
                         (key, json.dumps(row), time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())))
@@ -230,7 +230,7 @@ def import_sweep(sweep_db: Path, db: Path) -> int:
         groups.setdefault(key, {"spec": spec, "targets": {}})["targets"][spec["target"]] = rec
     out = _connect(db)
     written = 0
-    for (ptype, cls, index), group in sorted(groups.items()):
+    for (perturbation, cls, index), group in sorted(groups.items()):
         targets = [c for c in CLASSES if c != cls]
         recs = group["targets"]
         if set(recs) != set(targets) or any(r.get("skipped") for r in recs.values()):
@@ -240,24 +240,24 @@ def import_sweep(sweep_db: Path, db: Path) -> int:
             r = recs[t]
             d = dict(r.get("distances") or {})
             first = r.get("steps_to_success")
-            dist = d.get("laplacian_sum" if ptype == "shape" else "color_rmse")
+            dist = d.get("laplacian_sum" if perturbation == "shape" else "color_rmse")
             curves.append({"first": first, "improvements": [[first, dist]] if first is not None and r["success"]
                            else []})
             final.append(bool(r["success"]))
             dists.append(d)
         first_rec = recs[targets[0]]
         row = {
-            "method": "small", "perturbation": ptype, "class": cls, "index": index,
+            "method": "small", "perturbation": perturbation, "class": cls, "index": index,
             "mesh": group["spec"]["mesh"]["path"], "candidate": None, "targets": targets,
             "num_vertices": first_rec["num_vertices"], "num_faces": first_rec["num_faces"],
             "num_edges": int(dists[0]["num_edges"]), "steps": sum(int(recs[t]["steps"]) for t in targets),
-            "history_len": sweep_steps[ptype], "wall_time": sum(float(recs[t]["time"]) for t in targets),
-            "config": settings[ptype], "curves": curves, "final_success": final, "final_distances": dists,
+            "history_len": sweep_steps[perturbation], "wall_time": sum(float(recs[t]["time"]) for t in targets),
+            "config": settings[perturbation], "curves": curves, "final_success": final, "final_distances": dists,
             "threads": None, "source": f"imported from the sweep {sweep_db.name} (one job per target)",
         }
         with out:
             out.execute("INSERT OR REPLACE INTO runs VALUES (?, ?, ?)",
-                        (_key("small", ptype, cls, index), json.dumps(row),
+                        (_key("small", perturbation, cls, index), json.dumps(row),
                          time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())))
         written += 1
     out.close()
@@ -324,45 +324,46 @@ def summarize(rows: Sequence[Dict[str, Any]], method: str, perturbation: str,
     }
 
 
+def _summary_row(method: str, perturbation: str, steps: Any, s: Dict[str, Any]) -> str:
+    """One Markdown row of the summary table for a :func:`summarize` result ``s`` at ``steps``."""
+    name = "Laplacian pair mean" if perturbation == "shape" else "colour RMSE"
+    sums = f"{s['sum_median']:.3g}" if perturbation == "shape" else "-"
+    return (f"| {method} | {perturbation} | {s['instances']} | {s['targets']} | {steps} | "
+            f"{100 * s['success']:.1f}% | {100 * s['worst']:.0f}% | {name} {s['median_distance']:.3g}"
+            f" | {sums} | {100 * s['final_success']:.1f}% | {s['wall_time']:.0f} s |")
+
+
 def report(rows: Sequence[Dict[str, Any]], plots: Optional[Path]) -> str:
     """The Markdown summary table (and one PNG per method into ``plots``)."""
     lines = ["| method | perturbation | instances | targets | steps per target | success | worst case (all 6 held) "
              "| median distance at success | median Eq. 4 sum | final re-render success | wall time (loaded) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for method in METHODS:
-        for ptype in ("shape", "texture"):
-            horizons = [r["history_len"] for r in rows if r["method"] == method and r["perturbation"] == ptype]
+        for perturbation in ("shape", "texture"):
+            horizons = [r["history_len"] for r in rows if r["method"] == method and r["perturbation"] == perturbation]
             budgets = sorted({b for b in (50, 100, 300) if horizons and b < max(horizons)} | set(horizons[:1])
                              | ({max(horizons)} if horizons else set()))
             for budget in budgets:
-                s = summarize(rows, method, ptype, budget)
+                s = summarize(rows, method, perturbation, budget)
                 if s is None:
                     continue
-                name = "Laplacian pair mean" if ptype == "shape" else "colour RMSE"
-                sums = f"{s['sum_median']:.3g}" if ptype == "shape" else "-"
-                lines.append(f"| {method} | {ptype} | {s['instances']} | {s['targets']} | {budget} | "
-                             f"{100 * s['success']:.1f}% | {100 * s['worst']:.0f}% | {name} {s['median_distance']:.3g}"
-                             f" | {sums} | {100 * s['final_success']:.1f}% | {s['wall_time']:.0f} s |")
+                lines.append(_summary_row(method, perturbation, budget, s))
     lines += ["", "Same instances only (those every method listed ran):", "", *lines[:2]]
-    for ptype in ("shape", "texture"):
+    for perturbation in ("shape", "texture"):
         runs: Dict[str, set] = {}
         for r in rows:
-            if r["perturbation"] == ptype:
+            if r["perturbation"] == perturbation:
                 runs.setdefault(r["method"], set()).add((r["class"], r["index"]))
         if len(runs) < 2:
             continue
         common = set.intersection(*runs.values())
         for method in METHODS:
-            sel = [r for r in rows if r["method"] == method and r["perturbation"] == ptype
+            sel = [r for r in rows if r["method"] == method and r["perturbation"] == perturbation
                    and (r["class"], r["index"]) in common]
-            s = summarize(sel, method, ptype, None) if sel else None
+            s = summarize(sel, method, perturbation, None) if sel else None
             if s is None:
                 continue
-            name = "Laplacian pair mean" if ptype == "shape" else "colour RMSE"
-            sums = f"{s['sum_median']:.3g}" if ptype == "shape" else "-"
-            lines.append(f"| {method} | {ptype} | {s['instances']} | {s['targets']} | {s['steps']} | "
-                         f"{100 * s['success']:.1f}% | {100 * s['worst']:.0f}% | {name} {s['median_distance']:.3g}"
-                         f" | {sums} | {100 * s['final_success']:.1f}% | {s['wall_time']:.0f} s |")
+            lines.append(_summary_row(method, perturbation, s["steps"], s))
     if plots is not None:
         for method in METHODS:
             if any(r["method"] == method for r in rows):
@@ -378,10 +379,10 @@ def plot_method(rows: Sequence[Dict[str, Any]], method: str, path: Path) -> None
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(2, 2, figsize=(10, 7), constrained_layout=True)
-    for col, ptype in enumerate(("shape", "texture")):
-        sel = [r for r in rows if r["method"] == method and r["perturbation"] == ptype]
+    for col, perturbation in enumerate(("shape", "texture")):
+        sel = [r for r in rows if r["method"] == method and r["perturbation"] == perturbation]
         ax_s, ax_d = axes[0, col], axes[1, col]
-        ax_s.set_title(f"{method}, {ptype} ({len(sel)} instances)")
+        ax_s.set_title(f"{method}, {perturbation} ({len(sel)} instances)")
         if not sel:
             continue
         horizon = max(r["history_len"] for r in sel)
@@ -403,14 +404,14 @@ def plot_method(rows: Sequence[Dict[str, Any]], method: str, path: Path) -> None
         ax_d.plot(steps, med)
         ax_d.set_yscale("log")
         ax_d.set_ylabel("median least distance at success\n" + (
-            "(Laplacian per-pair mean)" if ptype == "shape" else "(colour RMSE)"))
-        paper = 1.8e-4 if ptype == "shape" else 1.1e-2
+            "(Laplacian per-pair mean)" if perturbation == "shape" else "(colour RMSE)"))
+        paper = 1.8e-4 if perturbation == "shape" else 1.1e-2
         ax_d.axhline(paper, color="grey", linestyle="--", linewidth=1, label="paper average")
         ax_d.legend()
         for ax in (ax_s, ax_d):
             ax.set_xlabel("optimiser steps per target")
             ax.set_xscale("log")
-            ax.axvline(STEP_TARGETS[ptype], color="red", linestyle=":", linewidth=1)
+            ax.axvline(STEP_TARGETS[perturbation], color="red", linestyle=":", linewidth=1)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
     plt.close(fig)
