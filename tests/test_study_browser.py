@@ -6,6 +6,7 @@ when run as root) and selenium; skipped with the reason otherwise.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import threading
@@ -77,6 +78,18 @@ class _Collector(BaseHTTPRequestHandler):
         pass
 
 
+@contextlib.contextmanager
+def _serving(handler: type) -> Iterator[str]:
+    """A local HTTP server with ``handler`` in a background thread; yields its base URL, shut down on exit."""
+    server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
 def _wait(driver: Any, what: Callable[[Any], Any], timeout: float = 15.0) -> Any:
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -104,11 +117,9 @@ new MutationObserver(function () {
 
 
 def test_page_runs_the_2afc_protocol_in_chromium(browser: Any, tmp_path: Path) -> None:
-    server = ThreadingHTTPServer(("127.0.0.1", 0), _Collector)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    try:
+    with _serving(_Collector) as base_url:
         db = make_study_db(tmp_path / "sweep")
-        url = f"http://127.0.0.1:{server.server_address[1]}/submit"
+        url = f"{base_url}/submit"
         study = export_study(db, tmp_path / "study", per_image=1, max_trials=6, controls=1, attention_checks=1,
                              seed=3, post_url=url, exposure_ms=EXPOSURE_MS, fixation_ms=300)
         plan = json.loads((tmp_path / "study" / "plan.json").read_text())
@@ -162,9 +173,6 @@ def test_page_runs_the_2afc_protocol_in_chromium(browser: Any, tmp_path: Path) -
         _wait(browser, lambda d: "were sent" in d.find_element(By.ID, "post-status").text)
         posted = json.loads(_Collector.bodies[-1])
         assert posted["participant"] == 0 and len(posted["answers"]) == 6
-    finally:
-        server.shutdown()
-        server.server_close()
     browser.find_element(By.ID, "download-csv").click()
     browser.find_element(By.ID, "download-json").click()
     stem = f"answers_{plan['settings']['study_id']}_p0"
@@ -202,11 +210,9 @@ class _FormCollector(BaseHTTPRequestHandler):
 
 
 def test_random_participant_form_post_and_inattentive_participant(browser: Any, tmp_path: Path) -> None:
-    server = ThreadingHTTPServer(("127.0.0.1", 0), _FormCollector)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    try:
+    with _serving(_FormCollector) as base_url:
         db = make_study_db(tmp_path / "sweep")
-        url = f"http://127.0.0.1:{server.server_address[1]}/externalSubmit"
+        url = f"{base_url}/externalSubmit"
         export_study(db, tmp_path / "study", per_image=1, max_trials=4, attention_checks=1, seed=1, post_url=url,
                      post_mode="form", exposure_ms=200, fixation_ms=50)
         plan = json.loads((tmp_path / "study" / "plan.json").read_text())
@@ -226,9 +232,6 @@ def test_random_participant_form_post_and_inattentive_participant(browser: Any, 
             else:
                 ActionChains(browser).send_keys("1" if trial["true_first"] else "2").perform()
         _wait(browser, lambda d: d.find_elements(By.ID, "received"))  # the form left the page for the site
-    finally:
-        server.shutdown()
-        server.server_close()
     form = _FormCollector.forms[-1]
     assert form["assignmentId"] == ["A1"]
     posted = json.loads(form["answers"][0])
