@@ -48,9 +48,10 @@ def test_apply_threads_sizes_torch_and_reads_meshadv_threads(clean_env: None,
     assert threads.apply_threads() == 2 and torch.get_num_threads() == 2
 
 
-@pytest.mark.parametrize("bad", [0, -1, 1.5, True, "2"])
-def test_bad_thread_counts_are_refused(clean_env: None, bad: object) -> None:
-    with pytest.raises(ValueError, match="threads"):
+@pytest.mark.parametrize("bad, error", [(0, ValueError), (-1, ValueError), (2000, ValueError), (1.5, TypeError),
+                                        (True, TypeError), ("2", TypeError)])
+def test_bad_thread_counts_are_refused(clean_env: None, bad: object, error: type) -> None:
+    with pytest.raises(error, match="threads"):
         threads.apply_threads(bad)  # type: ignore[arg-type]
 
 

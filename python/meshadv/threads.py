@@ -34,6 +34,8 @@ import os
 import sys
 from typing import Optional
 
+from meshadv._validate import MAX_THREADS, positive_int
+
 __all__ = [
     "THREADS_ENV_VAR",
     "THREAD_COUNT_VARS",
@@ -42,7 +44,6 @@ __all__ = [
     "default_threads",
     "prepare_environment",
     "apply_threads",
-    "validate_threads",
 ]
 
 #: Environment variable giving the default thread count (what ``--threads`` overrides).
@@ -59,17 +60,6 @@ def available_cpus() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):
         return max(1, os.cpu_count() or 1)
-
-
-def validate_threads(threads: object, name: str = "threads") -> int:
-    """Return ``threads`` as an int >= 1.
-
-    Raises:
-        ValueError: not an integer >= 1 (the message names ``name``).
-    """
-    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
-        raise ValueError(f"{name} must be an integer >= 1, got {threads!r}")
-    return threads
 
 
 def default_threads() -> int:
@@ -103,9 +93,10 @@ def prepare_environment(threads: Optional[int] = None) -> int:
         The thread count written to the environment.
 
     Raises:
-        ValueError: ``threads`` is not an integer >= 1.
+        TypeError: ``threads`` is not an integer.
+        ValueError: ``threads`` is not in ``[1, MAX_THREADS]``.
     """
-    count = default_threads() if threads is None else validate_threads(threads)
+    count = default_threads() if threads is None else positive_int("threads", threads, high=MAX_THREADS)
     for var, value in WAIT_POLICY_VARS.items():
         os.environ.setdefault(var, value)
     for var in THREAD_COUNT_VARS:
@@ -130,7 +121,8 @@ def apply_threads(threads: Optional[int] = None) -> int:
         The thread count in use.
 
     Raises:
-        ValueError: ``threads`` is not an integer >= 1.
+        TypeError: ``threads`` is not an integer.
+        ValueError: ``threads`` is not in ``[1, MAX_THREADS]``.
     """
     count = prepare_environment(threads)
     if threads is None:

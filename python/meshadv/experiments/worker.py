@@ -49,8 +49,6 @@ def set_thread_limits(threads: int) -> None:
     Args:
         threads: threads per job (>= 1), so that parallel jobs do not oversubscribe the cores.
     """
-    if threads < 1:
-        raise ValueError(f"threads must be >= 1, got {threads}")
     from meshadv.threads import apply_threads
 
     apply_threads(threads)
