@@ -23,6 +23,12 @@ Each run (method, perturbation, instance) is one row of an SQLite file (``--db``
 rerun skips finished rows, so the benchmark resumes after an interruption. ``--shard i/n`` splits the pending runs
 between processes sharing the file. ``--report`` prints the summary table (Markdown) and writes one PNG per method.
 
+While a run goes, its curves so far are stored every ``--checkpoint`` steps and at the end of every round in a
+second table (``partial``), so a run stopped early (the paper's 5 x 1000 steps cost hours here) is still reported,
+up to the steps it reached and labelled as partial; it is replaced by the run's row when the run finishes. A rerun
+starts an unfinished run from its beginning (the attack keeps no resumable optimiser state); its partial row is
+only overwritten once the new run has gone further.
+
 Usage:
     python benchmarks/convergence_bench.py --methods ddn small --perturbations texture shape
     python benchmarks/convergence_bench.py --report --plots benchmarks/convergence
@@ -125,9 +131,43 @@ def _curves(history: Sequence[Dict[str, Any]], num_targets: int) -> List[Dict[st
     return out
 
 
+class _Progress:
+    """Step callback of one run: keeps the margins and distances of every step, prints a line every ``every`` steps
+    and hands a partial row to ``save`` every ``every`` steps and at the end of every round."""
+
+    def __init__(self, key: str, base: Dict[str, Any], every: int, save: Any) -> None:
+        self.key, self.base, self.every, self.save = key, base, every, save
+        self.history: List[Dict[str, Any]] = []
+        self.wall0, self.cpu0 = time.perf_counter(), time.process_time()
+
+    def partial_row(self, rounds: int, steps: int) -> Dict[str, Any]:
+        """The row of the steps done so far (no final re-render: ``final_success`` is ``None``)."""
+        done = len(self.history)
+        return {**self.base, "steps": done, "history_len": done, "wall_time": time.perf_counter() - self.wall0,
+                "cpu_time": time.process_time() - self.cpu0, "curves": _curves(self.history, len(self.base["targets"])),
+                "final_success": None, "final_distances": None,
+                "partial": {"steps_done": done, "steps_planned": rounds * steps, "rounds": rounds,
+                            "steps_per_round": steps}}
+
+    def __call__(self, info: Any) -> None:
+        self.history.append({"margin": list(info.margin), "distance": list(info.distance)})
+        round_end = info.step + 1 == info.steps
+        if info.total_step % self.every == 0 or round_end:
+            held = sum(b is not None for b in info.best_distance)
+            print(f"{self.key}: round {info.round + 1}/{info.rounds} step {info.step + 1}/{info.steps}, "
+                  f"{held}/{len(info.best_distance)} targets held so far, {time.process_time() - self.cpu0:.0f} s CPU",
+                  flush=True)
+            self.save(self.key, self.partial_row(info.rounds, info.steps))
+
+
 def run_one(method: str, perturbation: str, cls: str, index: int, record: Dict[str, Any], victim: Any,
-            target_faces: int) -> Dict[str, Any]:
-    """Attack one instance towards its 6 targets with ``method``; the JSON-able row."""
+            target_faces: int, progress: Optional[Tuple[int, Any]] = None) -> Dict[str, Any]:
+    """Attack one instance towards its 6 targets with ``method``; the JSON-able row.
+
+    ``progress`` = ``(every, save)``: ``save(key, partial_row)`` is called every ``every`` steps and at the end of
+    every round (see :class:`_Progress`). A run stopped by Ctrl-C (SIGINT) returns the row of the steps done, with
+    ``row["partial"]`` set and the final re-render of its best result so far.
+    """
     from meshadv.attacks import TargetedMisclassification
     from meshadv.mesh import vertex_edges
     from meshadv.experiments.jobs import load_job_mesh
@@ -138,26 +178,35 @@ def run_one(method: str, perturbation: str, cls: str, index: int, record: Dict[s
     views = ViewSet.from_records([record["view"]])
     targets = [c for c in CLASSES if c != cls]
     attack = make_attack(method, perturbation)
-    start = time.perf_counter()
-    result = attack(mesh, views, victim, [TargetedMisclassification(t) for t in targets], setup=render_setup())
-    wall = time.perf_counter() - start
-    num_edges = int(vertex_edges(mesh.faces).shape[0])
-    return {
+    base = {
         "method": method, "perturbation": perturbation, "class": cls, "index": index, "mesh": record["mesh"],
         "candidate": record.get("candidate"), "targets": targets, "num_vertices": int(mesh.vertices.shape[0]),
-        "num_faces": int(mesh.faces.shape[0]), "num_edges": num_edges, "steps": int(result.steps),
-        "history_len": len(result.loss_history), "wall_time": wall, "config": attack.config(),
+        "num_faces": int(mesh.faces.shape[0]), "num_edges": int(vertex_edges(mesh.faces).shape[0]),
+        "config": attack.config(), "threads": torch.get_num_threads(), "setup": render_setup().config(),
+    }
+    callback = None if progress is None else _Progress(_key(method, perturbation, cls, index), base, *progress)
+    start, cpu_start = time.perf_counter(), time.process_time()
+    result = attack(mesh, views, victim, [TargetedMisclassification(t) for t in targets], setup=render_setup(),
+                    callback=callback)
+    row = {
+        **base, "steps": int(result.steps), "history_len": len(result.loss_history),
+        "wall_time": time.perf_counter() - start, "cpu_time": time.process_time() - cpu_start,
         "curves": _curves(result.loss_history, len(targets)),
         "final_success": [bool(s) for s in result.succeeded.tolist()],
         "final_distances": [dict(d) for d in result.distances],
-        "threads": torch.get_num_threads(), "setup": render_setup().config(),
     }
+    if result.interrupted:
+        row["partial"] = {"steps_done": len(result.loss_history),
+                          "steps_planned": attack.steps * attack.binary_search_steps,
+                          "rounds": attack.binary_search_steps, "steps_per_round": attack.steps}
+    return row
 
 
 def _connect(db: Path) -> sqlite3.Connection:
     db.parent.mkdir(parents=True, exist_ok=True)
     con = sqlite3.connect(str(db), timeout=60.0)
     con.execute("CREATE TABLE IF NOT EXISTS runs (key TEXT PRIMARY KEY, row TEXT NOT NULL, finished TEXT NOT NULL)")
+    con.execute("CREATE TABLE IF NOT EXISTS partial (key TEXT PRIMARY KEY, row TEXT NOT NULL, updated TEXT NOT NULL)")
     con.commit()
     return con
 
@@ -166,15 +215,32 @@ def _key(method: str, perturbation: str, cls: str, index: int) -> str:
     return f"{method}/{perturbation}/{cls}/{index}"
 
 
+def _now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+
+
 def load_rows(db: Path) -> List[Dict[str, Any]]:
-    """Every finished row of the benchmark file."""
+    """Every finished row of the benchmark file, then the partial rows of runs that have none (``row["partial"]``
+    says how far they got)."""
     if not db.exists():
         return []
     con = _connect(db)
     try:
-        return [json.loads(r) for (r,) in con.execute("SELECT row FROM runs ORDER BY key")]
+        rows = [json.loads(r) for (r,) in con.execute("SELECT row FROM runs ORDER BY key")]
+        rows += [json.loads(r) for (r,) in con.execute(
+            "SELECT row FROM partial WHERE key NOT IN (SELECT key FROM runs) ORDER BY key")]
+        return rows
     finally:
         con.close()
+
+
+def _save_partial(con: sqlite3.Connection, key: str, row: Dict[str, Any]) -> None:
+    """Store ``row`` as the partial row of ``key`` unless a stored one went further."""
+    old = con.execute("SELECT row FROM partial WHERE key = ?", (key,)).fetchone()
+    if old is not None and json.loads(old[0])["partial"]["steps_done"] > row["partial"]["steps_done"]:
+        return
+    with con:
+        con.execute("INSERT OR REPLACE INTO partial VALUES (?, ?, ?)", (key, json.dumps(row), _now()))
 
 
 def run(args: argparse.Namespace) -> None:
@@ -195,10 +261,15 @@ def run(args: argparse.Namespace) -> None:
         key = _key(method, perturbation, cls, index)
         if con.execute("SELECT 1 FROM runs WHERE key = ?", (key,)).fetchone():
             continue
-        row = run_one(method, perturbation, cls, index, record, victim, args.target_faces)
+        row = run_one(method, perturbation, cls, index, record, victim, args.target_faces,
+                      progress=(args.checkpoint, lambda k, r: _save_partial(con, k, r)))
+        if row.get("partial"):
+            _save_partial(con, key, row)
+            print(f"{key}: stopped at step {row['history_len']}; partial row stored, no further runs", flush=True)
+            break
         with con:
-            con.execute("INSERT OR REPLACE INTO runs VALUES (?, ?, ?)",
-                        (key, json.dumps(row), time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())))
+            con.execute("INSERT OR REPLACE INTO runs VALUES (?, ?, ?)", (key, json.dumps(row), _now()))
+            con.execute("DELETE FROM partial WHERE key = ?", (key,))
         ok = sum(row["final_success"])
         print(f"{key}: {ok}/{len(row['targets'])} final successes, {row['steps']} steps, {row['wall_time']:.0f} s",
               flush=True)
@@ -257,8 +328,7 @@ def import_sweep(sweep_db: Path, db: Path) -> int:
         }
         with out:
             out.execute("INSERT OR REPLACE INTO runs VALUES (?, ?, ?)",
-                        (_key("small", perturbation, cls, index), json.dumps(row),
-                         time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())))
+                        (_key("small", perturbation, cls, index), json.dumps(row), _now()))
         written += 1
     out.close()
     return written
@@ -295,15 +365,20 @@ def summarize(rows: Sequence[Dict[str, Any]], method: str, perturbation: str,
               budget: Optional[int] = None) -> Optional[Dict[str, Any]]:
     """The issue's measures for one method and perturbation within ``budget`` steps per target.
 
+    A partial row (a run stopped early, ``row["partial"]``) counts only for budgets it reached.
+
     Returns:
         ``None`` without rows, else a dict with ``instances``, ``targets``, ``success`` (mean over targets),
         ``worst`` (fraction of instances whose every target held), ``median_distance`` (over targets that held, at
-        their least distance), ``sum_median`` (the Eq. 4 sum, shape only), ``final_success`` and ``steps``.
+        their least distance), ``sum_median`` (the Eq. 4 sum, shape only), ``final_success`` (``None`` when no row
+        has a final re-render), ``steps``, ``wall_time`` and ``partial`` (the partial rows' ``(steps done, steps
+        planned)``).
     """
     sel = [r for r in rows if r["method"] == method and r["perturbation"] == perturbation]
+    budget = budget or max((r["history_len"] for r in sel), default=0)
+    sel = [r for r in sel if not r.get("partial") or r["history_len"] >= budget]
     if not sel:
         return None
-    budget = budget or max(r["history_len"] for r in sel)
     held, worst, dists, sums, final = [], [], [], [], []
     for r in sel:
         succ, dist = target_curves(r, budget)
@@ -315,22 +390,33 @@ def summarize(rows: Sequence[Dict[str, Any]], method: str, perturbation: str,
                 dists.append(d[-1])
                 if r["perturbation"] == "shape":
                     sums.append(d[-1] * 2.0 * r["num_edges"])
-        final.extend(r["final_success"])
+        final.extend(r["final_success"] or [])
     return {
         "instances": len(sel), "targets": len(held), "success": sum(held) / len(held),
         "worst": sum(worst) / len(worst), "median_distance": statistics.median(dists) if dists else math.nan,
-        "sum_median": statistics.median(sums) if sums else math.nan, "final_success": sum(final) / len(final),
-        "steps": budget, "wall_time": sum(r["wall_time"] for r in sel),
+        "sum_median": statistics.median(sums) if sums else math.nan,
+        "final_success": sum(final) / len(final) if final else None, "steps": budget,
+        "wall_time": sum(r["wall_time"] for r in sel),
+        "partial": [(r["partial"]["steps_done"], r["partial"]["steps_planned"]) for r in sel if r.get("partial")],
     }
+
+
+def _method_label(method: str, s: Dict[str, Any]) -> str:
+    """``method``, with the steps reached when the summary includes partial rows."""
+    if not s["partial"]:
+        return method
+    reached = ", ".join(f"{done} of {planned}" for done, planned in s["partial"])
+    return f"{method} (PARTIAL: {len(s['partial'])} of {s['instances']} runs stopped early, steps {reached})"
 
 
 def _summary_row(method: str, perturbation: str, steps: Any, s: Dict[str, Any]) -> str:
     """One Markdown row of the summary table for a :func:`summarize` result ``s`` at ``steps``."""
     name = "Laplacian pair mean" if perturbation == "shape" else "colour RMSE"
     sums = f"{s['sum_median']:.3g}" if perturbation == "shape" else "-"
-    return (f"| {method} | {perturbation} | {s['instances']} | {s['targets']} | {steps} | "
+    final = "-" if s["final_success"] is None else f"{100 * s['final_success']:.1f}%"
+    return (f"| {_method_label(method, s)} | {perturbation} | {s['instances']} | {s['targets']} | {steps} | "
             f"{100 * s['success']:.1f}% | {100 * s['worst']:.0f}% | {name} {s['median_distance']:.3g}"
-            f" | {sums} | {100 * s['final_success']:.1f}% | {s['wall_time']:.0f} s |")
+            f" | {sums} | {final} | {s['wall_time']:.0f} s |")
 
 
 def report(rows: Sequence[Dict[str, Any]], plots: Optional[Path]) -> str:
@@ -341,7 +427,7 @@ def report(rows: Sequence[Dict[str, Any]], plots: Optional[Path]) -> str:
     for method in METHODS:
         for perturbation in ("shape", "texture"):
             horizons = [r["history_len"] for r in rows if r["method"] == method and r["perturbation"] == perturbation]
-            budgets = sorted({b for b in (50, 100, 300) if horizons and b < max(horizons)} | set(horizons[:1])
+            budgets = sorted({b for b in (50, 100, 300, 1000, 2000, 3000, 4000) if horizons and b < max(horizons)}
                              | ({max(horizons)} if horizons else set()))
             for budget in budgets:
                 s = summarize(rows, method, perturbation, budget)
@@ -372,7 +458,11 @@ def report(rows: Sequence[Dict[str, Any]], plots: Optional[Path]) -> str:
 
 
 def plot_method(rows: Sequence[Dict[str, Any]], method: str, path: Path) -> None:
-    """Success rate and median distance at success against steps, shape and texture, one PNG."""
+    """Success rate and median distance at success against steps, shape and texture, one PNG.
+
+    With partial rows (runs stopped early) the curves end at the fewest steps a partial run reached, and the title
+    says so; dotted grey lines mark the ends of a ``lambda`` search's rounds.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -382,10 +472,17 @@ def plot_method(rows: Sequence[Dict[str, Any]], method: str, path: Path) -> None
     for col, perturbation in enumerate(("shape", "texture")):
         sel = [r for r in rows if r["method"] == method and r["perturbation"] == perturbation]
         ax_s, ax_d = axes[0, col], axes[1, col]
-        ax_s.set_title(f"{method}, {perturbation} ({len(sel)} instances)")
+        partial = [r["partial"] for r in sel if r.get("partial")]
+        title = f"{method}, {perturbation} ({len(sel)} instances)"
+        if partial:
+            title += (f"\nPARTIAL: {len(partial)} run(s) stopped at step "
+                      f"{min(q['steps_done'] for q in partial)} of {partial[0]['steps_planned']}")
+        ax_s.set_title(title)
         if not sel:
             continue
         horizon = max(r["history_len"] for r in sel)
+        if partial:
+            horizon = min(horizon, min(q["steps_done"] for q in partial))
         succ_all: List[List[bool]] = []
         dist_all: List[List[float]] = []
         for r in sel:
@@ -412,9 +509,19 @@ def plot_method(rows: Sequence[Dict[str, Any]], method: str, path: Path) -> None
             ax.set_xlabel("optimiser steps per target")
             ax.set_xscale("log")
             ax.axvline(STEP_TARGETS[perturbation], color="red", linestyle=":", linewidth=1)
+            per_round = int(sel[0]["config"].get("steps", horizon))
+            for end in range(per_round, horizon, per_round):
+                ax.axvline(end, color="grey", linestyle=":", linewidth=1)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"--checkpoint must be a positive integer, got {text}")
+    return value
 
 
 def _shard(text: str) -> Tuple[int, int]:
@@ -435,6 +542,8 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     parser.add_argument("--db", type=Path, default=DEFAULT_DB)
     parser.add_argument("--shard", type=_shard, default=(0, 1))
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--checkpoint", type=_positive, default=100,
+                        help="store a running run's curves every this many steps (and at every round's end)")
     parser.add_argument("--report", action="store_true", help="print the summary and write the plots; run nothing")
     parser.add_argument("--plots", type=Path, default=None)
     parser.add_argument("--import-sweep", type=Path, default=None, metavar="RESULTS_DB",
