@@ -3,6 +3,10 @@
 Results go to the SQLite database named by the config (``<output>/results.db`` by default). Run the same command
 again after a kill to resume: finished jobs are skipped, interrupted ones re-run, failed ones retried up to
 ``max_attempts``.
+
+Progress: one bar counts the jobs (successes, failures, ETA), a second one the attack steps out of the most the
+planned jobs can run, moving at every step of every running job with the local and serial backends (the workers
+report their steps to this process) and per finished job with Ray.
 """
 
 from __future__ import annotations
@@ -34,12 +38,14 @@ def sweep(
     timeout: Optional[float] = typer.Option(None, help="Per-job timeout in seconds, local backend (0 = none)."),
     dry_run: bool = typer.Option(False, "--dry-run", help="Only expand and check the jobs (victim names, mesh "
                                  "files, target classes) and print how many there are."),
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the progress bar."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the progress bars (jobs; attack "
+                                  "steps, per step with the local and serial backends, per job with Ray)."),
 ) -> None:
     """Run (or resume) the attack sweep described by CONFIG."""
     from meshadv.commands._job_index import warn_damaged_results, write_job_index
     from meshadv.experiments import ResultStore, make_backend, run_sweep
-    from meshadv.experiments.config import expand_jobs, load_config
+    from meshadv.experiments.config import DEFAULT_JOB, expand_jobs, load_config
+    from meshadv.experiments.jobs import planned_steps
     from meshadv.experiments.report import environment_versions
 
     try:
@@ -55,8 +61,6 @@ def sweep(
         kinds = {k: sum(j["kind"] == k for j in jobs) for k in ("single", "multiview")}
         typer.echo(f"{len(jobs)} jobs ({kinds['single']} single-view, {kinds['multiview']} multi-view); "
                    f"database {db_path}; artefacts {out_root}")
-        from meshadv.experiments.config import DEFAULT_JOB
-
         # the names mean something to the built-in attack job; a custom [runner] job reads its specs its own way
         problems = check_jobs(jobs) if cfg.runner["job"] == DEFAULT_JOB else []
         for problem in problems:
@@ -94,7 +98,8 @@ def sweep(
         store.set_meta("sweep_versions", environment_versions())
         try:
             summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be, max_attempts=attempts,
-                                progress=progress)
+                                progress=progress,
+                                planned_steps=planned_steps if runner["job"] == DEFAULT_JOB else None)
             write_job_index(store, out_root, out_root)  # index.csv / index.md: job id -> folder and settings
         except KeyboardInterrupt:
             be.close()

@@ -11,6 +11,11 @@
   nodes by custom resources (``ray start --resources '{"meshadv": 4}'``); a task lost with its node is recorded as a
   failed attempt and retried by the runner on another node.
 - :class:`SerialBackend`: runs jobs one by one inside the driver process (debugging, profiling; no crash isolation).
+
+Step progress: a job's :func:`~meshadv.experiments.worker.report_steps` calls reach the driver's ``on_steps`` as
+:class:`~meshadv.experiments.worker.StepReport` objects while the job runs with the local backend (over the worker's
+pipe, before its outcome) and the serial one (directly). Ray tasks do not report steps: the driver sees a Ray job's
+progress when it finishes.
 """
 
 from __future__ import annotations
@@ -22,10 +27,10 @@ import queue
 import signal
 import threading
 import time
-from typing import Any, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 from meshadv.experiments.artifacts import run_detached
-from meshadv.experiments.worker import Outcome, execute
+from meshadv.experiments.worker import Outcome, StepReport, execute
 
 __all__ = ["Backend", "LocalBackend", "SerialBackend", "RayBackend", "make_backend", "BACKENDS"]
 
@@ -38,10 +43,13 @@ class Backend:
 
     ``submit`` starts a job and returns a handle; ``wait`` blocks until at least one submitted job finishes (or
     ``timeout`` passes) and returns the finished ``(handle, Outcome)`` pairs; ``close`` releases the workers.
-    ``capacity`` is how many jobs should be in flight at once.
+    ``capacity`` is how many jobs should be in flight at once. ``on_steps``, when set by the driver, receives the
+    running jobs' :class:`~meshadv.experiments.worker.StepReport` objects (from any thread; those of a job before its
+    outcome) on backends that forward them.
     """
 
     capacity: int = 1
+    on_steps: Optional[Callable[[StepReport], None]] = None
 
     def submit(self, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str) -> Any:
         """Start one job; return a handle."""
@@ -79,7 +87,7 @@ def _worker_main(conn: Any, parent_pid: int, threads: int) -> None:
             return
         if msg is None:
             return
-        conn.send(execute(*msg, threads=threads))
+        conn.send(execute(*msg, threads=threads, step_sink=conn.send))  # step reports, then the outcome
 
 
 def _crash_reason(exitcode: Optional[int]) -> str:
@@ -174,6 +182,16 @@ class LocalBackend(Backend):
                 return
         worker.stop(kill=not healthy)
 
+    def _receive(self, worker: _Worker) -> Optional[Outcome]:
+        """The next message of ``worker``: a step report is passed to ``on_steps`` (``None`` returned), an outcome
+        returned."""
+        msg = worker.conn.recv()
+        if isinstance(msg, StepReport):
+            if self.on_steps is not None:
+                self.on_steps(msg)
+            return None
+        return msg
+
     def _run(self, job_ref: str, job_id: str, spec: Dict[str, Any], out_dir: str) -> Outcome:
         start = time.perf_counter()
         worker = self._acquire()
@@ -186,11 +204,12 @@ class LocalBackend(Backend):
             worker.jobs += 1
             while True:
                 if worker.conn.poll(0.2):
-                    outcome = worker.conn.recv()
-                    break
+                    outcome = self._receive(worker)
+                    if outcome is not None:
+                        break
                 if not worker.proc.is_alive():
-                    if worker.conn.poll(0):
-                        outcome = worker.conn.recv()
+                    while outcome is None and worker.conn.poll(0):
+                        outcome = self._receive(worker)
                     break
                 if self.timeout and time.perf_counter() - start > self.timeout:
                     worker.proc.kill()
@@ -256,7 +275,7 @@ class SerialBackend(Backend):
         for handle in handles:
             if handle in self._pending:
                 args = self._pending.pop(handle)
-                return [(handle, execute(*args, threads=self.threads_per_job))]
+                return [(handle, execute(*args, threads=self.threads_per_job, step_sink=self.on_steps))]
         return []
 
 

@@ -13,16 +13,17 @@ and writes into ``out_dir``: ``benign.ply``, ``benign_v{j}.png`` and everything 
 The returned record holds ``success``, ``cpu_time`` (CPU seconds of the job's process), ``distance``
 (per-pair-mean Laplacian loss for shape, face-colour RMSE for texture: the paper's measures), ``distances``,
 ``steps``, ``time``, ``benign_correct``, the top-1 labels, ``eval_success_rate`` (multi-view) and ``artifacts``
-(file names relative to ``out_dir``).
+(file names relative to ``out_dir``). The attack reports every step to the sweep driver
+(:func:`meshadv.experiments.worker.report_steps`); :func:`planned_steps` is the most steps a job can run.
 """
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any, Dict, List, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
-__all__ = ["run_attack_job", "load_job_mesh", "DISTANCE_KEYS"]
+__all__ = ["run_attack_job", "load_job_mesh", "planned_steps", "DISTANCE_KEYS"]
 
 #: Distance key of the record's ``distance`` per perturbation type: the measure comparable with the paper
 #: (``meshadv.attacks.distances.PAPER_COMPARABLE``; the record's ``distances`` holds every measure).
@@ -70,6 +71,37 @@ def load_job_mesh(mesh_spec: Dict[str, Any]) -> Any:
     return mesh
 
 
+def _make_job_attack(spec: Dict[str, Any], options: Dict[str, Any]) -> Any:
+    """The attack of ``spec`` from its attack options (render-setup keys and ``required_margin`` removed)."""
+    from meshadv.attacks import make_attack
+    from meshadv.attacks.families import check_perturbation
+
+    perturbation = check_perturbation(spec["perturbation"], "spec['perturbation']")
+    return make_attack(perturbation, **{"seed": int(spec.get("seed", 0)), **options})
+
+
+def _attack_options(spec: Dict[str, Any]) -> Tuple[Dict[str, Any], Dict[str, Any], float]:
+    """``(render-setup options, attack options, required_margin)`` of a spec's ``attack`` entry."""
+    from meshadv.render.setup import split_setup_options
+
+    setup_options, options = split_setup_options(dict(spec.get("attack", {})))
+    required_margin = float(options.pop("required_margin", 0.0))
+    return setup_options, options, required_margin
+
+
+def planned_steps(spec: Dict[str, Any]) -> Optional[int]:
+    """The most optimiser steps the attack job of ``spec`` can run (``steps`` x rounds of its update rule; early
+    stopping ends sooner), or ``None`` when the spec's attack cannot be built (the job will fail and say why)."""
+    from meshadv.attacks.update import make_update_rule
+
+    try:
+        attack = _make_job_attack(spec, _attack_options(spec)[1])
+        rule = make_update_rule(attack.method, attack=attack, num_targets=1, **attack.method_options)
+    except (KeyError, TypeError, ValueError):
+        return None
+    return int(attack.steps) * int(rule.rounds)
+
+
 def _victim(name: str, weights: Any = None) -> Any:
     key = f"{name}:{weights}"
     if key not in _VICTIM_CACHE:
@@ -105,12 +137,13 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     """
     import torch
 
-    from meshadv.attacks import Criterion, TargetedMisclassification, WithMargin, make_attack
+    from meshadv.attacks import Criterion, TargetedMisclassification, WithMargin
     from meshadv.attacks.families import check_perturbation
+    from meshadv.experiments.worker import attack_step_callback
     from meshadv.util.png import save_png
     from meshadv.mesh import save_mesh
     from meshadv.render import ViewSet
-    from meshadv.render.setup import RenderSetup, split_setup_options
+    from meshadv.render.setup import RenderSetup
 
     start, cpu_start = time.perf_counter(), time.process_time()
     out = Path(out_dir)
@@ -120,7 +153,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     views = ViewSet.from_records(spec["views"])
     eval_views = ViewSet.from_records(spec["eval_views"]) if spec.get("eval_views") else None
     victim = _victim(spec["victim"], spec.get("victim_weights"))
-    setup_options, options = split_setup_options(dict(spec.get("attack", {})))
+    setup_options, options, required_margin = _attack_options(spec)
     setup = RenderSetup(image_size=int(spec.get("image_size", 224)), **setup_options)
     # judge the benign render as the attack renders it
     correct, benign_top1, benign_images = _benign_check(mesh, views, victim, spec["source_class"], setup)
@@ -140,12 +173,12 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         record.update(skipped=True, success=False, distance=None, steps=0, time=time.perf_counter() - start,
                       reason=f"benign render classified as {benign_top1}, not {spec['source_class']}")
         return record
-    required_margin = float(options.pop("required_margin", 0.0))
-    attack = make_attack(perturbation, **{"seed": int(spec.get("seed", 0)), **options})
+    attack = _make_job_attack(spec, options)
     criterion: Criterion = TargetedMisclassification(spec["target"])
     if required_margin > 0:
         criterion = WithMargin(criterion, required_margin)
-    result = attack(mesh, views, victim, criterion, setup=setup, eval_views=eval_views)
+    result = attack(mesh, views, victim, criterion, setup=setup, eval_views=eval_views,
+                    callback=attack_step_callback)
     result.save(out)
     distances = dict(result.distances[0])
     ply, obj = result.mesh_filenames(0)

@@ -10,8 +10,9 @@ be importable by spawned and Ray worker processes.
 - ``"raise"``: raise ``RuntimeError``; ``"segfault"``: kill its own process with SIGSEGV; ``"exit"``: ``os._exit(7)``;
 - ``"flaky"``: raise on the first attempt, succeed on later ones.
 
-``spec["sleep"]`` (seconds) delays the job. Every start appends a line to ``<out_dir>/runs.log``, so tests can count how
-many times a job really ran.
+``spec["sleep"]`` (seconds) delays the job. A job that returns first reports ``spec["steps"]`` steps (default 1) to the
+sweep driver (:func:`meshadv.experiments.worker.report_steps`), as an attack does. Every start appends a line to
+``<out_dir>/runs.log``, so tests can count how many times a job really ran.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import time
 from pathlib import Path
 from typing import Any, Dict
 
+from meshadv.experiments.worker import report_steps
 from meshadv.util.atomic import write_text_atomic
 
 __all__ = ["probe_job", "mesh_probe_job"]
@@ -61,12 +63,15 @@ def probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         raise RuntimeError("flaky probe job: failing on its first attempt")
     if kind not in ("ok", "flaky"):
         raise ValueError(f"spec['probe'] must be ok, raise, segfault, exit or flaky, got {kind!r}")
+    steps = int(spec.get("steps", 1))
+    for done in range(1, steps + 1):
+        report_steps(done, steps)
     artefact = out_dir / "artefact.json"
     write_text_atomic(artefact, json.dumps(spec, sort_keys=True))
     return {
         "success": bool(spec.get("success", True)),
         "distance": float(spec.get("distance", 0.0)),
-        "steps": int(spec.get("steps", 1)),
+        "steps": steps,
         "time": time.perf_counter() - start,
         "runs": runs,
         "pid": os.getpid(),

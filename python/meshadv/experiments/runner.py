@@ -25,6 +25,7 @@ from meshadv.experiments.backends import Backend, LocalBackend
 from meshadv.experiments.progress import Progress
 from meshadv.experiments.spec import JobFn, job_ref
 from meshadv.experiments.store import ResultStore, driver_lock
+from meshadv.experiments.worker import StepReport
 
 __all__ = ["SweepSummary", "run_sweep", "job_out_dir", "CHECKPOINT_EVERY"]
 
@@ -69,6 +70,8 @@ def run_sweep(
     max_attempts: int = 2,
     progress: bool = True,
     on_outcome: Optional[Callable[[str, bool], None]] = None,
+    planned_steps: Optional[Callable[[Dict[str, Any]], Optional[int]]] = None,
+    on_steps: Optional[Callable[[StepReport], None]] = None,
 ) -> SweepSummary:
     """Run every job of a sweep that is not done yet, resumably.
 
@@ -82,8 +85,13 @@ def run_sweep(
             upload them to a URL that is then recorded instead.
         backend: where jobs run; default a :class:`LocalBackend` over every core (closed at the end).
         max_attempts: attempts per job, >= 1 (a crash or exception counts one; a killed run's attempt does not).
-        progress: show a progress bar (jobs done, successes, failures, ETA) on stderr.
+        progress: show the progress bars on stderr (jobs done, successes, failures, ETA; steps run out of the most
+            the jobs can run, moving per step where the backend forwards the jobs' step reports:
+            :mod:`meshadv.experiments.progress`).
         on_outcome: called in the driver after each attempt is recorded, with the job id and whether it succeeded.
+        planned_steps: the most steps a job spec can run (``None``: unknown), for the step bar's total; e.g.
+            :func:`meshadv.experiments.jobs.planned_steps` for the attack job.
+        on_steps: called in the driver (from a backend thread) with every step report of a running job.
 
     Returns:
         The :class:`SweepSummary`.
@@ -104,8 +112,17 @@ def run_sweep(
         be = backend if backend is not None else LocalBackend()
         queue = store.runnable(max_attempts)
         counts = store.counts()
+        planned = {jid: planned_steps(store.spec(jid)) for jid in queue} if planned_steps is not None else {}
         bar = Progress(total=counts["total"], done=counts["done"], successes=counts["successes"],
-                       failed=0, enabled=progress)
+                       failed=0, enabled=progress, planned=planned)
+
+        def _steps(report: StepReport) -> None:
+            bar.step(report)
+            if on_steps is not None:
+                on_steps(report)
+
+        previous_sink = be.on_steps
+        be.on_steps = _steps
         in_flight: Dict[Any, str] = {}
         ran = finished = 0
         try:
@@ -122,10 +139,13 @@ def run_sweep(
                     if outcome.ok and outcome.record is not None:
                         location = deliver(outcome, job_out_dir(out_root, jid))  # artefacts in place first
                         store.mark_done(jid, outcome.record, location)
+                        bar.job_finished(jid)
                         bar.update(done=1, successes=int(bool(outcome.record.get("success"))))
                     else:
                         store.mark_failed(jid, outcome.error or "unknown error")
-                        if store.attempts(jid) < max_attempts:
+                        retry = store.attempts(jid) < max_attempts
+                        bar.job_finished(jid, retry=retry)
+                        if retry:
                             queue.append(jid)
                         else:
                             bar.update(failed=1)
@@ -135,6 +155,7 @@ def run_sweep(
                     if finished % CHECKPOINT_EVERY == 0:
                         store.checkpoint()  # the .db file alone stays a resumable copy of the sweep
         finally:
+            be.on_steps = previous_sink
             store.checkpoint()
             bar.close()
             if own_backend:
