@@ -17,7 +17,7 @@ from meshadv.attacks import (
     TextureAttack,
     WithMargin,
 )
-from meshadv.attacks.budget import BudgetState, ColorNorm, DDNRule, LaplacianNorm
+from meshadv.attacks.budget import DDN_DEFAULTS, BudgetState, ColorNorm, DDNRule, LaplacianNorm
 from meshadv.mesh import builtin_mesh, vertex_edges
 from meshadv.render import RenderSetup, ViewSet, native_available
 
@@ -179,8 +179,20 @@ def test_texture_rejects_shape_options_and_config_shows_the_method() -> None:
         DDNRule(attack=TextureAttack(method="ddn"), num_targets=1, smoothness=1.0)
     attack = ShapeAttack(method="ddn", method_options={"gamma": 0.1})
     assert attack.config()["method"] == "ddn"
-    assert attack.config()["method_options"] == {"gamma": 0.1}
     assert DDNRule(attack=attack, num_targets=2, **attack.method_options).config()["gamma"] == 0.1
+
+
+@pytest.mark.parametrize("family", [ShapeAttack, TextureAttack])
+def test_config_shows_the_effective_ddn_options(family: Any) -> None:
+    kind = family.perturbation
+    passed = {"gamma": DDN_DEFAULTS[kind]["gamma"] * 2}
+    options = family(method="ddn", method_options=passed).config()["method_options"]
+    assert options == {**DDN_DEFAULTS[kind], **passed}
+    assert family(method="ddn").config()["method_options"] == DDN_DEFAULTS[kind]
+    # the recorded options rebuild the same attack
+    assert family(method="ddn", method_options=options).config() == family(method="ddn", method_options=passed).config()
+    with pytest.raises(ValueError, match="gamma"):
+        family(method="ddn", method_options={"gamma": -1.0}).config()
 
 
 # ---------------------------------------------------------------- attacks (stand-in victims)

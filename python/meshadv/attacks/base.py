@@ -157,6 +157,7 @@ class _RunInfo:
     steps: int
     wall_time: float
     interrupted: bool
+    config: Dict[str, Any]
 
 
 class MeshAttack(ABC):
@@ -250,14 +251,20 @@ class MeshAttack(ABC):
 
     # ------------------------------------------------------------------ public
     def config(self) -> Dict[str, Any]:
-        """The hyper-parameters as a JSON-able dict."""
+        """The hyper-parameters as a JSON-able dict; ``method_options`` are the effective options of the update rule
+        (the rule's ``config()`` over the options passed, so defaults the rule fills in are shown).
+
+        Raises:
+            ValueError: ``method_options`` the update rule rejects (as the attack call would), naming them.
+        """
+        rule = make_update_rule(self.method, attack=self, num_targets=1, **self.method_options)
         return {
             "perturbation": self.perturbation, "steps": self.steps, "lr": self.lr,
             "lambda_perceptual": self.lambda_perceptual, "binary_search_steps": self.binary_search_steps,
             "loss": self.loss, "kappa": self.kappa, "early_stop": self.early_stop,
             "early_stop_margin": self.early_stop_margin, "max_distortion": self.max_distortion,
             "success_fraction": self.success_fraction, "jitter": self.jitter, "seed": self.seed, "method": self.method,
-            "method_options": dict(self.method_options),
+            "method_options": {**self.method_options, **rule.config()},
         }
 
     def __repr__(self) -> str:
@@ -327,6 +334,7 @@ class MeshAttack(ABC):
         t_start = time.perf_counter()
         mesh, views, edges = call.mesh, call.views, call.edges
         num_t, num_v = len(criteria), len(views)
+        config = self.config()  # the hyper-parameters the run starts with, for the result
         rule = make_update_rule(self.method, attack=self, num_targets=num_t, **self.method_options)
         rule.prepare(mesh, edges)
         targets = [_Target(c) for c in criteria]
@@ -411,7 +419,7 @@ class MeshAttack(ABC):
         pristine = self._init_params(mesh, 1)[0].detach()
         chosen = torch.stack([tg.chosen(pristine) for tg in targets])
         run = _RunInfo(history=tuple(history), steps=total_steps, wall_time=time.perf_counter() - t_start,
-                       interrupted=interrupted)
+                       interrupted=interrupted, config=config)
         return self._finish(call, targets, eval_views, chosen, run)
 
     # ------------------------------------------------------------------ final evaluation
@@ -466,7 +474,7 @@ class MeshAttack(ABC):
             images=after.images,
             view_records=tuple(views.to_records()),
             eval_view_records=None if eval_views is None else tuple(eval_views.to_records()),
-            config={**self.config(), **call.setup.config()},
+            config={**run.config, **call.setup.config()},
             victim=str(getattr(victim, "name", type(victim).__name__)),
             class_names=tuple(getattr(victim, "class_names", ()) or ()),
         )
