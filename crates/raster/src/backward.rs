@@ -22,9 +22,10 @@
 //!   inner loop only tests the depth order and `delta < 0`.
 //! * Per pixel of an OUT or IN sweep, `delta / dist_a` and `delta / dist_c` (the two endpoint displacements) use one
 //!   division, `q = delta / (dist_a * dist_c)`, times `dist_c` and `dist_a`. The OUT loop is branch-free (skipped
-//!   pixels add 0) and sums in eight lanes added in a fixed order (see `sweep`).
-//! * The per-face work is compiled twice, for the portable baseline and for AVX2 (x86-64), and the instruction set
-//!   is picked at run time (`Isa`), so one portable wheel still uses 256-bit vectors; on arm64 NEON is the baseline.
+//!   pixels add 0), sums in four lanes added in a fixed order, and runs its last partial block masked (see `sweep`).
+//! * The per-face work is compiled twice, for the portable baseline (SSE2 vectors on x86-64, plain code the compiler
+//!   vectorises elsewhere) and for AVX2 (x86-64), and the instruction set is picked at run time (`Isa`), so one
+//!   portable wheel still uses 256-bit vectors.
 //!
 //! The exact, step-by-step definition (the same text as `docs/NMR_GRADIENT.md`) follows.
 //!
@@ -437,7 +438,7 @@ pub fn rasterize_backward_on(
                 .into_par_iter()
                 .map_init(
                     || Scratch {
-                        ga: vec![0.0; if c > 4 { longest } else { 0 }],
+                        ga: vec![0.0; if c > 4 { longest + sweep::LANES } else { 0 }],
                     },
                     |scratch, f| {
                         if visible[f] && setups[f].active {

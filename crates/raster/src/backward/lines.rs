@@ -5,16 +5,21 @@ use rayon::prelude::*;
 use crate::input::RasterParams;
 use crate::setup::FaceSetup;
 
+use super::sweep::LANES;
+
 /// Depth-test key of the face drawn at each pixel (row-major; larger = nearer): `1/z` in perspective, `-z` in
-/// orthographic, with `z` recomputed from the positions exactly as the forward computes it; `-inf` on background.
+/// orthographic, with `z` recomputed from the positions exactly as the forward computes it; `-inf` on background
+/// (and on the [`LANES`] values of padding after the last pixel).
 pub(super) fn depth_keys(
     setups: &[FaceSetup],
     face_index: &[i32],
     params: &RasterParams,
 ) -> Vec<f64> {
     let w = params.width;
-    let mut key = vec![f64::NEG_INFINITY; face_index.len()];
-    key.par_chunks_mut(w)
+    let n = face_index.len();
+    let mut key = vec![f64::NEG_INFINITY; n + LANES];
+    key[..n]
+        .par_chunks_mut(w)
         .zip(face_index.par_chunks(w))
         .enumerate()
         .for_each(|(i, (key, faces))| {
@@ -34,6 +39,8 @@ pub(super) fn depth_keys(
 
 /// The per-pixel inputs of the sweeps of one batch element, one line after another: image rows for the row sweeps
 /// (axis V) or image columns for the column sweeps (axis U), so that the inner loops read memory contiguously.
+/// Every buffer ends with [`LANES`] values of padding, so that a vector loop may read a whole block past the end of
+/// any line (the lanes past the line's end are masked out).
 /// Everything is f64, as in the definition: f32 weights or `delta`s change single contributions near an edge
 /// (`delta / EPS` spikes) by more than 1e-5 of a vertex gradient whose terms cancel (measured).
 pub(super) struct Lines {
@@ -65,19 +72,19 @@ impl Lines {
         params: &RasterParams,
     ) -> Lines {
         let (h, w) = (params.height, params.width);
-        // Built by collecting (no zero-filled buffers to overwrite).
-        let face = face_index.par_iter().map(|&f| f as f64).collect();
-        let gi = grad
-            .par_chunks(c)
-            .zip(image.par_chunks(c))
-            .map(|(g, i)| {
-                g.iter()
-                    .zip(i)
-                    .fold(0f64, |s, (&g, &i)| s + g as f64 * i as f64)
-            })
-            .collect();
-        let mut planes = vec![0f64; h * w * c];
-        planes
+        // Built by extending (no zero-filled buffers to overwrite).
+        let mut face = Vec::with_capacity(h * w + LANES);
+        face.par_extend(face_index.par_iter().map(|&f| f as f64));
+        let mut gi = Vec::with_capacity(h * w + LANES);
+        gi.par_extend(grad.par_chunks(c).zip(image.par_chunks(c)).map(|(g, i)| {
+            g.iter()
+                .zip(i)
+                .fold(0f64, |s, (&g, &i)| s + g as f64 * i as f64)
+        }));
+        face.extend([0.0; LANES]);
+        gi.extend([0.0; LANES]);
+        let mut planes = vec![0f64; h * w * c + LANES];
+        planes[..h * w * c]
             .par_chunks_mut(w * c)
             .zip(grad.par_chunks(w * c))
             .for_each(|(planes, row)| {
@@ -87,23 +94,26 @@ impl Lines {
                     }
                 }
             });
-        Lines::finish(w, c, face, key, gi, planes)
+        Lines::finish(h, w, c, face, key, gi, planes)
     }
 
     /// Column lines: the transpose of `rows`.
     pub fn columns(rows: &Lines) -> Lines {
         let (w, h, c) = (rows.len, rows.lines(), rows.channels);
         let column = |v: &[f64]| -> Vec<f64> {
-            let mut out = vec![0f64; w * h];
-            out.par_chunks_mut(h).enumerate().for_each(|(j, col)| {
-                for (i, x) in col.iter_mut().enumerate() {
-                    *x = v[i * w + j];
-                }
-            });
+            let mut out = vec![0f64; w * h + LANES];
+            out[..w * h]
+                .par_chunks_mut(h)
+                .enumerate()
+                .for_each(|(j, col)| {
+                    for (i, x) in col.iter_mut().enumerate() {
+                        *x = v[i * w + j];
+                    }
+                });
             out
         };
-        let mut planes = vec![0f64; w * c * h];
-        planes
+        let mut planes = vec![0f64; w * c * h + LANES];
+        planes[..w * c * h]
             .par_chunks_mut(c * h)
             .enumerate()
             .for_each(|(j, col)| {
@@ -115,6 +125,7 @@ impl Lines {
                 }
             });
         Lines::finish(
+            w,
             h,
             c,
             column(&rows.face),
@@ -124,8 +135,9 @@ impl Lines {
         )
     }
 
-    /// Lines of `len` pixels from their planes, with [`Lines::nonzero`] found.
+    /// `lines` lines of `len` pixels from their (padded) planes, with [`Lines::nonzero`] found.
     fn finish(
+        lines: usize,
         len: usize,
         channels: usize,
         face: Vec<f64>,
@@ -133,7 +145,6 @@ impl Lines {
         gi: Vec<f64>,
         grad: Vec<f64>,
     ) -> Lines {
-        let lines = face.len() / len;
         let mut out = Lines {
             len,
             channels,
@@ -176,10 +187,16 @@ impl Lines {
         &self.face[d0 * self.len..(d0 + 1) * self.len]
     }
 
-    /// Depth keys along line `d0`.
+    /// Faces from the start of line `d0` to the end of the buffer (padding included).
     #[inline(always)]
-    pub fn key(&self, d0: usize) -> &[f64] {
-        &self.key[d0 * self.len..(d0 + 1) * self.len]
+    pub fn face_from(&self, d0: usize) -> &[f64] {
+        &self.face[d0 * self.len..]
+    }
+
+    /// Depth keys from the start of line `d0` to the end of the buffer (padding included).
+    #[inline(always)]
+    pub fn key_from(&self, d0: usize) -> &[f64] {
+        &self.key[d0 * self.len..]
     }
 
     /// `sum_c G I` along line `d0`.
@@ -188,16 +205,21 @@ impl Lines {
         &self.gi[d0 * self.len..(d0 + 1) * self.len]
     }
 
+    /// `sum_c G I` from the start of line `d0` to the end of the buffer (padding included).
+    #[inline(always)]
+    pub fn gi_from(&self, d0: usize) -> &[f64] {
+        &self.gi[d0 * self.len..]
+    }
+
     /// Cotangent channel `k` at pixel `d` of line `d0`.
     #[inline(always)]
     pub fn grad_at(&self, d0: usize, k: usize, d: usize) -> f64 {
         self.grad[(d0 * self.channels + k) * self.len + d]
     }
 
-    /// Cotangent channel `k` along line `d0`.
+    /// Cotangent channel `k` from the start of line `d0` to the end of the buffer (padding included).
     #[inline(always)]
-    pub fn grad(&self, d0: usize, k: usize) -> &[f64] {
-        let o = (d0 * self.channels + k) * self.len;
-        &self.grad[o..o + self.len]
+    pub fn grad_from(&self, d0: usize, k: usize) -> &[f64] {
+        &self.grad[(d0 * self.channels + k) * self.len..]
     }
 }

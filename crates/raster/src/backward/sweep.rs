@@ -2,24 +2,25 @@
 //! the IN sweep (pixels of the face that would be uncovered) along one line, see `docs/NMR_GRADIENT.md`.
 //!
 //! Everything is f64, per pixel the same operations as the definition. The OUT sweep, which does nearly all the
-//! work, is branch-free (skipped pixels add 0) and sums into [`LANES`] lanes (pixel `i` into lane `i % LANES`),
-//! added pairwise in a fixed order. It is written twice with the same operations in the same order and no fused
-//! multiply-adds: on lane arrays for any target, and with AVX2 intrinsics (two 4-lane vectors per block), so every
-//! instruction set gives the same bits.
+//! work, is branch-free (skipped pixels add 0) and sums into [`LANES`] lanes (pixel `i` of the sweep into lane
+//! `i % LANES`), added pairwise in a fixed order. It is written once, generic over a vector of f64 lanes
+//! ([`F64s`]: 4 lanes with AVX2, 2 with SSE2 on any x86-64, 2 plain f64 elsewhere), with the same operations in the
+//! same order and no fused multiply-adds, so every instruction set gives the same bits. The last, partial block
+//! reads past the sweep's end (every line buffer has [`LANES`] values of padding) and masks those lanes out.
 
 use super::lines::Lines;
 use super::{Isa, EPS};
 
 /// Lanes of the OUT sweep's accumulators.
-pub(super) const LANES: usize = 8;
+pub(super) const LANES: usize = 4;
 
 /// Pixel positions `0, 1, 2, ...` along a line as f64 (loaded by the vectorised loops rather than converted).
 pub(super) struct Positions(Vec<f64>);
 
 impl Positions {
-    /// Positions for lines of up to `len` pixels.
+    /// Positions for lines of up to `len` pixels (plus [`LANES`] of padding).
     pub fn new(len: usize) -> Positions {
-        Positions((0..len).map(|d| d as f64).collect())
+        Positions((0..len + LANES).map(|d| d as f64).collect())
     }
 }
 
@@ -66,7 +67,7 @@ fn partition_point(mut lo: usize, mut hi: usize, pred: impl Fn(usize) -> bool) -
 /// Sum of the lanes, in a fixed order.
 #[inline(always)]
 fn lane_sum(x: &[f64; LANES]) -> f64 {
-    ((x[0] + x[1]) + (x[2] + x[3])) + ((x[4] + x[5]) + (x[6] + x[7]))
+    (x[0] + x[1]) + (x[2] + x[3])
 }
 
 impl OutSweep<'_> {
@@ -95,8 +96,9 @@ impl OutSweep<'_> {
         }
     }
 
-    /// Sums the contributions of pixels `start..end` of line `d0` (`ga` a scratch line). Returns the sums for
-    /// endpoints `a` and `c` (meaningful only when their `k` is defined).
+    /// Sums the contributions of pixels `start..end` of line `d0` (`ga` a scratch line of at least
+    /// `end - start + LANES` values). Returns the sums for endpoints `a` and `c` (meaningful only when their `k` is
+    /// defined).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     pub fn run(
@@ -120,10 +122,12 @@ impl OutSweep<'_> {
             3 => self.kernel::<3>(ln, d0, r, pos, ga, isa),
             4 => self.kernel::<4>(ln, d0, r, pos, ga, isa),
             _ => {
-                // Any channel count: sum_c G[P, c] A[f, c] into the scratch line first, channels in order.
-                let ga = &mut ga[..r.len()];
+                // Any channel count: sum_c G[P, c] A[f, c] into the scratch line first, channels in order (the
+                // padding lanes too: they are masked out, but must be defined).
+                let n = r.len().next_multiple_of(LANES);
+                let ga = &mut ga[..n];
                 for (k, &ak) in self.attrs.iter().enumerate() {
-                    let g = &ln.grad(d0, k)[r.clone()];
+                    let g = &ln.grad_from(d0, k)[start..start + n];
                     for (x, &g) in ga.iter_mut().zip(g) {
                         *x = if k == 0 { g * ak } else { *x + g * ak };
                     }
@@ -145,15 +149,17 @@ impl OutSweep<'_> {
         pre: &[f64],
         isa: Isa,
     ) -> (f64, f64) {
-        let n = r.len();
+        let s = r.start;
         let k = Pixels::<C> {
-            g: std::array::from_fn(|k| &ln.grad(d0, k)[r.clone()]),
-            a: std::array::from_fn(|k| self.attrs[k]),
-            face: &ln.face(d0)[r.clone()],
-            key: &ln.key(d0)[r.clone()],
-            gi: &ln.gi(d0)[r.clone()],
-            pos: &pos.0[r.clone()],
-            pre: &pre[..if C == 0 { n } else { 0 }],
+            n: r.len(),
+            end: r.end as f64,
+            g: std::array::from_fn(|k| &ln.grad_from(d0, k)[s..]),
+            a: self.attrs,
+            face: &ln.face_from(d0)[s..],
+            key: &ln.key_from(d0)[s..],
+            gi: &ln.gi_from(d0)[s..],
+            pos: &pos.0[s..],
+            pre,
             ka: self.ka,
             ba: self.ea - self.ka * self.cross,
             kc: self.kc,
@@ -162,23 +168,25 @@ impl OutSweep<'_> {
             key0: self.key0,
             key_step: self.key_step,
         };
-        let (mut sa, mut sc) = ([0f64; LANES], [0f64; LANES]);
-        let full = n - n % LANES;
-        k.blocks(isa, full, &mut sa, &mut sc);
-        // The last pixels, pixel `full + l` into lane `l`.
-        k.tail(full, n - full, &mut sa, &mut sc);
+        let (sa, sc) = k.sweep_on(isa);
         (lane_sum(&sa), lane_sum(&sc))
     }
 }
 
-/// The per-pixel inputs of one OUT sweep (already cut to its pixels) and its constants (see [`OutSweep`]).
+/// The per-pixel inputs of one OUT sweep, each slice starting at its first pixel and reaching at least
+/// `n.next_multiple_of(LANES)` values (the line buffers' padding), and its constants (see [`OutSweep`]).
 pub(super) struct Pixels<'a, const C: usize> {
+    /// Pixels in the sweep.
+    n: usize,
+    /// Position just past the last pixel, as f64 (lanes at or beyond it are masked out).
+    end: f64,
     g: [&'a [f64]; C],
-    a: [f64; C],
+    a: &'a [f64],
     face: &'a [f64],
     key: &'a [f64],
     gi: &'a [f64],
     pos: &'a [f64],
+    /// `sum_c G A` when `C = 0`.
     pre: &'a [f64],
     /// `da = ka * d + ba` is `ka * (d - cross) + ea`, the displacement of endpoint a (see [`OutSweep`]).
     ka: f64,
@@ -192,105 +200,152 @@ pub(super) struct Pixels<'a, const C: usize> {
 }
 
 impl<const C: usize> Pixels<'_, C> {
-    /// Adds the contributions of pixels `0..full` (a multiple of [`LANES`]) to the lanes `sa` (endpoint a) and `sc`.
+    /// The lane sums (endpoint a, endpoint c) on the instruction set `isa`.
     #[inline(always)]
-    fn blocks(&self, isa: Isa, full: usize, sa: &mut [f64; LANES], sc: &mut [f64; LANES]) {
-        match isa {
-            #[cfg(target_arch = "x86_64")]
-            #[allow(unsafe_code)]
-            // SAFETY: `Isa::Avx2` is only passed when the CPU supports AVX2 (see `rasterize_backward_on`).
-            Isa::Avx2 => unsafe { avx2::blocks(self, full, sa, sc) },
-            _ => {
-                for i in (0..full).step_by(LANES) {
-                    let (x, y) = self.block(i);
-                    for l in 0..LANES {
-                        sa[l] += x[l];
-                        sc[l] += y[l];
-                    }
-                }
-            }
-        }
-    }
-
-    /// Adds the contributions of the `rest < LANES` pixels from `full` on to the lanes `0..rest` (one by one, on
-    /// every instruction set).
-    #[inline(always)]
-    fn tail(&self, full: usize, rest: usize, sa: &mut [f64; LANES], sc: &mut [f64; LANES]) {
-        for l in 0..rest {
-            let (x, y) = self.pixel(full + l);
-            sa[l] += x;
-            sc[l] += y;
-        }
-    }
-
-    /// [`Pixels::pixel`] on the block of pixels `i..i + LANES`, one step at a time over the whole block (so that
-    /// the compiler vectorises it for the baseline target).
-    #[inline(always)]
-    fn block(&self, i: usize) -> ([f64; LANES], [f64; LANES]) {
-        let r = i..i + LANES;
-        let (face, key, gi, pos) = (
-            &self.face[r.clone()],
-            &self.key[r.clone()],
-            &self.gi[r.clone()],
-            &self.pos[r.clone()],
+    fn sweep_on(&self, isa: Isa) -> ([f64; LANES], [f64; LANES]) {
+        let padded = self.n.next_multiple_of(LANES);
+        assert!(
+            self.face.len() >= padded
+                && self.g.iter().all(|g| g.len() >= padded)
+                && (C != 0 || self.pre.len() >= padded)
+                && self.a.len() >= C
+                && self.key.len() >= padded
+                && self.gi.len() >= padded
+                && self.pos.len() >= padded
         );
-        let mut ga = [0f64; LANES];
-        if C == 0 {
-            ga.copy_from_slice(&self.pre[r.clone()]);
-        } else {
-            let g0 = &self.g[0][r.clone()];
-            for l in 0..LANES {
-                ga[l] = g0[l] * self.a[0];
-            }
-            for ch in 1..C {
-                let g = &self.g[ch][r.clone()];
-                for l in 0..LANES {
-                    ga[l] += g[l] * self.a[ch];
-                }
+        // SAFETY: every slice holds the padded block count (asserted above); `Isa::Avx2` is only passed when the
+        // CPU supports AVX2 (see `rasterize_backward_on`); SSE2 is part of the x86-64 baseline.
+        #[allow(unsafe_code)]
+        unsafe {
+            match isa {
+                #[cfg(target_arch = "x86_64")]
+                Isa::Avx2 => sweep_avx2(self),
+                #[cfg(target_arch = "x86_64")]
+                _ => sweep::<std::arch::x86_64::__m128d, C>(self),
+                #[cfg(not(target_arch = "x86_64"))]
+                _ => sweep::<[f64; 2], C>(self),
             }
         }
-        let mut m = [0f64; LANES];
-        for l in 0..LANES {
-            let kf = self.key0 + self.key_step * pos[l];
-            let delta = ga[l] - gi[l];
-            let nearer = (kf > key[l]) | ((kf == key[l]) & (self.fi < face[l]));
-            let take = (face[l] != self.fi) & nearer & (delta < 0.0);
-            m[l] = if take { delta } else { 0.0 };
-        }
-        let (mut x, mut y) = ([0f64; LANES], [0f64; LANES]);
-        for l in 0..LANES {
-            let (da, dc) = (self.ka * pos[l] + self.ba, self.kc * pos[l] + self.bc);
-            let q = m[l] / (da * dc);
-            x[l] = q * dc;
-            y[l] = q * da;
-        }
-        (x, y)
     }
+}
 
-    /// Contributions of pixel `i` to the endpoints a and c.
+/// [`sweep`] on AVX2.
+///
+/// # Safety
+/// As [`sweep`], and the CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(unsafe_code)]
+#[inline]
+unsafe fn sweep_avx2<const C: usize>(k: &Pixels<'_, C>) -> ([f64; LANES], [f64; LANES]) {
+    sweep::<std::arch::x86_64::__m256d, C>(k)
+}
+
+/// The OUT sweep's lane sums on vectors `V`: whole blocks of [`LANES`] pixels, then the last partial block with
+/// the lanes past the end masked out.
+///
+/// # Safety
+/// `V`'s instructions must be supported by the CPU, and every slice of `k` must hold `k.n` rounded up to a
+/// multiple of [`LANES`] values.
+#[allow(unsafe_code)]
+#[inline(always)]
+unsafe fn sweep<V: F64s, const C: usize>(k: &Pixels<'_, C>) -> ([f64; LANES], [f64; LANES]) {
+    let per = LANES / V::N;
+    let zero = V::splat(0.0);
+    let c = Consts {
+        a: std::array::from_fn(|ch| V::splat(k.a[ch])),
+        fi: V::splat(k.fi),
+        key0: V::splat(k.key0),
+        key_step: V::splat(k.key_step),
+        ka: V::splat(k.ka),
+        ba: V::splat(k.ba),
+        kc: V::splat(k.kc),
+        bc: V::splat(k.bc),
+        end: V::splat(k.end),
+        zero,
+    };
+    // Only the first `per` accumulators are used.
+    let (mut sa, mut sc) = ([zero; LANES], [zero; LANES]);
+    let full = k.n - k.n % LANES;
+    let mut i = 0;
+    while i < full {
+        for j in 0..per {
+            let (x, y) = k.vec::<V, false>(&c, i + j * V::N);
+            sa[j] = sa[j].add(x);
+            sc[j] = sc[j].add(y);
+        }
+        i += LANES;
+    }
+    if full < k.n {
+        for j in 0..per {
+            let (x, y) = k.vec::<V, true>(&c, full + j * V::N);
+            sa[j] = sa[j].add(x);
+            sc[j] = sc[j].add(y);
+        }
+    }
+    let (mut xa, mut xc) = ([0f64; LANES], [0f64; LANES]);
+    for j in 0..per {
+        sa[j].store(xa.as_mut_ptr().add(j * V::N));
+        sc[j].store(xc.as_mut_ptr().add(j * V::N));
+    }
+    (xa, xc)
+}
+
+/// The sweep's constants as vectors.
+struct Consts<V, const C: usize> {
+    a: [V; C],
+    fi: V,
+    key0: V,
+    key_step: V,
+    ka: V,
+    ba: V,
+    kc: V,
+    bc: V,
+    end: V,
+    zero: V,
+}
+
+impl<const C: usize> Pixels<'_, C> {
+    /// Contributions of the `V::N` pixels at `i` to the endpoints a and c; with `MASKED`, lanes at or past the end
+    /// give 0.
+    ///
+    /// # Safety
+    /// As [`sweep`], and `i + V::N` must not exceed any slice.
+    #[allow(unsafe_code)]
     #[inline(always)]
-    fn pixel(&self, i: usize) -> (f64, f64) {
+    unsafe fn vec<V: F64s, const MASKED: bool>(&self, c: &Consts<V, C>, i: usize) -> (V, V) {
+        let load = |v: &[f64]| V::load(v.as_ptr().add(i));
         let ga = if C == 0 {
-            self.pre[i]
+            load(self.pre)
         } else {
-            let mut s = self.g[0][i] * self.a[0];
+            let mut s = load(self.g[0]).mul(c.a[0]);
+            #[allow(clippy::needless_range_loop)]
+            // a plain index loop unrolls; an iterator chain did not
             for ch in 1..C {
-                s += self.g[ch][i] * self.a[ch];
+                s = s.add(load(self.g[ch]).mul(c.a[ch]));
             }
             s
         };
-        let (fp, kp) = (self.face[i], self.key[i]);
-        let kf = self.key0 + self.key_step * self.pos[i];
-        let delta = ga - self.gi[i];
+        let (fp, kp, pos) = (load(self.face), load(self.key), load(self.pos));
+        let kf = c.key0.add(c.key_step.mul(pos));
+        let delta = ga.sub(load(self.gi));
         // covers(f, P) (the clip range is handled by `clip`) and delta < 0.
-        let nearer = (kf > kp) | ((kf == kp) & (self.fi < fp));
-        let take = (fp != self.fi) & nearer & (delta < 0.0);
-        let m = if take { delta } else { 0.0 };
-        let d = self.pos[i];
-        let (da, dc) = (self.ka * d + self.ba, self.kc * d + self.bc);
+        let tie = kf.eq(kp).and(c.fi.lt(fp));
+        let nearer = kf.gt(kp).or(tie);
+        let other = fp.ne(c.fi);
+        let neg = delta.lt(c.zero);
+        let m = other.and(nearer).and(neg).and(delta);
+        let da = c.ka.mul(pos).add(c.ba);
+        let dc = c.kc.mul(pos).add(c.bc);
         // m / da and m / dc with one division.
-        let q = m / (da * dc);
-        (q * dc, q * da)
+        let q = m.div(da.mul(dc));
+        let (x, y) = (q.mul(dc), q.mul(da));
+        if MASKED {
+            let valid = pos.lt(c.end);
+            (x.and(valid), y.and(valid))
+        } else {
+            (x, y)
+        }
     }
 }
 
@@ -339,107 +394,238 @@ pub(super) fn nudge(dist: f64) -> f64 {
     dist + if dist > 0.0 { EPS } else { -EPS }
 }
 
-/// The OUT sweep's whole blocks with AVX2 intrinsics: [`Pixels::pixel`] on two vectors of four pixels (lanes 0-3
-/// and 4-7), the same operations in the same order, so the same bits.
+/// A vector of f64 lanes with the operations of the OUT sweep. Comparisons give lanes of all ones (true) or all
+/// zeros (false), which `and` applies as masks.
+///
+/// # Safety
+/// An implementation may use instructions beyond the target's baseline: its methods may only be called on CPUs
+/// that have them.
+#[allow(unsafe_code)]
+pub(super) unsafe trait F64s: Copy {
+    /// Lanes.
+    const N: usize;
+    /// Loads `N` values from `p`.
+    ///
+    /// # Safety
+    /// `p` must be valid for `N` reads.
+    unsafe fn load(p: *const f64) -> Self;
+    /// Stores the lanes to `p`.
+    ///
+    /// # Safety
+    /// `p` must be valid for `N` writes.
+    unsafe fn store(self, p: *mut f64);
+    /// All lanes `x`.
+    unsafe fn splat(x: f64) -> Self;
+    /// Lane-wise `+`.
+    unsafe fn add(self, o: Self) -> Self;
+    /// Lane-wise `-`.
+    unsafe fn sub(self, o: Self) -> Self;
+    /// Lane-wise `*`.
+    unsafe fn mul(self, o: Self) -> Self;
+    /// Lane-wise `/`.
+    unsafe fn div(self, o: Self) -> Self;
+    /// Lane-wise `>` (false on NaN).
+    unsafe fn gt(self, o: Self) -> Self;
+    /// Lane-wise `<` (false on NaN).
+    unsafe fn lt(self, o: Self) -> Self;
+    /// Lane-wise `==` (false on NaN).
+    unsafe fn eq(self, o: Self) -> Self;
+    /// Lane-wise `!=` (true on NaN).
+    unsafe fn ne(self, o: Self) -> Self;
+    /// Bitwise and.
+    unsafe fn and(self, o: Self) -> Self;
+    /// Bitwise or.
+    unsafe fn or(self, o: Self) -> Self;
+}
+
+/// Two plain f64 lanes (targets without an intrinsic implementation; the compiler vectorises what it can).
+#[allow(unsafe_code)]
+// SAFETY: plain Rust, no special instructions.
+unsafe impl F64s for [f64; 2] {
+    const N: usize = 2;
+    #[inline(always)]
+    unsafe fn load(p: *const f64) -> Self {
+        [*p, *p.add(1)]
+    }
+    #[inline(always)]
+    unsafe fn store(self, p: *mut f64) {
+        *p = self[0];
+        *p.add(1) = self[1];
+    }
+    #[inline(always)]
+    unsafe fn splat(x: f64) -> Self {
+        [x, x]
+    }
+    #[inline(always)]
+    unsafe fn add(self, o: Self) -> Self {
+        [self[0] + o[0], self[1] + o[1]]
+    }
+    #[inline(always)]
+    unsafe fn sub(self, o: Self) -> Self {
+        [self[0] - o[0], self[1] - o[1]]
+    }
+    #[inline(always)]
+    unsafe fn mul(self, o: Self) -> Self {
+        [self[0] * o[0], self[1] * o[1]]
+    }
+    #[inline(always)]
+    unsafe fn div(self, o: Self) -> Self {
+        [self[0] / o[0], self[1] / o[1]]
+    }
+    #[inline(always)]
+    unsafe fn gt(self, o: Self) -> Self {
+        bits2(self[0] > o[0], self[1] > o[1])
+    }
+    #[inline(always)]
+    unsafe fn lt(self, o: Self) -> Self {
+        bits2(self[0] < o[0], self[1] < o[1])
+    }
+    #[inline(always)]
+    unsafe fn eq(self, o: Self) -> Self {
+        bits2(self[0] == o[0], self[1] == o[1])
+    }
+    #[inline(always)]
+    unsafe fn ne(self, o: Self) -> Self {
+        bits2(self[0] != o[0], self[1] != o[1])
+    }
+    #[inline(always)]
+    unsafe fn and(self, o: Self) -> Self {
+        let f = |a: f64, b: f64| f64::from_bits(a.to_bits() & b.to_bits());
+        [f(self[0], o[0]), f(self[1], o[1])]
+    }
+    #[inline(always)]
+    unsafe fn or(self, o: Self) -> Self {
+        let f = |a: f64, b: f64| f64::from_bits(a.to_bits() | b.to_bits());
+        [f(self[0], o[0]), f(self[1], o[1])]
+    }
+}
+
+/// Mask lanes from two booleans.
+#[inline(always)]
+fn bits2(a: bool, b: bool) -> [f64; 2] {
+    let m = |x: bool| f64::from_bits(if x { u64::MAX } else { 0 });
+    [m(a), m(b)]
+}
+
+/// SSE2 (every x86-64 CPU) and AVX2 vectors.
 #[cfg(target_arch = "x86_64")]
 #[allow(unsafe_code)]
-mod avx2 {
+mod x86 {
     use std::arch::x86_64::*;
 
-    use super::{Pixels, LANES};
+    use super::F64s;
 
-    /// Contributions of the four pixels at `i` to the endpoints a and c (see [`Pixels::pixel`]).
-    ///
-    /// # Safety
-    /// The CPU must support AVX2, and `i + 4` must not exceed any of `k`'s slices.
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    unsafe fn quad<const C: usize>(
-        k: &Pixels<'_, C>,
-        a: &[__m256d; C],
-        i: usize,
-    ) -> (__m256d, __m256d) {
-        let load = |v: &[f64], i: usize| _mm256_loadu_pd(v.as_ptr().add(i));
-        let ga = if C == 0 {
-            load(k.pre, i)
-        } else {
-            let mut s = _mm256_mul_pd(load(k.g[0], i), a[0]);
-            #[allow(clippy::needless_range_loop)]
-            // a plain index loop unrolls; an iterator chain did not
-            for ch in 1..C {
-                s = _mm256_add_pd(s, _mm256_mul_pd(load(k.g[ch], i), a[ch]));
-            }
-            s
-        };
-        let (fp, kp, pos) = (load(k.face, i), load(k.key, i), load(k.pos, i));
-        let fi = _mm256_set1_pd(k.fi);
-        let kf = _mm256_add_pd(
-            _mm256_set1_pd(k.key0),
-            _mm256_mul_pd(_mm256_set1_pd(k.key_step), pos),
-        );
-        let delta = _mm256_sub_pd(ga, load(k.gi, i));
-        let tie = _mm256_and_pd(
-            _mm256_cmp_pd::<_CMP_EQ_OQ>(kf, kp),
-            _mm256_cmp_pd::<_CMP_LT_OQ>(fi, fp),
-        );
-        let nearer = _mm256_or_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(kf, kp), tie);
-        let other = _mm256_cmp_pd::<_CMP_NEQ_UQ>(fp, fi);
-        let neg = _mm256_cmp_pd::<_CMP_LT_OQ>(delta, _mm256_setzero_pd());
-        let m = _mm256_and_pd(_mm256_and_pd(_mm256_and_pd(other, nearer), neg), delta);
-        let da = _mm256_add_pd(
-            _mm256_mul_pd(_mm256_set1_pd(k.ka), pos),
-            _mm256_set1_pd(k.ba),
-        );
-        let dc = _mm256_add_pd(
-            _mm256_mul_pd(_mm256_set1_pd(k.kc), pos),
-            _mm256_set1_pd(k.bc),
-        );
-        let q = _mm256_div_pd(m, _mm256_mul_pd(da, dc));
-        (_mm256_mul_pd(q, dc), _mm256_mul_pd(q, da))
+    // SAFETY: SSE2 is part of the x86-64 baseline.
+    unsafe impl F64s for __m128d {
+        const N: usize = 2;
+        #[inline(always)]
+        unsafe fn load(p: *const f64) -> Self {
+            _mm_loadu_pd(p)
+        }
+        #[inline(always)]
+        unsafe fn store(self, p: *mut f64) {
+            _mm_storeu_pd(p, self)
+        }
+        #[inline(always)]
+        unsafe fn splat(x: f64) -> Self {
+            _mm_set1_pd(x)
+        }
+        #[inline(always)]
+        unsafe fn add(self, o: Self) -> Self {
+            _mm_add_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn sub(self, o: Self) -> Self {
+            _mm_sub_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn mul(self, o: Self) -> Self {
+            _mm_mul_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn div(self, o: Self) -> Self {
+            _mm_div_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn gt(self, o: Self) -> Self {
+            _mm_cmpgt_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn lt(self, o: Self) -> Self {
+            _mm_cmplt_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn eq(self, o: Self) -> Self {
+            _mm_cmpeq_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn ne(self, o: Self) -> Self {
+            _mm_cmpneq_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn and(self, o: Self) -> Self {
+            _mm_and_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn or(self, o: Self) -> Self {
+            _mm_or_pd(self, o)
+        }
     }
 
-    /// Adds the contributions of pixels `0..full` (a multiple of [`LANES`]) to the lanes `sa` (endpoint a) and `sc`.
-    ///
-    /// # Safety
-    /// The CPU must support AVX2.
-    #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn blocks<const C: usize>(
-        k: &Pixels<'_, C>,
-        full: usize,
-        sa: &mut [f64; LANES],
-        sc: &mut [f64; LANES],
-    ) {
-        assert!(
-            full <= k.face.len()
-                && k.g.iter().all(|g| g.len() >= full)
-                && (C != 0 || k.pre.len() >= full)
-                && k.key.len() >= full
-                && k.gi.len() >= full
-                && k.pos.len() >= full
-        );
-        let a: [__m256d; C] = std::array::from_fn(|ch| _mm256_set1_pd(k.a[ch]));
-        let (mut a_lo, mut a_hi) = (
-            _mm256_loadu_pd(sa.as_ptr()),
-            _mm256_loadu_pd(sa.as_ptr().add(4)),
-        );
-        let (mut c_lo, mut c_hi) = (
-            _mm256_loadu_pd(sc.as_ptr()),
-            _mm256_loadu_pd(sc.as_ptr().add(4)),
-        );
-        let mut i = 0;
-        while i < full {
-            // SAFETY: `i + LANES <= full`, and every slice holds at least `full` values (asserted above).
-            let (x, y) = quad(k, &a, i);
-            a_lo = _mm256_add_pd(a_lo, x);
-            c_lo = _mm256_add_pd(c_lo, y);
-            let (x, y) = quad(k, &a, i + 4);
-            a_hi = _mm256_add_pd(a_hi, x);
-            c_hi = _mm256_add_pd(c_hi, y);
-            i += LANES;
+    // SAFETY: callers check AVX2 at run time (`Isa::Avx2`).
+    unsafe impl F64s for __m256d {
+        const N: usize = 4;
+        #[inline(always)]
+        unsafe fn load(p: *const f64) -> Self {
+            _mm256_loadu_pd(p)
         }
-        _mm256_storeu_pd(sa.as_mut_ptr(), a_lo);
-        _mm256_storeu_pd(sa.as_mut_ptr().add(4), a_hi);
-        _mm256_storeu_pd(sc.as_mut_ptr(), c_lo);
-        _mm256_storeu_pd(sc.as_mut_ptr().add(4), c_hi);
+        #[inline(always)]
+        unsafe fn store(self, p: *mut f64) {
+            _mm256_storeu_pd(p, self)
+        }
+        #[inline(always)]
+        unsafe fn splat(x: f64) -> Self {
+            _mm256_set1_pd(x)
+        }
+        #[inline(always)]
+        unsafe fn add(self, o: Self) -> Self {
+            _mm256_add_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn sub(self, o: Self) -> Self {
+            _mm256_sub_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn mul(self, o: Self) -> Self {
+            _mm256_mul_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn div(self, o: Self) -> Self {
+            _mm256_div_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn gt(self, o: Self) -> Self {
+            _mm256_cmp_pd::<_CMP_GT_OQ>(self, o)
+        }
+        #[inline(always)]
+        unsafe fn lt(self, o: Self) -> Self {
+            _mm256_cmp_pd::<_CMP_LT_OQ>(self, o)
+        }
+        #[inline(always)]
+        unsafe fn eq(self, o: Self) -> Self {
+            _mm256_cmp_pd::<_CMP_EQ_OQ>(self, o)
+        }
+        #[inline(always)]
+        unsafe fn ne(self, o: Self) -> Self {
+            _mm256_cmp_pd::<_CMP_NEQ_UQ>(self, o)
+        }
+        #[inline(always)]
+        unsafe fn and(self, o: Self) -> Self {
+            _mm256_and_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn or(self, o: Self) -> Self {
+            _mm256_or_pd(self, o)
+        }
     }
 }
