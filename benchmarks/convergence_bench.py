@@ -334,6 +334,35 @@ def import_sweep(sweep_db: Path, db: Path) -> int:
     return written
 
 
+def step_cost(steps: int, repeats: int = 3) -> Dict[Tuple[str, str], List[float]]:
+    """Process CPU seconds per optimiser step of ``method="adam"`` (the paper's and paper_small's rule) and
+    ``method="ddn"``, one target (aeroplane/0 towards boat), measured side by side ``repeats`` times, alternating.
+
+    Only the steps count (between the first and the last step callback), not the setup or the final re-render, so
+    the cost per target of a method is its steps times this.
+    """
+    from meshadv.attacks import TargetedMisclassification
+    from meshadv.experiments.jobs import load_job_mesh
+    from meshadv.render import ViewSet
+    from meshadv.victims import load_victim
+    from meshadv.attacks import make_attack as make_family_attack
+
+    _, _, record = instances(1, ["aeroplane"])[0]
+    mesh = load_job_mesh({"source": "pascal3d", "path": record["mesh"], "target_faces": 4000, "max_faces": 100000})
+    views = ViewSet.from_records([record["view"]])
+    victim = load_victim("efficientnet_lite0")
+    out: Dict[Tuple[str, str], List[float]] = {}
+    for _ in range(repeats):
+        for perturbation in ("shape", "texture"):
+            for method in ("adam", "ddn"):
+                stamps: List[float] = []
+                make_family_attack(perturbation, steps=steps, method=method)(
+                    mesh, views, victim, TargetedMisclassification("boat"), setup=render_setup(),
+                    callback=lambda _info: stamps.append(time.process_time()))
+                out.setdefault((perturbation, method), []).append((stamps[-1] - stamps[0]) / (len(stamps) - 1))
+    return out
+
+
 # ---------------------------------------------------------------------------------------------------- report
 def _distance_key(perturbation: str) -> str:
     return "laplacian_pair_mean" if perturbation == "shape" else "color_rmse"
@@ -520,7 +549,7 @@ def plot_method(rows: Sequence[Dict[str, Any]], method: str, path: Path) -> None
 def _positive(text: str) -> int:
     value = int(text)
     if value < 1:
-        raise argparse.ArgumentTypeError(f"--checkpoint must be a positive integer, got {text}")
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
     return value
 
 
@@ -548,7 +577,16 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     parser.add_argument("--plots", type=Path, default=None)
     parser.add_argument("--import-sweep", type=Path, default=None, metavar="RESULTS_DB",
                         help="store a paper_small sweep's finished jobs as 'small' rows; run nothing")
+    parser.add_argument("--step-cost", type=_positive, default=None, metavar="STEPS",
+                        help="print the CPU seconds per step of adam and ddn (1 target, STEPS steps, 3 repeats); "
+                             "run nothing else")
     args = parser.parse_args(argv)
+    if args.step_cost is not None:
+        torch.set_num_threads(args.threads)
+        for (perturbation, method), values in step_cost(args.step_cost).items():
+            print(f"{perturbation} {method}: median {statistics.median(values):.4f} CPU s per step "
+                  f"(runs: {', '.join(f'{v:.4f}' for v in values)})")
+        return
     if args.import_sweep is not None:
         print(f"{import_sweep(args.import_sweep, args.db)} rows imported")
         return
