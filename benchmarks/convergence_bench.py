@@ -483,7 +483,64 @@ def report(rows: Sequence[Dict[str, Any]], plots: Optional[Path]) -> str:
         for method in METHODS:
             if any(r["method"] == method for r in rows):
                 plot_method(rows, method, plots / f"convergence_{method}.png")
+        plot_compare(rows, plots / "convergence_compare.png")
     return "\n".join(lines)
+
+
+def _mean_curves(sel: Sequence[Dict[str, Any]]) -> Tuple[List[float], List[float], List[Dict[str, Any]]]:
+    """Success rate (%) and median least distance at success per step over the targets of ``sel``, and the partial
+    records of ``sel``; with partial rows the curves end at the fewest steps a partial run reached."""
+    partial = [r["partial"] for r in sel if r.get("partial")]
+    horizon = max(r["history_len"] for r in sel)
+    if partial:
+        horizon = min(horizon, min(q["steps_done"] for q in partial))
+    succ_all: List[List[bool]] = []
+    dist_all: List[List[float]] = []
+    for r in sel:
+        s, d = target_curves(r, horizon)
+        succ_all.extend(s)
+        dist_all.extend(d)
+    rate = [100.0 * sum(s[k] for s in succ_all) / len(succ_all) for k in range(horizon)]
+    med = []
+    for k in range(horizon):
+        vals = [d[k] for d in dist_all if not math.isnan(d[k])]
+        med.append(statistics.median(vals) if vals else math.nan)
+    return rate, med, partial
+
+
+def _partial_note(partial: Sequence[Dict[str, Any]]) -> str:
+    if not partial:
+        return ""
+    return (f"PARTIAL: {len(partial)} run(s) stopped at step {min(q['steps_done'] for q in partial)} of "
+            f"{partial[0]['steps_planned']}")
+
+
+def _plot_column(ax_s: Any, ax_d: Any, perturbation: str,
+                 series: Sequence[Tuple[str, Sequence[Dict[str, Any]]]]) -> None:
+    """Success and distance curves of each ``(label, rows)`` of ``series`` on one column of axes."""
+    for label, sel in series:
+        if not sel:
+            continue
+        rate, med, partial = _mean_curves(sel)
+        steps = list(range(1, len(rate) + 1))
+        ax_s.plot(steps, rate, label=label)
+        ax_d.plot(steps, med, label=label)
+        per_round = int(sel[0]["config"].get("steps", len(rate)))
+        for end in range(per_round, len(rate), per_round):
+            for ax in (ax_s, ax_d):
+                ax.axvline(end, color="grey", linestyle=":", linewidth=1)
+    ax_s.set_ylabel("targets reached (%)")
+    ax_s.set_ylim(0, 101)
+    ax_d.set_yscale("log")
+    ax_d.set_ylabel("median least distance at success\n" + (
+        "(Laplacian per-pair mean)" if perturbation == "shape" else "(colour RMSE)"))
+    ax_d.axhline(1.8e-4 if perturbation == "shape" else 1.1e-2, color="grey", linestyle="--", linewidth=1,
+                 label="paper average")
+    for ax in (ax_s, ax_d):
+        ax.set_xlabel("optimiser steps per target")
+        ax.set_xscale("log")
+        ax.axvline(STEP_TARGETS[perturbation], color="red", linestyle=":", linewidth=1)
+        ax.legend(fontsize=7)
 
 
 def plot_method(rows: Sequence[Dict[str, Any]], method: str, path: Path) -> None:
@@ -500,47 +557,38 @@ def plot_method(rows: Sequence[Dict[str, Any]], method: str, path: Path) -> None
     fig, axes = plt.subplots(2, 2, figsize=(10, 7), constrained_layout=True)
     for col, perturbation in enumerate(("shape", "texture")):
         sel = [r for r in rows if r["method"] == method and r["perturbation"] == perturbation]
-        ax_s, ax_d = axes[0, col], axes[1, col]
-        partial = [r["partial"] for r in sel if r.get("partial")]
-        title = f"{method}, {perturbation} ({len(sel)} instances)"
-        if partial:
-            title += (f"\nPARTIAL: {len(partial)} run(s) stopped at step "
-                      f"{min(q['steps_done'] for q in partial)} of {partial[0]['steps_planned']}")
-        ax_s.set_title(title)
-        if not sel:
-            continue
-        horizon = max(r["history_len"] for r in sel)
-        if partial:
-            horizon = min(horizon, min(q["steps_done"] for q in partial))
-        succ_all: List[List[bool]] = []
-        dist_all: List[List[float]] = []
-        for r in sel:
-            s, d = target_curves(r, horizon)
-            succ_all.extend(s)
-            dist_all.extend(d)
-        steps = list(range(1, horizon + 1))
-        rate = [100.0 * sum(s[k] for s in succ_all) / len(succ_all) for k in range(horizon)]
-        med = []
-        for k in range(horizon):
-            vals = [d[k] for d in dist_all if not math.isnan(d[k])]
-            med.append(statistics.median(vals) if vals else math.nan)
-        ax_s.plot(steps, rate)
-        ax_s.set_ylabel("targets reached (%)")
-        ax_s.set_ylim(0, 101)
-        ax_d.plot(steps, med)
-        ax_d.set_yscale("log")
-        ax_d.set_ylabel("median least distance at success\n" + (
-            "(Laplacian per-pair mean)" if perturbation == "shape" else "(colour RMSE)"))
-        paper = 1.8e-4 if perturbation == "shape" else 1.1e-2
-        ax_d.axhline(paper, color="grey", linestyle="--", linewidth=1, label="paper average")
-        ax_d.legend()
-        for ax in (ax_s, ax_d):
-            ax.set_xlabel("optimiser steps per target")
-            ax.set_xscale("log")
-            ax.axvline(STEP_TARGETS[perturbation], color="red", linestyle=":", linewidth=1)
-            per_round = int(sel[0]["config"].get("steps", horizon))
-            for end in range(per_round, horizon, per_round):
-                ax.axvline(end, color="grey", linestyle=":", linewidth=1)
+        note = _partial_note([r["partial"] for r in sel if r.get("partial")])
+        axes[0, col].set_title(f"{method}, {perturbation} ({len(sel)} instances)" + (f"\n{note}" if note else ""))
+        if sel:
+            _plot_column(axes[0, col], axes[1, col], perturbation, [(method, sel)])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def plot_compare(rows: Sequence[Dict[str, Any]], path: Path) -> None:
+    """Every method's curves on the same axes, per perturbation on the instances every method with rows for it
+    ran (partial runs labelled), one PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), constrained_layout=True)
+    for col, perturbation in enumerate(("shape", "texture")):
+        runs: Dict[str, set] = {}
+        for r in rows:
+            if r["perturbation"] == perturbation:
+                runs.setdefault(r["method"], set()).add((r["class"], r["index"]))
+        common = set.intersection(*runs.values()) if runs else set()
+        series = []
+        for method in METHODS:
+            sel = [r for r in rows if r["method"] == method and r["perturbation"] == perturbation
+                   and (r["class"], r["index"]) in common]
+            note = _partial_note([r["partial"] for r in sel if r.get("partial")])
+            series.append((f"{method}" + (f" ({note})" if note else ""), sel))
+        axes[0, col].set_title(f"{perturbation}: {len(common)} instance(s) every method ran")
+        _plot_column(axes[0, col], axes[1, col], perturbation, series)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
     plt.close(fig)
