@@ -1,7 +1,9 @@
 """The paper's figures (matplotlib, Agg backend, PNG).
 
 - :func:`render_grid`: the classes x classes grid of renders (Fig. 2 style): row = benign class, column = target class,
-  the diagonal shows the benign render, target class names on top.
+  the diagonal shows the benign render (green frame, "benign"), target class names on top, failed attacks labelled
+  "failed" in red, cells without a render say "no result" (or "source = target" on the diagonal) in grey; every
+  title is wrapped to fit (:func:`grid_figure` draws it).
 - :func:`flow_heatmaps`: per-vertex flow magnitude ``|v_adv - v|`` painted on the mesh, in the attack's view and in a
   canonical view (azimuth 135°, elevation 45°).
 - :func:`flow_quiver`: a 3D quiver plot of the flow directions in the region around the most displaced vertex.
@@ -15,13 +17,15 @@ direction (orthographic).
 from __future__ import annotations
 
 import math
+import textwrap
 from pathlib import Path
-from typing import Dict, Mapping, Optional, Sequence, Tuple, Union
+from typing import AbstractSet, Any, Dict, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
 __all__ = [
     "render_grid",
+    "grid_figure",
     "flow_heatmaps",
     "flow_quiver",
     "curvature_scatter",
@@ -78,16 +82,71 @@ def _set_view(ax, azimuth: float, elevation: float, points: np.ndarray) -> None:
     ax.set_axis_off()
 
 
+#: Inches per grid cell, and the grid's label colours.
+_CELL_IN = 1.6
+_BENIGN, _FAILED, _EMPTY = "tab:green", "tab:red", "0.55"
+
+
+def _wrap(text: str, width_in: float, fontsize: float) -> str:
+    """``text`` wrapped to lines that fit ``width_in`` inches at ``fontsize`` points (0.6 em per character)."""
+    chars = max(4, int(width_in * 72.0 / (0.6 * fontsize)))
+    return "\n".join(textwrap.wrap(text, chars, break_long_words=True)) or text
+
+
+def grid_figure(cells: Mapping[Tuple[str, str], PathLike], classes: Sequence[str], *, title: str = "",
+                failed: AbstractSet[Tuple[str, str]] = frozenset()) -> Any:
+    """The matplotlib figure of the classes x classes grid of renders (see :func:`render_grid`)."""
+    if not classes:
+        raise ValueError("classes must not be empty")
+    plt = _pyplot()
+    from PIL import Image
+
+    n = len(classes)
+    width = _CELL_IN * n + 0.8
+    fig, axes = plt.subplots(n, n, figsize=(width, _CELL_IN * n + 1.0), squeeze=False, layout="constrained")
+    for i, src in enumerate(classes):
+        for j, tgt in enumerate(classes):
+            ax = axes[i][j]
+            ax.set_xticks([])
+            ax.set_yticks([])
+            img = cells.get((src, tgt))
+            present = img is not None and Path(img).is_file()
+            if present:
+                ax.imshow(np.asarray(Image.open(img).convert("RGB")))
+                for spine in ax.spines.values():
+                    spine.set_visible(i == j)
+                    spine.set_color(_BENIGN)
+                    spine.set_linewidth(2)
+                if i == j:
+                    ax.set_xlabel("benign", fontsize=8, color=_BENIGN, labelpad=2)
+                elif (src, tgt) in failed:
+                    ax.set_xlabel("failed", fontsize=8, color=_FAILED, labelpad=2)
+            else:  # no coloured frame: a grey note saying why the cell is empty
+                note = "source = target\n(no benign render)" if i == j else "no result"
+                ax.text(0.5, 0.5, note, ha="center", va="center", fontsize=8, color=_EMPTY, transform=ax.transAxes)
+                for spine in ax.spines.values():
+                    spine.set_color("0.85")
+                    spine.set_linestyle((0, (3, 3)))
+            if i == 0:
+                ax.set_title(_wrap(tgt, _CELL_IN, 9), fontsize=9)
+            if j == 0:
+                ax.set_ylabel(_wrap(src, _CELL_IN, 9), fontsize=9)
+    if title:
+        fig.suptitle(_wrap(title, width - 0.2, 12), fontsize=12)
+    return fig
+
+
 def render_grid(cells: Mapping[Tuple[str, str], PathLike], classes: Sequence[str], path: PathLike, *,
-                title: str = "") -> Path:
+                title: str = "", failed: AbstractSet[Tuple[str, str]] = frozenset()) -> Path:
     """Draw the classes x classes grid of renders.
 
     Args:
-        cells: ``(source, target) -> PNG path``; ``(c, c)`` is the benign render of class ``c``. Missing cells stay
-            blank (an attack that was not run or not saved).
+        cells: ``(source, target) -> PNG path``; ``(c, c)`` is the benign render of class ``c``. Missing cells (an
+            attack that was not run or not saved) are marked "no result", a missing diagonal "source = target".
         classes: row / column order.
         path: output PNG.
-        title: figure title.
+        title: figure title (wrapped to the figure's width).
+        failed: ``(source, target)`` cells whose attack did not succeed, labelled "failed".
 
     Returns:
         ``path``.
@@ -95,32 +154,8 @@ def render_grid(cells: Mapping[Tuple[str, str], PathLike], classes: Sequence[str
     Raises:
         ValueError: no classes.
     """
-    if not classes:
-        raise ValueError("classes must not be empty")
     plt = _pyplot()
-    from PIL import Image
-
-    n = len(classes)
-    fig, axes = plt.subplots(n, n, figsize=(1.6 * n + 1.2, 1.6 * n + 0.8), squeeze=False)
-    for i, src in enumerate(classes):
-        for j, tgt in enumerate(classes):
-            ax = axes[i][j]
-            ax.set_xticks([])
-            ax.set_yticks([])
-            img = cells.get((src, tgt))
-            if img is not None and Path(img).is_file():
-                ax.imshow(np.asarray(Image.open(img).convert("RGB")))
-            for spine in ax.spines.values():
-                spine.set_visible(i == j)
-                spine.set_color("tab:green")
-                spine.set_linewidth(2)
-            if i == 0:
-                ax.set_title(tgt, fontsize=9)
-            if j == 0:
-                ax.set_ylabel(src, fontsize=9)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
+    fig = grid_figure(cells, classes, title=title, failed=failed)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)

@@ -8,7 +8,7 @@ Output folder layout::
                                the sweep also attacked misclassified ones, benign_correct_only = false)
     table2.md / table2.csv     multi-view robustness (when the sweep had multi-view jobs)
     paper_comparison.md        Tables 1-3 beside the paper's numbers (meshadv.experiments.paper), shortfalls
-    figures/grid_<victim>_<type>.png        classes x classes renders (diagonal benign)
+    figures/grid_<victim>_<type>.png        classes x classes renders (diagonal benign, failed attacks labelled)
     figures/flow_heatmap_<victim>.png       flow magnitude, rendered and canonical views
     figures/flow_quiver_<victim>.png        flow directions around the most displaced vertex
     figures/curvature_<victim>.png          flow magnitude vs. mean curvature (+ correlation in README)
@@ -24,7 +24,7 @@ import sys
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, List, Optional, Sequence, Set, Tuple, Union
 
 import numpy as np
 
@@ -105,8 +105,9 @@ def _instance(row: JobRow) -> Tuple[Any, ...]:
             row.spec.get("protocol"))
 
 
-def _grid_cells(rows: List[JobRow]) -> Tuple[Dict[Tuple[str, str], Path], List[str]]:
-    """Pick, per source class, the instance with the most successful targets; return its renders."""
+def _grid_cells(rows: List[JobRow]) -> Tuple[Dict[Tuple[str, str], Path], List[str], Set[Tuple[str, str]]]:
+    """Pick, per source class, the instance with the most successful targets; return its renders, the classes and
+    the ``(source, target)`` cells whose attack failed."""
     by_instance: Dict[Tuple[Any, ...], List[JobRow]] = defaultdict(list)
     for row in rows:
         by_instance[_instance(row)].append(row)
@@ -121,6 +122,7 @@ def _grid_cells(rows: List[JobRow]) -> Tuple[Dict[Tuple[str, str], Path], List[s
     classes = sorted({r.spec["source_class"] for r in rows} | {r.spec["target"] for r in rows},
                      key=lambda c: (PASCAL3D_CLASSES.index(c) if c in PASCAL3D_CLASSES else 99, c))
     cells: Dict[Tuple[str, str], Path] = {}
+    failed: Set[Tuple[str, str]] = set()
     for src, inst_rows in best.items():
         for r in inst_rows:
             benign = _art(r, "benign_images")
@@ -129,7 +131,9 @@ def _grid_cells(rows: List[JobRow]) -> Tuple[Dict[Tuple[str, str], Path], List[s
             adv = _art(r, "adversarial_images")
             if adv is not None:
                 cells[(src, r.spec["target"])] = adv
-    return cells, classes
+                if not r.record.get("success"):
+                    failed.add((src, r.spec["target"]))
+    return cells, classes, failed
 
 
 def _load_pair(row: JobRow) -> Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -258,11 +262,12 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         from meshadv.experiments.figures import render_grid
 
         for (victim, perturbation), grows in sorted(groups.items()):
-            cells, classes = _grid_cells(grows)
+            cells, classes, failed = _grid_cells(grows)
             if cells:
                 out.figures.append(render_grid(cells, classes, fig_dir / f"grid_{_slug(victim)}_{perturbation}.png",
                                                title=f"{perturbation} attacks on {victim} (rows: benign class, "
-                                                     f"columns: target; diagonal: benign)"))
+                                                     f"columns: target; diagonal: benign; red: attack failed)",
+                                               failed=failed))
         _flow_figures(single, fig_dir, out)
     extra = []
     for section in sections:
