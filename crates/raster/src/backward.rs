@@ -314,6 +314,9 @@ impl Ctx<'_> {
                             cross,
                             ka.unwrap_or(0.0),
                             kc.unwrap_or(0.0),
+                            self.pos,
+                            &mut scratch.ga,
+                            isa,
                         );
                         if ka.is_some() {
                             g[a][comp] += sa;

@@ -199,22 +199,10 @@ impl Lines {
         &self.key[d0 * self.len..]
     }
 
-    /// `sum_c G I` along line `d0`.
-    #[inline(always)]
-    pub fn gi(&self, d0: usize) -> &[f64] {
-        &self.gi[d0 * self.len..(d0 + 1) * self.len]
-    }
-
     /// `sum_c G I` from the start of line `d0` to the end of the buffer (padding included).
     #[inline(always)]
     pub fn gi_from(&self, d0: usize) -> &[f64] {
         &self.gi[d0 * self.len..]
-    }
-
-    /// Cotangent channel `k` at pixel `d` of line `d0`.
-    #[inline(always)]
-    pub fn grad_at(&self, d0: usize, k: usize, d: usize) -> f64 {
-        self.grad[(d0 * self.channels + k) * self.len + d]
     }
 
     /// Cotangent channel `k` from the start of line `d0` to the end of the buffer (padding included).

@@ -1,12 +1,12 @@
 //! The inner loops of the NMR vertex gradient: the OUT sweep (pixels beyond an edge that the face would cover) and
 //! the IN sweep (pixels of the face that would be uncovered) along one line, see `docs/NMR_GRADIENT.md`.
 //!
-//! Everything is f64, per pixel the same operations as the definition. The OUT sweep, which does nearly all the
-//! work, is branch-free (skipped pixels add 0) and sums into [`LANES`] lanes (pixel `i` of the sweep into lane
-//! `i % LANES`), added pairwise in a fixed order. It is written once, generic over a vector of f64 lanes
-//! ([`F64s`]: 4 lanes with AVX2, 2 with SSE2 on any x86-64, 2 plain f64 elsewhere), with the same operations in the
-//! same order and no fused multiply-adds, so every instruction set gives the same bits. The last, partial block
-//! reads past the sweep's end (every line buffer has [`LANES`] values of padding) and masks those lanes out.
+//! Everything is f64, per pixel the same operations as the definition. Both sweeps are branch-free (skipped pixels
+//! add 0) and sum into [`LANES`] lanes (pixel `i` of the sweep into lane `i % LANES`), added pairwise in a fixed
+//! order. Each is written once ([`Kernel`]), generic over a vector of f64 lanes ([`F64s`]: 4 lanes with AVX2, 2 with
+//! SSE2 on any x86-64, 2 plain f64 elsewhere), with the same operations in the same order and no fused
+//! multiply-adds, so every instruction set gives the same bits. The last, partial block reads past the sweep's end
+//! (every line buffer has [`LANES`] values of padding) and masks those lanes out.
 
 use super::lines::Lines;
 use super::{Isa, EPS};
@@ -96,7 +96,7 @@ impl OutSweep<'_> {
         }
     }
 
-    /// Sums the contributions of pixels `start..end` of line `d0` (`ga` a scratch line of at least
+    /// Sums the contributions of pixels `start..end` of line `d0` (`scratch` a line of at least
     /// `end - start + LANES` values). Returns the sums for endpoints `a` and `c` (meaningful only when their `k` is
     /// defined).
     #[allow(clippy::too_many_arguments)]
@@ -108,58 +108,47 @@ impl OutSweep<'_> {
         start: usize,
         end: usize,
         pos: &Positions,
-        ga: &mut [f64],
+        scratch: &mut [f64],
         isa: Isa,
     ) -> (f64, f64) {
         let (start, end) = self.clip(start, end);
         if start >= end {
             return (0.0, 0.0);
         }
+        let attrs = self.attrs;
         let r = start..end;
-        match self.attrs.len() {
-            1 => self.kernel::<1>(ln, d0, r, pos, ga, isa),
-            2 => self.kernel::<2>(ln, d0, r, pos, ga, isa),
-            3 => self.kernel::<3>(ln, d0, r, pos, ga, isa),
-            4 => self.kernel::<4>(ln, d0, r, pos, ga, isa),
+        match attrs.len() {
+            1 => self.kernel(Dot::<1>::new(ln, d0, &r, attrs, &[]), ln, d0, &r, pos, isa),
+            2 => self.kernel(Dot::<2>::new(ln, d0, &r, attrs, &[]), ln, d0, &r, pos, isa),
+            3 => self.kernel(Dot::<3>::new(ln, d0, &r, attrs, &[]), ln, d0, &r, pos, isa),
+            4 => self.kernel(Dot::<4>::new(ln, d0, &r, attrs, &[]), ln, d0, &r, pos, isa),
             _ => {
-                // Any channel count: sum_c G[P, c] A[f, c] into the scratch line first, channels in order (the
-                // padding lanes too: they are masked out, but must be defined).
-                let n = r.len().next_multiple_of(LANES);
-                let ga = &mut ga[..n];
-                for (k, &ak) in self.attrs.iter().enumerate() {
-                    let g = &ln.grad_from(d0, k)[start..start + n];
-                    for (x, &g) in ga.iter_mut().zip(g) {
-                        *x = if k == 0 { g * ak } else { *x + g * ak };
-                    }
-                }
-                self.kernel::<0>(ln, d0, r, pos, ga, isa)
+                let pre = dot_into(ln, d0, &r, |k| attrs[k], attrs.len(), scratch);
+                self.kernel(Dot::<0>::new(ln, d0, &r, &[], pre), ln, d0, &r, pos, isa)
             }
         }
     }
 
-    /// The OUT sweep over the pixels `r` of line `d0` (already clipped), for `C` channels (`C = 0`: with
-    /// `sum_c G[P, c] A[f, c]` precomputed in `pre`), in [`LANES`] lanes.
+    /// The OUT sweep over the pixels `r` of line `d0` (already clipped), with `sum_c G[P, c] A[f, c]` from `dot`.
     #[inline(always)]
     fn kernel<const C: usize>(
         &self,
+        dot: Dot<'_, C>,
         ln: &Lines,
         d0: usize,
-        r: std::ops::Range<usize>,
+        r: &std::ops::Range<usize>,
         pos: &Positions,
-        pre: &[f64],
         isa: Isa,
     ) -> (f64, f64) {
         let s = r.start;
-        let k = Pixels::<C> {
+        OutKernel {
             n: r.len(),
             end: r.end as f64,
-            g: std::array::from_fn(|k| &ln.grad_from(d0, k)[s..]),
-            a: self.attrs,
+            dot,
             face: &ln.face_from(d0)[s..],
             key: &ln.key_from(d0)[s..],
             gi: &ln.gi_from(d0)[s..],
             pos: &pos.0[s..],
-            pre,
             ka: self.ka,
             ba: self.ea - self.ka * self.cross,
             kc: self.kc,
@@ -167,106 +156,165 @@ impl OutSweep<'_> {
             fi: self.fi,
             key0: self.key0,
             key_step: self.key_step,
-        };
-        let (sa, sc) = k.sweep_on(isa);
-        (lane_sum(&sa), lane_sum(&sc))
+        }
+        .sums(isa)
     }
 }
 
-/// The per-pixel inputs of one OUT sweep, each slice starting at its first pixel and reaching at least
-/// `n.next_multiple_of(LANES)` values (the line buffers' padding), and its constants (see [`OutSweep`]).
-pub(super) struct Pixels<'a, const C: usize> {
-    /// Pixels in the sweep.
-    n: usize,
-    /// Position just past the last pixel, as f64 (lanes at or beyond it are masked out).
-    end: f64,
-    g: [&'a [f64]; C],
-    a: &'a [f64],
-    face: &'a [f64],
-    key: &'a [f64],
-    gi: &'a [f64],
-    pos: &'a [f64],
-    /// `sum_c G A` when `C = 0`.
-    pre: &'a [f64],
-    /// `da = ka * d + ba` is `ka * (d - cross) + ea`, the displacement of endpoint a (see [`OutSweep`]).
-    ka: f64,
-    ba: f64,
-    /// As `ka`, `ba` for endpoint c.
-    kc: f64,
-    bc: f64,
-    fi: f64,
-    key0: f64,
-    key_step: f64,
+/// `sum_c G[P, c] w[c]` over the pixels `r` of line `d0` into `scratch` (channels in order; the padding lanes up
+/// to the next multiple of [`LANES`] too: they are masked out by the kernels, but must be defined).
+fn dot_into<'s>(
+    ln: &Lines,
+    d0: usize,
+    r: &std::ops::Range<usize>,
+    w: impl Fn(usize) -> f64,
+    channels: usize,
+    scratch: &'s mut [f64],
+) -> &'s [f64] {
+    let n = r.len().next_multiple_of(LANES);
+    let out = &mut scratch[..n];
+    for k in 0..channels {
+        let (g, wk) = (&ln.grad_from(d0, k)[r.start..r.start + n], w(k));
+        for (x, &g) in out.iter_mut().zip(g) {
+            *x = if k == 0 { g * wk } else { *x + g * wk };
+        }
+    }
+    out
 }
 
-impl<const C: usize> Pixels<'_, C> {
-    /// The lane sums (endpoint a, endpoint c) on the instruction set `isa`.
+/// `sum_c G[P, c] w[c]` along a sweep: the cotangent planes and weights of `C` channels, or (`C = 0`) the sums
+/// precomputed by [`dot_into`]. Every slice starts at the sweep's first pixel.
+struct Dot<'a, const C: usize> {
+    g: [&'a [f64]; C],
+    w: [f64; C],
+    pre: &'a [f64],
+}
+
+impl<'a, const C: usize> Dot<'a, C> {
+    /// The dot product over the pixels `r` of line `d0` with the weights `w[..C]` (or `pre` when `C = 0`).
     #[inline(always)]
-    fn sweep_on(&self, isa: Isa) -> ([f64; LANES], [f64; LANES]) {
-        let padded = self.n.next_multiple_of(LANES);
-        assert!(
-            self.face.len() >= padded
-                && self.g.iter().all(|g| g.len() >= padded)
-                && (C != 0 || self.pre.len() >= padded)
-                && self.a.len() >= C
-                && self.key.len() >= padded
-                && self.gi.len() >= padded
-                && self.pos.len() >= padded
-        );
-        // SAFETY: every slice holds the padded block count (asserted above); `Isa::Avx2` is only passed when the
-        // CPU supports AVX2 (see `rasterize_backward_on`); SSE2 is part of the x86-64 baseline.
-        #[allow(unsafe_code)]
-        unsafe {
-            match isa {
-                #[cfg(target_arch = "x86_64")]
-                Isa::Avx2 => sweep_avx2(self),
-                #[cfg(target_arch = "x86_64")]
-                _ => sweep::<std::arch::x86_64::__m128d, C>(self),
-                #[cfg(not(target_arch = "x86_64"))]
-                _ => sweep::<[f64; 2], C>(self),
+    fn new(
+        ln: &'a Lines,
+        d0: usize,
+        r: &std::ops::Range<usize>,
+        w: &[f64],
+        pre: &'a [f64],
+    ) -> Self {
+        Dot {
+            g: std::array::from_fn(|k| &ln.grad_from(d0, k)[r.start..]),
+            w: std::array::from_fn(|k| w[k]),
+            pre,
+        }
+    }
+
+    /// Whether every slice holds `len` values.
+    #[inline(always)]
+    fn holds(&self, len: usize) -> bool {
+        self.g.iter().all(|g| g.len() >= len) && (C != 0 || self.pre.len() >= len)
+    }
+
+    /// The weights as vectors.
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn weights<V: F64s>(&self) -> [V; C] {
+        std::array::from_fn(|k| V::splat(self.w[k]))
+    }
+
+    /// The dot products of the `V::N` pixels at `i`.
+    ///
+    /// # Safety
+    /// `V`'s instructions must be supported by the CPU and `i + V::N` must not exceed the slices.
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn at<V: F64s>(&self, w: &[V; C], i: usize) -> V {
+        if C == 0 {
+            V::load(self.pre.as_ptr().add(i))
+        } else {
+            let mut s = V::load(self.g[0].as_ptr().add(i)).mul(w[0]);
+            #[allow(clippy::needless_range_loop)]
+            // a plain index loop unrolls; an iterator chain did not
+            for k in 1..C {
+                s = s.add(V::load(self.g[k].as_ptr().add(i)).mul(w[k]));
             }
+            s
         }
     }
 }
 
-/// [`sweep`] on AVX2.
+/// A sweep's kernel: the contributions of a vector of pixels to the two edge endpoints.
+trait Kernel {
+    /// The kernel's constants as vectors.
+    type Consts<V: F64s>;
+    /// Pixels in the sweep.
+    fn len(&self) -> usize;
+    /// Whether every per-pixel slice holds `len` values.
+    fn holds(&self, len: usize) -> bool;
+    /// The constants.
+    ///
+    /// # Safety
+    /// `V`'s instructions must be supported by the CPU.
+    #[allow(unsafe_code)]
+    unsafe fn consts<V: F64s>(&self) -> Self::Consts<V>;
+    /// Contributions of the `V::N` pixels at `i` of the sweep to the endpoints a and c; with `MASKED`, lanes at or
+    /// past the sweep's end give 0.
+    ///
+    /// # Safety
+    /// `V`'s instructions must be supported by the CPU, and `i + V::N` must not exceed any slice.
+    #[allow(unsafe_code)]
+    unsafe fn vec<V: F64s, const MASKED: bool>(&self, c: &Self::Consts<V>, i: usize) -> (V, V);
+
+    /// The sums for the endpoints a and c on the instruction set `isa`, in [`LANES`] lanes added in a fixed order.
+    #[inline(always)]
+    fn sums(&self, isa: Isa) -> (f64, f64)
+    where
+        Self: Sized,
+    {
+        assert!(self.holds(self.len().next_multiple_of(LANES)));
+        // SAFETY: every slice holds the padded block count (asserted above); `Isa::Avx2` is only passed when the
+        // CPU supports AVX2 (see `rasterize_backward_on`); SSE2 is part of the x86-64 baseline.
+        #[allow(unsafe_code)]
+        let (sa, sc) = unsafe {
+            match isa {
+                #[cfg(target_arch = "x86_64")]
+                Isa::Avx2 => lanes_avx2(self),
+                #[cfg(target_arch = "x86_64")]
+                _ => lanes::<std::arch::x86_64::__m128d, Self>(self),
+                #[cfg(not(target_arch = "x86_64"))]
+                _ => lanes::<[f64; 2], Self>(self),
+            }
+        };
+        (lane_sum(&sa), lane_sum(&sc))
+    }
+}
+
+/// [`lanes`] on AVX2.
 ///
 /// # Safety
-/// As [`sweep`], and the CPU must support AVX2.
+/// As [`lanes`], and the CPU must support AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(unsafe_code)]
 #[inline]
-unsafe fn sweep_avx2<const C: usize>(k: &Pixels<'_, C>) -> ([f64; LANES], [f64; LANES]) {
-    sweep::<std::arch::x86_64::__m256d, C>(k)
+unsafe fn lanes_avx2<K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
+    lanes::<std::arch::x86_64::__m256d, K>(k)
 }
 
-/// The OUT sweep's lane sums on vectors `V`: whole blocks of [`LANES`] pixels, then the last partial block with
-/// the lanes past the end masked out.
+/// A sweep's lane sums on vectors `V`: whole blocks of [`LANES`] pixels (pixel `i` into lane `i % LANES`), then
+/// the last partial block with the lanes past the end masked out.
 ///
 /// # Safety
-/// `V`'s instructions must be supported by the CPU, and every slice of `k` must hold `k.n` rounded up to a
+/// `V`'s instructions must be supported by the CPU, and every slice of `k` must hold `k.len()` rounded up to a
 /// multiple of [`LANES`] values.
 #[allow(unsafe_code)]
 #[inline(always)]
-unsafe fn sweep<V: F64s, const C: usize>(k: &Pixels<'_, C>) -> ([f64; LANES], [f64; LANES]) {
+unsafe fn lanes<V: F64s, K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
     let per = LANES / V::N;
+    let c = k.consts::<V>();
     let zero = V::splat(0.0);
-    let c = Consts {
-        a: std::array::from_fn(|ch| V::splat(k.a[ch])),
-        fi: V::splat(k.fi),
-        key0: V::splat(k.key0),
-        key_step: V::splat(k.key_step),
-        ka: V::splat(k.ka),
-        ba: V::splat(k.ba),
-        kc: V::splat(k.kc),
-        bc: V::splat(k.bc),
-        end: V::splat(k.end),
-        zero,
-    };
     // Only the first `per` accumulators are used.
     let (mut sa, mut sc) = ([zero; LANES], [zero; LANES]);
-    let full = k.n - k.n % LANES;
+    let n = k.len();
+    let full = n - n % LANES;
     let mut i = 0;
     while i < full {
         for j in 0..per {
@@ -276,7 +324,7 @@ unsafe fn sweep<V: F64s, const C: usize>(k: &Pixels<'_, C>) -> ([f64; LANES], [f
         }
         i += LANES;
     }
-    if full < k.n {
+    if full < n {
         for j in 0..per {
             let (x, y) = k.vec::<V, true>(&c, full + j * V::N);
             sa[j] = sa[j].add(x);
@@ -291,9 +339,33 @@ unsafe fn sweep<V: F64s, const C: usize>(k: &Pixels<'_, C>) -> ([f64; LANES], [f
     (xa, xc)
 }
 
-/// The sweep's constants as vectors.
-struct Consts<V, const C: usize> {
-    a: [V; C],
+/// The per-pixel inputs of one OUT sweep, each slice starting at its first pixel and reaching at least
+/// `n.next_multiple_of(LANES)` values (the line buffers' padding), and its constants (see [`OutSweep`]).
+struct OutKernel<'a, const C: usize> {
+    /// Pixels in the sweep.
+    n: usize,
+    /// Position just past the last pixel, as f64 (lanes at or beyond it are masked out).
+    end: f64,
+    /// `sum_c G[P, c] A[f, c]`.
+    dot: Dot<'a, C>,
+    face: &'a [f64],
+    key: &'a [f64],
+    gi: &'a [f64],
+    pos: &'a [f64],
+    /// `da = ka * d + ba` is `ka * (d - cross) + ea`, the displacement of endpoint a (see [`OutSweep`]).
+    ka: f64,
+    ba: f64,
+    /// As `ka`, `ba` for endpoint c.
+    kc: f64,
+    bc: f64,
+    fi: f64,
+    key0: f64,
+    key_step: f64,
+}
+
+/// [`OutKernel`]'s constants as vectors.
+struct OutConsts<V, const C: usize> {
+    w: [V; C],
     fi: V,
     key0: V,
     key_step: V,
@@ -305,27 +377,45 @@ struct Consts<V, const C: usize> {
     zero: V,
 }
 
-impl<const C: usize> Pixels<'_, C> {
-    /// Contributions of the `V::N` pixels at `i` to the endpoints a and c; with `MASKED`, lanes at or past the end
-    /// give 0.
-    ///
-    /// # Safety
-    /// As [`sweep`], and `i + V::N` must not exceed any slice.
+impl<const C: usize> Kernel for OutKernel<'_, C> {
+    type Consts<V: F64s> = OutConsts<V, C>;
+
+    #[inline(always)]
+    fn len(&self) -> usize {
+        self.n
+    }
+
+    #[inline(always)]
+    fn holds(&self, len: usize) -> bool {
+        self.dot.holds(len)
+            && self.face.len() >= len
+            && self.key.len() >= len
+            && self.gi.len() >= len
+            && self.pos.len() >= len
+    }
+
     #[allow(unsafe_code)]
     #[inline(always)]
-    unsafe fn vec<V: F64s, const MASKED: bool>(&self, c: &Consts<V, C>, i: usize) -> (V, V) {
+    unsafe fn consts<V: F64s>(&self) -> OutConsts<V, C> {
+        OutConsts {
+            w: self.dot.weights(),
+            fi: V::splat(self.fi),
+            key0: V::splat(self.key0),
+            key_step: V::splat(self.key_step),
+            ka: V::splat(self.ka),
+            ba: V::splat(self.ba),
+            kc: V::splat(self.kc),
+            bc: V::splat(self.bc),
+            end: V::splat(self.end),
+            zero: V::splat(0.0),
+        }
+    }
+
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn vec<V: F64s, const MASKED: bool>(&self, c: &OutConsts<V, C>, i: usize) -> (V, V) {
         let load = |v: &[f64]| V::load(v.as_ptr().add(i));
-        let ga = if C == 0 {
-            load(self.pre)
-        } else {
-            let mut s = load(self.g[0]).mul(c.a[0]);
-            #[allow(clippy::needless_range_loop)]
-            // a plain index loop unrolls; an iterator chain did not
-            for ch in 1..C {
-                s = s.add(load(self.g[ch]).mul(c.a[ch]));
-            }
-            s
-        };
+        let ga = self.dot.at(&c.w, i);
         let (fp, kp, pos) = (load(self.face), load(self.key), load(self.pos));
         let kf = c.key0.add(c.key_step.mul(pos));
         let delta = ga.sub(load(self.gi));
@@ -351,7 +441,7 @@ impl<const C: usize> Pixels<'_, C> {
 
 /// The IN sweep of one line over the pixels `range`: sums of the contributions to the edge endpoints `a` and `c`,
 /// whose crossing-motion factors are `ka` and `kc` (meaningful only when defined). `out_color` is the colour of the
-/// pixel beyond the edge, `I[pix(d_out)]`.
+/// pixel beyond the edge, `I[pix(d_out)]`; `scratch` a line of at least `range.len() + LANES` values.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub(super) fn in_sweep(
@@ -363,35 +453,135 @@ pub(super) fn in_sweep(
     cross: f64,
     ka: f64,
     kc: f64,
+    pos: &Positions,
+    scratch: &mut [f64],
+    isa: Isa,
 ) -> (f64, f64) {
-    let face = &ln.face(line)[range.clone()];
-    let gi = &ln.gi(line)[range.clone()];
-    let (mut sa, mut sc) = (0f64, 0f64);
-    for (i, (&fp, &gi)) in face.iter().zip(gi).enumerate() {
-        if fp != fi {
-            continue;
-        }
-        let d = range.start + i;
-        let mut go = 0f64;
-        for (k, &oc) in out_color.iter().enumerate() {
-            go += ln.grad_at(line, k, d) * oc as f64;
-        }
-        let delta = go - gi;
-        if delta < 0.0 {
-            let t = d as f64 - cross;
-            let (da, dc) = (nudge(ka * t), nudge(kc * t));
-            let q = delta / (da * dc);
-            sa += q * dc;
-            sc += q * da;
+    let r = &range;
+    let s = r.start;
+    let kernel = InSweep {
+        n: r.len(),
+        end: r.end as f64,
+        face: &ln.face_from(line)[s..],
+        gi: &ln.gi_from(line)[s..],
+        pos: &pos.0[s..],
+        fi,
+        cross,
+        ka,
+        kc,
+    };
+    let mut w = [0f64; 4];
+    for (w, &o) in w.iter_mut().zip(out_color) {
+        *w = o as f64;
+    }
+    match out_color.len() {
+        1 => kernel.with(Dot::<1>::new(ln, line, r, &w, &[])).sums(isa),
+        2 => kernel.with(Dot::<2>::new(ln, line, r, &w, &[])).sums(isa),
+        3 => kernel.with(Dot::<3>::new(ln, line, r, &w, &[])).sums(isa),
+        4 => kernel.with(Dot::<4>::new(ln, line, r, &w, &[])).sums(isa),
+        c => {
+            let pre = dot_into(ln, line, r, |k| out_color[k] as f64, c, scratch);
+            kernel.with(Dot::<0>::new(ln, line, r, &[], pre)).sums(isa)
         }
     }
-    (sa, sc)
 }
 
-/// NMR's `dist = dist + eps` if positive else `dist - eps`.
-#[inline(always)]
-pub(super) fn nudge(dist: f64) -> f64 {
-    dist + if dist > 0.0 { EPS } else { -EPS }
+/// The per-pixel inputs of one IN sweep (each slice from its first pixel, padded as for [`OutKernel`]) and its
+/// constants.
+struct InSweep<'a> {
+    n: usize,
+    end: f64,
+    face: &'a [f64],
+    gi: &'a [f64],
+    pos: &'a [f64],
+    fi: f64,
+    cross: f64,
+    ka: f64,
+    kc: f64,
+}
+
+impl<'a> InSweep<'a> {
+    /// The kernel with `sum_c G[P, c] I[pix(d_out), c]` from `dot`.
+    #[inline(always)]
+    fn with<const C: usize>(self, dot: Dot<'a, C>) -> InKernel<'a, C> {
+        InKernel { s: self, dot }
+    }
+}
+
+/// An IN sweep with its dot product.
+struct InKernel<'a, const C: usize> {
+    s: InSweep<'a>,
+    /// `sum_c G[P, c] I[pix(d_out), c]`.
+    dot: Dot<'a, C>,
+}
+
+/// [`InKernel`]'s constants as vectors.
+struct InConsts<V, const C: usize> {
+    w: [V; C],
+    fi: V,
+    cross: V,
+    ka: V,
+    kc: V,
+    eps: V,
+    eps2: V,
+    end: V,
+    zero: V,
+}
+
+impl<const C: usize> Kernel for InKernel<'_, C> {
+    type Consts<V: F64s> = InConsts<V, C>;
+
+    #[inline(always)]
+    fn len(&self) -> usize {
+        self.s.n
+    }
+
+    #[inline(always)]
+    fn holds(&self, len: usize) -> bool {
+        self.dot.holds(len)
+            && self.s.face.len() >= len
+            && self.s.gi.len() >= len
+            && self.s.pos.len() >= len
+    }
+
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn consts<V: F64s>(&self) -> InConsts<V, C> {
+        InConsts {
+            w: self.dot.weights(),
+            fi: V::splat(self.s.fi),
+            cross: V::splat(self.s.cross),
+            ka: V::splat(self.s.ka),
+            kc: V::splat(self.s.kc),
+            eps: V::splat(EPS),
+            eps2: V::splat(2.0 * EPS),
+            end: V::splat(self.s.end),
+            zero: V::splat(0.0),
+        }
+    }
+
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn vec<V: F64s, const MASKED: bool>(&self, c: &InConsts<V, C>, i: usize) -> (V, V) {
+        let load = |v: &[f64]| V::load(v.as_ptr().add(i));
+        let go = self.dot.at(&c.w, i);
+        let pos = load(self.s.pos);
+        let delta = go.sub(load(self.s.gi));
+        let own = load(self.s.face).eq(c.fi);
+        let m = own.and(delta.lt(c.zero)).and(delta);
+        let t = pos.sub(c.cross);
+        // NMR's nudge: x + (EPS if x > 0 else -EPS); (2 EPS or 0) - EPS is exact.
+        let nudge = |x: V| x.add(x.gt(c.zero).and(c.eps2).sub(c.eps));
+        let (da, dc) = (nudge(c.ka.mul(t)), nudge(c.kc.mul(t)));
+        let q = m.div(da.mul(dc));
+        let (x, y) = (q.mul(dc), q.mul(da));
+        if MASKED {
+            let valid = pos.lt(c.end);
+            (x.and(valid), y.and(valid))
+        } else {
+            (x, y)
+        }
+    }
 }
 
 /// A vector of f64 lanes with the operations of the OUT sweep. Comparisons give lanes of all ones (true) or all
