@@ -158,12 +158,14 @@ def controlled_cmd(
     spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
     max_depth: int = typer.Option(8, help="Path depth (>= 3 adds interreflection)."),
     experiment: str = typer.Option("controlled", help="Name of this transfer run in the database."),
-    images: Optional[Path] = typer.Option(None, help="Folder for the Mitsuba renders."),
+    images: Optional[Path] = typer.Option(None, help="Folder for the Mitsuba renders, named "
+                                          "<class>_c<configuration>_to_<target>_<perturbation>_<victim>_<id>_v<view>"
+                                          ".png and listed with their job ids in index.csv."),
     all_attacks: bool = typer.Option(False, "--all", help="Also transfer attacks that failed in meshadv."),
     variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
 ) -> None:
     """Re-render RESULTS' adversarial meshes with Mitsuba under the same views and test the victims (resumable)."""
-    from meshadv.transfer.controlled import cases_from_store, controlled_transfer
+    from meshadv.transfer.controlled import cases_from_store, controlled_transfer, write_image_index
     from meshadv.transfer.results import load_transfer_rows, save_transfer_rows, transfer_report
 
     if not results.is_file():
@@ -180,6 +182,8 @@ def controlled_cmd(
     for case in todo:  # one case at a time, saved at once: an interrupted run resumes where it stopped
         rows = controlled_transfer([case], spp=spp, max_depth=max_depth, variant=variant, image_dir=images)
         save_transfer_rows(results, [row.to_record() for row in rows], experiment=experiment, kind="controlled")
+        if images is not None:
+            write_image_index(images, [case], rows)
     typer.echo(transfer_report(load_transfer_rows(results, experiment=experiment, kind="controlled")))
 
 

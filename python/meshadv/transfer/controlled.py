@@ -3,11 +3,18 @@
 Every adversarial mesh is re-rendered under the *same* camera and lights it was attacked with (the paper's Table 3
 and Fig. 5). Every Mitsuba render runs in a child process (:mod:`meshadv.transfer.render`), so a crash fails one
 evaluation, never the sweep.
+
+Saved renders are named after what they show, ``<class>_c<configuration>_to_<target>_<perturbation>_<victim>_<job id's
+first 8 hex digits>_v<view>.png`` (:func:`case_name`), and ``index.csv`` in the same folder lists every file with its
+full job id and outcome (:func:`write_image_index`).
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Collection, Optional, Sequence, Union
@@ -22,6 +29,8 @@ from meshadv.transfer.scene import MeshObject, MitsubaCamera, MitsubaLights, Sce
 __all__ = [
     "ControlledResult",
     "TransferCase",
+    "case_name",
+    "write_image_index",
     "cases_from_store",
     "controlled_transfer",
     "evaluate_case",
@@ -47,6 +56,7 @@ class TransferCase:
         benign_correct: whether the victim classified the benign render correctly (from the sweep), if known.
         antialias: meshadv's supersampling factor for the reference render (the attack's own, so that
             ``success_meshadv`` is the attack's success).
+        name: file stem of the case's saved renders (``<name>_v<view>.png``); ``""``: the ``case_id``.
     """
 
     case_id: str
@@ -60,6 +70,7 @@ class TransferCase:
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
     benign_correct: Optional[bool] = None
     antialias: int = 1
+    name: str = ""
 
     def __post_init__(self) -> None:
         if not self.views:
@@ -68,6 +79,73 @@ class TransferCase:
         size = self.image_size
         size = (int(size), int(size)) if isinstance(size, (int, float)) else (int(size[0]), int(size[1]))
         object.__setattr__(self, "image_size", size)
+
+
+def _slug(text: str) -> str:
+    """``text`` as a file-name part: runs of characters other than letters, digits, ``.``, ``_`` and ``-`` become
+    ``-`` (``"studio couch"`` -> ``"studio-couch"``)."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "-", str(text)).strip("-.") or "x"
+
+
+def case_name(spec: dict[str, Any], job_id: str) -> str:
+    """A readable, unique file stem for the renders of a sweep job:
+    ``<class>_c<configuration>_to_<target>_<perturbation>_<victim>_<job id[:8]>`` (``untargeted`` without a target;
+    the short id keeps names unique).
+
+    Example:
+        >>> case_name({"source_class": "aeroplane", "config_index": 0, "target": "bicycle",
+        ...            "perturbation": "shape", "victim": "efficientnet_lite0"}, "4bdd3c57b6a0d378")
+        'aeroplane_c0_to_bicycle_shape_efficientnet_lite0_4bdd3c57'
+    """
+    source = spec.get("source_class") or spec.get("mesh", {}).get("class") or "object"
+    target = spec.get("target") or "untargeted"
+    parts = [_slug(source), f"c{spec.get('config_index', 0)}", "to", _slug(target),
+             _slug(spec.get("perturbation") or "attack"), _slug(spec.get("victim") or "victim"), _slug(job_id[:8])]
+    return "_".join(parts)
+
+
+#: Columns of the renders' ``index.csv``.
+INDEX_COLUMNS = ("file", "job_id", "victim", "true_class", "target", "perturbation", "view", "success_meshadv",
+                 "success_mitsuba", "top1_meshadv", "top1_mitsuba")
+
+
+def write_image_index(image_dir: Union[str, Path], cases: Sequence[TransferCase],
+                      rows: Sequence[ControlledResult]) -> Path:
+    """Add the renders of ``cases`` to ``<image_dir>/index.csv`` (file name -> job id, classes, view, outcome), keeping
+    the entries of earlier runs; written atomically.
+
+    Args:
+        image_dir: the folder the renders were saved in.
+        cases: the transferred cases (their ``name`` and ``case_id``).
+        rows: their results (one per case and view).
+
+    Returns:
+        The index path.
+    """
+    from meshadv.util.atomic import write_text_atomic
+
+    path = Path(image_dir) / "index.csv"
+    entries: dict[str, dict[str, Any]] = {}
+    if path.is_file():
+        with open(path, newline="", encoding="utf-8") as fh:
+            entries = {row["file"]: row for row in csv.DictReader(fh)}
+    stems = {case.case_id: case.name or case.case_id for case in cases}
+    for row in rows:
+        if row.case_id not in stems or row.error is not None:
+            continue
+        file = f"{stems[row.case_id]}_v{row.view}.png"
+        entries[file] = {"file": file, "job_id": row.case_id, "victim": row.victim, "true_class": row.true_class,
+                         "target": row.target, "perturbation": row.perturbation, "view": row.view,
+                         "success_meshadv": row.success_meshadv, "success_mitsuba": row.success_mitsuba,
+                         "top1_meshadv": row.top1_meshadv, "top1_mitsuba": row.top1_mitsuba}
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fieldnames=INDEX_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for file in sorted(entries):
+        writer.writerow({k: entries[file].get(k, "") for k in INDEX_COLUMNS})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, out.getvalue())
+    return path
 
 
 def cases_from_store(
@@ -139,6 +217,7 @@ def cases_from_store(
                 image_size=tuple(size) if isinstance(size, (list, tuple)) else (int(size), int(size)),
                 benign_correct=None if record.get("benign_correct") is None else bool(record["benign_correct"]),
                 antialias=int(result.get("config", {}).get("antialias") or 1),
+                name=case_name(spec, row.job_id),
             )
         )
         if limit is not None and len(cases) >= limit:
@@ -259,7 +338,8 @@ def controlled_transfer(
         variant: Mitsuba variant (default: the best that works).
         timeout: seconds per case.
         victim_loader: ``name -> victim`` (default ``meshadv.victims.load_victim``); victims are loaded once.
-        image_dir: when given, Mitsuba renders are saved there as ``<case_id>_v<view>.png``.
+        image_dir: when given, Mitsuba renders are saved there as ``<name>_v<view>.png`` (``TransferCase.name``,
+            else its ``case_id``).
         on_error: ``"record"`` keeps going and records a result with an ``error`` for a failed render; ``"raise"``
             re-raises.
 
@@ -297,7 +377,7 @@ def controlled_transfer(
             victims[case.victim] = victim_loader(case.victim)
         rows.extend(evaluate_case(case, victims[case.victim], images))
         if image_dir is not None:
-            save_images(images, Path(image_dir), case.case_id)
+            save_images(images, Path(image_dir), case.name or case.case_id)
     return rows
 
 
