@@ -62,6 +62,8 @@ def test_progress_counts_reports_early_stops_and_retries() -> None:
         bar.step(StepReport("b", k, 4))
     bar.job_finished("b")
     assert bar.steps_done == bar.steps_total == 16
+    assert Progress(total=3, done=3, enabled=False, planned={}).steps_total == 0  # a resumed, finished sweep
+    assert Progress(total=3, enabled=False).steps_total is None  # no plan: a count without a total
     unknown = Progress(total=1, enabled=False, planned={"c": None})
     unknown.step(StepReport("c", 2, 6))
     unknown.job_finished("c")

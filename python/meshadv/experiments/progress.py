@@ -27,7 +27,7 @@ class Progress:
         failed: jobs that exhausted their attempts.
         enabled: draw the bars.
         planned: the most steps of each job still to run (``None`` where unknown); the step bar's total is their sum
-            when every one is known.
+            when every one is known. ``None``: no plan, the bar counts without a total.
 
     Attributes:
         steps_done: steps counted so far (reported, plus those finished jobs did not need).
@@ -41,8 +41,9 @@ class Progress:
         self.successes = successes
         self.failed = failed
         self._planned: Dict[str, Optional[int]] = dict(planned or {})
-        known = list(self._planned.values())
-        self.steps_total: Optional[int] = sum(known) if known and None not in known else None  # type: ignore[arg-type]
+        known = [n for n in self._planned.values() if n is not None]
+        self.steps_total: Optional[int] = (sum(known) if planned is not None and len(known) == len(self._planned)
+                                           else None)
         self.steps_done = 0
         self._seen: Dict[str, int] = {}
         self._lock = threading.Lock()

@@ -112,7 +112,7 @@ def run_sweep(
         be = backend if backend is not None else LocalBackend()
         queue = store.runnable(max_attempts)
         counts = store.counts()
-        planned = {jid: planned_steps(store.spec(jid)) for jid in queue} if planned_steps is not None else {}
+        planned = {jid: planned_steps(store.spec(jid)) for jid in queue} if planned_steps is not None else None
         bar = Progress(total=counts["total"], done=counts["done"], successes=counts["successes"],
                        failed=0, enabled=progress, planned=planned)
 
