@@ -4,6 +4,7 @@ chair that move is one has to look for (issue 18)."""
 from __future__ import annotations
 
 import json
+import os
 import re
 from pathlib import Path
 
@@ -41,6 +42,11 @@ def test_demo_prints_the_largest_move_relative_to_the_diagonal(tmp_path: Path) -
     moved = 100 * record["distances"][0]["max_displacement"]
     assert moved > 0
     assert printed == pytest.approx(moved, rel=0.05)  # printed with 2 significant digits
+    umask = os.umask(0)
+    os.umask(umask)
+    modes = {f.name: f.stat().st_mode & 0o777 for f in (tmp_path / "d").iterdir()}
+    assert {"result.json", "adversarial.ply", "comparison.png"} <= set(modes)
+    assert set(modes.values()) == {0o666 & ~umask}, modes  # meshes and result.json as readable as the PNGs
 
 
 @pytest.mark.slow
