@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING, Any, Callable, Optional
 
 import typer
 
+from meshadv.commands._common import DEFAULT_DISTANCE, DEFAULT_ELEVATION
+
 if TYPE_CHECKING:
     from meshadv.transfer.robust import Robustness
 
@@ -93,10 +95,10 @@ def render_cmd(
     size: int = typer.Option(224, help="Image side in pixels (as `meshadv attack`)."),
     spp: int = typer.Option(64, help="Samples per pixel."),
     max_depth: int = typer.Option(8, help="Path depth (2 = direct light only)."),
-    distance: float = typer.Option(4.5, help="Camera distance (as `meshadv attack`)."),
+    distance: float = typer.Option(DEFAULT_DISTANCE, help="Camera distance (as `meshadv attack`)."),
     azimuth: float = typer.Option(180.0, help="Camera azimuth (degrees; 180 = the centre of `meshadv attack`'s "
                                               "views)."),
-    elevation: float = typer.Option(15.0, help="Camera elevation (degrees, as `meshadv attack`)."),
+    elevation: float = typer.Option(DEFAULT_ELEVATION, help="Camera elevation (degrees, as `meshadv attack`)."),
     viewing_angle: float = typer.Option(30.0, help="Field of view (degrees)."),
     scene: str = typer.Option("none", help="none, indoor, living-room, or a Mitsuba scene XML to place the mesh in."),
     variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
