@@ -38,8 +38,8 @@ use rayon::prelude::*;
 
 use crate::error::{RasterError, Result};
 use crate::input::{check_finite, FaceAttrs, RasterParams, ScreenMesh};
-use crate::setup::{setup_faces, FaceSetup};
-use lines::{depth_keys, Lines};
+use crate::setup::FaceSetup;
+use lines::Lines;
 use sweep::{in_sweep, OutSweep, Positions};
 
 /// NMR's `eps` added to the signed displacement (NDC units) before dividing.
@@ -417,9 +417,17 @@ pub fn rasterize_backward_on(
                 return;
             }
             // NMR vertex gradient: per-face partials in parallel, reduced in face order.
-            let setups = setup_faces(mesh, b, params);
-            let key = depth_keys(&setups, face_index, params);
-            let rows = Lines::rows(key, face_index, image, grad, c, params);
+            // Only the faces drawn somewhere take part (and only their depths are needed).
+            let setups: Vec<FaceSetup> = (0..m)
+                .map(|f| {
+                    if visible[f] {
+                        FaceSetup::new(mesh, b, f, params)
+                    } else {
+                        FaceSetup::default()
+                    }
+                })
+                .collect();
+            let rows = Lines::rows(&setups, face_index, image, grad, c, params);
             let cols = Lines::columns(&rows);
             let attrs_b: Vec<f64> = attrs.values[b * m * c..(b + 1) * m * c]
                 .iter()

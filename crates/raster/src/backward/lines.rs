@@ -7,36 +7,6 @@ use crate::setup::FaceSetup;
 
 use super::sweep::LANES;
 
-/// Depth-test key of the face drawn at each pixel (row-major; larger = nearer): `1/z` in perspective, `-z` in
-/// orthographic, with `z` recomputed from the positions exactly as the forward computes it; `-inf` on background
-/// (and on the [`LANES`] values of padding after the last pixel).
-pub(super) fn depth_keys(
-    setups: &[FaceSetup],
-    face_index: &[i32],
-    params: &RasterParams,
-) -> Vec<f64> {
-    let w = params.width;
-    let n = face_index.len();
-    let mut key = vec![f64::NEG_INFINITY; n + LANES];
-    key[..n]
-        .par_chunks_mut(w)
-        .zip(face_index.par_chunks(w))
-        .enumerate()
-        .for_each(|(i, (key, faces))| {
-            for (j, (k, &f)) in key.iter_mut().zip(faces).enumerate() {
-                if f >= 0 {
-                    let s = &setups[f as usize];
-                    *k = match s.depth_at(i as i32, j as i32) {
-                        Some(z) if s.ortho => -z,
-                        Some(z) => 1.0 / z,
-                        None => f64::NEG_INFINITY,
-                    };
-                }
-            }
-        });
-    key
-}
-
 /// The per-pixel inputs of the sweeps of one batch element, one line after another: image rows for the row sweeps
 /// (axis V) or image columns for the column sweeps (axis U), so that the inner loops read memory contiguously.
 /// Every buffer ends with [`LANES`] values of padding, so that a vector loop may read a whole block past the end of
@@ -50,7 +20,7 @@ pub(super) struct Lines {
     channels: usize,
     /// Face drawn at each pixel (-1 on background), as f64 (compared in the same vectors as the depth keys).
     face: Vec<f64>,
-    /// Depth-test key of the drawn face (see [`depth_keys`]).
+    /// Depth-test key of the drawn face (see [`Lines::rows`]).
     key: Vec<f64>,
     /// `sum_c G[P, c] * I[P, c]`, channels in order.
     gi: Vec<f64>,
@@ -62,9 +32,11 @@ pub(super) struct Lines {
 }
 
 impl Lines {
-    /// Row lines from the row-major maps (`key` becomes the key planes as it is).
+    /// Row lines from the row-major maps, with the depth-test keys of the drawn faces (`1/z` in perspective, `-z`
+    /// in orthographic, larger = nearer; `z` recomputed from the positions exactly as the forward computes it;
+    /// `-inf` on background).
     pub fn rows(
-        key: Vec<f64>,
+        setups: &[FaceSetup],
         face_index: &[i32],
         image: &[f32],
         grad: &[f32],
@@ -72,26 +44,41 @@ impl Lines {
         params: &RasterParams,
     ) -> Lines {
         let (h, w) = (params.height, params.width);
-        // Built by extending (no zero-filled buffers to overwrite).
-        let mut face = Vec::with_capacity(h * w + LANES);
-        face.par_extend(face_index.par_iter().map(|&f| f as f64));
-        let mut gi = Vec::with_capacity(h * w + LANES);
-        gi.par_extend(grad.par_chunks(c).zip(image.par_chunks(c)).map(|(g, i)| {
-            g.iter()
-                .zip(i)
-                .fold(0f64, |s, (&g, &i)| s + g as f64 * i as f64)
-        }));
-        face.extend([0.0; LANES]);
-        gi.extend([0.0; LANES]);
-        let mut planes = vec![0f64; h * w * c + LANES];
-        planes[..h * w * c]
-            .par_chunks_mut(w * c)
-            .zip(grad.par_chunks(w * c))
-            .for_each(|(planes, row)| {
-                for (d, g) in row.chunks_exact(c).enumerate() {
-                    for (k, &g) in g.iter().enumerate() {
-                        planes[k * w + d] = g as f64;
+        let n = h * w;
+        let mut face = vec![0f64; n + LANES];
+        let mut key = vec![f64::NEG_INFINITY; n + LANES];
+        let mut gi = vec![0f64; n + LANES];
+        let mut planes = vec![0f64; n * c + LANES];
+        // One pass per row.
+        face[..n]
+            .par_chunks_mut(w)
+            .zip(key[..n].par_chunks_mut(w))
+            .zip(gi[..n].par_chunks_mut(w))
+            .zip(planes[..n * c].par_chunks_mut(w * c))
+            .enumerate()
+            .for_each(|(i, (((face, key), gi), planes))| {
+                let faces = &face_index[i * w..(i + 1) * w];
+                let (g, im) = (
+                    &grad[i * w * c..(i + 1) * w * c],
+                    &image[i * w * c..(i + 1) * w * c],
+                );
+                for (j, &f) in faces.iter().enumerate() {
+                    face[j] = f as f64;
+                    if f >= 0 {
+                        let s = &setups[f as usize];
+                        key[j] = match s.depth_at(i as i32, j as i32) {
+                            Some(z) if s.ortho => -z,
+                            Some(z) => 1.0 / z,
+                            None => f64::NEG_INFINITY,
+                        };
                     }
+                    let mut sum = 0f64;
+                    for k in 0..c {
+                        let gk = g[j * c + k] as f64;
+                        sum += gk * im[j * c + k] as f64;
+                        planes[k * w + j] = gk;
+                    }
+                    gi[j] = sum;
                 }
             });
         Lines::finish(h, w, c, face, key, gi, planes)
@@ -100,39 +87,32 @@ impl Lines {
     /// Column lines: the transpose of `rows`.
     pub fn columns(rows: &Lines) -> Lines {
         let (w, h, c) = (rows.len, rows.lines(), rows.channels);
-        let column = |v: &[f64]| -> Vec<f64> {
-            let mut out = vec![0f64; w * h + LANES];
-            out[..w * h]
-                .par_chunks_mut(h)
-                .enumerate()
-                .for_each(|(j, col)| {
-                    for (i, x) in col.iter_mut().enumerate() {
-                        *x = v[i * w + j];
-                    }
-                });
-            out
-        };
-        let mut planes = vec![0f64; w * c * h + LANES];
-        planes[..w * c * h]
-            .par_chunks_mut(c * h)
+        let n = h * w;
+        let mut face = vec![0f64; n + LANES];
+        let mut key = vec![0f64; n + LANES];
+        let mut gi = vec![0f64; n + LANES];
+        let mut planes = vec![0f64; n * c + LANES];
+        // One pass per column; row i's channel k is rows.grad[(i * c + k) * w..][..w].
+        face[..n]
+            .par_chunks_mut(h)
+            .zip(key[..n].par_chunks_mut(h))
+            .zip(gi[..n].par_chunks_mut(h))
+            .zip(planes[..n * c].par_chunks_mut(h * c))
             .enumerate()
-            .for_each(|(j, col)| {
-                // Row i's channel k is rows.grad[(i * c + k) * w..][..w].
-                for (k, plane) in col.chunks_exact_mut(h).enumerate() {
+            .for_each(|(j, (((face, key), gi), planes))| {
+                for i in 0..h {
+                    let p = i * w + j;
+                    face[i] = rows.face[p];
+                    key[i] = rows.key[p];
+                    gi[i] = rows.gi[p];
+                }
+                for (k, plane) in planes.chunks_exact_mut(h).enumerate() {
                     for (i, x) in plane.iter_mut().enumerate() {
                         *x = rows.grad[(i * c + k) * w + j];
                     }
                 }
             });
-        Lines::finish(
-            w,
-            h,
-            c,
-            column(&rows.face),
-            column(&rows.key),
-            column(&rows.gi),
-            planes,
-        )
+        Lines::finish(w, h, c, face, key, gi, planes)
     }
 
     /// `lines` lines of `len` pixels from their (padded) planes, with [`Lines::nonzero`] found.
