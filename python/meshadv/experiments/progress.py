@@ -6,15 +6,20 @@ The step total is the sum of the runnable jobs' planned steps (``run_sweep``'s `
 counts without a total). A job that stops early (early stopping, a skipped benign render, a failure given up on)
 adds the steps it will not run when it finishes, so the bar ends full; a failed attempt that will be retried adds
 the steps it ran to the total, since they run again. Jobs whose backend does not report steps (Ray) move the bar
-when they finish.
+when they finish. Written to a file or pipe rather than a terminal, the bars redraw at most every
+:data:`LOG_INTERVAL` seconds, so a logged sweep's log stays short.
 """
 
 from __future__ import annotations
 
+import sys
 import threading
 from typing import Any, Dict, Mapping, Optional
 
-__all__ = ["Progress"]
+__all__ = ["Progress", "LOG_INTERVAL"]
+
+#: Seconds between redraws when stderr is not a terminal (a log file).
+LOG_INTERVAL = 30.0
 
 
 class Progress:
@@ -52,9 +57,11 @@ class Progress:
         if enabled:
             from tqdm.auto import tqdm
 
+            interval = 0.1 if sys.stderr.isatty() else LOG_INTERVAL
             self._bar = tqdm(total=total, initial=done + failed, unit="job", dynamic_ncols=True, desc="sweep",
-                             position=0)
-            self._steps = tqdm(total=self.steps_total, unit="step", dynamic_ncols=True, desc="steps", position=1)
+                             position=0, mininterval=interval)
+            self._steps = tqdm(total=self.steps_total, unit="step", dynamic_ncols=True, desc="steps", position=1,
+                               mininterval=interval)
             self._refresh()
 
     def _refresh(self) -> None:
