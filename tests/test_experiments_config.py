@@ -35,6 +35,8 @@ RECORDS = [("chair", "pascal3d/chair/03.ply", 10.0), ("sofa", "pascal3d/sofa/01.
 
 
 def test_jobs_take_mesh_and_view_from_the_set_in_order(tmp_path: Path) -> None:
+    """Each class's configurations are its kept records in set order; jobs run configuration-major (configuration 0
+    of every class first), so a partial sweep covers every class."""
     _write_set(tmp_path / "set.json", RECORDS)
     cfg = parse_config(_config(rendering_set="set.json", configurations=2), base_dir=tmp_path)
     jobs = expand_jobs(cfg)
@@ -43,8 +45,8 @@ def test_jobs_take_mesh_and_view_from_the_set_in_order(tmp_path: Path) -> None:
            for j in jobs]
     assert got == [
         ("chair", "pascal3d/chair/03.ply", 10.0, 0, "sofa"),
-        ("chair", "pascal3d/chair/01.ply", 30.0, 1, "sofa"),
         ("sofa", "pascal3d/sofa/01.ply", 20.0, 0, "chair"),
+        ("chair", "pascal3d/chair/01.ply", 30.0, 1, "sofa"),
         ("sofa", "pascal3d/sofa/02.ply", 50.0, 1, "chair"),
     ]
     assert all(j["mesh"]["source"] == "pascal3d" and j["image_size"] == 64 for j in jobs)
@@ -125,3 +127,12 @@ def test_paper_medium_has_the_issue_scale() -> None:
     assert len([j for j in jobs if j.get("protocol") == "paper"]) == 7 * 2 * 6 * 2
     mv = [j for j in jobs if j["kind"] == "multiview"]
     assert len({j["source_class"] for j in mv}) == 7 and len(mv) == 7 * 9 * 2
+    # class-balanced order: configuration 0 of all 7 classes (2 victims x 2 types x 6 targets each) comes first
+    first = jobs[:7 * 2 * 2 * 6]
+    assert {j["config_index"] for j in first} == {0} and len({j["source_class"] for j in first}) == 7
+    assert jobs[len(first)]["config_index"] == 1
+    # the main setting is the recommended minimal-distortion attack; the paper's protocol stays Adam, 5 x 1000 steps
+    assert {(j["perturbation"], j["attack"].get("method"), j["attack"]["steps"]) for j in main + mv} == {
+        ("shape", "ddn", 300), ("texture", "ddn", 100)}
+    assert {(j["attack"].get("method", "adam"), j["attack"]["steps"], j["attack"]["binary_search_steps"])
+            for j in jobs if j.get("protocol") == "paper"} == {("adam", 1000, 5)}

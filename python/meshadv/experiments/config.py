@@ -45,6 +45,11 @@ class. The sampling keys above are then unused; ``render.image_size`` still sets
 Jobs (one attack each) are the product mesh x configuration x victim x perturbation type x target x seed (Table 1),
 plus, when ``[multiview]`` is enabled, mesh x victim x type x target x (view count, azimuth range) x seed attacks
 over several views, evaluated on unseen views (Table 2).
+
+Order (the order a fresh sweep runs them in; job ids are hashes of the spec and do not depend on it): the main
+setting, then each protocol, then the multi-view jobs. Within a setting the instances are configuration-major:
+configuration 0 of every class (mesh), then configuration 1 of every class, and so on, so a sweep stopped part-way
+has covered every class about equally instead of the first classes only.
 """
 
 from __future__ import annotations
@@ -375,7 +380,7 @@ def _targets(spec: Any, source: str, classes: Sequence[str]) -> List[str]:
 
 
 def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
-    """Expand a sweep into its job specs (deterministic order and content).
+    """Expand a sweep into its job specs (deterministic order and content; the order is in the module docstring).
 
     Returns:
         JSON-able job dicts with keys ``kind`` (``"single"`` or ``"multiview"``), ``mesh``, ``source_class``,
@@ -390,6 +395,7 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
     else:
         configs = rendering_configurations(config.render)
         instances = [(mesh, ci, view) for mesh in meshes for ci, view in enumerate(configs)]
+    instances.sort(key=lambda inst: inst[1])  # configuration-major, classes in order within one (module docstring)
     size = int(config.render["image_size"])
     caps = config.render.get("victim_configurations", {})
     # the main setting, then every protocol on its subset: (name or None, config cap, victims, attack options)
