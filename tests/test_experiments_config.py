@@ -127,10 +127,13 @@ def test_paper_medium_has_the_issue_scale() -> None:
     assert len([j for j in jobs if j.get("protocol") == "paper"]) == 7 * 2 * 6 * 2
     mv = [j for j in jobs if j["kind"] == "multiview"]
     assert len({j["source_class"] for j in mv}) == 7 and len(mv) == 7 * 9 * 2
-    # class-balanced order: configuration 0 of all 7 classes (2 victims x 2 types x 6 targets each) comes first
-    first = jobs[:7 * 2 * 2 * 6]
-    assert {j["config_index"] for j in first} == {0} and len({j["source_class"] for j in first}) == 7
-    assert jobs[len(first)]["config_index"] == 1
+    # class-balanced order: configuration 0 of all 7 classes for Lite0 (2 types x 6 targets each), then for Lite2,
+    # then configuration 1
+    first, second = jobs[:7 * 2 * 6], jobs[7 * 2 * 6:7 * 2 * 6 * 2]
+    for part, victim in ((first, "efficientnet_lite0"), (second, "efficientnet_lite2")):
+        assert {(j["config_index"], j["victim"]) for j in part} == {(0, victim)}
+        assert len({j["source_class"] for j in part}) == 7
+    assert (jobs[2 * len(first)]["config_index"], jobs[2 * len(first)]["victim"]) == (1, "efficientnet_lite0")
     # the main setting is the recommended minimal-distortion attack; the paper's protocol stays Adam, 5 x 1000 steps
     assert {(j["perturbation"], j["attack"].get("method"), j["attack"]["steps"]) for j in main + mv} == {
         ("shape", "ddn", 300), ("texture", "ddn", 100)}

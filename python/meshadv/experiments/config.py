@@ -47,9 +47,10 @@ plus, when ``[multiview]`` is enabled, mesh x victim x type x target x (view cou
 over several views, evaluated on unseen views (Table 2).
 
 Order (the order a fresh sweep runs them in; job ids are hashes of the spec and do not depend on it): the main
-setting, then each protocol, then the multi-view jobs. Within a setting the instances are configuration-major:
-configuration 0 of every class (mesh), then configuration 1 of every class, and so on, so a sweep stopped part-way
-has covered every class about equally instead of the first classes only.
+setting, then each protocol, then the multi-view jobs. Within a setting the jobs are configuration-major, then
+victim: configuration 0 of every class (mesh) for the first victim, then for the next victim, then configuration 1,
+and so on (per class: perturbation types, then targets), so a sweep stopped part-way has covered every class about
+equally instead of the first classes only.
 """
 
 from __future__ import annotations
@@ -395,7 +396,6 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
     else:
         configs = rendering_configurations(config.render)
         instances = [(mesh, ci, view) for mesh in meshes for ci, view in enumerate(configs)]
-    instances.sort(key=lambda inst: inst[1])  # configuration-major, classes in order within one (module docstring)
     size = int(config.render["image_size"])
     caps = config.render.get("victim_configurations", {})
     # the main setting, then every protocol on its subset: (name or None, config cap, victims, attack options)
@@ -406,6 +406,7 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
                          proto.get("victims") or config.victims, proto))
     jobs: List[Dict[str, Any]] = []
     for protocol, limit, victims, options in settings:
+        setting: List[Dict[str, Any]] = []
         for mesh, ci, view in instances:
             for victim in (v for v in victims if ci < limit.get(v, ci + 1)):
                 for perturbation in config.attack["perturbations"]:
@@ -420,7 +421,9 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
                             }
                             if protocol is not None:
                                 job["protocol"] = protocol
-                            jobs.append(job)
+                            setting.append(job)
+        # configuration-major, then victim; stable, so classes, types and targets keep their order (module docstring)
+        jobs += sorted(setting, key=lambda j: (j["config_index"], list(victims).index(j["victim"])))
     mv = config.multiview
     if mv["enabled"]:
         mv_classes = mv["classes"] or classes
