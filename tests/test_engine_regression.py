@@ -138,7 +138,10 @@ def _lite0() -> Any:
     try:
         from meshadv.victims import load_victim
 
-        return load_victim("efficientnet_lite0")
+        # The references were recorded with the batch norms as separate layers. The default victim folds them into
+        # the convolutions (issue 15): the same network up to float rounding, which the shape attack amplifies like
+        # a thread-count change (pascal_shape's Laplacian 0.29 -> 0.19 after 20 steps), so the reference runs keep it.
+        return load_victim("efficientnet_lite0", optimize=False)
     except (ImportError, OSError, ValueError) as exc:
         pytest.skip(f"efficientnet_lite0 unavailable: {exc}")
 

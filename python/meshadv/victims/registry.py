@@ -33,7 +33,7 @@ from meshadv.victims.base import Victim
 __all__ = ["available_victims", "load_victim"]
 
 PathLike = Union[str, Path]
-_Loader = Callable[[Optional[PathLike], Optional[PathLike], Union[str, torch.device]], Victim]
+_Loader = Callable[[Optional[PathLike], Optional[PathLike], Union[str, torch.device], bool], Victim]
 
 
 def _no_cfg(name: str, cfg: PathLike | None) -> None:
@@ -42,17 +42,17 @@ def _no_cfg(name: str, cfg: PathLike | None) -> None:
 
 
 def _efficientnet(name: str) -> _Loader:
-    def load(weights: PathLike | None, cfg: PathLike | None, device: str | torch.device) -> Victim:
+    def load(weights: PathLike | None, cfg: PathLike | None, device: str | torch.device, optimize: bool) -> Victim:
         _no_cfg(name, cfg)
         from meshadv.victims.efficientnet_lite import EfficientNetLiteVictim
 
-        return EfficientNetLiteVictim(name, weights=weights, device=device)
+        return EfficientNetLiteVictim(name, weights=weights, device=device, optimize=optimize)
 
     return load
 
 
 def _torchvision(name: str) -> _Loader:
-    def load(weights: PathLike | None, cfg: PathLike | None, device: str | torch.device) -> Victim:
+    def load(weights: PathLike | None, cfg: PathLike | None, device: str | torch.device, optimize: bool) -> Victim:
         _no_cfg(name, cfg)
         from meshadv.victims.torchvision_models import TorchvisionVictim
 
@@ -61,7 +61,7 @@ def _torchvision(name: str) -> _Loader:
     return load
 
 
-def _ssd(weights: PathLike | None, cfg: PathLike | None, device: str | torch.device) -> Victim:
+def _ssd(weights: PathLike | None, cfg: PathLike | None, device: str | torch.device, optimize: bool) -> Victim:
     _no_cfg("ssd_mobilenet_v2_coco", cfg)
     try:
         from meshadv.victims.ssd_mobilenet import SSDMobileNetV2Victim
@@ -72,7 +72,7 @@ def _ssd(weights: PathLike | None, cfg: PathLike | None, device: str | torch.dev
     return SSDMobileNetV2Victim.from_package(weights, device=device)
 
 
-def _yolov3(weights: PathLike | None, cfg: PathLike | None, device: str | torch.device) -> Victim:
+def _yolov3(weights: PathLike | None, cfg: PathLike | None, device: str | torch.device, optimize: bool) -> Victim:
     from meshadv.victims.yolov3 import YOLOv3Victim
 
     if weights is None or cfg is None:
@@ -104,6 +104,7 @@ def load_victim(
     weights: PathLike | None = None,
     cfg: PathLike | None = None,
     device: str | torch.device = "cpu",
+    optimize: bool = True,
 ) -> Victim:
     """Build a frozen, eval-mode victim by name.
 
@@ -113,6 +114,10 @@ def load_victim(
             required for densenet121, inception_v3 (torchvision state_dict) and yolov3 (Darknet ``.weights``).
         cfg: Darknet ``.cfg`` file, yolov3 only.
         device: torch device.
+        optimize: rewrite the network into an equivalent cheaper one where meshadv knows how: the EfficientNet-Lite
+            victims get their batch norms folded into the convolutions (same logits and input gradients up to float
+            rounding; measured 1.5x cheaper forward + input gradient, benchmarks/RESULTS.md "Victim options"). The
+            other victims are built as they are either way. ``False``: the network exactly as its weights describe.
 
     Returns:
         A :class:`~meshadv.victims.base.ClassifierVictim` or :class:`~meshadv.victims.base.DetectorVictim`.
@@ -121,10 +126,10 @@ def load_victim(
         ValueError: unknown ``name`` (the closest is suggested), a required ``weights`` / ``cfg`` not given (the
             message says what to pass), a weights file that is empty, truncated, not a torch file or carries
             pickled objects (naming the file), or a ``device`` this machine does not have.
-        TypeError: ``name`` or ``device`` of the wrong type.
+        TypeError: ``name``, ``device`` or ``optimize`` of the wrong type.
         FileNotFoundError: ``weights`` or ``cfg`` does not exist.
         ImportError: the package that ships the weights is not installed (the message says what to install).
     """
     _validate.choice("name", name, list(_REGISTRY))
     check_device(device)  # before any weights are read
-    return _REGISTRY[name](weights, cfg, device)
+    return _REGISTRY[name](weights, cfg, device, _validate.boolean("optimize", optimize))
