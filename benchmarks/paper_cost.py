@@ -1,14 +1,18 @@
 """Projected CPU time of a sweep from measured per-step costs (paper_medium, paper_full).
 
 1. ``--measure``: run a stratified sample of a config's jobs (the first ``--per-group`` jobs of each victim x
-   perturbation type x kind) one at a time in this process into ``<out>/results.db`` (resumable), with 1 thread.
-2. Project: per group, the measured CPU seconds (the record's ``cpu_time``; wall time for older records) per
-   optimisation step and image (a step renders and classifies ``views`` images) and the mean number of steps an
-   attack ran (early stopping), applied to every job of each config: expected ``seconds = per_step_image x views x
-   rounds x min(steps budget, measured mean steps)``, upper bound ``per_step_image x views x rounds x steps budget``
-   (no early stop at all); the multi-view jobs' unseen views (one forward pass each) are negligible. Groups without a
-   measurement borrow the nearest one (same type and kind with the other victim, else the same victim and type)
-   and say so.
+   perturbation type x kind x update rule) one at a time in this process into ``<out>/results.db`` (resumable), with
+   1 thread.
+2. Project: per group (victim, type, kind, update rule: ``method``, ``adam`` when absent), the measured CPU seconds
+   (the record's ``cpu_time``; wall time for older records) per optimisation step and image (a step renders and
+   classifies ``views`` images) and the mean number of steps an attack ran, applied to every job of each config:
+   ``seconds = per_step_image x views x rounds x steps``, where ``steps`` is, for a job with ``early_stop``,
+   min(budget, measured mean steps) (expected) or the budget (upper bound), and the budget for a job without it
+   (it runs every step: ``method = "ddn"``, and the paper's 5 x 1000 protocol). The multi-view jobs' unseen views
+   (one forward pass each) are negligible. Groups without a measurement borrow the nearest one with the same update
+   rule (same type and kind with another victim, else the same victim and type, else the same type) and say so.
+   ``--db`` takes several databases (e.g. a sweep's own database for its ``ddn`` jobs and an Adam measurement for
+   the paper's protocol).
 
     python benchmarks/paper_cost.py --measure --config configs/paper_medium.toml --out out/cost
     python benchmarks/paper_cost.py --db out/cost/results.db --config configs/paper_medium.toml configs/paper_full.toml
@@ -24,16 +28,22 @@ import statistics
 import sys
 from collections import defaultdict
 from pathlib import Path
-from typing import Any, Dict, List, Tuple
+from typing import Any, Dict, List, Sequence, Tuple
 
 from meshadv.experiments import ResultStore, SerialBackend, run_sweep
 from meshadv.experiments.config import expand_jobs, load_config
 
-Group = Tuple[str, str, str]  # victim, perturbation, kind
+Group = Tuple[str, str, str, str]  # victim, perturbation, kind, update rule
 
 
 def _group(spec: Dict[str, Any]) -> Group:
-    return spec["victim"], spec["perturbation"], spec.get("kind", "single")
+    return (spec["victim"], spec["perturbation"], spec.get("kind", "single"),
+            str(spec.get("attack", {}).get("method", "adam")))
+
+
+def _stops_early(spec: Dict[str, Any]) -> bool:
+    """Whether the job's attack may end before its step budget (only with ``early_stop``)."""
+    return spec.get("attack", {}).get("early_stop") is not None
 
 
 def _budget(spec: Dict[str, Any]) -> Tuple[int, int]:
@@ -54,10 +64,13 @@ def sample_jobs(config: Path, per_group: int) -> List[Dict[str, Any]]:
     return out
 
 
-def measured(db: Path) -> Dict[Group, Dict[str, float]]:
-    """Per group: seconds per step and image, fraction of the budget used, attacks measured."""
-    with ResultStore(db) as store:
-        rows = [r for r in store.rows("done") if not r.record.get("skipped") and r.record.get("steps")]
+def measured(dbs: Sequence[Path]) -> Dict[Group, Dict[str, float]]:
+    """Per group, over the done jobs of every database: seconds per step and image, mean steps per round, attacks
+    measured."""
+    rows = []
+    for db in dbs:
+        with ResultStore(db, read_only=True) as store:
+            rows += [r for r in store.rows("done") if not r.record.get("skipped") and r.record.get("steps")]
     acc: Dict[Group, List[Tuple[float, float]]] = defaultdict(list)
     for r in rows:
         steps, rounds = _budget(r.spec)
@@ -70,33 +83,39 @@ def measured(db: Path) -> Dict[Group, Dict[str, float]]:
 
 
 def project(config: Path, costs: Dict[Group, Dict[str, float]]) -> Dict[str, Any]:
-    """Expected and upper-bound CPU-hours of every job of ``config`` (see the module docstring)."""
+    """Expected and upper-bound CPU-hours of every job of ``config`` (see the module docstring); jobs of a group with
+    nothing to borrow from are left out and counted under ``missing``."""
     total = upper = 0.0
     per_group: Dict[str, List[float]] = defaultdict(lambda: [0.0, 0.0])
     borrowed = set()
+    missing: Dict[Group, int] = defaultdict(int)
     jobs = expand_jobs(load_config(config))
     for job in jobs:
         g = _group(job)
         cost = costs.get(g)
-        if cost is None:  # borrow: same type and kind (another victim), else same victim and type, else same type
-            for same in (lambda k: k[1:] == g[1:], lambda k: k[:2] == g[:2], lambda k: k[1] == g[1]):
+        if cost is None:  # borrow, same update rule: same type and kind (another victim), else same victim and
+            # type, else same type
+            for same in (lambda k: k[1:] == g[1:], lambda k: k[:2] == g[:2] and k[3] == g[3],
+                         lambda k: k[1] == g[1] and k[3] == g[3]):
                 cost = next((c for k, c in sorted(costs.items()) if same(k)), None)
                 if cost is not None:
                     break
             borrowed.add(g)
         if cost is None:
+            missing[g] += 1
             continue
         steps, rounds = _budget(job)
         step_cost = cost["per_step_image"] * len(job["views"]) * rounds
-        seconds, most = step_cost * min(steps, cost["steps"]), step_cost * steps
+        most = step_cost * steps
+        seconds = step_cost * min(steps, cost["steps"]) if _stops_early(job) else most
         total += seconds
         upper += most
-        label = f"{g[0]} {g[1]} {g[2]}" + (f" [{job['protocol']}]" if job.get("protocol") else "")
+        label = f"{g[0]} {g[1]} {g[2]} {g[3]}" + (f" [{job['protocol']}]" if job.get("protocol") else "")
         per_group[label][0] += seconds
         per_group[label][1] += most
     return {"config": str(config), "jobs": len(jobs), "cpu_hours": total / 3600.0, "upper_cpu_hours": upper / 3600.0,
             "groups": {k: (v[0] / 3600.0, v[1] / 3600.0) for k, v in sorted(per_group.items())},
-            "borrowed": sorted(borrowed)}
+            "borrowed": sorted(borrowed - set(missing)), "missing": dict(sorted(missing.items()))}
 
 
 def main(argv: List[str]) -> int:
@@ -105,26 +124,30 @@ def main(argv: List[str]) -> int:
     parser.add_argument("--measure", action="store_true", help="run the sample jobs of the first config first")
     parser.add_argument("--per-group", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("out/cost"))
-    parser.add_argument("--db", type=Path, default=None, help="measured database (default <out>/results.db)")
+    parser.add_argument("--db", type=Path, nargs="+", default=None,
+                        help="measured database(s) (default <out>/results.db)")
     args = parser.parse_args(argv)
-    db = args.db or args.out / "results.db"
+    dbs = args.db or [args.out / "results.db"]
     if args.measure:
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         sample = sample_jobs(args.config[0], args.per_group)
-        with ResultStore(db) as store:
+        with ResultStore(dbs[0]) as store:
             run_sweep(store, sample, "meshadv.experiments.jobs:run_attack_job", out_root=args.out,
                       backend=SerialBackend(threads_per_job=1), max_attempts=1, progress=False)
-    costs = measured(db)
-    print("| victim | type | kind | attacks measured | CPU s per step and image | mean steps per round |")
-    print("|---|---|---|---|---|---|")
-    for (victim, ptype, kind), c in sorted(costs.items()):
-        print(f"| {victim} | {ptype} | {kind} | {c['n']} | {c['per_step_image']:.3f} | {c['steps']:.0f} |")
+    costs = measured(dbs)
+    print("| victim | type | kind | update rule | attacks measured | CPU s per step and image | mean steps per round |")
+    print("|---|---|---|---|---|---|---|")
+    for (victim, ptype, kind, method), c in sorted(costs.items()):
+        print(f"| {victim} | {ptype} | {kind} | {method} | {c['n']} | {c['per_step_image']:.3f} | {c['steps']:.0f} |")
     for config in args.config:
         p = project(config, costs)
         print(f"\n{p['config']}: {p['jobs']} jobs, {p['cpu_hours']:.1f} CPU-hours expected, "
               f"{p['upper_cpu_hours']:.1f} at most"
               + (f" (borrowed costs for {p['borrowed']})" if p["borrowed"] else ""))
-        print("| group | expected CPU-hours | at most (no early stop) |\n|---|---|---|")
+        if p["missing"]:
+            print("NOT COUNTED (no measurement with the same update rule): "
+                  + ", ".join(f"{' '.join(g)}: {n} jobs" for g, n in p["missing"].items()))
+        print("| group | expected CPU-hours | at most (full budget) |\n|---|---|---|")
         for label, (hours, most) in p["groups"].items():
             print(f"| {label} | {hours:.1f} | {most:.1f} |")
     return 0

@@ -1,0 +1,59 @@
+"""benchmarks/paper_cost.py: the projection's step counts (early stopping or the whole budget) and borrowing rules."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+CONFIG = """
+[meshes]
+source = "builtin"
+builtin = [{name = "chair", class = "chair"}, {name = "sofa", class = "sofa"}]
+[render]
+configurations = 1
+[victims]
+names = ["efficientnet_lite0"]
+[attack]
+perturbations = ["shape", "texture"]
+[attack.shape]
+steps = 100
+early_stop = 3
+[attack.texture]
+method = "ddn"
+steps = 50
+"""
+
+
+def _paper_cost() -> ModuleType:
+    path = Path(__file__).parents[1] / "benchmarks" / "paper_cost.py"
+    spec = importlib.util.spec_from_file_location("paper_cost", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_projection_steps_and_borrowing(tmp_path: Path) -> None:
+    pc = _paper_cost()
+    config = tmp_path / "c.toml"
+    config.write_text(CONFIG)
+    adam_shape = ("efficientnet_lite0", "shape", "single", "adam")
+    costs = {adam_shape: {"per_step_image": 0.5, "steps": 20.0, "n": 1},
+             ("efficientnet_lite0", "texture", "single", "adam"): {"per_step_image": 9.0, "steps": 1.0, "n": 1}}
+    p = pc.project(config, costs)
+    assert p["jobs"] == 4  # 2 meshes x 2 types x 1 target
+    # shape (early_stop): expected 2 jobs x 0.5 s x min(100, 20) steps, at most the whole budget of 100
+    assert p["cpu_hours"] * 3600 == pytest.approx(2 * 0.5 * 20)
+    assert p["upper_cpu_hours"] * 3600 == pytest.approx(2 * 0.5 * 100)
+    # ddn texture: an Adam measurement is not borrowed across update rules
+    assert p["missing"] == {("efficientnet_lite0", "texture", "single", "ddn"): 2}
+    costs[("efficientnet_lite2", "texture", "single", "ddn")] = {"per_step_image": 0.2, "steps": 10.0, "n": 1}
+    p = pc.project(config, costs)
+    assert p["missing"] == {} and p["borrowed"] == [("efficientnet_lite0", "texture", "single", "ddn")]
+    # ddn runs every step: its expected cost is the whole budget, not the measured mean steps
+    texture = 2 * 0.2 * 50
+    assert p["cpu_hours"] * 3600 == pytest.approx(2 * 0.5 * 20 + texture)
+    assert p["upper_cpu_hours"] * 3600 == pytest.approx(2 * 0.5 * 100 + texture)
