@@ -8,7 +8,8 @@
 //!
 //! `cargo run --release -p meshadv-raster --example bench [threads] [fwd|bwd] [sphere|pascal]` (a mode runs only that
 //! pass of one case, `sphere` by default, for `perf stat` or `valgrind --tool=callgrind`). `BENCH_ISA=portable` runs
-//! the backward without the AVX2 path; `BENCH_REPS=n` runs `n` repetitions instead of 20.
+//! the backward without the AVX2 path; `BENCH_REPS=n` runs `n` repetitions instead of 20. `bwd` prints a fingerprint
+//! of the vertex gradient's bits (to compare builds and instruction sets).
 
 use std::time::Instant;
 
@@ -252,12 +253,23 @@ fn backward(
 fn run_only(c: &Case, mode: &str, isa: Isa, reps: usize) -> Result<(), RasterError> {
     let mesh = ScreenMesh::new(&c.screen, &c.faces, c.batch, c.screen.len() / 3 / c.batch)?;
     let out = rasterize(&mesh, &face_attrs(c), &c.params)?;
+    let mut last = None;
     for _ in 0..reps {
         if mode == "fwd" {
             std::hint::black_box(rasterize(&mesh, &face_attrs(c), &c.params)?);
         } else {
-            std::hint::black_box(backward(c, &mesh, &out, isa)?);
+            last = Some(std::hint::black_box(backward(c, &mesh, &out, isa)?));
         }
+    }
+    if let Some(g) = last {
+        // A fingerprint of the vertex gradient's bits, to compare builds.
+        let hash = g
+            .grad_verts_screen
+            .iter()
+            .fold(0xcbf2_9ce4_8422_2325u64, |h, x| {
+                (h ^ x.to_bits() as u64).wrapping_mul(0x100_0000_01b3)
+            });
+        println!("grad_verts_screen fingerprint {hash:016x}");
     }
     Ok(())
 }

@@ -1,5 +1,7 @@
 //! Per-batch-element buffers of the backward pass laid out along sweep lines.
 
+use std::mem::MaybeUninit;
+
 use rayon::prelude::*;
 
 use crate::input::RasterParams;
@@ -45,73 +47,93 @@ impl Lines {
     ) -> Lines {
         let (h, w) = (params.height, params.width);
         let n = h * w;
-        let mut face = vec![0f64; n + LANES];
-        let mut key = vec![f64::NEG_INFINITY; n + LANES];
-        let mut gi = vec![0f64; n + LANES];
-        let mut planes = vec![0f64; n * c + LANES];
+        let (mut face, mut key, mut gi, mut planes) = (
+            Fill::new(n, 0.0),
+            Fill::new(n, f64::NEG_INFINITY),
+            Fill::new(n, 0.0),
+            Fill::new(n * c, 0.0),
+        );
         // One pass per row.
-        face[..n]
+        face.slots()
             .par_chunks_mut(w)
-            .zip(key[..n].par_chunks_mut(w))
-            .zip(gi[..n].par_chunks_mut(w))
-            .zip(planes[..n * c].par_chunks_mut(w * c))
+            .zip(key.slots().par_chunks_mut(w))
+            .zip(gi.slots().par_chunks_mut(w))
+            .zip(planes.slots().par_chunks_mut(w * c))
             .enumerate()
             .for_each(|(i, (((face, key), gi), planes))| {
                 let faces = &face_index[i * w..(i + 1) * w];
-                let (g, im) = (
-                    &grad[i * w * c..(i + 1) * w * c],
-                    &image[i * w * c..(i + 1) * w * c],
-                );
-                for (j, &f) in faces.iter().enumerate() {
-                    face[j] = f as f64;
-                    if f >= 0 {
-                        let s = &setups[f as usize];
-                        key[j] = match s.depth_at(i as i32, j as i32) {
+                let g = grad[i * w * c..(i + 1) * w * c].chunks_exact(c);
+                let im = image[i * w * c..(i + 1) * w * c].chunks_exact(c);
+                for (j, ((&f, g), im)) in faces.iter().zip(g).zip(im).enumerate() {
+                    face[j].write(f as f64);
+                    key[j].write(match setups.get(f as usize) {
+                        Some(s) if f >= 0 => match s.depth_at(i as i32, j as i32) {
                             Some(z) if s.ortho => -z,
                             Some(z) => 1.0 / z,
                             None => f64::NEG_INFINITY,
-                        };
-                    }
+                        },
+                        _ => f64::NEG_INFINITY,
+                    });
                     let mut sum = 0f64;
-                    for k in 0..c {
-                        let gk = g[j * c + k] as f64;
-                        sum += gk * im[j * c + k] as f64;
-                        planes[k * w + j] = gk;
+                    for (k, (&gk, &ik)) in g.iter().zip(im).enumerate() {
+                        sum += gk as f64 * ik as f64;
+                        planes[k * w + j].write(gk as f64);
                     }
-                    gi[j] = sum;
+                    gi[j].write(sum);
                 }
             });
+        // SAFETY: the row passes above wrote every slot: each row chunk writes its `w` face, key and gi values and
+        // its `w * c` plane values.
+        #[allow(unsafe_code)]
+        let (face, key, gi, planes) =
+            unsafe { (face.done(), key.done(), gi.done(), planes.done()) };
         Lines::finish(h, w, c, face, key, gi, planes)
     }
 
-    /// Column lines: the transpose of `rows`.
+    /// Column lines: the transpose of `rows`, in groups of [`GROUP`] columns (so that each row is read in runs).
     pub fn columns(rows: &Lines) -> Lines {
         let (w, h, c) = (rows.len, rows.lines(), rows.channels);
         let n = h * w;
-        let mut face = vec![0f64; n + LANES];
-        let mut key = vec![0f64; n + LANES];
-        let mut gi = vec![0f64; n + LANES];
-        let mut planes = vec![0f64; n * c + LANES];
-        // One pass per column; row i's channel k is rows.grad[(i * c + k) * w..][..w].
-        face[..n]
-            .par_chunks_mut(h)
-            .zip(key[..n].par_chunks_mut(h))
-            .zip(gi[..n].par_chunks_mut(h))
-            .zip(planes[..n * c].par_chunks_mut(h * c))
+        let (mut face, mut key, mut gi, mut planes) = (
+            Fill::new(n, 0.0),
+            Fill::new(n, f64::NEG_INFINITY),
+            Fill::new(n, 0.0),
+            Fill::new(n * c, 0.0),
+        );
+        face.slots()
+            .par_chunks_mut(GROUP * h)
+            .zip(key.slots().par_chunks_mut(GROUP * h))
+            .zip(gi.slots().par_chunks_mut(GROUP * h))
+            .zip(planes.slots().par_chunks_mut(GROUP * c * h))
             .enumerate()
-            .for_each(|(j, (((face, key), gi), planes))| {
+            .for_each(|(group, (((face, key), gi), planes))| {
+                let (j0, cols) = (group * GROUP, face.len() / h);
                 for i in 0..h {
-                    let p = i * w + j;
-                    face[i] = rows.face[p];
-                    key[i] = rows.key[p];
-                    gi[i] = rows.gi[p];
-                }
-                for (k, plane) in planes.chunks_exact_mut(h).enumerate() {
-                    for (i, x) in plane.iter_mut().enumerate() {
-                        *x = rows.grad[(i * c + k) * w + j];
+                    let p = i * w + j0;
+                    let (f, k, g) = (
+                        &rows.face[p..p + cols],
+                        &rows.key[p..p + cols],
+                        &rows.gi[p..p + cols],
+                    );
+                    for jj in 0..cols {
+                        face[jj * h + i].write(f[jj]);
+                        key[jj * h + i].write(k[jj]);
+                        gi[jj * h + i].write(g[jj]);
+                    }
+                    // Row i's channel k is rows.grad[(i * c + k) * w..][..w]; column j's is planes[(j * c + k) * h..].
+                    for ch in 0..c {
+                        let src = &rows.grad[(i * c + ch) * w + j0..][..cols];
+                        for (jj, &x) in src.iter().enumerate() {
+                            planes[(jj * c + ch) * h + i].write(x);
+                        }
                     }
                 }
             });
+        // SAFETY: every group of `cols` columns wrote its `cols * h` face, key and gi values and `cols * c * h` plane
+        // values (all rows i, all columns jj, all channels).
+        #[allow(unsafe_code)]
+        let (face, key, gi, planes) =
+            unsafe { (face.done(), key.done(), gi.done(), planes.done()) };
         Lines::finish(w, h, c, face, key, gi, planes)
     }
 
@@ -189,5 +211,41 @@ impl Lines {
     #[inline(always)]
     pub fn grad_from(&self, d0: usize, k: usize) -> &[f64] {
         &self.grad[(d0 * self.channels + k) * self.len..]
+    }
+}
+
+/// Columns transposed together by [`Lines::columns`].
+const GROUP: usize = 8;
+
+/// A buffer being filled: `len` values, then [`LANES`] of padding, allocated without being zeroed first.
+struct Fill {
+    buf: Vec<f64>,
+    len: usize,
+}
+
+impl Fill {
+    /// A buffer of `len` values to write, with its padding set to `pad`.
+    fn new(len: usize, pad: f64) -> Fill {
+        let mut buf = Vec::with_capacity(len + LANES);
+        for x in &mut buf.spare_capacity_mut()[len..len + LANES] {
+            x.write(pad);
+        }
+        Fill { buf, len }
+    }
+
+    /// The `len` values to write.
+    fn slots(&mut self) -> &mut [MaybeUninit<f64>] {
+        &mut self.buf.spare_capacity_mut()[..self.len]
+    }
+
+    /// The filled buffer.
+    ///
+    /// # Safety
+    /// Every element of [`Fill::slots`] must have been written.
+    #[allow(unsafe_code)]
+    unsafe fn done(mut self) -> Vec<f64> {
+        // SAFETY: the first `len` values are written (the caller's promise), the padding by `new`.
+        unsafe { self.buf.set_len(self.len + LANES) };
+        self.buf
     }
 }
