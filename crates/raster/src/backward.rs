@@ -143,6 +143,8 @@ struct Scratch {
 /// Per-batch-element context of the gradient sweeps.
 struct Ctx<'a> {
     setups: &'a [FaceSetup],
+    /// Where each face is drawn.
+    drawn: &'a [Drawn],
     rows: &'a Lines,
     cols: &'a Lines,
     /// `(M, C)` face attributes as f64.
@@ -153,6 +155,34 @@ struct Ctx<'a> {
     pos: &'a Positions,
     channels: usize,
     params: &'a RasterParams,
+}
+
+/// The box of the pixels a face is drawn on (inclusive): no pixel outside it has `F[P] == f`, so a line outside it
+/// has no OUT sweep (its in-pixel is not the face's) and an IN sweep contributes only inside it.
+#[derive(Debug, Clone, Copy)]
+struct Drawn {
+    rows: [usize; 2],
+    cols: [usize; 2],
+}
+
+impl Drawn {
+    /// No pixel.
+    const EMPTY: Drawn = Drawn {
+        rows: [usize::MAX, 0],
+        cols: [usize::MAX, 0],
+    };
+
+    /// Adds pixel `(i, j)`.
+    #[inline(always)]
+    fn add(&mut self, i: usize, j: usize) {
+        self.rows = [self.rows[0].min(i), self.rows[1].max(i)];
+        self.cols = [self.cols[0].min(j), self.cols[1].max(j)];
+    }
+
+    /// Whether the box holds no pixel.
+    fn is_empty(&self) -> bool {
+        self.rows[0] > self.rows[1]
+    }
 }
 
 /// Sweep axis: lines are image columns (`U`, moves vertices in v, gives the y gradient) or rows (`V`, gives x).
@@ -189,6 +219,7 @@ impl Ctx<'_> {
     #[inline(always)]
     fn face_grad(&self, f: usize, scratch: &mut Scratch, isa: Isa) -> [[f64; 2]; 3] {
         let s = &self.setups[f];
+        let drawn = self.drawn[f];
         let (h, w) = (self.params.height as i64, self.params.width as i64);
         // Depth-test keys (1/z in perspective, -z in orthographic) allowed by the clip range [near, far].
         let (near, far) = (self.params.near, self.params.far);
@@ -206,9 +237,10 @@ impl Ctx<'_> {
         for e in 0..3 {
             let (a, cc, o) = (e, (e + 1) % 3, (e + 2) % 3);
             for axis in [Axis::U, Axis::V] {
-                let (p, q, lines, len, ln) = match axis {
-                    Axis::U => (&s.u, &s.v, w, h, self.cols),
-                    Axis::V => (&s.v, &s.u, h, w, self.rows),
+                // The face's drawn pixels: lines `across`, positions along a line `along`.
+                let (p, q, lines, len, ln, across, along) = match axis {
+                    Axis::U => (&s.u, &s.v, w, h, self.cols, drawn.cols, drawn.rows),
+                    Axis::V => (&s.v, &s.u, h, w, self.rows, drawn.rows, drawn.cols),
                 };
                 let (pa, qa, pc, qc, po, qo) = (p[a], q[a], p[cc], q[cc], p[o], q[o]);
                 if pa == pc {
@@ -217,8 +249,12 @@ impl Ctx<'_> {
                 let slope = (qc - qa) / (pc - pa);
                 let q_line = qa + slope * (po - pa);
                 let dir: i64 = if qo > q_line { -1 } else { 1 };
-                let lo = pa.min(pc).ceil().max(0.0);
-                let hi = pa.max(pc).floor().min((lines - 1) as f64);
+                // Lines outside the drawn box have neither sweep.
+                let lo = pa.min(pc).ceil().max(across[0] as f64);
+                let hi = pa
+                    .max(pc)
+                    .floor()
+                    .min(across[1].min(lines as usize - 1) as f64);
                 if lo > hi {
                     continue;
                 }
@@ -297,8 +333,9 @@ impl Ctx<'_> {
                         qo
                     };
                     let limit = if dir > 0 { ceil(cross2) } else { floor(cross2) };
-                    let from = d_in_f.min(limit).max(0.0) as i64;
-                    let to = d_in_f.max(limit).min((len - 1) as f64) as i64;
+                    // Cut to the drawn box (only the face's pixels contribute).
+                    let from = d_in_f.min(limit).max(along[0] as f64) as i64;
+                    let to = d_in_f.max(limit).min(along[1] as f64) as i64;
                     let out_px = match axis {
                         Axis::U => d_out as usize * w as usize + line,
                         Axis::V => line * w as usize + d_out as usize,
@@ -399,17 +436,23 @@ pub fn rasterize_backward_on(
             let image = &inputs.image[b * hw * c..(b + 1) * hw * c];
             let grad = &inputs.grad_image[b * hw * c..(b + 1) * hw * c];
             // Exact attribute gradient, summed in pixel order.
+            // Also the box of the pixels each face is drawn on (empty: not drawn).
             let mut acc = vec![0f64; m * c];
-            let mut visible = vec![false; m];
-            for (p, &f) in face_index.iter().enumerate() {
-                if f >= 0 {
-                    let f = f as usize;
-                    visible[f] = true;
-                    for k in 0..c {
-                        acc[f * c + k] += grad[p * c + k] as f64;
+            let mut drawn = vec![Drawn::EMPTY; m];
+            let w = params.width;
+            for (i, row) in face_index.chunks_exact(w).enumerate() {
+                for (j, &f) in row.iter().enumerate() {
+                    if f >= 0 {
+                        let f = f as usize;
+                        drawn[f].add(i, j);
+                        let p = i * w + j;
+                        for k in 0..c {
+                            acc[f * c + k] += grad[p * c + k] as f64;
+                        }
                     }
                 }
             }
+            let visible = |f: usize| !drawn[f].is_empty();
             for (dst, &src) in ga.iter_mut().zip(&acc) {
                 *dst = src as f32;
             }
@@ -420,7 +463,7 @@ pub fn rasterize_backward_on(
             // Only the faces drawn somewhere take part (and only their depths are needed).
             let setups: Vec<FaceSetup> = (0..m)
                 .map(|f| {
-                    if visible[f] {
+                    if visible(f) {
                         FaceSetup::new(mesh, b, f, params)
                     } else {
                         FaceSetup::default()
@@ -437,6 +480,7 @@ pub fn rasterize_backward_on(
             let pos = Positions::new(longest);
             let ctx = Ctx {
                 setups: &setups,
+                drawn: &drawn,
                 rows: &rows,
                 cols: &cols,
                 attrs: &attrs_b,
@@ -452,7 +496,7 @@ pub fn rasterize_backward_on(
                         ga: vec![0.0; if c > 4 { longest + sweep::LANES } else { 0 }],
                     },
                     |scratch, f| {
-                        if visible[f] && setups[f].active {
+                        if visible(f) && setups[f].active {
                             ctx.face_grad_on(isa, f, scratch)
                         } else {
                             [[0.0; 2]; 3]
