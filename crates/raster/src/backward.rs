@@ -17,12 +17,16 @@
 //!   face index and the cotangent are stored along sweep lines (`lines::Lines`): row lines for the row sweeps, a
 //!   transposed copy for the column sweeps, so the inner loops read contiguous memory and vectorise.
 //! * Per line, the range of pixels with a non-zero cotangent: an OUT sweep is cut to it (elsewhere `delta = 0`).
+//! * Per face, the box of the pixels it is drawn on: only faces drawn somewhere are set up; lines outside the box
+//!   are skipped (their in-pixel is not the face's, so no OUT sweep) and IN sweeps are cut to it (only the face's
+//!   own pixels contribute).
 //! * Per OUT sweep: the face's key along the line is `key0 + key_step * d` (its plane in pixel space); the pixels
 //!   whose key lies in the clip range form one interval (the computed key is monotone in `d`), found once, so the
 //!   inner loop only tests the depth order and `delta < 0`.
 //! * Per pixel of an OUT or IN sweep, `delta / dist_a` and `delta / dist_c` (the two endpoint displacements) use one
-//!   division, `q = delta / (dist_a * dist_c)`, times `dist_c` and `dist_a`. The OUT loop is branch-free (skipped
-//!   pixels add 0), sums in four lanes added in a fixed order, and runs its last partial block masked (see `sweep`).
+//!   division, `q = delta / (dist_a * dist_c)`, times `dist_c` and `dist_a`. Both loops are branch-free (skipped
+//!   pixels add 0), sum in four lanes added in a fixed order, and run their last partial block masked over padded
+//!   line buffers (see `sweep`).
 //! * The per-face work is compiled twice, for the portable baseline (SSE2 vectors on x86-64, plain code the compiler
 //!   vectorises elsewhere) and for AVX2 (x86-64), and the instruction set is picked at run time (`Isa`), so one
 //!   portable wheel still uses 256-bit vectors.
