@@ -101,8 +101,10 @@ class Conv2dSame(nn.Conv2d):
     """``nn.Conv2d`` with TensorFlow ``'SAME'`` padding (extra pixel at the bottom / right when odd), no bias.
 
     :attr:`pad_in_conv` (off by default, set by :meth:`EfficientNetLite.fuse_batchnorm`) lets the convolution pad by
-    itself where the padding is symmetric (every stride-1 convolution) instead of copying the input into a padded
-    tensor first; the zeros and so the result are the same. A bias appears only when a batch norm is folded in.
+    itself instead of copying the input into a padded tensor first. Where 'SAME' padding is asymmetric (stride 2 on
+    an even size: one row / column more at the bottom / right) the convolution pads both sides by the larger amount
+    and the kernel gets that many leading zero taps, which shifts its window back onto the 'SAME' grid: the same
+    products, plus products with zero. A bias appears only when a batch norm is folded in.
     """
 
     pad_in_conv: bool = False
@@ -116,8 +118,11 @@ class Conv2dSame(nn.Conv2d):
         sh, sw = self.stride
         top, bottom = _same_pad(x.shape[-2], kh, sh)
         left, right = _same_pad(x.shape[-1], kw, sw)
-        if self.pad_in_conv and top == bottom and left == right:
-            return F.conv2d(x, self.weight, self.bias, self.stride, (top, left), self.dilation, self.groups)
+        if self.pad_in_conv:
+            weight = self.weight
+            if bottom != top or right != left:
+                weight = F.pad(weight, (right - left, 0, bottom - top, 0))
+            return F.conv2d(x, weight, self.bias, self.stride, (bottom, right), self.dilation, self.groups)
         if top or bottom or left or right:
             x = F.pad(x, (left, right, top, bottom))
         return F.conv2d(x, self.weight, self.bias, self.stride, 0, self.dilation, self.groups)
@@ -211,7 +216,7 @@ class EfficientNetLite(nn.Module):
         self._fc = nn.Linear(1280, num_classes)
 
     def fuse_batchnorm(self) -> EfficientNetLite:
-        """Fold every batch norm into the convolution before it and let stride-1 convolutions pad by themselves.
+        """Fold every batch norm into the convolution before it and let the convolutions pad by themselves.
 
         Only for a frozen (eval-mode) network: the logits and the input gradient stay equal to the unfused network's
         up to float rounding (measured: ~1e-6 relative, tests/test_victims_optimize.py) while a forward + input
