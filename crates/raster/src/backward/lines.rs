@@ -62,11 +62,9 @@ impl Lines {
             .enumerate()
             .for_each(|(i, (((face, key), gi), planes))| {
                 let faces = &face_index[i * w..(i + 1) * w];
-                let g = grad[i * w * c..(i + 1) * w * c].chunks_exact(c);
-                let im = image[i * w * c..(i + 1) * w * c].chunks_exact(c);
-                for (j, ((&f, g), im)) in faces.iter().zip(g).zip(im).enumerate() {
-                    face[j].write(f as f64);
-                    key[j].write(match setups.get(f as usize) {
+                for (j, ((&f, face), key)) in faces.iter().zip(face).zip(key).enumerate() {
+                    face.write(f as f64);
+                    key.write(match setups.get(f as usize) {
                         Some(s) if f >= 0 => match s.depth_at(i as i32, j as i32) {
                             Some(z) if s.ortho => -z,
                             Some(z) => 1.0 / z,
@@ -74,12 +72,17 @@ impl Lines {
                         },
                         _ => f64::NEG_INFINITY,
                     });
-                    let mut sum = 0f64;
-                    for (k, (&gk, &ik)) in g.iter().zip(im).enumerate() {
-                        sum += gk as f64 * ik as f64;
-                        planes[k * w + j].write(gk as f64);
-                    }
-                    gi[j].write(sum);
+                }
+                let (g, im) = (
+                    &grad[i * w * c..(i + 1) * w * c],
+                    &image[i * w * c..(i + 1) * w * c],
+                );
+                match c {
+                    1 => channels::<1>(g, im, w, gi, planes),
+                    2 => channels::<2>(g, im, w, gi, planes),
+                    3 => channels::<3>(g, im, w, gi, planes),
+                    4 => channels::<4>(g, im, w, gi, planes),
+                    _ => channels::<0>(g, im, w, gi, planes),
                 }
             });
         // SAFETY: the row passes above wrote every slot: each row chunk writes its `w` face, key and gi values and
@@ -211,6 +214,32 @@ impl Lines {
     #[inline(always)]
     pub fn grad_from(&self, d0: usize, k: usize) -> &[f64] {
         &self.grad[(d0 * self.channels + k) * self.len..]
+    }
+}
+
+/// Writes one row's cotangent planes (`planes[k * w + j] = G[j, k]`) and `gi[j] = sum_c G[j, c] I[j, c]` (channels
+/// in order) from the interleaved row `g` and image row `im`, for `C` channels (`C = 0`: any count).
+#[inline(always)]
+fn channels<const C: usize>(
+    g: &[f32],
+    im: &[f32],
+    w: usize,
+    gi: &mut [MaybeUninit<f64>],
+    planes: &mut [MaybeUninit<f64>],
+) {
+    let c = if C == 0 { g.len() / w } else { C };
+    for (j, ((x, g), im)) in gi
+        .iter_mut()
+        .zip(g.chunks_exact(c))
+        .zip(im.chunks_exact(c))
+        .enumerate()
+    {
+        let mut sum = 0f64;
+        for k in 0..c {
+            sum += g[k] as f64 * im[k] as f64;
+            planes[k * w + j].write(g[k] as f64);
+        }
+        x.write(sum);
     }
 }
 
