@@ -12,8 +12,11 @@ With ``--split`` only one attack step's parts are timed, per mesh and perturbati
 batched (``targets x views`` images, ``--antialias`` supersampling; wall time, or process CPU time with
 ``--cpu-time``): the render's forward, the victim's forward + input gradient, the render's backward (median of
 ``--steps`` steps after one warm-up); it reports the renderer's share of the step and target-steps/s beside the
-victim-alone ceiling (the victim's forward + input gradient on random images of the same batch: what a step would
-cost with a free renderer). Run it once per build (old and new extension) to compare them side by side.
+victim-alone ceiling (the victim's forward + input gradient on random images of the same batch and memory layout as
+the renders: what a step would cost with a free renderer). Run it once per build (old and new extension) to compare
+them side by side.
+``--victim-optimize both`` times the victim as its weights describe it (``load_victim(..., optimize=False)``) and
+optimised (the default) in the same run, their steps interleaved, one table row each.
 
 With ``--convergence`` only the shape attack's time to success is measured, for every combination of
 ``--smoothing`` (rounds of neighbour averaging of the flow, 0 = the paper's per-vertex flow) and ``--shape-lr``: each
@@ -140,13 +143,18 @@ def print_convergence(records: List[Dict[str, Any]], budgets: List[int]) -> None
 
 
 def victim_images_per_s(victim: Any, batch: int, image_size: int, repeats: int = 5,
-                        clock: Callable[[], float] = time.perf_counter) -> float:
+                        clock: Callable[[], float] = time.perf_counter, like: Optional[torch.Tensor] = None) -> float:
     """Images per second of the victim's forward + backward (w.r.t. the input) on a batch of random renders.
 
     The ratio between ``batch = T x V`` and ``batch = V`` is the ceiling of what batching T targets can gain when the
-    victim dominates a step (the renderer and the optimiser are a few percent of it).
+    victim dominates a step (the renderer and the optimiser are a few percent of it). ``like``: a rendered batch whose
+    memory layout the random images copy (the renderer hands out channels-innermost views of its RGBA buffer, on which
+    torch runs the convolutions channels-last; contiguous NCHW images would time another code path).
     """
-    images = torch.rand(batch, 3, image_size, image_size)
+    if like is None:
+        images = torch.rand(batch, 3, image_size, image_size)
+    else:
+        images = torch.empty_strided(like.shape, like.stride()).uniform_()
     times = []
     for i in range(repeats + 1):
         x = images.clone().requires_grad_(True)
@@ -159,9 +167,11 @@ def victim_images_per_s(victim: Any, batch: int, image_size: int, repeats: int =
     return batch / statistics.median(times)
 
 
-def step_split(mesh_name: str, perturb: str, args: argparse.Namespace, victim: Any) -> Dict[str, Any]:
+def step_split(mesh_name: str, perturb: str, args: argparse.Namespace,
+               victims: Dict[str, Any]) -> List[Dict[str, Any]]:
     """Times the parts of one attack step (render forward, victim forward + input gradient, render backward) with
-    ``args.targets`` targets batched; returns a JSON-able record (median seconds per part)."""
+    ``args.targets`` targets batched, for each of ``victims`` (label -> victim; their steps interleaved); returns one
+    JSON-able record (median seconds per part) per victim."""
     from meshadv.data import require_shared_data
     from meshadv.mesh import load_mesh, normalize_mesh
     from meshadv.render import ViewSet
@@ -178,40 +188,46 @@ def step_split(mesh_name: str, perturb: str, args: argparse.Namespace, victim: A
     colors = mesh.face_colors.unsqueeze(0).repeat(t, 1, 1)
     param = verts if perturb == "shape" else colors
     param.requires_grad_(True)
-    parts: Dict[str, List[float]] = {"render_fwd": [], "victim": [], "render_bwd": []}
+    parts = {label: {"render_fwd": [], "victim": [], "render_bwd": []} for label in victims}
+    images = None
     clock = time.process_time if args.cpu_time else time.perf_counter
     for step in range(args.steps + 1):
-        t0 = clock()
-        images, _ = setup.render(verts, mesh.faces, colors, views)
-        t1 = clock()
-        x = images.detach().requires_grad_(True)
-        out = victim(x)
-        logits = out if isinstance(out, torch.Tensor) else out[0]
-        (logits[:, 1].sum() - logits[:, 0].sum()).backward()
-        t2 = clock()
-        images.backward(x.grad)
-        t3 = clock()
-        param.grad = None
-        if step > 0:  # the first step warms up
-            for key, dt in zip(parts, (t1 - t0, t2 - t1, t3 - t2)):
-                parts[key].append(dt)
-    med = {key: float(statistics.median(v)) for key, v in parts.items()}
-    step_s = sum(med.values())
-    ceiling = victim_images_per_s(victim, t * args.views, args.image_size, clock=clock) / args.views
-    return {"mesh": mesh_name, "faces": mesh.num_faces, "perturb": perturb, "views": args.views,
-            "image_size": args.image_size, "antialias": args.antialias, "targets": t, "cpu_time": args.cpu_time,
-            **{f"{k}_s": v for k, v in med.items()}, "step_s": step_s,
-            "render_share": (med["render_fwd"] + med["render_bwd"]) / step_s,
-            "target_steps_per_s": t / step_s, "victim_ceiling_target_steps_per_s": ceiling}
+        for label, victim in victims.items():
+            t0 = clock()
+            images, _ = setup.render(verts, mesh.faces, colors, views)
+            t1 = clock()
+            x = images.detach().requires_grad_(True)
+            out = victim(x)
+            logits = out if isinstance(out, torch.Tensor) else out[0]
+            (logits[:, 1].sum() - logits[:, 0].sum()).backward()
+            t2 = clock()
+            images.backward(x.grad)
+            t3 = clock()
+            param.grad = None
+            if step > 0:  # the first step warms up
+                for key, dt in zip(parts[label], (t1 - t0, t2 - t1, t3 - t2)):
+                    parts[label][key].append(dt)
+    records = []
+    for label, victim in victims.items():
+        med = {key: float(statistics.median(v)) for key, v in parts[label].items()}
+        step_s = sum(med.values())
+        ceiling = victim_images_per_s(victim, t * args.views, args.image_size, clock=clock, like=images) / args.views
+        records.append({"mesh": mesh_name, "faces": mesh.num_faces, "perturb": perturb, "victim": label,
+                        "views": args.views, "image_size": args.image_size, "antialias": args.antialias,
+                        "targets": t, "cpu_time": args.cpu_time, **{f"{k}_s": v for k, v in med.items()},
+                        "step_s": step_s, "render_share": (med["render_fwd"] + med["render_bwd"]) / step_s,
+                        "target_steps_per_s": t / step_s, "victim_ceiling_target_steps_per_s": ceiling})
+    return records
 
 
 def print_split(records: List[Dict[str, Any]]) -> None:
     """Markdown table of the step-split records."""
-    print("| mesh | faces | perturb | targets x views x px (antialias) | render fwd | victim fwd+bwd | render bwd | "
-          "renderer share | target-steps/s | victim-alone ceiling | ratio |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| mesh | faces | perturb | victim | targets x views x px (antialias) | render fwd | victim fwd+bwd | "
+          "render bwd | renderer share | target-steps/s | victim-alone ceiling | ratio |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in records:
-        print(f"| {r['mesh']} | {r['faces']} | {r['perturb']} | {r['targets']} x {r['views']} x {r['image_size']} "
+        print(f"| {r['mesh']} | {r['faces']} | {r['perturb']} | {r.get('victim', '-')} | "
+              f"{r['targets']} x {r['views']} x {r['image_size']} "
               f"({r['antialias']}x) | {1e3 * r['render_fwd_s']:.0f} ms | {1e3 * r['victim_s']:.0f} ms | "
               f"{1e3 * r['render_bwd_s']:.0f} ms | {100 * r['render_share']:.0f}% | {r['target_steps_per_s']:.2f} | "
               f"{r['victim_ceiling_target_steps_per_s']:.2f} | "
@@ -297,6 +313,8 @@ def main(argv: List[str]) -> int:
     parser.add_argument("--cpu-time", action="store_true",
                         help="--split: process CPU time instead of wall time (steadier on a busy machine; run with "
                              "OMP_NUM_THREADS=1 RAYON_NUM_THREADS=1 so that it is also the 1-thread wall time)")
+    parser.add_argument("--victim-optimize", choices=["on", "off", "both"], default="on",
+                        help="load_victim's optimize (both: --split times the two side by side)")
     parser.add_argument("--budgets", type=int, nargs="+", default=None,
                         help="--convergence: step budgets to count successes within (default: --max-steps)")
     args = parser.parse_args(argv)
@@ -304,12 +322,16 @@ def main(argv: List[str]) -> int:
     from meshadv.victims import load_victim
 
     torch.manual_seed(0)
-    victim = load_victim(args.victim)
+    if args.victim_optimize == "both" and not args.split:
+        parser.error("--victim-optimize both needs --split")
+    optimize = {"on": [True], "off": [False], "both": [False, True]}[args.victim_optimize]
+    victims = {("optimized" if o else "plain"): load_victim(args.victim, optimize=o) for o in optimize}
+    victim = next(iter(victims.values()))
     command = "python benchmarks/attack_bench.py " + " ".join(argv)
     machine = f"machine: {platform.processor() or platform.machine()}, torch threads {torch.get_num_threads()}"
     if args.split:
         loads = [os.getloadavg()[0]]
-        records = [step_split(m, p, args, victim) for m in args.meshes for p in args.perturb]
+        records = [r for m in args.meshes for p in args.perturb for r in step_split(m, p, args, victims)]
         loads.append(os.getloadavg()[0])
         print(f"command: {command}")
         print(f"{machine}; 1-minute load average {min(loads):.1f}-{max(loads):.1f}")

