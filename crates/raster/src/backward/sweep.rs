@@ -415,16 +415,16 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
     #[inline(always)]
     unsafe fn vec<V: F64s, const MASKED: bool>(&self, c: &OutConsts<V, C>, i: usize) -> (V, V) {
         let load = |v: &[f64]| V::load(v.as_ptr().add(i));
-        let ga = self.dot.at(&c.w, i);
         let (fp, kp, pos) = (load(self.face), load(self.key), load(self.pos));
         let kf = c.key0.add(c.key_step.mul(pos));
-        let delta = ga.sub(load(self.gi));
         // covers(f, P) (the clip range is handled by `clip`) and delta < 0.
         let tie = kf.eq(kp).and(c.fi.lt(fp));
         let nearer = kf.gt(kp).or(tie);
         let other = fp.ne(c.fi);
+        let covers = other.and(nearer);
+        let delta = self.dot.at(&c.w, i).sub(load(self.gi));
         let neg = delta.lt(c.zero);
-        let m = other.and(nearer).and(neg).and(delta);
+        let m = covers.and(neg).and(delta);
         let da = c.ka.mul(pos).add(c.ba);
         let dc = c.kc.mul(pos).add(c.bc);
         // m / da and m / dc with one division.
