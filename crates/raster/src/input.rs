@@ -141,7 +141,17 @@ pub fn validate_mesh_indices(arg: &'static str, faces: &[i32], num_verts: usize)
 
 /// Returns an error naming `arg` if any value is NaN or infinite.
 pub fn check_finite(arg: &'static str, values: &[f32]) -> Result<()> {
-    match values.iter().position(|x| !x.is_finite()) {
+    // Blocks of 64 values are checked without branching (vectorised), then the first bad block is searched.
+    const BLOCK: usize = 64;
+    let finite = |block: &[f32]| block.iter().fold(true, |ok, x| ok & x.is_finite());
+    let Some(bad) = values.chunks(BLOCK).position(|b| !finite(b)) else {
+        return Ok(());
+    };
+    match values[bad * BLOCK..]
+        .iter()
+        .position(|x| !x.is_finite())
+        .map(|i| bad * BLOCK + i)
+    {
         Some(index) => Err(RasterError::NonFinite {
             arg,
             index,
@@ -262,5 +272,37 @@ impl<'a> FaceAttrs<'a> {
     pub fn face(&self, b: usize, num_faces: usize, f: usize) -> &[f32] {
         let o = (b * num_faces + f) * self.channels;
         &self.values[o..o + self.channels]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn check_finite_reports_the_first_non_finite_value() {
+        for len in [0usize, 1, 63, 64, 65, 200, 1000] {
+            let ok = vec![1.5f32; len];
+            assert!(check_finite("x", &ok).is_ok(), "len {len}");
+            for first in [0, 1, 62, 63, 64, 65, 127, 128, 999]
+                .into_iter()
+                .filter(|&i| i < len)
+            {
+                for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+                    let mut v = ok.clone();
+                    v[first] = bad;
+                    // A later bad value must not be reported instead.
+                    if first + 70 < len {
+                        v[first + 70] = f32::NAN;
+                    }
+                    match check_finite("x", &v) {
+                        Err(RasterError::NonFinite { arg, index, .. }) => {
+                            assert_eq!((arg, index), ("x", first), "len {len}, {bad}")
+                        }
+                        other => panic!("len {len}, first {first}: {other:?}"),
+                    }
+                }
+            }
+        }
     }
 }
