@@ -110,25 +110,30 @@ impl Lines {
             .zip(planes.slots().par_chunks_mut(GROUP * c * h))
             .enumerate()
             .for_each(|(group, (((face, key), gi), planes))| {
-                let (j0, cols) = (group * GROUP, face.len() / h);
-                for i in 0..h {
-                    let p = i * w + j0;
-                    let (f, k, g) = (
-                        &rows.face[p..p + cols],
-                        &rows.key[p..p + cols],
-                        &rows.gi[p..p + cols],
-                    );
-                    for jj in 0..cols {
-                        face[jj * h + i].write(f[jj]);
-                        key[jj * h + i].write(k[jj]);
-                        gi[jj * h + i].write(g[jj]);
+                let j0 = group * GROUP;
+                // One output column at a time: `out[i] = src[i * stride]` (the group's rows stay in cache).
+                let column = |src: &[f64], stride: usize, out: &mut [MaybeUninit<f64>]| {
+                    let src = &src[..(h - 1) * stride + 1];
+                    for (i, x) in out.iter_mut().enumerate() {
+                        x.write(src[i * stride]);
                     }
+                };
+                for (jj, ((face, key), gi)) in face
+                    .chunks_exact_mut(h)
+                    .zip(key.chunks_exact_mut(h))
+                    .zip(gi.chunks_exact_mut(h))
+                    .enumerate()
+                {
+                    let j = j0 + jj;
+                    column(&rows.face[j..], w, face);
+                    column(&rows.key[j..], w, key);
+                    column(&rows.gi[j..], w, gi);
                     // Row i's channel k is rows.grad[(i * c + k) * w..][..w]; column j's is planes[(j * c + k) * h..].
-                    for ch in 0..c {
-                        let src = &rows.grad[(i * c + ch) * w + j0..][..cols];
-                        for (jj, &x) in src.iter().enumerate() {
-                            planes[(jj * c + ch) * h + i].write(x);
-                        }
+                    for (k, plane) in planes[jj * c * h..(jj + 1) * c * h]
+                        .chunks_exact_mut(h)
+                        .enumerate()
+                    {
+                        column(&rows.grad[k * w + j..], c * w, plane);
                     }
                 }
             });
