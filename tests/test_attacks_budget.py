@@ -153,11 +153,42 @@ def test_step_schedule_and_projection_into_the_ball() -> None:
     assert float(norm.norm(moved)) == pytest.approx(0.5)  # inside the ball: the full step
 
 
+def test_after_success_anneal_keeps_the_full_step_until_a_target_first_holds() -> None:
+    kw = dict(init_budget=1.0, gamma=0.1, step_size=0.5, final_step_size=0.05, min_budget=1e-6)
+    state = BudgetState(3, 11, anneal="after_success", **kw)
+    cosine = BudgetState(3, 11, **kw)
+    idx = torch.arange(3)
+    norm = ColorNorm()
+    direction = norm.direction(torch.ones(3, 4, 3))
+    big = torch.full((3,), 10.0, dtype=torch.float64)
+    for k in range(11):  # target 0 holds from step 0, target 1 from step 5, target 2 never
+        held = torch.tensor([True, k >= 5, False])
+        state.update(idx, held, torch.zeros(3), k)
+        cosine.update(idx, held, torch.zeros(3), k)
+        alpha = state.step_lengths(idx, k)
+        assert float(alpha[0]) == pytest.approx(cosine.step_length(k))  # held at once: the run's own cosine
+        assert float(alpha[2]) == 0.5  # never held: never annealed
+        if k <= 5:
+            assert float(alpha[1]) == 0.5
+        # the steps taken are these lengths (each row its own), the default schedule one length for all
+        moved = state.move(torch.zeros(3, 4, 3), direction, big, k, norm, idx)
+        assert torch.allclose(norm.norm(moved).double(), alpha, rtol=1e-6)
+        assert torch.allclose(cosine.step_lengths(idx, k), torch.full((3,), cosine.step_length(k), dtype=torch.float64))
+    assert state.first_held.tolist() == [0, 5, -1]
+    assert float(state.step_lengths(idx, 10)[1]) == pytest.approx(0.05)  # reaches final_step_size at the last step
+    assert float(state.step_lengths(idx, 8)[1]) == pytest.approx(0.05 + 0.225 * (1 + math.cos(math.pi * 3 / 5)))
+    state.reset()  # a new round: nothing has held
+    assert state.first_held.tolist() == [-1, -1, -1]
+    assert ShapeAttack(method="ddn", method_options={"anneal": "after_success"}).config()["method_options"][
+        "anneal"] == "after_success"
+
+
 # ---------------------------------------------------------------- options
 @pytest.mark.parametrize("options, name", [
     ({"gamma": 1.5}, "gamma"), ({"gamma": 0.0}, "gamma"), ({"step_size": -1.0}, "step_size"),
     ({"final_step_size": 1.0}, "final_step_size"), ({"init_budget": float("nan")}, "init_budget"),
     ({"min_budget": 1.0}, "min_budget"), ({"smoothness": 0.0}, "smoothness"), ({"bogus": 1}, "bogus"),
+    ({"anneal": "linear"}, "anneal"), ({"anneal": None}, "anneal"),
 ])
 def test_bad_options_raise_value_error_naming_them(options: Dict[str, Any], name: str) -> None:
     with pytest.raises(ValueError, match=name):

@@ -11,6 +11,11 @@ is the budget. Per step ``k`` of ``steps``, for each active target (``delta`` is
     delta <- delta + alpha_k * direction(grad)      alpha_k: cosine from step_size to final_step_size
     delta <- delta * min(1, eps / ||delta||)
 
+``anneal`` sets when ``alpha_k`` falls: ``"cosine"`` (the default) over the whole run from step 0, the same for every
+target; ``"after_success"`` per target, ``alpha_k = step_size`` until the target first holds (at step ``k0``), then
+cosine from ``step_size`` at ``k0`` to ``final_step_size`` at the last step, so a target that has not held by step
+~100 does not crawl at a fraction of the first step.
+
 ``eps`` never goes below ``min_budget`` (> 0), so it is never negative. The engine keeps the least distorted step
 where the target held, so a run returns its best success, not its last step.
 
@@ -54,14 +59,18 @@ from torch import Tensor
 from meshadv.attacks.losses import laplacian_flow_loss
 from meshadv.attacks.update import UpdateRule, register_update_rule
 
-__all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS"]
+__all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS", "ANNEAL_MODES"]
 
 #: Default options of ``method="ddn"`` per perturbation (norm units, see the module docstring).
 DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {
     "shape": {"init_budget": 1e-3, "gamma": 0.05, "step_size": 1e-3, "final_step_size": 1e-4, "min_budget": 1e-7,
-              "smoothness": 1.0},
-    "texture": {"init_budget": 5e-3, "gamma": 0.1, "step_size": 5e-3, "final_step_size": 5e-4, "min_budget": 1e-6},
+              "smoothness": 1.0, "anneal": "cosine"},
+    "texture": {"init_budget": 5e-3, "gamma": 0.1, "step_size": 5e-3, "final_step_size": 5e-4, "min_budget": 1e-6,
+                "anneal": "cosine"},
 }
+
+#: Values of the ``anneal`` option: when the step length falls (see the module docstring).
+ANNEAL_MODES = ("cosine", "after_success")
 
 _TINY = 1e-30
 _COLOR_EPS = 1e-4  # the texture attack's logit clamp
@@ -200,13 +209,15 @@ class BudgetState:
         final_step_size: last step length, in ``(0, step_size]``.
         min_budget: floor of ``eps``, in ``(0, init_budget]``.
         cap: optional ceiling of ``eps`` (> 0).
+        anneal: ``"cosine"`` (one schedule from step 0) or ``"after_success"`` (per target, from its first success).
 
     Raises:
         ValueError: a hyper-parameter out of range, naming it.
     """
 
     def __init__(self, num_targets: int, steps: int, *, init_budget: float, gamma: float, step_size: float,
-                 final_step_size: float, min_budget: float, cap: Optional[float] = None) -> None:
+                 final_step_size: float, min_budget: float, cap: Optional[float] = None,
+                 anneal: str = "cosine") -> None:
         if isinstance(num_targets, bool) or int(num_targets) != num_targets or num_targets < 1:
             raise ValueError(f"num_targets must be an integer >= 1, got {num_targets!r}")
         if isinstance(steps, bool) or int(steps) != steps or steps < 1:
@@ -223,15 +234,20 @@ class BudgetState:
         if self.min_budget > self.init_budget:
             raise ValueError(f"min_budget ({min_budget}) must be <= init_budget ({init_budget})")
         self.cap = None if cap is None else max(_positive("cap", cap), self.min_budget)
+        if not isinstance(anneal, str) or anneal not in ANNEAL_MODES:
+            raise ValueError(f"anneal must be one of {ANNEAL_MODES}, got {anneal!r}")
+        self.anneal = anneal
         self.steps = int(steps)
         self.num_targets = int(num_targets)
         self.budgets = torch.empty(0, dtype=torch.float64)
+        self.first_held = torch.empty(0, dtype=torch.long)
         self.reset()
 
     def reset(self) -> None:
-        """Every budget back to ``init_budget`` (capped)."""
+        """Every budget back to ``init_budget`` (capped); no target has held yet."""
         start = self.init_budget if self.cap is None else min(self.init_budget, self.cap)
         self.budgets = torch.full((self.num_targets,), start, dtype=torch.float64)
+        self.first_held = torch.full((self.num_targets,), -1, dtype=torch.long)
 
     def step_length(self, step: int) -> float:
         """``alpha_step``: cosine from ``step_size`` (step 0) to ``final_step_size`` (the last step)."""
@@ -239,10 +255,30 @@ class BudgetState:
         lo, hi = self.final_step_size, self.step_size
         return lo + 0.5 * (hi - lo) * (1.0 + math.cos(math.pi * frac))
 
-    def update(self, index: Tensor, adversarial: Tensor, norms: Tensor) -> Tensor:
-        """New budgets of the targets ``index`` given whether they held and their current norms; returned ``(K,)``."""
+    def step_lengths(self, index: Tensor, step: int) -> Tensor:
+        """``alpha_step`` of the targets ``index``, ``(K,)`` float64: :meth:`step_length` for every target with
+        ``anneal="cosine"``; with ``"after_success"``, ``step_size`` for a target that has not held yet, else the
+        cosine from ``step_size`` at its first success to ``final_step_size`` at the last step."""
+        idx = index.cpu().long()
+        if self.anneal == "cosine":
+            return torch.full((len(idx),), self.step_length(step), dtype=torch.float64)
+        first = self.first_held[idx]
+        last = self.steps - 1
+        span = (last - first).clamp(min=1).double()
+        frac = ((min(max(step, 0), last) - first).double() / span).clamp(0.0, 1.0)
+        lo, hi = self.final_step_size, self.step_size
+        cosine = lo + 0.5 * (hi - lo) * (1.0 + torch.cos(math.pi * frac))
+        return torch.where(first < 0, torch.full_like(cosine, hi), cosine)
+
+    def update(self, index: Tensor, adversarial: Tensor, norms: Tensor, step: int = 0) -> Tensor:
+        """New budgets of the targets ``index`` given whether they held and their current norms; returned ``(K,)``.
+
+        ``step`` (the step whose render ``adversarial`` judged) is recorded as a target's first success."""
         eps = self.budgets[index]
         held = adversarial.detach().cpu().bool()
+        idx = index.cpu().long()
+        fresh = held & (self.first_held[idx] < 0)
+        self.first_held[idx[fresh]] = int(step)
         cur = norms.detach().cpu().double()
         shrunk = (1.0 - self.gamma) * torch.minimum(eps, cur)
         grown = (1.0 + self.gamma) * eps
@@ -252,9 +288,17 @@ class BudgetState:
         self.budgets[index] = new
         return new
 
-    def move(self, delta: Tensor, direction: Tensor, budgets: Tensor, step: int, norm: Any) -> Tensor:
-        """``delta + alpha_step * direction``, projected, then pulled into ``||.|| <= budgets``; ``(K, ...)``."""
-        moved = norm.project(delta + self.step_length(step) * direction)
+    def move(self, delta: Tensor, direction: Tensor, budgets: Tensor, step: int, norm: Any,
+             index: Optional[Tensor] = None) -> Tensor:
+        """``delta + alpha_step * direction``, projected, then pulled into ``||.|| <= budgets``; ``(K, ...)``.
+
+        ``index``: the targets of the rows (needed for ``anneal="after_success"``; by default ``0..K-1``)."""
+        if self.anneal == "cosine":
+            moved = norm.project(delta + self.step_length(step) * direction)
+        else:
+            rows = torch.arange(delta.shape[0]) if index is None else index
+            alpha = self.step_lengths(rows, step).to(direction.dtype).to(direction.device)
+            moved = norm.project(delta + alpha.view((-1,) + (1,) * (direction.dim() - 1)) * direction)
         size = norm.norm(moved).double().cpu()
         scale = torch.where(size > budgets, budgets / size.clamp(min=_TINY), torch.ones_like(size))
         return moved * scale.to(moved.dtype).to(moved.device).view((-1,) + (1,) * (moved.dim() - 1))
@@ -267,8 +311,8 @@ class DDNRule(UpdateRule):
     Args:
         attack: the attack (its ``perturbation``, ``steps``, ``max_distortion`` and parametrisation are used).
         num_targets: ``T``.
-        init_budget, gamma, step_size, final_step_size, min_budget: :class:`BudgetState` options (norm units);
-            defaults per perturbation in :data:`DDN_DEFAULTS`.
+        init_budget, gamma, step_size, final_step_size, min_budget, anneal: :class:`BudgetState` options (norm
+            units); defaults per perturbation in :data:`DDN_DEFAULTS`.
         smoothness: shape only, ``s`` of the preconditioner ``(L + I/s)^-1`` (``None``: the Laplacian alone).
 
     Raises:
@@ -365,8 +409,8 @@ class DDNRule(UpdateRule):
                 colors = torch.sigmoid(params[idx].detach())
                 grad = grad / (colors * (1 - colors)).clamp(min=_TINY)
             delta = self._delta[idx]
-            budgets = self.state.update(idx, is_adversarial, self.norm.norm(delta))
-            moved = self.state.move(delta, self.norm.direction(grad), budgets, self._step, self.norm)
+            budgets = self.state.update(idx, is_adversarial, self.norm.norm(delta), self._step)
+            moved = self.state.move(delta, self.norm.direction(grad), budgets, self._step, self.norm, idx)
             if self.kind == "texture":
                 moved = (self._origin + moved).clamp(0.0, 1.0) - self._origin
                 moved = self.norm.project(moved)
