@@ -1,5 +1,6 @@
 //! Per-batch-element buffers of the backward pass laid out along sweep lines.
 
+use std::marker::PhantomData;
 use std::mem::MaybeUninit;
 
 use rayon::prelude::*;
@@ -197,28 +198,40 @@ impl Lines {
         &self.face[d0 * self.len..(d0 + 1) * self.len]
     }
 
-    /// Faces from the start of line `d0` to the end of the buffer (padding included).
-    #[inline(always)]
-    pub fn face_from(&self, d0: usize) -> &[f64] {
-        &self.face[d0 * self.len..]
-    }
-
-    /// Depth keys from the start of line `d0` to the end of the buffer (padding included).
-    #[inline(always)]
-    pub fn key_from(&self, d0: usize) -> &[f64] {
-        &self.key[d0 * self.len..]
-    }
-
-    /// `sum_c G I` from the start of line `d0` to the end of the buffer (padding included).
-    #[inline(always)]
-    pub fn gi_from(&self, d0: usize) -> &[f64] {
-        &self.gi[d0 * self.len..]
-    }
-
     /// Cotangent channel `k` from the start of line `d0` to the end of the buffer (padding included).
     #[inline(always)]
     pub fn grad_from(&self, d0: usize, k: usize) -> &[f64] {
         &self.grad[(d0 * self.channels + k) * self.len..]
+    }
+
+    /// Pointers to the data of pixels `start..end` of line `d0` (one bounds check for all of them). Each pointer may
+    /// be read for `(end - start).next_multiple_of(LANES)` values: past `end` it reads the next line's data, or for
+    /// the last line the buffer's padding. `C` is the channel count (or 0: no cotangent pointers).
+    #[inline(always)]
+    pub fn at<const C: usize>(&self, d0: usize, start: usize, end: usize) -> LineAt<'_, C> {
+        assert!(
+            d0 < self.lines() && start <= end && end <= self.len && (C == 0 || C == self.channels)
+        );
+        let o = d0 * self.len + start;
+        // SAFETY: `o < lines * len`, within every buffer (which hold `lines * len` values, or `lines * channels *
+        // len` for the cotangent, plus LANES), and so is `(d0 * channels + k) * len + start` for `k < channels`.
+        // Reads: `start + (end - start).next_multiple_of(LANES) <= len + LANES - 1`, so from line `d0` they stay
+        // within `(d0 + 1) * len + LANES - 1 <= lines * len + LANES - 1` (cotangent: `lines * channels * len +
+        // LANES - 1`), inside the buffers.
+        #[allow(unsafe_code)]
+        unsafe {
+            LineAt {
+                face: self.face.as_ptr().add(o),
+                key: self.key.as_ptr().add(o),
+                gi: self.gi.as_ptr().add(o),
+                grad: std::array::from_fn(|k| {
+                    self.grad
+                        .as_ptr()
+                        .add((d0 * self.channels + k) * self.len + start)
+                }),
+                _lines: PhantomData,
+            }
+        }
     }
 }
 
@@ -281,5 +294,33 @@ impl Fill {
         // SAFETY: the first `len` values are written (the caller's promise), the padding by `new`.
         unsafe { self.buf.set_len(self.len + LANES) };
         self.buf
+    }
+}
+
+/// Pointers to the per-pixel data of one line from a pixel on (see [`Lines::at`] for how far they may be read).
+#[derive(Clone, Copy)]
+pub(super) struct LineAt<'a, const C: usize> {
+    /// Face index (as f64).
+    pub face: *const f64,
+    /// Depth-test key.
+    pub key: *const f64,
+    /// `sum_c G I`.
+    pub gi: *const f64,
+    /// Cotangent channels.
+    pub grad: [*const f64; C],
+    _lines: PhantomData<&'a Lines>,
+}
+
+impl<'a, const C: usize> LineAt<'a, C> {
+    /// The same pointers without the cotangent's.
+    #[inline(always)]
+    pub fn without_grad(&self) -> LineAt<'a, 0> {
+        LineAt {
+            face: self.face,
+            key: self.key,
+            gi: self.gi,
+            grad: [],
+            _lines: PhantomData,
+        }
     }
 }

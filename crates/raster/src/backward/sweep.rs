@@ -8,7 +8,9 @@
 //! multiply-adds, so every instruction set gives the same bits. The last, partial block reads past the sweep's end
 //! (every line buffer has [`LANES`] values of padding) and masks those lanes out.
 
-use super::lines::Lines;
+use std::marker::PhantomData;
+
+use super::lines::{LineAt, Lines};
 use super::{Isa, EPS};
 
 /// Lanes of the OUT sweep's accumulators.
@@ -21,6 +23,13 @@ impl Positions {
     /// Positions for lines of up to `len` pixels (plus [`LANES`] of padding).
     pub fn new(len: usize) -> Positions {
         Positions((0..len + LANES).map(|d| d as f64).collect())
+    }
+
+    /// The positions from `start` on, readable for `(end - start).next_multiple_of(LANES)` values.
+    #[inline(always)]
+    fn at(&self, start: usize, end: usize) -> *const f64 {
+        assert!(start <= end && end + LANES <= self.0.len());
+        self.0[start..].as_ptr()
     }
 }
 
@@ -117,38 +126,39 @@ impl OutSweep<'_> {
         }
         let attrs = self.attrs;
         let r = start..end;
+        let pos = pos.at(start, end);
         match attrs.len() {
-            1 => self.kernel(Dot::<1>::new(ln, d0, &r, attrs, &[]), ln, d0, &r, pos, isa),
-            2 => self.kernel(Dot::<2>::new(ln, d0, &r, attrs, &[]), ln, d0, &r, pos, isa),
-            3 => self.kernel(Dot::<3>::new(ln, d0, &r, attrs, &[]), ln, d0, &r, pos, isa),
-            4 => self.kernel(Dot::<4>::new(ln, d0, &r, attrs, &[]), ln, d0, &r, pos, isa),
+            1 => self.kernel(ln.at::<1>(d0, start, end), Dot::line, pos, &r, isa),
+            2 => self.kernel(ln.at::<2>(d0, start, end), Dot::line, pos, &r, isa),
+            3 => self.kernel(ln.at::<3>(d0, start, end), Dot::line, pos, &r, isa),
+            4 => self.kernel(ln.at::<4>(d0, start, end), Dot::line, pos, &r, isa),
             _ => {
                 let pre = dot_into(ln, d0, &r, |k| attrs[k], attrs.len(), scratch);
-                self.kernel(Dot::<0>::new(ln, d0, &r, &[], pre), ln, d0, &r, pos, isa)
+                let dot = |_: &LineAt<'_, 0>, _: &[f64]| Dot::pre(pre, r.len());
+                self.kernel(ln.at::<0>(d0, start, end), dot, pos, &r, isa)
             }
         }
     }
 
-    /// The OUT sweep over the pixels `r` of line `d0` (already clipped), with `sum_c G[P, c] A[f, c]` from `dot`.
+    /// The OUT sweep over the pixels `r` (already clipped) of the line at `at` (and positions at `pos`, both from
+    /// `r.start` and readable as [`Lines::at`] says), with `sum_c G[P, c] A[f, c]` from `dot(at, attrs)`.
     #[inline(always)]
-    fn kernel<const C: usize>(
+    fn kernel<'a, const C: usize>(
         &self,
-        dot: Dot<'_, C>,
-        ln: &Lines,
-        d0: usize,
+        at: LineAt<'a, C>,
+        dot: impl FnOnce(&LineAt<'a, C>, &[f64]) -> Dot<'a, C>,
+        pos: *const f64,
         r: &std::ops::Range<usize>,
-        pos: &Positions,
         isa: Isa,
     ) -> (f64, f64) {
-        let s = r.start;
         OutKernel {
             n: r.len(),
             end: r.end as f64,
-            dot,
-            face: &ln.face_from(d0)[s..],
-            key: &ln.key_from(d0)[s..],
-            gi: &ln.gi_from(d0)[s..],
-            pos: &pos.0[s..],
+            dot: dot(&at, self.attrs),
+            face: at.face,
+            key: at.key,
+            gi: at.gi,
+            pos,
             ka: self.ka,
             ba: self.ea - self.ka * self.cross,
             kc: self.kc,
@@ -183,36 +193,43 @@ fn dot_into<'s>(
 }
 
 /// `sum_c G[P, c] w[c]` along a sweep: the cotangent planes and weights of `C` channels, or (`C = 0`) the sums
-/// precomputed by [`dot_into`]. Every slice starts at the sweep's first pixel.
+/// precomputed by [`dot_into`]. Every pointer starts at the sweep's first pixel and may be read for the sweep's
+/// length rounded up to a multiple of [`LANES`].
 struct Dot<'a, const C: usize> {
-    g: [&'a [f64]; C],
+    g: [*const f64; C],
     w: [f64; C],
-    pre: &'a [f64],
+    pre: *const f64,
+    _data: PhantomData<&'a f64>,
 }
 
 impl<'a, const C: usize> Dot<'a, C> {
-    /// The dot product over the pixels `r` of line `d0` with the weights `w[..C]` (or `pre` when `C = 0`).
+    /// The dot product of the cotangent of a line (`at`) with the weights `w[..C]`.
     #[inline(always)]
-    fn new(
-        ln: &'a Lines,
-        d0: usize,
-        r: &std::ops::Range<usize>,
-        w: &[f64],
-        pre: &'a [f64],
-    ) -> Self {
+    fn line(at: &LineAt<'a, C>, w: &[f64]) -> Self {
         Dot {
-            g: std::array::from_fn(|k| &ln.grad_from(d0, k)[r.start..]),
+            g: at.grad,
             w: std::array::from_fn(|k| w[k]),
-            pre,
+            pre: std::ptr::null(),
+            _data: PhantomData,
         }
     }
+}
 
-    /// Whether every slice holds `len` values.
+impl<'a> Dot<'a, 0> {
+    /// The precomputed sums `pre` of a sweep of `n` pixels.
     #[inline(always)]
-    fn holds(&self, len: usize) -> bool {
-        self.g.iter().all(|g| g.len() >= len) && (C != 0 || self.pre.len() >= len)
+    fn pre(pre: &'a [f64], n: usize) -> Self {
+        assert!(pre.len() >= n.next_multiple_of(LANES));
+        Dot {
+            g: [],
+            w: [],
+            pre: pre.as_ptr(),
+            _data: PhantomData,
+        }
     }
+}
 
+impl<const C: usize> Dot<'_, C> {
     /// The weights as vectors.
     #[allow(unsafe_code)]
     #[inline(always)]
@@ -228,13 +245,13 @@ impl<'a, const C: usize> Dot<'a, C> {
     #[inline(always)]
     unsafe fn at<V: F64s>(&self, w: &[V; C], i: usize) -> V {
         if C == 0 {
-            V::load(self.pre.as_ptr().add(i))
+            V::load(self.pre.add(i))
         } else {
-            let mut s = V::load(self.g[0].as_ptr().add(i)).mul(w[0]);
+            let mut s = V::load(self.g[0].add(i)).mul(w[0]);
             #[allow(clippy::needless_range_loop)]
             // a plain index loop unrolls; an iterator chain did not
             for k in 1..C {
-                s = s.add(V::load(self.g[k].as_ptr().add(i)).mul(w[k]));
+                s = s.add(V::load(self.g[k].add(i)).mul(w[k]));
             }
             s
         }
@@ -245,10 +262,8 @@ impl<'a, const C: usize> Dot<'a, C> {
 trait Kernel {
     /// The kernel's constants as vectors.
     type Consts<V: F64s>;
-    /// Pixels in the sweep.
+    /// Pixels in the sweep (every per-pixel pointer may be read for this rounded up to a multiple of [`LANES`]).
     fn len(&self) -> usize;
-    /// Whether every per-pixel slice holds `len` values.
-    fn holds(&self, len: usize) -> bool;
     /// The constants.
     ///
     /// # Safety
@@ -269,9 +284,9 @@ trait Kernel {
     where
         Self: Sized,
     {
-        assert!(self.holds(self.len().next_multiple_of(LANES)));
-        // SAFETY: every slice holds the padded block count (asserted above); `Isa::Avx2` is only passed when the
-        // CPU supports AVX2 (see `rasterize_backward_on`); SSE2 is part of the x86-64 baseline.
+        // SAFETY: every pointer may be read for the padded block count (the kernels are built from `Lines::at`,
+        // `Positions::at` and `Dot::pre`, which check it); `Isa::Avx2` is only passed when the CPU supports AVX2
+        // (see `rasterize_backward_on`); SSE2 is part of the x86-64 baseline.
         #[allow(unsafe_code)]
         let (sa, sc) = unsafe {
             match isa {
@@ -339,7 +354,7 @@ unsafe fn lanes<V: F64s, K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
     (xa, xc)
 }
 
-/// The per-pixel inputs of one OUT sweep, each slice starting at its first pixel and reaching at least
+/// The per-pixel inputs of one OUT sweep, each pointer at its first pixel and readable for
 /// `n.next_multiple_of(LANES)` values (the line buffers' padding), and its constants (see [`OutSweep`]).
 struct OutKernel<'a, const C: usize> {
     /// Pixels in the sweep.
@@ -348,10 +363,10 @@ struct OutKernel<'a, const C: usize> {
     end: f64,
     /// `sum_c G[P, c] A[f, c]`.
     dot: Dot<'a, C>,
-    face: &'a [f64],
-    key: &'a [f64],
-    gi: &'a [f64],
-    pos: &'a [f64],
+    face: *const f64,
+    key: *const f64,
+    gi: *const f64,
+    pos: *const f64,
     /// `da = ka * d + ba` is `ka * (d - cross) + ea`, the displacement of endpoint a (see [`OutSweep`]).
     ka: f64,
     ba: f64,
@@ -385,15 +400,6 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
         self.n
     }
 
-    #[inline(always)]
-    fn holds(&self, len: usize) -> bool {
-        self.dot.holds(len)
-            && self.face.len() >= len
-            && self.key.len() >= len
-            && self.gi.len() >= len
-            && self.pos.len() >= len
-    }
-
     #[allow(unsafe_code)]
     #[inline(always)]
     unsafe fn consts<V: F64s>(&self) -> OutConsts<V, C> {
@@ -414,7 +420,7 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
     #[allow(unsafe_code)]
     #[inline(always)]
     unsafe fn vec<V: F64s, const MASKED: bool>(&self, c: &OutConsts<V, C>, i: usize) -> (V, V) {
-        let load = |v: &[f64]| V::load(v.as_ptr().add(i));
+        let load = |v: *const f64| V::load(v.add(i));
         let (fp, kp, pos) = (load(self.face), load(self.key), load(self.pos));
         let kf = c.key0.add(c.key_step.mul(pos));
         // covers(f, P) (the clip range is handled by `clip`) and delta < 0.
@@ -457,47 +463,63 @@ pub(super) fn in_sweep(
     scratch: &mut [f64],
     isa: Isa,
 ) -> (f64, f64) {
-    let r = &range;
-    let s = r.start;
-    let kernel = InSweep {
-        n: r.len(),
-        end: r.end as f64,
-        face: &ln.face_from(line)[s..],
-        gi: &ln.gi_from(line)[s..],
-        pos: &pos.0[s..],
+    let (start, end) = (range.start, range.end);
+    let kernel = |at: &LineAt<'_, 0>| InSweep {
+        n: end - start,
+        end: end as f64,
+        face: at.face,
+        gi: at.gi,
+        pos: pos.at(start, end),
         fi,
         cross,
         ka,
         kc,
+        _data: PhantomData,
     };
     let mut w = [0f64; 4];
     for (w, &o) in w.iter_mut().zip(out_color) {
         *w = o as f64;
     }
+    let on = |at0: LineAt<'_, 0>| kernel(&at0);
     match out_color.len() {
-        1 => kernel.with(Dot::<1>::new(ln, line, r, &w, &[])).sums(isa),
-        2 => kernel.with(Dot::<2>::new(ln, line, r, &w, &[])).sums(isa),
-        3 => kernel.with(Dot::<3>::new(ln, line, r, &w, &[])).sums(isa),
-        4 => kernel.with(Dot::<4>::new(ln, line, r, &w, &[])).sums(isa),
+        1 => {
+            let at = ln.at::<1>(line, start, end);
+            on(at.without_grad()).with(Dot::line(&at, &w)).sums(isa)
+        }
+        2 => {
+            let at = ln.at::<2>(line, start, end);
+            on(at.without_grad()).with(Dot::line(&at, &w)).sums(isa)
+        }
+        3 => {
+            let at = ln.at::<3>(line, start, end);
+            on(at.without_grad()).with(Dot::line(&at, &w)).sums(isa)
+        }
+        4 => {
+            let at = ln.at::<4>(line, start, end);
+            on(at.without_grad()).with(Dot::line(&at, &w)).sums(isa)
+        }
         c => {
-            let pre = dot_into(ln, line, r, |k| out_color[k] as f64, c, scratch);
-            kernel.with(Dot::<0>::new(ln, line, r, &[], pre)).sums(isa)
+            let pre = dot_into(ln, line, &range, |k| out_color[k] as f64, c, scratch);
+            on(ln.at::<0>(line, start, end))
+                .with(Dot::pre(pre, end - start))
+                .sums(isa)
         }
     }
 }
 
-/// The per-pixel inputs of one IN sweep (each slice from its first pixel, padded as for [`OutKernel`]) and its
+/// The per-pixel inputs of one IN sweep (each pointer at its first pixel, readable as for [`OutKernel`]) and its
 /// constants.
 struct InSweep<'a> {
     n: usize,
     end: f64,
-    face: &'a [f64],
-    gi: &'a [f64],
-    pos: &'a [f64],
+    face: *const f64,
+    gi: *const f64,
+    pos: *const f64,
     fi: f64,
     cross: f64,
     ka: f64,
     kc: f64,
+    _data: PhantomData<&'a f64>,
 }
 
 impl<'a> InSweep<'a> {
@@ -536,14 +558,6 @@ impl<const C: usize> Kernel for InKernel<'_, C> {
         self.s.n
     }
 
-    #[inline(always)]
-    fn holds(&self, len: usize) -> bool {
-        self.dot.holds(len)
-            && self.s.face.len() >= len
-            && self.s.gi.len() >= len
-            && self.s.pos.len() >= len
-    }
-
     #[allow(unsafe_code)]
     #[inline(always)]
     unsafe fn consts<V: F64s>(&self) -> InConsts<V, C> {
@@ -563,7 +577,7 @@ impl<const C: usize> Kernel for InKernel<'_, C> {
     #[allow(unsafe_code)]
     #[inline(always)]
     unsafe fn vec<V: F64s, const MASKED: bool>(&self, c: &InConsts<V, C>, i: usize) -> (V, V) {
-        let load = |v: &[f64]| V::load(v.as_ptr().add(i));
+        let load = |v: *const f64| V::load(v.add(i));
         let go = self.dot.at(&c.w, i);
         let pos = load(self.s.pos);
         let delta = go.sub(load(self.s.gi));
