@@ -189,6 +189,36 @@ impl Drawn {
     }
 }
 
+/// Adds each pixel's cotangent to the face drawn there (`acc[f * c + k]`, pixels in row-major order) and grows
+/// the faces' drawn boxes, for `C = c` channels (`C = 0`: any count `c`).
+#[inline(always)]
+fn attr_grad<const C: usize>(
+    face_index: &[i32],
+    grad: &[f32],
+    w: usize,
+    c: usize,
+    acc: &mut [f64],
+    drawn: &mut [Drawn],
+) {
+    let c = if C == 0 { c } else { C };
+    for (i, (row, g)) in face_index
+        .chunks_exact(w)
+        .zip(grad.chunks_exact(w * c))
+        .enumerate()
+    {
+        for (j, (&f, g)) in row.iter().zip(g.chunks_exact(c)).enumerate() {
+            if f >= 0 {
+                let f = f as usize;
+                drawn[f].add(i, j);
+                let a = &mut acc[f * c..(f + 1) * c];
+                for k in 0..c {
+                    a[k] += g[k] as f64;
+                }
+            }
+        }
+    }
+}
+
 /// Sweep axis: lines are image columns (`U`, moves vertices in v, gives the y gradient) or rows (`V`, gives x).
 #[derive(Clone, Copy, PartialEq)]
 enum Axis {
@@ -444,17 +474,12 @@ pub fn rasterize_backward_on(
             let mut acc = vec![0f64; m * c];
             let mut drawn = vec![Drawn::EMPTY; m];
             let w = params.width;
-            for (i, row) in face_index.chunks_exact(w).enumerate() {
-                for (j, &f) in row.iter().enumerate() {
-                    if f >= 0 {
-                        let f = f as usize;
-                        drawn[f].add(i, j);
-                        let p = i * w + j;
-                        for k in 0..c {
-                            acc[f * c + k] += grad[p * c + k] as f64;
-                        }
-                    }
-                }
+            match c {
+                1 => attr_grad::<1>(face_index, grad, w, c, &mut acc, &mut drawn),
+                2 => attr_grad::<2>(face_index, grad, w, c, &mut acc, &mut drawn),
+                3 => attr_grad::<3>(face_index, grad, w, c, &mut acc, &mut drawn),
+                4 => attr_grad::<4>(face_index, grad, w, c, &mut acc, &mut drawn),
+                _ => attr_grad::<0>(face_index, grad, w, c, &mut acc, &mut drawn),
             }
             let visible = |f: usize| !drawn[f].is_empty();
             for (dst, &src) in ga.iter_mut().zip(&acc) {
