@@ -114,9 +114,11 @@ impl Lines {
                 let j0 = group * GROUP;
                 // One output column at a time: `out[i] = src[i * stride]` (the group's rows stay in cache).
                 let column = |src: &[f64], stride: usize, out: &mut [MaybeUninit<f64>]| {
-                    let src = &src[..(h - 1) * stride + 1];
+                    assert!(out.len() == h && src.len() > (h - 1) * stride);
                     for (i, x) in out.iter_mut().enumerate() {
-                        x.write(src[i * stride]);
+                        // SAFETY: `i < h` and `(h - 1) * stride < src.len()` (asserted above).
+                        #[allow(unsafe_code)]
+                        x.write(unsafe { *src.get_unchecked(i * stride) });
                     }
                 };
                 for (jj, ((face, key), gi)) in face
