@@ -44,3 +44,32 @@ fn one_and_two_threads_give_identical_bits() {
     }
     assert!(g1.grad_verts_screen.iter().any(|&x| x != 0.0));
 }
+
+/// The backward keeps its buffers between calls and refills them: a call gives the same bits whatever calls ran
+/// before it, with larger or smaller images, other channel counts (the generic path above four included) and face
+/// counts.
+#[test]
+fn the_backward_gives_the_same_bits_whatever_ran_before() {
+    let mut rng = Rng::new(21);
+    let cases: Vec<_> = [(300, 67, 53, 4), (900, 97, 131, 6), (40, 19, 23, 1)]
+        .into_iter()
+        .map(|(faces, h, w, c)| {
+            let mesh = random_soup(&mut rng, faces, 1.0, 4.0);
+            let p = params(h, w);
+            let attrs = random_attrs(&mut rng, mesh.num_faces() * c);
+            let grad: Vec<f32> = (0..h * w * c).map(|_| rng.uniform(-1.0, 1.0)).collect();
+            let out = forward(&mesh, &attrs, c, &p);
+            (mesh, p, attrs, grad, out, c)
+        })
+        .collect();
+    let run = |k: usize| {
+        let (mesh, p, attrs, grad, out, c) = &cases[k];
+        let g = with_threads(1, || backward(mesh, attrs, *c, p, out, grad)).expect("pool");
+        (bits(&g.grad_verts_screen), bits(&g.grad_face_attrs))
+    };
+    let first: Vec<_> = (0..cases.len()).map(run).collect();
+    assert!(first.iter().all(|(v, _)| v.iter().any(|&x| x != 0)));
+    for k in [1, 0, 2, 1, 2, 0] {
+        assert_eq!(run(k), first[k], "case {k}");
+    }
+}

@@ -27,6 +27,8 @@
 //!   division, `q = delta / (dist_a * dist_c)`, times `dist_c` and `dist_a`. Both loops are branch-free (skipped
 //!   pixels add 0), sum in four lanes added in a fixed order, and run their last partial block masked over padded
 //!   line buffers (see `sweep`).
+//! * The buffers of a batch element (line buffers, setups, accumulators; about 10 MB at 299 x 299) are kept between
+//!   calls and refilled in place (`workspace`), so that a call does not page-fault fresh memory in.
 //! * The per-face work is compiled twice, for the portable baseline (SSE2 vectors on x86-64, plain code the compiler
 //!   vectorises elsewhere) and for AVX2 (x86-64), and the instruction set is picked at run time (`Isa`), so one
 //!   portable wheel still uses 256-bit vectors.
@@ -37,13 +39,13 @@
 
 mod lines;
 mod sweep;
+mod workspace;
 
 use rayon::prelude::*;
 
-use crate::error::{RasterError, Result};
+use crate::error::{try_clear_for, try_refill, RasterError, Result};
 use crate::input::{check_finite, FaceAttrs, RasterParams, ScreenMesh};
 use crate::setup::FaceSetup;
-use lines::Lines;
 use sweep::{in_sweep, OutSweep, Positions};
 
 /// NMR's `eps` added to the signed displacement (NDC units) before dividing.
@@ -149,8 +151,8 @@ struct Ctx<'a> {
     setups: &'a [FaceSetup],
     /// Where each face is drawn.
     drawn: &'a [Drawn],
-    rows: &'a Lines,
-    cols: &'a Lines,
+    rows: &'a lines::Lines,
+    cols: &'a lines::Lines,
     /// `(M, C)` face attributes as f64.
     attrs: &'a [f64],
     /// `(H, W, C)` image (row-major, as given).
@@ -456,7 +458,7 @@ pub fn rasterize_backward_on(
     mesh.validate()?;
     params.validate()?;
     attrs.validate(mesh)?;
-    let (m, c, hw) = (mesh.num_faces(), attrs.channels, params.pixels());
+    let (m, c) = (mesh.num_faces(), attrs.channels);
     inputs.validate(mesh.batch, m, c, params)?;
     let nv = mesh.num_verts;
     let mut grad_verts_screen = vec![0f32; mesh.batch * nv * 3];
@@ -465,90 +467,123 @@ pub fn rasterize_backward_on(
         .par_chunks_mut(nv * 3)
         .zip(grad_face_attrs.par_chunks_mut(m * c))
         .enumerate()
-        .for_each(|(b, (gv, ga))| {
-            let face_index = &inputs.face_index[b * hw..(b + 1) * hw];
-            let image = &inputs.image[b * hw * c..(b + 1) * hw * c];
-            let grad = &inputs.grad_image[b * hw * c..(b + 1) * hw * c];
-            // Exact attribute gradient, summed in pixel order.
-            // Also the box of the pixels each face is drawn on (empty: not drawn).
-            let mut acc = vec![0f64; m * c];
-            let mut drawn = vec![Drawn::EMPTY; m];
-            let w = params.width;
-            match c {
-                1 => attr_grad::<1>(face_index, grad, w, c, &mut acc, &mut drawn),
-                2 => attr_grad::<2>(face_index, grad, w, c, &mut acc, &mut drawn),
-                3 => attr_grad::<3>(face_index, grad, w, c, &mut acc, &mut drawn),
-                4 => attr_grad::<4>(face_index, grad, w, c, &mut acc, &mut drawn),
-                _ => attr_grad::<0>(face_index, grad, w, c, &mut acc, &mut drawn),
-            }
-            let visible = |f: usize| !drawn[f].is_empty();
-            for (dst, &src) in ga.iter_mut().zip(&acc) {
-                *dst = src as f32;
-            }
-            if !inputs.vertex_grad {
-                return;
-            }
-            // NMR vertex gradient: per-face partials in parallel, reduced in face order.
-            // Only the faces drawn somewhere take part (and only their depths are needed).
-            let setups: Vec<FaceSetup> = (0..m)
-                .map(|f| {
-                    if visible(f) {
-                        FaceSetup::new(mesh, b, f, params)
-                    } else {
-                        FaceSetup::default()
-                    }
-                })
-                .collect();
-            let rows = Lines::rows(&setups, face_index, image, grad, c, params);
-            let cols = Lines::columns(&rows);
-            let attrs_b: Vec<f64> = attrs.values[b * m * c..(b + 1) * m * c]
-                .iter()
-                .map(|&x| x as f64)
-                .collect();
-            let longest = params.height.max(params.width);
-            let pos = Positions::new(longest);
-            let ctx = Ctx {
-                setups: &setups,
-                drawn: &drawn,
-                rows: &rows,
-                cols: &cols,
-                attrs: &attrs_b,
-                image,
-                pos: &pos,
-                channels: c,
-                params,
-            };
-            let partials: Vec<[[f64; 2]; 3]> = (0..m)
-                .into_par_iter()
-                .map_init(
-                    || Scratch {
-                        ga: vec![0.0; if c > 4 { longest + sweep::LANES } else { 0 }],
-                    },
-                    |scratch, f| {
-                        if visible(f) && setups[f].active {
-                            ctx.face_grad_on(isa, f, scratch)
-                        } else {
-                            [[0.0; 2]; 3]
-                        }
-                    },
-                )
-                .collect();
-            let mut accv = vec![0f64; nv * 2];
-            for (f, part) in partials.iter().enumerate() {
-                for (k, &vi) in mesh.face(f).iter().enumerate() {
-                    accv[vi * 2] += part[k][0];
-                    accv[vi * 2 + 1] += part[k][1];
-                }
-            }
-            for (k, xy) in accv.chunks_exact(2).enumerate() {
-                gv[k * 3] = xy[0] as f32;
-                gv[k * 3 + 1] = xy[1] as f32;
-            }
-        });
+        .try_for_each(|(b, (gv, ga))| {
+            let mut ws = workspace::take();
+            let done = element_grads(isa, mesh, attrs, params, inputs, b, gv, ga, &mut ws);
+            workspace::give(ws);
+            done
+        })?;
     Ok(Gradients {
         grad_verts_screen,
         grad_face_attrs,
     })
+}
+
+/// The gradients of batch element `b` (`gv`: its `(N, 3)` vertex gradient, `ga`: its `(M, C)` attribute gradient),
+/// in the buffers of `ws` (each refilled before it is read).
+#[allow(clippy::too_many_arguments)]
+fn element_grads(
+    isa: Isa,
+    mesh: &ScreenMesh<'_>,
+    attrs: &FaceAttrs<'_>,
+    params: &RasterParams,
+    inputs: &BackwardInputs<'_>,
+    b: usize,
+    gv: &mut [f32],
+    ga: &mut [f32],
+    ws: &mut workspace::Workspace,
+) -> Result<()> {
+    let (m, c, hw) = (mesh.num_faces(), attrs.channels, params.pixels());
+    let nv = mesh.num_verts;
+    let workspace::Workspace {
+        rows,
+        cols,
+        setups,
+        drawn,
+        acc,
+        attrs: attrs_b,
+        partials,
+        accv,
+    } = ws;
+    let face_index = &inputs.face_index[b * hw..(b + 1) * hw];
+    let image = &inputs.image[b * hw * c..(b + 1) * hw * c];
+    let grad = &inputs.grad_image[b * hw * c..(b + 1) * hw * c];
+    // Exact attribute gradient, summed in pixel order.
+    // Also the box of the pixels each face is drawn on (empty: not drawn).
+    try_refill(acc, m * c, 0.0, "backward attribute accumulator")?;
+    try_refill(drawn, m, Drawn::EMPTY, "backward face boxes")?;
+    let w = params.width;
+    match c {
+        1 => attr_grad::<1>(face_index, grad, w, c, acc, drawn),
+        2 => attr_grad::<2>(face_index, grad, w, c, acc, drawn),
+        3 => attr_grad::<3>(face_index, grad, w, c, acc, drawn),
+        4 => attr_grad::<4>(face_index, grad, w, c, acc, drawn),
+        _ => attr_grad::<0>(face_index, grad, w, c, acc, drawn),
+    }
+    let drawn = &*drawn;
+    let visible = |f: usize| !drawn[f].is_empty();
+    for (dst, &src) in ga.iter_mut().zip(acc.iter()) {
+        *dst = src as f32;
+    }
+    if !inputs.vertex_grad {
+        return Ok(());
+    }
+    // NMR vertex gradient: per-face partials in parallel, reduced in face order.
+    // Only the faces drawn somewhere take part (and only their depths are needed).
+    try_clear_for(setups, m, "backward face setups")?;
+    setups.extend((0..m).map(|f| {
+        if visible(f) {
+            FaceSetup::new(mesh, b, f, params)
+        } else {
+            FaceSetup::default()
+        }
+    }));
+    rows.fill_rows(setups, face_index, image, grad, c, params)?;
+    cols.fill_columns(rows)?;
+    try_clear_for(attrs_b, m * c, "backward face attributes")?;
+    attrs_b.extend(
+        attrs.values[b * m * c..(b + 1) * m * c]
+            .iter()
+            .map(|&x| x as f64),
+    );
+    let longest = params.height.max(params.width);
+    let pos = Positions::new(longest);
+    let ctx = Ctx {
+        setups,
+        drawn,
+        rows,
+        cols,
+        attrs: attrs_b,
+        image,
+        pos: &pos,
+        channels: c,
+        params,
+    };
+    try_clear_for(partials, m, "backward face partials")?;
+    partials.par_extend((0..m).into_par_iter().map_init(
+        || Scratch {
+            ga: vec![0.0; if c > 4 { longest + sweep::LANES } else { 0 }],
+        },
+        |scratch, f| {
+            if visible(f) && ctx.setups[f].active {
+                ctx.face_grad_on(isa, f, scratch)
+            } else {
+                [[0.0; 2]; 3]
+            }
+        },
+    ));
+    try_refill(accv, nv * 2, 0.0, "backward vertex accumulator")?;
+    for (f, part) in partials.iter().enumerate() {
+        for (k, &vi) in mesh.face(f).iter().enumerate() {
+            accv[vi * 2] += part[k][0];
+            accv[vi * 2 + 1] += part[k][1];
+        }
+    }
+    for (k, xy) in accv.chunks_exact(2).enumerate() {
+        gv[k * 3] = xy[0] as f32;
+        gv[k * 3 + 1] = xy[1] as f32;
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -141,12 +141,32 @@ impl RasterError {
 /// A vector of `len` copies of `value`, or [`RasterError::OutOfMemory`] instead of aborting the process when
 /// the allocation fails (e.g. under an address-space limit).
 pub fn try_filled_vec<T: Clone>(len: usize, value: T, what: &'static str) -> Result<Vec<T>> {
-    let bytes = len.saturating_mul(std::mem::size_of::<T>());
     let mut v = Vec::new();
-    v.try_reserve_exact(len)
-        .map_err(|_| RasterError::OutOfMemory { what, bytes })?;
-    v.resize(len, value);
+    try_refill(&mut v, len, value, what)?;
     Ok(v)
+}
+
+/// Empties `v` and makes room for `len` values in the memory it already holds (growing it only when too small),
+/// or [`RasterError::OutOfMemory`] instead of aborting when growing fails. For buffers reused between calls.
+pub fn try_clear_for<T>(v: &mut Vec<T>, len: usize, what: &'static str) -> Result<()> {
+    v.clear();
+    v.try_reserve_exact(len)
+        .map_err(|_| RasterError::OutOfMemory {
+            what,
+            bytes: len.saturating_mul(std::mem::size_of::<T>()),
+        })
+}
+
+/// `v` refilled with `len` copies of `value` (see [`try_clear_for`]).
+pub fn try_refill<T: Clone>(
+    v: &mut Vec<T>,
+    len: usize,
+    value: T,
+    what: &'static str,
+) -> Result<()> {
+    try_clear_for(v, len, what)?;
+    v.resize(len, value);
+    Ok(())
 }
 
 /// Result alias of the raster core.
@@ -165,5 +185,16 @@ mod tests {
         ));
         assert_eq!(err.kind(), ErrorKind::Memory);
         assert!(err.to_string().starts_with("image: cannot allocate"));
+    }
+
+    #[test]
+    fn a_refilled_buffer_keeps_its_memory_and_holds_only_the_new_values() {
+        let mut v = vec![7u8; 1000];
+        let ptr = v.as_ptr();
+        try_refill(&mut v, 600, 1u8, "v").expect("fits");
+        assert_eq!((v.len(), v.as_ptr()), (600, ptr));
+        assert!(v.iter().all(|&x| x == 1));
+        let err = try_refill(&mut v, usize::MAX / 2, 0u8, "v").expect_err("cannot allocate");
+        assert!(matches!(err, RasterError::OutOfMemory { what: "v", .. }));
     }
 }

@@ -5,6 +5,7 @@ use std::mem::MaybeUninit;
 
 use rayon::prelude::*;
 
+use crate::error::{try_clear_for, try_refill, Result};
 use crate::input::RasterParams;
 use crate::setup::FaceSetup;
 
@@ -16,6 +17,9 @@ use super::sweep::LANES;
 /// any line (the lanes past the line's end are masked out).
 /// Everything is f64, as in the definition: f32 weights or `delta`s change single contributions near an edge
 /// (`delta / EPS` spikes) by more than 1e-5 of a vertex gradient whose terms cancel (measured).
+/// The buffers are refilled in place ([`Lines::fill_rows`], [`Lines::fill_columns`]), so that a `Lines` kept
+/// between calls (see `workspace`) allocates nothing once it is large enough.
+#[derive(Default)]
 pub(super) struct Lines {
     /// Pixels per line.
     pub len: usize,
@@ -35,24 +39,25 @@ pub(super) struct Lines {
 }
 
 impl Lines {
-    /// Row lines from the row-major maps, with the depth-test keys of the drawn faces (`1/z` in perspective, `-z`
-    /// in orthographic, larger = nearer; `z` recomputed from the positions exactly as the forward computes it;
-    /// `-inf` on background).
-    pub fn rows(
+    /// Becomes the row lines of the row-major maps, with the depth-test keys of the drawn faces (`1/z` in
+    /// perspective, `-z` in orthographic, larger = nearer; `z` recomputed from the positions exactly as the forward
+    /// computes it; `-inf` on background). Every value is rewritten; only the buffers' memory is reused.
+    pub fn fill_rows(
+        &mut self,
         setups: &[FaceSetup],
         face_index: &[i32],
         image: &[f32],
         grad: &[f32],
         c: usize,
         params: &RasterParams,
-    ) -> Lines {
+    ) -> Result<()> {
         let (h, w) = (params.height, params.width);
         let n = h * w;
         let (mut face, mut key, mut gi, mut planes) = (
-            Fill::new(n, 0.0),
-            Fill::new(n, f64::NEG_INFINITY),
-            Fill::new(n, 0.0),
-            Fill::new(n * c, 0.0),
+            Fill::new(&mut self.face, n, 0.0)?,
+            Fill::new(&mut self.key, n, f64::NEG_INFINITY)?,
+            Fill::new(&mut self.gi, n, 0.0)?,
+            Fill::new(&mut self.grad, n.saturating_mul(c), 0.0)?,
         );
         // One pass per row.
         face.slots()
@@ -89,20 +94,25 @@ impl Lines {
         // SAFETY: the row passes above wrote every slot: each row chunk writes its `w` face, key and gi values and
         // its `w * c` plane values.
         #[allow(unsafe_code)]
-        let (face, key, gi, planes) =
-            unsafe { (face.done(), key.done(), gi.done(), planes.done()) };
-        Lines::finish(h, w, c, face, key, gi, planes)
+        unsafe {
+            face.done();
+            key.done();
+            gi.done();
+            planes.done();
+        }
+        self.finish(h, w, c)
     }
 
-    /// Column lines: the transpose of `rows`, in groups of [`GROUP`] columns (so that each row is read in runs).
-    pub fn columns(rows: &Lines) -> Lines {
+    /// Becomes the column lines: the transpose of `rows`, in groups of [`GROUP`] columns (so that each row is read
+    /// in runs). Every value is rewritten; only the buffers' memory is reused.
+    pub fn fill_columns(&mut self, rows: &Lines) -> Result<()> {
         let (w, h, c) = (rows.len, rows.lines(), rows.channels);
         let n = h * w;
         let (mut face, mut key, mut gi, mut planes) = (
-            Fill::new(n, 0.0),
-            Fill::new(n, f64::NEG_INFINITY),
-            Fill::new(n, 0.0),
-            Fill::new(n * c, 0.0),
+            Fill::new(&mut self.face, n, 0.0)?,
+            Fill::new(&mut self.key, n, f64::NEG_INFINITY)?,
+            Fill::new(&mut self.gi, n, 0.0)?,
+            Fill::new(&mut self.grad, n.saturating_mul(c), 0.0)?,
         );
         face.slots()
             .par_chunks_mut(GROUP * h)
@@ -143,32 +153,31 @@ impl Lines {
         // SAFETY: every group of `cols` columns wrote its `cols * h` face, key and gi values and `cols * c * h` plane
         // values (all rows i, all columns jj, all channels).
         #[allow(unsafe_code)]
-        let (face, key, gi, planes) =
-            unsafe { (face.done(), key.done(), gi.done(), planes.done()) };
-        Lines::finish(w, h, c, face, key, gi, planes)
+        unsafe {
+            face.done();
+            key.done();
+            gi.done();
+            planes.done();
+        }
+        self.finish(w, h, c)
     }
 
-    /// `lines` lines of `len` pixels from their (padded) planes, with [`Lines::nonzero`] found.
-    fn finish(
-        lines: usize,
-        len: usize,
-        channels: usize,
-        face: Vec<f64>,
-        key: Vec<f64>,
-        gi: Vec<f64>,
-        grad: Vec<f64>,
-    ) -> Lines {
-        let mut out = Lines {
-            len,
-            channels,
-            face,
-            key,
-            gi,
-            grad,
-            nonzero: vec![[0, 0]; lines],
-        };
-        out.find_nonzero();
-        out
+    /// Sets the shape (`lines` lines of `len` pixels, `channels` channels; the planes are filled) and finds
+    /// [`Lines::nonzero`].
+    fn finish(&mut self, lines: usize, len: usize, channels: usize) -> Result<()> {
+        self.len = len;
+        self.channels = channels;
+        try_refill(&mut self.nonzero, lines, [0, 0], "backward line ranges")?;
+        self.find_nonzero();
+        Ok(())
+    }
+
+    /// Bytes held (capacity) by the buffers.
+    pub fn bytes(&self) -> usize {
+        let f64s =
+            self.face.capacity() + self.key.capacity() + self.gi.capacity() + self.grad.capacity();
+        f64s * std::mem::size_of::<f64>()
+            + self.nonzero.capacity() * std::mem::size_of::<[usize; 2]>()
     }
 
     /// Number of lines.
@@ -266,20 +275,22 @@ fn channels<const C: usize>(
 /// Columns transposed together by [`Lines::columns`].
 const GROUP: usize = 8;
 
-/// A buffer being filled: `len` values, then [`LANES`] of padding, allocated without being zeroed first.
-struct Fill {
-    buf: Vec<f64>,
+/// A buffer being filled: `len` values, then [`LANES`] of padding, in the buffer's memory (grown when too small)
+/// without being zeroed first. Until [`Fill::done`] the buffer is empty, so its old values are never read.
+struct Fill<'a> {
+    buf: &'a mut Vec<f64>,
     len: usize,
 }
 
-impl Fill {
-    /// A buffer of `len` values to write, with its padding set to `pad`.
-    fn new(len: usize, pad: f64) -> Fill {
-        let mut buf = Vec::with_capacity(len + LANES);
+impl<'a> Fill<'a> {
+    /// `buf` emptied to receive `len` values to write, with its padding set to `pad`; an error when it cannot
+    /// grow to that size.
+    fn new(buf: &'a mut Vec<f64>, len: usize, pad: f64) -> Result<Fill<'a>> {
+        try_clear_for(buf, len.saturating_add(LANES), "backward line buffers")?;
         for x in &mut buf.spare_capacity_mut()[len..len + LANES] {
             x.write(pad);
         }
-        Fill { buf, len }
+        Ok(Fill { buf, len })
     }
 
     /// The `len` values to write.
@@ -287,15 +298,15 @@ impl Fill {
         &mut self.buf.spare_capacity_mut()[..self.len]
     }
 
-    /// The filled buffer.
+    /// Marks the buffer filled (`len` values and the padding).
     ///
     /// # Safety
     /// Every element of [`Fill::slots`] must have been written.
     #[allow(unsafe_code)]
-    unsafe fn done(mut self) -> Vec<f64> {
-        // SAFETY: the first `len` values are written (the caller's promise), the padding by `new`.
+    unsafe fn done(self) {
+        // SAFETY: the first `len` values are written (the caller's promise), the padding by `new`; the capacity is
+        // at least `len + LANES` (`new`).
         unsafe { self.buf.set_len(self.len + LANES) };
-        self.buf
     }
 }
 
