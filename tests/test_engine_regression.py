@@ -215,10 +215,18 @@ def sweep() -> Dict[str, Any]:
     from meshadv.experiments.config import expand_jobs, parse_config
     from sweep_fixtures import tiny_builtin_config
 
+    from unittest import mock
+
+    from meshadv.experiments import jobs as job_module
+    from meshadv.victims import registry
+
     _lite0()
     config = tiny_builtin_config("engine-regression", image_size=48, steps=8, perturbations=("shape",))
     jobs = expand_jobs(parse_config(config))
-    with tempfile.TemporaryDirectory() as tmp:
+    # The jobs build their victim with load_victim's default; the reference was recorded with the unfolded network
+    # (see _lite0), so here that default is optimize=False and the jobs' victim cache starts empty (restored after).
+    with mock.patch.dict(registry.load_victim.__kwdefaults__, {"optimize": False}), \
+            mock.patch.dict(job_module._VICTIM_CACHE, clear=True), tempfile.TemporaryDirectory() as tmp:
         store = ResultStore(Path(tmp) / "r.db")
         run_sweep(store, jobs, "meshadv.experiments.jobs:run_attack_job", out_root=Path(tmp) / "run",
                   backend=SerialBackend(), max_attempts=1, progress=False)
