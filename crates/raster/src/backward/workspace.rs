@@ -94,7 +94,7 @@ mod tests {
     }
 
     #[test]
-    fn a_given_workspace_is_taken_again() {
+    fn a_workspace_given_back_is_kept() {
         let mut ws = Workspace::default();
         ws.accv.reserve_exact(1000);
         let ptr = ws.accv.as_ptr();
