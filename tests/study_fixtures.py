@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from meshadv.experiments import ResultStore, SerialBackend, run_sweep
 from meshadv.experiments.config import expand_jobs, parse_config
+from sweep_fixtures import run_probe_sweep
 
 #: Three classes, one configuration, shape and texture: 12 jobs; every fourth one fails, so 9 succeed.
 TINY_STUDY_SWEEP = {
@@ -20,8 +20,4 @@ TINY_STUDY_SWEEP = {
 def make_study_db(root: Path) -> Path:
     """Run the synthetic sweep (:func:`meshadv.experiments.probes.mesh_probe_job`) into ``root``; return the db."""
     jobs = [{**j, "success": i % 4 != 3} for i, j in enumerate(expand_jobs(parse_config(TINY_STUDY_SWEEP)))]
-    db = root / "results.db"
-    with ResultStore(db) as store:
-        run_sweep(store, jobs, "meshadv.experiments.probes:mesh_probe_job", out_root=root / "run",
-                  backend=SerialBackend(), progress=False)
-    return db
+    return run_probe_sweep(root / "results.db", jobs, root / "run")

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Any, Dict, Sequence
+from pathlib import Path
+from typing import Any, Dict, Iterable, Sequence
+
+from meshadv.experiments import ResultStore, SerialBackend, run_sweep
 
 
 def tiny_builtin_config(name: str, *, image_size: int = 32, steps: int = 3,
@@ -18,3 +21,12 @@ def tiny_builtin_config(name: str, *, image_size: int = 32, steps: int = 3,
         "attack": {"perturbations": list(perturbations), "benign_correct_only": False,
                    "shape": {"steps": steps, "lr": 0.01}, "texture": {"steps": steps}},
     }
+
+
+def run_probe_sweep(db: Path, jobs: Iterable[Dict[str, Any]], out_root: Path) -> Path:
+    """Run synthetic attack jobs (:func:`meshadv.experiments.probes.mesh_probe_job`: no renderer, no victim; each
+    job's ``success`` key decides its outcome) serially into the database ``db``; return ``db``."""
+    with ResultStore(db) as store:
+        run_sweep(store, jobs, "meshadv.experiments.probes:mesh_probe_job", out_root=out_root,
+                  backend=SerialBackend(), progress=False)
+    return db

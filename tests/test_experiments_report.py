@@ -14,10 +14,11 @@ from typer.testing import CliRunner
 
 from meshadv.commands import report as report_cmd
 from meshadv.commands import sweep as sweep_cmd
-from meshadv.experiments import ResultStore, SerialBackend, job_id, run_sweep
+from meshadv.experiments import ResultStore, job_id
 from meshadv.experiments.config import expand_jobs, load_config, parse_config
 from meshadv.experiments.figures import curvature_scatter, flow_heatmaps, flow_quiver, mean_curvature_np
 from meshadv.experiments.report import write_report
+from sweep_fixtures import run_probe_sweep
 
 TINY = """
 [experiment]
@@ -165,10 +166,7 @@ def test_report_counts_failed_and_unsuccessful_jobs(tmp_path: Path) -> None:
         types = ["shape"]
     """)))
     jobs = [{**j, "success": j["source_class"] == "boat"} for j in expand_jobs(cfg)]
-    store = ResultStore(tmp_path / "r.db")
-    run_sweep(store, jobs, "meshadv.experiments.probes:mesh_probe_job", out_root=tmp_path, backend=SerialBackend(),
-              progress=False)
-    store.close()
+    run_probe_sweep(tmp_path / "r.db", jobs, tmp_path)
     out = write_report(tmp_path / "r.db", tmp_path / "rep", figures=False)
     assert out.counts["successes"] == 1 and out.figures == []
     csv = (tmp_path / "rep" / "table1.csv").read_text().splitlines()

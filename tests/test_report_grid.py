@@ -8,10 +8,11 @@ from typing import List
 
 import pytest
 
-from meshadv.experiments import ResultStore, SerialBackend, run_sweep
+from meshadv.experiments import ResultStore
 from meshadv.experiments.config import expand_jobs, parse_config
 from meshadv.experiments.figures import grid_figure, render_grid
 from meshadv.experiments.report import _grid_cells, write_report
+from sweep_fixtures import run_probe_sweep
 
 CONFIG = textwrap.dedent("""
     [meshes]
@@ -33,13 +34,12 @@ def small_db(tmp_path: Path) -> Path:
 
     jobs = [{**j, "success": (j["source_class"], j["target"]) != ("boat", "chair")}
             for j in expand_jobs(parse_config(tomllib.loads(CONFIG))) if j["source_class"] != "diningtable"]
-    with ResultStore(tmp_path / "r.db") as store:
-        run_sweep(store, jobs, "meshadv.experiments.probes:mesh_probe_job", out_root=tmp_path / "run",
-                  backend=SerialBackend(), progress=False)
+    db = run_probe_sweep(tmp_path / "r.db", jobs, tmp_path / "run")
+    with ResultStore(db, read_only=True) as store:
         for row in store.rows():
             if (row.spec["source_class"], row.spec["target"]) == ("chair", "boat"):
                 (Path(row.out_dir) / "after_v0.png").unlink()
-    return tmp_path / "r.db"
+    return db
 
 
 def _texts(fig) -> List:
