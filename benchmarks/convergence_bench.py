@@ -86,11 +86,24 @@ def method_settings(method: str, perturbation: str) -> Dict[str, Any]:
     raise ValueError(f"method must be one of {METHODS}, got {method!r}")
 
 
-def make_attack(method: str, perturbation: str) -> Any:
-    """The attack object of ``method`` (the render settings of a config are left to :data:`SETUP`)."""
+def make_attack(method: str, perturbation: str, method_options: Optional[Dict[str, Any]] = None,
+                attack_options: Optional[Dict[str, Any]] = None) -> Any:
+    """The attack object of ``method`` (the render settings of a config are left to :func:`render_setup`).
+
+    ``method_options`` (``ddn`` only) is passed as the attack's ``method_options``; ``attack_options`` (e.g.
+    ``{"loss": "cw"}``) override the method's attack keyword arguments.
+
+    Raises:
+        ValueError: ``method_options`` for a method other than ``ddn``.
+    """
     from meshadv.attacks import make_attack as make_family_attack
 
     kwargs = {k: v for k, v in method_settings(method, perturbation).items() if k not in ("antialias", "image_size")}
+    if method_options:
+        if method != "ddn":
+            raise ValueError(f"method_options apply to method 'ddn' only, got method {method!r}")
+        kwargs["method_options"] = dict(method_options)
+    kwargs.update(attack_options or {})
     return make_family_attack(perturbation, **kwargs)
 
 
@@ -101,14 +114,18 @@ def render_setup() -> Any:
     return RenderSetup(image_size=224, antialias=2)
 
 
-def instances(per_class: int, classes: Sequence[str]) -> List[Tuple[str, int, Dict[str, Any]]]:
+def instances(per_class: int, classes: Sequence[str],
+              only: Optional[Sequence[Tuple[str, int]]] = None) -> List[Tuple[str, int, Dict[str, Any]]]:
     """``(class, configuration index, rendering record)`` of the benchmark set: every class's first configuration, then
-    every class's second, ... (so a partial run covers every class)."""
+    every class's second, ... (so a partial run covers every class). ``only``: keep just these ``(class, index)``."""
     from meshadv.datasets.rendering_set import load_rendering_set, packaged_rendering_set_path
 
     doc = load_rendering_set(packaged_rendering_set_path())
     by_class = {cls: [r for r in doc["renderings"] if r["class"] == cls][:per_class] for cls in classes}
-    return [(cls, i, by_class[cls][i]) for i in range(per_class) for cls in classes if i < len(by_class[cls])]
+    out = [(cls, i, by_class[cls][i]) for i in range(per_class) for cls in classes if i < len(by_class[cls])]
+    if only is not None:
+        out = [job for job in out if (job[0], job[1]) in set(only)]
+    return out
 
 
 def _curves(history: Sequence[Dict[str, Any]], num_targets: int) -> List[Dict[str, Any]]:
@@ -161,8 +178,12 @@ class _Progress:
 
 
 def run_one(method: str, perturbation: str, cls: str, index: int, record: Dict[str, Any], victim: Any,
-            target_faces: int, progress: Optional[Tuple[int, Any]] = None) -> Dict[str, Any]:
+            target_faces: int, progress: Optional[Tuple[int, Any]] = None,
+            method_options: Optional[Dict[str, Any]] = None,
+            attack_options: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
     """Attack one instance towards its 6 targets with ``method``; the JSON-able row.
+
+    ``method_options`` and ``attack_options``: see :func:`make_attack` (the row's ``config`` records them).
 
     ``progress`` = ``(every, save)``: ``save(key, partial_row)`` is called every ``every`` steps and at the end of
     every round (see :class:`_Progress`). A run stopped by Ctrl-C (SIGINT) returns the row of the steps done, with
@@ -177,7 +198,7 @@ def run_one(method: str, perturbation: str, cls: str, index: int, record: Dict[s
                           "max_faces": 100000})
     views = ViewSet.from_records([record["view"]])
     targets = [c for c in CLASSES if c != cls]
-    attack = make_attack(method, perturbation)
+    attack = make_attack(method, perturbation, method_options, attack_options)
     base = {
         "method": method, "perturbation": perturbation, "class": cls, "index": index, "mesh": record["mesh"],
         "candidate": record.get("candidate"), "targets": targets, "num_vertices": int(mesh.vertices.shape[0]),
@@ -247,10 +268,13 @@ def run(args: argparse.Namespace) -> None:
     """Run the pending runs of this shard, one committed row each."""
     from meshadv.victims import load_victim
 
+    if (args.method_options or args.attack_options) and args.db.resolve() == DEFAULT_DB.resolve():
+        raise SystemExit("--method-options / --attack-options need their own --db (the default file holds the "
+                         "benchmark's default rows, and rows are keyed by method, perturbation and instance only)")
     con = _connect(args.db)
     done = {k for (k,) in con.execute("SELECT key FROM runs")}
     plan = [(m, p, c, i, r) for m in args.methods for p in args.perturbations
-            for c, i, r in instances(args.instances, args.classes)]
+            for c, i, r in instances(args.instances, args.classes, args.only)]
     pending = [job for job in plan if _key(*job[:4]) not in done]
     shard, shards = args.shard
     pending = pending[shard::shards]
@@ -262,7 +286,8 @@ def run(args: argparse.Namespace) -> None:
         if con.execute("SELECT 1 FROM runs WHERE key = ?", (key,)).fetchone():
             continue
         row = run_one(method, perturbation, cls, index, record, victim, args.target_faces,
-                      progress=(args.checkpoint, lambda k, r: _save_partial(con, k, r)))
+                      progress=(args.checkpoint, lambda k, r: _save_partial(con, k, r)),
+                      method_options=args.method_options, attack_options=args.attack_options)
         if row.get("partial"):
             _save_partial(con, key, row)
             print(f"{key}: stopped at step {row['history_len']}; partial row stored, no further runs", flush=True)
@@ -608,6 +633,23 @@ def _shard(text: str) -> Tuple[int, int]:
     return i, n
 
 
+def _json_object(text: str) -> Dict[str, Any]:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise argparse.ArgumentTypeError(f"not valid JSON ({err}): {text}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"must be a JSON object, got {text}")
+    return value
+
+
+def _instance(text: str) -> Tuple[str, int]:
+    cls, _, index = text.partition("/")
+    if cls not in CLASSES or not index.isdigit():
+        raise argparse.ArgumentTypeError(f"must be CLASS/INDEX with CLASS one of {CLASSES}, got {text}")
+    return cls, int(index)
+
+
 def main(argv: Optional[Sequence[str]] = None) -> None:
     """Command line (see the module docstring)."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -615,6 +657,13 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     parser.add_argument("--perturbations", nargs="+", choices=("shape", "texture"), default=["texture", "shape"])
     parser.add_argument("--classes", nargs="+", choices=CLASSES, default=list(CLASSES))
     parser.add_argument("--instances", type=int, default=2, help="rendering-set configurations per class")
+    parser.add_argument("--only", nargs="+", type=_instance, default=None, metavar="CLASS/INDEX",
+                        help="run only these instances of the benchmark set (e.g. bottle/1 sofa/0)")
+    parser.add_argument("--method-options", type=_json_object, default=None, metavar="JSON",
+                        help="ddn's method_options, e.g. '{\"momentum\": 0.9}' (use a separate --db per setting: "
+                             "rows are keyed by method, perturbation and instance only)")
+    parser.add_argument("--attack-options", type=_json_object, default=None, metavar="JSON",
+                        help="extra attack keyword arguments, e.g. '{\"loss\": \"cw\"}' (a separate --db too)")
     parser.add_argument("--target-faces", type=int, default=4000)
     parser.add_argument("--db", type=Path, default=DEFAULT_DB)
     parser.add_argument("--shard", type=_shard, default=(0, 1))

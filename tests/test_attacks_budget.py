@@ -189,6 +189,9 @@ def test_after_success_anneal_keeps_the_full_step_until_a_target_first_holds() -
     ({"final_step_size": 1.0}, "final_step_size"), ({"init_budget": float("nan")}, "init_budget"),
     ({"min_budget": 1.0}, "min_budget"), ({"smoothness": 0.0}, "smoothness"), ({"bogus": 1}, "bogus"),
     ({"anneal": "linear"}, "anneal"), ({"anneal": None}, "anneal"),
+    ({"momentum": 1.0}, "momentum"), ({"momentum": -0.1}, "momentum"), ({"momentum": True}, "momentum"),
+    ({"stall_steps": -1}, "stall_steps"), ({"stall_steps": 2.5}, "stall_steps"), ({"stall_steps": True}, "stall_steps"),
+    ({"stall_factor": 0.0}, "stall_factor"), ({"stall_factor": 1.5}, "stall_factor"),
 ])
 def test_bad_options_raise_value_error_naming_them(options: Dict[str, Any], name: str) -> None:
     with pytest.raises(ValueError, match=name):
@@ -321,7 +324,65 @@ def test_texture_step_follows_the_colour_gradient() -> None:
     assert params.grad is None
 
 
-def test_batched_targets_are_independent() -> None:
+def _texture_rule(**options: Any) -> Any:
+    """A texture rule on a grey cube (colours 0.5) with a budget that never binds, its params and edges."""
+    mesh = builtin_mesh("cube").with_face_colors(torch.full((12, 3), 0.5))
+    rule = DDNRule(attack=TextureAttack(method="ddn", steps=10), num_targets=1,
+                   **{"init_budget": 1.0, "step_size": 0.01, "final_step_size": 0.01, **options})
+    rule.prepare(mesh, vertex_edges(mesh.faces).long())
+    params = torch.logit(mesh.face_colors).unsqueeze(0).clone().requires_grad_(True)
+    rule.start_round(params)
+    return rule, params, mesh
+
+
+def _linear_step(rule: Any, params: torch.Tensor, weights: torch.Tensor, value: float = 0.0) -> None:
+    """One rule step on a loss whose colour gradient is ``weights`` and whose value is ``value``."""
+    idx = torch.tensor([0])
+    lin = (torch.sigmoid(params[idx]) * weights).sum(dim=(1, 2))
+    loss = lin + (value - lin.detach())
+    rule.objective(loss, loss * 0, loss * 0, idx).backward()
+    rule.step(params, idx, torch.tensor([False]))
+
+
+def test_momentum_steps_along_the_normalised_sum_of_unit_directions() -> None:
+    """With ``momentum = beta`` the second step goes along ``beta d1 + d2`` (unit RMSE), not ``d2``."""
+    e1, e2 = torch.zeros(1, 12, 3), torch.zeros(1, 12, 3)
+    e1[0, 0, 0], e2[0, 5, 1] = 1.0, 1.0
+    unit = math.sqrt(12.0)  # RMSE of a one-entry unit vector is 1 / sqrt(12)
+    for beta in (0.0, 0.5):
+        rule, params, mesh = _texture_rule(momentum=beta)
+        _linear_step(rule, params, e1)
+        _linear_step(rule, params, e2)
+        moved = torch.sigmoid(params.detach()) - mesh.face_colors
+        v = -(beta * e1 + e2) * unit
+        expected = -e1 * unit * 0.01 + v / v.pow(2).sum(-1).mean().sqrt() * 0.01
+        assert torch.allclose(moved, expected, atol=1e-5)
+        assert (float(moved[0, 0, 0]) < -0.04) == (beta > 0)  # momentum kept moving along the first direction
+
+
+def test_stall_restarts_from_the_lowest_loss_point_with_a_smaller_step() -> None:
+    """``stall_steps = 2``: two steps without a lower loss put the target back where its loss was lowest, and its
+    step length is then multiplied by ``stall_factor``."""
+    weights = torch.randn(1, 12, 3, generator=torch.Generator().manual_seed(4))
+    rule, params, mesh = _texture_rule(stall_steps=2, stall_factor=0.25)
+    colours = []
+    for value in (1.0, 0.5, 0.7, 0.8):  # lowest at the second step's point
+        colours.append(torch.sigmoid(params.detach()).clone())
+        _linear_step(rule, params, weights, value)
+    assert int(rule.restarts[0]) == 1
+    assert torch.allclose(torch.sigmoid(params.detach()), colours[1], atol=1e-6)  # back, no step from there
+    before = torch.sigmoid(params.detach()).clone()
+    _linear_step(rule, params, weights, 0.9)
+    step = torch.sigmoid(params.detach()) - before
+    assert float(step.pow(2).sum(-1).mean().sqrt()) == pytest.approx(0.25 * 0.01, rel=1e-3)
+    fresh, fresh_params, _ = _texture_rule()  # off by default: never restarts
+    for value in (1.0, 0.5, 0.7, 0.8):
+        _linear_step(fresh, fresh_params, weights, value)
+    assert int(fresh.restarts[0]) == 0
+
+
+@pytest.mark.parametrize("extra", [{}, {"momentum": 0.9, "stall_steps": 2}])
+def test_batched_targets_are_independent(extra: Dict[str, Any]) -> None:
     """Two targets stepped together by one rule move exactly as each stepped alone (budgets, steps, directions)."""
     mesh = builtin_mesh("chair")
     edges = vertex_edges(mesh.faces).long()
@@ -330,7 +391,7 @@ def test_batched_targets_are_independent() -> None:
     held = torch.rand(8, 2, generator=generator) > 0.5
 
     def run(targets: list) -> torch.Tensor:
-        rule = DDNRule(attack=ShapeAttack(method="ddn", steps=8), num_targets=len(targets), **SMALL_SHAPE)
+        rule = DDNRule(attack=ShapeAttack(method="ddn", steps=8), num_targets=len(targets), **SMALL_SHAPE, **extra)
         rule.prepare(mesh, edges)
         params = torch.zeros(len(targets), *mesh.vertices.shape, requires_grad=True)
         rule.start_round(params)

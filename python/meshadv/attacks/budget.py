@@ -18,6 +18,15 @@ cosine from ``step_size`` at ``k0`` to ``final_step_size`` at the last step, so 
 reached 1 of them (far above the paper's distance) and left 7 of 8 more distorted (pair mean up to 11x): the step
 length is not what stops them (benchmarks/RESULTS.md, "ddn: the targets it misses"), so ``"cosine"`` stays the default.
 
+Two options change the step itself (both off by default):
+
+* ``momentum`` ``beta`` in ``[0, 1)``: the step goes along the normalised running sum ``v <- beta v + d`` of the unit
+  directions ``d`` (MI-FGSM's accumulation, as DDN's authors suggest for noisy gradients), to damp the step-to-step
+  swings of NMR's surrogate gradient.
+* ``stall_steps`` ``N`` (0: off) and ``stall_factor`` ``f`` in ``(0, 1]``: a target whose adversarial loss has not
+  fallen below its lowest value for ``N`` steps, and that does not hold, is put back at its lowest-loss
+  perturbation, its momentum cleared and its step length multiplied by ``f`` (a local restart with smaller steps).
+
 ``eps`` never goes below ``min_budget`` (> 0), so it is never negative. The engine keeps the least distorted step
 where the target held, so a run returns its best success, not its last step.
 
@@ -52,7 +61,7 @@ Example:
 from __future__ import annotations
 
 import math
-from typing import Any, Dict, Optional
+from typing import Any, Dict, Optional, Tuple
 
 import numpy as np
 import torch
@@ -66,10 +75,13 @@ __all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS
 #: Default options of ``method="ddn"`` per perturbation (norm units, see the module docstring).
 DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {
     "shape": {"init_budget": 1e-3, "gamma": 0.05, "step_size": 1e-3, "final_step_size": 1e-4, "min_budget": 1e-7,
-              "smoothness": 1.0, "anneal": "cosine"},
+              "smoothness": 1.0, "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5},
     "texture": {"init_budget": 5e-3, "gamma": 0.1, "step_size": 5e-3, "final_step_size": 5e-4, "min_budget": 1e-6,
-                "anneal": "cosine"},
+                "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5},
 }
+
+#: Options of :class:`DDNRule` that are not :class:`BudgetState`'s.
+_RULE_OPTIONS = ("smoothness", "momentum", "stall_steps", "stall_factor")
 
 #: Values of the ``anneal`` option: when the step length falls (see the module docstring).
 ANNEAL_MODES = ("cosine", "after_success")
@@ -316,6 +328,10 @@ class DDNRule(UpdateRule):
         init_budget, gamma, step_size, final_step_size, min_budget, anneal: :class:`BudgetState` options (norm
             units); defaults per perturbation in :data:`DDN_DEFAULTS`.
         smoothness: shape only, ``s`` of the preconditioner ``(L + I/s)^-1`` (``None``: the Laplacian alone).
+        momentum, stall_steps, stall_factor: the step's momentum and stall restarts (see the module docstring).
+
+    Attributes:
+        restarts: int64 ``(T,)``, stall restarts per target in the current round.
 
     Raises:
         ValueError: an option out of range or not known for the perturbation, ``binary_search_steps != 1``, or an
@@ -352,11 +368,22 @@ class DDNRule(UpdateRule):
                 raise ValueError(f"method='ddn' cannot step the parametrisation of {type(attack).__name__}")
         self.kind = kind
         self.options = {**DDN_DEFAULTS[kind], **options}
-        opts = dict(self.options)
-        smoothness = opts.pop("smoothness", None)
+        opts = {k: v for k, v in self.options.items() if k not in _RULE_OPTIONS}
+        smoothness = self.options.get("smoothness")
         if smoothness is not None:
             _positive("smoothness", smoothness)
         self.smoothness = smoothness
+        momentum = self.options["momentum"]
+        if isinstance(momentum, bool) or not isinstance(momentum, (int, float)) or not 0 <= momentum < 1:
+            raise ValueError(f"momentum must be a number in [0, 1), got {momentum!r}")
+        self.momentum = float(momentum)
+        stall_steps = self.options["stall_steps"]
+        if isinstance(stall_steps, bool) or not isinstance(stall_steps, int) or stall_steps < 0:
+            raise ValueError(f"stall_steps must be an integer >= 0 (0: off), got {stall_steps!r}")
+        self.stall_steps = int(stall_steps)
+        self.stall_factor = _positive("stall_factor", self.options["stall_factor"])
+        if self.stall_factor > 1:
+            raise ValueError(f"stall_factor must be in (0, 1], got {self.stall_factor!r}")
         self._attack = attack
         self._budget_options = opts
         BudgetState(num_targets, attack.steps, **opts)  # validate every option now
@@ -365,6 +392,13 @@ class DDNRule(UpdateRule):
         self.norm: Any = None
         self._origin: Optional[Tensor] = None
         self._delta: Optional[Tensor] = None
+        self._velocity: Optional[Tensor] = None
+        self._scale = torch.ones(self.num_targets, dtype=torch.float64)
+        self._best_loss = torch.full((self.num_targets,), math.inf, dtype=torch.float64)
+        self._best_delta: Optional[Tensor] = None
+        self._since_best = torch.zeros(self.num_targets, dtype=torch.long)
+        self._last_loss: Optional[Tensor] = None
+        self.restarts = torch.zeros(self.num_targets, dtype=torch.long)
         self._step = 0
 
     @property
@@ -392,12 +426,59 @@ class DDNRule(UpdateRule):
             raise RuntimeError("DDNRule.prepare(mesh, edges) must be called before start_round")
         self.state.reset()
         self._delta = torch.zeros((params.shape[0], *self._origin.shape), dtype=params.dtype)
+        self._velocity = torch.zeros_like(self._delta) if self.momentum > 0 else None
+        self._scale = torch.ones(self.num_targets, dtype=torch.float64)
+        self._best_loss = torch.full((self.num_targets,), math.inf, dtype=torch.float64)
+        self._best_delta = self._delta.clone() if self.stall_steps > 0 else None
+        self._since_best = torch.zeros(self.num_targets, dtype=torch.long)
+        self.restarts = torch.zeros(self.num_targets, dtype=torch.long)
+        self._last_loss = None
         self._step = 0
         params.grad = None
 
     def objective(self, adv: Tensor, perceptual: Tensor, distance: Tensor, active: Tensor) -> Tensor:
         """The adversarial loss alone, summed over the targets (the distortion is the budget)."""
+        self._last_loss = adv.detach().double().cpu()
         return adv.sum()
+
+    def _restart_stalled(self, idx: Tensor, delta: Tensor, held: Tensor) -> Tuple[Tensor, Tensor]:
+        """Stall handling (``stall_steps > 0``): every target of ``idx`` whose adversarial loss has not improved for
+        ``stall_steps`` steps without holding is put back at its lowest-loss point (this step's gradient, taken
+        elsewhere, is not used for it); its step length is multiplied by ``stall_factor`` and its momentum cleared.
+        Returns the new ``delta`` and the restarted rows (bool ``(K,)``)."""
+        none = torch.zeros(len(idx), dtype=torch.bool)
+        if self.stall_steps == 0 or self._best_delta is None or self._last_loss is None:
+            return delta, none
+        if len(self._last_loss) != len(idx):
+            return delta, none
+        loss = self._last_loss
+        better = loss < self._best_loss[idx]
+        self._best_loss[idx] = torch.where(better, loss, self._best_loss[idx])
+        rows = idx[better]
+        if len(rows):
+            self._best_delta[rows] = delta[better].to(self._best_delta.dtype)
+        since = torch.where(better | held, torch.zeros_like(self._since_best[idx]), self._since_best[idx] + 1)
+        stalled = since >= self.stall_steps
+        if bool(stalled.any()):
+            rows = idx[stalled]
+            delta = delta.clone()
+            delta[stalled] = self._best_delta[rows].to(delta.dtype)
+            self._scale[rows] *= self.stall_factor
+            self.restarts[rows] += 1
+            since = torch.where(stalled, torch.zeros_like(since), since)
+            if self._velocity is not None:
+                self._velocity[rows] = 0
+        self._since_best[idx] = since
+        return delta, stalled
+
+    def _heading(self, idx: Tensor, direction: Tensor) -> Tensor:
+        """The unit step direction of the targets ``idx``: ``direction``, or with ``momentum = beta > 0`` the
+        normalised running sum ``v <- beta v + direction`` of the unit directions (MI-FGSM's accumulation)."""
+        if self._velocity is None:
+            return direction
+        v = self.momentum * self._velocity[idx] + direction.to(self._velocity.dtype)
+        self._velocity[idx] = v
+        return _unit(v, self.norm.norm(v)).to(direction.dtype)
 
     def step(self, params: Tensor, active: Tensor, is_adversarial: Tensor) -> None:
         """Budget update, one step of fixed length in the budget's norm, projection into the budget ball."""
@@ -412,7 +493,13 @@ class DDNRule(UpdateRule):
                 grad = grad / (colors * (1 - colors)).clamp(min=_TINY)
             delta = self._delta[idx]
             budgets = self.state.update(idx, is_adversarial, self.norm.norm(delta), self._step)
-            moved = self.state.move(delta, self.norm.direction(grad), budgets, self._step, self.norm, idx)
+            delta, restarted = self._restart_stalled(idx, delta, is_adversarial.detach().cpu().bool())
+            heading = self._heading(idx, self.norm.direction(grad))
+            if self._velocity is not None and bool(restarted.any()):
+                self._velocity[idx[restarted]] = 0
+            scale = torch.where(restarted, torch.zeros_like(self._scale[idx]), self._scale[idx])
+            heading = heading * scale.to(heading.dtype).to(heading.device).view((-1,) + (1,) * (heading.dim() - 1))
+            moved = self.state.move(delta, heading, budgets, self._step, self.norm, idx)
             if self.kind == "texture":
                 moved = (self._origin + moved).clamp(0.0, 1.0) - self._origin
                 moved = self.norm.project(moved)
