@@ -32,6 +32,9 @@ only overwritten once the new run has gone further.
 Usage:
     python benchmarks/convergence_bench.py --methods ddn small --perturbations texture shape
     python benchmarks/convergence_bench.py --report --plots benchmarks/convergence
+    python benchmarks/convergence_bench.py --methods ddn --perturbations shape --only bottle/1 sofa/0 \
+        --method-options '{"momentum": 0.9}' --db benchmarks/convergence/h1/momentum.sqlite
+    python benchmarks/convergence_bench.py --report --only bottle/1 sofa/0   # the default rows of those instances
 """
 
 from __future__ import annotations
@@ -129,15 +132,18 @@ def instances(per_class: int, classes: Sequence[str],
 
 
 def _curves(history: Sequence[Dict[str, Any]], num_targets: int) -> List[Dict[str, Any]]:
-    """Per target: the first step that held and every step where the least distance at success fell.
+    """Per target: the first step that held, every step where the least distance at success fell, and the best
+    (largest) margin of any step (``best_margin``; > 0 once it held, how close a miss came otherwise).
 
     Steps are 1-based counts of optimiser steps (over all rounds of a ``lambda`` search).
     """
-    out: List[Dict[str, Any]] = [{"first": None, "improvements": []} for _ in range(num_targets)]
+    out: List[Dict[str, Any]] = [{"first": None, "improvements": [], "best_margin": None} for _ in range(num_targets)]
     best = [math.inf] * num_targets
     for k, row in enumerate(history, start=1):
         for t in range(num_targets):
             margin, dist = row["margin"][t], row["distance"][t]
+            if margin is not None and (out[t]["best_margin"] is None or margin > out[t]["best_margin"]):
+                out[t]["best_margin"] = float(margin)
             if margin is None or dist is None or not margin > 0:
                 continue
             if out[t]["first"] is None:
@@ -488,6 +494,18 @@ def report(rows: Sequence[Dict[str, Any]], plots: Optional[Path]) -> str:
                 if s is None:
                     continue
                 lines.append(_summary_row(method, perturbation, budget, s))
+    misses = []
+    for method in METHODS:
+        for perturbation in ("shape", "texture"):
+            sel = [r for r in rows if r["method"] == method and r["perturbation"] == perturbation
+                   and not r.get("partial")]
+            missed = [f"{r['class']}/{r['index']} -> {t}"
+                      + (f" (best margin {c['best_margin']:.2f})" if c.get("best_margin") is not None else "")
+                      for r in sel for t, c in zip(r["targets"], r["curves"]) if c["first"] is None]
+            if sel:
+                misses.append(f"- {method} {perturbation}: {len(missed)} target(s) never held"
+                              + (f": {', '.join(missed)}" if missed else ""))
+    lines += ["", "Targets never held (finished runs):", "", *misses]
     lines += ["", "Same instances only (those every method listed ran):", "", *lines[:2]]
     for perturbation in ("shape", "texture"):
         runs: Dict[str, set] = {}
@@ -688,7 +706,10 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
         print(f"{import_sweep(args.import_sweep, args.db)} rows imported")
         return
     if args.report:
-        print(report(load_rows(args.db), args.plots))
+        rows = load_rows(args.db)
+        if args.only is not None:
+            rows = [r for r in rows if (r["class"], r["index"]) in set(args.only)]
+        print(report(rows, args.plots))
         return
     torch.set_num_threads(args.threads)
     os.environ.setdefault("RAYON_NUM_THREADS", str(args.threads))
