@@ -16,17 +16,26 @@ def regenerate(
     out: Optional[Path] = typer.Option(None, "-o", "--out",
                                        help="Artefact folder (default: <database folder>/jobs/<id[:2]>/<id>)."),
     threads: int = typer.Option(0, help="Intra-op threads (0 = default)."),
+    assume: Optional[Path] = typer.Option(
+        None, "--assume", help="JSON file of the sweep's defaults for records that do not pin them "
+                               "(meshadv.experiments.regenerate.pinned_spec)."),
 ) -> None:
     """Re-run one job of RESULTS into a folder (meshes, renders, result.json) and check it reproduces its record."""
-    from meshadv.experiments.regenerate import regenerate_job
+    from meshadv.experiments.regenerate import load_assumed, regenerate_job
 
     if not results.is_file():
         raise typer.BadParameter(f"{results} does not exist", param_hint="RESULTS")
     try:
-        done = regenerate_job(results, job, out, threads=threads)
+        assumed = load_assumed(assume)
+    except (FileNotFoundError, ValueError) as err:
+        raise typer.BadParameter(str(err), param_hint="--assume") from err
+    try:
+        done = regenerate_job(results, job, out, threads=threads, assume=assumed)
     except KeyError as err:
         raise typer.BadParameter(str(err.args[0]), param_hint="JOB") from err
     typer.echo(f"job {done.job_id}: artefacts in {done.out_dir}")
+    for note in done.notes:
+        typer.echo(f"not pinned: {note}", err=True)
     if done.stored is None:
         typer.echo("the database holds no finished record of this job to compare with")
     elif done.matches:

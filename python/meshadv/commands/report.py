@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, Dict, Optional
 
 import typer
 
 __all__ = ["register", "report", "write_full_report"]
 
 
-def write_full_report(results: Path, out: Path, *, figures: bool = True) -> object:
+def write_full_report(results: Path, out: Path, *, figures: bool = True, artifacts: Optional[Path] = None,
+                      use_stored: bool = True, threads: int = 1, assume: Optional[Dict[str, Any]] = None) -> object:
     """The sweep report with what other packages add: the Mitsuba transfer section (rows of ``meshadv transfer``
-    in the same database) and the perceptual proxies (SSIM / PSNR, ``proxies.csv``).
+    in the same database) and the perceptual proxies (SSIM / PSNR, ``proxies.csv``). ``artifacts``, ``use_stored``,
+    ``threads`` and ``assume``: where the figures' artefacts come from (``meshadv.experiments.report.write_report``).
 
     Returns:
         The :class:`~meshadv.experiments.report.ReportOutput`.
@@ -29,18 +32,31 @@ def write_full_report(results: Path, out: Path, *, figures: bool = True) -> obje
 
     rows = load_transfer_rows(results) if Path(results).is_file() else []
     return write_report(results, out, figures=figures, transfer_rows=rows,
-                        transfer_markdown=transfer_report(rows) if rows else "", sections=[proxies])
+                        transfer_markdown=transfer_report(rows) if rows else "", sections=[proxies],
+                        artifacts=artifacts, use_stored=use_stored, threads=threads, assume=assume)
 
 
 def report(
     results: Path = typer.Argument(..., help="Results database written by `meshadv sweep`."),
     out: Path = typer.Option(..., "-o", "--out", help="Report folder."),
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Draw the figures."),
+    artifacts: Optional[Path] = typer.Option(
+        None, "--artifacts", help="Regenerate the artefacts the figures need (only the jobs a figure uses) into this "
+                                  "folder when they are not on this machine, and check them against the database "
+                                  "(regeneration.md)."),
+    stored: bool = typer.Option(True, "--stored/--no-stored",
+                                help="Use the artefact folders the database records (--no-stored with --artifacts: "
+                                     "every figure from regenerated artefacts)."),
+    threads: int = typer.Option(1, help="Intra-op threads of each regeneration."),
+    assume: Optional[Path] = typer.Option(
+        None, "--assume", help="JSON file of the sweep's defaults for records that do not pin them "
+                               "(meshadv.experiments.regenerate.pinned_spec)."),
 ) -> None:
     """Write Table 1, Table 2, the figures and the run's settings from RESULTS; index.csv / index.md map the job
     folders (named by hash) to their settings; failed jobs' errors are printed."""
     from meshadv.commands._job_index import failed_jobs, warn_damaged_results, write_job_index
     from meshadv.experiments import ResultStore
+    from meshadv.experiments.regenerate import load_assumed
 
     if results.suffix.lower() in (".toml", ".yaml", ".yml"):
         raise typer.BadParameter(f"{results} is a sweep config, not a results database: run `meshadv sweep "
@@ -53,9 +69,23 @@ def report(
         failed = failed_jobs(store)
         index = write_job_index(store, out, results.parent)  # the default config puts the db in the output folder
         warn_damaged_results(store, results)
-    output = write_full_report(results, out, figures=figures)
+    if threads < 1:
+        raise typer.BadParameter(f"must be >= 1, got {threads}", param_hint="--threads")
+    if not stored and artifacts is None:
+        raise typer.BadParameter("--no-stored needs --artifacts (where to regenerate)", param_hint="--no-stored")
+    try:
+        assumed = load_assumed(assume)
+    except (FileNotFoundError, ValueError) as err:
+        raise typer.BadParameter(str(err), param_hint="--assume") from err
+    output = write_full_report(results, out, figures=figures, artifacts=artifacts, use_stored=stored,
+                               threads=threads, assume=assumed)
     typer.echo(f"wrote {len(output.tables)} table files and {len(output.figures)} figures to {output.out_dir}")
     typer.echo(f"job index (job id -> folder, settings, state): {index}")
+    regen = getattr(output, "regenerations", {})
+    if regen:
+        same = sum(1 for c in regen.values() if c.get("matches"))
+        typer.echo(f"regenerated {len(regen)} job(s) for the figures; {same} reproduce their stored record "
+                   f"(regeneration.md)")
     if failed:
         typer.echo(f"{len(failed)} job(s) failed:", err=True)
         for job in failed[:10]:

@@ -30,6 +30,9 @@ __all__ = [
     "flow_quiver",
     "curvature_scatter",
     "flow_magnitude",
+    "flow_face_colors",
+    "crop_to_content",
+    "camera_eye",
     "mean_curvature_np",
     "CANONICAL_VIEW",
 ]
@@ -65,6 +68,50 @@ def _check_mesh(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndarra
 def flow_magnitude(vertices: np.ndarray, vertices_adv: np.ndarray) -> np.ndarray:
     """Per-vertex flow magnitude ``|vertices_adv - vertices|`` ``(N,)``."""
     return np.linalg.norm(np.asarray(vertices_adv, np.float64) - np.asarray(vertices, np.float64), axis=1)
+
+
+def flow_face_colors(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndarray,
+                     cmap: str = "inferno") -> Tuple[np.ndarray, float]:
+    """Face colours of the flow heatmap: each face's mean vertex flow magnitude on ``cmap`` over ``[0, max flow]``.
+
+    Returns:
+        ``(rgb (M, 3) in [0, 1], vmax)``: the colour scale runs from 0 (no flow) to ``vmax``, the largest vertex flow
+        magnitude (1.0 when nothing moved).
+    """
+    v, va, f = _check_mesh(vertices, vertices_adv, faces)
+    plt = _pyplot()
+    mag = flow_magnitude(v, va)
+    vmax = float(mag.max()) if len(mag) and mag.max() > 0 else 1.0
+    rgb = plt.get_cmap(cmap)(np.clip(mag[f].mean(axis=1) / vmax, 0.0, 1.0))[:, :3]
+    return rgb, vmax
+
+
+def crop_to_content(image: np.ndarray, background: float = 1.0, margin: float = 0.08) -> np.ndarray:
+    """``image (H, W, C)`` cropped to the box of pixels that differ from ``background``, plus ``margin`` of the box's
+    size on each side (square, inside the image); the image itself when every pixel is background."""
+    img = np.asarray(image)
+    if img.ndim != 3:
+        raise ValueError(f"image must be (H, W, C), got shape {img.shape}")
+    mask = (np.abs(img[..., :3].astype(np.float64) - background) > 1e-3).any(axis=-1)
+    if not mask.any():
+        return img
+    rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+    cy, cx = (rows[0] + rows[-1]) / 2, (cols[0] + cols[-1]) / 2
+    half = max(rows[-1] - rows[0], cols[-1] - cols[0]) / 2 * (1 + 2 * margin) + 1
+    h, w = img.shape[:2]
+    half = min(half, h / 2, w / 2)
+    top = int(round(min(max(cy - half, 0), h - 2 * half)))
+    left = int(round(min(max(cx - half, 0), w - 2 * half)))
+    size = int(round(2 * half))
+    return img[top:top + size, left:left + size]
+
+
+def camera_eye(view: Mapping[str, float]) -> np.ndarray:
+    """The camera position of a view record (``distance``, ``azimuth``, ``elevation`` in degrees; the contract's
+    spherical camera, Y up): ``d (cos el sin az, sin el, -cos el cos az)``."""
+    d = float(view.get("distance", 2.5))
+    az, el = math.radians(float(view["azimuth"])), math.radians(float(view["elevation"]))
+    return d * np.array([math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)])
 
 
 def _to_plot(points: np.ndarray) -> np.ndarray:
@@ -189,7 +236,7 @@ def _render_flat(vertices: np.ndarray, faces: np.ndarray, face_colors: np.ndarra
 def flow_heatmaps(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndarray, path: PathLike, *,
                   view: Union[Tuple[float, float], Mapping[str, float]],
                   canonical: Tuple[float, float] = CANONICAL_VIEW, title: str = "", renderer: str = "auto",
-                  image_size: int = 320) -> Path:
+                  image_size: int = 320, crop: bool = True) -> Path:
     """Paint the per-vertex flow magnitude on the benign mesh, seen from the attack view and a canonical view.
 
     Args:
@@ -202,6 +249,8 @@ def flow_heatmaps(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndar
         renderer: ``"meshadv"`` renders with meshadv's rasterizer and the view's perspective camera, ``"matplotlib"``
             draws orthographic 3D polygons, ``"auto"`` uses meshadv's renderer when its native module is built.
         image_size: pixel size of the meshadv renders.
+        crop: crop each meshadv render to the object (:func:`crop_to_content`), so a distant camera still shows it
+            large; the colour scale (:func:`flow_face_colors`) runs from 0 to the largest vertex flow.
 
     Returns:
         ``path``.
@@ -217,11 +266,9 @@ def flow_heatmaps(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndar
     from matplotlib import cm, colors
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    mag = flow_magnitude(v, va)
-    face_mag = mag[f].mean(axis=1)
-    norm = colors.Normalize(vmin=0.0, vmax=float(mag.max()) or 1.0)
+    face_rgb, vmax = flow_face_colors(v, va, f)
+    norm = colors.Normalize(vmin=0.0, vmax=vmax)
     cmap = plt.get_cmap("inferno")
-    face_rgb = cmap(norm(face_mag))[:, :3]
     views = ((record, "rendered view"),
              ({**record, "azimuth": canonical[0], "elevation": canonical[1], "tilt": 0.0}, "canonical view"))
     fig = plt.figure(figsize=(9, 4.4))
@@ -232,7 +279,7 @@ def flow_heatmaps(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndar
             raise ImportError("renderer='meshadv' needs the native module meshadv._raster (maturin develop)")
         if image is not None:
             ax = fig.add_subplot(1, 2, k + 1)
-            ax.imshow(np.clip(image, 0.0, 1.0))
+            ax.imshow(np.clip(crop_to_content(image) if crop else image, 0.0, 1.0))
             ax.set_axis_off()
         else:
             ax = fig.add_subplot(1, 2, k + 1, projection="3d")
@@ -240,7 +287,8 @@ def flow_heatmaps(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndar
             ax.add_collection3d(poly)
             _set_view(ax, az, el, v)
         ax.set_title(f"{label} (az {az:.0f}°, el {el:.0f}°)", fontsize=9)
-    fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=fig.axes, shrink=0.7, label="flow magnitude")
+    fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=fig.axes, shrink=0.7,
+                 label="flow magnitude |v_adv - v| (mesh units)")
     if title:
         fig.suptitle(title)
     out = Path(path)
@@ -327,39 +375,63 @@ def _spearman(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def curvature_scatter(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndarray, path: PathLike, *,
-                      curvature: Optional[np.ndarray] = None, title: str = "") -> Tuple[Path, Dict[str, float]]:
+                      curvature: Optional[np.ndarray] = None, eye: Optional[np.ndarray] = None,
+                      title: str = "") -> Tuple[Path, Dict[str, float]]:
     """Scatter per-vertex flow magnitude against mean curvature and report their correlation.
+
+    The paper (Fig. 3) finds larger flow where the curvature is high and close to the camera; with ``eye`` (the camera
+    position, :func:`camera_eye`) the points are coloured by their distance to the camera and the correlation of flow
+    with that distance is reported too.
 
     Args:
         vertices, vertices_adv, faces: the benign and adversarial mesh.
         path: output PNG.
         curvature: per-vertex mean curvature ``(N,)``; default :func:`mean_curvature_np` of the benign mesh.
+        eye: camera position ``(3,)`` of the attack view, or ``None``.
         title: figure title.
 
     Returns:
-        ``(path, {"pearson": r, "spearman": rho, "vertices": N})`` (``nan`` when undefined, e.g. no flow at all).
+        ``(path, {"pearson": r, "spearman": rho, "vertices": N})`` (``nan`` when undefined, e.g. no flow at all), with
+        ``eye``: also ``"spearman_camera_distance"`` (flow vs. distance to the camera; negative = more flow nearer).
+
+    Raises:
+        ValueError: bad shapes (``curvature`` not ``(N,)``, ``eye`` not ``(3,)``).
     """
     v, va, f = _check_mesh(vertices, vertices_adv, faces)
     curv = mean_curvature_np(v, f) if curvature is None else np.asarray(curvature, np.float64)
     if curv.shape != (len(v),):
         raise ValueError(f"curvature must have shape ({len(v)},), got {curv.shape}")
+    if eye is not None:
+        eye = np.asarray(eye, np.float64)
+        if eye.shape != (3,) or not np.isfinite(eye).all():
+            raise ValueError(f"eye must be a finite (3,) camera position, got shape {eye.shape}")
     mag = flow_magnitude(v, va)
     ok = np.isfinite(curv) & np.isfinite(mag)
     x, y = np.abs(curv[ok]), mag[ok]
     pearson = float(np.corrcoef(x, y)[0, 1]) if len(x) > 2 and x.std() > 0 and y.std() > 0 else math.nan
     spearman = _spearman(x, y) if x.std() > 0 and y.std() > 0 else math.nan
+    stats: Dict[str, float] = {"pearson": pearson, "spearman": spearman, "vertices": int(len(x))}
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(5.5, 4.2))
-    ax.scatter(x, y, s=4, alpha=0.5)
+    fig, ax = plt.subplots(figsize=(6.2, 4.2))
+    if eye is not None:
+        dist = np.linalg.norm(v[ok] - eye, axis=1)
+        stats["spearman_camera_distance"] = (_spearman(dist, y) if dist.std() > 0 and y.std() > 0 else math.nan)
+        points = ax.scatter(x, y, s=4, alpha=0.6, c=dist, cmap="viridis_r")
+        fig.colorbar(points, ax=ax, label="distance to the camera")
+    else:
+        ax.scatter(x, y, s=4, alpha=0.5)
     ax.set_xlabel("|mean curvature| (symmetric log scale)")
     positive = x[x > 0]
     if len(positive):
         ax.set_xscale("symlog", linthresh=float(np.percentile(positive, 5)) or 1e-6)
     ax.set_ylabel("perturbation magnitude")
-    ax.set_title(title or f"Pearson r = {pearson:.3f}, Spearman ρ = {spearman:.3f}", fontsize=9)
+    summary = f"Pearson r = {pearson:.3f}, Spearman ρ = {spearman:.3f}"
+    if "spearman_camera_distance" in stats:
+        summary += f"; flow vs camera distance ρ = {stats['spearman_camera_distance']:.3f}"
+    ax.set_title(f"{title}\n{summary}" if title else summary, fontsize=9)
     fig.tight_layout()
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)
     plt.close(fig)
-    return out, {"pearson": pearson, "spearman": spearman, "vertices": int(len(x))}
+    return out, stats

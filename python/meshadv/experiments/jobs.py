@@ -12,9 +12,12 @@ and writes into ``out_dir``: ``benign.ply``, ``benign_v{j}.png`` and everything 
 
 The returned record holds ``success``, ``cpu_time`` (CPU seconds of the job's process), ``distance``
 (per-pair-mean Laplacian loss for shape, face-colour RMSE for texture: the paper's measures), ``distances``,
-``steps``, ``time``, ``benign_correct``, the top-1 labels, ``eval_success_rate`` (multi-view) and ``artifacts``
-(file names relative to ``out_dir``). The attack reports every step to the sweep driver
-(:func:`meshadv.experiments.worker.report_steps`); :func:`planned_steps` is the most steps a job can run.
+``steps``, ``time``, ``benign_correct``, the top-1 labels, ``eval_success_rate`` (multi-view), ``artifacts`` (file
+names relative to ``out_dir``) and what the job ran with where its spec may not say: ``victim_optimize`` (whether the
+victim was built with ``load_victim(optimize=True)``: the spec's ``victim_optimize``, else the default then) and
+``attack_config`` (the attack's effective hyper-parameters, update-rule defaults filled in: ``Attack.config()``);
+:mod:`meshadv.experiments.regenerate` pins both when it reruns the job. The attack reports every step to the sweep
+driver (:func:`meshadv.experiments.worker.report_steps`); :func:`planned_steps` is the most steps a job can run.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import time
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Tuple
 
-__all__ = ["run_attack_job", "load_job_mesh", "planned_steps", "DISTANCE_KEYS"]
+__all__ = ["run_attack_job", "load_job_mesh", "planned_steps", "victim_optimize", "DISTANCE_KEYS"]
 
 #: Distance key of the record's ``distance`` per perturbation type: the measure comparable with the paper
 #: (``meshadv.attacks.distances.PAPER_COMPARABLE``; the record's ``distances`` holds every measure).
@@ -102,12 +105,26 @@ def planned_steps(spec: Dict[str, Any]) -> Optional[int]:
     return int(attack.steps) * int(rule.rounds)
 
 
-def _victim(name: str, weights: Any = None) -> Any:
-    key = f"{name}:{weights}"
+def victim_optimize(spec: Dict[str, Any]) -> bool:
+    """Whether the job of ``spec`` builds its victim with ``load_victim(optimize=True)``: the spec's
+    ``victim_optimize`` when it sets one, else ``load_victim``'s current default (recorded with the job, since the
+    folded network's float32 rounding moves an attack's result)."""
+    value = spec.get("victim_optimize")
+    if value is None:
+        from meshadv.victims import load_victim
+
+        return bool((load_victim.__kwdefaults__ or {}).get("optimize", True))
+    if not isinstance(value, bool):
+        raise ValueError(f"spec['victim_optimize'] must be true or false, got {value!r}")
+    return value
+
+
+def _victim(name: str, weights: Any = None, optimize: bool = True) -> Any:
+    key = f"{name}:{weights}:{optimize}"
     if key not in _VICTIM_CACHE:
         from meshadv.victims import load_victim
 
-        _VICTIM_CACHE[key] = load_victim(name, weights=weights)
+        _VICTIM_CACHE[key] = load_victim(name, weights=weights, optimize=optimize)
     return _VICTIM_CACHE[key]
 
 
@@ -152,7 +169,8 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     mesh = load_job_mesh(spec["mesh"])
     views = ViewSet.from_records(spec["views"])
     eval_views = ViewSet.from_records(spec["eval_views"]) if spec.get("eval_views") else None
-    victim = _victim(spec["victim"], spec.get("victim_weights"))
+    optimize = victim_optimize(spec)
+    victim = _victim(spec["victim"], spec.get("victim_weights"), optimize)
     setup_options, options, required_margin = _attack_options(spec)
     setup = RenderSetup(image_size=int(spec.get("image_size", 224)), **setup_options)
     # judge the benign render as the attack renders it
@@ -165,6 +183,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     record: Dict[str, Any] = {
         "benign_correct": correct,
         "benign_top1": benign_top1,
+        "victim_optimize": optimize,
         "num_vertices": int(mesh.vertices.shape[0]),
         "num_faces": int(mesh.faces.shape[0]),
         "artifacts": {"benign_mesh": "benign.ply", "benign_images": benign_pngs},
@@ -174,6 +193,9 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
                       reason=f"benign render classified as {benign_top1}, not {spec['source_class']}")
         return record
     attack = _make_job_attack(spec, options)
+    # the effective hyper-parameters, defaults filled in (a spec names only what its config sets): regeneration
+    # (meshadv.experiments.regenerate) pins them, so a later change of a default does not change a rerun
+    record["attack_config"] = attack.config()
     criterion: Criterion = TargetedMisclassification(spec["target"])
     if required_margin > 0:
         criterion = WithMargin(criterion, required_margin)

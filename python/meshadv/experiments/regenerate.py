@@ -5,6 +5,13 @@ regenerated from a job's stored spec (which carries its seed) by running the sam
 of the caller's choice. The database is only read: the regenerated record is compared with the stored one (success,
 steps, distance), so a drift between the code that ran the sweep and the code that regenerates is visible.
 
+A spec names only what its config sets; the rest comes from the code's defaults (the update rule's options, such as
+``DDN_DEFAULTS``, the victim's ``load_victim(optimize=...)``). The attack job records what it ran with
+(``attack_config``, ``victim_optimize``) and :func:`pinned_spec` puts those back into the spec of the rerun, so a
+changed default does not change a regeneration. Records written before the job recorded them pin nothing: ``assume``
+(a :data:`Assumed` mapping, e.g. a JSON file kept next to the database) says what the sweep's code used; what is
+neither pinned nor assumed runs with today's defaults and is listed in :attr:`Regenerated.notes`.
+
 Example:
     >>> out = regenerate_job("out/paper_medium/results.db", "0f3a9c...", "out/regen")   # doctest: +SKIP
     >>> out.matches, out.out_dir                                                        # doctest: +SKIP
@@ -15,13 +22,20 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Union
+from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 
 from meshadv.experiments.runner import job_out_dir
 from meshadv.experiments.store import ResultStore
 from meshadv.experiments.worker import execute
 
-__all__ = ["Regenerated", "regenerate_job", "ensure_artifacts", "stored_job_ref", "COMPARED_KEYS"]
+__all__ = ["Regenerated", "regenerate_job", "ensure_artifacts", "stored_job_ref", "pinned_spec", "load_assumed",
+           "COMPARED_KEYS", "Assumed"]
+
+#: What the sweep's code used where neither its specs nor its records say: ``{"victim_optimize": bool, "attack":
+#: {"shape": {option: value, "method_options": {...}}, "texture": {...}}}`` (every key optional).
+Assumed = Mapping[str, Any]
+
+_ATTACK_JOB = "meshadv.experiments.jobs:run_attack_job"
 
 #: Record keys compared between the stored and the regenerated record (floats to a relative 1e-3).
 COMPARED_KEYS = ("success", "skipped", "steps", "distance")
@@ -35,6 +49,7 @@ class Regenerated:
         job_id: the job. out_dir: where its artefacts now are. record: the new record.
         stored: the record in the database (``None`` when the job had not finished).
         differences: ``"key: stored -> new"`` for each of :data:`COMPARED_KEYS` that differs; empty when it matches.
+        notes: what the rerun could not pin (the settings it took from today's defaults), see :func:`pinned_spec`.
     """
 
     job_id: str
@@ -42,6 +57,7 @@ class Regenerated:
     record: Dict[str, Any]
     stored: Optional[Dict[str, Any]]
     differences: List[str]
+    notes: Tuple[str, ...] = ()
 
     @property
     def matches(self) -> bool:
@@ -76,8 +92,89 @@ def _same(a: Any, b: Any) -> bool:
     return a == b
 
 
+def _merge_attack(pinned: Mapping[str, Any], spec_attack: Mapping[str, Any]) -> Dict[str, Any]:
+    """``pinned`` attack options under the spec's own (the spec wins; ``method_options`` merged key by key)."""
+    merged = {**pinned, **spec_attack}
+    if "method_options" in pinned or "method_options" in spec_attack:
+        merged["method_options"] = {**(pinned.get("method_options") or {}), **(spec_attack.get("method_options") or {})}
+    return merged
+
+
+def pinned_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
+                assume: Optional[Assumed] = None) -> Tuple[Dict[str, Any], List[str]]:
+    """The spec to rerun a job with: ``spec`` plus what its stored record says the job ran with.
+
+    ``attack_config`` of the record (the attack's effective hyper-parameters) goes under ``spec["attack"]`` and
+    ``victim_optimize`` into the spec; for a record without them, ``assume`` (see :data:`Assumed`) supplies them.
+    The job id is not recomputed: the rerun is the same job.
+
+    Args:
+        spec: the stored spec. stored: the stored record (``None``: not finished). assume: the sweep's defaults.
+
+    Returns:
+        ``(spec, notes)``: notes name each setting left to today's defaults.
+
+    Raises:
+        ValueError: ``assume`` is not a mapping of the documented shape.
+    """
+    assume = dict(assume or {})
+    unknown = set(assume) - {"victim_optimize", "attack"}
+    if unknown:
+        raise ValueError(f"assume has unknown keys {sorted(unknown)} (known: attack, victim_optimize)")
+    if "victim_optimize" in assume and not isinstance(assume["victim_optimize"], bool):
+        raise ValueError(f"assume['victim_optimize'] must be true or false, got {assume['victim_optimize']!r}")
+    if not isinstance(assume.get("attack", {}), Mapping):
+        raise ValueError("assume['attack'] must map a perturbation type to attack options")
+    out = dict(spec)
+    notes: List[str] = []
+    record = dict(stored or {})
+    if "victim_optimize" not in out:
+        if "victim_optimize" in record:
+            out["victim_optimize"] = bool(record["victim_optimize"])
+        elif "victim_optimize" in assume:
+            out["victim_optimize"] = assume["victim_optimize"]
+        else:
+            notes.append("victim_optimize: neither the spec nor the record pins it; today's load_victim default used")
+    attack = dict(out.get("attack") or {})
+    config = record.get("attack_config")
+    if isinstance(config, Mapping):
+        out["attack"] = _merge_attack({k: v for k, v in config.items() if k != "perturbation"}, attack)
+    else:
+        assumed = (assume.get("attack") or {}).get(str(out.get("perturbation")))
+        if isinstance(assumed, Mapping):
+            out["attack"] = _merge_attack(assumed, attack)
+        else:
+            notes.append("attack options: the record has no attack_config; options the spec does not name "
+                         "(e.g. the update rule's method_options) took today's defaults")
+    return out, notes
+
+
+def load_assumed(path: Union[str, Path, None]) -> Dict[str, Any]:
+    """Read an :data:`Assumed` JSON file (``{}`` for ``None``).
+
+    Raises:
+        FileNotFoundError: no such file. ValueError: not a JSON object (naming the file).
+    """
+    if path is None:
+        return {}
+    import json
+
+    file = Path(path)
+    if not file.is_file():
+        raise FileNotFoundError(f"assumed-defaults file {file} does not exist")
+    try:
+        data = json.loads(file.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as err:
+        raise ValueError(f"assumed-defaults file {file} is not JSON: {err}") from err
+    if not isinstance(data, dict):
+        raise ValueError(f"assumed-defaults file {file} must hold a JSON object")
+    data = {k: v for k, v in data.items() if not k.startswith("_")}  # "_comment" and the like
+    pinned_spec({}, None, data)  # validates the keys
+    return data
+
+
 def regenerate_job(db_path: Union[str, Path], job: str, out_dir: Optional[Union[str, Path]] = None, *,
-                   threads: int = 0) -> Regenerated:
+                   threads: int = 0, assume: Optional[Assumed] = None) -> Regenerated:
     """Run job ``job`` of the database again into ``out_dir`` and compare its record with the stored one.
 
     Args:
@@ -85,6 +182,7 @@ def regenerate_job(db_path: Union[str, Path], job: str, out_dir: Optional[Union[
         job: the job id (a unique prefix is enough).
         out_dir: the artefact folder (created; default ``<database folder>/jobs/<id[:2]>/<id>``).
         threads: intra-op threads (0 = process default).
+        assume: what the sweep's code used where its records do not say (:func:`pinned_spec`).
 
     Returns:
         A :class:`Regenerated`.
@@ -104,16 +202,17 @@ def regenerate_job(db_path: Union[str, Path], job: str, out_dir: Optional[Union[
         row = next(r for r in store.rows() if r.job_id == jid)
         ref = stored_job_ref(store)
     out = Path(out_dir) if out_dir is not None else job_out_dir(db.parent, jid)
-    outcome = execute(ref, jid, row.spec, str(out), threads=threads)
+    stored = row.record if row.state == "done" else None
+    spec, notes = pinned_spec(row.spec, stored, assume) if ref == _ATTACK_JOB else (row.spec, [])
+    outcome = execute(ref, jid, spec, str(out), threads=threads)
     if not outcome.ok or outcome.record is None:
         raise RuntimeError(f"job {jid} failed while regenerating:\n{outcome.error}")
-    stored = row.record if row.state == "done" else None
     diffs = []
     if stored is not None:
         for key in COMPARED_KEYS:
             if key in stored and not _same(stored.get(key), outcome.record.get(key)):
                 diffs.append(f"{key}: {stored.get(key)!r} -> {outcome.record.get(key)!r}")
-    return Regenerated(jid, out, outcome.record, stored, diffs)
+    return Regenerated(jid, out, outcome.record, stored, diffs, tuple(notes))
 
 
 def ensure_artifacts(db_path: Union[str, Path], job: str, artifact_root: Union[str, Path],
