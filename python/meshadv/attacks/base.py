@@ -31,12 +31,29 @@ from torch import Tensor
 from meshadv import _validate
 from meshadv.attacks.criteria import CLASSIFIER_LOSSES, Criterion
 from meshadv.attacks.distances import mesh_distances
+from meshadv.attacks.pipeline import StepWorkers, cat_outputs, output_tensors, rebuild_output, split_chunks
 from meshadv.attacks.result import AttackResult
 from meshadv.attacks.update import make_update_rule, update_rules
 from meshadv.mesh.adjacency import vertex_edges
 from meshadv.render.setup import RenderSetup
 
-__all__ = ["MeshAttack", "StepInfo", "Evaluation", "evaluate", "slice_output"]
+__all__ = ["MeshAttack", "StepInfo", "Evaluation", "evaluate", "slice_output", "auto_step_workers"]
+
+#: Largest accepted ``step_workers``.
+_MAX_STEP_WORKERS = 64
+
+
+def auto_step_workers(victim: Any) -> int:
+    """The default ``step_workers`` of an attack: 1, the serial step (results as before the pipeline existed).
+
+    ``step_workers=2`` is faster on 2 cores (benchmarks/RESULTS.md, "Pipelined attack step") but runs each chunk's
+    victim on half the torch threads, so a batched run then differs from the same targets run one at a time by more
+    than the batch-size rounding it had (the 1%-of-coordinates bound of
+    tests/test_attacks_classifier.py::test_batched_targets_equal_separate_runs is exceeded: 1.4%). ``victim`` is
+    for rules that depend on where the victim runs.
+    """
+    return 1
+
 
 _JITTER_KEYS = ("azimuth", "elevation", "distance", "tilt", "light_direction", "light_intensity")
 
@@ -184,6 +201,11 @@ class MeshAttack(ABC):
         method: the update rule (:mod:`meshadv.attacks.update`): ``"adam"`` (default) is the paper's Adam on
             ``L_adv + lambda * L_perceptual`` with the ``lambda`` binary search; others are registered there.
         method_options: extra keyword options of the update rule (JSON-able), ``None`` for none.
+        step_workers: threads a step's targets are split over (:mod:`meshadv.attacks.pipeline`): each renders its
+            chunk of targets and runs the victim on it, overlapping one chunk's render with another's victim; the
+            gradient is the one-thread step's up to the victim's float rounding at another batch size and thread
+            count. ``1``: one thread, the step as it always was. ``None`` (default): :func:`auto_step_workers`.
+            An execution setting like ``--threads``: not part of :meth:`config`.
 
     Raises:
         TypeError: a hyper-parameter of the wrong type (``lr="0.1"``, ``steps=1.9``, ``steps=None``, ``jitter=[]``),
@@ -211,6 +233,7 @@ class MeshAttack(ABC):
         seed: int = 0,
         method: str = "adam",
         method_options: Optional[Dict[str, Any]] = None,
+        step_workers: Optional[int] = None,
     ) -> None:
         self.steps = _validate.positive_int("steps", steps)
         self.lr = _validate.positive_float("lr", lr)
@@ -230,6 +253,8 @@ class MeshAttack(ABC):
         if method_options is not None and not isinstance(method_options, dict):
             raise TypeError(f"method_options must be a dict or None, got {type(method_options).__name__}")
         self.method_options = dict(method_options or {})
+        self.step_workers = (None if step_workers is None
+                             else _validate.positive_int("step_workers", step_workers, high=_MAX_STEP_WORKERS))
 
     # ------------------------------------------------------------------ family hooks
     @abstractmethod
@@ -248,6 +273,18 @@ class MeshAttack(ABC):
     @abstractmethod
     def _distance(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
         """Distortion per target ``(K,)`` (the budget / best-result measure)."""
+
+    def _terms(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
+               num_views: int) -> Tuple[Tensor, Tensor]:
+        """``(perceptual, distance)`` per target, each ``(K,)``; a family whose two terms share work overrides it."""
+        return (self._perceptual(params, mesh, edges, images, alpha, num_views),
+                self._distance(params, mesh, edges))
+
+    def workers_for(self, num_targets: int, victim: Any) -> int:
+        """The step workers used for ``num_targets`` active targets: ``step_workers`` when set, else
+        :func:`auto_step_workers` (never more workers than targets)."""
+        workers = self.step_workers if self.step_workers is not None else auto_step_workers(victim)
+        return max(1, min(workers, num_targets))
 
     # ------------------------------------------------------------------ public
     def config(self) -> Dict[str, Any]:
@@ -329,6 +366,71 @@ class MeshAttack(ABC):
         images, alpha = call.setup.render(verts, call.mesh.faces, colors, views)
         return images, alpha, call.victim(images)
 
+    def _adv(self, output: Any, criteria: List[Criterion], num_v: int) -> Tuple[Tensor, Tensor]:
+        """Per-target adversarial loss ``(K,)`` (differentiable) and per-view margins ``(K, V)`` (detached)."""
+        parts = [slice_output(output, a * num_v, (a + 1) * num_v) for a in range(len(criteria))]
+        adv = torch.stack([c.loss(o, loss=self.loss, kappa=self.kappa).mean() for c, o in zip(criteria, parts)])
+        with torch.no_grad():
+            margins = torch.stack([c.margin(o).detach() for c, o in zip(criteria, parts)])
+        return adv, margins
+
+    def _serial_step(self, p: Tensor, idx: Tensor, criteria: List[Criterion], call: "_Call", views: Any,
+                     rule: Any) -> Tuple[Tensor, Tensor, Tensor, Any, Tensor]:
+        """One step in the calling thread: forward, objective, ``backward()`` into the parameters' ``.grad``.
+        Returns ``(adv, perceptual, distance, output, margins)``."""
+        images, alpha, output = self._forward(p, call, views)
+        adv, margins = self._adv(output, criteria, len(views))
+        perc, dist = self._terms(p, call.mesh, call.edges, images, alpha, len(views))
+        rule.objective(adv, perc, dist, idx).backward()
+        return adv, perc, dist, output, margins
+
+    def _pipelined_step(self, params: Tensor, idx: Tensor, criteria: List[Criterion], call: "_Call", views: Any,
+                        rule: Any, workers: StepWorkers) -> Tuple[Tensor, Tensor, Tensor, Any, Tensor]:
+        """The step of :meth:`_serial_step` with the targets split over ``workers``
+        (:mod:`meshadv.attacks.pipeline`); same returns, the parameters' ``.grad`` filled the same way."""
+        num_v = len(views)
+        chunks = split_chunks(len(criteria), self.workers_for(len(criteria), call.victim))
+        leaves = [params[idx[a:b]].detach().requires_grad_(True) for a, b in chunks]
+
+        def forward(leaf: Tensor) -> Tuple[Tensor, Tensor, Tensor, Any]:
+            verts, colors = self._apply(leaf, call.mesh, call.edges)
+            images, alpha = call.setup.render(verts, call.mesh.faces, colors, views)
+            x = images.detach().requires_grad_(True)
+            return images, alpha, x, call.victim(x)
+
+        fwd = workers.map(forward, leaves)
+        # cut at the victim's output and at alpha: their cotangents come from the objective below
+        outs = [[None if t is None else t.detach().requires_grad_(t.requires_grad) for t in output_tensors(f[3])]
+                for f in fwd]
+        alphas = [f[1].detach().requires_grad_(f[1].requires_grad) for f in fwd]
+        output = cat_outputs([rebuild_output(f[3], o) for f, o in zip(fwd, outs)])
+        adv, margins = self._adv(output, criteria, num_v)
+        p = params[idx]
+        perc, dist = self._terms(p, call.mesh, call.edges, torch.cat([f[2] for f in fwd]), torch.cat(alphas), num_v)
+        rule.objective(adv, perc, dist, idx).backward()
+
+        def backward(c: int) -> Optional[Tensor]:
+            images, alpha, x, out = fwd[c]
+            pairs = [(t, cut.grad) for t, cut in zip(output_tensors(out), outs[c]) if cut is not None
+                     and cut.grad is not None]
+            if pairs:
+                torch.autograd.backward([t for t, _ in pairs], [g for _, g in pairs])
+            pairs = [(t, g) for t, g in ((images, x.grad), (alpha, alphas[c].grad)) if g is not None
+                     and t.requires_grad]
+            if pairs:
+                torch.autograd.backward([t for t, _ in pairs], [g for _, g in pairs])
+            return leaves[c].grad
+
+        grads = workers.map(backward, list(range(len(chunks))))
+        with torch.no_grad():
+            for (a, b), grad in zip(chunks, grads):
+                if grad is None:
+                    continue
+                if params.grad is None:
+                    params.grad = torch.zeros_like(params)
+                params.grad.index_put_((idx[a:b],), grad, accumulate=True)
+        return adv, perc, dist, output.detach() if isinstance(output, Tensor) else output, margins
+
     def _run(self, call: "_Call", criteria: List[Criterion], eval_views: Any,
              callback: Optional[Callable[[StepInfo], None]]) -> AttackResult:
         t_start = time.perf_counter()
@@ -342,6 +444,8 @@ class MeshAttack(ABC):
         total_steps = 0
         interrupted = False
         classifier = getattr(call.victim, "kind", "") == "classifier"
+        most = self.workers_for(num_t, call.victim)
+        workers = StepWorkers(most, max(1, torch.get_num_threads() // most)) if most > 1 else None
 
         try:
             for rnd in range(rule.rounds):
@@ -359,17 +463,16 @@ class MeshAttack(ABC):
                         step_views = views.jitter(generator, **self.jitter) if self.jitter else views
                         idx = torch.tensor(act, dtype=torch.long)
                         p = params[idx]
-                        images, alpha, output = self._forward(p, call, step_views)
-                        parts = [slice_output(output, a * num_v, (a + 1) * num_v) for a in range(len(act))]
-                        adv = torch.stack([targets[t].criterion.loss(o, loss=self.loss, kappa=self.kappa).mean()
-                                           for t, o in zip(act, parts)])
-                        perc = self._perceptual(p, mesh, edges, images, alpha, num_v)
-                        dist = self._distance(p, mesh, edges)
+                        crits = [targets[t].criterion for t in act]
+                        if workers is not None and self.workers_for(len(act), call.victim) > 1:
+                            adv, perc, dist, output, margins = self._pipelined_step(
+                                params, idx, crits, call, step_views, rule, workers)
+                        else:
+                            adv, perc, dist, output, margins = self._serial_step(p, idx, crits, call, step_views,
+                                                                                 rule)
                         with torch.no_grad():
-                            margins = torch.stack([targets[t].criterion.margin(o).detach() for t, o in zip(act, parts)])
                             fractions = (margins > 0).float().mean(dim=1)
                             is_adv = fractions >= self.success_fraction - 1e-9
-                        rule.objective(adv, perc, dist, idx).backward()
                         rule.step(params, idx, is_adv)
                     except KeyboardInterrupt:
                         interrupted = True
@@ -415,6 +518,9 @@ class MeshAttack(ABC):
 
         except KeyboardInterrupt:  # Ctrl-C between steps: keep what we have
             interrupted = True
+        finally:
+            if workers is not None:
+                workers.close()
 
         pristine = self._init_params(mesh, 1)[0].detach()
         chosen = torch.stack([tg.chosen(pristine) for tg in targets])

@@ -112,3 +112,9 @@ class ShapeAttack(MeshAttack):
 
     def _distance(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
         return laplacian_flow_loss(self.displacement(params, edges), edges)
+
+    def _terms(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
+               num_views: int) -> Tuple[Tensor, Tensor]:
+        """The perceptual loss and the distance are the same Laplacian: computed once."""
+        loss = laplacian_flow_loss(self.displacement(params, edges), edges)
+        return loss, loss

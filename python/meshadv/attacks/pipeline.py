@@ -1,0 +1,149 @@
+"""Pipelined attack steps: a step's targets split into chunks that worker threads render and pass through the
+victim concurrently.
+
+An attack step is render forward -> victim forward -> victim input gradient -> render backward, and its targets are
+independent. With ``step_workers=W`` (``W >= 2``) the active targets are split into ``W`` contiguous chunks; each
+worker thread renders its chunk and runs the victim on it, so one chunk's render overlaps another's victim and the
+renderer's work no longer adds to the victim's on a machine with as many cores as workers. The autograd graph is cut
+at the images and at the victim's output:
+
+1. each worker: ``leaf = params[chunk]`` (a fresh leaf), ``images = render(leaf)``, ``x = images.detach()`` (requires
+   grad), ``out = victim(x)``;
+2. the calling thread concatenates the chunks' ``x`` and (cut) ``out``, computes the criteria, the perceptual and
+   distance terms and the update rule's objective, and back-propagates it: that fills the parameters' gradient from
+   the perceptual / distance terms and the cotangents of every ``x`` (perceptual terms of images) and ``out``;
+3. each worker back-propagates its ``out`` cotangent through the victim into ``x.grad`` and then ``x.grad`` through
+   its render into ``leaf.grad``;
+4. the calling thread adds each chunk's ``leaf.grad`` into ``params.grad`` (disjoint rows, in chunk order).
+
+So the gradient is the unchunked step's except that the victim sees batches of ``T/W`` targets and runs on
+``threads // W`` torch threads: its float rounding may differ in the last bits, as with another ``--threads``; a run
+is reproducible for the same ``step_workers`` and thread count (chunks are fixed by the active targets, never by
+timing). Each worker sets its own torch thread count (OpenMP's is per thread), the calling thread's is untouched;
+the renderer uses its pool as configured (``RAYON_NUM_THREADS``). An exception in a worker is re-raised in the
+calling thread after every worker has finished its task; Ctrl-C (delivered to the calling thread) waits for the
+workers' current tasks and then propagates, so the attack stops between steps as without workers.
+"""
+
+from __future__ import annotations
+
+import threading
+from concurrent.futures import Future, ThreadPoolExecutor, wait
+from typing import Any, Callable, List, Optional, Sequence, Tuple, TypeVar
+
+import torch
+from torch import Tensor
+
+__all__ = ["StepWorkers", "split_chunks", "output_tensors", "rebuild_output", "cat_outputs"]
+
+_T = TypeVar("_T")
+_R = TypeVar("_R")
+
+
+def split_chunks(count: int, parts: int) -> List[Tuple[int, int]]:
+    """``min(parts, count)`` contiguous ``[start, stop)`` ranges covering ``range(count)``, sizes differing by <= 1
+    (the larger first).
+
+    Raises:
+        ValueError: ``count < 0`` or ``parts < 1``.
+    """
+    if count < 0 or parts < 1:
+        raise ValueError(f"count must be >= 0 and parts >= 1, got count={count}, parts={parts}")
+    parts = max(1, min(parts, count))
+    base, extra = divmod(count, parts)
+    out, start = [], 0
+    for i in range(parts):
+        stop = start + base + (1 if i < extra else 0)
+        out.append((start, stop))
+        start = stop
+    return out if count else []
+
+
+def output_tensors(output: Any) -> List[Optional[Tensor]]:
+    """A victim output's tensors, one row per image: ``[logits]`` or a ``DetectorOutput``'s
+    ``[boxes, objectness, class_probs]`` (``objectness`` may be ``None``).
+
+    Raises:
+        TypeError: neither a tensor nor a ``DetectorOutput``-like object.
+    """
+    if isinstance(output, Tensor):
+        return [output]
+    if all(hasattr(output, name) for name in ("boxes", "objectness", "class_probs")):
+        return [output.boxes, output.objectness, output.class_probs]
+    raise TypeError(f"victim output must be a Tensor or a DetectorOutput, got {type(output).__name__}")
+
+
+def rebuild_output(like: Any, tensors: Sequence[Optional[Tensor]]) -> Any:
+    """The output of the type of ``like`` holding ``tensors`` (inverse of :func:`output_tensors`)."""
+    if isinstance(like, Tensor):
+        return tensors[0]
+    return type(like)(boxes=tensors[0], objectness=tensors[1], class_probs=tensors[2])
+
+
+def cat_outputs(outputs: Sequence[Any]) -> Any:
+    """Victim outputs of consecutive image chunks concatenated along the image axis."""
+    fields = [output_tensors(o) for o in outputs]
+    cat = [None if parts[0] is None else torch.cat(list(parts)) for parts in zip(*fields)]
+    return rebuild_output(outputs[0], cat)
+
+
+class StepWorkers:
+    """``workers`` threads that run the chunks of pipelined attack steps (see the module docstring).
+
+    Args:
+        workers: number of threads, ``>= 1``.
+        torch_threads: torch intra-op threads of each worker (set in the worker, where OpenMP keeps it per thread).
+
+    Use as a context manager, or call :meth:`close`.
+    """
+
+    def __init__(self, workers: int, torch_threads: int) -> None:
+        if workers < 1 or torch_threads < 1:
+            raise ValueError(f"workers and torch_threads must be >= 1, got {workers}, {torch_threads}")
+        self.workers = int(workers)
+        self.torch_threads = int(torch_threads)
+        self._main_threads = torch.get_num_threads()
+        self._lock = threading.Lock()
+        self._pool: Optional[ThreadPoolExecutor] = ThreadPoolExecutor(
+            max_workers=self.workers, thread_name_prefix="meshadv-step", initializer=self._init_worker)
+
+    def _init_worker(self) -> None:
+        # torch.set_num_threads sets the calling thread's OpenMP count and the process-wide default that threads
+        # starting later take; the calling thread's own count and the default are restored in close().
+        with self._lock:
+            torch.set_num_threads(self.torch_threads)
+
+    def map(self, fn: Callable[[_T], _R], items: Sequence[_T]) -> List[_R]:
+        """``[fn(item) for item in items]`` run on the workers; returns in the order of ``items``.
+
+        Every task has finished when this returns or raises: the first exception of a task (in ``items`` order) is
+        re-raised here, and an exception of the calling thread itself (``KeyboardInterrupt``) waits for the tasks
+        already started, cancels the others and propagates.
+
+        Raises:
+            RuntimeError: the workers were closed.
+        """
+        if self._pool is None:
+            raise RuntimeError("StepWorkers is closed")
+        futures: List[Future] = [self._pool.submit(fn, item) for item in items]
+        try:
+            wait(futures)
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            wait(futures)
+            raise
+        return [future.result() for future in futures]
+
+    def close(self) -> None:
+        """Stop the threads and restore the process-wide torch thread default."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+            torch.set_num_threads(self._main_threads)
+
+    def __enter__(self) -> "StepWorkers":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

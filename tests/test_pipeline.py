@@ -1,0 +1,280 @@
+"""Pipelined attack steps (meshadv.attacks.pipeline): the same gradients as the one-thread step, exceptions and
+Ctrl-C in workers, thread settings, and the chunk helpers."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any, List
+
+import pytest
+import torch
+
+from meshadv.render import RenderSetup, native_available
+
+needs_native = pytest.mark.skipif(not native_available(), reason="native module meshadv._raster not built")
+
+
+def _views(num: int) -> Any:
+    from meshadv.render import ViewSet
+
+    return ViewSet.orbit([40.0 + 35.0 * i for i in range(num)], elevation=20.0, distance=2.6)
+
+
+class _SumRule:
+    """A rule whose objective uses every term, so that the perceptual and distance terms must backprop too."""
+
+    def __init__(self, weights: torch.Tensor) -> None:
+        self.weights = weights
+
+    def objective(self, adv: torch.Tensor, perc: torch.Tensor, dist: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+        return (adv + self.weights[idx] * perc + 0.5 * self.weights[idx] * dist).sum()
+
+
+def _call(attack: Any, mesh: Any, views: Any, victim: Any, size: int = 48) -> Any:
+    from meshadv.attacks.base import _Call
+    from meshadv.mesh.adjacency import vertex_edges
+
+    return _Call(mesh, views.detach(), victim, RenderSetup(image_size=size, antialias=2),
+                 vertex_edges(mesh.faces).long())
+
+
+def _step_grads(attack: Any, call: Any, criteria: List[Any], workers: Any, params: torch.Tensor,
+                idx: torch.Tensor) -> Any:
+    rule = _SumRule(torch.tensor([0.3, 2.0, 0.7, 1.5]))
+    p = params.detach().clone().requires_grad_(True)
+    bound = [c.bind(call.victim) for c in criteria]
+    if workers is None:
+        out = attack._serial_step(p[idx], idx, bound, call, call.views, rule)
+    else:
+        out = attack._pipelined_step(p, idx, bound, call, call.views, rule, workers)
+    return p.grad, out
+
+
+@needs_native
+@pytest.mark.parametrize("family", ["shape", "texture"])
+@pytest.mark.parametrize("num_workers", [2, 3])
+def test_pipelined_step_gradients_match_the_serial_step(family: str, num_workers: int) -> None:
+    """Same parameters -> the same gradient (perceptual and distance terms included), losses and margins, with
+    chunks of uneven size and a subset of active targets."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import ShapeAttack, TargetedMisclassification, TextureAttack
+    from meshadv.attacks.pipeline import StepWorkers
+    from meshadv.mesh import builtin_mesh
+
+    mesh = builtin_mesh("chair")
+    victim = PooledLinearClassifier()
+    attack = ShapeAttack() if family == "shape" else TextureAttack()
+    call = _call(attack, mesh, _views(2), victim)
+    gen = torch.Generator().manual_seed(1)
+    params = attack._init_params(mesh, 4) + 0.02 * torch.randn(attack._init_params(mesh, 4).shape, generator=gen)
+    idx = torch.tensor([0, 1, 3])
+    criteria = [TargetedMisclassification(c) for c in (728, 247, 5, 400)]
+    criteria = [criteria[i] for i in idx.tolist()]
+    g_serial, (adv_s, perc_s, dist_s, out_s, marg_s) = _step_grads(attack, call, criteria, None, params, idx)
+    with StepWorkers(num_workers, 1) as workers:
+        g_pipe, (adv_p, perc_p, dist_p, out_p, marg_p) = _step_grads(attack, call, criteria, workers, params, idx)
+    assert g_serial is not None and g_pipe is not None
+    assert float(g_serial[idx].abs().max()) > 0
+    assert torch.equal(g_pipe[2], torch.zeros_like(g_pipe[2]))  # the inactive target's rows
+    torch.testing.assert_close(g_pipe, g_serial, rtol=1e-5, atol=1e-7 * float(g_serial.abs().max()))
+    for a, b in ((adv_p, adv_s), (perc_p, perc_s), (dist_p, dist_s), (out_p, out_s), (marg_p, marg_s)):
+        torch.testing.assert_close(a.detach(), b.detach(), rtol=1e-5, atol=1e-5)  # logits: batch-size rounding
+
+
+@needs_native
+def test_pipelined_step_gradients_reach_the_perceptual_image_term() -> None:
+    """Texture's perceptual term is a function of the images: without the victim's term its gradient must still come
+    through the render (a zero-weight adversarial term isolates it)."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import TargetedMisclassification, TextureAttack
+    from meshadv.attacks.pipeline import StepWorkers
+    from meshadv.mesh import builtin_mesh
+
+    class PercOnly:
+        def objective(self, adv: torch.Tensor, perc: torch.Tensor, dist: torch.Tensor,
+                      idx: torch.Tensor) -> torch.Tensor:
+            return 0.0 * adv.sum() + perc.sum()
+
+    mesh = builtin_mesh("sofa")
+    attack = TextureAttack()
+    call = _call(attack, mesh, _views(1), PooledLinearClassifier())
+    params = attack._init_params(mesh, 2) + 0.1 * torch.randn(attack._init_params(mesh, 2).shape,
+                                                             generator=torch.Generator().manual_seed(3))
+    idx = torch.tensor([0, 1])
+    crits = [TargetedMisclassification(c).bind(call.victim) for c in (1, 2)]
+    grads = []
+    for workers in (None, StepWorkers(2, 1)):
+        p = params.clone().requires_grad_(True)
+        if workers is None:
+            attack._serial_step(p[idx], idx, crits, call, call.views, PercOnly())
+        else:
+            attack._pipelined_step(p, idx, crits, call, call.views, PercOnly(), workers)
+            workers.close()
+        grads.append(p.grad)
+    assert float(grads[0].abs().max()) > 0
+    torch.testing.assert_close(grads[1], grads[0], rtol=1e-5, atol=1e-9)
+
+
+@needs_native
+@pytest.mark.parametrize("family", ["shape", "texture"])
+def test_attack_with_step_workers_matches_one_worker(family: str) -> None:
+    """A short attack with 2 step workers (targets finishing at different steps) follows the 1-worker run."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import ShapeAttack, TargetedMisclassification, TextureAttack
+    from meshadv.mesh import builtin_mesh
+
+    victim = PooledLinearClassifier()
+    mesh = builtin_mesh("chair")
+    crits = [TargetedMisclassification(c) for c in (728, 247, 5)]
+    results = []
+    for workers in (1, 2):
+        if family == "shape":
+            attack = ShapeAttack(steps=5, lr=3e-2, lambda_perceptual=0.01, step_workers=workers)
+        else:
+            attack = TextureAttack(steps=5, lr=0.2, early_stop=1, step_workers=workers)
+        results.append(attack(mesh, _views(2), victim, crits, setup=RenderSetup(image_size=48, antialias=2)))
+    one, two = results
+    assert one.steps == two.steps
+    assert one.success.tolist() == two.success.tolist()
+    for a, b in zip(one.distances, two.distances):
+        for key in ("laplacian_sum", "color_rmse", "max_displacement"):
+            assert b[key] == pytest.approx(a[key], rel=1e-3, abs=1e-9)
+    for row_a, row_b in zip(one.loss_history, two.loss_history):
+        for x, y in zip(row_a["loss"], row_b["loss"]):
+            assert (x is None) == (y is None)
+            if x is not None:
+                assert y == pytest.approx(x, rel=1e-4, abs=1e-6)
+
+
+class _Boom(Exception):
+    pass
+
+
+@needs_native
+def test_worker_exception_is_raised_in_the_caller() -> None:
+    """A victim that fails inside a worker fails the attack call with its own exception."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import ShapeAttack, TargetedMisclassification
+    from meshadv.mesh import builtin_mesh
+
+    class Failing(PooledLinearClassifier):
+        def forward(self, images: torch.Tensor) -> torch.Tensor:
+            if torch.is_grad_enabled() and threading.current_thread() is not threading.main_thread():
+                raise _Boom("victim failed in a worker")
+            return super().forward(images)
+
+    attack = ShapeAttack(steps=3, step_workers=2)
+    with pytest.raises(_Boom, match="in a worker"):
+        attack(builtin_mesh("chair"), _views(1), Failing(), [TargetedMisclassification(1),
+                                                             TargetedMisclassification(2)],
+               setup=RenderSetup(image_size=32))
+
+
+@needs_native
+def test_keyboard_interrupt_in_a_worker_stops_the_attack_cleanly() -> None:
+    """Ctrl-C raised while the workers run a step stops the attack between steps with ``interrupted=True``."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import ShapeAttack, TargetedMisclassification
+    from meshadv.mesh import builtin_mesh
+
+    calls = {"n": 0}
+
+    class Interrupting(PooledLinearClassifier):
+        def forward(self, images: torch.Tensor) -> torch.Tensor:
+            if torch.is_grad_enabled() and threading.current_thread() is not threading.main_thread():
+                calls["n"] += 1
+                if calls["n"] > 4:  # third step: 2 chunks per step
+                    raise KeyboardInterrupt
+            return super().forward(images)
+
+    attack = ShapeAttack(steps=10, step_workers=2)
+    result = attack(builtin_mesh("chair"), _views(1), Interrupting(),
+                    [TargetedMisclassification(1), TargetedMisclassification(2)], setup=RenderSetup(image_size=32))
+    assert result.interrupted
+    assert result.steps == 2
+
+
+def test_step_workers_threads_and_restore() -> None:
+    """Each worker runs torch on its own thread count; the caller's count and the process default are restored."""
+    from meshadv.attacks.pipeline import StepWorkers
+
+    before = torch.get_num_threads()
+    with StepWorkers(2, 1) as workers:
+        seen = workers.map(lambda _: (torch.get_num_threads(), threading.current_thread().name), range(4))
+        assert torch.get_num_threads() == before
+    assert all(n == 1 for n, _ in seen)
+    assert all(name.startswith("meshadv-step") for _, name in seen)
+    fresh: List[int] = []
+    thread = threading.Thread(target=lambda: fresh.append(torch.get_num_threads()))
+    thread.start()
+    thread.join()
+    assert fresh == [before]
+    with pytest.raises(RuntimeError, match="closed"):
+        workers.map(abs, [1])
+
+
+def test_step_workers_map_waits_for_every_task_and_raises_the_first_error() -> None:
+    """All tasks finish before the first failure (in item order) is raised."""
+    import time
+
+    from meshadv.attacks.pipeline import StepWorkers
+
+    done: List[int] = []
+
+    def task(i: int) -> int:
+        if i == 1:
+            raise ValueError("task 1")
+        time.sleep(0.05)
+        done.append(i)
+        return i
+
+    with StepWorkers(2, 1) as workers:
+        with pytest.raises(ValueError, match="task 1"):
+            workers.map(task, [0, 1, 2])
+        assert sorted(done) == [0, 2]
+        assert workers.map(lambda i: i * i, [3, 1, 2]) == [9, 1, 4]
+
+
+def test_split_chunks() -> None:
+    from meshadv.attacks.pipeline import split_chunks
+
+    assert split_chunks(6, 2) == [(0, 3), (3, 6)]
+    assert split_chunks(5, 2) == [(0, 3), (3, 5)]
+    assert split_chunks(3, 4) == [(0, 1), (1, 2), (2, 3)]
+    assert split_chunks(0, 2) == []
+    for n in range(1, 12):
+        for k in range(1, 5):
+            chunks = split_chunks(n, k)
+            assert chunks[0][0] == 0 and chunks[-1][1] == n
+            assert all(a[1] == b[0] for a, b in zip(chunks, chunks[1:]))
+            sizes = [b - a for a, b in chunks]
+            assert max(sizes) - min(sizes) <= 1 and min(sizes) >= 1
+    with pytest.raises(ValueError, match="parts"):
+        split_chunks(3, 0)
+
+
+def test_cat_outputs_detector() -> None:
+    from meshadv.attacks.pipeline import cat_outputs, output_tensors
+    from meshadv.victims.base import DetectorOutput
+
+    a = DetectorOutput(boxes=torch.rand(2, 5, 4), objectness=None, class_probs=torch.rand(2, 5, 3))
+    b = DetectorOutput(boxes=torch.rand(1, 5, 4), objectness=None, class_probs=torch.rand(1, 5, 3))
+    c = cat_outputs([a, b])
+    assert isinstance(c, DetectorOutput) and c.objectness is None
+    assert torch.equal(c.boxes, torch.cat([a.boxes, b.boxes]))
+    assert torch.equal(cat_outputs([torch.ones(1, 2), torch.zeros(2, 2)]), torch.tensor([[1.0, 1], [0, 0], [0, 0]]))
+    with pytest.raises(TypeError, match="victim output"):
+        output_tensors([1, 2])
+
+
+@pytest.mark.parametrize("bad, exc", [(0, ValueError), (1.5, TypeError), ("2", TypeError), (10**6, ValueError)])
+def test_step_workers_validation(bad: Any, exc: type) -> None:
+    from meshadv.attacks import ShapeAttack
+
+    with pytest.raises(exc, match="step_workers"):
+        ShapeAttack(step_workers=bad)
