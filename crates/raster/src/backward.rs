@@ -349,6 +349,7 @@ impl Ctx<'_> {
                                 kc: kc_,
                                 ec,
                                 attrs: attrs_f,
+                                own: (along[0], along[1]),
                             };
                             let (sa, sc) =
                                 sweep.run(ln, line, start, end, self.pos, &mut scratch.ga, isa);
@@ -648,6 +649,7 @@ mod tests {
                 kc: 0.0,
                 ec: -EPS,
                 attrs: &attrs,
+                own: (0, 0),
             };
             let (start, end) = ((rng.next() * 60.0) as usize, (rng.next() * 120.0) as usize);
             let (a, b) = s.clip(start, end);

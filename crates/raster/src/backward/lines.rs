@@ -27,8 +27,10 @@ pub(super) struct Lines {
     channels: usize,
     /// Face drawn at each pixel (-1 on background), as f64 (compared in the same vectors as the depth keys).
     face: Vec<f64>,
-    /// Depth-test key of the drawn face (see [`Lines::rows`]).
+    /// Depth-test key of the drawn face (see [`Lines::fill_rows`]).
     key: Vec<f64>,
+    /// [`below`] the key: `k > below` is `k >= key` for every `k > -inf` (the depth test with ties won).
+    below: Vec<f64>,
     /// `sum_c G[P, c] * I[P, c]`, channels in order.
     gi: Vec<f64>,
     /// The cotangent, per line `C` planes of `len` values.
@@ -53,9 +55,10 @@ impl Lines {
     ) -> Result<()> {
         let (h, w) = (params.height, params.width);
         let n = h * w;
-        let (mut face, mut key, mut gi, mut planes) = (
+        let (mut face, mut key, mut below, mut gi, mut planes) = (
             Fill::new(&mut self.face, n, 0.0)?,
             Fill::new(&mut self.key, n, f64::NEG_INFINITY)?,
+            Fill::new(&mut self.below, n, f64::NEG_INFINITY)?,
             Fill::new(&mut self.gi, n, 0.0)?,
             Fill::new(&mut self.grad, n.saturating_mul(c), 0.0)?,
         );
@@ -63,21 +66,26 @@ impl Lines {
         face.slots()
             .par_chunks_mut(w)
             .zip(key.slots().par_chunks_mut(w))
+            .zip(below.slots().par_chunks_mut(w))
             .zip(gi.slots().par_chunks_mut(w))
             .zip(planes.slots().par_chunks_mut(w * c))
             .enumerate()
-            .for_each(|(i, (((face, key), gi), planes))| {
+            .for_each(|(i, ((((face, key), below), gi), planes))| {
                 let faces = &face_index[i * w..(i + 1) * w];
-                for (j, ((&f, face), key)) in faces.iter().zip(face).zip(key).enumerate() {
+                for (j, (((&f, face), key), below)) in
+                    faces.iter().zip(face).zip(key).zip(below).enumerate()
+                {
                     face.write(f as f64);
-                    key.write(match setups.get(f as usize) {
+                    let k = match setups.get(f as usize) {
                         Some(s) if f >= 0 => match s.depth_at(i as i32, j as i32) {
                             Some(z) if s.ortho => -z,
                             Some(z) => 1.0 / z,
                             None => f64::NEG_INFINITY,
                         },
                         _ => f64::NEG_INFINITY,
-                    });
+                    };
+                    key.write(k);
+                    below.write(self::below(k));
                 }
                 let (g, im) = (
                     &grad[i * w * c..(i + 1) * w * c],
@@ -91,12 +99,13 @@ impl Lines {
                     _ => channels::<0>(g, im, w, gi, planes),
                 }
             });
-        // SAFETY: the row passes above wrote every slot: each row chunk writes its `w` face, key and gi values and
-        // its `w * c` plane values.
+        // SAFETY: the row passes above wrote every slot: each row chunk writes its `w` face, key, below and gi
+        // values and its `w * c` plane values.
         #[allow(unsafe_code)]
         unsafe {
             face.done();
             key.done();
+            below.done();
             gi.done();
             planes.done();
         }
@@ -108,19 +117,21 @@ impl Lines {
     pub fn fill_columns(&mut self, rows: &Lines) -> Result<()> {
         let (w, h, c) = (rows.len, rows.lines(), rows.channels);
         let n = h * w;
-        let (mut face, mut key, mut gi, mut planes) = (
+        let (mut face, mut key, mut below, mut gi, mut planes) = (
             Fill::new(&mut self.face, n, 0.0)?,
             Fill::new(&mut self.key, n, f64::NEG_INFINITY)?,
+            Fill::new(&mut self.below, n, f64::NEG_INFINITY)?,
             Fill::new(&mut self.gi, n, 0.0)?,
             Fill::new(&mut self.grad, n.saturating_mul(c), 0.0)?,
         );
         face.slots()
             .par_chunks_mut(GROUP * h)
             .zip(key.slots().par_chunks_mut(GROUP * h))
+            .zip(below.slots().par_chunks_mut(GROUP * h))
             .zip(gi.slots().par_chunks_mut(GROUP * h))
             .zip(planes.slots().par_chunks_mut(GROUP * c * h))
             .enumerate()
-            .for_each(|(group, (((face, key), gi), planes))| {
+            .for_each(|(group, ((((face, key), below), gi), planes))| {
                 let j0 = group * GROUP;
                 // One output column at a time: `out[i] = src[i * stride]` (the group's rows stay in cache).
                 let column = |src: &[f64], stride: usize, out: &mut [MaybeUninit<f64>]| {
@@ -131,15 +142,17 @@ impl Lines {
                         x.write(unsafe { *src.get_unchecked(i * stride) });
                     }
                 };
-                for (jj, ((face, key), gi)) in face
+                for (jj, (((face, key), below), gi)) in face
                     .chunks_exact_mut(h)
                     .zip(key.chunks_exact_mut(h))
+                    .zip(below.chunks_exact_mut(h))
                     .zip(gi.chunks_exact_mut(h))
                     .enumerate()
                 {
                     let j = j0 + jj;
                     column(&rows.face[j..], w, face);
                     column(&rows.key[j..], w, key);
+                    column(&rows.below[j..], w, below);
                     column(&rows.gi[j..], w, gi);
                     // Row i's channel k is rows.grad[(i * c + k) * w..][..w]; column j's is planes[(j * c + k) * h..].
                     for (k, plane) in planes[jj * c * h..(jj + 1) * c * h]
@@ -150,12 +163,13 @@ impl Lines {
                     }
                 }
             });
-        // SAFETY: every group of `cols` columns wrote its `cols * h` face, key and gi values and `cols * c * h` plane
-        // values (all rows i, all columns jj, all channels).
+        // SAFETY: every group of `cols` columns wrote its `cols * h` face, key, below and gi values and `cols * c * h`
+        // plane values (all rows i, all columns jj, all channels).
         #[allow(unsafe_code)]
         unsafe {
             face.done();
             key.done();
+            below.done();
             gi.done();
             planes.done();
         }
@@ -174,8 +188,11 @@ impl Lines {
 
     /// Bytes held (capacity) by the buffers.
     pub fn bytes(&self) -> usize {
-        let f64s =
-            self.face.capacity() + self.key.capacity() + self.gi.capacity() + self.grad.capacity();
+        let f64s = self.face.capacity()
+            + self.key.capacity()
+            + self.below.capacity()
+            + self.gi.capacity()
+            + self.grad.capacity();
         f64s * std::mem::size_of::<f64>()
             + self.nonzero.capacity() * std::mem::size_of::<[usize; 2]>()
     }
@@ -234,6 +251,7 @@ impl Lines {
             LineAt {
                 face: self.face.as_ptr().add(o),
                 key: self.key.as_ptr().add(o),
+                below: self.below.as_ptr().add(o),
                 gi: self.gi.as_ptr().add(o),
                 grad: std::array::from_fn(|k| {
                     self.grad
@@ -243,6 +261,21 @@ impl Lines {
                 _lines: PhantomData,
             }
         }
+    }
+}
+
+/// The largest f64 below `k` (`-inf` for `-inf`, NaN for NaN), so that `x > below(k)` is `x >= k` for every
+/// `x > -inf` (the sweeps' keys always are: the clip range is finite below).
+#[inline(always)]
+pub(super) fn below(k: f64) -> f64 {
+    if k.is_nan() || k == f64::NEG_INFINITY {
+        k
+    } else if k == 0.0 {
+        -f64::from_bits(1)
+    } else if k > 0.0 {
+        f64::from_bits(k.to_bits() - 1)
+    } else {
+        f64::from_bits(k.to_bits() + 1)
     }
 }
 
@@ -317,6 +350,8 @@ pub(super) struct LineAt<'a, const C: usize> {
     pub face: *const f64,
     /// Depth-test key.
     pub key: *const f64,
+    /// The largest f64 below the key (see [`below`]).
+    pub below: *const f64,
     /// `sum_c G I`.
     pub gi: *const f64,
     /// Cotangent channels.
@@ -331,9 +366,52 @@ impl<'a, const C: usize> LineAt<'a, C> {
         LineAt {
             face: self.face,
             key: self.key,
+            below: self.below,
             gi: self.gi,
             grad: [],
             _lines: PhantomData,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::below;
+
+    #[test]
+    fn greater_than_below_is_greater_or_equal() {
+        let specials = [
+            0.0,
+            -0.0,
+            f64::from_bits(1),
+            -f64::from_bits(1),
+            f64::MIN_POSITIVE,
+            1.0,
+            -1.0,
+            0.1,
+            -2.5,
+            f64::MAX,
+            f64::MIN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        let mut xs = specials.to_vec();
+        for &k in &specials {
+            // Neighbours of every special value.
+            if k.is_finite() {
+                xs.push(f64::from_bits(k.to_bits() + 1));
+                xs.push(f64::from_bits(k.to_bits().saturating_sub(1)));
+            }
+        }
+        for &k in &xs {
+            for &x in &xs {
+                if x > f64::NEG_INFINITY {
+                    assert_eq!(x > below(k), x >= k, "x = {x:e}, k = {k:e}");
+                }
+            }
+        }
+        assert!(below(f64::NAN).is_nan());
+        assert_eq!(below(f64::NEG_INFINITY), f64::NEG_INFINITY);
+        assert_eq!(below(f64::INFINITY), f64::MAX);
     }
 }

@@ -57,6 +57,9 @@ pub(super) struct OutSweep<'a> {
     pub ec: f64,
     /// The face's attributes.
     pub attrs: &'a [f64],
+    /// The face's drawn pixels along the line lie in `own.0..=own.1` (from its drawn box): only there does a pixel
+    /// need the test `F[P] != f`.
+    pub own: (usize, usize),
 }
 
 /// First index in `lo..hi` where `pred` is false, for a predicate that is true then false (`hi` if none).
@@ -151,12 +154,17 @@ impl OutSweep<'_> {
         r: &std::ops::Range<usize>,
         isa: Isa,
     ) -> (f64, f64) {
+        // The sweep's pixels that may be the face's own, relative to its start.
+        let own_lo = self.own.0.max(r.start).min(r.end) - r.start;
+        let own_hi = (self.own.1 + 1).max(r.start).min(r.end) - r.start;
         OutKernel {
             n: r.len(),
+            own: (own_lo, own_hi.max(own_lo)),
             end: r.end as f64,
             dot: dot(&at, self.attrs),
             face: at.face,
             key: at.key,
+            below: at.below,
             gi: at.gi,
             pos,
             ka: self.ka,
@@ -264,6 +272,8 @@ trait Kernel {
     type Consts<V: F64s>;
     /// Pixels in the sweep (every per-pixel pointer may be read for this rounded up to a multiple of [`LANES`]).
     fn len(&self) -> usize;
+    /// The pixels of the sweep (from its start) that need [`Kernel::vec`]'s `OWN` test; the others may skip it.
+    fn own(&self) -> (usize, usize);
     /// The constants.
     ///
     /// # Safety
@@ -271,12 +281,16 @@ trait Kernel {
     #[allow(unsafe_code)]
     unsafe fn consts<V: F64s>(&self) -> Self::Consts<V>;
     /// Contributions of the `V::N` pixels at `i` of the sweep to the endpoints a and c; with `MASKED`, lanes at or
-    /// past the sweep's end give 0.
+    /// past the sweep's end give 0; without `OWN`, the pixels must lie outside [`Kernel::own`].
     ///
     /// # Safety
     /// `V`'s instructions must be supported by the CPU, and `i + V::N` must not exceed any slice.
     #[allow(unsafe_code)]
-    unsafe fn vec<V: F64s, const MASKED: bool>(&self, c: &Self::Consts<V>, i: usize) -> (V, V);
+    unsafe fn vec<V: F64s, const MASKED: bool, const OWN: bool>(
+        &self,
+        c: &Self::Consts<V>,
+        i: usize,
+    ) -> (V, V);
 
     /// The sums for the endpoints a and c on the instruction set `isa`, in [`LANES`] lanes added in a fixed order.
     #[inline(always)]
@@ -315,7 +329,8 @@ unsafe fn lanes_avx2<K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
 }
 
 /// A sweep's lane sums on vectors `V`: whole blocks of [`LANES`] pixels (pixel `i` into lane `i % LANES`), then
-/// the last partial block with the lanes past the end masked out.
+/// the last partial block with the lanes past the end masked out. The blocks that meet [`Kernel::own`] (and the
+/// last) run the kernel's `OWN` variant.
 ///
 /// # Safety
 /// `V`'s instructions must be supported by the CPU, and every slice of `k` must hold `k.len()` rounded up to a
@@ -330,18 +345,33 @@ unsafe fn lanes<V: F64s, K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
     let (mut sa, mut sc) = ([zero; LANES], [zero; LANES]);
     let n = k.len();
     let full = n - n % LANES;
+    let (own_lo, own_hi) = k.own();
+    // Blocks before, meeting and after the own pixels (empty own: all before).
+    let own_lo = (own_lo - own_lo % LANES).min(full);
+    let own_hi = if own_hi > own_lo {
+        own_hi.next_multiple_of(LANES).min(full)
+    } else {
+        own_lo
+    };
     let mut i = 0;
-    while i < full {
-        for j in 0..per {
-            let (x, y) = k.vec::<V, false>(&c, i + j * V::N);
-            sa[j] = sa[j].add(x);
-            sc[j] = sc[j].add(y);
-        }
-        i += LANES;
+    macro_rules! blocks {
+        ($to:expr, $own:expr) => {
+            while i < $to {
+                for j in 0..per {
+                    let (x, y) = k.vec::<V, false, { $own }>(&c, i + j * V::N);
+                    sa[j] = sa[j].add(x);
+                    sc[j] = sc[j].add(y);
+                }
+                i += LANES;
+            }
+        };
     }
+    blocks!(own_lo, false);
+    blocks!(own_hi, true);
+    blocks!(full, false);
     if full < n {
         for j in 0..per {
-            let (x, y) = k.vec::<V, true>(&c, full + j * V::N);
+            let (x, y) = k.vec::<V, true, true>(&c, full + j * V::N);
             sa[j] = sa[j].add(x);
             sc[j] = sc[j].add(y);
         }
@@ -359,12 +389,15 @@ unsafe fn lanes<V: F64s, K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
 struct OutKernel<'a, const C: usize> {
     /// Pixels in the sweep.
     n: usize,
+    /// See [`Kernel::own`].
+    own: (usize, usize),
     /// Position just past the last pixel, as f64 (lanes at or beyond it are masked out).
     end: f64,
     /// `sum_c G[P, c] A[f, c]`.
     dot: Dot<'a, C>,
     face: *const f64,
     key: *const f64,
+    below: *const f64,
     gi: *const f64,
     pos: *const f64,
     /// `da = ka * d + ba` is `ka * (d - cross) + ea`, the displacement of endpoint a (see [`OutSweep`]).
@@ -400,6 +433,11 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
         self.n
     }
 
+    #[inline(always)]
+    fn own(&self) -> (usize, usize) {
+        self.own
+    }
+
     #[allow(unsafe_code)]
     #[inline(always)]
     unsafe fn consts<V: F64s>(&self) -> OutConsts<V, C> {
@@ -419,18 +457,22 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
 
     #[allow(unsafe_code)]
     #[inline(always)]
-    unsafe fn vec<V: F64s, const MASKED: bool>(&self, c: &OutConsts<V, C>, i: usize) -> (V, V) {
+    unsafe fn vec<V: F64s, const MASKED: bool, const OWN: bool>(
+        &self,
+        c: &OutConsts<V, C>,
+        i: usize,
+    ) -> (V, V) {
         let load = |v: *const f64| V::load(v.add(i));
-        let (fp, kp, pos) = (load(self.face), load(self.key), load(self.pos));
+        let (fp, pos) = (load(self.face), load(self.pos));
         let kf = c.key0.add(c.key_step.mul(pos));
-        // covers(f, P) (the clip range is handled by `clip`) and delta < 0.
-        let tie = kf.eq(kp).and(c.fi.lt(fp));
-        let nearer = kf.gt(kp).or(tie);
-        let other = fp.ne(c.fi);
-        let covers = other.and(nearer);
+        // covers(f, P) (the clip range is handled by `clip`): `kf > kP`, or `kf == kP` and `f < F[P]`, i.e.
+        // `kf >= kP` there (`kf > below(kP)`, as `kf > -inf`); and `F[P] != f` (only possible in `own`).
+        let thr = load(self.key).blend(load(self.below), c.fi.lt(fp));
+        let nearer = kf.gt(thr);
+        let covers = if OWN { nearer.and(fp.ne(c.fi)) } else { nearer };
+        // delta where covers and delta < 0, else 0 (`min(delta, 0)` is 0 for delta >= 0 and NaN).
         let delta = self.dot.at(&c.w, i).sub(load(self.gi));
-        let neg = delta.lt(c.zero);
-        let m = covers.and(neg).and(delta);
+        let m = delta.min(c.zero).and(covers);
         let da = c.ka.mul(pos).add(c.ba);
         let dc = c.kc.mul(pos).add(c.bc);
         // m / da and m / dc with one division.
@@ -558,6 +600,11 @@ impl<const C: usize> Kernel for InKernel<'_, C> {
         self.s.n
     }
 
+    #[inline(always)]
+    fn own(&self) -> (usize, usize) {
+        (0, 0)
+    }
+
     #[allow(unsafe_code)]
     #[inline(always)]
     unsafe fn consts<V: F64s>(&self) -> InConsts<V, C> {
@@ -576,13 +623,17 @@ impl<const C: usize> Kernel for InKernel<'_, C> {
 
     #[allow(unsafe_code)]
     #[inline(always)]
-    unsafe fn vec<V: F64s, const MASKED: bool>(&self, c: &InConsts<V, C>, i: usize) -> (V, V) {
+    unsafe fn vec<V: F64s, const MASKED: bool, const OWN: bool>(
+        &self,
+        c: &InConsts<V, C>,
+        i: usize,
+    ) -> (V, V) {
         let load = |v: *const f64| V::load(v.add(i));
         let go = self.dot.at(&c.w, i);
         let pos = load(self.s.pos);
         let delta = go.sub(load(self.s.gi));
         let own = load(self.s.face).eq(c.fi);
-        let m = own.and(delta.lt(c.zero)).and(delta);
+        let m = delta.min(c.zero).and(own);
         let t = pos.sub(c.cross);
         // NMR's nudge: x + (EPS if x > 0 else -EPS); (2 EPS or 0) - EPS is exact.
         let nudge = |x: V| x.add(x.gt(c.zero).and(c.eps2).sub(c.eps));
@@ -638,8 +689,10 @@ pub(super) unsafe trait F64s: Copy {
     unsafe fn ne(self, o: Self) -> Self;
     /// Bitwise and.
     unsafe fn and(self, o: Self) -> Self;
-    /// Bitwise or.
-    unsafe fn or(self, o: Self) -> Self;
+    /// Lane-wise `if self < o { self } else { o }` (x86's `min`: `o` when either is NaN or both are zeros).
+    unsafe fn min(self, o: Self) -> Self;
+    /// Lane-wise `if mask { o } else { self }` for a mask of all-ones or all-zeros lanes.
+    unsafe fn blend(self, o: Self, mask: Self) -> Self;
 }
 
 /// Two plain f64 lanes (targets without an intrinsic implementation; the compiler vectorises what it can).
@@ -698,9 +751,14 @@ unsafe impl F64s for [f64; 2] {
         [f(self[0], o[0]), f(self[1], o[1])]
     }
     #[inline(always)]
-    unsafe fn or(self, o: Self) -> Self {
-        let f = |a: f64, b: f64| f64::from_bits(a.to_bits() | b.to_bits());
+    unsafe fn min(self, o: Self) -> Self {
+        let f = |a: f64, b: f64| if a < b { a } else { b };
         [f(self[0], o[0]), f(self[1], o[1])]
+    }
+    #[inline(always)]
+    unsafe fn blend(self, o: Self, mask: Self) -> Self {
+        let f = |a: f64, b: f64, m: f64| if m.to_bits() != 0 { b } else { a };
+        [f(self[0], o[0], mask[0]), f(self[1], o[1], mask[1])]
     }
 }
 
@@ -771,8 +829,13 @@ mod x86 {
             _mm_and_pd(self, o)
         }
         #[inline(always)]
-        unsafe fn or(self, o: Self) -> Self {
-            _mm_or_pd(self, o)
+        unsafe fn min(self, o: Self) -> Self {
+            _mm_min_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn blend(self, o: Self, mask: Self) -> Self {
+            // SSE2 has no blend instruction.
+            _mm_or_pd(_mm_andnot_pd(mask, self), _mm_and_pd(mask, o))
         }
     }
 
@@ -828,8 +891,12 @@ mod x86 {
             _mm256_and_pd(self, o)
         }
         #[inline(always)]
-        unsafe fn or(self, o: Self) -> Self {
-            _mm256_or_pd(self, o)
+        unsafe fn min(self, o: Self) -> Self {
+            _mm256_min_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn blend(self, o: Self, mask: Self) -> Self {
+            _mm256_blendv_pd(self, o, mask)
         }
     }
 }
