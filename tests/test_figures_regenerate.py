@@ -91,6 +91,9 @@ def test_report_regenerates_only_the_jobs_its_figures_use(moved_db: Path, tmp_pa
     assert (spec["source_class"], spec["target"], spec["config_index"]) == ("aeroplane", "bicycle", 0)
     text = (tmp_path / "report" / "regeneration.md").read_text()
     assert "success equal in 6/6" in text and "in 6/6" in text
+    readme = (tmp_path / "report" / "README.md").read_text()
+    assert "grid_v_shape.png): the paper's Fig. 2" in readme and "flow_quiver_v.png): the paper's Fig. 3" in readme
+    assert "6 reproduce their stored success" in readme
     # a second report reuses the regenerated folders and their checks (nothing is run again)
     stamps = {p: p.stat().st_mtime_ns for p in (tmp_path / "regen").rglob("regeneration.json")}
     assert len(stamps) == 6

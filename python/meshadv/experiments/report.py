@@ -41,7 +41,8 @@ from meshadv.experiments.tables import (
     victim_label,
 )
 
-__all__ = ["write_report", "ReportOutput", "ArtifactSource", "environment_versions", "PAPER_FLOW_EXAMPLE"]
+__all__ = ["write_report", "ReportOutput", "ArtifactSource", "environment_versions", "figure_caption",
+           "PAPER_FLOW_EXAMPLE"]
 
 CASE_DEFINITIONS = """\
 Cases (Carlini & Wagner 2017, as used by MeshAdv): an instance is one benign render (mesh, rendering configuration,
@@ -518,6 +519,26 @@ def _run_stats(done: List[JobRow]) -> List[str]:
     return lines
 
 
+def figure_caption(name: str) -> str:
+    """The caption of a report figure from its file name, with the paper's figure it regenerates."""
+    stem = Path(name).stem
+    if stem.startswith("grid_"):
+        return ("the paper's Fig. 2: rows are benign classes (per class the instance with the most successful "
+                "targets), columns target classes; the diagonal is the benign render (green frame), the other cells "
+                "the adversarial render towards the column's class (\"failed\" in red: the attack did not succeed)")
+    if stem.startswith("flow_heatmap_"):
+        return ("the paper's Fig. 3, heatmaps: per-face flow magnitude |v_adv - v| on the benign mesh, in the attack's "
+                "(rendered) view and in the canonical view (azimuth 135°, elevation 45°), colour scale 0 to the "
+                "largest vertex flow")
+    if stem.startswith("flow_quiver_"):
+        return ("the paper's Fig. 3, quiver plot: flow directions (unit arrows, coloured by magnitude) of the "
+                "vertices nearest the most displaced one")
+    if stem.startswith("curvature_"):
+        return ("the paper's Fig. 3, flow vs. curvature: per-vertex flow magnitude against |mean curvature|, "
+                "coloured by distance to the camera (correlations below)")
+    return ""
+
+
 def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[Any]], t2: List[Any],
                   meta: Dict[str, Any], stats: List[str], transfer: str = "", comparison: str = "") -> None:
     c = out.counts
@@ -540,7 +561,7 @@ def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[An
         lines += [comparison, ""]
     if out.figures:
         lines += ["## Figures", ""]
-        lines += [f"- [{p.name}](figures/{p.name})" for p in out.figures]
+        lines += [f"- [{p.name}](figures/{p.name}): {figure_caption(p.name)}" for p in out.figures]
         lines.append("")
     if out.regenerations:
         same = sum(1 for c in out.regenerations.values() if c.get("matches"))
