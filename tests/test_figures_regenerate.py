@@ -25,7 +25,7 @@ from meshadv.experiments.figures import (
     mean_curvature_np,
 )
 from meshadv.experiments.regenerate import load_assumed, pinned_spec
-from meshadv.experiments.report import ArtifactSource, _grid_cells, write_report
+from meshadv.experiments.report import ArtifactSource, _grid_cells, settings_mix, write_report
 from sweep_fixtures import run_probe_sweep
 
 CONFIG = textwrap.dedent("""
@@ -224,3 +224,16 @@ def test_attack_job_records_what_it_ran_with(tmp_path: Path) -> None:
     assert run_attack_job({**spec, "victim_optimize": False}, tmp_path / "b")["victim_optimize"] is False
     with pytest.raises(ValueError, match="victim_optimize"):
         run_attack_job({**spec, "victim_optimize": "no"}, tmp_path / "b")
+
+
+def test_settings_mix_flags_a_group_run_with_two_settings(moved_db: Path) -> None:
+    with ResultStore(moved_db, read_only=True) as store:
+        rows = [r for r in store.rows() if r.state == "done"]
+    assert settings_mix(rows) == []  # no record says anything: one "not recorded" setting
+    first = {"attack_config": {"method": "ddn", "seed": 0, "method_options": {"gamma": 0.05}}, "victim_optimize": True}
+    for i, r in enumerate(rows):  # the seed alone does not make a different setting
+        r.record.update(first if i % 2 else {**first, "attack_config": {**first["attack_config"], "seed": 7}})
+    assert settings_mix(rows) == []
+    rows[0].record["victim_optimize"] = False
+    (line,) = settings_mix(rows)
+    assert line.startswith("- WARNING: v, shape: the attacks ran with 2 different") and "11, 1 attacks" in line

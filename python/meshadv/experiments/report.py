@@ -42,7 +42,7 @@ from meshadv.experiments.tables import (
 )
 
 __all__ = ["write_report", "ReportOutput", "ArtifactSource", "environment_versions", "figure_caption",
-           "PAPER_FLOW_EXAMPLE"]
+           "settings_mix", "PAPER_FLOW_EXAMPLE"]
 
 CASE_DEFINITIONS = """\
 Cases (Carlini & Wagner 2017, as used by MeshAdv): an instance is one benign render (mesh, rendering configuration,
@@ -497,8 +497,39 @@ def _write_regenerations(out_dir: Path, checks: Dict[str, Dict[str, Any]], done:
     return [md, path]
 
 
+def settings_mix(done: List[JobRow]) -> List[str]:
+    """Warnings for table groups (victim, type) whose attacks ran with different effective settings.
+
+    A spec names only what its config sets; a sweep resumed after a default changed (an update rule's options, the
+    victim's ``optimize``) runs its remaining jobs with the new default, and Table 1 would pool both. The records say
+    what each job ran with (``attack_config``, ``victim_optimize``; records from before they were recorded count as
+    one "not recorded" setting).
+
+    Returns:
+        One line per group with more than one setting (empty when every group is uniform).
+    """
+    groups: Dict[Tuple[str, str], Dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    for r in done:
+        rec = r.record or {}
+        if rec.get("skipped"):
+            continue
+        config = rec.get("attack_config")
+        if isinstance(config, dict):  # the seed is the instance's, not a setting
+            config = {k: v for k, v in config.items() if k != "seed"}
+        key = json.dumps({"attack_config": config, "victim_optimize": rec.get("victim_optimize")}, sort_keys=True)
+        groups[(victim_label(r.spec), str(r.spec.get("perturbation")))][key] += 1
+    lines = []
+    for (victim, perturbation), counts in sorted(groups.items()):
+        if len(counts) > 1:
+            sizes = ", ".join(str(n) for n in sorted(counts.values(), reverse=True))
+            lines.append(f"- WARNING: {victim}, {perturbation}: the attacks ran with {len(counts)} different effective "
+                         f"settings (attack_config / victim_optimize; {sizes} attacks): a default changed while the "
+                         "sweep was resumed, and the tables pool them")
+    return lines
+
+
 def _run_stats(done: List[JobRow]) -> List[str]:
-    """Lines on benign accuracy and attack cost per victim and type."""
+    """Lines on benign accuracy and attack cost per victim and type, then :func:`settings_mix`'s warnings."""
     lines = []
     groups: Dict[Tuple[str, str], List[JobRow]] = defaultdict(list)
     for r in done:
@@ -516,7 +547,7 @@ def _run_stats(done: List[JobRow]) -> List[str]:
         if steps and secs:
             line += f"; mean {sum(steps) / len(steps):.0f} steps and {sum(secs) / len(secs):.1f} s per attack"
         lines.append(line)
-    return lines
+    return lines + settings_mix(done)
 
 
 def figure_caption(name: str) -> str:
