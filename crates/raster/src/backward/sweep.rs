@@ -292,6 +292,25 @@ trait Kernel {
         i: usize,
     ) -> (V, V);
 
+    /// Adds the contributions of the whole blocks of pixels `from..to` (multiples of [`LANES`], outside
+    /// [`Kernel::own`]) to the AVX2 accumulators `sa`, `sc` with hand-scheduled code, with the same operations and
+    /// bits as [`Kernel::vec`]; false (nothing done) when the kernel has no such code.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2, and the pixels must be readable as for [`Kernel::vec`].
+    #[cfg(target_arch = "x86_64")]
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn avx2_blocks(
+        &self,
+        _from: usize,
+        _to: usize,
+        _sa: &mut std::arch::x86_64::__m256d,
+        _sc: &mut std::arch::x86_64::__m256d,
+    ) -> bool {
+        false
+    }
+
     /// The sums for the endpoints a and c on the instruction set `isa`, in [`LANES`] lanes added in a fixed order.
     #[inline(always)]
     fn sums(&self, isa: Isa) -> (f64, f64)
@@ -303,13 +322,14 @@ trait Kernel {
         // (see `rasterize_backward_on`); SSE2 is part of the x86-64 baseline.
         #[allow(unsafe_code)]
         let (sa, sc) = unsafe {
+            let none = |_: &Self, _: usize, _: usize, _: &mut _, _: &mut _| false;
             match isa {
                 #[cfg(target_arch = "x86_64")]
                 Isa::Avx2 => lanes_avx2(self),
                 #[cfg(target_arch = "x86_64")]
-                _ => lanes::<std::arch::x86_64::__m128d, Self>(self),
+                _ => lanes::<std::arch::x86_64::__m128d, Self>(self, none),
                 #[cfg(not(target_arch = "x86_64"))]
-                _ => lanes::<[f64; 2], Self>(self),
+                _ => lanes::<[f64; 2], Self>(self, none),
             }
         };
         (lane_sum(&sa), lane_sum(&sc))
@@ -325,19 +345,25 @@ trait Kernel {
 #[allow(unsafe_code)]
 #[inline]
 unsafe fn lanes_avx2<K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
-    lanes::<std::arch::x86_64::__m256d, K>(k)
+    lanes::<std::arch::x86_64::__m256d, K>(k, |k, from, to, sa, sc| {
+        k.avx2_blocks(from, to, sa, sc)
+    })
 }
 
 /// A sweep's lane sums on vectors `V`: whole blocks of [`LANES`] pixels (pixel `i` into lane `i % LANES`), then
 /// the last partial block with the lanes past the end masked out. The blocks that meet [`Kernel::own`] (and the
-/// last) run the kernel's `OWN` variant.
+/// last) run the kernel's `OWN` variant. The other blocks go to `fast` first (when `V` has [`LANES`] lanes), which
+/// adds them to the accumulators and returns true, or returns false to leave them to [`Kernel::vec`].
 ///
 /// # Safety
 /// `V`'s instructions must be supported by the CPU, and every slice of `k` must hold `k.len()` rounded up to a
 /// multiple of [`LANES`] values.
 #[allow(unsafe_code)]
 #[inline(always)]
-unsafe fn lanes<V: F64s, K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
+unsafe fn lanes<V: F64s, K: Kernel>(
+    k: &K,
+    fast: impl Fn(&K, usize, usize, &mut V, &mut V) -> bool,
+) -> ([f64; LANES], [f64; LANES]) {
     let per = LANES / V::N;
     let c = k.consts::<V>();
     let zero = V::splat(0.0);
@@ -356,6 +382,13 @@ unsafe fn lanes<V: F64s, K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
     let mut i = 0;
     macro_rules! blocks {
         ($to:expr, $own:expr) => {
+            if !$own && V::N == LANES && i < $to {
+                let [a] = &mut sa[..1] else { unreachable!() };
+                let [c] = &mut sc[..1] else { unreachable!() };
+                if fast(k, i, $to, a, c) {
+                    i = $to;
+                }
+            }
             while i < $to {
                 for j in 0..per {
                     let (x, y) = k.vec::<V, false, { $own }>(&c, i + j * V::N);
@@ -428,6 +461,45 @@ struct OutConsts<V, const C: usize> {
 impl<const C: usize> Kernel for OutKernel<'_, C> {
     type Consts<V: F64s> = OutConsts<V, C>;
 
+    #[cfg(target_arch = "x86_64")]
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn avx2_blocks(
+        &self,
+        from: usize,
+        to: usize,
+        sa: &mut std::arch::x86_64::__m256d,
+        sc: &mut std::arch::x86_64::__m256d,
+    ) -> bool {
+        let (g, w): (&[*const f64], &[f64]) = (&self.dot.g, &self.dot.w);
+        if g.len() != 4 {
+            return false;
+        }
+        let consts = OutAsmConsts {
+            s: [
+                w[0],
+                w[1],
+                w[2],
+                w[3],
+                self.key_step,
+                self.key0,
+                self.ka,
+                self.kc,
+                self.fi,
+                self.ba,
+                0.0,
+                0.0,
+            ],
+            bc: [self.bc; 4],
+            zero: [0.0; 4],
+        };
+        let ptrs = [
+            self.face, self.key, self.below, self.gi, self.pos, g[0], g[1], g[2], g[3],
+        ];
+        out_blocks_avx2_c4(&ptrs, &consts, from, to, sa, sc);
+        true
+    }
+
     #[inline(always)]
     fn len(&self) -> usize {
         self.n
@@ -485,6 +557,107 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
             (x, y)
         }
     }
+}
+
+/// The constants of [`out_blocks_avx2_c4`]: `s` = the 4 channel weights, `key_step`, `key0`, `ka`, `kc`, `fi`,
+/// `ba` (then padding), and `bc` and 0 as whole vectors (read as memory operands).
+#[repr(C, align(32))]
+struct OutAsmConsts {
+    s: [f64; 12],
+    bc: [f64; 4],
+    zero: [f64; 4],
+}
+
+/// [`OutKernel::vec`] for 4 channels without the `OWN` test or a mask, over the whole blocks `from..to`
+/// (`to - from` a multiple of [`LANES`]), in AVX2 with every register chosen by hand: LLVM's allocation of the same
+/// loop copied registers and reloaded constants (33-34 instructions per block instead of 30). The operations, their
+/// operands and their order are those of [`OutKernel::vec`] (no fused multiply-adds), so the bits are the same
+/// (tested against the portable path). `p` holds the pointers face, key, below, gi, pos and the 4 cotangent
+/// planes, each at the sweep's first pixel.
+///
+/// # Safety
+/// The CPU must support AVX2, and every pointer must be readable for pixels `from..to`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(unsafe_code)]
+#[inline]
+unsafe fn out_blocks_avx2_c4(
+    p: &[*const f64; 9],
+    consts: &OutAsmConsts,
+    from: usize,
+    to: usize,
+    sa: &mut std::arch::x86_64::__m256d,
+    sc: &mut std::arch::x86_64::__m256d,
+) {
+    debug_assert!(from < to && (to - from) % LANES == 0);
+    // Every pointer at pixel `to`; the index runs from -(to - from) * 8 bytes up to 0.
+    let end = |q: *const f64| q.add(to);
+    let i = -(((to - from) * 8) as isize);
+    // SAFETY: the caller's promises (AVX2; pixels from..to readable); the loop reads [end + i, end) only, and
+    // writes nothing but registers.
+    std::arch::asm!(
+        "vbroadcastsd ymm2, qword ptr [{c}]",
+        "vbroadcastsd ymm3, qword ptr [{c} + 8]",
+        "vbroadcastsd ymm4, qword ptr [{c} + 16]",
+        "vbroadcastsd ymm5, qword ptr [{c} + 24]",
+        "vbroadcastsd ymm6, qword ptr [{c} + 32]",
+        "vbroadcastsd ymm7, qword ptr [{c} + 40]",
+        "vbroadcastsd ymm8, qword ptr [{c} + 48]",
+        "vbroadcastsd ymm9, qword ptr [{c} + 56]",
+        "vbroadcastsd ymm10, qword ptr [{c} + 64]",
+        "vbroadcastsd ymm15, qword ptr [{c} + 72]",
+        "2:",
+        // pos; kf = key0 + key_step * pos
+        "vmovupd ymm11, ymmword ptr [{pos} + {i}]",
+        "vmulpd ymm12, ymm6, ymm11",
+        "vaddpd ymm12, ymm7, ymm12",
+        // thr = f < F[P] ? below : key; nearer = kf > thr (predicates LT_OQ = 0x11, GT_OQ = 0x1e)
+        "vcmppd ymm13, ymm10, ymmword ptr [{face} + {i}], 0x11",
+        "vmovupd ymm14, ymmword ptr [{key} + {i}]",
+        "vblendvpd ymm13, ymm14, ymmword ptr [{below} + {i}], ymm13",
+        "vcmppd ymm12, ymm12, ymm13, 0x1e",
+        // delta = ((G0 w0 + G1 w1) + G2 w2) + G3 w3 - gi; m = min(delta, 0) & nearer
+        "vmulpd ymm13, ymm2, ymmword ptr [{g0} + {i}]",
+        "vmulpd ymm14, ymm3, ymmword ptr [{g1} + {i}]",
+        "vaddpd ymm13, ymm13, ymm14",
+        "vmulpd ymm14, ymm4, ymmword ptr [{g2} + {i}]",
+        "vaddpd ymm13, ymm13, ymm14",
+        "vmulpd ymm14, ymm5, ymmword ptr [{g3} + {i}]",
+        "vaddpd ymm13, ymm13, ymm14",
+        "vsubpd ymm13, ymm13, ymmword ptr [{gi} + {i}]",
+        "vminpd ymm13, ymm13, ymmword ptr [{c} + 128]",
+        "vandpd ymm12, ymm13, ymm12",
+        // da = ka pos + ba, dc = kc pos + bc; q = m / (da dc); sa += q dc, sc += q da
+        "vmulpd ymm13, ymm8, ymm11",
+        "vaddpd ymm13, ymm13, ymm15",
+        "vmulpd ymm14, ymm9, ymm11",
+        "vaddpd ymm14, ymm14, ymmword ptr [{c} + 96]",
+        "vmulpd ymm11, ymm13, ymm14",
+        "vdivpd ymm12, ymm12, ymm11",
+        "vmulpd ymm14, ymm12, ymm14",
+        "vaddpd ymm0, ymm0, ymm14",
+        "vmulpd ymm13, ymm12, ymm13",
+        "vaddpd ymm1, ymm1, ymm13",
+        "add {i}, 32",
+        "jnz 2b",
+        c = in(reg) consts as *const OutAsmConsts,
+        face = in(reg) end(p[0]),
+        key = in(reg) end(p[1]),
+        below = in(reg) end(p[2]),
+        gi = in(reg) end(p[3]),
+        pos = in(reg) end(p[4]),
+        g0 = in(reg) end(p[5]),
+        g1 = in(reg) end(p[6]),
+        g2 = in(reg) end(p[7]),
+        g3 = in(reg) end(p[8]),
+        i = inout(reg) i => _,
+        inout("ymm0") *sa,
+        inout("ymm1") *sc,
+        out("ymm2") _, out("ymm3") _, out("ymm4") _, out("ymm5") _, out("ymm6") _, out("ymm7") _,
+        out("ymm8") _, out("ymm9") _, out("ymm10") _, out("ymm11") _, out("ymm12") _, out("ymm13") _,
+        out("ymm14") _, out("ymm15") _,
+        options(nostack, readonly),
+    );
 }
 
 /// The IN sweep of one line over the pixels `range`: sums of the contributions to the edge endpoints `a` and `c`,
