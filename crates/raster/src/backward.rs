@@ -46,7 +46,7 @@ use rayon::prelude::*;
 use crate::error::{try_clear_for, try_refill, RasterError, Result};
 use crate::input::{check_finite, FaceAttrs, RasterParams, ScreenMesh};
 use crate::setup::FaceSetup;
-use sweep::{in_sweep, OutSweep, Positions};
+use sweep::{in_sweep, index_f64, OutSweep, Positions};
 
 /// NMR's `eps` added to the signed displacement (NDC units) before dividing.
 pub const EPS: f64 = 1e-4;
@@ -228,32 +228,57 @@ enum Axis {
     V,
 }
 
-/// [`Ctx::face_grad`] compiled for AVX2.
+/// [`Ctx::face_grad`] compiled for AVX2 (`C` channels, or 0: any count).
 ///
 /// # Safety
 /// The CPU must support AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(unsafe_code)]
-unsafe fn face_grad_avx2(ctx: &Ctx<'_>, f: usize, scratch: &mut Scratch) -> [[f64; 2]; 3] {
-    ctx.face_grad(f, scratch, Isa::Avx2)
+unsafe fn face_grad_avx2<const C: usize>(
+    ctx: &Ctx<'_>,
+    f: usize,
+    scratch: &mut Scratch,
+) -> [[f64; 2]; 3] {
+    ctx.face_grad::<C>(f, scratch, Isa::Avx2)
 }
 
 impl Ctx<'_> {
     /// [`Ctx::face_grad`] on the instruction set `isa` (which the caller has checked is available).
+    /// The channel count is made a constant for 1 to 4 channels.
     fn face_grad_on(&self, isa: Isa, f: usize, scratch: &mut Scratch) -> [[f64; 2]; 3] {
         match isa {
             #[cfg(target_arch = "x86_64")]
             #[allow(unsafe_code)]
             // SAFETY: `rasterize_backward_on` only passes `Isa::Avx2` when the CPU supports AVX2.
-            Isa::Avx2 => unsafe { face_grad_avx2(self, f, scratch) },
-            _ => self.face_grad(f, scratch, Isa::Portable),
+            Isa::Avx2 => unsafe {
+                match self.channels {
+                    1 => face_grad_avx2::<1>(self, f, scratch),
+                    2 => face_grad_avx2::<2>(self, f, scratch),
+                    3 => face_grad_avx2::<3>(self, f, scratch),
+                    4 => face_grad_avx2::<4>(self, f, scratch),
+                    _ => face_grad_avx2::<0>(self, f, scratch),
+                }
+            },
+            _ => match self.channels {
+                1 => self.face_grad::<1>(f, scratch, Isa::Portable),
+                2 => self.face_grad::<2>(f, scratch, Isa::Portable),
+                3 => self.face_grad::<3>(f, scratch, Isa::Portable),
+                4 => self.face_grad::<4>(f, scratch, Isa::Portable),
+                _ => self.face_grad::<0>(f, scratch, Isa::Portable),
+            },
         }
     }
 
-    /// NMR gradient partial of face `f`: `[corner][x or y]`.
+    /// NMR gradient partial of face `f`: `[corner][x or y]`, for `C` channels (`C = 0`: any count; otherwise
+    /// `C` must be [`Ctx::channels`]).
     #[inline(always)]
-    fn face_grad(&self, f: usize, scratch: &mut Scratch, isa: Isa) -> [[f64; 2]; 3] {
+    fn face_grad<const C: usize>(
+        &self,
+        f: usize,
+        scratch: &mut Scratch,
+        isa: Isa,
+    ) -> [[f64; 2]; 3] {
         let s = &self.setups[f];
         let drawn = self.drawn[f];
         let (h, w) = (self.params.height as i64, self.params.width as i64);
@@ -266,7 +291,7 @@ impl Ctx<'_> {
         };
         // The key is `sgn * plane(u, v)`: the plane interpolates 1/z (perspective) or z (orthographic).
         let sgn = if s.ortho { -1.0 } else { 1.0 };
-        let c = self.channels;
+        let c = if C == 0 { self.channels } else { C };
         let fi = f as f64;
         let attrs_f = &self.attrs[f * c..(f + 1) * c];
         let mut g = [[0.0f64; 2]; 3];
@@ -286,11 +311,8 @@ impl Ctx<'_> {
                 let q_line = qa + slope * (po - pa);
                 let dir: i64 = if qo > q_line { -1 } else { 1 };
                 // Lines outside the drawn box have neither sweep.
-                let lo = pa.min(pc).ceil().max(across[0] as f64);
-                let hi = pa
-                    .max(pc)
-                    .floor()
-                    .min(across[1].min(lines as usize - 1) as f64);
+                let lo = ceil(pa.min(pc)).max(index_f64(across[0]));
+                let hi = floor(pa.max(pc)).min(index_f64(across[1].min(lines as usize - 1)));
                 if lo > hi {
                     continue;
                 }
@@ -351,8 +373,15 @@ impl Ctx<'_> {
                                 attrs: attrs_f,
                                 own: (along[0], along[1]),
                             };
-                            let (sa, sc) =
-                                sweep.run(ln, line, start, end, self.pos, &mut scratch.ga, isa);
+                            let (sa, sc) = sweep.run::<C>(
+                                ln,
+                                line,
+                                start,
+                                end,
+                                self.pos,
+                                &mut scratch.ga,
+                                isa,
+                            );
                             if ka.is_some() {
                                 g[a][comp] += sa;
                             }
@@ -371,15 +400,15 @@ impl Ctx<'_> {
                     };
                     let limit = if dir > 0 { ceil(cross2) } else { floor(cross2) };
                     // Cut to the drawn box (only the face's pixels contribute).
-                    let from = d_in_f.min(limit).max(along[0] as f64) as i64;
-                    let to = d_in_f.max(limit).min(along[1] as f64) as i64;
+                    let from = d_in_f.min(limit).max(index_f64(along[0])) as i64;
+                    let to = d_in_f.max(limit).min(index_f64(along[1])) as i64;
                     let out_px = match axis {
                         Axis::U => d_out as usize * w as usize + line,
                         Axis::V => line * w as usize + d_out as usize,
                     };
                     let out_color = &self.image[out_px * c..(out_px + 1) * c];
                     if from <= to {
-                        let (sa, sc) = in_sweep(
+                        let (sa, sc) = in_sweep::<C>(
                             ln,
                             line,
                             from as usize..to as usize + 1,

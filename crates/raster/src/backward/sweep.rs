@@ -13,6 +13,13 @@ use std::marker::PhantomData;
 use super::lines::{LineAt, Lines};
 use super::{Isa, EPS};
 
+/// `d as f64` for a pixel index or count (below 2^63): through `i64`, which x86-64 converts in one instruction
+/// (`usize` takes five).
+#[inline(always)]
+pub(super) fn index_f64(d: usize) -> f64 {
+    d as i64 as f64
+}
+
 /// Lanes of the OUT sweep's accumulators.
 pub(super) const LANES: usize = 4;
 
@@ -86,7 +93,7 @@ impl OutSweep<'_> {
     /// Depth-test key of the face's plane at pixel `d` of the line.
     #[inline(always)]
     pub fn key(&self, d: usize) -> f64 {
-        self.key0 + self.key_step * d as f64
+        self.key0 + self.key_step * index_f64(d)
     }
 
     /// The pixels of `start..end` where the face's key is within the clip range. Exact: the computed key is a
@@ -109,11 +116,11 @@ impl OutSweep<'_> {
     }
 
     /// Sums the contributions of pixels `start..end` of line `d0` (`scratch` a line of at least
-    /// `end - start + LANES` values). Returns the sums for endpoints `a` and `c` (meaningful only when their `k` is
-    /// defined).
+    /// `end - start + LANES` values), for `C` channels (0: any count; otherwise the attributes' length). Returns the
+    /// sums for endpoints `a` and `c` (meaningful only when their `k` is defined).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    pub fn run(
+    pub fn run<const C: usize>(
         &self,
         ln: &Lines,
         d0: usize,
@@ -130,7 +137,7 @@ impl OutSweep<'_> {
         let attrs = self.attrs;
         let r = start..end;
         let pos = pos.at(start, end);
-        match attrs.len() {
+        match if C == 0 { attrs.len() } else { C } {
             1 => self.kernel(ln.at::<1>(d0, start, end), Dot::line, pos, &r, isa),
             2 => self.kernel(ln.at::<2>(d0, start, end), Dot::line, pos, &r, isa),
             3 => self.kernel(ln.at::<3>(d0, start, end), Dot::line, pos, &r, isa),
@@ -160,7 +167,7 @@ impl OutSweep<'_> {
         OutKernel {
             n: r.len(),
             own: (own_lo, own_hi.max(own_lo)),
-            end: r.end as f64,
+            end: index_f64(r.end),
             dot: dot(&at, self.attrs),
             face: at.face,
             key: at.key,
@@ -292,23 +299,16 @@ trait Kernel {
         i: usize,
     ) -> (V, V);
 
-    /// Adds the contributions of the whole blocks of pixels `from..to` (multiples of [`LANES`], outside
-    /// [`Kernel::own`]) to the AVX2 accumulators `sa`, `sc` with hand-scheduled code, with the same operations and
-    /// bits as [`Kernel::vec`]; false (nothing done) when the kernel has no such code.
+    /// The lane sums of the whole sweep on AVX2 from hand-scheduled code, with the same operations and bits as
+    /// [`lanes`] over [`Kernel::vec`]; `None` when the kernel has no such code.
     ///
     /// # Safety
     /// The CPU must support AVX2, and the pixels must be readable as for [`Kernel::vec`].
     #[cfg(target_arch = "x86_64")]
     #[allow(unsafe_code)]
     #[inline(always)]
-    unsafe fn avx2_blocks(
-        &self,
-        _from: usize,
-        _to: usize,
-        _sa: &mut std::arch::x86_64::__m256d,
-        _sc: &mut std::arch::x86_64::__m256d,
-    ) -> bool {
-        false
+    unsafe fn avx2_sweep(&self) -> Option<([f64; LANES], [f64; LANES])> {
+        None
     }
 
     /// The sums for the endpoints a and c on the instruction set `isa`, in [`LANES`] lanes added in a fixed order.
@@ -322,14 +322,13 @@ trait Kernel {
         // (see `rasterize_backward_on`); SSE2 is part of the x86-64 baseline.
         #[allow(unsafe_code)]
         let (sa, sc) = unsafe {
-            let none = |_: &Self, _: usize, _: usize, _: &mut _, _: &mut _| false;
             match isa {
                 #[cfg(target_arch = "x86_64")]
                 Isa::Avx2 => lanes_avx2(self),
                 #[cfg(target_arch = "x86_64")]
-                _ => lanes::<std::arch::x86_64::__m128d, Self>(self, none),
+                _ => lanes::<std::arch::x86_64::__m128d, Self>(self),
                 #[cfg(not(target_arch = "x86_64"))]
-                _ => lanes::<[f64; 2], Self>(self, none),
+                _ => lanes::<[f64; 2], Self>(self),
             }
         };
         (lane_sum(&sa), lane_sum(&sc))
@@ -345,50 +344,32 @@ trait Kernel {
 #[allow(unsafe_code)]
 #[inline]
 unsafe fn lanes_avx2<K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
-    lanes::<std::arch::x86_64::__m256d, K>(k, |k, from, to, sa, sc| {
-        k.avx2_blocks(from, to, sa, sc)
-    })
+    match k.avx2_sweep() {
+        Some(sums) => sums,
+        None => lanes::<std::arch::x86_64::__m256d, K>(k),
+    }
 }
 
 /// A sweep's lane sums on vectors `V`: whole blocks of [`LANES`] pixels (pixel `i` into lane `i % LANES`), then
 /// the last partial block with the lanes past the end masked out. The blocks that meet [`Kernel::own`] (and the
-/// last) run the kernel's `OWN` variant. The other blocks go to `fast` first (when `V` has [`LANES`] lanes), which
-/// adds them to the accumulators and returns true, or returns false to leave them to [`Kernel::vec`].
+/// last) run the kernel's `OWN` variant.
 ///
 /// # Safety
 /// `V`'s instructions must be supported by the CPU, and every slice of `k` must hold `k.len()` rounded up to a
 /// multiple of [`LANES`] values.
 #[allow(unsafe_code)]
 #[inline(always)]
-unsafe fn lanes<V: F64s, K: Kernel>(
-    k: &K,
-    fast: impl Fn(&K, usize, usize, &mut V, &mut V) -> bool,
-) -> ([f64; LANES], [f64; LANES]) {
+unsafe fn lanes<V: F64s, K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
     let per = LANES / V::N;
     let c = k.consts::<V>();
     let zero = V::splat(0.0);
     // Only the first `per` accumulators are used.
     let (mut sa, mut sc) = ([zero; LANES], [zero; LANES]);
     let n = k.len();
-    let full = n - n % LANES;
-    let (own_lo, own_hi) = k.own();
-    // Blocks before, meeting and after the own pixels (empty own: all before).
-    let own_lo = (own_lo - own_lo % LANES).min(full);
-    let own_hi = if own_hi > own_lo {
-        own_hi.next_multiple_of(LANES).min(full)
-    } else {
-        own_lo
-    };
+    let [own_lo, own_hi, full] = blocks(n, k.own());
     let mut i = 0;
     macro_rules! blocks {
         ($to:expr, $own:expr) => {
-            if !$own && V::N == LANES && i < $to {
-                let [a] = &mut sa[..1] else { unreachable!() };
-                let [c] = &mut sc[..1] else { unreachable!() };
-                if fast(k, i, $to, a, c) {
-                    i = $to;
-                }
-            }
             while i < $to {
                 for j in 0..per {
                     let (x, y) = k.vec::<V, false, { $own }>(&c, i + j * V::N);
@@ -415,6 +396,20 @@ unsafe fn lanes<V: F64s, K: Kernel>(
         sc[j].store(xc.as_mut_ptr().add(j * V::N));
     }
     (xa, xc)
+}
+
+/// The pixels where the whole blocks of a sweep of `n` pixels meeting `own` start and end, and where its whole
+/// blocks end (multiples of [`LANES`]); the blocks before, meeting and after `own`, then the last partial block.
+#[inline(always)]
+fn blocks(n: usize, own: (usize, usize)) -> [usize; 3] {
+    let full = n - n % LANES;
+    let lo = (own.0 - own.0 % LANES).min(full);
+    let hi = if own.1 > lo {
+        own.1.next_multiple_of(LANES).min(full)
+    } else {
+        lo
+    };
+    [lo, hi, full]
 }
 
 /// The per-pixel inputs of one OUT sweep, each pointer at its first pixel and readable for
@@ -464,17 +459,14 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
     #[cfg(target_arch = "x86_64")]
     #[allow(unsafe_code)]
     #[inline(always)]
-    unsafe fn avx2_blocks(
-        &self,
-        from: usize,
-        to: usize,
-        sa: &mut std::arch::x86_64::__m256d,
-        sc: &mut std::arch::x86_64::__m256d,
-    ) -> bool {
+    unsafe fn avx2_sweep(&self) -> Option<([f64; LANES], [f64; LANES])> {
         let (g, w): (&[*const f64], &[f64]) = (&self.dot.g, &self.dot.w);
         if g.len() != 4 {
-            return false;
+            return None;
         }
+        let [own_lo, own_hi, full] = blocks(self.n, self.own);
+        // Byte offsets; the pairs of whole blocks run while the offset is below the bound minus one block.
+        let bytes = |p: usize| (p * 8) as i64;
         let consts = OutAsmConsts {
             s: [
                 w[0],
@@ -492,12 +484,22 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
             ],
             bc: [self.bc; 4],
             zero: [0.0; 4],
+            end: [self.end; 4],
+            bounds: [
+                bytes(own_lo) - 32,
+                bytes(own_lo),
+                bytes(own_hi),
+                bytes(full) - 32,
+                bytes(full),
+                bytes(self.n),
+                0,
+                0,
+            ],
         };
         let ptrs = [
             self.face, self.key, self.below, self.gi, self.pos, g[0], g[1], g[2], g[3],
         ];
-        out_blocks_avx2_c4(&ptrs, &consts, from, to, sa, sc);
-        true
+        Some(out_sweep_avx2_c4(&ptrs, &consts))
     }
 
     #[inline(always)]
@@ -559,42 +561,106 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
     }
 }
 
-/// The constants of [`out_blocks_avx2_c4`]: `s` = the 4 channel weights, `key_step`, `key0`, `ka`, `kc`, `fi`,
-/// `ba` (then padding), and `bc` and 0 as whole vectors (read as memory operands).
+/// The constants of [`out_sweep_avx2_c4`], read by its code at fixed offsets: `s` = the 4 channel weights,
+/// `key_step`, `key0`, `ka`, `kc`, `fi`, `ba` (then padding); `bc`, 0 and the sweep's end position as whole vectors;
+/// `bounds` = the byte offsets of [`blocks`]'s `[lo - 1 block, lo, hi, full - 1 block, full]` and of the sweep's end.
 #[repr(C, align(32))]
 struct OutAsmConsts {
     s: [f64; 12],
     bc: [f64; 4],
     zero: [f64; 4],
+    end: [f64; 4],
+    bounds: [i64; 8],
 }
 
-/// [`OutKernel::vec`] for 4 channels without the `OWN` test or a mask, over the whole blocks `from..to`
-/// (`to - from` a multiple of [`LANES`]), in AVX2 with every register chosen by hand: LLVM's allocation of the same
-/// loop copied registers and reloaded constants (33-34 instructions per block instead of 30). The operations, their
-/// operands and their order are those of [`OutKernel::vec`] (no fused multiply-adds), so the bits are the same
-/// (tested against the portable path). `p` holds the pointers face, key, below, gi, pos and the 4 cotangent
-/// planes, each at the sweep's first pixel.
+/// One block of 4 pixels of [`OutKernel::vec`] for 4 channels at byte offset `{i} + $o`, in the registers of
+/// [`out_sweep_avx2_c4`]: `$own` adds the `F[P] != f` test, `$masked` the mask of lanes past the end. Leaves nothing
+/// but the accumulators (ymm0, ymm1) changed for the next block.
+macro_rules! out_block {
+    ($o:literal, $own:tt, $masked:tt) => {
+        concat!(
+            // pos; kf = key0 + key_step * pos
+            "vmovupd ymm11, ymmword ptr [{pos} + {i} + ", $o, "]\n",
+            "vmulpd ymm12, ymm6, ymm11\n",
+            "vaddpd ymm12, ymm7, ymm12\n",
+            // thr = f < F[P] ? below : key; nearer = kf > thr (predicates LT_OQ = 0x11, GT_OQ = 0x1e)
+            "vcmppd ymm13, ymm10, ymmword ptr [{face} + {i} + ", $o, "], 0x11\n",
+            "vmovupd ymm14, ymmword ptr [{key} + {i} + ", $o, "]\n",
+            "vblendvpd ymm13, ymm14, ymmword ptr [{below} + {i} + ", $o, "], ymm13\n",
+            "vcmppd ymm12, ymm12, ymm13, 0x1e\n",
+            // covers = nearer & (f != F[P]) (NEQ_UQ = 0x04)
+            out_block!(@own $own, $o),
+            // delta = ((G0 w0 + G1 w1) + G2 w2) + G3 w3 - gi; m = min(delta, 0) & covers
+            "vmulpd ymm13, ymm2, ymmword ptr [{g0} + {i} + ", $o, "]\n",
+            "vmulpd ymm14, ymm3, ymmword ptr [{g1} + {i} + ", $o, "]\n",
+            "vaddpd ymm13, ymm13, ymm14\n",
+            "vmulpd ymm14, ymm4, ymmword ptr [{g2} + {i} + ", $o, "]\n",
+            "vaddpd ymm13, ymm13, ymm14\n",
+            "vmulpd ymm14, ymm5, ymmword ptr [{g3} + {i} + ", $o, "]\n",
+            "vaddpd ymm13, ymm13, ymm14\n",
+            "vsubpd ymm13, ymm13, ymmword ptr [{gi} + {i} + ", $o, "]\n",
+            "vminpd ymm13, ymm13, ymmword ptr [{c} + 128]\n",
+            "vandpd ymm12, ymm13, ymm12\n",
+            // da = ka pos + ba, dc = kc pos + bc; q = m / (da dc); x = q dc, y = q da
+            "vmulpd ymm13, ymm8, ymm11\n",
+            "vaddpd ymm13, ymm13, ymm15\n",
+            "vmulpd ymm14, ymm9, ymm11\n",
+            "vaddpd ymm14, ymm14, ymmword ptr [{c} + 96]\n",
+            "vmulpd ymm11, ymm13, ymm14\n",
+            "vdivpd ymm12, ymm12, ymm11\n",
+            "vmulpd ymm14, ymm12, ymm14\n",
+            "vmulpd ymm13, ymm12, ymm13\n",
+            // lanes at or past the end give 0 (pos < end)
+            out_block!(@mask $masked, $o),
+            "vaddpd ymm0, ymm0, ymm14\n",
+            "vaddpd ymm1, ymm1, ymm13\n",
+        )
+    };
+    (@own true, $o:literal) => {
+        concat!(
+            "vcmppd ymm13, ymm10, ymmword ptr [{face} + {i} + ", $o, "], 0x04\n",
+            "vandpd ymm12, ymm12, ymm13\n",
+        )
+    };
+    (@own false, $o:literal) => {
+        ""
+    };
+    (@mask true, $o:literal) => {
+        concat!(
+            "vmovupd ymm11, ymmword ptr [{pos} + {i} + ", $o, "]\n",
+            "vcmppd ymm11, ymm11, ymmword ptr [{c} + 160], 0x11\n",
+            "vandpd ymm14, ymm14, ymm11\n",
+            "vandpd ymm13, ymm13, ymm11\n",
+        )
+    };
+    (@mask false, $o:literal) => {
+        ""
+    };
+}
+
+/// [`lanes`] over [`OutKernel::vec`] for 4 channels on AVX2, written in assembly with every register chosen by
+/// hand: LLVM's allocation of the same loop copied registers and reloaded constants (33-34 instructions per block of
+/// 4 pixels instead of 29), and its per-sweep code spilled much of its state. The same blocks as [`lanes`] (see
+/// [`blocks`]; the whole blocks outside the own pixels two at a time), and per block the operations, operands and
+/// order of [`OutKernel::vec`] (no fused multiply-adds), so the bits are the same (tested against the portable
+/// path). `p` holds the pointers face, key, below, gi, pos and the 4 cotangent planes, each at the sweep's first
+/// pixel.
 ///
 /// # Safety
-/// The CPU must support AVX2, and every pointer must be readable for pixels `from..to`.
+/// The CPU must support AVX2, and every pointer must be readable for the sweep's length rounded up to a multiple of
+/// [`LANES`] (as for [`OutKernel::vec`]).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(unsafe_code)]
 #[inline]
-unsafe fn out_blocks_avx2_c4(
+unsafe fn out_sweep_avx2_c4(
     p: &[*const f64; 9],
     consts: &OutAsmConsts,
-    from: usize,
-    to: usize,
-    sa: &mut std::arch::x86_64::__m256d,
-    sc: &mut std::arch::x86_64::__m256d,
-) {
-    debug_assert!(from < to && (to - from) % LANES == 0);
-    // Every pointer at pixel `to`; the index runs from -(to - from) * 8 bytes up to 0.
-    let end = |q: *const f64| q.add(to);
-    let i = -(((to - from) * 8) as isize);
-    // SAFETY: the caller's promises (AVX2; pixels from..to readable); the loop reads [end + i, end) only, and
-    // writes nothing but registers.
+) -> ([f64; LANES], [f64; LANES]) {
+    use std::arch::x86_64::*;
+    let (mut sa, mut sc) = (_mm256_setzero_pd(), _mm256_setzero_pd());
+    // SAFETY: the caller's promises (AVX2; the blocks readable); the code reads the blocks of the sweep and
+    // `consts`, and writes nothing but registers.
     std::arch::asm!(
         "vbroadcastsd ymm2, qword ptr [{c}]",
         "vbroadcastsd ymm3, qword ptr [{c} + 8]",
@@ -606,66 +672,82 @@ unsafe fn out_blocks_avx2_c4(
         "vbroadcastsd ymm9, qword ptr [{c} + 56]",
         "vbroadcastsd ymm10, qword ptr [{c} + 64]",
         "vbroadcastsd ymm15, qword ptr [{c} + 72]",
+        "xor {i:e}, {i:e}",
+        // Whole blocks before the own pixels: pairs, then one.
+        "cmp {i}, qword ptr [{c} + 192]",
+        "jge 3f",
         "2:",
-        // pos; kf = key0 + key_step * pos
-        "vmovupd ymm11, ymmword ptr [{pos} + {i}]",
-        "vmulpd ymm12, ymm6, ymm11",
-        "vaddpd ymm12, ymm7, ymm12",
-        // thr = f < F[P] ? below : key; nearer = kf > thr (predicates LT_OQ = 0x11, GT_OQ = 0x1e)
-        "vcmppd ymm13, ymm10, ymmword ptr [{face} + {i}], 0x11",
-        "vmovupd ymm14, ymmword ptr [{key} + {i}]",
-        "vblendvpd ymm13, ymm14, ymmword ptr [{below} + {i}], ymm13",
-        "vcmppd ymm12, ymm12, ymm13, 0x1e",
-        // delta = ((G0 w0 + G1 w1) + G2 w2) + G3 w3 - gi; m = min(delta, 0) & nearer
-        "vmulpd ymm13, ymm2, ymmword ptr [{g0} + {i}]",
-        "vmulpd ymm14, ymm3, ymmword ptr [{g1} + {i}]",
-        "vaddpd ymm13, ymm13, ymm14",
-        "vmulpd ymm14, ymm4, ymmword ptr [{g2} + {i}]",
-        "vaddpd ymm13, ymm13, ymm14",
-        "vmulpd ymm14, ymm5, ymmword ptr [{g3} + {i}]",
-        "vaddpd ymm13, ymm13, ymm14",
-        "vsubpd ymm13, ymm13, ymmword ptr [{gi} + {i}]",
-        "vminpd ymm13, ymm13, ymmword ptr [{c} + 128]",
-        "vandpd ymm12, ymm13, ymm12",
-        // da = ka pos + ba, dc = kc pos + bc; q = m / (da dc); sa += q dc, sc += q da
-        "vmulpd ymm13, ymm8, ymm11",
-        "vaddpd ymm13, ymm13, ymm15",
-        "vmulpd ymm14, ymm9, ymm11",
-        "vaddpd ymm14, ymm14, ymmword ptr [{c} + 96]",
-        "vmulpd ymm11, ymm13, ymm14",
-        "vdivpd ymm12, ymm12, ymm11",
-        "vmulpd ymm14, ymm12, ymm14",
-        "vaddpd ymm0, ymm0, ymm14",
-        "vmulpd ymm13, ymm12, ymm13",
-        "vaddpd ymm1, ymm1, ymm13",
+        out_block!("0", false, false),
+        out_block!("32", false, false),
+        "add {i}, 64",
+        "cmp {i}, qword ptr [{c} + 192]",
+        "jl 2b",
+        "3:",
+        "cmp {i}, qword ptr [{c} + 200]",
+        "jge 4f",
+        out_block!("0", false, false),
         "add {i}, 32",
-        "jnz 2b",
+        "4:",
+        // Whole blocks meeting the own pixels.
+        "cmp {i}, qword ptr [{c} + 208]",
+        "jge 6f",
+        "5:",
+        out_block!("0", true, false),
+        "add {i}, 32",
+        "cmp {i}, qword ptr [{c} + 208]",
+        "jl 5b",
+        "6:",
+        // Whole blocks after them: pairs, then one.
+        "cmp {i}, qword ptr [{c} + 216]",
+        "jge 8f",
+        "7:",
+        out_block!("0", false, false),
+        out_block!("32", false, false),
+        "add {i}, 64",
+        "cmp {i}, qword ptr [{c} + 216]",
+        "jl 7b",
+        "8:",
+        "cmp {i}, qword ptr [{c} + 224]",
+        "jge 9f",
+        out_block!("0", false, false),
+        "add {i}, 32",
+        "9:",
+        // The last, partial block.
+        "cmp {i}, qword ptr [{c} + 232]",
+        "jge 22f",
+        out_block!("0", true, true),
+        "22:",
         c = in(reg) consts as *const OutAsmConsts,
-        face = in(reg) end(p[0]),
-        key = in(reg) end(p[1]),
-        below = in(reg) end(p[2]),
-        gi = in(reg) end(p[3]),
-        pos = in(reg) end(p[4]),
-        g0 = in(reg) end(p[5]),
-        g1 = in(reg) end(p[6]),
-        g2 = in(reg) end(p[7]),
-        g3 = in(reg) end(p[8]),
-        i = inout(reg) i => _,
-        inout("ymm0") *sa,
-        inout("ymm1") *sc,
+        face = in(reg) p[0],
+        key = in(reg) p[1],
+        below = in(reg) p[2],
+        gi = in(reg) p[3],
+        pos = in(reg) p[4],
+        g0 = in(reg) p[5],
+        g1 = in(reg) p[6],
+        g2 = in(reg) p[7],
+        g3 = in(reg) p[8],
+        i = out(reg) _,
+        inout("ymm0") sa,
+        inout("ymm1") sc,
         out("ymm2") _, out("ymm3") _, out("ymm4") _, out("ymm5") _, out("ymm6") _, out("ymm7") _,
         out("ymm8") _, out("ymm9") _, out("ymm10") _, out("ymm11") _, out("ymm12") _, out("ymm13") _,
         out("ymm14") _, out("ymm15") _,
         options(nostack, readonly),
     );
+    let (mut xa, mut xc) = ([0f64; LANES], [0f64; LANES]);
+    _mm256_storeu_pd(xa.as_mut_ptr(), sa);
+    _mm256_storeu_pd(xc.as_mut_ptr(), sc);
+    (xa, xc)
 }
 
 /// The IN sweep of one line over the pixels `range`: sums of the contributions to the edge endpoints `a` and `c`,
 /// whose crossing-motion factors are `ka` and `kc` (meaningful only when defined). `out_color` is the colour of the
-/// pixel beyond the edge, `I[pix(d_out)]`; `scratch` a line of at least `range.len() + LANES` values.
+/// pixel beyond the edge, `I[pix(d_out)]`; `scratch` a line of at least `range.len() + LANES` values. `C` is the
+/// channel count (0: any count; otherwise `out_color`'s length).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-pub(super) fn in_sweep(
+pub(super) fn in_sweep<const C: usize>(
     ln: &Lines,
     line: usize,
     range: std::ops::Range<usize>,
@@ -681,7 +763,7 @@ pub(super) fn in_sweep(
     let (start, end) = (range.start, range.end);
     let kernel = |at: &LineAt<'_, 0>| InSweep {
         n: end - start,
-        end: end as f64,
+        end: index_f64(end),
         face: at.face,
         gi: at.gi,
         pos: pos.at(start, end),
@@ -696,7 +778,7 @@ pub(super) fn in_sweep(
         *w = o as f64;
     }
     let on = |at0: LineAt<'_, 0>| kernel(&at0);
-    match out_color.len() {
+    match if C == 0 { out_color.len() } else { C } {
         1 => {
             let at = ln.at::<1>(line, start, end);
             on(at.without_grad()).with(Dot::line(&at, &w)).sums(isa)
