@@ -25,6 +25,16 @@ target is attacked alone for up to ``--max-steps`` steps, stopping at the first 
 reports successes within each of ``--budgets`` steps, the steps to success and the Laplacian / displacement of the
 applied flow at success.
 
+With ``--split --step-workers 1 2`` a whole step (render, victim, objective, render backward; the attack's own step
+code, Adam's objective, no update) is timed instead, wall time, for each variant in one run with the variants
+interleaved step by step: ``serial tN`` (``step_workers=1``, torch and the renderer on N threads, for each N of
+``--torch-threads``), ``workers W`` (``step_workers=W``: W threads each rendering and running the victim on its chunk
+of targets, torch on threads/W threads each) and ``old serial tN`` (the serial step with the antialias pooling as it
+was, ``F.avg_pool2d``). The victim-alone ceilings are timed the same way: at each of ``--torch-threads`` and split
+over W workers. The renderer share is the part of the step's wall time not hidden behind the victim: ``1 - victim
+alone (same threads or workers) / step``. ``--attack-steps N`` adds whole attacks (``ShapeAttack`` /
+``TextureAttack`` of N steps, no early stop) per variant, alternating, and reports their target-steps/s.
+
 Usage:
     python benchmarks/attack_bench.py --meshes chair/01 sofa/01 --views 5 --image-size 160 --targets 4 \\
         --out benchmarks/attack_bench.json
@@ -32,6 +42,8 @@ Usage:
         --targets 3 --max-steps 200 --budgets 60 200 --smoothing 0 8 --shape-lr 5e-3 2e-2
     python benchmarks/attack_bench.py --split --meshes aeroplane/03 --views 1 --image-size 224 --antialias 2 \\
         --targets 6 --steps 10
+    python benchmarks/attack_bench.py --split --step-workers 2 --torch-threads 1 2 --meshes aeroplane/03 --views 1 \\
+        --image-size 224 --antialias 2 --targets 6 --steps 10 --attack-steps 10
 
 Prints a Markdown table (paste it into benchmarks/RESULTS.md with the command line) and writes a JSON record.
 """
@@ -41,6 +53,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
+
+# idle OpenMP threads sleep instead of spinning (as the meshadv command sets them); read when torch loads
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+os.environ.setdefault("KMP_BLOCKTIME", "0")
 import platform
 import statistics
 import sys
@@ -220,6 +236,162 @@ def step_split(mesh_name: str, perturb: str, args: argparse.Namespace,
     return records
 
 
+def _old_downsample(t: torch.Tensor, k: int) -> torch.Tensor:
+    """The antialias pooling as it was before the box filter: ``F.avg_pool2d`` on the channels-last view."""
+    import torch.nn.functional as F
+
+    t = t.permute(0, 3, 1, 2)
+    return t if k == 1 else F.avg_pool2d(t, kernel_size=k, stride=k)
+
+
+class _Variant:
+    """One way of running a step: serial at ``threads`` torch threads or split over ``workers``; ``old_pool``: the
+    antialias pooling as it was."""
+
+    def __init__(self, label: str, threads: int, workers: int, old_pool: bool = False) -> None:
+        from meshadv.attacks.pipeline import StepWorkers
+
+        self.label, self.threads, self.workers, self.old_pool = label, threads, workers, old_pool
+        # kept for the whole run, as an attack keeps its workers for all its steps (fresh threads start cold:
+        # their own malloc arenas and oneDNN caches)
+        self.pool = StepWorkers(workers, max(1, threads // workers)) if workers > 1 else None
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.close()
+
+    def __enter__(self) -> "_Variant":
+        from meshadv.render import renderer
+
+        torch.set_num_threads(self.threads)
+        self._saved = renderer._downsample
+        if self.old_pool:
+            renderer._downsample = _old_downsample
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        from meshadv.render import renderer
+
+        renderer._downsample = self._saved
+
+
+def _variants(args: argparse.Namespace) -> List[_Variant]:
+    out = []
+    for n in args.torch_threads:
+        out.append(_Variant(f"old serial t{n}", n, 1, old_pool=True))
+        out.append(_Variant(f"serial t{n}", n, 1))
+    most = max(args.torch_threads)
+    for w in args.step_workers:
+        if w > 1:
+            out.append(_Variant(f"workers {w}", most, w))
+    return out
+
+
+def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victim: Any) -> Dict[str, Any]:
+    """Wall time of whole attack steps (the attack's own step code) per variant, steps interleaved, beside the
+    victim-alone ceilings; optionally whole attacks' target-steps/s. Returns a JSON-able record."""
+    from meshadv.attacks import TargetedMisclassification
+    from meshadv.attacks.base import _Call
+    from meshadv.attacks.pipeline import split_chunks
+    from meshadv.attacks.update import make_update_rule
+    from meshadv.data import require_shared_data
+    from meshadv.mesh import load_mesh, normalize_mesh
+    from meshadv.mesh.adjacency import vertex_edges
+    from meshadv.render import ViewSet
+
+    mesh = normalize_mesh(load_mesh(require_shared_data(f"pascal3d/{mesh_name}.ply")), z_up=True)[0]
+    views = ViewSet.orbit(
+        torch.linspace(165.0, 195.0, args.views) if args.views > 1 else torch.tensor([180.0]),
+        elevation=15.0,
+        distance=4.5,
+    )
+    setup = RenderSetup(image_size=args.image_size, antialias=args.antialias)
+    t, num_v = args.targets, args.views
+    attack = _make_attack(perturb, steps=1)
+    call = _Call(mesh, views.detach(), victim, setup, vertex_edges(mesh.faces).long())
+    crits = [TargetedMisclassification(c).bind(victim) for c in range(1, t + 1)]
+    rule = make_update_rule("adam", attack=attack, num_targets=t)
+    params = attack._init_params(mesh, t).detach().clone().requires_grad_(True)
+    rule.start_round(params)
+    idx = torch.arange(t)
+    variants = _variants(args)
+    steps: Dict[str, List[float]] = {v.label: [] for v in variants}
+    cpu: Dict[str, List[float]] = {v.label: [] for v in variants}
+    ceil: Dict[str, List[float]] = {}
+    like = setup.render(mesh.vertices.unsqueeze(0).repeat(t, 1, 1), mesh.faces, mesh.face_colors, views)[0]
+
+    def victim_alone(rows: int) -> None:
+        x = torch.empty_strided((rows, *like.shape[1:]), like.stride()).uniform_().requires_grad_(True)
+        out = victim(x)
+        (out[:, 1].sum() - out[:, 0].sum()).backward()
+
+    for step in range(args.steps + 1):
+        for v in variants:
+            with v:
+                t0, c0 = time.perf_counter(), time.process_time()
+                if v.pool is None:
+                    attack._serial_step(params[idx], idx, crits, call, call.views, rule)
+                else:
+                    attack._pipelined_step(params, idx, crits, call, call.views, rule, v.pool)
+                t1, c1 = time.perf_counter(), time.process_time()
+                params.grad = None
+                key = f"victim alone {v.label.replace('serial ', '')}"
+                t2 = time.perf_counter()
+                if v.old_pool:
+                    pass
+                elif v.pool is None:
+                    victim_alone(t * num_v)
+                else:
+                    v.pool.map(lambda ab: victim_alone((ab[1] - ab[0]) * num_v), split_chunks(t, v.workers))
+                t3 = time.perf_counter()
+            if step > 0:  # the first round warms up
+                steps[v.label].append(t1 - t0)
+                cpu[v.label].append(c1 - c0)
+                if not v.old_pool:
+                    ceil.setdefault(key, []).append(t3 - t2)
+    for v in variants:
+        v.close()
+    med = {k: float(statistics.median(x)) for k, x in steps.items()}
+    med_cpu = {k: float(statistics.median(x)) for k, x in cpu.items()}
+    med_ceil = {k: float(statistics.median(x)) for k, x in ceil.items()}
+    record: Dict[str, Any] = {"mesh": mesh_name, "faces": mesh.num_faces, "perturb": perturb, "views": num_v,
+                              "image_size": args.image_size, "antialias": args.antialias, "targets": t,
+                              "step_s": med, "step_cpu_s": med_cpu, "victim_alone_s": med_ceil}
+    if args.attack_steps:
+        from meshadv.attacks import TargetedMisclassification as TM
+
+        runs: Dict[str, List[float]] = {}
+        for rep in range(args.attack_reps):
+            for v in variants:
+                with v:
+                    attack_v = _make_attack(perturb, steps=args.attack_steps, step_workers=max(1, v.workers))
+                    t0 = time.perf_counter()
+                    result = attack_v(mesh, views, victim, [TM(c) for c in range(1, t + 1)], setup=setup)
+                    runs.setdefault(v.label, []).append(result.steps * t / (time.perf_counter() - t0))
+        record["attack_target_steps_per_s"] = runs
+    return record
+
+
+def print_pipeline(records: List[Dict[str, Any]]) -> None:
+    """Markdown table of the whole-step records."""
+    print("| mesh | perturb | variant | step (wall) | CPU per step | target-steps/s | victim alone (same threads) | "
+          "renderer share not hidden | best victim-alone ceiling | ratio to best ceiling | attack target-steps/s |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|")
+    for r in records:
+        t = r["targets"]
+        best = min(r["victim_alone_s"].values())
+        for label, step in r["step_s"].items():
+            alone = r["victim_alone_s"].get(f"victim alone {label.replace('old serial ', '').replace('serial ', '')}")
+            share = "-" if alone is None else f"{100 * (1 - alone / step):.0f}%"
+            alone_txt = "-" if alone is None else f"{1e3 * alone:.0f} ms"
+            runs = r.get("attack_target_steps_per_s", {}).get(label)
+            runs_txt = "-" if not runs else " / ".join(f"{x:.2f}" for x in runs)
+            print(f"| {r['mesh']} | {r['perturb']} | {label} | {1e3 * step:.0f} ms | "
+                  f"{1e3 * r['step_cpu_s'][label]:.0f} ms | {t / step:.2f} | {alone_txt} | {share} | "
+                  f"{t / best:.2f} ({min(r['victim_alone_s'], key=r['victim_alone_s'].get)}) | "
+                  f"{best / step:.0%} | {runs_txt} |")
+
+
 def print_split(records: List[Dict[str, Any]]) -> None:
     """Markdown table of the step-split records."""
     print("| mesh | faces | perturb | victim | targets x views x px (antialias) | render fwd | victim fwd+bwd | "
@@ -313,6 +485,14 @@ def main(argv: List[str]) -> int:
     parser.add_argument("--cpu-time", action="store_true",
                         help="--split: process CPU time instead of wall time (steadier on a busy machine; run with "
                              "OMP_NUM_THREADS=1 RAYON_NUM_THREADS=1 so that it is also the 1-thread wall time)")
+    parser.add_argument("--step-workers", type=int, nargs="+", default=None,
+                        help="--split: time whole steps, serial and split over these worker counts (see above)")
+    parser.add_argument("--torch-threads", type=int, nargs="+", default=[1, 2],
+                        help="--split --step-workers: torch thread counts of the serial variants (the largest is "
+                             "shared by the workers)")
+    parser.add_argument("--attack-steps", type=int, default=0,
+                        help="--split --step-workers: also run whole attacks of this many steps per variant")
+    parser.add_argument("--attack-reps", type=int, default=2, help="--attack-steps: alternating repetitions")
     parser.add_argument("--victim-optimize", choices=["on", "off", "both"], default="on",
                         help="load_victim's optimize (both: --split times the two side by side)")
     parser.add_argument("--budgets", type=int, nargs="+", default=None,
@@ -329,6 +509,18 @@ def main(argv: List[str]) -> int:
     victim = next(iter(victims.values()))
     command = "python benchmarks/attack_bench.py " + " ".join(argv)
     machine = f"machine: {platform.processor() or platform.machine()}, torch threads {torch.get_num_threads()}"
+    if args.split and args.step_workers:
+        loads = [os.getloadavg()[0]]
+        start = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        records = [pipeline_split(m, p, args, victim) for m in args.meshes for p in args.perturb]
+        loads.append(os.getloadavg()[0])
+        print(f"command: {command}")
+        print(f"{machine}; started {start}; 1-minute load average {min(loads):.1f}-{max(loads):.1f}")
+        print_pipeline(records)
+        if args.out is not None:
+            args.out.write_text(json.dumps({"command": command, "load": loads, "start": start, "records": records},
+                                           indent=2))
+        return 0
     if args.split:
         loads = [os.getloadavg()[0]]
         records = [r for m in args.meshes for p in args.perturb for r in step_split(m, p, args, victims)]

@@ -77,7 +77,8 @@ def test_pipelined_step_gradients_match_the_serial_step(family: str, num_workers
     assert g_serial is not None and g_pipe is not None
     assert float(g_serial[idx].abs().max()) > 0
     assert torch.equal(g_pipe[2], torch.zeros_like(g_pipe[2]))  # the inactive target's rows
-    torch.testing.assert_close(g_pipe, g_serial, rtol=1e-5, atol=1e-7 * float(g_serial.abs().max()))
+    # the victim at another batch size rounds differently: ~1e-7 of the largest entry measured
+    torch.testing.assert_close(g_pipe, g_serial, rtol=1e-5, atol=1e-6 * float(g_serial.abs().max()))
     for a, b in ((adv_p, adv_s), (perc_p, perc_s), (dist_p, dist_s), (out_p, out_s), (marg_p, marg_s)):
         torch.testing.assert_close(a.detach(), b.detach(), rtol=1e-5, atol=1e-5)  # logits: batch-size rounding
 
@@ -278,3 +279,29 @@ def test_step_workers_validation(bad: Any, exc: type) -> None:
 
     with pytest.raises(exc, match="step_workers"):
         ShapeAttack(step_workers=bad)
+
+
+@needs_native
+def test_pipelined_step_splits_the_targets_over_the_workers() -> None:
+    """3 active targets x 2 views over 2 workers: the victim sees chunks of 2 and 1 targets, in worker threads."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import ShapeAttack, TargetedMisclassification
+    from meshadv.attacks.pipeline import StepWorkers
+    from meshadv.mesh import builtin_mesh
+
+    seen: List[Any] = []
+
+    class Recording(PooledLinearClassifier):
+        def forward(self, images: torch.Tensor) -> torch.Tensor:
+            seen.append((images.shape[0], threading.current_thread().name))
+            return super().forward(images)
+
+    mesh = builtin_mesh("chair")
+    attack = ShapeAttack()
+    call = _call(attack, mesh, _views(2), Recording())
+    crits = [TargetedMisclassification(c) for c in (1, 2, 3)]
+    with StepWorkers(2, 1) as workers:
+        _step_grads(attack, call, crits, workers, attack._init_params(mesh, 4), torch.tensor([0, 1, 3]))
+    assert sorted(n for n, _ in seen) == [2, 4]
+    assert all(name.startswith("meshadv-step") for _, name in seen)

@@ -389,7 +389,7 @@ class MeshAttack(ABC):
         """The step of :meth:`_serial_step` with the targets split over ``workers``
         (:mod:`meshadv.attacks.pipeline`); same returns, the parameters' ``.grad`` filled the same way."""
         num_v = len(views)
-        chunks = split_chunks(len(criteria), self.workers_for(len(criteria), call.victim))
+        chunks = split_chunks(len(criteria), workers.workers)
         leaves = [params[idx[a:b]].detach().requires_grad_(True) for a, b in chunks]
 
         def forward(leaf: Tensor) -> Tuple[Tensor, Tensor, Tensor, Any]:
