@@ -1155,3 +1155,165 @@ mod x86 {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Small deterministic generator (SplitMix64).
+    struct Rng(u64);
+
+    impl Rng {
+        fn next(&mut self) -> f64 {
+            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = self.0;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        }
+
+        fn below(&mut self, n: usize) -> usize {
+            (self.next() * n as f64) as usize
+        }
+    }
+
+    /// The lane sums of one OUT kernel on every code path this CPU has: generic on `[f64; 2]`, SSE2 and AVX2
+    /// vectors, and the AVX2 assembly; all must give the same bits.
+    #[allow(unsafe_code)]
+    fn all_paths(k: &OutKernel<'_, 4>) -> Vec<([f64; LANES], [f64; LANES])> {
+        // SAFETY: the kernel's buffers are padded (built by the caller); SSE2 is baseline, AVX2 is checked.
+        unsafe {
+            let mut out = vec![lanes::<[f64; 2], _>(k)];
+            #[cfg(target_arch = "x86_64")]
+            {
+                out.push(lanes::<std::arch::x86_64::__m128d, _>(k));
+                if Isa::detect() == Isa::Avx2 {
+                    out.push(lanes::<std::arch::x86_64::__m256d, _>(k));
+                    out.push(k.avx2_sweep().expect("4 channels have an AVX2 sweep"));
+                }
+            }
+            out
+        }
+    }
+
+    #[test]
+    fn the_out_kernels_give_the_same_bits_on_every_path() {
+        let mut rng = Rng(7);
+        let mut checked = 0;
+        for case in 0..3000 {
+            // One line of `len` pixels plus padding; the sweep covers `start..start + n`.
+            let len = 1 + rng.below(80);
+            let padded = len + LANES;
+            let start = rng.below(len);
+            let n = 1 + rng.below(len - start);
+            let fi = 5.0;
+            let (key0, key_step) = (rng.next() * 2.0, (rng.next() - 0.5) * 0.1);
+            let pos: Vec<f64> = (0..padded).map(|d| d as f64).collect();
+            let kf = |d: usize| key0 + key_step * pos[d];
+            // The own pixels: anywhere in the sweep (or none).
+            let own_a = rng.below(n + 1);
+            let own = (own_a, own_a + rng.below(n + 1 - own_a));
+            // Faces: background, lower and higher indices, and the face itself (only among the own pixels, as
+            // the kernels require); keys: random, or exact ties.
+            let face: Vec<f64> = (0..padded)
+                .map(|d| match [-1.0, 2.0, fi, 9.0][rng.below(4)] {
+                    f if f == fi && !(start + own.0 <= d && d < start + own.1) => 9.0,
+                    f => f,
+                })
+                .collect();
+            let key: Vec<f64> = (0..padded)
+                .map(|d| match rng.below(4) {
+                    0 => kf(d),
+                    1 if face[d] < 0.0 => f64::NEG_INFINITY,
+                    _ => key0 + (rng.next() - 0.5) * 0.5,
+                })
+                .collect();
+            let below: Vec<f64> = key.iter().map(|&k| super::super::lines::below(k)).collect();
+            let gi: Vec<f64> = (0..padded).map(|_| rng.next() - 0.5).collect();
+            let g: Vec<Vec<f64>> = (0..4)
+                .map(|_| {
+                    (0..padded)
+                        .map(|_| {
+                            if rng.below(8) == 0 {
+                                0.0
+                            } else {
+                                rng.next() - 0.5
+                            }
+                        })
+                        .collect()
+                })
+                .collect();
+            let (cross, dir) = (start as f64 - rng.next() * 2.0, 1.0);
+            let ka = if case % 7 == 0 {
+                0.0
+            } else {
+                (rng.next() - 0.3) * 0.02
+            };
+            let kc = (rng.next() - 0.7) * 0.02;
+            let nudge = |k: f64| {
+                if k == 0.0 {
+                    1.0
+                } else if k * dir > 0.0 {
+                    EPS
+                } else {
+                    -EPS
+                }
+            };
+            let (ea, ec) = (nudge(ka), nudge(kc));
+            let at = |v: &Vec<f64>| v[start..].as_ptr();
+            let k = OutKernel::<4> {
+                n,
+                own,
+                end: (start + n) as f64,
+                dot: Dot {
+                    g: [at(&g[0]), at(&g[1]), at(&g[2]), at(&g[3])],
+                    w: [rng.next(), rng.next(), rng.next(), rng.next()],
+                    pre: std::ptr::null(),
+                    _data: PhantomData,
+                },
+                face: at(&face),
+                key: at(&key),
+                below: at(&below),
+                gi: at(&gi),
+                pos: at(&pos),
+                ka,
+                ba: ea - ka * cross,
+                kc,
+                bc: ec - kc * cross,
+                fi,
+                key0,
+                key_step,
+            };
+            let sums = all_paths(&k);
+            let bits =
+                |s: &([f64; LANES], [f64; LANES])| (s.0.map(f64::to_bits), s.1.map(f64::to_bits));
+            for s in &sums[1..] {
+                assert_eq!(bits(s), bits(&sums[0]), "case {case}");
+            }
+            // The sums are those of the definition, pixel by pixel (lane i % LANES; own pixels never count).
+            let (mut wa, mut wc) = ([0f64; LANES], [0f64; LANES]);
+            for i in 0..n {
+                let d = start + i;
+                let nearer = kf(d) > key[d] || (kf(d) == key[d] && fi < face[d]);
+                let delta = (0..4).map(|c| g[c][d] * k.dot.w[c]).fold(0.0, |s, x| s + x) - gi[d];
+                if face[d] != fi && nearer && delta < 0.0 {
+                    let (da, dc) = (ka * pos[d] + k.ba, kc * pos[d] + k.bc);
+                    let q = delta / (da * dc);
+                    wa[i % LANES] += q * dc;
+                    wc[i % LANES] += q * da;
+                }
+            }
+            let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * (1.0 + x.abs().max(y.abs()));
+            for l in 0..LANES {
+                assert!(
+                    close(sums[0].0[l], wa[l]) && close(sums[0].1[l], wc[l]),
+                    "case {case}: {:?} vs {wa:?}, {:?} vs {wc:?}",
+                    sums[0].0,
+                    sums[0].1
+                );
+            }
+            checked += sums.len();
+        }
+        assert!(checked >= 3000);
+    }
+}
