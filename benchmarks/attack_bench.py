@@ -35,6 +35,10 @@ over W workers. The renderer share is the part of the step's wall time not hidde
 alone (same threads or workers) / step``. ``--attack-steps N`` adds whole attacks (``ShapeAttack`` /
 ``TextureAttack`` of N steps, no early stop) per variant, alternating, and reports their target-steps/s.
 
+``--pool-bench`` times only the antialias pooling, forward and backward, the renderer's box filter against
+``F.avg_pool2d`` as it was (batch ``--targets x --views``, ``--image-size`` times ``--antialias`` pixels, RGBA, one
+torch thread, wall time, median of ``--steps`` interleaved repetitions).
+
 Usage:
     python benchmarks/attack_bench.py --meshes chair/01 sofa/01 --views 5 --image-size 160 --targets 4 \\
         --out benchmarks/attack_bench.json
@@ -372,6 +376,30 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
     return record
 
 
+def pool_bench(args: argparse.Namespace) -> Dict[str, Any]:
+    """Median forward / backward wall time of the antialias pooling, box filter vs ``F.avg_pool2d``."""
+    from meshadv.render.renderer import _downsample
+
+    torch.set_num_threads(1)
+    k, b, size = args.antialias, args.targets * args.views, args.image_size
+    image = torch.rand(b, size * k, size * k, 4)
+    grad = torch.rand(b, 4, size, size)
+    times: Dict[str, Tuple[List[float], List[float]]] = {"avg_pool2d": ([], []), "box filter": ([], [])}
+    for i in range(args.steps + 1):
+        for name, fn in (("avg_pool2d", _old_downsample), ("box filter", _downsample)):
+            x = image.clone().requires_grad_(True)
+            t0 = time.perf_counter()
+            y = fn(x, k)
+            t1 = time.perf_counter()
+            y.backward(grad)
+            t2 = time.perf_counter()
+            if i > 0:
+                times[name][0].append(t1 - t0)
+                times[name][1].append(t2 - t1)
+    return {name: {"forward_s": statistics.median(f), "backward_s": statistics.median(bw)}
+            for name, (f, bw) in times.items()}
+
+
 def print_pipeline(records: List[Dict[str, Any]]) -> None:
     """Markdown table of the whole-step records."""
     print("| mesh | perturb | variant | step (wall) | CPU per step | target-steps/s | victim alone (same threads) | "
@@ -492,6 +520,8 @@ def main(argv: List[str]) -> int:
                              "shared by the workers)")
     parser.add_argument("--attack-steps", type=int, default=0,
                         help="--split --step-workers: also run whole attacks of this many steps per variant")
+    parser.add_argument("--pool-bench", action="store_true",
+                        help="only time the antialias pooling (box filter vs F.avg_pool2d)")
     parser.add_argument("--attack-reps", type=int, default=2, help="--attack-steps: alternating repetitions")
     parser.add_argument("--victim-optimize", choices=["on", "off", "both"], default="on",
                         help="load_victim's optimize (both: --split times the two side by side)")
@@ -509,6 +539,14 @@ def main(argv: List[str]) -> int:
     victim = next(iter(victims.values()))
     command = "python benchmarks/attack_bench.py " + " ".join(argv)
     machine = f"machine: {platform.processor() or platform.machine()}, torch threads {torch.get_num_threads()}"
+    if args.pool_bench:
+        record = pool_bench(args)
+        print(f"command: {command}")
+        print(f"batch {args.targets * args.views}, {args.image_size * args.antialias} -> {args.image_size} px, "
+              f"1 torch thread, 1-minute load average {os.getloadavg()[0]:.1f}")
+        for name, r in record.items():
+            print(f"{name}: forward {1e3 * r['forward_s']:.1f} ms, backward {1e3 * r['backward_s']:.1f} ms")
+        return 0
     if args.split and args.step_workers:
         loads = [os.getloadavg()[0]]
         start = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
