@@ -850,6 +850,37 @@ struct InConsts<V, const C: usize> {
 impl<const C: usize> Kernel for InKernel<'_, C> {
     type Consts<V: F64s> = InConsts<V, C>;
 
+    #[cfg(target_arch = "x86_64")]
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn avx2_sweep(&self) -> Option<([f64; LANES], [f64; LANES])> {
+        let (g, w): (&[*const f64], &[f64]) = (&self.dot.g, &self.dot.w);
+        if g.len() != 4 {
+            return None;
+        }
+        let [_, _, full] = blocks(self.s.n, (0, 0));
+        let bytes = |p: usize| (p * 8) as i64;
+        let consts = InAsmConsts {
+            s: [
+                w[0],
+                w[1],
+                w[2],
+                w[3],
+                self.s.fi,
+                self.s.cross,
+                self.s.ka,
+                self.s.kc,
+            ],
+            eps: [EPS; 4],
+            eps2: [2.0 * EPS; 4],
+            zero: [0.0; 4],
+            end: [self.s.end; 4],
+            bounds: [bytes(full) - 32, bytes(full), bytes(self.s.n), 0],
+        };
+        let ptrs = [self.s.face, self.s.gi, self.s.pos, g[0], g[1], g[2], g[3]];
+        Some(in_sweep_avx2_c4(&ptrs, &consts))
+    }
+
     #[inline(always)]
     fn len(&self) -> usize {
         self.s.n
@@ -902,6 +933,145 @@ impl<const C: usize> Kernel for InKernel<'_, C> {
             (x, y)
         }
     }
+}
+
+/// The constants of [`in_sweep_avx2_c4`], read by its code at fixed offsets: `s` = the 4 weights (the out-pixel's
+/// colour), `fi`, `cross`, `ka`, `kc`; `EPS`, `2 EPS`, 0 and the sweep's end position as whole vectors; `bounds` = the
+/// byte offsets of the whole blocks' end minus one block, of their end and of the sweep's end.
+#[repr(C, align(32))]
+struct InAsmConsts {
+    s: [f64; 8],
+    eps: [f64; 4],
+    eps2: [f64; 4],
+    zero: [f64; 4],
+    end: [f64; 4],
+    bounds: [i64; 4],
+}
+
+/// One block of 4 pixels of [`InKernel::vec`] for 4 channels at byte offset `{i} + $o`, in the registers of
+/// [`in_sweep_avx2_c4`]; `$masked` adds the mask of lanes past the end.
+macro_rules! in_block {
+    ($o:literal, $masked:tt) => {
+        concat!(
+            // delta = ((G0 w0 + G1 w1) + G2 w2) + G3 w3 - gi; m = min(delta, 0) & (F[P] == f) (EQ_OQ = 0)
+            "vmulpd ymm11, ymm2, ymmword ptr [{g0} + {i} + ", $o, "]\n",
+            "vmulpd ymm12, ymm3, ymmword ptr [{g1} + {i} + ", $o, "]\n",
+            "vaddpd ymm11, ymm11, ymm12\n",
+            "vmulpd ymm12, ymm4, ymmword ptr [{g2} + {i} + ", $o, "]\n",
+            "vaddpd ymm11, ymm11, ymm12\n",
+            "vmulpd ymm12, ymm5, ymmword ptr [{g3} + {i} + ", $o, "]\n",
+            "vaddpd ymm11, ymm11, ymm12\n",
+            "vsubpd ymm11, ymm11, ymmword ptr [{gi} + {i} + ", $o, "]\n",
+            "vminpd ymm11, ymm11, ymmword ptr [{c} + 128]\n",
+            "vcmppd ymm12, ymm6, ymmword ptr [{face} + {i} + ", $o, "], 0x00\n",
+            "vandpd ymm11, ymm11, ymm12\n",
+            // t = pos - cross; da = nudge(ka t), dc = nudge(kc t), nudge(x) = x + (((x > 0) & 2 EPS) - EPS)
+            "vmovupd ymm12, ymmword ptr [{pos} + {i} + ", $o, "]\n",
+            "vsubpd ymm12, ymm12, ymm7\n",
+            "vmulpd ymm13, ymm8, ymm12\n",
+            "vcmppd ymm14, ymm13, ymmword ptr [{c} + 128], 0x1e\n",
+            "vandpd ymm14, ymm14, ymmword ptr [{c} + 96]\n",
+            "vsubpd ymm14, ymm14, ymm10\n",
+            "vaddpd ymm13, ymm13, ymm14\n",
+            "vmulpd ymm14, ymm9, ymm12\n",
+            "vcmppd ymm15, ymm14, ymmword ptr [{c} + 128], 0x1e\n",
+            "vandpd ymm15, ymm15, ymmword ptr [{c} + 96]\n",
+            "vsubpd ymm15, ymm15, ymm10\n",
+            "vaddpd ymm14, ymm14, ymm15\n",
+            // q = m / (da dc); x = q dc, y = q da
+            "vmulpd ymm15, ymm13, ymm14\n",
+            "vdivpd ymm11, ymm11, ymm15\n",
+            "vmulpd ymm14, ymm11, ymm14\n",
+            "vmulpd ymm13, ymm11, ymm13\n",
+            in_block!(@mask $masked, $o),
+            "vaddpd ymm0, ymm0, ymm14\n",
+            "vaddpd ymm1, ymm1, ymm13\n",
+        )
+    };
+    (@mask true, $o:literal) => {
+        concat!(
+            "vmovupd ymm15, ymmword ptr [{pos} + {i} + ", $o, "]\n",
+            "vcmppd ymm15, ymm15, ymmword ptr [{c} + 160], 0x11\n",
+            "vandpd ymm14, ymm14, ymm15\n",
+            "vandpd ymm13, ymm13, ymm15\n",
+        )
+    };
+    (@mask false, $o:literal) => {
+        ""
+    };
+}
+
+/// [`lanes`] over [`InKernel::vec`] for 4 channels on AVX2, in assembly (see [`out_sweep_avx2_c4`]): the whole
+/// blocks two at a time, then the masked last block; per block the operations, operands and order of
+/// [`InKernel::vec`], so the bits are the same. `p` holds the pointers face, gi, pos and the 4 cotangent planes, each
+/// at the sweep's first pixel.
+///
+/// # Safety
+/// The CPU must support AVX2, and every pointer must be readable for the sweep's length rounded up to a multiple of
+/// [`LANES`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(unsafe_code)]
+#[inline]
+unsafe fn in_sweep_avx2_c4(
+    p: &[*const f64; 7],
+    consts: &InAsmConsts,
+) -> ([f64; LANES], [f64; LANES]) {
+    use std::arch::x86_64::*;
+    let (mut sa, mut sc) = (_mm256_setzero_pd(), _mm256_setzero_pd());
+    // SAFETY: the caller's promises (AVX2; the blocks readable); the code reads the blocks of the sweep and
+    // `consts`, and writes nothing but registers.
+    std::arch::asm!(
+        "vbroadcastsd ymm2, qword ptr [{c}]",
+        "vbroadcastsd ymm3, qword ptr [{c} + 8]",
+        "vbroadcastsd ymm4, qword ptr [{c} + 16]",
+        "vbroadcastsd ymm5, qword ptr [{c} + 24]",
+        "vbroadcastsd ymm6, qword ptr [{c} + 32]",
+        "vbroadcastsd ymm7, qword ptr [{c} + 40]",
+        "vbroadcastsd ymm8, qword ptr [{c} + 48]",
+        "vbroadcastsd ymm9, qword ptr [{c} + 56]",
+        "vmovapd ymm10, ymmword ptr [{c} + 64]",
+        "xor {i:e}, {i:e}",
+        // Whole blocks: pairs, then one.
+        "cmp {i}, qword ptr [{c} + 192]",
+        "jge 3f",
+        "2:",
+        in_block!("0", false),
+        in_block!("32", false),
+        "add {i}, 64",
+        "cmp {i}, qword ptr [{c} + 192]",
+        "jl 2b",
+        "3:",
+        "cmp {i}, qword ptr [{c} + 200]",
+        "jge 4f",
+        in_block!("0", false),
+        "add {i}, 32",
+        "4:",
+        // The last, partial block.
+        "cmp {i}, qword ptr [{c} + 208]",
+        "jge 5f",
+        in_block!("0", true),
+        "5:",
+        c = in(reg) consts as *const InAsmConsts,
+        face = in(reg) p[0],
+        gi = in(reg) p[1],
+        pos = in(reg) p[2],
+        g0 = in(reg) p[3],
+        g1 = in(reg) p[4],
+        g2 = in(reg) p[5],
+        g3 = in(reg) p[6],
+        i = out(reg) _,
+        inout("ymm0") sa,
+        inout("ymm1") sc,
+        out("ymm2") _, out("ymm3") _, out("ymm4") _, out("ymm5") _, out("ymm6") _, out("ymm7") _,
+        out("ymm8") _, out("ymm9") _, out("ymm10") _, out("ymm11") _, out("ymm12") _, out("ymm13") _,
+        out("ymm14") _, out("ymm15") _,
+        options(nostack, readonly),
+    );
+    let (mut xa, mut xc) = ([0f64; LANES], [0f64; LANES]);
+    _mm256_storeu_pd(xa.as_mut_ptr(), sa);
+    _mm256_storeu_pd(xc.as_mut_ptr(), sc);
+    (xa, xc)
 }
 
 /// A vector of f64 lanes with the operations of the OUT sweep. Comparisons give lanes of all ones (true) or all
@@ -1315,5 +1485,97 @@ mod tests {
             checked += sums.len();
         }
         assert!(checked >= 3000);
+    }
+
+    #[test]
+    fn the_in_kernels_give_the_same_bits_on_every_path() {
+        let mut rng = Rng(8);
+        for case in 0..3000 {
+            let len = 1 + rng.below(40);
+            let padded = len + LANES;
+            let start = rng.below(len);
+            let n = 1 + rng.below(len - start);
+            let fi = 5.0;
+            let pos: Vec<f64> = (0..padded).map(|d| d as f64).collect();
+            let face: Vec<f64> = (0..padded)
+                .map(|_| [-1.0, 2.0, fi, fi][rng.below(4)])
+                .collect();
+            let gi: Vec<f64> = (0..padded).map(|_| rng.next() - 0.5).collect();
+            let g: Vec<Vec<f64>> = (0..4)
+                .map(|_| (0..padded).map(|_| rng.next() - 0.5).collect())
+                .collect();
+            // The crossing: sometimes exactly on a pixel centre (t = 0 there).
+            let cross = if case % 5 == 0 {
+                (start + rng.below(n)) as f64
+            } else {
+                start as f64 + (rng.next() - 0.5) * 4.0
+            };
+            let ka = if case % 7 == 0 {
+                0.0
+            } else {
+                (rng.next() - 0.5) * 0.02
+            };
+            let kc = (rng.next() - 0.5) * 0.02;
+            let at = |v: &Vec<f64>| v[start..].as_ptr();
+            let w = [rng.next(), rng.next(), rng.next(), rng.next()];
+            let k = InSweep {
+                n,
+                end: (start + n) as f64,
+                face: at(&face),
+                gi: at(&gi),
+                pos: at(&pos),
+                fi,
+                cross,
+                ka,
+                kc,
+                _data: PhantomData,
+            }
+            .with(Dot::<4> {
+                g: [at(&g[0]), at(&g[1]), at(&g[2]), at(&g[3])],
+                w,
+                pre: std::ptr::null(),
+                _data: PhantomData,
+            });
+            #[allow(unsafe_code)]
+            // SAFETY: padded buffers; SSE2 is baseline, AVX2 is checked.
+            let sums = unsafe {
+                let mut out = vec![lanes::<[f64; 2], _>(&k)];
+                #[cfg(target_arch = "x86_64")]
+                {
+                    out.push(lanes::<std::arch::x86_64::__m128d, _>(&k));
+                    if Isa::detect() == Isa::Avx2 {
+                        out.push(lanes::<std::arch::x86_64::__m256d, _>(&k));
+                        out.push(k.avx2_sweep().expect("4 channels have an AVX2 sweep"));
+                    }
+                }
+                out
+            };
+            let bits =
+                |s: &([f64; LANES], [f64; LANES])| (s.0.map(f64::to_bits), s.1.map(f64::to_bits));
+            for s in &sums[1..] {
+                assert_eq!(bits(s), bits(&sums[0]), "case {case}");
+            }
+            // The definition, pixel by pixel.
+            let nudge = |x: f64| x + if x > 0.0 { EPS } else { -EPS };
+            let (mut wa, mut wc) = ([0f64; LANES], [0f64; LANES]);
+            for i in 0..n {
+                let d = start + i;
+                let delta = (0..4).map(|c| g[c][d] * w[c]).fold(0.0, |s, x| s + x) - gi[d];
+                if face[d] == fi && delta < 0.0 {
+                    let t = pos[d] - cross;
+                    let (da, dc) = (nudge(ka * t), nudge(kc * t));
+                    let q = delta / (da * dc);
+                    wa[i % LANES] += q * dc;
+                    wc[i % LANES] += q * da;
+                }
+            }
+            let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * (1.0 + x.abs().max(y.abs()));
+            for l in 0..LANES {
+                assert!(
+                    close(sums[0].0[l], wa[l]) && close(sums[0].1[l], wc[l]),
+                    "case {case}"
+                );
+            }
+        }
     }
 }
