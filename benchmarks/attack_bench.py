@@ -27,10 +27,11 @@ applied flow at success.
 
 With ``--split --step-workers 1 2`` a whole step (render, victim, objective, render backward; the attack's own step
 code, Adam's objective, no update) is timed instead, wall time, for each variant in one run with the variants
-interleaved step by step: ``serial tN`` (``step_workers=1``, torch and the renderer on N threads, for each N of
-``--torch-threads``), ``workers W`` (``step_workers=W``: W threads each rendering and running the victim on its chunk
-of targets, torch on threads/W threads each) and ``old serial tN`` (the serial step with the antialias pooling as it
-was, ``F.avg_pool2d``). The victim-alone ceilings are timed the same way: at each of ``--torch-threads`` and split
+interleaved in bursts of ``--burst`` consecutive steps (the first of a burst not recorded): ``serial tN``
+(``step_workers=1``, torch and the renderer on N threads, for each N of ``--torch-threads``), ``workers W``
+(``step_workers=W``: W threads each rendering and running the victim on its chunk of targets, torch on threads/W
+threads each) and ``old serial tN`` (the serial step with the antialias pooling as it was, ``F.avg_pool2d``). The
+victim-alone ceilings are timed the same way: at each of ``--torch-threads`` and split
 over W workers. The renderer share is the part of the step's wall time not hidden behind the victim: ``1 - victim
 alone (same threads or workers) / step``. ``--attack-steps N`` adds whole attacks (``ShapeAttack`` /
 ``TextureAttack`` of N steps, no early stop) per variant, alternating, and reports their target-steps/s.
@@ -332,27 +333,26 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
     for step in range(args.steps + 1):
         for v in variants:
             with v:
-                t0, c0 = time.perf_counter(), time.process_time()
-                if v.pool is None:
-                    attack._serial_step(params[idx], idx, crits, call, call.views, rule)
-                else:
-                    attack._pipelined_step(params, idx, crits, call, call.views, rule, v.pool)
-                t1, c1 = time.perf_counter(), time.process_time()
-                params.grad = None
+                for burst in range(args.burst):  # consecutive steps; the first after a switch is not recorded
+                    t0, c0 = time.perf_counter(), time.process_time()
+                    if v.pool is None:
+                        attack._serial_step(params[idx], idx, crits, call, call.views, rule)
+                    else:
+                        attack._pipelined_step(params, idx, crits, call, call.views, rule, v.pool)
+                    t1, c1 = time.perf_counter(), time.process_time()
+                    params.grad = None
+                    if step > 0 and (burst > 0 or args.burst == 1):
+                        steps[v.label].append(t1 - t0)
+                        cpu[v.label].append(c1 - c0)
                 key = f"victim alone {v.label.replace('serial ', '')}"
-                t2 = time.perf_counter()
-                if v.old_pool:
-                    pass
-                elif v.pool is None:
-                    victim_alone(t * num_v)
-                else:
-                    v.pool.map(lambda ab: victim_alone((ab[1] - ab[0]) * num_v), split_chunks(t, v.workers))
-                t3 = time.perf_counter()
-            if step > 0:  # the first round warms up
-                steps[v.label].append(t1 - t0)
-                cpu[v.label].append(c1 - c0)
-                if not v.old_pool:
-                    ceil.setdefault(key, []).append(t3 - t2)
+                for burst in range(0 if v.old_pool else args.burst):
+                    t2 = time.perf_counter()
+                    if v.pool is None:
+                        victim_alone(t * num_v)
+                    else:
+                        v.pool.map(lambda ab: victim_alone((ab[1] - ab[0]) * num_v), split_chunks(t, v.workers))
+                    if step > 0 and (burst > 0 or args.burst == 1):
+                        ceil.setdefault(key, []).append(time.perf_counter() - t2)
     for v in variants:
         v.close()
     med = {k: float(statistics.median(x)) for k, x in steps.items()}
@@ -520,6 +520,9 @@ def main(argv: List[str]) -> int:
                              "shared by the workers)")
     parser.add_argument("--attack-steps", type=int, default=0,
                         help="--split --step-workers: also run whole attacks of this many steps per variant")
+    parser.add_argument("--burst", type=int, default=3,
+                        help="--split --step-workers: consecutive steps per variant and round (the first of each "
+                             "burst is not recorded when > 1)")
     parser.add_argument("--pool-bench", action="store_true",
                         help="only time the antialias pooling (box filter vs F.avg_pool2d)")
     parser.add_argument("--attack-reps", type=int, default=2, help="--attack-steps: alternating repetitions")
