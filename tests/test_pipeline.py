@@ -305,3 +305,23 @@ def test_pipelined_step_splits_the_targets_over_the_workers() -> None:
         _step_grads(attack, call, crits, workers, attack._init_params(mesh, 4), torch.tensor([0, 1, 3]))
     assert sorted(n for n, _ in seen) == [2, 4]
     assert all(name.startswith("meshadv-step") for _, name in seen)
+
+
+@needs_native
+def test_detector_attack_with_step_workers_matches_one_worker() -> None:
+    """The detector's output (boxes, no objectness, class probabilities) is cut and concatenated like logits."""
+    from stand_in_victims import DarkBlobDetector
+
+    from meshadv.attacks import Disappearance, TextureAttack
+    from meshadv.mesh import builtin_mesh
+
+    cube = builtin_mesh("cube", color=(0.1, 0.1, 0.1))
+    crits = [Disappearance("blob"), Disappearance("blob", threshold=0.3)]
+    runs = [TextureAttack(steps=4, lr=0.2, step_workers=w)(cube, _views(2), DarkBlobDetector(), crits,
+                                                           setup=RenderSetup(image_size=32))
+            for w in (1, 2)]
+    assert runs[0].steps == runs[1].steps == 4
+    assert runs[0].success.tolist() == runs[1].success.tolist()
+    for row_a, row_b in zip(runs[0].loss_history, runs[1].loss_history):
+        assert row_b["loss"] == pytest.approx(row_a["loss"], rel=1e-5, abs=1e-7)
+    assert runs[1].loss_history[-1]["loss"] != runs[1].loss_history[0]["loss"]
