@@ -237,3 +237,22 @@ def test_settings_mix_flags_a_group_run_with_two_settings(moved_db: Path) -> Non
     rows[0].record["victim_optimize"] = False
     (line,) = settings_mix(rows)
     assert line.startswith("- WARNING: v, shape: the attacks ran with 2 different") and "11, 1 attacks" in line
+
+
+def test_report_command_regenerates_and_names_bad_options(moved_db: Path, tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from meshadv.cli import build_app
+
+    _set_job_ref(moved_db)
+    app = build_app()
+    res = CliRunner().invoke(app, ["report", str(moved_db), "-o", str(tmp_path / "r"), "--no-stored"])
+    assert res.exit_code != 0 and "--artifacts" in res.output
+    res = CliRunner().invoke(app, ["report", str(moved_db), "-o", str(tmp_path / "r"), "--artifacts",
+                                   str(tmp_path / "a"), "--assume", str(tmp_path / "missing.json")])
+    assert res.exit_code != 0 and "--assume" in res.output
+    res = CliRunner().invoke(app, ["report", str(moved_db), "-o", str(tmp_path / "r"), "--artifacts",
+                                   str(tmp_path / "a")])
+    assert res.exit_code == 0, res.output
+    assert "regenerated 6 job(s) for the figures; 6 reproduce their stored record" in res.output
+    assert (tmp_path / "r" / "figures" / "grid_v_shape.png").is_file()
