@@ -22,7 +22,10 @@
 //!   own pixels contribute).
 //! * Per OUT sweep: the face's key along the line is `key0 + key_step * d` (its plane in pixel space); the pixels
 //!   whose key lies in the clip range form one interval (the computed key is monotone in `d`), found once, so the
-//!   inner loop only tests the depth order and `delta < 0`.
+//!   inner loop only tests the depth order and `delta < 0`. The depth order, ties included, is one comparison
+//!   `key_f > thr[P]` against a per-pixel threshold: the drawn face's key, or (where `f < F[P]`, so that `f` wins
+//!   a tie) the next f64 below it, kept in the line buffers; `F[P] != f` is tested only in the blocks of pixels
+//!   that meet the face's drawn box (no pixel outside it is the face's).
 //! * Per pixel of an OUT or IN sweep, `delta / dist_a` and `delta / dist_c` (the two endpoint displacements) use one
 //!   division, `q = delta / (dist_a * dist_c)`, times `dist_c` and `dist_a`. Both loops are branch-free (skipped
 //!   pixels add 0), sum in four lanes added in a fixed order, and run their last partial block masked over padded
@@ -31,7 +34,9 @@
 //!   calls and refilled in place (`workspace`), so that a call does not page-fault fresh memory in.
 //! * The per-face work is compiled twice, for the portable baseline (SSE2 vectors on x86-64, plain code the compiler
 //!   vectorises elsewhere) and for AVX2 (x86-64), and the instruction set is picked at run time (`Isa`), so one
-//!   portable wheel still uses 256-bit vectors.
+//!   portable wheel still uses 256-bit vectors. With 4 channels (RGB + alpha) the AVX2 sweeps run as inline
+//!   assembly with hand-chosen registers, the same operations in the same order (tested bit for bit against the
+//!   other paths), and the channel count is a constant of the per-face code for 1 to 4 channels.
 //!
 //! The exact, step-by-step definition (the same text as `docs/NMR_GRADIENT.md`) follows.
 //!

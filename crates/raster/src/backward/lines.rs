@@ -305,7 +305,7 @@ fn channels<const C: usize>(
     }
 }
 
-/// Columns transposed together by [`Lines::columns`].
+/// Columns transposed together by [`Lines::fill_columns`].
 const GROUP: usize = 8;
 
 /// A buffer being filled: `len` values, then [`LANES`] of padding, in the buffer's memory (grown when too small)
