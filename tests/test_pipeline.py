@@ -325,3 +325,31 @@ def test_detector_attack_with_step_workers_matches_one_worker() -> None:
     for row_a, row_b in zip(runs[0].loss_history, runs[1].loss_history):
         assert row_b["loss"] == pytest.approx(row_a["loss"], rel=1e-5, abs=1e-7)
     assert runs[1].loss_history[-1]["loss"] != runs[1].loss_history[0]["loss"]
+
+
+def test_ctrl_c_in_the_caller_waits_for_the_running_tasks() -> None:
+    """SIGINT while the calling thread waits on the workers: KeyboardInterrupt propagates only once the tasks that had
+    started are done (no worker is left writing gradients into a step that was abandoned)."""
+    import os
+    import signal
+    import time
+
+    from meshadv.attacks.pipeline import StepWorkers
+
+    done: List[int] = []
+
+    def task(i: int) -> int:
+        time.sleep(0.4)
+        done.append(i)
+        return i
+
+    timer = threading.Timer(0.1, lambda: os.kill(os.getpid(), signal.SIGINT))
+    with StepWorkers(2, 1) as workers:
+        timer.start()
+        try:
+            with pytest.raises(KeyboardInterrupt):
+                workers.map(task, [0, 1])
+        finally:
+            timer.cancel()
+        assert sorted(done) == [0, 1]
+        assert workers.map(lambda i: i + 1, [1]) == [2]
