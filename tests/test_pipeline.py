@@ -353,3 +353,77 @@ def test_ctrl_c_in_the_caller_waits_for_the_running_tasks() -> None:
             timer.cancel()
         assert sorted(done) == [0, 1]
         assert workers.map(lambda i: i + 1, [1]) == [2]
+
+
+def test_split_images() -> None:
+    from meshadv.attacks.pipeline import split_images
+
+    assert split_images(6, 1, 2) == [[(0, 3, 0, 1)], [(3, 6, 0, 1)]]
+    assert split_images(1, 5, 2) == [[(0, 1, 0, 3)], [(0, 1, 3, 5)]]
+    assert split_images(3, 2, 4) == [[(0, 1, 0, 2)], [(1, 2, 0, 2)], [(2, 3, 0, 1)], [(2, 3, 1, 2)]]
+    assert split_images(3, 5, 2) == [[(0, 2, 0, 5)], [(2, 3, 0, 5)]]  # whole targets when there are enough
+    assert split_images(2, 5, 3) == [[(0, 1, 0, 4)], [(0, 1, 4, 5), (1, 2, 0, 2)], [(1, 2, 2, 5)]]
+    for k in range(1, 5):
+        for v in range(1, 5):
+            for w in range(1, 6):
+                images = [(t, view) for blocks in split_images(k, v, w) for k0, k1, v0, v1 in blocks
+                          for t in range(k0, k1) for view in range(v0, v1)]
+                assert images == [(t, view) for t in range(k) for view in range(v)]  # mesh-major, each once
+    with pytest.raises(ValueError, match="counts"):
+        split_images(0, 1, 1)
+
+
+@needs_native
+@pytest.mark.parametrize("family", ["shape", "texture"])
+@pytest.mark.parametrize("num_targets, num_views, num_workers", [(1, 3, 2), (3, 2, 4), (2, 3, 3)])
+def test_pipelined_step_split_by_views_matches_the_serial_step(family: str, num_targets: int, num_views: int,
+                                                             num_workers: int) -> None:
+    """Chunks that split one target's views (its rows summed over chunks) give the serial step's gradient."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import ShapeAttack, TargetedMisclassification, TextureAttack
+    from meshadv.attacks.pipeline import StepWorkers
+    from meshadv.mesh import builtin_mesh
+
+    mesh = builtin_mesh("chair")
+    attack = ShapeAttack() if family == "shape" else TextureAttack()
+    call = _call(attack, mesh, _views(num_views), PooledLinearClassifier())
+    shape = attack._init_params(mesh, 4).shape
+    params = attack._init_params(mesh, 4) + 0.02 * torch.randn(shape, generator=torch.Generator().manual_seed(5))
+    idx = torch.tensor([3, 0, 2][:num_targets])
+    crits = [TargetedMisclassification(c) for c in (728, 247, 5)][:num_targets]
+    g_serial, out_s = _step_grads(attack, call, crits, None, params, idx)
+    with StepWorkers(num_workers, 1) as workers:
+        g_pipe, out_p = _step_grads(attack, call, crits, workers, params, idx)
+    assert float(g_serial.abs().max()) > 0
+    torch.testing.assert_close(g_pipe, g_serial, rtol=1e-5, atol=1e-6 * float(g_serial.abs().max()))
+    for a, b in zip(out_p, out_s):
+        torch.testing.assert_close(a.detach(), b.detach(), rtol=1e-5, atol=1e-5)
+
+
+@needs_native
+def test_single_target_attack_is_split_by_views() -> None:
+    """One target seen from 3 views with 2 workers: the victim sees chunks of 2 and 1 views, and the run follows the
+    1-worker run."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import ShapeAttack, TargetedMisclassification
+    from meshadv.mesh import builtin_mesh
+
+    sizes: List[int] = []
+
+    class Recording(PooledLinearClassifier):
+        def forward(self, images: torch.Tensor) -> torch.Tensor:
+            if torch.is_grad_enabled():
+                sizes.append(images.shape[0])
+            return super().forward(images)
+
+    runs = []
+    for workers in (1, 2):
+        sizes.clear()
+        attack = ShapeAttack(steps=3, lr=3e-2, lambda_perceptual=0.01, step_workers=workers)
+        runs.append(attack(builtin_mesh("chair"), _views(3), Recording(), TargetedMisclassification(728),
+                           setup=RenderSetup(image_size=48, antialias=2)))
+        assert sorted(set(sizes)) == ([3] if workers == 1 else [1, 2])
+    for row_a, row_b in zip(runs[0].loss_history, runs[1].loss_history):
+        assert row_b["loss"][0] == pytest.approx(row_a["loss"][0], rel=1e-4, abs=1e-6)

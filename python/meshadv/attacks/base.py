@@ -31,7 +31,7 @@ from torch import Tensor
 from meshadv import _validate
 from meshadv.attacks.criteria import CLASSIFIER_LOSSES, Criterion
 from meshadv.attacks.distances import mesh_distances
-from meshadv.attacks.pipeline import StepWorkers, cat_outputs, output_tensors, rebuild_output, split_chunks
+from meshadv.attacks.pipeline import StepWorkers, cat_outputs, output_tensors, rebuild_output, split_images
 from meshadv.attacks.result import AttackResult
 from meshadv.attacks.update import make_update_rule, update_rules
 from meshadv.mesh.adjacency import vertex_edges
@@ -201,8 +201,9 @@ class MeshAttack(ABC):
         method: the update rule (:mod:`meshadv.attacks.update`): ``"adam"`` (default) is the paper's Adam on
             ``L_adv + lambda * L_perceptual`` with the ``lambda`` binary search; others are registered there.
         method_options: extra keyword options of the update rule (JSON-able), ``None`` for none.
-        step_workers: threads a step's targets are split over (:mod:`meshadv.attacks.pipeline`): each renders its
-            chunk of targets and runs the victim on it, overlapping one chunk's render with another's victim; the
+        step_workers: threads a step's images are split over (:mod:`meshadv.attacks.pipeline`; ranges of targets,
+            or of one target's views): each renders its chunk and runs the victim on it, overlapping one chunk's
+            render with another's victim; the
             gradient is the one-thread step's up to the victim's float rounding at another batch size and thread
             count. ``1``: one thread, the step as it always was. ``None`` (default): :func:`auto_step_workers`.
             An execution setting like ``--threads``: not part of :meth:`config`.
@@ -280,11 +281,11 @@ class MeshAttack(ABC):
         return (self._perceptual(params, mesh, edges, images, alpha, num_views),
                 self._distance(params, mesh, edges))
 
-    def workers_for(self, num_targets: int, victim: Any) -> int:
-        """The step workers used for ``num_targets`` active targets: ``step_workers`` when set, else
-        :func:`auto_step_workers` (never more workers than targets)."""
+    def workers_for(self, num_images: int, victim: Any) -> int:
+        """The step workers used for a step of ``num_images`` images (active targets x views): ``step_workers`` when
+        set, else :func:`auto_step_workers` (never more workers than images)."""
         workers = self.step_workers if self.step_workers is not None else auto_step_workers(victim)
-        return max(1, min(workers, num_targets))
+        return max(1, min(workers, num_images))
 
     # ------------------------------------------------------------------ public
     def config(self) -> Dict[str, Any]:
@@ -386,19 +387,26 @@ class MeshAttack(ABC):
 
     def _pipelined_step(self, params: Tensor, idx: Tensor, criteria: List[Criterion], call: "_Call", views: Any,
                         rule: Any, workers: StepWorkers) -> Tuple[Tensor, Tensor, Tensor, Any, Tensor]:
-        """The step of :meth:`_serial_step` with the targets split over ``workers``
+        """The step of :meth:`_serial_step` with the images split over ``workers``
         (:mod:`meshadv.attacks.pipeline`); same returns, the parameters' ``.grad`` filled the same way."""
         num_v = len(views)
-        chunks = split_chunks(len(criteria), workers.workers)
-        leaves = [params[idx[a:b]].detach().requires_grad_(True) for a, b in chunks]
+        chunks = split_images(len(criteria), num_v, workers.workers)
+        rows = [(blocks[0][0], blocks[-1][1]) for blocks in chunks]  # the targets each chunk renders
+        leaves = [params[idx[a:b]].detach().requires_grad_(True) for a, b in rows]
 
-        def forward(leaf: Tensor) -> Tuple[Tensor, Tensor, Tensor, Any]:
-            verts, colors = self._apply(leaf, call.mesh, call.edges)
-            images, alpha = call.setup.render(verts, call.mesh.faces, colors, views)
+        def forward(c: int) -> Tuple[Tensor, Tensor, Tensor, Any]:
+            verts, colors = self._apply(leaves[c], call.mesh, call.edges)
+            first = rows[c][0]
+            parts = [call.setup.render(verts[k0 - first:k1 - first], call.mesh.faces,
+                                       colors if colors.dim() == 2 else colors[k0 - first:k1 - first],
+                                       views if (v0, v1) == (0, num_v) else views[v0:v1])
+                     for k0, k1, v0, v1 in chunks[c]]
+            images = parts[0][0] if len(parts) == 1 else torch.cat([im for im, _ in parts])
+            alpha = parts[0][1] if len(parts) == 1 else torch.cat([al for _, al in parts])
             x = images.detach().requires_grad_(True)
             return images, alpha, x, call.victim(x)
 
-        fwd = workers.map(forward, leaves)
+        fwd = workers.map(forward, list(range(len(chunks))))
         # cut at the victim's output and at alpha: their cotangents come from the objective below
         outs = [[None if t is None else t.detach().requires_grad_(t.requires_grad) for t in output_tensors(f[3])]
                 for f in fwd]
@@ -423,7 +431,7 @@ class MeshAttack(ABC):
 
         grads = workers.map(backward, list(range(len(chunks))))
         with torch.no_grad():
-            for (a, b), grad in zip(chunks, grads):
+            for (a, b), grad in zip(rows, grads):
                 if grad is None:
                     continue
                 if params.grad is None:
@@ -444,7 +452,7 @@ class MeshAttack(ABC):
         total_steps = 0
         interrupted = False
         classifier = getattr(call.victim, "kind", "") == "classifier"
-        most = self.workers_for(num_t, call.victim)
+        most = self.workers_for(num_t * num_v, call.victim)
         workers = StepWorkers(most, max(1, torch.get_num_threads() // most)) if most > 1 else None
 
         try:
@@ -464,7 +472,7 @@ class MeshAttack(ABC):
                         idx = torch.tensor(act, dtype=torch.long)
                         p = params[idx]
                         crits = [targets[t].criterion for t in act]
-                        if workers is not None and self.workers_for(len(act), call.victim) > 1:
+                        if workers is not None and self.workers_for(len(act) * num_v, call.victim) > 1:
                             adv, perc, dist, output, margins = self._pipelined_step(
                                 params, idx, crits, call, step_views, rule, workers)
                         else:

@@ -1,22 +1,24 @@
 """Pipelined attack steps: a step's targets split into chunks that worker threads render and pass through the
 victim concurrently.
 
-An attack step is render forward -> victim forward -> victim input gradient -> render backward, and its targets are
-independent. With ``step_workers=W`` (``W >= 2``) the active targets are split into ``W`` contiguous chunks; each
+An attack step is render forward -> victim forward -> victim input gradient -> render backward, and its images are
+independent. With ``step_workers=W`` (``W >= 2``) the step's ``T x V`` images are split into ``W`` contiguous chunks
+(:func:`split_images`: ranges of targets, or of one target's views when there are fewer targets than workers); each
 worker thread renders its chunk and runs the victim on it, so one chunk's render overlaps another's victim and the
 renderer's work no longer adds to the victim's on a machine with as many cores as workers. The autograd graph is cut
 at the images and at the victim's output:
 
-1. each worker: ``leaf = params[chunk]`` (a fresh leaf), ``images = render(leaf)``, ``x = images.detach()`` (requires
-   grad), ``out = victim(x)``;
+1. each worker: ``leaf = params[chunk's targets]`` (a fresh leaf), ``images = render(leaf)``, ``x = images.detach()``
+   (requires grad), ``out = victim(x)``;
 2. the calling thread concatenates the chunks' ``x`` and (cut) ``out``, computes the criteria, the perceptual and
    distance terms and the update rule's objective, and back-propagates it: that fills the parameters' gradient from
    the perceptual / distance terms and the cotangents of every ``x`` (perceptual terms of images) and ``out``;
 3. each worker back-propagates its ``out`` cotangent through the victim into ``x.grad`` and then ``x.grad`` through
    its render into ``leaf.grad``;
-4. the calling thread adds each chunk's ``leaf.grad`` into ``params.grad`` (disjoint rows, in chunk order).
+4. the calling thread adds each chunk's ``leaf.grad`` into ``params.grad`` in chunk order (rows of one target split
+   by views are summed in that order).
 
-So the gradient is the unchunked step's except that the victim sees batches of ``T/W`` targets and runs on
+So the gradient is the unchunked step's except that the victim sees batches of ``T V / W`` images and runs on
 ``threads // W`` torch threads: its float rounding may differ in the last bits, as with another ``--threads``; a run
 is reproducible for the same ``step_workers`` and thread count (chunks are fixed by the active targets, never by
 timing). Each worker sets its own torch thread count (OpenMP's is per thread), the calling thread's is untouched;
@@ -34,7 +36,7 @@ from typing import Any, Callable, List, Optional, Sequence, Tuple, TypeVar
 import torch
 from torch import Tensor
 
-__all__ = ["StepWorkers", "split_chunks", "output_tensors", "rebuild_output", "cat_outputs"]
+__all__ = ["StepWorkers", "split_chunks", "split_images", "output_tensors", "rebuild_output", "cat_outputs"]
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
@@ -57,6 +59,40 @@ def split_chunks(count: int, parts: int) -> List[Tuple[int, int]]:
         out.append((start, stop))
         start = stop
     return out if count else []
+
+
+def split_images(num_targets: int, num_views: int, parts: int) -> List[List[Tuple[int, int, int, int]]]:
+    """The ``num_targets x num_views`` images of a step (mesh-major: image ``k * V + v``) as contiguous chunks, each a
+    list of blocks ``(k0, k1, v0, v1)``: targets ``k0..k1-1`` seen from views ``v0..v1-1``, either whole targets
+    (every view) or a view range of one target.
+
+    With ``K >= parts`` the chunks are ``parts`` ranges of whole targets (:func:`split_chunks`): each target's
+    gradient then comes from one render, as in the serial step, and rounds the same way. With fewer targets than
+    parts the ``K * V`` images are split into ``min(parts, K * V)`` ranges of sizes differing by <= 1, cutting
+    targets into view ranges (one target with several views is split by views).
+
+    Raises:
+        ValueError: a count ``< 1``.
+    """
+    if num_targets < 1 or num_views < 1 or parts < 1:
+        raise ValueError(f"counts must be >= 1, got targets={num_targets}, views={num_views}, parts={parts}")
+    if num_targets >= parts:
+        return [[(a, b, 0, num_views)] for a, b in split_chunks(num_targets, parts)]
+    chunks = []
+    for start, stop in split_chunks(num_targets * num_views, parts):
+        blocks, pos = [], start
+        while pos < stop:
+            k, v = divmod(pos, num_views)
+            whole = (stop - pos) // num_views if v == 0 else 0
+            if whole:
+                blocks.append((k, k + whole, 0, num_views))
+                pos += whole * num_views
+            else:
+                end = min(stop, (k + 1) * num_views)
+                blocks.append((k, k + 1, v, end - k * num_views))
+                pos = end
+        chunks.append(blocks)
+    return chunks
 
 
 def output_tensors(output: Any) -> List[Optional[Tensor]]:
