@@ -297,7 +297,7 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
     victim-alone ceilings; optionally whole attacks' target-steps/s. Returns a JSON-able record."""
     from meshadv.attacks import TargetedMisclassification
     from meshadv.attacks.base import _Call
-    from meshadv.attacks.pipeline import split_chunks
+    from meshadv.attacks.pipeline import split_images
     from meshadv.attacks.update import make_update_rule
     from meshadv.data import require_shared_data
     from meshadv.mesh import load_mesh, normalize_mesh
@@ -350,7 +350,8 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
                     if v.pool is None:
                         victim_alone(t * num_v)
                     else:
-                        v.pool.map(lambda ab: victim_alone((ab[1] - ab[0]) * num_v), split_chunks(t, v.workers))
+                        v.pool.map(victim_alone, [sum((k1 - k0) * (v1 - v0) for k0, k1, v0, v1 in blocks)
+                                                  for blocks in split_images(t, num_v, v.workers)])
                     if step > 0 and (burst > 0 or args.burst == 1):
                         ceil.setdefault(key, []).append(time.perf_counter() - t2)
     for v in variants:
