@@ -135,10 +135,15 @@ def test_pinned_spec_pins_what_the_record_says_else_the_assumed_defaults(tmp_pat
     assert out["attack"]["antialias"] == 2 and out["attack"]["lr"] == 0.001 and "perturbation" not in out["attack"]
     assert spec["attack"]["method_options"] == {"gamma": 0.2}  # the stored spec is not modified
     # an old record pins nothing: the assumed defaults fill in, the spec's own options still win
-    assume = {"victim_optimize": True, "attack": {"shape": {"method_options": {"gamma": 0.05, "smoothness": 1.0}}}}
+    assume = {"victim_optimize": True,
+              "attack": {"shape": {"method": "ddn", "method_options": {"gamma": 0.05, "smoothness": 1.0}}}}
     out, notes = pinned_spec(spec, {"success": True}, assume)
     assert notes == [] and out["victim_optimize"] is True
     assert out["attack"]["method_options"] == {"gamma": 0.2, "smoothness": 1.0}
+    # a job of another update rule (the paper's protocol: Adam, no method key) does not get ddn's options
+    protocol = {"perturbation": "shape", "attack": {"steps": 1000, "binary_search_steps": 5}}
+    out, notes = pinned_spec(protocol, {"success": True}, assume)
+    assert out["attack"] == protocol["attack"] and len(notes) == 1 and "attack options" in notes[0]
     out, notes = pinned_spec(spec, {"success": True})
     assert len(notes) == 2 and "victim_optimize" not in out and out["attack"] == spec["attack"]
     with pytest.raises(ValueError, match="unknown keys"):

@@ -105,7 +105,8 @@ def pinned_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
     """The spec to rerun a job with: ``spec`` plus what its stored record says the job ran with.
 
     ``attack_config`` of the record (the attack's effective hyper-parameters) goes under ``spec["attack"]`` and
-    ``victim_optimize`` into the spec; for a record without them, ``assume`` (see :data:`Assumed`) supplies them.
+    ``victim_optimize`` into the spec; for a record without them, ``assume`` (see :data:`Assumed`) supplies them
+    (its attack options only to specs of the same ``method``).
     The job id is not recomputed: the rerun is the same job.
 
     Args:
@@ -141,9 +142,9 @@ def pinned_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
         out["attack"] = _merge_attack({k: v for k, v in config.items() if k != "perturbation"}, attack)
     else:
         assumed = (assume.get("attack") or {}).get(str(out.get("perturbation")))
-        if isinstance(assumed, Mapping):
+        if isinstance(assumed, Mapping) and assumed.get("method") == attack.get("method"):
             out["attack"] = _merge_attack(assumed, attack)
-        else:
+        else:  # nothing assumed for this type, or for another update rule (e.g. the paper's protocol beside ddn)
             notes.append("attack options: the record has no attack_config; options the spec does not name "
                          "(e.g. the update rule's method_options) took today's defaults")
     return out, notes
