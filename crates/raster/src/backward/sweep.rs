@@ -568,6 +568,7 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
 /// The constants of [`out_sweep_avx2_c4`], read by its code at fixed offsets: `s` = the 4 channel weights,
 /// `key_step`, `key0`, `ka`, `kc`, `fi`, `ba` (then padding); `bc`, 0 and the sweep's end position as whole vectors;
 /// `bounds` = the byte offsets of [`blocks`]'s `[lo - 1 block, lo, hi, full - 1 block, full]` and of the sweep's end.
+#[cfg(target_arch = "x86_64")]
 #[repr(C, align(32))]
 struct OutAsmConsts {
     s: [f64; 12],
@@ -580,6 +581,7 @@ struct OutAsmConsts {
 /// One block of 4 pixels of [`OutKernel::vec`] for 4 channels at byte offset `{i} + $o`, in the registers of
 /// [`out_sweep_avx2_c4`]: `$own` adds the `F[P] != f` test, `$masked` the mask of lanes past the end. Leaves nothing
 /// but the accumulators (ymm0, ymm1) changed for the next block.
+#[cfg(target_arch = "x86_64")]
 macro_rules! out_block {
     ($o:literal, $own:tt, $masked:tt) => {
         concat!(
@@ -942,6 +944,7 @@ impl<const C: usize> Kernel for InKernel<'_, C> {
 /// The constants of [`in_sweep_avx2_c4`], read by its code at fixed offsets: `s` = the 4 weights (the out-pixel's
 /// colour), `fi`, `cross`, `ka`, `kc`; `EPS`, `2 EPS`, 0 and the sweep's end position as whole vectors; `bounds` = the
 /// byte offsets of the whole blocks' end minus one block, of their end and of the sweep's end.
+#[cfg(target_arch = "x86_64")]
 #[repr(C, align(32))]
 struct InAsmConsts {
     s: [f64; 8],
@@ -954,6 +957,7 @@ struct InAsmConsts {
 
 /// One block of 4 pixels of [`InKernel::vec`] for 4 channels at byte offset `{i} + $o`, in the registers of
 /// [`in_sweep_avx2_c4`]; `$masked` adds the mask of lanes past the end.
+#[cfg(target_arch = "x86_64")]
 macro_rules! in_block {
     ($o:literal, $masked:tt) => {
         concat!(
