@@ -117,6 +117,19 @@ def test_attack_method_option(tmp_path: Path) -> None:
     assert record["config"]["method"] == "ddn" and record["config"]["early_stop"] is None and record["steps"] == 3
 
 
+def test_attack_step_workers_option(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["attack", "builtin:cube", "--step-workers", "0", "--target", "1",
+                                 "-o", str(tmp_path / "w0")])
+    assert result.exit_code == 2 and "--step-workers" in result.output
+    _require_renderer()
+    _require_victim()
+    out = tmp_path / "w2"
+    result = runner.invoke(app, ["attack", "builtin:chair", "--target", "bicycle", "--views", "2", "--steps", "2",
+                                 "--step-workers", "2", "--image-size", "64", "--quiet", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "result.json").read_text())["steps"] == 2
+
+
 def test_demo_runs_end_to_end(tmp_path: Path) -> None:
     _require_renderer()
     _require_victim()

@@ -37,22 +37,10 @@ from meshadv.attacks.update import make_update_rule, update_rules
 from meshadv.mesh.adjacency import vertex_edges
 from meshadv.render.setup import RenderSetup
 
-__all__ = ["MeshAttack", "StepInfo", "Evaluation", "evaluate", "slice_output", "auto_step_workers"]
+__all__ = ["MeshAttack", "StepInfo", "Evaluation", "evaluate", "slice_output"]
 
 #: Largest accepted ``step_workers``.
 _MAX_STEP_WORKERS = 64
-
-
-def auto_step_workers(victim: Any) -> int:
-    """The default ``step_workers`` of an attack: 1, the serial step (results as before the pipeline existed).
-
-    ``step_workers=2`` is faster on 2 cores (benchmarks/RESULTS.md, "Pipelined attack step") but runs each chunk's
-    victim on half the torch threads, so a batched run then differs from the same targets run one at a time by more
-    than the batch-size rounding it had (the 1%-of-coordinates bound of
-    tests/test_attacks_classifier.py::test_batched_targets_equal_separate_runs is exceeded: 1.4%). ``victim`` is
-    for rules that depend on where the victim runs.
-    """
-    return 1
 
 
 _JITTER_KEYS = ("azimuth", "elevation", "distance", "tilt", "light_direction", "light_intensity")
@@ -205,8 +193,10 @@ class MeshAttack(ABC):
             or of one target's views): each renders its chunk and runs the victim on it, overlapping one chunk's
             render with another's victim; the
             gradient is the one-thread step's up to the victim's float rounding at another batch size and thread
-            count. ``1``: one thread, the step as it always was. ``None`` (default): :func:`auto_step_workers`.
-            An execution setting like ``--threads``: not part of :meth:`config`.
+            count. ``1`` (default): one thread, the step as it always was. ``2`` is faster on 2 cores (+9-15%
+            target-steps/s, benchmarks/RESULTS.md "Pipelined attack step") but runs each chunk's victim on fewer
+            torch threads, so its float rounding differs from a serial run's. An execution setting like
+            ``--threads``: not part of :meth:`config`.
 
     Raises:
         TypeError: a hyper-parameter of the wrong type (``lr="0.1"``, ``steps=1.9``, ``steps=None``, ``jitter=[]``),
@@ -234,7 +224,7 @@ class MeshAttack(ABC):
         seed: int = 0,
         method: str = "adam",
         method_options: Optional[Dict[str, Any]] = None,
-        step_workers: Optional[int] = None,
+        step_workers: int = 1,
     ) -> None:
         self.steps = _validate.positive_int("steps", steps)
         self.lr = _validate.positive_float("lr", lr)
@@ -254,8 +244,7 @@ class MeshAttack(ABC):
         if method_options is not None and not isinstance(method_options, dict):
             raise TypeError(f"method_options must be a dict or None, got {type(method_options).__name__}")
         self.method_options = dict(method_options or {})
-        self.step_workers = (None if step_workers is None
-                             else _validate.positive_int("step_workers", step_workers, high=_MAX_STEP_WORKERS))
+        self.step_workers = _validate.positive_int("step_workers", step_workers, high=_MAX_STEP_WORKERS)
 
     # ------------------------------------------------------------------ family hooks
     @abstractmethod
@@ -281,11 +270,10 @@ class MeshAttack(ABC):
         return (self._perceptual(params, mesh, edges, images, alpha, num_views),
                 self._distance(params, mesh, edges))
 
-    def workers_for(self, num_images: int, victim: Any) -> int:
-        """The step workers used for a step of ``num_images`` images (active targets x views): ``step_workers`` when
-        set, else :func:`auto_step_workers` (never more workers than images)."""
-        workers = self.step_workers if self.step_workers is not None else auto_step_workers(victim)
-        return max(1, min(workers, num_images))
+    def workers_for(self, num_images: int) -> int:
+        """The step workers used for a step of ``num_images`` images (active targets x views): ``step_workers``, never
+        more than there are images."""
+        return max(1, min(self.step_workers, num_images))
 
     # ------------------------------------------------------------------ public
     def config(self) -> Dict[str, Any]:
@@ -452,7 +440,7 @@ class MeshAttack(ABC):
         total_steps = 0
         interrupted = False
         classifier = getattr(call.victim, "kind", "") == "classifier"
-        most = self.workers_for(num_t * num_v, call.victim)
+        most = self.workers_for(num_t * num_v)
         workers = StepWorkers(most, max(1, torch.get_num_threads() // most)) if most > 1 else None
 
         try:
@@ -472,7 +460,7 @@ class MeshAttack(ABC):
                         idx = torch.tensor(act, dtype=torch.long)
                         p = params[idx]
                         crits = [targets[t].criterion for t in act]
-                        if workers is not None and self.workers_for(len(act) * num_v, call.victim) > 1:
+                        if workers is not None and self.workers_for(len(act) * num_v) > 1:
                             adv, perc, dist, output, margins = self._pipelined_step(
                                 params, idx, crits, call, step_views, rule, workers)
                         else:
