@@ -20,6 +20,7 @@ from typing import Dict, List, Optional
 import typer
 
 from meshadv.commands._common_options import install as install_common_options
+from meshadv.allocator import tune_allocator
 from meshadv.threads import prepare_environment
 
 __all__ = ["app", "main", "SUBCOMMANDS", "build_app"]
@@ -98,6 +99,7 @@ def main(argv: Optional[List[str]] = None) -> None:
         argv: arguments (default ``sys.argv[1:]``).
     """
     prepare_environment()  # OpenMP wait policy and pool sizes: must precede torch's import (meshadv.threads)
+    tune_allocator()  # keep large freed blocks instead of faulting them in every step (meshadv.allocator)
     app(args=argv, prog_name="meshadv")
 
 
