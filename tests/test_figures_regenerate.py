@@ -261,3 +261,38 @@ def test_report_command_regenerates_and_names_bad_options(moved_db: Path, tmp_pa
     assert res.exit_code == 0, res.output
     assert "regenerated 6 job(s) for the figures; 6 reproduce their stored record" in res.output
     assert (tmp_path / "r" / "figures" / "grid_v_shape.png").is_file()
+
+
+def test_a_resumed_sweep_keeps_the_defaults_of_its_first_run(tmp_path: Path) -> None:
+    from unittest import mock
+
+    from meshadv.attacks import budget
+    from meshadv.experiments import SerialBackend, run_sweep
+    from meshadv.experiments.jobs import PINNED_DEFAULTS_KEY, seed_pinned_defaults
+    from sweep_fixtures import tiny_builtin_config
+
+    config = tiny_builtin_config("pins", steps=2, perturbations=("shape",))
+    config["attack"]["shape"] = {"steps": 2, "method": "ddn"}
+    first, second = expand_jobs(parse_config(config))[:2]
+    job = "meshadv.experiments.jobs:run_attack_job"
+    db = tmp_path / "r.db"
+    with ResultStore(db) as store:
+        run_sweep(store, [first], job, out_root=tmp_path, backend=SerialBackend(), progress=False)
+        pins = store.get_meta(PINNED_DEFAULTS_KEY)
+    assert pins["attack"]["shape/ddn"]["method_options"] == budget.DDN_DEFAULTS["shape"]
+    assert pins["victim_optimize"] is True
+    changed = {**budget.DDN_DEFAULTS["shape"], "smoothness": 7.0}
+    with mock.patch.dict(budget.DDN_DEFAULTS, {"shape": changed}), ResultStore(db) as store:
+        run_sweep(store, [first, second], job, out_root=tmp_path, backend=SerialBackend(), progress=False)
+        records = {r.job_id: r.record for r in store.rows("done")}
+    assert len(records) == 2
+    smoothness = sorted(r["attack_config"]["method_options"]["smoothness"] for r in records.values())
+    assert smoothness == [pins["attack"]["shape/ddn"]["method_options"]["smoothness"]] * 2  # not 7.0
+    # a database pinned from an assumed-defaults file keeps the file's values over today's code
+    with ResultStore(tmp_path / "s.db") as store:
+        seeded = seed_pinned_defaults(store, {"victim_optimize": False,
+                                              "attack": {"shape": {"method": "ddn", "lr": 0.5}}})
+        assert seeded == {"victim_optimize": False, "attack": {"shape/ddn": {"method": "ddn", "lr": 0.5}}}
+        run_sweep(store, [first], job, out_root=tmp_path / "s", backend=SerialBackend(), progress=False)
+        (record,) = [r.record for r in store.rows("done")]
+    assert record["victim_optimize"] is False and record["attack_config"]["lr"] == 0.5

@@ -26,7 +26,8 @@ import time
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Tuple
 
-__all__ = ["run_attack_job", "load_job_mesh", "planned_steps", "victim_optimize", "DISTANCE_KEYS"]
+__all__ = ["run_attack_job", "load_job_mesh", "planned_steps", "victim_optimize", "default_attack_options",
+           "pin_defaults", "seed_pinned_defaults", "DISTANCE_KEYS", "PINNED_DEFAULTS_KEY"]
 
 #: Distance key of the record's ``distance`` per perturbation type: the measure comparable with the paper
 #: (``meshadv.attacks.distances.PAPER_COMPARABLE``; the record's ``distances`` holds every measure).
@@ -117,6 +118,85 @@ def victim_optimize(spec: Dict[str, Any]) -> bool:
     if not isinstance(value, bool):
         raise ValueError(f"spec['victim_optimize'] must be true or false, got {value!r}")
     return value
+
+
+#: Meta key of a results database's pinned defaults (:func:`pin_defaults`).
+PINNED_DEFAULTS_KEY = "pinned_defaults"
+
+
+def default_attack_options(perturbation: str, method: Optional[str]) -> Dict[str, Any]:
+    """The code's current defaults of an attack of ``perturbation`` and update rule ``method`` (``None``: the
+    attack's default rule): ``Attack.config()`` of an attack built with nothing else set, less ``perturbation`` and
+    ``seed``. Only defaults: a spec's own options are merged over them."""
+    from meshadv.attacks import make_attack
+    from meshadv.attacks.families import check_perturbation
+
+    kwargs = {} if method is None else {"method": method}
+    config = make_attack(check_perturbation(perturbation, "perturbation"), **kwargs).config()
+    return {k: v for k, v in config.items() if k not in ("perturbation", "seed")}
+
+
+def pin_defaults(store: Any, specs: Any) -> Dict[str, Any]:
+    """The defaults a results database's attack jobs run with, fixed the first time a kind of job runs.
+
+    A spec names only what its config sets; the rest comes from the code's defaults (the update rule's options, the
+    victim's ``optimize``), which can change between the start of a sweep and its resumption. The database keeps, in
+    its meta entry :data:`PINNED_DEFAULTS_KEY`, ``{"victim_optimize": bool, "attack": {"<type>/<method>": options}}``
+    (the :data:`meshadv.experiments.regenerate.Assumed` format): entries missing for a kind of job among ``specs``
+    are added from today's code, existing ones are kept, so every job of a database runs with the defaults of its
+    first run. The runner applies them (:func:`meshadv.experiments.regenerate.pinned_spec`) before a job runs; the
+    job ids do not change.
+
+    Args:
+        store: an open, writable :class:`~meshadv.experiments.store.ResultStore`.
+        specs: the specs about to run.
+
+    Returns:
+        The pinned defaults.
+    """
+    pins = dict(store.get_meta(PINNED_DEFAULTS_KEY) or {})
+    attack_pins = dict(pins.get("attack") or {})
+    changed = False
+    if "victim_optimize" not in pins:
+        pins["victim_optimize"] = victim_optimize({})
+        changed = True
+    for spec in specs:
+        attack = spec.get("attack") or {}
+        key = f"{spec.get('perturbation')}/{attack.get('method') or 'default'}"
+        if key not in attack_pins:
+            try:
+                attack_pins[key] = default_attack_options(str(spec.get("perturbation")), attack.get("method"))
+            except (KeyError, TypeError, ValueError):  # a bad spec fails in its job, with the job's own message
+                continue
+            changed = True
+    pins["attack"] = attack_pins
+    if changed:
+        store.set_meta(PINNED_DEFAULTS_KEY, pins)
+    return pins
+
+
+def seed_pinned_defaults(store: Any, assumed: Dict[str, Any]) -> Dict[str, Any]:
+    """Pin a database's defaults from an assumed-defaults mapping (e.g. ``docs/results/paper_medium/
+    sweep_defaults.json``, read with :func:`meshadv.experiments.regenerate.load_assumed`) before it is resumed:
+    the defaults its finished jobs ran with, which today's code may no longer have. Entries the database already
+    pins are kept.
+
+    Returns:
+        The pinned defaults.
+    """
+    from meshadv.experiments.regenerate import pinned_spec
+
+    pinned_spec({}, None, assumed)  # validates
+    pins = dict(store.get_meta(PINNED_DEFAULTS_KEY) or {})
+    attack_pins = dict(pins.get("attack") or {})
+    for key, options in (assumed.get("attack") or {}).items():
+        full = key if "/" in key else f"{key}/{options.get('method') or 'default'}"
+        attack_pins.setdefault(full, dict(options))
+    pins["attack"] = attack_pins
+    if "victim_optimize" in assumed:
+        pins.setdefault("victim_optimize", assumed["victim_optimize"])
+    store.set_meta(PINNED_DEFAULTS_KEY, pins)
+    return pins
 
 
 def _victim(name: str, weights: Any = None, optimize: bool = True) -> Any:

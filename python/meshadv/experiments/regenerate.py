@@ -32,7 +32,9 @@ __all__ = ["Regenerated", "regenerate_job", "ensure_artifacts", "stored_job_ref"
            "COMPARED_KEYS", "Assumed"]
 
 #: What the sweep's code used where neither its specs nor its records say: ``{"victim_optimize": bool, "attack":
-#: {"shape": {option: value, "method_options": {...}}, "texture": {...}}}`` (every key optional).
+#: {"shape": {option: value, "method_options": {...}}, "texture": {...}}}`` (every key optional); an attack entry
+#: applies to specs of its own ``method``, and ``"<type>/<method>"`` keys (``"shape/ddn"``, ``"texture/default"``
+#: for a spec without a method) take precedence over ``"<type>"`` ones.
 Assumed = Mapping[str, Any]
 
 _ATTACK_JOB = "meshadv.experiments.jobs:run_attack_job"
@@ -141,8 +143,13 @@ def pinned_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
     if isinstance(config, Mapping):
         out["attack"] = _merge_attack({k: v for k, v in config.items() if k != "perturbation"}, attack)
     else:
-        assumed = (assume.get("attack") or {}).get(str(out.get("perturbation")))
-        if isinstance(assumed, Mapping) and assumed.get("method") == attack.get("method"):
+        pins = assume.get("attack") or {}
+        assumed = pins.get(f"{out.get('perturbation')}/{attack.get('method') or 'default'}")
+        if assumed is None:
+            assumed = pins.get(str(out.get("perturbation")))
+            if isinstance(assumed, Mapping) and assumed.get("method") != attack.get("method"):
+                assumed = None
+        if isinstance(assumed, Mapping):
             out["attack"] = _merge_attack(assumed, attack)
         else:  # nothing assumed for this type, or for another update rule (e.g. the paper's protocol beside ddn)
             notes.append("attack options: the record has no attack_config; options the spec does not name "

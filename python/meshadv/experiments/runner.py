@@ -60,6 +60,24 @@ def job_out_dir(out_root: Union[str, Path], job_id: str) -> Path:
     return Path(out_root) / "jobs" / job_id[:2] / job_id
 
 
+def _attack_job_pins(ref: str, store: ResultStore, queue: Any) -> Optional[Dict[str, Any]]:
+    """The database's pinned defaults when the sweep runs the attack job (:func:`meshadv.experiments.jobs.
+    pin_defaults`), else ``None``."""
+    from meshadv.experiments.config import DEFAULT_JOB
+
+    if ref != DEFAULT_JOB:
+        return None
+    from meshadv.experiments.jobs import pin_defaults
+
+    return pin_defaults(store, [store.spec(jid) for jid in queue])
+
+
+def _pinned(spec: Dict[str, Any], pins: Dict[str, Any]) -> Dict[str, Any]:
+    from meshadv.experiments.regenerate import pinned_spec
+
+    return pinned_spec(spec, None, pins)[0]
+
+
 def run_sweep(
     store: ResultStore,
     jobs: Iterable[Dict[str, Any]],
@@ -74,6 +92,10 @@ def run_sweep(
     on_steps: Optional[Callable[[StepReport], None]] = None,
 ) -> SweepSummary:
     """Run every job of a sweep that is not done yet, resumably.
+
+    Attack jobs (:func:`meshadv.experiments.jobs.run_attack_job`) run with the database's pinned defaults
+    (:func:`meshadv.experiments.jobs.pin_defaults`): what a spec does not name is fixed when its kind of job first
+    runs, so a sweep resumed after a default changed still runs its remaining jobs as it ran the first ones.
 
     Args:
         store: the results database.
@@ -111,6 +133,7 @@ def run_sweep(
         skipped = store.counts()["done"]
         be = backend if backend is not None else LocalBackend()
         queue = store.runnable(max_attempts)
+        pins = _attack_job_pins(ref, store, queue)
         counts = store.counts()
         planned = {jid: planned_steps(store.spec(jid)) for jid in queue} if planned_steps is not None else None
         bar = Progress(total=counts["total"], done=counts["done"], successes=counts["successes"],
@@ -131,7 +154,8 @@ def run_sweep(
                     jid = queue.pop(0)
                     store.mark_running(jid)
                     out_dir = job_out_dir(out_root, jid)
-                    handle = be.submit(ref, jid, store.spec(jid), os.fspath(out_dir))
+                    spec = store.spec(jid) if pins is None else _pinned(store.spec(jid), pins)
+                    handle = be.submit(ref, jid, spec, os.fspath(out_dir))
                     in_flight[handle] = jid
                     ran += 1
                 for handle, outcome in be.wait(list(in_flight)):
