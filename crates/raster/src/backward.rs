@@ -34,9 +34,8 @@
 //!   calls and refilled in place (`workspace`), so that a call does not page-fault fresh memory in.
 //! * The per-face work is compiled twice, for the portable baseline (SSE2 vectors on x86-64, plain code the compiler
 //!   vectorises elsewhere) and for AVX2 (x86-64), and the instruction set is picked at run time (`Isa`), so one
-//!   portable wheel still uses 256-bit vectors. With 4 channels (RGB + alpha) the AVX2 sweeps run as inline
-//!   assembly with hand-chosen registers, the same operations in the same order (tested bit for bit against the
-//!   other paths), and the channel count is a constant of the per-face code for 1 to 4 channels.
+//!   portable wheel still uses 256-bit vectors. Every path gives the same bits (tested against each other), and
+//!   the channel count is a constant of the per-face code for 1 to 4 channels.
 //!
 //! The exact, step-by-step definition (the same text as `docs/NMR_GRADIENT.md`) follows.
 //!

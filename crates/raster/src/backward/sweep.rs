@@ -6,11 +6,8 @@
 //! order. Each is written once ([`Kernel`]), generic over a vector of f64 lanes ([`F64s`]: 4 lanes with AVX2, 2 with
 //! SSE2 on any x86-64, 2 plain f64 elsewhere), with the same operations in the same order and no fused
 //! multiply-adds, so every instruction set gives the same bits. The last, partial block reads past the sweep's end
-//! (every line buffer has [`LANES`] values of padding) and masks those lanes out. With 4 channels on AVX2 both
-//! sweeps also exist as inline assembly ([`out_sweep_avx2_c4`], [`in_sweep_avx2_c4`]): LLVM's register allocation of
-//! the generic loop copied registers and reloaded constants (33-34 instructions per block of 4 pixels, against 29
-//! by hand). The assembly does the same operations on the same operands in the same order; the tests in this file
-//! check every path against the others bit for bit.
+//! (every line buffer has [`LANES`] values of padding) and masks those lanes out. The tests in this file check every
+//! path against the others bit for bit.
 
 use std::marker::PhantomData;
 
@@ -303,18 +300,6 @@ trait Kernel {
         i: usize,
     ) -> (V, V);
 
-    /// The lane sums of the whole sweep on AVX2 from hand-scheduled code, with the same operations and bits as
-    /// [`lanes`] over [`Kernel::vec`]; `None` when the kernel has no such code.
-    ///
-    /// # Safety
-    /// The CPU must support AVX2, and the pixels must be readable as for [`Kernel::vec`].
-    #[cfg(target_arch = "x86_64")]
-    #[allow(unsafe_code)]
-    #[inline(always)]
-    unsafe fn avx2_sweep(&self) -> Option<([f64; LANES], [f64; LANES])> {
-        None
-    }
-
     /// The sums for the endpoints a and c on the instruction set `isa`, in [`LANES`] lanes added in a fixed order.
     #[inline(always)]
     fn sums(&self, isa: Isa) -> (f64, f64)
@@ -348,10 +333,7 @@ trait Kernel {
 #[allow(unsafe_code)]
 #[inline]
 unsafe fn lanes_avx2<K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
-    match k.avx2_sweep() {
-        Some(sums) => sums,
-        None => lanes::<std::arch::x86_64::__m256d, K>(k),
-    }
+    lanes::<std::arch::x86_64::__m256d, K>(k)
 }
 
 /// A sweep's lane sums on vectors `V`: whole blocks of [`LANES`] pixels (pixel `i` into lane `i % LANES`), then
@@ -460,52 +442,6 @@ struct OutConsts<V, const C: usize> {
 impl<const C: usize> Kernel for OutKernel<'_, C> {
     type Consts<V: F64s> = OutConsts<V, C>;
 
-    #[cfg(target_arch = "x86_64")]
-    #[allow(unsafe_code)]
-    #[inline(always)]
-    unsafe fn avx2_sweep(&self) -> Option<([f64; LANES], [f64; LANES])> {
-        let (g, w): (&[*const f64], &[f64]) = (&self.dot.g, &self.dot.w);
-        if g.len() != 4 {
-            return None;
-        }
-        let [own_lo, own_hi, full] = blocks(self.n, self.own);
-        // Byte offsets; the pairs of whole blocks run while the offset is below the bound minus one block.
-        let bytes = |p: usize| (p * 8) as i64;
-        let consts = OutAsmConsts {
-            s: [
-                w[0],
-                w[1],
-                w[2],
-                w[3],
-                self.key_step,
-                self.key0,
-                self.ka,
-                self.kc,
-                self.fi,
-                self.ba,
-                0.0,
-                0.0,
-            ],
-            bc: [self.bc; 4],
-            zero: [0.0; 4],
-            end: [self.end; 4],
-            bounds: [
-                bytes(own_lo) - 32,
-                bytes(own_lo),
-                bytes(own_hi),
-                bytes(full) - 32,
-                bytes(full),
-                bytes(self.n),
-                0,
-                0,
-            ],
-        };
-        let ptrs = [
-            self.face, self.key, self.below, self.gi, self.pos, g[0], g[1], g[2], g[3],
-        ];
-        Some(out_sweep_avx2_c4(&ptrs, &consts))
-    }
-
     #[inline(always)]
     fn len(&self) -> usize {
         self.n
@@ -563,188 +499,6 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
             (x, y)
         }
     }
-}
-
-/// The constants of [`out_sweep_avx2_c4`], read by its code at fixed offsets: `s` = the 4 channel weights,
-/// `key_step`, `key0`, `ka`, `kc`, `fi`, `ba` (then padding); `bc`, 0 and the sweep's end position as whole vectors;
-/// `bounds` = the byte offsets of [`blocks`]'s `[lo - 1 block, lo, hi, full - 1 block, full]` and of the sweep's end.
-#[cfg(target_arch = "x86_64")]
-#[repr(C, align(32))]
-struct OutAsmConsts {
-    s: [f64; 12],
-    bc: [f64; 4],
-    zero: [f64; 4],
-    end: [f64; 4],
-    bounds: [i64; 8],
-}
-
-/// One block of 4 pixels of [`OutKernel::vec`] for 4 channels at byte offset `{i} + $o`, in the registers of
-/// [`out_sweep_avx2_c4`]: `$own` adds the `F[P] != f` test, `$masked` the mask of lanes past the end. Leaves nothing
-/// but the accumulators (ymm0, ymm1) changed for the next block.
-#[cfg(target_arch = "x86_64")]
-macro_rules! out_block {
-    ($o:literal, $own:tt, $masked:tt) => {
-        concat!(
-            // pos; kf = key0 + key_step * pos
-            "vmovupd ymm11, ymmword ptr [{pos} + {i} + ", $o, "]\n",
-            "vmulpd ymm12, ymm6, ymm11\n",
-            "vaddpd ymm12, ymm7, ymm12\n",
-            // thr = f < F[P] ? below : key; nearer = kf > thr (predicates LT_OQ = 0x11, GT_OQ = 0x1e)
-            "vcmppd ymm13, ymm10, ymmword ptr [{face} + {i} + ", $o, "], 0x11\n",
-            "vmovupd ymm14, ymmword ptr [{key} + {i} + ", $o, "]\n",
-            "vblendvpd ymm13, ymm14, ymmword ptr [{below} + {i} + ", $o, "], ymm13\n",
-            "vcmppd ymm12, ymm12, ymm13, 0x1e\n",
-            // covers = nearer & (f != F[P]) (NEQ_UQ = 0x04)
-            out_block!(@own $own, $o),
-            // delta = ((G0 w0 + G1 w1) + G2 w2) + G3 w3 - gi; m = min(delta, 0) & covers
-            "vmulpd ymm13, ymm2, ymmword ptr [{g0} + {i} + ", $o, "]\n",
-            "vmulpd ymm14, ymm3, ymmword ptr [{g1} + {i} + ", $o, "]\n",
-            "vaddpd ymm13, ymm13, ymm14\n",
-            "vmulpd ymm14, ymm4, ymmword ptr [{g2} + {i} + ", $o, "]\n",
-            "vaddpd ymm13, ymm13, ymm14\n",
-            "vmulpd ymm14, ymm5, ymmword ptr [{g3} + {i} + ", $o, "]\n",
-            "vaddpd ymm13, ymm13, ymm14\n",
-            "vsubpd ymm13, ymm13, ymmword ptr [{gi} + {i} + ", $o, "]\n",
-            "vminpd ymm13, ymm13, ymmword ptr [{c} + 128]\n",
-            "vandpd ymm12, ymm13, ymm12\n",
-            // da = ka pos + ba, dc = kc pos + bc; q = m / (da dc); x = q dc, y = q da
-            "vmulpd ymm13, ymm8, ymm11\n",
-            "vaddpd ymm13, ymm13, ymm15\n",
-            "vmulpd ymm14, ymm9, ymm11\n",
-            "vaddpd ymm14, ymm14, ymmword ptr [{c} + 96]\n",
-            "vmulpd ymm11, ymm13, ymm14\n",
-            "vdivpd ymm12, ymm12, ymm11\n",
-            "vmulpd ymm14, ymm12, ymm14\n",
-            "vmulpd ymm13, ymm12, ymm13\n",
-            // lanes at or past the end give 0 (pos < end)
-            out_block!(@mask $masked, $o),
-            "vaddpd ymm0, ymm0, ymm14\n",
-            "vaddpd ymm1, ymm1, ymm13\n",
-        )
-    };
-    (@own true, $o:literal) => {
-        concat!(
-            "vcmppd ymm13, ymm10, ymmword ptr [{face} + {i} + ", $o, "], 0x04\n",
-            "vandpd ymm12, ymm12, ymm13\n",
-        )
-    };
-    (@own false, $o:literal) => {
-        ""
-    };
-    (@mask true, $o:literal) => {
-        concat!(
-            "vmovupd ymm11, ymmword ptr [{pos} + {i} + ", $o, "]\n",
-            "vcmppd ymm11, ymm11, ymmword ptr [{c} + 160], 0x11\n",
-            "vandpd ymm14, ymm14, ymm11\n",
-            "vandpd ymm13, ymm13, ymm11\n",
-        )
-    };
-    (@mask false, $o:literal) => {
-        ""
-    };
-}
-
-/// [`lanes`] over [`OutKernel::vec`] for 4 channels on AVX2, written in assembly with every register chosen by
-/// hand: LLVM's allocation of the same loop copied registers and reloaded constants (33-34 instructions per block of
-/// 4 pixels instead of 29), and its per-sweep code spilled much of its state. The same blocks as [`lanes`] (see
-/// [`blocks`]; the whole blocks outside the own pixels two at a time), and per block the operations, operands and
-/// order of [`OutKernel::vec`] (no fused multiply-adds), so the bits are the same (tested against the portable
-/// path). `p` holds the pointers face, key, below, gi, pos and the 4 cotangent planes, each at the sweep's first
-/// pixel.
-///
-/// # Safety
-/// The CPU must support AVX2, and every pointer must be readable for the sweep's length rounded up to a multiple of
-/// [`LANES`] (as for [`OutKernel::vec`]).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[allow(unsafe_code)]
-#[inline]
-unsafe fn out_sweep_avx2_c4(
-    p: &[*const f64; 9],
-    consts: &OutAsmConsts,
-) -> ([f64; LANES], [f64; LANES]) {
-    use std::arch::x86_64::*;
-    let (mut sa, mut sc) = (_mm256_setzero_pd(), _mm256_setzero_pd());
-    // SAFETY: the caller's promises (AVX2; the blocks readable); the code reads the blocks of the sweep and
-    // `consts`, and writes nothing but registers.
-    std::arch::asm!(
-        "vbroadcastsd ymm2, qword ptr [{c}]",
-        "vbroadcastsd ymm3, qword ptr [{c} + 8]",
-        "vbroadcastsd ymm4, qword ptr [{c} + 16]",
-        "vbroadcastsd ymm5, qword ptr [{c} + 24]",
-        "vbroadcastsd ymm6, qword ptr [{c} + 32]",
-        "vbroadcastsd ymm7, qword ptr [{c} + 40]",
-        "vbroadcastsd ymm8, qword ptr [{c} + 48]",
-        "vbroadcastsd ymm9, qword ptr [{c} + 56]",
-        "vbroadcastsd ymm10, qword ptr [{c} + 64]",
-        "vbroadcastsd ymm15, qword ptr [{c} + 72]",
-        "xor {i:e}, {i:e}",
-        // Whole blocks before the own pixels: pairs, then one.
-        "cmp {i}, qword ptr [{c} + 192]",
-        "jge 3f",
-        "2:",
-        out_block!("0", false, false),
-        out_block!("32", false, false),
-        "add {i}, 64",
-        "cmp {i}, qword ptr [{c} + 192]",
-        "jl 2b",
-        "3:",
-        "cmp {i}, qword ptr [{c} + 200]",
-        "jge 4f",
-        out_block!("0", false, false),
-        "add {i}, 32",
-        "4:",
-        // Whole blocks meeting the own pixels.
-        "cmp {i}, qword ptr [{c} + 208]",
-        "jge 6f",
-        "5:",
-        out_block!("0", true, false),
-        "add {i}, 32",
-        "cmp {i}, qword ptr [{c} + 208]",
-        "jl 5b",
-        "6:",
-        // Whole blocks after them: pairs, then one.
-        "cmp {i}, qword ptr [{c} + 216]",
-        "jge 8f",
-        "7:",
-        out_block!("0", false, false),
-        out_block!("32", false, false),
-        "add {i}, 64",
-        "cmp {i}, qword ptr [{c} + 216]",
-        "jl 7b",
-        "8:",
-        "cmp {i}, qword ptr [{c} + 224]",
-        "jge 9f",
-        out_block!("0", false, false),
-        "add {i}, 32",
-        "9:",
-        // The last, partial block.
-        "cmp {i}, qword ptr [{c} + 232]",
-        "jge 22f",
-        out_block!("0", true, true),
-        "22:",
-        c = in(reg) consts as *const OutAsmConsts,
-        face = in(reg) p[0],
-        key = in(reg) p[1],
-        below = in(reg) p[2],
-        gi = in(reg) p[3],
-        pos = in(reg) p[4],
-        g0 = in(reg) p[5],
-        g1 = in(reg) p[6],
-        g2 = in(reg) p[7],
-        g3 = in(reg) p[8],
-        i = out(reg) _,
-        inout("ymm0") sa,
-        inout("ymm1") sc,
-        out("ymm2") _, out("ymm3") _, out("ymm4") _, out("ymm5") _, out("ymm6") _, out("ymm7") _,
-        out("ymm8") _, out("ymm9") _, out("ymm10") _, out("ymm11") _, out("ymm12") _, out("ymm13") _,
-        out("ymm14") _, out("ymm15") _,
-        options(nostack, readonly),
-    );
-    let (mut xa, mut xc) = ([0f64; LANES], [0f64; LANES]);
-    _mm256_storeu_pd(xa.as_mut_ptr(), sa);
-    _mm256_storeu_pd(xc.as_mut_ptr(), sc);
-    (xa, xc)
 }
 
 /// The IN sweep of one line over the pixels `range`: sums of the contributions to the edge endpoints `a` and `c`,
@@ -856,37 +610,6 @@ struct InConsts<V, const C: usize> {
 impl<const C: usize> Kernel for InKernel<'_, C> {
     type Consts<V: F64s> = InConsts<V, C>;
 
-    #[cfg(target_arch = "x86_64")]
-    #[allow(unsafe_code)]
-    #[inline(always)]
-    unsafe fn avx2_sweep(&self) -> Option<([f64; LANES], [f64; LANES])> {
-        let (g, w): (&[*const f64], &[f64]) = (&self.dot.g, &self.dot.w);
-        if g.len() != 4 {
-            return None;
-        }
-        let [_, _, full] = blocks(self.s.n, (0, 0));
-        let bytes = |p: usize| (p * 8) as i64;
-        let consts = InAsmConsts {
-            s: [
-                w[0],
-                w[1],
-                w[2],
-                w[3],
-                self.s.fi,
-                self.s.cross,
-                self.s.ka,
-                self.s.kc,
-            ],
-            eps: [EPS; 4],
-            eps2: [2.0 * EPS; 4],
-            zero: [0.0; 4],
-            end: [self.s.end; 4],
-            bounds: [bytes(full) - 32, bytes(full), bytes(self.s.n), 0],
-        };
-        let ptrs = [self.s.face, self.s.gi, self.s.pos, g[0], g[1], g[2], g[3]];
-        Some(in_sweep_avx2_c4(&ptrs, &consts))
-    }
-
     #[inline(always)]
     fn len(&self) -> usize {
         self.s.n
@@ -939,147 +662,6 @@ impl<const C: usize> Kernel for InKernel<'_, C> {
             (x, y)
         }
     }
-}
-
-/// The constants of [`in_sweep_avx2_c4`], read by its code at fixed offsets: `s` = the 4 weights (the out-pixel's
-/// colour), `fi`, `cross`, `ka`, `kc`; `EPS`, `2 EPS`, 0 and the sweep's end position as whole vectors; `bounds` = the
-/// byte offsets of the whole blocks' end minus one block, of their end and of the sweep's end.
-#[cfg(target_arch = "x86_64")]
-#[repr(C, align(32))]
-struct InAsmConsts {
-    s: [f64; 8],
-    eps: [f64; 4],
-    eps2: [f64; 4],
-    zero: [f64; 4],
-    end: [f64; 4],
-    bounds: [i64; 4],
-}
-
-/// One block of 4 pixels of [`InKernel::vec`] for 4 channels at byte offset `{i} + $o`, in the registers of
-/// [`in_sweep_avx2_c4`]; `$masked` adds the mask of lanes past the end.
-#[cfg(target_arch = "x86_64")]
-macro_rules! in_block {
-    ($o:literal, $masked:tt) => {
-        concat!(
-            // delta = ((G0 w0 + G1 w1) + G2 w2) + G3 w3 - gi; m = min(delta, 0) & (F[P] == f) (EQ_OQ = 0)
-            "vmulpd ymm11, ymm2, ymmword ptr [{g0} + {i} + ", $o, "]\n",
-            "vmulpd ymm12, ymm3, ymmword ptr [{g1} + {i} + ", $o, "]\n",
-            "vaddpd ymm11, ymm11, ymm12\n",
-            "vmulpd ymm12, ymm4, ymmword ptr [{g2} + {i} + ", $o, "]\n",
-            "vaddpd ymm11, ymm11, ymm12\n",
-            "vmulpd ymm12, ymm5, ymmword ptr [{g3} + {i} + ", $o, "]\n",
-            "vaddpd ymm11, ymm11, ymm12\n",
-            "vsubpd ymm11, ymm11, ymmword ptr [{gi} + {i} + ", $o, "]\n",
-            "vminpd ymm11, ymm11, ymmword ptr [{c} + 128]\n",
-            "vcmppd ymm12, ymm6, ymmword ptr [{face} + {i} + ", $o, "], 0x00\n",
-            "vandpd ymm11, ymm11, ymm12\n",
-            // t = pos - cross; da = nudge(ka t), dc = nudge(kc t), nudge(x) = x + (((x > 0) & 2 EPS) - EPS)
-            "vmovupd ymm12, ymmword ptr [{pos} + {i} + ", $o, "]\n",
-            "vsubpd ymm12, ymm12, ymm7\n",
-            "vmulpd ymm13, ymm8, ymm12\n",
-            "vcmppd ymm14, ymm13, ymmword ptr [{c} + 128], 0x1e\n",
-            "vandpd ymm14, ymm14, ymmword ptr [{c} + 96]\n",
-            "vsubpd ymm14, ymm14, ymm10\n",
-            "vaddpd ymm13, ymm13, ymm14\n",
-            "vmulpd ymm14, ymm9, ymm12\n",
-            "vcmppd ymm15, ymm14, ymmword ptr [{c} + 128], 0x1e\n",
-            "vandpd ymm15, ymm15, ymmword ptr [{c} + 96]\n",
-            "vsubpd ymm15, ymm15, ymm10\n",
-            "vaddpd ymm14, ymm14, ymm15\n",
-            // q = m / (da dc); x = q dc, y = q da
-            "vmulpd ymm15, ymm13, ymm14\n",
-            "vdivpd ymm11, ymm11, ymm15\n",
-            "vmulpd ymm14, ymm11, ymm14\n",
-            "vmulpd ymm13, ymm11, ymm13\n",
-            in_block!(@mask $masked, $o),
-            "vaddpd ymm0, ymm0, ymm14\n",
-            "vaddpd ymm1, ymm1, ymm13\n",
-        )
-    };
-    (@mask true, $o:literal) => {
-        concat!(
-            "vmovupd ymm15, ymmword ptr [{pos} + {i} + ", $o, "]\n",
-            "vcmppd ymm15, ymm15, ymmword ptr [{c} + 160], 0x11\n",
-            "vandpd ymm14, ymm14, ymm15\n",
-            "vandpd ymm13, ymm13, ymm15\n",
-        )
-    };
-    (@mask false, $o:literal) => {
-        ""
-    };
-}
-
-/// [`lanes`] over [`InKernel::vec`] for 4 channels on AVX2, in assembly (see [`out_sweep_avx2_c4`]): the whole
-/// blocks two at a time, then the masked last block; per block the operations, operands and order of
-/// [`InKernel::vec`], so the bits are the same. `p` holds the pointers face, gi, pos and the 4 cotangent planes, each
-/// at the sweep's first pixel.
-///
-/// # Safety
-/// The CPU must support AVX2, and every pointer must be readable for the sweep's length rounded up to a multiple of
-/// [`LANES`].
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[allow(unsafe_code)]
-#[inline]
-unsafe fn in_sweep_avx2_c4(
-    p: &[*const f64; 7],
-    consts: &InAsmConsts,
-) -> ([f64; LANES], [f64; LANES]) {
-    use std::arch::x86_64::*;
-    let (mut sa, mut sc) = (_mm256_setzero_pd(), _mm256_setzero_pd());
-    // SAFETY: the caller's promises (AVX2; the blocks readable); the code reads the blocks of the sweep and
-    // `consts`, and writes nothing but registers.
-    std::arch::asm!(
-        "vbroadcastsd ymm2, qword ptr [{c}]",
-        "vbroadcastsd ymm3, qword ptr [{c} + 8]",
-        "vbroadcastsd ymm4, qword ptr [{c} + 16]",
-        "vbroadcastsd ymm5, qword ptr [{c} + 24]",
-        "vbroadcastsd ymm6, qword ptr [{c} + 32]",
-        "vbroadcastsd ymm7, qword ptr [{c} + 40]",
-        "vbroadcastsd ymm8, qword ptr [{c} + 48]",
-        "vbroadcastsd ymm9, qword ptr [{c} + 56]",
-        "vmovapd ymm10, ymmword ptr [{c} + 64]",
-        "xor {i:e}, {i:e}",
-        // Whole blocks: pairs, then one.
-        "cmp {i}, qword ptr [{c} + 192]",
-        "jge 3f",
-        "2:",
-        in_block!("0", false),
-        in_block!("32", false),
-        "add {i}, 64",
-        "cmp {i}, qword ptr [{c} + 192]",
-        "jl 2b",
-        "3:",
-        "cmp {i}, qword ptr [{c} + 200]",
-        "jge 4f",
-        in_block!("0", false),
-        "add {i}, 32",
-        "4:",
-        // The last, partial block.
-        "cmp {i}, qword ptr [{c} + 208]",
-        "jge 5f",
-        in_block!("0", true),
-        "5:",
-        c = in(reg) consts as *const InAsmConsts,
-        face = in(reg) p[0],
-        gi = in(reg) p[1],
-        pos = in(reg) p[2],
-        g0 = in(reg) p[3],
-        g1 = in(reg) p[4],
-        g2 = in(reg) p[5],
-        g3 = in(reg) p[6],
-        i = out(reg) _,
-        inout("ymm0") sa,
-        inout("ymm1") sc,
-        out("ymm2") _, out("ymm3") _, out("ymm4") _, out("ymm5") _, out("ymm6") _, out("ymm7") _,
-        out("ymm8") _, out("ymm9") _, out("ymm10") _, out("ymm11") _, out("ymm12") _, out("ymm13") _,
-        out("ymm14") _, out("ymm15") _,
-        options(nostack, readonly),
-    );
-    let (mut xa, mut xc) = ([0f64; LANES], [0f64; LANES]);
-    _mm256_storeu_pd(xa.as_mut_ptr(), sa);
-    _mm256_storeu_pd(xc.as_mut_ptr(), sc);
-    (xa, xc)
 }
 
 /// A vector of f64 lanes with the operations of the OUT sweep. Comparisons give lanes of all ones (true) or all
@@ -1356,7 +938,7 @@ mod tests {
     }
 
     /// The lane sums of one OUT kernel on every code path this CPU has: generic on `[f64; 2]`, SSE2 and AVX2
-    /// vectors, and the AVX2 assembly; all must give the same bits.
+    /// vectors; all must give the same bits.
     #[allow(unsafe_code)]
     fn all_paths(k: &OutKernel<'_, 4>) -> Vec<([f64; LANES], [f64; LANES])> {
         // SAFETY: the kernel's buffers are padded (built by the caller); SSE2 is baseline, AVX2 is checked.
@@ -1367,7 +949,6 @@ mod tests {
                 out.push(lanes::<std::arch::x86_64::__m128d, _>(k));
                 if Isa::detect() == Isa::Avx2 {
                     out.push(lanes::<std::arch::x86_64::__m256d, _>(k));
-                    out.push(k.avx2_sweep().expect("4 channels have an AVX2 sweep"));
                 }
             }
             out
@@ -1553,7 +1134,6 @@ mod tests {
                     out.push(lanes::<std::arch::x86_64::__m128d, _>(&k));
                     if Isa::detect() == Isa::Avx2 {
                         out.push(lanes::<std::arch::x86_64::__m256d, _>(&k));
-                        out.push(k.avx2_sweep().expect("4 channels have an AVX2 sweep"));
                     }
                 }
                 out
