@@ -27,6 +27,10 @@ Two options change the step itself (both off by default):
   fallen below its lowest value for ``N`` steps, and that does not hold, is put back at its lowest-loss
   perturbation, its momentum cleared and its step length multiplied by ``f`` (a local restart with smaller steps).
 
+Measured on the benchmark's hardest instance the default reaches (sofa/0, 6 targets batched), neither helped:
+``momentum`` 0.9 lost two targets the default reaches by step 57 and reached two others only at step ~285, far more
+distorted; ``stall_steps`` 20 with ``stall_factor`` 0.5 gave the same 5 of 6. So both stay off (same section).
+
 ``eps`` never goes below ``min_budget`` (> 0), so it is never negative. The engine keeps the least distorted step
 where the target held, so a run returns its best success, not its last step.
 
@@ -38,10 +42,14 @@ Norms (budgets, steps and ``min_budget`` are in these units):
   one in the metric ``L + I / smoothness`` (``L`` the mesh graph Laplacian): ``(L + I / smoothness)^-1 g``, the
   preconditioner of Nicolet et al. (SIGGRAPH Asia 2021, "Large Steps in Inverse Rendering of Geometry",
   ``(I + smoothness L)^-1`` up to scale), which turns NMR's noisy per-vertex gradient into smooth patches instead
-  of moving every vertex by about ``lr`` like Adam. ``L`` is blind to translations: a rigid shift of any connected
-  component costs nothing under the Laplacian distance. Steps and the perturbation are therefore kept free of them
-  (every connected component's mean displacement is removed), so the budget bounds the whole perturbation and no
-  part of the mesh drifts away for free.
+  of moving every vertex by about ``lr`` like Adam. The default ``smoothness`` 0.1 (``(I + 0.1 L)^-1``: nearly the
+  raw per-vertex gradient, lightly mixed with its neighbours') replaced 1.0 after the benchmark: on the 4 instances
+  holding the 8 shape targets that 1.0 missed within 300 steps it held 21 of their 24 targets instead of 16, at the
+  same median distortion; 10 (smoother, more global steps) held none of bottle/1's three misses
+  (benchmarks/RESULTS.md, "ddn: smoothness 0.1, momentum, a margin loss and stall restarts"). ``L`` is blind to
+  translations: a rigid shift of any connected component costs nothing under the Laplacian distance. Steps and the
+  perturbation are therefore kept free of them (every connected component's mean displacement is removed), so the
+  budget bounds the whole perturbation and no part of the mesh drifts away for free.
 * texture -- the face-colour RMSE ``sqrt(1/m sum_i ||t_i^adv - t_i||^2)`` (the paper's measure); the direction is
   the colour gradient (steepest for the RMSE), and colours are clipped into ``[0, 1]`` after every step. The rule
   works on colours; the attack's logit parameters are written from them.
@@ -75,7 +83,7 @@ __all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS
 #: Default options of ``method="ddn"`` per perturbation (norm units, see the module docstring).
 DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {
     "shape": {"init_budget": 1e-3, "gamma": 0.05, "step_size": 1e-3, "final_step_size": 1e-4, "min_budget": 1e-7,
-              "smoothness": 1.0, "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5},
+              "smoothness": 0.1, "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5},
     "texture": {"init_budget": 5e-3, "gamma": 0.1, "step_size": 5e-3, "final_step_size": 5e-4, "min_budget": 1e-6,
                 "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5},
 }
