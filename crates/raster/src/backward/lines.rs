@@ -55,13 +55,7 @@ impl Lines {
     ) -> Result<()> {
         let (h, w) = (params.height, params.width);
         let n = h * w;
-        let (mut face, mut key, mut below, mut gi, mut planes) = (
-            Fill::new(&mut self.face, n, 0.0)?,
-            Fill::new(&mut self.key, n, f64::NEG_INFINITY)?,
-            Fill::new(&mut self.below, n, f64::NEG_INFINITY)?,
-            Fill::new(&mut self.gi, n, 0.0)?,
-            Fill::new(&mut self.grad, n.saturating_mul(c), 0.0)?,
-        );
+        let (mut face, mut key, mut below, mut gi, mut planes) = self.fills(n, c)?;
         // One pass per row.
         face.slots()
             .par_chunks_mut(w)
@@ -117,13 +111,7 @@ impl Lines {
     pub fn fill_columns(&mut self, rows: &Lines) -> Result<()> {
         let (w, h, c) = (rows.len, rows.lines(), rows.channels);
         let n = h * w;
-        let (mut face, mut key, mut below, mut gi, mut planes) = (
-            Fill::new(&mut self.face, n, 0.0)?,
-            Fill::new(&mut self.key, n, f64::NEG_INFINITY)?,
-            Fill::new(&mut self.below, n, f64::NEG_INFINITY)?,
-            Fill::new(&mut self.gi, n, 0.0)?,
-            Fill::new(&mut self.grad, n.saturating_mul(c), 0.0)?,
-        );
+        let (mut face, mut key, mut below, mut gi, mut planes) = self.fills(n, c)?;
         face.slots()
             .par_chunks_mut(GROUP * h)
             .zip(key.slots().par_chunks_mut(GROUP * h))
@@ -307,6 +295,23 @@ fn channels<const C: usize>(
 
 /// Columns transposed together by [`Lines::fill_columns`].
 const GROUP: usize = 8;
+
+impl Lines {
+    /// The five buffers of `n` pixels (`c` channels for the cotangent planes), each to be written once: face
+    /// indices, depth keys, depth thresholds, the image's cotangent dot product and the cotangent planes.
+    fn fills(&mut self, n: usize, c: usize) -> Result<Fills<'_>> {
+        Ok((
+            Fill::new(&mut self.face, n, 0.0)?,
+            Fill::new(&mut self.key, n, f64::NEG_INFINITY)?,
+            Fill::new(&mut self.below, n, f64::NEG_INFINITY)?,
+            Fill::new(&mut self.gi, n, 0.0)?,
+            Fill::new(&mut self.grad, n.saturating_mul(c), 0.0)?,
+        ))
+    }
+}
+
+/// The buffers [`Lines::fills`] returns, in its order.
+type Fills<'a> = (Fill<'a>, Fill<'a>, Fill<'a>, Fill<'a>, Fill<'a>);
 
 /// A buffer being filled: `len` values, then [`LANES`] of padding, in the buffer's memory (grown when too small)
 /// without being zeroed first. Until [`Fill::done`] the buffer is empty, so its old values are never read.

@@ -920,22 +920,7 @@ mod x86 {
 mod tests {
     use super::*;
 
-    /// Small deterministic generator (SplitMix64).
-    struct Rng(u64);
-
-    impl Rng {
-        fn next(&mut self) -> f64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-        }
-
-        fn below(&mut self, n: usize) -> usize {
-            (self.next() * n as f64) as usize
-        }
-    }
+    use crate::backward::tests::Rng;
 
     /// The lane sums of one OUT kernel on every code path this CPU has: generic on `[f64; 2]`, SSE2 and AVX2
     /// vectors; all must give the same bits.
