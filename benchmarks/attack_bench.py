@@ -94,8 +94,8 @@ def _make_attack(perturb: str, *, smoothing: Optional[int] = None, shape_lr: Opt
     return TextureAttack(lr=0.1, lambda_perceptual=1e-4, loss="cw", **kwargs)
 
 
-def _setup(mesh_name: str, args: argparse.Namespace, victim: Any) -> Tuple[Any, Any, List[int]]:
-    """The normalised shared mesh, the victim views and the runner-up target classes."""
+def _scene(mesh_name: str, args: argparse.Namespace) -> Tuple[Any, Any]:
+    """The normalised shared mesh ``pascal3d/<mesh_name>.ply`` and ``args.views`` victim views around its front."""
     from meshadv.data import require_shared_data
     from meshadv.mesh import load_mesh, normalize_mesh
     from meshadv.render import ViewSet
@@ -106,6 +106,12 @@ def _setup(mesh_name: str, args: argparse.Namespace, victim: Any) -> Tuple[Any, 
         elevation=15.0,
         distance=4.5,
     )
+    return mesh, views
+
+
+def _setup(mesh_name: str, args: argparse.Namespace, victim: Any) -> Tuple[Any, Any, List[int]]:
+    """The normalised shared mesh, the victim views and the runner-up target classes."""
+    mesh, views = _scene(mesh_name, args)
     return mesh, views, _ranked_classes(mesh, views, victim, args.image_size, args.targets)
 
 
@@ -193,16 +199,8 @@ def step_split(mesh_name: str, perturb: str, args: argparse.Namespace,
     """Times the parts of one attack step (render forward, victim forward + input gradient, render backward) with
     ``args.targets`` targets batched, for each of ``victims`` (label -> victim; their steps interleaved); returns one
     JSON-able record (median seconds per part) per victim."""
-    from meshadv.data import require_shared_data
-    from meshadv.mesh import load_mesh, normalize_mesh
-    from meshadv.render import ViewSet
 
-    mesh = normalize_mesh(load_mesh(require_shared_data(f"pascal3d/{mesh_name}.ply")), z_up=True)[0]
-    views = ViewSet.orbit(
-        torch.linspace(165.0, 195.0, args.views) if args.views > 1 else torch.tensor([180.0]),
-        elevation=15.0,
-        distance=4.5,
-    )
+    mesh, views = _scene(mesh_name, args)
     setup = RenderSetup(image_size=args.image_size, antialias=args.antialias)
     t = args.targets
     verts = mesh.vertices.unsqueeze(0).repeat(t, 1, 1)
@@ -299,17 +297,9 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
     from meshadv.attacks.base import _Call
     from meshadv.attacks.pipeline import split_images
     from meshadv.attacks.update import make_update_rule
-    from meshadv.data import require_shared_data
-    from meshadv.mesh import load_mesh, normalize_mesh
     from meshadv.mesh.adjacency import vertex_edges
-    from meshadv.render import ViewSet
 
-    mesh = normalize_mesh(load_mesh(require_shared_data(f"pascal3d/{mesh_name}.ply")), z_up=True)[0]
-    views = ViewSet.orbit(
-        torch.linspace(165.0, 195.0, args.views) if args.views > 1 else torch.tensor([180.0]),
-        elevation=15.0,
-        distance=4.5,
-    )
+    mesh, views = _scene(mesh_name, args)
     setup = RenderSetup(image_size=args.image_size, antialias=args.antialias)
     t, num_v = args.targets, args.views
     attack = _make_attack(perturb, steps=1)
