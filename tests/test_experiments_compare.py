@@ -79,3 +79,23 @@ def test_whole_section_names_the_paper_and_the_comparable_measure() -> None:
     text = paper_comparison([_t1("shape", "laplacian_pair_mean", True, 1.0, 8e-5, 1.0)], [], [])
     assert paper.CITATION in text and "laplacian_pair_mean" in text
     assert "matches or beats" in text and "99.29 ± 1.96%" in text
+
+
+def test_tail_columns_and_sentences_beside_the_paper() -> None:
+    from dataclasses import replace
+
+    from meshadv.experiments.compare import table1_tail
+    from meshadv.experiments.tables import tail_stats
+
+    shape = replace(_t1("shape", "laplacian_pair_mean", True, 1.0, 1e-5, 1.0),
+                    tail=tail_stats([1e-5, 2e-5, 9.2e-4, 1.2e-3], 3e-4))
+    texture = replace(_t1("texture", "color_rmse", True, 1.0, 5e-3, 1.0), tail=tail_stats([5e-3, 6e-3], 3.2e-2))
+    md = table1_beside_paper([shape, texture])
+    assert "| successes: p90 dist | successes: max dist | successes above the paper's worst |" in md
+    assert "| 0.00112 | 0.0012 | 50.0% (2 of 4 > 0.0003) |" in md  # p90: rank 2.7, 9.2e-4 + 0.7 * 2.8e-4
+    assert "| paper: DenseNet | shape | laplacian (pair-mean scale) | 8.4e-05 | 100.0% | 0.00018 | 100.0% | " \
+           "0.0003 | 100.0% | – | – | – |" in md
+    (sentence,) = table1_tail([shape, texture])  # nothing above for texture
+    assert "2 of 4 successful attacks (50.0%)" in sentence and "0.0012 (4.0x)" in sentence
+    text = paper_comparison([shape, texture], [], [])
+    assert "The columns that compare with the paper are" in text and sentence in text

@@ -140,6 +140,22 @@ def test_tiny_sweep_commands_tables_and_figures(tmp_path: Path) -> None:
     assert "| v1 | shape | laplacian_pair_mean | yes |" in table1 and "| v1 | shape | laplacian_sum | no |" in table1
     assert "| v1 | texture | color_rmse | yes |" in table1
     assert "100.0%" in table1
+    # the distortion tail: columns beside the cases, consistent with them, and the sentence naming what compares
+    assert "| successes: median dist | successes: p90 dist | successes: max dist | successes above the paper's " \
+           "worst |" in table1
+    assert "The columns that compare with the paper's Table 1 are" in (out / "README.md").read_text()
+    assert "The columns that compare with the paper are" in comparison
+    import csv as csv_module
+
+    checked = 0
+    for row in csv_module.DictReader((out / "table1.csv").read_text().splitlines()):
+        if row["tail_n"] in ("", "0"):
+            continue
+        assert float(row["tail_median"]) <= float(row["tail_p90"]) <= float(row["tail_max"])
+        assert float(row["tail_max"]) >= float(row["average_distance"]) >= 0.0
+        assert (row["tail_threshold"] != "nan") == (row["paper_measure"] == "True")
+        checked += 1
+    assert checked >= 3  # shape in both conventions and texture
     assert "45°–60°" in (out / "table2.md").read_text()
     figs = {p.name for p in (out / "figures").glob("*.png")}
     assert figs == {"grid_v1_shape.png", "grid_v1_texture.png", "flow_heatmap_v1.png", "flow_quiver_v1.png",

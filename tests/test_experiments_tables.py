@@ -126,3 +126,46 @@ def test_protocol_jobs_are_rows_of_their_own() -> None:
     main, paper_row = table1(attack_rows(jobs))
     assert (main.victim, main.targets, main.best.success_rate) == ("v", 1, 1.0)
     assert (paper_row.victim, paper_row.targets, paper_row.best.success_rate) == ("v [paper]", 1, 0.0)
+
+
+def test_percentile_interpolates_between_order_statistics() -> None:
+    from meshadv.experiments.tables import percentile
+
+    values = [5.0, 1.0, 4.0, 2.0, 3.0]  # sorted 1..5: rank (n - 1) q / 100
+    assert percentile(values, 0.0) == 1.0 and percentile(values, 100.0) == 5.0
+    assert percentile(values, 50.0) == 3.0
+    assert percentile(values, 90.0) == pytest.approx(4.6)  # rank 3.6: 4 + 0.6 * (5 - 4)
+    assert percentile([7.0], 90.0) == 7.0 and math.isnan(percentile([], 90.0))
+    with pytest.raises(ValueError, match="q"):
+        percentile(values, 101.0)
+    with pytest.raises(ValueError, match="nan"):
+        percentile([1.0, math.nan], 50.0)
+
+
+def test_tail_columns_over_successful_attacks_and_the_paper_threshold() -> None:
+    from meshadv.experiments.tables import PAPER_WORST
+
+    assert PAPER_WORST == {"shape": pytest.approx(3.0e-4), "texture": pytest.approx(3.2e-2)}
+
+    def pair(inst: str, target: str, success: bool, dist: float) -> AttackRow:
+        return AttackRow(victim="v", perturbation="shape", instance=(inst,), source="src", target=target,
+                         success=success, distance=dist, measure="laplacian_pair_mean")
+
+    # ten successes 1e-5 .. 1e-4 and 1.2e-3 (a broken mesh), one failure at 5e-3 that must not count
+    dists = [k * 1e-5 for k in range(1, 11)] + [1.2e-3]
+    rows = [pair(f"I{k // 3}", f"t{k % 3}", True, d) for k, d in enumerate(dists)] + [pair("I3", "t2", False, 5e-3)]
+    (t,) = table1(rows)
+    tail = t.tail
+    assert tail is not None and tail.n == 11
+    assert tail.median == pytest.approx(6e-5) and tail.max == pytest.approx(1.2e-3)
+    assert tail.p90 == pytest.approx(1e-4)  # rank 9 of 0..10: the tenth smallest
+    assert tail.threshold == pytest.approx(3e-4) and tail.above_n == 1 and tail.above == pytest.approx(1 / 11)
+    md = to_markdown([t])
+    assert "successes: p90 dist" in md and "| 6e-05 | 0.0001 | 0.0012 | 9.1% (1 of 11 > 0.0003) |" in md
+    header, line = to_csv([t]).splitlines()
+    cells = dict(zip(header.split(","), line.split(",")))
+    assert float(cells["tail_p90"]) == pytest.approx(1e-4) and cells["tail_above_n"] == "1"
+    # the literal sum is not the paper's measure: no threshold, no share
+    (total,) = table1([AttackRow(**{**r.__dict__, "measure": "laplacian_sum"}) for r in rows])
+    assert total.tail is not None and total.tail.above_n == 0 and math.isnan(total.tail.above)
+    assert to_markdown([total]).rstrip().endswith("| 0.0012 | – |")
