@@ -6,6 +6,7 @@ import argparse
 import importlib.util
 from pathlib import Path
 from types import ModuleType
+from typing import Optional
 
 import pytest
 
@@ -67,3 +68,42 @@ def test_curves_record_first_success_improvements_and_best_margin() -> None:
     first, second = cb._curves(history, 2)
     assert first == {"first": 2, "improvements": [[2, 0.4], [3, 0.2]], "best_margin": 0.3}
     assert second == {"first": None, "improvements": [], "best_margin": -0.4}
+
+
+def _row(cls: str, pair_means: list, perturbation: str = "shape", displacements: Optional[list] = None,
+         method: str = "ddn") -> dict:
+    """A finished row of 10 steps whose targets first hold at step 2 with the given least distances (``None``:
+    never held); shape curves store the Eq. 4 sum, 2E = 10 pairs."""
+    scale = 10.0 if perturbation == "shape" else 1.0
+    curves = [{"first": None, "improvements": []} if d is None else {"first": 2, "improvements": [[2, d * scale]]}
+              for d in pair_means]
+    moved = displacements or [0.0] * len(pair_means)
+    return {"method": method, "perturbation": perturbation, "class": cls, "index": 0,
+            "targets": [f"t{k}" for k in range(len(pair_means))], "num_edges": 5, "history_len": 10,
+            "wall_time": 1.0, "curves": curves, "final_success": [d is not None for d in pair_means],
+            "final_distances": [{"max_displacement": m} for m in moved]}
+
+
+def test_summary_reports_the_distortion_tail() -> None:
+    cb = _bench()
+    a = _row("A", [k * 1e-5 for k in range(1, 7)], displacements=[k * 0.01 for k in range(1, 7)])
+    b = _row("B", [7e-5, 8e-5, 9e-5, 1e-4, 1.2e-3, None], displacements=[0.07, 0.08, 0.09, 0.10, 0.11, 0.5])
+    # one target first holds far above the paper's worst case and improves only at step 8
+    b["curves"][4]["improvements"] = [[2, 2e-3 * 10.0], [8, 1.2e-3 * 10.0]]
+    s = cb.summarize([a, b], "ddn", "shape", 10)
+    tail, moved = s["tail"], s["displacement"]
+    # 11 successes: 1e-5 .. 1e-4 and 1.2e-3: median the 6th, p90 at rank 9 of 0..10 (the 10th), max the broken mesh
+    assert s["median_distance"] == pytest.approx(6e-5) and tail.median == pytest.approx(6e-5)
+    assert tail.p90 == pytest.approx(1e-4) and tail.max == pytest.approx(1.2e-3)
+    assert tail.above_n == 1 and tail.above == pytest.approx(1 / 11) and tail.threshold == pytest.approx(3e-4)
+    # displacement in % of the diagonal over the 11 final successes (the failed target's 50% left out)
+    assert moved.n == 11 and moved.median == pytest.approx(6.0) and moved.p90 == pytest.approx(10.0)
+    early = cb.summarize([a, b], "ddn", "shape", 5)  # before step 8: the broken target is at 2e-3
+    assert early["tail"].max == pytest.approx(2e-3) and early["displacement"].n == 0  # final results: full runs only
+    text = cb.report([a, b], None)
+    assert "| p90 distance at success | max distance at success | successes above the paper's worst case |" in text
+    assert "| 0.0001 | 0.0012 | 9.1% (1/11) | 6% / 10% (11) |" in text
+    assert "- ddn shape: 1: B/0 -> t4 0.0012" in text
+    texture = cb.summarize([_row("C", [0.01, 0.02, 0.04, 0.05], "texture")], "ddn", "texture", 10)
+    assert texture["tail"].above_n == 2 and texture["tail"].threshold == pytest.approx(0.032)
+    assert texture["displacement"].n == 0
