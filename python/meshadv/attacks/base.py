@@ -180,8 +180,9 @@ class MeshAttack(ABC):
             many consecutive steps (``None``: run every step, as the paper).
         early_stop_margin: margin required by early stopping (logit units for classifiers, score units for
             detectors).
-        max_distortion: distortion budget (Laplacian for shape, colour RMSE for texture): a target stops, failed
-            unless it already succeeded within the budget, once it exceeds it.
+        max_distortion: distortion budget (shape: the Eq. 4 Laplacian sum of the flow, i.e. the per-pair mean times
+            ``2E``; texture: colour RMSE): a target stops, failed unless it already succeeded within the budget, once
+            it exceeds it.
         success_fraction: fraction of the victim views that must be adversarial (1.0 = all).
         jitter: random view / light jitter at every step, keys of ``ViewSet.jitter`` (``azimuth``, ``elevation``,
             ``distance``, ``tilt``, ``light_direction``, ``light_intensity``); ``None`` for none.

@@ -152,7 +152,8 @@ def attack(
     early_stop_margin: Optional[float] = typer.Option(
         None, help="margin the target must hold with for early stopping (default: 0.5 logits for classifiers, "
                    "0.05 below the threshold for detectors)"),
-    budget: Optional[float] = typer.Option(None, help="distortion ceiling (Laplacian for shape, RMSE for texture)"),
+    budget: Optional[float] = typer.Option(None, help="distortion ceiling (shape: the Eq. 4 Laplacian sum of the "
+                                                "flow, i.e. pair mean x 2E; texture: colour RMSE)"),
     jitter: bool = typer.Option(False, help="random camera/light jitter at every step (robustness)"),
     image_size: int = typer.Option(224, min=1, max=16384, help="rendered image size in pixels"),
     background: str = typer.Option(DEFAULT_BACKGROUND, help="background colour r,g,b in [0, 1]"),
