@@ -192,6 +192,7 @@ def test_after_success_anneal_keeps_the_full_step_until_a_target_first_holds() -
     ({"momentum": 1.0}, "momentum"), ({"momentum": -0.1}, "momentum"), ({"momentum": True}, "momentum"),
     ({"stall_steps": -1}, "stall_steps"), ({"stall_steps": 2.5}, "stall_steps"), ({"stall_steps": True}, "stall_steps"),
     ({"stall_factor": 0.0}, "stall_factor"), ({"stall_factor": 1.5}, "stall_factor"),
+    ({"reach": "sign"}, "reach"), ({"reach": None}, "reach"),
 ])
 def test_bad_options_raise_value_error_naming_them(options: Dict[str, Any], name: str) -> None:
     with pytest.raises(ValueError, match=name):
@@ -381,7 +382,60 @@ def test_stall_restarts_from_the_lowest_loss_point_with_a_smaller_step() -> None
     assert int(fresh.restarts[0]) == 0
 
 
-@pytest.mark.parametrize("extra", [{}, {"momentum": 0.9, "stall_steps": 2}])
+def test_adam_reach_moves_every_coordinate_until_the_target_holds() -> None:
+    """``reach="adam"``: while the target has not held, the first step is Adam's, ``sign(grad)`` per colour (unit
+    RMSE), so faces with a tiny gradient move as far as the one with a large one; once it held, the step follows the
+    budget direction ``-grad`` again."""
+    weights = torch.full((1, 12, 3), 1e-4)
+    weights[0, 3, 0] = 10.0
+    rule, params, mesh = _texture_rule(reach="adam")
+    assert rule.config()["reach"] == "adam"
+    _linear_step(rule, params, weights)
+    moved = torch.sigmoid(params.detach()) - mesh.face_colors
+    assert torch.allclose(moved, torch.full_like(moved, -0.01 / math.sqrt(3.0)), atol=1e-5)  # every colour alike
+    budget, budget_params, _ = _texture_rule()  # the default: along -grad, the large entry takes nearly all of it
+    _linear_step(budget, budget_params, weights)
+    step = torch.sigmoid(budget_params.detach()) - mesh.face_colors
+    assert float(step[0, 3, 0]) < -0.03 and float(step.abs().flatten().sort().values[-2]) < 1e-6
+    idx = torch.tensor([0])  # the target holds: the budget direction from now on, then into the shrunk ball
+    loss = (torch.sigmoid(params[idx]) * weights).sum(dim=(1, 2))
+    rule.objective(loss, loss * 0, loss * 0, idx).backward()
+    rule.step(params, idx, torch.tensor([True]))
+    assert int(rule.state.first_held[0]) == 1 and int(rule._adam_t[0]) == 1  # Adam's moments stopped
+    unit = -weights / weights.pow(2).sum(-1).mean().sqrt()
+    expected = moved + 0.01 * unit
+    expected = expected * (0.9 * 0.01) / float(expected.pow(2).sum(-1).mean().sqrt())  # eps = (1 - gamma) ||delta||
+    assert torch.allclose(torch.sigmoid(params.detach()) - mesh.face_colors, expected, atol=1e-5)
+
+
+def test_adam_reach_moves_every_vertex_of_a_shape() -> None:
+    """Shape, ``reach="adam"``: a gradient on one vertex moves every vertex comparably (Adam's per-coordinate
+    normalisation), the budget direction (``smoothness`` 0.1) mostly that vertex and its neighbours; the step keeps
+    its length in the budget's norm and has no translation."""
+    mesh = builtin_mesh("chair")
+    edges = vertex_edges(mesh.faces).long()
+    weights = torch.full((1, *mesh.vertices.shape), 1e-3)
+    weights[0, ::2] *= -1
+    weights[0, 7] = torch.tensor([5.0, -3.0, 2.0])
+    moved = {}
+    for reach in ("budget", "adam"):
+        rule = DDNRule(attack=ShapeAttack(method="ddn", steps=5), num_targets=1, reach=reach,
+                       **{**SMALL_SHAPE, "init_budget": 1.0})  # a budget that does not bind
+        rule.prepare(mesh, edges)
+        params = torch.zeros(1, *mesh.vertices.shape, requires_grad=True)
+        rule.start_round(params)
+        idx = torch.tensor([0])
+        (params * weights).sum(dim=(1, 2)).sum().backward()
+        rule.step(params, idx, torch.tensor([False]))
+        moved[reach] = params.detach()
+        assert float(rule.norm.norm(moved[reach])[0]) == pytest.approx(SMALL_SHAPE["step_size"], rel=1e-4)
+        assert float(moved[reach][0].mean(dim=0).abs().max()) < 1e-7
+    spread = {k: v[0].norm(dim=-1) for k, v in moved.items()}
+    far = {k: float((v > 0.1 * v.max()).double().mean()) for k, v in spread.items()}
+    assert far["adam"] == 1.0 and far["budget"] < 0.5, far  # share of vertices moved by > 10% of the largest move
+
+
+@pytest.mark.parametrize("extra", [{}, {"momentum": 0.9, "stall_steps": 2}, {"reach": "adam"}])
 def test_batched_targets_are_independent(extra: Dict[str, Any]) -> None:
     """Two targets stepped together by one rule move exactly as each stepped alone (budgets, steps, directions)."""
     mesh = builtin_mesh("chair")

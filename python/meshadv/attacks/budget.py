@@ -79,18 +79,26 @@ from torch import Tensor
 from meshadv.attacks.losses import laplacian_flow_loss
 from meshadv.attacks.update import UpdateRule, register_update_rule
 
-__all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS", "ANNEAL_MODES"]
+__all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS", "ANNEAL_MODES", "REACH_MODES"]
 
 #: Default options of ``method="ddn"`` per perturbation (norm units, see the module docstring).
 DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {
     "shape": {"init_budget": 1e-3, "gamma": 0.05, "step_size": 1e-3, "final_step_size": 1e-4, "min_budget": 1e-7,
-              "smoothness": 0.1, "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5},
+              "smoothness": 0.1, "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5,
+              "reach": "budget"},
     "texture": {"init_budget": 5e-3, "gamma": 0.1, "step_size": 5e-3, "final_step_size": 5e-4, "min_budget": 1e-6,
-                "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5},
+                "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5, "reach": "budget"},
 }
 
 #: Options of :class:`DDNRule` that are not :class:`BudgetState`'s.
-_RULE_OPTIONS = ("smoothness", "momentum", "stall_steps", "stall_factor")
+_RULE_OPTIONS = ("smoothness", "momentum", "stall_steps", "stall_factor", "reach")
+
+#: Values of the ``reach`` option: the step direction of a target that has not held yet (see the module docstring).
+REACH_MODES = ("budget", "adam")
+
+#: Adam's moment decays and denominator offset for ``reach="adam"`` (torch's defaults).
+_ADAM_BETAS = (0.9, 0.999)
+_ADAM_EPS = 1e-8
 
 #: Values of the ``anneal`` option: when the step length falls (see the module docstring).
 ANNEAL_MODES = ("cosine", "after_success")
@@ -393,6 +401,10 @@ class DDNRule(UpdateRule):
         self.stall_factor = _positive("stall_factor", self.options["stall_factor"])
         if self.stall_factor > 1:
             raise ValueError(f"stall_factor must be in (0, 1], got {self.stall_factor!r}")
+        reach = self.options["reach"]
+        if not isinstance(reach, str) or reach not in REACH_MODES:
+            raise ValueError(f"reach must be one of {REACH_MODES}, got {reach!r}")
+        self.reach = reach
         self._attack = attack
         self._budget_options = opts
         BudgetState(num_targets, attack.steps, **opts)  # validate every option now
@@ -408,6 +420,9 @@ class DDNRule(UpdateRule):
         self._since_best = torch.zeros(self.num_targets, dtype=torch.long)
         self._last_loss: Optional[Tensor] = None
         self.restarts = torch.zeros(self.num_targets, dtype=torch.long)
+        self._adam_m: Optional[Tensor] = None
+        self._adam_v: Optional[Tensor] = None
+        self._adam_t = torch.zeros(self.num_targets, dtype=torch.long)
         self._step = 0
 
     @property
@@ -441,6 +456,10 @@ class DDNRule(UpdateRule):
         self._best_delta = self._delta.clone() if self.stall_steps > 0 else None
         self._since_best = torch.zeros(self.num_targets, dtype=torch.long)
         self.restarts = torch.zeros(self.num_targets, dtype=torch.long)
+        adam = self.reach == "adam"
+        self._adam_m = torch.zeros_like(self._delta, dtype=torch.float64) if adam else None
+        self._adam_v = torch.zeros_like(self._delta, dtype=torch.float64) if adam else None
+        self._adam_t = torch.zeros(self.num_targets, dtype=torch.long)
         self._last_loss = None
         self._step = 0
         params.grad = None
@@ -489,6 +508,31 @@ class DDNRule(UpdateRule):
         self._velocity[idx] = v
         return _unit(v, self.norm.norm(v)).to(direction.dtype)
 
+    def _reach(self, idx: Tensor, grad: Tensor, heading: Tensor) -> Tensor:
+        """``reach="adam"``: the rows of ``idx`` whose target has not held yet in this round step along Adam's
+        per-coordinate normalised direction ``-m_hat / (sqrt(v_hat) + eps)`` of their (projected) gradients, made unit
+        in the budget's norm; the other rows keep ``heading``. Adam's moments advance only while a target is unheld."""
+        if self._adam_m is None or self._adam_v is None or self.state is None:
+            return heading
+        unheld = self.state.first_held[idx] < 0
+        if not bool(unheld.any()):
+            return heading
+        rows = idx[unheld]
+        g = self.norm.project(grad[unheld]).to(torch.float64).cpu()
+        b1, b2 = _ADAM_BETAS
+        m = b1 * self._adam_m[rows] + (1 - b1) * g
+        v = b2 * self._adam_v[rows] + (1 - b2) * g * g
+        self._adam_m[rows], self._adam_v[rows] = m, v
+        self._adam_t[rows] += 1
+        shape = (-1,) + (1,) * (g.dim() - 1)
+        t = self._adam_t[rows].double().view(shape)
+        d = -(m / (1 - b1 ** t)) / ((v / (1 - b2 ** t)).sqrt() + _ADAM_EPS)
+        d = self.norm.project(d)
+        d = _unit(d, self.norm.norm(d)).to(heading.dtype).to(heading.device)
+        heading = heading.clone()
+        heading[unheld] = d
+        return heading
+
     def step(self, params: Tensor, active: Tensor, is_adversarial: Tensor) -> None:
         """Budget update, one step of fixed length in the budget's norm, projection into the budget ball."""
         if self._delta is None or self.state is None or self._origin is None:
@@ -503,7 +547,7 @@ class DDNRule(UpdateRule):
             delta = self._delta[idx]
             budgets = self.state.update(idx, is_adversarial, self.norm.norm(delta), self._step)
             delta, restarted = self._restart_stalled(idx, delta, is_adversarial.detach().cpu().bool())
-            heading = self._heading(idx, self.norm.direction(grad))
+            heading = self._reach(idx, grad, self._heading(idx, self.norm.direction(grad)))
             if self._velocity is not None and bool(restarted.any()):
                 self._velocity[idx[restarted]] = 0
             scale = torch.where(restarted, torch.zeros_like(self._scale[idx]), self._scale[idx])
