@@ -22,10 +22,10 @@
 //!   own pixels contribute).
 //! * Per OUT sweep: the face's key along the line is `key0 + key_step * d` (its plane in pixel space); the pixels
 //!   whose key lies in the clip range form one interval (the computed key is monotone in `d`), found once, so the
-//!   inner loop only tests the depth order and `delta < 0`. The depth order, ties included, is one comparison
-//!   `key_f > thr[P]` against a per-pixel threshold: the drawn face's key, or (where `f < F[P]`, so that `f` wins
-//!   a tie) the next f64 below it, kept in the line buffers; `F[P] != f` is tested only in the blocks of pixels
+//!   inner loop only tests the depth order and `delta < 0`; `F[P] != f` is tested only in the blocks of pixels
 //!   that meet the face's drawn box (no pixel outside it is the face's).
+//! * The line buffers hold what the sweeps read in as few bytes as is exact: the cotangent as f32 (as given), the
+//!   face index as i32, the depth keys and `gI` as f64; the sweeps are bound by the bytes they read.
 //! * Per pixel of an OUT or IN sweep, `delta / dist_a` and `delta / dist_c` (the two endpoint displacements) use one
 //!   division, `q = delta / (dist_a * dist_c)`, times `dist_c` and `dist_a`. Both loops are branch-free (skipped
 //!   pixels add 0), sum in four lanes added in a fixed order, and run their last partial block masked over padded
@@ -348,7 +348,7 @@ impl Ctx<'_> {
                     let ka = (pc != d0f).then(|| ndc * (pc - pa) / (pc - d0f));
                     let kc = (pa != d0f).then(|| ndc * (pc - pa) / (d0f - pa));
                     // OUT: pixels beyond the edge that the face would cover (only where the cotangent is not zero).
-                    if ln.face(line)[d_in as usize] == fi {
+                    if ln.face(line)[d_in as usize] == f as i32 {
                         let (start, end) = if dir > 0 {
                             (d_out as usize, ln.len)
                         } else {

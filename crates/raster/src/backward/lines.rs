@@ -15,8 +15,11 @@ use super::sweep::LANES;
 /// (axis V) or image columns for the column sweeps (axis U), so that the inner loops read memory contiguously.
 /// Every buffer ends with [`LANES`] values of padding, so that a vector loop may read a whole block past the end of
 /// any line (the lanes past the line's end are masked out).
-/// Everything is f64, as in the definition: f32 weights or `delta`s change single contributions near an edge
-/// (`delta / EPS` spikes) by more than 1e-5 of a vertex gradient whose terms cancel (measured).
+/// The sums are f64, as in the definition: f32 weights or `delta`s change single contributions near an edge
+/// (`delta / EPS` spikes) by more than 1e-5 of a vertex gradient whose terms cancel (measured). What is exact in
+/// fewer bytes is stored so, because the sweeps are bound by the bytes they read: the cotangent as the f32 it was
+/// given (converted to f64 exactly when loaded) and the face index as i32 (36 instead of 64 bytes per pixel with 4
+/// channels).
 /// The buffers are refilled in place ([`Lines::fill_rows`], [`Lines::fill_columns`]), so that a `Lines` kept
 /// between calls (see `workspace`) allocates nothing once it is large enough.
 #[derive(Default)]
@@ -25,16 +28,14 @@ pub(super) struct Lines {
     pub len: usize,
     /// Channels `C`.
     channels: usize,
-    /// Face drawn at each pixel (-1 on background), as f64 (compared in the same vectors as the depth keys).
-    face: Vec<f64>,
+    /// Face drawn at each pixel (-1 on background).
+    face: Vec<i32>,
     /// Depth-test key of the drawn face (see [`Lines::fill_rows`]).
     key: Vec<f64>,
-    /// [`below`] the key: `k > below` is `k >= key` for every `k > -inf` (the depth test with ties won).
-    below: Vec<f64>,
-    /// `sum_c G[P, c] * I[P, c]`, channels in order.
+    /// `sum_c G[P, c] * I[P, c]` (f64 products and sums), channels in order.
     gi: Vec<f64>,
     /// The cotangent, per line `C` planes of `len` values.
-    grad: Vec<f64>,
+    grad: Vec<f32>,
     /// Per line, the range `[first, last + 1)` of pixels whose cotangent is not all zero (`[0, 0]` when none):
     /// pixels outside it have `delta = 0` and never contribute.
     pub nonzero: Vec<[usize; 2]>,
@@ -55,21 +56,18 @@ impl Lines {
     ) -> Result<()> {
         let (h, w) = (params.height, params.width);
         let n = h * w;
-        let (mut face, mut key, mut below, mut gi, mut planes) = self.fills(n, c)?;
+        let (mut face, mut key, mut gi, mut planes) = self.fills(n, c)?;
         // One pass per row.
         face.slots()
             .par_chunks_mut(w)
             .zip(key.slots().par_chunks_mut(w))
-            .zip(below.slots().par_chunks_mut(w))
             .zip(gi.slots().par_chunks_mut(w))
             .zip(planes.slots().par_chunks_mut(w * c))
             .enumerate()
-            .for_each(|(i, ((((face, key), below), gi), planes))| {
+            .for_each(|(i, (((face, key), gi), planes))| {
                 let faces = &face_index[i * w..(i + 1) * w];
-                for (j, (((&f, face), key), below)) in
-                    faces.iter().zip(face).zip(key).zip(below).enumerate()
-                {
-                    face.write(f as f64);
+                for (j, ((&f, face), key)) in faces.iter().zip(face).zip(key).enumerate() {
+                    face.write(f);
                     let k = match setups.get(f as usize) {
                         Some(s) if f >= 0 => match s.depth_at(i as i32, j as i32) {
                             Some(z) if s.ortho => -z,
@@ -79,7 +77,6 @@ impl Lines {
                         _ => f64::NEG_INFINITY,
                     };
                     key.write(k);
-                    below.write(self::below(k));
                 }
                 let (g, im) = (
                     &grad[i * w * c..(i + 1) * w * c],
@@ -93,13 +90,12 @@ impl Lines {
                     _ => channels::<0>(g, im, w, gi, planes),
                 }
             });
-        // SAFETY: the row passes above wrote every slot: each row chunk writes its `w` face, key, below and gi
-        // values and its `w * c` plane values.
+        // SAFETY: the row passes above wrote every slot: each row chunk writes its `w` face, key and gi values and
+        // its `w * c` plane values.
         #[allow(unsafe_code)]
         unsafe {
             face.done();
             key.done();
-            below.done();
             gi.done();
             planes.done();
         }
@@ -111,36 +107,24 @@ impl Lines {
     pub fn fill_columns(&mut self, rows: &Lines) -> Result<()> {
         let (w, h, c) = (rows.len, rows.lines(), rows.channels);
         let n = h * w;
-        let (mut face, mut key, mut below, mut gi, mut planes) = self.fills(n, c)?;
+        let (mut face, mut key, mut gi, mut planes) = self.fills(n, c)?;
         face.slots()
             .par_chunks_mut(GROUP * h)
             .zip(key.slots().par_chunks_mut(GROUP * h))
-            .zip(below.slots().par_chunks_mut(GROUP * h))
             .zip(gi.slots().par_chunks_mut(GROUP * h))
             .zip(planes.slots().par_chunks_mut(GROUP * c * h))
             .enumerate()
-            .for_each(|(group, ((((face, key), below), gi), planes))| {
+            .for_each(|(group, (((face, key), gi), planes))| {
                 let j0 = group * GROUP;
-                // One output column at a time: `out[i] = src[i * stride]` (the group's rows stay in cache).
-                let column = |src: &[f64], stride: usize, out: &mut [MaybeUninit<f64>]| {
-                    assert!(out.len() == h && src.len() > (h - 1) * stride);
-                    for (i, x) in out.iter_mut().enumerate() {
-                        // SAFETY: `i < h` and `(h - 1) * stride < src.len()` (asserted above).
-                        #[allow(unsafe_code)]
-                        x.write(unsafe { *src.get_unchecked(i * stride) });
-                    }
-                };
-                for (jj, (((face, key), below), gi)) in face
+                for (jj, ((face, key), gi)) in face
                     .chunks_exact_mut(h)
                     .zip(key.chunks_exact_mut(h))
-                    .zip(below.chunks_exact_mut(h))
                     .zip(gi.chunks_exact_mut(h))
                     .enumerate()
                 {
                     let j = j0 + jj;
                     column(&rows.face[j..], w, face);
                     column(&rows.key[j..], w, key);
-                    column(&rows.below[j..], w, below);
                     column(&rows.gi[j..], w, gi);
                     // Row i's channel k is rows.grad[(i * c + k) * w..][..w]; column j's is planes[(j * c + k) * h..].
                     for (k, plane) in planes[jj * c * h..(jj + 1) * c * h]
@@ -151,13 +135,12 @@ impl Lines {
                     }
                 }
             });
-        // SAFETY: every group of `cols` columns wrote its `cols * h` face, key, below and gi values and `cols * c * h`
-        // plane values (all rows i, all columns jj, all channels).
+        // SAFETY: every group of `cols` columns wrote its `cols * h` face, key and gi values and `cols * c * h` plane
+        // values (all rows i, all columns jj, all channels).
         #[allow(unsafe_code)]
         unsafe {
             face.done();
             key.done();
-            below.done();
             gi.done();
             planes.done();
         }
@@ -176,13 +159,10 @@ impl Lines {
 
     /// Bytes held (capacity) by the buffers.
     pub fn bytes(&self) -> usize {
-        let f64s = self.face.capacity()
-            + self.key.capacity()
-            + self.below.capacity()
-            + self.gi.capacity()
-            + self.grad.capacity();
-        f64s * std::mem::size_of::<f64>()
-            + self.nonzero.capacity() * std::mem::size_of::<[usize; 2]>()
+        fn held<T>(v: &Vec<T>) -> usize {
+            v.capacity() * std::mem::size_of::<T>()
+        }
+        held(&self.face) + held(&self.key) + held(&self.gi) + held(&self.grad) + held(&self.nonzero)
     }
 
     /// Number of lines.
@@ -210,13 +190,13 @@ impl Lines {
 
     /// Faces drawn along line `d0`.
     #[inline(always)]
-    pub fn face(&self, d0: usize) -> &[f64] {
+    pub fn face(&self, d0: usize) -> &[i32] {
         &self.face[d0 * self.len..(d0 + 1) * self.len]
     }
 
     /// Cotangent channel `k` from the start of line `d0` to the end of the buffer (padding included).
     #[inline(always)]
-    pub fn grad_from(&self, d0: usize, k: usize) -> &[f64] {
+    pub fn grad_from(&self, d0: usize, k: usize) -> &[f32] {
         &self.grad[(d0 * self.channels + k) * self.len..]
     }
 
@@ -239,7 +219,6 @@ impl Lines {
             LineAt {
                 face: self.face.as_ptr().add(o),
                 key: self.key.as_ptr().add(o),
-                below: self.below.as_ptr().add(o),
                 gi: self.gi.as_ptr().add(o),
                 grad: std::array::from_fn(|k| {
                     self.grad
@@ -252,21 +231,6 @@ impl Lines {
     }
 }
 
-/// The largest f64 below `k` (`-inf` for `-inf`, NaN for NaN), so that `x > below(k)` is `x >= k` for every
-/// `x > -inf` (the sweeps' keys always are: the clip range is finite below).
-#[inline(always)]
-pub(super) fn below(k: f64) -> f64 {
-    if k.is_nan() || k == f64::NEG_INFINITY {
-        k
-    } else if k == 0.0 {
-        -f64::from_bits(1)
-    } else if k > 0.0 {
-        f64::from_bits(k.to_bits() - 1)
-    } else {
-        f64::from_bits(k.to_bits() + 1)
-    }
-}
-
 /// Writes one row's cotangent planes (`planes[k * w + j] = G[j, k]`) and `gi[j] = sum_c G[j, c] I[j, c]` (channels
 /// in order) from the interleaved row `g` and image row `im`, for `C` channels (`C = 0`: any count).
 #[inline(always)]
@@ -275,7 +239,7 @@ fn channels<const C: usize>(
     im: &[f32],
     w: usize,
     gi: &mut [MaybeUninit<f64>],
-    planes: &mut [MaybeUninit<f64>],
+    planes: &mut [MaybeUninit<f32>],
 ) {
     let c = if C == 0 { g.len() / w } else { C };
     for (j, ((x, g), im)) in gi
@@ -287,7 +251,7 @@ fn channels<const C: usize>(
         let mut sum = 0f64;
         for k in 0..c {
             sum += g[k] as f64 * im[k] as f64;
-            planes[k * w + j].write(g[k] as f64);
+            planes[k * w + j].write(g[k]);
         }
         x.write(sum);
     }
@@ -296,14 +260,26 @@ fn channels<const C: usize>(
 /// Columns transposed together by [`Lines::fill_columns`].
 const GROUP: usize = 8;
 
+/// One output column of a transpose: `out[i] = src[i * stride]` for the `h = out.len()` rows (the group's rows stay
+/// in cache).
+#[inline(always)]
+fn column<T: Copy>(src: &[T], stride: usize, out: &mut [MaybeUninit<T>]) {
+    let h = out.len();
+    assert!(h == 0 || src.len() > (h - 1) * stride);
+    for (i, x) in out.iter_mut().enumerate() {
+        // SAFETY: `i < h` and `(h - 1) * stride < src.len()` (asserted above).
+        #[allow(unsafe_code)]
+        x.write(unsafe { *src.get_unchecked(i * stride) });
+    }
+}
+
 impl Lines {
-    /// The five buffers of `n` pixels (`c` channels for the cotangent planes), each to be written once: face
-    /// indices, depth keys, depth thresholds, the image's cotangent dot product and the cotangent planes.
+    /// The four buffers of `n` pixels (`c` channels for the cotangent planes), each to be written once: face
+    /// indices, depth keys, the image's cotangent dot product and the cotangent planes.
     fn fills(&mut self, n: usize, c: usize) -> Result<Fills<'_>> {
         Ok((
-            Fill::new(&mut self.face, n, 0.0)?,
+            Fill::new(&mut self.face, n, -1)?,
             Fill::new(&mut self.key, n, f64::NEG_INFINITY)?,
-            Fill::new(&mut self.below, n, f64::NEG_INFINITY)?,
             Fill::new(&mut self.gi, n, 0.0)?,
             Fill::new(&mut self.grad, n.saturating_mul(c), 0.0)?,
         ))
@@ -311,19 +287,19 @@ impl Lines {
 }
 
 /// The buffers [`Lines::fills`] returns, in its order.
-type Fills<'a> = (Fill<'a>, Fill<'a>, Fill<'a>, Fill<'a>, Fill<'a>);
+type Fills<'a> = (Fill<'a, i32>, Fill<'a, f64>, Fill<'a, f64>, Fill<'a, f32>);
 
 /// A buffer being filled: `len` values, then [`LANES`] of padding, in the buffer's memory (grown when too small)
 /// without being zeroed first. Until [`Fill::done`] the buffer is empty, so its old values are never read.
-struct Fill<'a> {
-    buf: &'a mut Vec<f64>,
+struct Fill<'a, T> {
+    buf: &'a mut Vec<T>,
     len: usize,
 }
 
-impl<'a> Fill<'a> {
+impl<'a, T: Copy> Fill<'a, T> {
     /// `buf` emptied to receive `len` values to write, with its padding set to `pad`; an error when it cannot
     /// grow to that size.
-    fn new(buf: &'a mut Vec<f64>, len: usize, pad: f64) -> Result<Fill<'a>> {
+    fn new(buf: &'a mut Vec<T>, len: usize, pad: T) -> Result<Fill<'a, T>> {
         try_clear_for(buf, len.saturating_add(LANES), "backward line buffers")?;
         for x in &mut buf.spare_capacity_mut()[len..len + LANES] {
             x.write(pad);
@@ -332,7 +308,7 @@ impl<'a> Fill<'a> {
     }
 
     /// The `len` values to write.
-    fn slots(&mut self) -> &mut [MaybeUninit<f64>] {
+    fn slots(&mut self) -> &mut [MaybeUninit<T>] {
         &mut self.buf.spare_capacity_mut()[..self.len]
     }
 
@@ -351,16 +327,14 @@ impl<'a> Fill<'a> {
 /// Pointers to the per-pixel data of one line from a pixel on (see [`Lines::at`] for how far they may be read).
 #[derive(Clone, Copy)]
 pub(super) struct LineAt<'a, const C: usize> {
-    /// Face index (as f64).
-    pub face: *const f64,
+    /// Face index.
+    pub face: *const i32,
     /// Depth-test key.
     pub key: *const f64,
-    /// The largest f64 below the key (see [`below`]).
-    pub below: *const f64,
     /// `sum_c G I`.
     pub gi: *const f64,
     /// Cotangent channels.
-    pub grad: [*const f64; C],
+    pub grad: [*const f32; C],
     _lines: PhantomData<&'a Lines>,
 }
 
@@ -371,52 +345,9 @@ impl<'a, const C: usize> LineAt<'a, C> {
         LineAt {
             face: self.face,
             key: self.key,
-            below: self.below,
             gi: self.gi,
             grad: [],
             _lines: PhantomData,
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::below;
-
-    #[test]
-    fn greater_than_below_is_greater_or_equal() {
-        let specials = [
-            0.0,
-            -0.0,
-            f64::from_bits(1),
-            -f64::from_bits(1),
-            f64::MIN_POSITIVE,
-            1.0,
-            -1.0,
-            0.1,
-            -2.5,
-            f64::MAX,
-            f64::MIN,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-        ];
-        let mut xs = specials.to_vec();
-        for &k in &specials {
-            // Neighbours of every special value.
-            if k.is_finite() {
-                xs.push(f64::from_bits(k.to_bits() + 1));
-                xs.push(f64::from_bits(k.to_bits().saturating_sub(1)));
-            }
-        }
-        for &k in &xs {
-            for &x in &xs {
-                if x > f64::NEG_INFINITY {
-                    assert_eq!(x > below(k), x >= k, "x = {x:e}, k = {k:e}");
-                }
-            }
-        }
-        assert!(below(f64::NAN).is_nan());
-        assert_eq!(below(f64::NEG_INFINITY), f64::NEG_INFINITY);
-        assert_eq!(below(f64::INFINITY), f64::MAX);
     }
 }

@@ -1,7 +1,8 @@
 //! The inner loops of the NMR vertex gradient: the OUT sweep (pixels beyond an edge that the face would cover) and
 //! the IN sweep (pixels of the face that would be uncovered) along one line, see `docs/NMR_GRADIENT.md`.
 //!
-//! Everything is f64, per pixel the same operations as the definition. Both sweeps are branch-free (skipped pixels
+//! The arithmetic is f64, per pixel the same operations as the definition (the cotangent, stored as f32, and the
+//! face index, stored as i32, are converted to f64 exactly when loaded). Both sweeps are branch-free (skipped pixels
 //! add 0) and sum into [`LANES`] lanes (pixel `i` of the sweep into lane `i % LANES`), added pairwise in a fixed
 //! order. Each is written once ([`Kernel`]), generic over a vector of f64 lanes ([`F64s`]: 4 lanes with AVX2, 2 with
 //! SSE2 on any x86-64, 2 plain f64 elsewhere), with the same operations in the same order and no fused
@@ -172,7 +173,6 @@ impl OutSweep<'_> {
             dot: dot(&at, self.attrs),
             face: at.face,
             key: at.key,
-            below: at.below,
             gi: at.gi,
             pos,
             ka: self.ka,
@@ -202,6 +202,7 @@ fn dot_into<'s>(
     for k in 0..channels {
         let (g, wk) = (&ln.grad_from(d0, k)[r.start..r.start + n], w(k));
         for (x, &g) in out.iter_mut().zip(g) {
+            let g = g as f64;
             *x = if k == 0 { g * wk } else { *x + g * wk };
         }
     }
@@ -212,7 +213,7 @@ fn dot_into<'s>(
 /// precomputed by [`dot_into`]. Every pointer starts at the sweep's first pixel and may be read for the sweep's
 /// length rounded up to a multiple of [`LANES`].
 struct Dot<'a, const C: usize> {
-    g: [*const f64; C],
+    g: [*const f32; C],
     w: [f64; C],
     pre: *const f64,
     _data: PhantomData<&'a f64>,
@@ -263,11 +264,11 @@ impl<const C: usize> Dot<'_, C> {
         if C == 0 {
             V::load(self.pre.add(i))
         } else {
-            let mut s = V::load(self.g[0].add(i)).mul(w[0]);
+            let mut s = V::load_f32(self.g[0].add(i)).mul(w[0]);
             #[allow(clippy::needless_range_loop)]
             // a plain index loop unrolls; an iterator chain did not
             for k in 1..C {
-                s = s.add(V::load(self.g[k].add(i)).mul(w[k]));
+                s = s.add(V::load_f32(self.g[k].add(i)).mul(w[k]));
             }
             s
         }
@@ -409,9 +410,8 @@ struct OutKernel<'a, const C: usize> {
     end: f64,
     /// `sum_c G[P, c] A[f, c]`.
     dot: Dot<'a, C>,
-    face: *const f64,
+    face: *const i32,
     key: *const f64,
-    below: *const f64,
     gi: *const f64,
     pos: *const f64,
     /// `da = ka * d + ba` is `ka * (d - cross) + ea`, the displacement of endpoint a (see [`OutSweep`]).
@@ -477,12 +477,12 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
         i: usize,
     ) -> (V, V) {
         let load = |v: *const f64| V::load(v.add(i));
-        let (fp, pos) = (load(self.face), load(self.pos));
+        let (fp, pos) = (V::load_i32(self.face.add(i)), load(self.pos));
         let kf = c.key0.add(c.key_step.mul(pos));
-        // covers(f, P) (the clip range is handled by `clip`): `kf > kP`, or `kf == kP` and `f < F[P]`, i.e.
-        // `kf >= kP` there (`kf > below(kP)`, as `kf > -inf`); and `F[P] != f` (only possible in `own`).
-        let thr = load(self.key).blend(load(self.below), c.fi.lt(fp));
-        let nearer = kf.gt(thr);
+        // covers(f, P) (the clip range is handled by `clip`): `kf > kP`, or `kf == kP` and `f < F[P]`; and
+        // `F[P] != f` (only possible in `own`).
+        let kp = load(self.key);
+        let nearer = kf.gt(kp).or(kf.eq(kp).and(c.fi.lt(fp)));
         let covers = if OWN { nearer.and(fp.ne(c.fi)) } else { nearer };
         // delta where covers and delta < 0, else 0 (`min(delta, 0)` is 0 for delta >= 0 and NaN).
         let delta = self.dot.at(&c.w, i).sub(load(self.gi));
@@ -569,7 +569,7 @@ pub(super) fn in_sweep<const C: usize>(
 struct InSweep<'a> {
     n: usize,
     end: f64,
-    face: *const f64,
+    face: *const i32,
     gi: *const f64,
     pos: *const f64,
     fi: f64,
@@ -647,7 +647,7 @@ impl<const C: usize> Kernel for InKernel<'_, C> {
         let go = self.dot.at(&c.w, i);
         let pos = load(self.s.pos);
         let delta = go.sub(load(self.s.gi));
-        let own = load(self.s.face).eq(c.fi);
+        let own = V::load_i32(self.s.face.add(i)).eq(c.fi);
         let m = delta.min(c.zero).and(own);
         let t = pos.sub(c.cross);
         // NMR's nudge: x + (EPS if x > 0 else -EPS); (2 EPS or 0) - EPS is exact.
@@ -679,6 +679,16 @@ pub(super) unsafe trait F64s: Copy {
     /// # Safety
     /// `p` must be valid for `N` reads.
     unsafe fn load(p: *const f64) -> Self;
+    /// Loads `N` f32 values from `p`, converted to f64 (exactly).
+    ///
+    /// # Safety
+    /// `p` must be valid for `N` reads.
+    unsafe fn load_f32(p: *const f32) -> Self;
+    /// Loads `N` i32 values from `p`, converted to f64 (exactly).
+    ///
+    /// # Safety
+    /// `p` must be valid for `N` reads.
+    unsafe fn load_i32(p: *const i32) -> Self;
     /// Stores the lanes to `p`.
     ///
     /// # Safety
@@ -704,10 +714,10 @@ pub(super) unsafe trait F64s: Copy {
     unsafe fn ne(self, o: Self) -> Self;
     /// Bitwise and.
     unsafe fn and(self, o: Self) -> Self;
+    /// Bitwise or.
+    unsafe fn or(self, o: Self) -> Self;
     /// Lane-wise `if self < o { self } else { o }` (x86's `min`: `o` when either is NaN or both are zeros).
     unsafe fn min(self, o: Self) -> Self;
-    /// Lane-wise `if mask { o } else { self }` for a mask of all-ones or all-zeros lanes.
-    unsafe fn blend(self, o: Self, mask: Self) -> Self;
 }
 
 /// Two plain f64 lanes (targets without an intrinsic implementation; the compiler vectorises what it can).
@@ -718,6 +728,14 @@ unsafe impl F64s for [f64; 2] {
     #[inline(always)]
     unsafe fn load(p: *const f64) -> Self {
         [*p, *p.add(1)]
+    }
+    #[inline(always)]
+    unsafe fn load_f32(p: *const f32) -> Self {
+        [*p as f64, *p.add(1) as f64]
+    }
+    #[inline(always)]
+    unsafe fn load_i32(p: *const i32) -> Self {
+        [*p as f64, *p.add(1) as f64]
     }
     #[inline(always)]
     unsafe fn store(self, p: *mut f64) {
@@ -766,14 +784,14 @@ unsafe impl F64s for [f64; 2] {
         [f(self[0], o[0]), f(self[1], o[1])]
     }
     #[inline(always)]
-    unsafe fn min(self, o: Self) -> Self {
-        let f = |a: f64, b: f64| if a < b { a } else { b };
+    unsafe fn or(self, o: Self) -> Self {
+        let f = |a: f64, b: f64| f64::from_bits(a.to_bits() | b.to_bits());
         [f(self[0], o[0]), f(self[1], o[1])]
     }
     #[inline(always)]
-    unsafe fn blend(self, o: Self, mask: Self) -> Self {
-        let f = |a: f64, b: f64, m: f64| if m.to_bits() != 0 { b } else { a };
-        [f(self[0], o[0], mask[0]), f(self[1], o[1], mask[1])]
+    unsafe fn min(self, o: Self) -> Self {
+        let f = |a: f64, b: f64| if a < b { a } else { b };
+        [f(self[0], o[0]), f(self[1], o[1])]
     }
 }
 
@@ -798,6 +816,14 @@ mod x86 {
         #[inline(always)]
         unsafe fn load(p: *const f64) -> Self {
             _mm_loadu_pd(p)
+        }
+        #[inline(always)]
+        unsafe fn load_f32(p: *const f32) -> Self {
+            _mm_cvtps_pd(_mm_castsi128_ps(_mm_loadl_epi64(p.cast())))
+        }
+        #[inline(always)]
+        unsafe fn load_i32(p: *const i32) -> Self {
+            _mm_cvtepi32_pd(_mm_loadl_epi64(p.cast()))
         }
         #[inline(always)]
         unsafe fn store(self, p: *mut f64) {
@@ -844,13 +870,12 @@ mod x86 {
             _mm_and_pd(self, o)
         }
         #[inline(always)]
-        unsafe fn min(self, o: Self) -> Self {
-            _mm_min_pd(self, o)
+        unsafe fn or(self, o: Self) -> Self {
+            _mm_or_pd(self, o)
         }
         #[inline(always)]
-        unsafe fn blend(self, o: Self, mask: Self) -> Self {
-            // SSE2 has no blend instruction.
-            _mm_or_pd(_mm_andnot_pd(mask, self), _mm_and_pd(mask, o))
+        unsafe fn min(self, o: Self) -> Self {
+            _mm_min_pd(self, o)
         }
     }
 
@@ -860,6 +885,14 @@ mod x86 {
         #[inline(always)]
         unsafe fn load(p: *const f64) -> Self {
             _mm256_loadu_pd(p)
+        }
+        #[inline(always)]
+        unsafe fn load_f32(p: *const f32) -> Self {
+            _mm256_cvtps_pd(_mm_loadu_ps(p))
+        }
+        #[inline(always)]
+        unsafe fn load_i32(p: *const i32) -> Self {
+            _mm256_cvtepi32_pd(_mm_loadu_si128(p.cast()))
         }
         #[inline(always)]
         unsafe fn store(self, p: *mut f64) {
@@ -906,12 +939,12 @@ mod x86 {
             _mm256_and_pd(self, o)
         }
         #[inline(always)]
-        unsafe fn min(self, o: Self) -> Self {
-            _mm256_min_pd(self, o)
+        unsafe fn or(self, o: Self) -> Self {
+            _mm256_or_pd(self, o)
         }
         #[inline(always)]
-        unsafe fn blend(self, o: Self, mask: Self) -> Self {
-            _mm256_blendv_pd(self, o, mask)
+        unsafe fn min(self, o: Self) -> Self {
+            _mm256_min_pd(self, o)
         }
     }
 }
@@ -959,29 +992,28 @@ mod tests {
             let own = (own_a, own_a + rng.below(n + 1 - own_a));
             // Faces: background, lower and higher indices, and the face itself (only among the own pixels, as
             // the kernels require); keys: random, or exact ties.
-            let face: Vec<f64> = (0..padded)
-                .map(|d| match [-1.0, 2.0, fi, 9.0][rng.below(4)] {
-                    f if f == fi && !(start + own.0 <= d && d < start + own.1) => 9.0,
+            let face: Vec<i32> = (0..padded)
+                .map(|d| match [-1, 2, fi as i32, 9][rng.below(4)] {
+                    f if f as f64 == fi && !(start + own.0 <= d && d < start + own.1) => 9,
                     f => f,
                 })
                 .collect();
             let key: Vec<f64> = (0..padded)
                 .map(|d| match rng.below(4) {
                     0 => kf(d),
-                    1 if face[d] < 0.0 => f64::NEG_INFINITY,
+                    1 if face[d] < 0 => f64::NEG_INFINITY,
                     _ => key0 + (rng.next() - 0.5) * 0.5,
                 })
                 .collect();
-            let below: Vec<f64> = key.iter().map(|&k| super::super::lines::below(k)).collect();
             let gi: Vec<f64> = (0..padded).map(|_| rng.next() - 0.5).collect();
-            let g: Vec<Vec<f64>> = (0..4)
+            let g: Vec<Vec<f32>> = (0..4)
                 .map(|_| {
                     (0..padded)
                         .map(|_| {
                             if rng.below(8) == 0 {
                                 0.0
                             } else {
-                                rng.next() - 0.5
+                                (rng.next() - 0.5) as f32
                             }
                         })
                         .collect()
@@ -1005,19 +1037,19 @@ mod tests {
             };
             let (ea, ec) = (nudge(ka), nudge(kc));
             let at = |v: &Vec<f64>| v[start..].as_ptr();
+            let at32 = |v: &Vec<f32>| v[start..].as_ptr();
             let k = OutKernel::<4> {
                 n,
                 own,
                 end: (start + n) as f64,
                 dot: Dot {
-                    g: [at(&g[0]), at(&g[1]), at(&g[2]), at(&g[3])],
+                    g: [at32(&g[0]), at32(&g[1]), at32(&g[2]), at32(&g[3])],
                     w: [rng.next(), rng.next(), rng.next(), rng.next()],
                     pre: std::ptr::null(),
                     _data: PhantomData,
                 },
-                face: at(&face),
+                face: face[start..].as_ptr(),
                 key: at(&key),
-                below: at(&below),
                 gi: at(&gi),
                 pos: at(&pos),
                 ka,
@@ -1038,9 +1070,13 @@ mod tests {
             let (mut wa, mut wc) = ([0f64; LANES], [0f64; LANES]);
             for i in 0..n {
                 let d = start + i;
-                let nearer = kf(d) > key[d] || (kf(d) == key[d] && fi < face[d]);
-                let delta = (0..4).map(|c| g[c][d] * k.dot.w[c]).fold(0.0, |s, x| s + x) - gi[d];
-                if face[d] != fi && nearer && delta < 0.0 {
+                let fd = face[d] as f64;
+                let nearer = kf(d) > key[d] || (kf(d) == key[d] && fi < fd);
+                let delta = (0..4)
+                    .map(|c| g[c][d] as f64 * k.dot.w[c])
+                    .fold(0.0, |s, x| s + x)
+                    - gi[d];
+                if fd != fi && nearer && delta < 0.0 {
                     let (da, dc) = (ka * pos[d] + k.ba, kc * pos[d] + k.bc);
                     let q = delta / (da * dc);
                     wa[i % LANES] += q * dc;
@@ -1071,12 +1107,12 @@ mod tests {
             let n = 1 + rng.below(len - start);
             let fi = 5.0;
             let pos: Vec<f64> = (0..padded).map(|d| d as f64).collect();
-            let face: Vec<f64> = (0..padded)
-                .map(|_| [-1.0, 2.0, fi, fi][rng.below(4)])
+            let face: Vec<i32> = (0..padded)
+                .map(|_| [-1, 2, fi as i32, fi as i32][rng.below(4)])
                 .collect();
             let gi: Vec<f64> = (0..padded).map(|_| rng.next() - 0.5).collect();
-            let g: Vec<Vec<f64>> = (0..4)
-                .map(|_| (0..padded).map(|_| rng.next() - 0.5).collect())
+            let g: Vec<Vec<f32>> = (0..4)
+                .map(|_| (0..padded).map(|_| (rng.next() - 0.5) as f32).collect())
                 .collect();
             // The crossing: sometimes exactly on a pixel centre (t = 0 there).
             let cross = if case % 5 == 0 {
@@ -1091,11 +1127,12 @@ mod tests {
             };
             let kc = (rng.next() - 0.5) * 0.02;
             let at = |v: &Vec<f64>| v[start..].as_ptr();
+            let at32 = |v: &Vec<f32>| v[start..].as_ptr();
             let w = [rng.next(), rng.next(), rng.next(), rng.next()];
             let k = InSweep {
                 n,
                 end: (start + n) as f64,
-                face: at(&face),
+                face: face[start..].as_ptr(),
                 gi: at(&gi),
                 pos: at(&pos),
                 fi,
@@ -1105,7 +1142,7 @@ mod tests {
                 _data: PhantomData,
             }
             .with(Dot::<4> {
-                g: [at(&g[0]), at(&g[1]), at(&g[2]), at(&g[3])],
+                g: [at32(&g[0]), at32(&g[1]), at32(&g[2]), at32(&g[3])],
                 w,
                 pre: std::ptr::null(),
                 _data: PhantomData,
@@ -1133,8 +1170,11 @@ mod tests {
             let (mut wa, mut wc) = ([0f64; LANES], [0f64; LANES]);
             for i in 0..n {
                 let d = start + i;
-                let delta = (0..4).map(|c| g[c][d] * w[c]).fold(0.0, |s, x| s + x) - gi[d];
-                if face[d] == fi && delta < 0.0 {
+                let delta = (0..4)
+                    .map(|c| g[c][d] as f64 * w[c])
+                    .fold(0.0, |s, x| s + x)
+                    - gi[d];
+                if face[d] as f64 == fi && delta < 0.0 {
                     let t = pos[d] - cross;
                     let (da, dc) = (nudge(ka * t), nudge(kc * t));
                     let q = delta / (da * dc);
