@@ -164,10 +164,11 @@ impl FaceSetup {
         s
     }
 
-    /// Barycentric weights of the pixel-space point `(u, v)` (may be negative outside the face).
+    /// Barycentric weights of the pixel-space point `(u, v)` (may be negative outside the face), as the forward
+    /// computes them (times `inv_area`, which [`FaceSetup::new`] sets to `1 / area`).
     #[inline(always)]
     pub fn barycentric(&self, u: f64, v: f64) -> [f64; 3] {
-        let inv = 1.0 / self.area;
+        let inv = self.inv_area;
         [
             self.edges[0].eval(u, v) * inv,
             self.edges[1].eval(u, v) * inv,

@@ -116,23 +116,15 @@ impl Lines {
             .enumerate()
             .for_each(|(group, (((face, key), gi), planes))| {
                 let j0 = group * GROUP;
-                for (jj, ((face, key), gi)) in face
-                    .chunks_exact_mut(h)
-                    .zip(key.chunks_exact_mut(h))
-                    .zip(gi.chunks_exact_mut(h))
-                    .enumerate()
-                {
-                    let j = j0 + jj;
-                    column(&rows.face[j..], w, face);
-                    column(&rows.key[j..], w, key);
-                    column(&rows.gi[j..], w, gi);
-                    // Row i's channel k is rows.grad[(i * c + k) * w..][..w]; column j's is planes[(j * c + k) * h..].
-                    for (k, plane) in planes[jj * c * h..(jj + 1) * c * h]
-                        .chunks_exact_mut(h)
-                        .enumerate()
-                    {
-                        column(&rows.grad[k * w + j..], c * w, plane);
-                    }
+                // Columns `j0..j0 + cols` (the last group may be narrower), one buffer at a time.
+                let cols = face.len() / h.max(1);
+                transpose(&rows.face[j0..], w, cols, h, face, h);
+                transpose(&rows.key[j0..], w, cols, h, key, h);
+                transpose(&rows.gi[j0..], w, cols, h, gi, h);
+                // Row i's channel k is rows.grad[(i * c + k) * w..][..w]; column j's is planes[(j * c + k) * h..].
+                for k in 0..c {
+                    let plane = &mut planes[k * h..];
+                    transpose(&rows.grad[k * w + j0..], c * w, cols, h, plane, c * h);
                 }
             });
         // SAFETY: every group of `cols` columns wrote its `cols * h` face, key and gi values and `cols * c * h` plane
@@ -260,16 +252,38 @@ fn channels<const C: usize>(
 /// Columns transposed together by [`Lines::fill_columns`].
 const GROUP: usize = 8;
 
-/// One output column of a transpose: `out[i] = src[i * stride]` for the `h = out.len()` rows (the group's rows stay
-/// in cache).
+/// Rows transposed together by [`transpose`]: few enough that their pages and cache lines stay in the first-level
+/// TLB and cache while every column of a group is written (one column at a time over all rows did not: at 448 x 448
+/// each of its reads was a TLB miss).
+const ROWS: usize = 32;
+
+/// A transpose of `cols` columns and `h` rows: `out[jj * out_stride + i] = src[i * stride + jj]` for `jj < cols`
+/// and `i < h`, in blocks of [`ROWS`] rows.
 #[inline(always)]
-fn column<T: Copy>(src: &[T], stride: usize, out: &mut [MaybeUninit<T>]) {
-    let h = out.len();
-    assert!(h == 0 || src.len() > (h - 1) * stride);
-    for (i, x) in out.iter_mut().enumerate() {
-        // SAFETY: `i < h` and `(h - 1) * stride < src.len()` (asserted above).
-        #[allow(unsafe_code)]
-        x.write(unsafe { *src.get_unchecked(i * stride) });
+fn transpose<T: Copy>(
+    src: &[T],
+    stride: usize,
+    cols: usize,
+    h: usize,
+    out: &mut [MaybeUninit<T>],
+    out_stride: usize,
+) {
+    if h == 0 || cols == 0 {
+        return;
+    }
+    assert!(src.len() > (h - 1) * stride + cols - 1 && out.len() >= (cols - 1) * out_stride + h);
+    for i0 in (0..h).step_by(ROWS) {
+        let i1 = (i0 + ROWS).min(h);
+        for jj in 0..cols {
+            for i in i0..i1 {
+                // SAFETY: `i < h` and `jj < cols`, so both indices are within the lengths asserted above.
+                #[allow(unsafe_code)]
+                unsafe {
+                    out.get_unchecked_mut(jj * out_stride + i)
+                        .write(*src.get_unchecked(i * stride + jj));
+                }
+            }
+        }
     }
 }
 
