@@ -482,7 +482,7 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
         // covers(f, P) (the clip range is handled by `clip`): `kf > kP`, or `kf == kP` and `f < F[P]`; and
         // `F[P] != f` (only possible in `own`).
         let kp = load(self.key);
-        let nearer = kf.gt(kp).or(kf.eq(kp).and(c.fi.lt(fp)));
+        let nearer = kf.nearer(kp, c.fi.lt(fp));
         let covers = if OWN { nearer.and(fp.ne(c.fi)) } else { nearer };
         // delta where covers and delta < 0, else 0 (`min(delta, 0)` is 0 for delta >= 0 and NaN).
         let delta = self.dot.at(&c.w, i).sub(load(self.gi));
@@ -718,6 +718,11 @@ pub(super) unsafe trait F64s: Copy {
     unsafe fn or(self, o: Self) -> Self;
     /// Lane-wise `if self < o { self } else { o }` (x86's `min`: `o` when either is NaN or both are zeros).
     unsafe fn min(self, o: Self) -> Self;
+    /// The depth test with ties: lane-wise `self > o`, or `self >= o` where `wins_ties` (a mask) is set.
+    #[inline(always)]
+    unsafe fn nearer(self, o: Self, wins_ties: Self) -> Self {
+        self.gt(o).or(self.eq(o).and(wins_ties))
+    }
 }
 
 /// Two plain f64 lanes (targets without an intrinsic implementation; the compiler vectorises what it can).
@@ -945,6 +950,15 @@ mod x86 {
         #[inline(always)]
         unsafe fn min(self, o: Self) -> Self {
             _mm256_min_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn nearer(self, o: Self, wins_ties: Self) -> Self {
+            // One instruction fewer than the default (same lanes: the masks are all ones or all zeros).
+            let (gt, ge) = (
+                _mm256_cmp_pd::<_CMP_GT_OQ>(self, o),
+                _mm256_cmp_pd::<_CMP_GE_OQ>(self, o),
+            );
+            _mm256_blendv_pd(gt, ge, wins_ties)
         }
     }
 }
