@@ -365,3 +365,39 @@ impl<'a, const C: usize> LineAt<'a, C> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::mem::MaybeUninit;
+
+    use super::{transpose, ROWS};
+
+    #[test]
+    fn the_blocked_transpose_writes_every_value_once_in_place() {
+        // Heights below, at and past a block of rows; widths below and at a group; strides with gaps.
+        for h in [1, 3, ROWS - 1, ROWS, ROWS + 1, 2 * ROWS + 5] {
+            for cols in [1, 3, 8] {
+                for (stride, out_stride) in [(cols, h), (cols + 5, h + 2)] {
+                    let src: Vec<u32> = (0..(h - 1) * stride + cols)
+                        .map(|x| x as u32 * 7 + 1)
+                        .collect();
+                    let n = (cols - 1) * out_stride + h;
+                    let mut out = vec![MaybeUninit::new(u32::MAX); n];
+                    transpose(&src, stride, cols, h, &mut out, out_stride);
+                    // SAFETY: every slot was initialised above.
+                    #[allow(unsafe_code)]
+                    let out: Vec<u32> = out.iter().map(|x| unsafe { x.assume_init() }).collect();
+                    for (k, &x) in out.iter().enumerate() {
+                        let (jj, i) = (k / out_stride, k % out_stride);
+                        let want = if i < h {
+                            src[i * stride + jj]
+                        } else {
+                            u32::MAX
+                        };
+                        assert_eq!(x, want, "h {h} cols {cols} stride {stride}: slot {k}");
+                    }
+                }
+            }
+        }
+    }
+}
