@@ -31,6 +31,17 @@ Measured on the benchmark's hardest instance the default reaches (sofa/0, 6 targ
 ``momentum`` 0.9 lost two targets the default reaches by step 57 and reached two others only at step ~285, far more
 distorted; ``stall_steps`` 20 with ``stall_factor`` 0.5 gave the same 5 of 6. So both stay off (same section).
 
+A third changes the direction of a target that has not held yet in the round (off by default):
+
+* ``reach`` ``"budget"`` (the default) or ``"adam"``: with ``"adam"`` such a target steps along Adam's
+  per-coordinate normalised direction ``-m_hat / (sqrt(v_hat) + 1e-8)`` of its gradients (moments with torch's
+  decays 0.9 and 0.999, advanced only while the target is unheld), made unit in the budget's norm, so every vertex
+  (every colour) moves, as Adam moves them; from its first success on it steps along the budget direction. Measured
+  on the three instances holding the default's bicycle misses (aeroplane/1, bottle/1, diningtable/1, 6 targets
+  batched): 12 of 18 targets within 300 steps against 15 of 18 for the default, the bicycles still missed; plain
+  Adam (lr 1e-3 or 3e-3, 300 steps) held 3 and 2 of bottle/1's 6 (benchmarks/RESULTS.md, "ddn: reaching the bicycle
+  targets (seventh session)"). So it stays off.
+
 ``eps`` never goes below ``min_budget`` (> 0), so it is never negative. The engine keeps the least distorted step
 where the target held, so a run returns its best success, not its last step.
 
@@ -346,6 +357,7 @@ class DDNRule(UpdateRule):
             units); defaults per perturbation in :data:`DDN_DEFAULTS`.
         smoothness: shape only, ``s`` of the preconditioner ``(L + I/s)^-1`` (``None``: the Laplacian alone).
         momentum, stall_steps, stall_factor: the step's momentum and stall restarts (see the module docstring).
+        reach: ``"budget"`` or ``"adam"``, the direction of a target that has not held yet (module docstring).
 
     Attributes:
         restarts: int64 ``(T,)``, stall restarts per target in the current round.
