@@ -460,3 +460,18 @@ def test_batched_targets_are_independent(extra: Dict[str, Any]) -> None:
     assert float(both.abs().max()) > 0
     for t in range(2):
         assert torch.allclose(both[t], run([t])[0], atol=1e-7)
+
+
+@needs_native
+@pytest.mark.parametrize("family, options", [(ShapeAttack, SMALL_SHAPE), (TextureAttack, SMALL_TEXTURE)])
+def test_adam_reach_attacks_with_several_views_jitter_and_batched_targets(family: Any, options: Dict[str, Any]) -> None:
+    """``reach="adam"`` end to end on the stand-in victim: two jittered views, two batched targets; both hold on the
+    jittered renders (the final un-jittered re-render is not asserted: ddn ends on the boundary) and the attack
+    records the option."""
+    mesh, _, victim = _chair_case()
+    views = ViewSet.orbit([30.0, 50.0], elevation=20.0, distance=2.6)
+    attack = family(method="ddn", steps=60, jitter={"azimuth": 1.0}, method_options={**options, "reach": "adam"})
+    targets = [TargetedMisclassification(728), TargetedMisclassification(247)]
+    result = attack(mesh, views, victim, targets, setup=RenderSetup(image_size=64))
+    assert attack.config()["method_options"]["reach"] == "adam"
+    assert all(step is not None for step in result.steps_to_success)
