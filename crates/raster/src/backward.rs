@@ -334,11 +334,21 @@ impl Ctx<'_> {
                 for d0 in (lo as i64)..=(hi as i64) {
                     let d0f = d0 as f64;
                     let cross = qa + slope * (d0f - pa);
-                    let d_in_f = if dir > 0 { floor(cross) } else { ceil(cross) };
-                    if !(d_in_f >= 0.0 && d_in_f <= (len - 1) as f64) {
-                        continue;
-                    }
-                    let d_in = d_in_f as i64;
+                    // d_in = floor(cross) (dir > 0) or ceil(cross), skipped outside 0..len (and for NaN). On the
+                    // pixels kept `cross` is in (-1, len), where the truncation `cross as i64` is exact and
+                    // floor = truncation for cross >= 0, ceil = truncation + 1 where the truncation is below cross.
+                    let d_in = if dir > 0 {
+                        if !(cross >= 0.0 && cross < len as f64) {
+                            continue;
+                        }
+                        cross as i64
+                    } else {
+                        if !(cross > -1.0 && cross <= (len - 1) as f64) {
+                            continue;
+                        }
+                        let t = cross as i64;
+                        t + i64::from((t as f64) < cross)
+                    };
                     let d_out = d_in + dir;
                     if d_out < 0 || d_out >= len {
                         continue;
@@ -404,8 +414,10 @@ impl Ctx<'_> {
                     };
                     let limit = if dir > 0 { ceil(cross2) } else { floor(cross2) };
                     // Cut to the drawn box (only the face's pixels contribute).
-                    let from = d_in_f.min(limit).max(index_f64(along[0])) as i64;
-                    let to = d_in_f.max(limit).min(index_f64(along[1])) as i64;
+                    // In integers (`limit as i64` saturates, a monotone map; a NaN limit is ignored, as by `f64::min`).
+                    let limit = if limit.is_nan() { d_in } else { limit as i64 };
+                    let from = d_in.min(limit).max(along[0] as i64);
+                    let to = d_in.max(limit).min(along[1] as i64);
                     let out_px = match axis {
                         Axis::U => d_out as usize * w as usize + line,
                         Axis::V => line * w as usize + d_out as usize,
