@@ -212,6 +212,32 @@ fn attr_grad<const C: usize>(
         .zip(grad.chunks_exact(w * c))
         .enumerate()
     {
+        if C > 0 {
+            // Runs of one face along the row: its sums are added in registers, in the same order as pixel by
+            // pixel (so to the same bits), and its drawn box grows once per run.
+            let mut j = 0;
+            while j < w {
+                let f = row[j];
+                if f < 0 {
+                    j += 1;
+                    continue;
+                }
+                let (fu, j0) = (f as usize, j);
+                let a = &mut acc[fu * C..(fu + 1) * C];
+                let mut sum: [f64; C] = std::array::from_fn(|k| a[k]);
+                while j < w && row[j] == f {
+                    let g = &g[j * C..(j + 1) * C];
+                    for k in 0..C {
+                        sum[k] += g[k] as f64;
+                    }
+                    j += 1;
+                }
+                a.copy_from_slice(&sum);
+                drawn[fu].add(i, j0);
+                drawn[fu].add(i, j - 1);
+            }
+            continue;
+        }
         for (j, (&f, g)) in row.iter().zip(g.chunks_exact(c)).enumerate() {
             if f >= 0 {
                 let f = f as usize;
@@ -652,6 +678,50 @@ mod tests {
         /// A uniform index in `[0, n)`.
         pub(super) fn below(&mut self, n: usize) -> usize {
             (self.next() * n as f64) as usize
+        }
+    }
+
+    #[test]
+    fn the_attribute_gradient_by_runs_matches_pixel_by_pixel_bit_for_bit() {
+        let (h, w) = (7, 23);
+        let mut rng = Rng(5);
+        for c in 1..=5 {
+            // Runs of faces (and background) of random lengths, a few faces repeated across rows.
+            let mut face_index = Vec::new();
+            while face_index.len() < h * w {
+                let f = rng.below(7) as i32 - 1;
+                face_index.extend(std::iter::repeat_n(f, 1 + rng.below(6)));
+            }
+            face_index.truncate(h * w);
+            let grad: Vec<f32> = (0..h * w * c)
+                .map(|_| {
+                    ((rng.next() - 0.5) * 1e3) as f32 * if rng.below(9) == 0 { 0.0 } else { 1.0 }
+                })
+                .collect();
+            let start: Vec<f64> = (0..6 * c).map(|_| rng.next() * 1e-7).collect();
+            let (mut acc, mut drawn) = (start.clone(), vec![Drawn::EMPTY; 6]);
+            match c {
+                1 => attr_grad::<1>(&face_index, &grad, w, c, &mut acc, &mut drawn),
+                2 => attr_grad::<2>(&face_index, &grad, w, c, &mut acc, &mut drawn),
+                3 => attr_grad::<3>(&face_index, &grad, w, c, &mut acc, &mut drawn),
+                4 => attr_grad::<4>(&face_index, &grad, w, c, &mut acc, &mut drawn),
+                _ => attr_grad::<0>(&face_index, &grad, w, c, &mut acc, &mut drawn),
+            }
+            let (mut want, mut want_drawn) = (start, vec![Drawn::EMPTY; 6]);
+            for (p, &f) in face_index.iter().enumerate() {
+                if f >= 0 {
+                    let f = f as usize;
+                    want_drawn[f].add(p / w, p % w);
+                    for k in 0..c {
+                        want[f * c + k] += grad[p * c + k] as f64;
+                    }
+                }
+            }
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&acc), bits(&want), "{c} channels");
+            for (d, e) in drawn.iter().zip(&want_drawn) {
+                assert_eq!((d.rows, d.cols), (e.rows, e.cols), "{c} channels");
+            }
         }
     }
 
