@@ -337,22 +337,31 @@ def test_ctrl_c_in_the_caller_waits_for_the_running_tasks() -> None:
     from meshadv.attacks.pipeline import StepWorkers
 
     done: List[int] = []
+    started = threading.Barrier(2)
+    interrupted = threading.Event()
+
+    def on_sigint(signum: int, frame: object) -> None:
+        interrupted.set()
+        raise KeyboardInterrupt
 
     def task(i: int) -> int:
-        time.sleep(0.4)
+        started.wait(timeout=10)  # both tasks are running before the signal
+        if i == 0:
+            os.kill(os.getpid(), signal.SIGINT)
+        assert interrupted.wait(timeout=10), "the calling thread never handled SIGINT"
+        time.sleep(0.05)  # still running after the caller saw the interrupt
         done.append(i)
         return i
 
-    timer = threading.Timer(0.1, lambda: os.kill(os.getpid(), signal.SIGINT))
-    with StepWorkers(2, 1) as workers:
-        timer.start()
-        try:
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        with StepWorkers(2, 1) as workers:
             with pytest.raises(KeyboardInterrupt):
                 workers.map(task, [0, 1])
-        finally:
-            timer.cancel()
-        assert sorted(done) == [0, 1]
-        assert workers.map(lambda i: i + 1, [1]) == [2]
+            assert sorted(done) == [0, 1]
+            assert workers.map(lambda i: i + 1, [1]) == [2]
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def test_split_images() -> None:
