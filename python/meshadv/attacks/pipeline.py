@@ -161,8 +161,10 @@ class StepWorkers:
         """
         if self._pool is None:
             raise RuntimeError("StepWorkers is closed")
-        futures: List[Future] = [self._pool.submit(fn, item) for item in items]
-        try:
+        futures: List[Future] = []
+        try:  # an interrupt while submitting also waits for the tasks already started
+            for item in items:
+                futures.append(self._pool.submit(fn, item))
             wait(futures)
         except BaseException:
             for future in futures:
