@@ -123,6 +123,36 @@ def cat_outputs(outputs: Sequence[Any]) -> Any:
     return rebuild_output(outputs[0], cat)
 
 
+class _TaskGate:
+    """Counts the running tasks of one :meth:`StepWorkers.map` call; once closed, tasks that had not started skip
+    their work and :meth:`close_and_wait` returns when the started ones have finished."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._running = 0
+        self._closed = False
+
+    def run(self, fn: Callable[[_T], _R], item: _T) -> Optional[_R]:
+        """``fn(item)`` unless the gate is closed (then ``None``: the call was abandoned)."""
+        with self._cond:
+            if self._closed:
+                return None
+            self._running += 1
+        try:
+            return fn(item)
+        finally:
+            with self._cond:
+                self._running -= 1
+                self._cond.notify_all()
+
+    def close_and_wait(self) -> None:
+        """No task starts from now on; wait for the running ones."""
+        with self._cond:
+            self._closed = True
+            while self._running:
+                self._cond.wait()
+
+
 class StepWorkers:
     """``workers`` threads that run the chunks of pipelined attack steps (see the module docstring).
 
@@ -161,15 +191,16 @@ class StepWorkers:
         """
         if self._pool is None:
             raise RuntimeError("StepWorkers is closed")
+        gate = _TaskGate()
         futures: List[Future] = []
-        try:  # an interrupt while submitting also waits for the tasks already started
+        try:
             for item in items:
-                futures.append(self._pool.submit(fn, item))
+                futures.append(self._pool.submit(gate.run, fn, item))
             wait(futures)
         except BaseException:
-            for future in futures:
-                future.cancel()
-            wait(futures)
+            # An interrupt can land anywhere here, even inside submit() after a task was queued but before its
+            # future came back; the gate, not the futures, knows which tasks started.
+            gate.close_and_wait()
             raise
         return [future.result() for future in futures]
 
