@@ -41,6 +41,8 @@ from collections import defaultdict
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 
+import numpy as np
+
 from meshadv.attacks.distances import PAPER_COMPARABLE, read_distance
 from meshadv.experiments import paper
 
@@ -124,23 +126,18 @@ class TailStats:
 
 
 def percentile(values: Sequence[float], q: float) -> float:
-    """The ``q``-th percentile of ``values`` by linear interpolation between order statistics (NumPy's default
-    ``"linear"`` method: rank ``(n - 1) q / 100``); ``nan`` for no values.
+    """The ``q``-th percentile of ``values`` by linear interpolation between order statistics
+    (:func:`numpy.percentile`'s default ``"linear"`` method: rank ``(n - 1) q / 100``); ``nan`` for no values.
 
     Raises:
         ValueError: ``q`` outside ``[0, 100]`` or a ``nan`` among ``values``.
     """
     if not 0.0 <= q <= 100.0:
         raise ValueError(f"q must be in [0, 100], got {q}")
-    ordered = sorted(float(v) for v in values)
-    if any(math.isnan(v) for v in ordered):
+    vals = np.asarray(values, dtype=np.float64)
+    if np.isnan(vals).any():
         raise ValueError("values must not contain nan")
-    if not ordered:
-        return math.nan
-    rank = (len(ordered) - 1) * q / 100.0
-    lo = math.floor(rank)
-    hi = min(lo + 1, len(ordered) - 1)
-    return ordered[lo] + (ordered[hi] - ordered[lo]) * (rank - lo)
+    return float(np.percentile(vals, q)) if vals.size else math.nan
 
 
 def tail_stats(values: Sequence[float], threshold: Optional[float] = None) -> TailStats:
@@ -259,15 +256,15 @@ def table1(rows: Iterable[AttackRow]) -> List[Table1Row]:
             worst_s.append(1.0 if all_won else 0.0)
             if all_won and dists:
                 worst_d.append(max(dists))
+        paper_measure = PAPER_COMPARABLE.get(perturbation) == measure
         out.append(Table1Row(
             victim=victim, perturbation=perturbation, distance_name=measure,
             instances=len(instances), incomplete=incomplete, targets=n_targets,
             best=CaseStats(_mean(best_s), _mean(best_d), len(best_s)),
             average=CaseStats(_mean(avg_s), _mean(avg_d), len(avg_s)),
             worst=CaseStats(_mean(worst_s), _mean(worst_d), len(worst_s)),
-            paper_measure=PAPER_COMPARABLE.get(perturbation) == measure,
-            tail=tail_stats(avg_d, PAPER_WORST.get(perturbation) if PAPER_COMPARABLE.get(perturbation) == measure
-                            else None),
+            paper_measure=paper_measure,
+            tail=tail_stats(avg_d, PAPER_WORST.get(perturbation) if paper_measure else None),
         ))
     return out
 
