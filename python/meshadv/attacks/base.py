@@ -194,9 +194,11 @@ class MeshAttack(ABC):
             or of one target's views): each renders its chunk and runs the victim on it, overlapping one chunk's
             render with another's victim; the
             gradient is the one-thread step's up to the victim's float rounding at another batch size and thread
-            count. ``1`` (default): one thread, the step as it always was. ``2`` is faster on 2 cores (+9-15%
-            target-steps/s, benchmarks/RESULTS.md "Pipelined attack step") but runs each chunk's victim on fewer
-            torch threads, so its float rounding differs from a serial run's. An execution setting like
+            count. ``1`` (default): one thread, the step as it always was. ``2`` was faster on a loaded 2-core
+            machine (+9-15% target-steps/s, benchmarks/RESULTS.md "Pipelined attack step"); since the cheaper NMR
+            backward it gains nothing for shape on a quiet one (same file, "Attack step split at HEAD on a quiet
+            machine"). It runs each chunk's victim on fewer torch threads, so its float rounding differs from a
+            serial run's. An execution setting like
             ``--threads``: not part of :meth:`config`.
 
     Raises:

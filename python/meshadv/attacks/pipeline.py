@@ -184,7 +184,7 @@ class StepWorkers:
 
         Every task has finished when this returns or raises: the first exception of a task (in ``items`` order) is
         re-raised here, and an exception of the calling thread itself (``KeyboardInterrupt``) waits for the tasks
-        already started, cancels the others and propagates.
+        already started, lets the others skip their work and propagates.
 
         Raises:
             RuntimeError: the workers were closed.
