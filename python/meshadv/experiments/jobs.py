@@ -154,6 +154,8 @@ def pin_defaults(store: Any, specs: Any) -> Dict[str, Any]:
     Returns:
         The pinned defaults.
     """
+    from meshadv.experiments.regenerate import attack_pin_key
+
     pins = dict(store.get_meta(PINNED_DEFAULTS_KEY) or {})
     attack_pins = dict(pins.get("attack") or {})
     changed = False
@@ -162,7 +164,7 @@ def pin_defaults(store: Any, specs: Any) -> Dict[str, Any]:
         changed = True
     for spec in specs:
         attack = spec.get("attack") or {}
-        key = f"{spec.get('perturbation')}/{attack.get('method') or 'default'}"
+        key = attack_pin_key(spec.get("perturbation"), attack.get("method"))
         if key not in attack_pins:
             try:
                 attack_pins[key] = default_attack_options(str(spec.get("perturbation")), attack.get("method"))
@@ -184,13 +186,13 @@ def seed_pinned_defaults(store: Any, assumed: Dict[str, Any]) -> Dict[str, Any]:
     Returns:
         The pinned defaults.
     """
-    from meshadv.experiments.regenerate import pinned_spec
+    from meshadv.experiments.regenerate import attack_pin_key, pinned_spec
 
     pinned_spec({}, None, assumed)  # validates
     pins = dict(store.get_meta(PINNED_DEFAULTS_KEY) or {})
     attack_pins = dict(pins.get("attack") or {})
     for key, options in (assumed.get("attack") or {}).items():
-        full = key if "/" in key else f"{key}/{options.get('method') or 'default'}"
+        full = key if "/" in key else attack_pin_key(key, options.get("method"))
         attack_pins.setdefault(full, dict(options))
     pins["attack"] = attack_pins
     if "victim_optimize" in assumed:

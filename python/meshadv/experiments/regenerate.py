@@ -29,13 +29,18 @@ from meshadv.experiments.store import ResultStore
 from meshadv.experiments.worker import execute
 
 __all__ = ["Regenerated", "regenerate_job", "ensure_artifacts", "stored_job_ref", "pinned_spec", "load_assumed",
-           "COMPARED_KEYS", "Assumed"]
+           "COMPARED_KEYS", "Assumed", "attack_pin_key"]
 
 #: What the sweep's code used where neither its specs nor its records say: ``{"victim_optimize": bool, "attack":
 #: {"shape": {option: value, "method_options": {...}}, "texture": {...}}}`` (every key optional); an attack entry
 #: applies to specs of its own ``method``, and ``"<type>/<method>"`` keys (``"shape/ddn"``, ``"texture/default"``
 #: for a spec without a method) take precedence over ``"<type>"`` ones.
 Assumed = Mapping[str, Any]
+
+
+def attack_pin_key(perturbation: Any, method: Any) -> str:
+    """The ``"<type>/<method>"`` key of an :data:`Assumed` attack entry (``"default"`` for a spec without a method)."""
+    return f"{perturbation}/{method or 'default'}"
 
 _ATTACK_JOB = "meshadv.experiments.jobs:run_attack_job"
 
@@ -144,7 +149,7 @@ def pinned_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
         out["attack"] = _merge_attack({k: v for k, v in config.items() if k != "perturbation"}, attack)
     else:
         pins = assume.get("attack") or {}
-        assumed = pins.get(f"{out.get('perturbation')}/{attack.get('method') or 'default'}")
+        assumed = pins.get(attack_pin_key(out.get("perturbation"), attack.get("method")))
         if assumed is None:
             assumed = pins.get(str(out.get("perturbation")))
             if isinstance(assumed, Mapping) and assumed.get("method") != attack.get("method"):
