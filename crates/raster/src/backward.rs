@@ -50,7 +50,7 @@ use rayon::prelude::*;
 use crate::error::{try_clear_for, try_refill, RasterError, Result};
 use crate::input::{check_finite, FaceAttrs, RasterParams, ScreenMesh};
 use crate::setup::FaceSetup;
-use sweep::{in_sweep, index_f64, OutSweep, Positions};
+use sweep::{index_f64, run_lines, Clip, FaceLines, LineJob, Positions};
 
 /// NMR's `eps` added to the signed displacement (NDC units) before dividing.
 pub const EPS: f64 = 1e-4;
@@ -145,9 +145,11 @@ impl Isa {
     }
 }
 
-/// Per-task scratch of the sweeps, reused across faces: `sum_c G A` of one line (more than four channels only).
+/// Per-task scratch of the sweeps, reused across faces: `sum_c G A` of one line (more than four channels only) and
+/// the planned sweeps of one edge along one axis.
 struct Scratch {
     ga: Vec<f64>,
+    jobs: Vec<LineJob>,
 }
 
 /// Per-batch-element context of the gradient sweeps.
@@ -324,6 +326,7 @@ impl Ctx<'_> {
         let c = if C == 0 { self.channels } else { C };
         let fi = f as f64;
         let attrs_f = &self.attrs[f * c..(f + 1) * c];
+        let jobs = &mut scratch.jobs;
         let mut g = [[0.0f64; 2]; 3];
         for e in 0..3 {
             let (a, cc, o) = (e, (e + 1) % 3, (e + 2) % 3);
@@ -357,6 +360,10 @@ impl Ctx<'_> {
                     Axis::U => (s.plane[0], s.plane[1]),
                     Axis::V => (s.plane[1], s.plane[0]),
                 };
+                let key_step = sgn * pl_step;
+                // First the lines' sweeps are planned (scalar work), then run together (vector work), then their
+                // sums are added to `g` line by line (OUT, then IN), in the order of the definition.
+                jobs.clear();
                 for d0 in (lo as i64)..=(hi as i64) {
                     let d0f = d0 as f64;
                     let cross = qa + slope * (d0f - pa);
@@ -380,9 +387,31 @@ impl Ctx<'_> {
                         continue;
                     }
                     let line = d0 as usize;
-                    // Endpoint motion needed per pixel of crossing motion (None when the endpoint is on the line).
-                    let ka = (pc != d0f).then(|| ndc * (pc - pa) / (pc - d0f));
-                    let kc = (pa != d0f).then(|| ndc * (pc - pa) / (d0f - pa));
+                    // Endpoint motion needed per pixel of crossing motion (0 when the endpoint is on the line,
+                    // whose sums are then not added).
+                    let ka = if pc != d0f {
+                        ndc * (pc - pa) / (pc - d0f)
+                    } else {
+                        0.0
+                    };
+                    let kc = if pa != d0f {
+                        ndc * (pc - pa) / (d0f - pa)
+                    } else {
+                        0.0
+                    };
+                    let mut job = LineJob {
+                        line,
+                        cross,
+                        ka,
+                        kc,
+                        out: (0, 0),
+                        ea: 1.0,
+                        ec: 1.0,
+                        key0: 0.0,
+                        inside: (0, 0),
+                        out_color: 0,
+                        sums: [0.0; 4],
+                    };
                     // OUT: pixels beyond the edge that the face would cover (only where the cotangent is not zero).
                     if ln.face(line)[d_in as usize] == f as i32 {
                         let (start, end) = if dir > 0 {
@@ -393,41 +422,23 @@ impl Ctx<'_> {
                         let [nz0, nz1] = ln.nonzero[line];
                         let (start, end) = (start.max(nz0), end.min(nz1));
                         if start < end {
-                            // `nudge(k t)` is `k t + sign(k dir) EPS` beyond the edge (`t` has the sign of `dir`).
-                            let split = |k: Option<f64>| match k {
-                                Some(k) => (k, if k * dir as f64 > 0.0 { EPS } else { -EPS }),
-                                None => (0.0, 1.0),
+                            // `nudge(k t)` is `k t + sign(k dir) EPS` beyond the edge (`t` has the sign of `dir`);
+                            // an endpoint on the line gets 1, so that its denominator never vanishes.
+                            let nudge = |k: f64, on: bool| match on {
+                                true => 1.0,
+                                false if k * dir as f64 > 0.0 => EPS,
+                                false => -EPS,
                             };
-                            let ((ka_, ea), (kc_, ec)) = (split(ka), split(kc));
-                            let sweep = OutSweep {
-                                fi,
-                                key0: sgn * (pl_line * d0f + s.plane[2]),
-                                key_step: sgn * pl_step,
+                            job.ea = nudge(ka, pc == d0f);
+                            job.ec = nudge(kc, pa == d0f);
+                            job.key0 = sgn * (pl_line * d0f + s.plane[2]);
+                            let clip = Clip {
+                                key0: job.key0,
+                                key_step,
                                 key_lo,
                                 key_hi,
-                                cross,
-                                ka: ka_,
-                                ea,
-                                kc: kc_,
-                                ec,
-                                attrs: attrs_f,
-                                own: (along[0], along[1]),
                             };
-                            let (sa, sc) = sweep.run::<C>(
-                                ln,
-                                line,
-                                start,
-                                end,
-                                self.pos,
-                                &mut scratch.ga,
-                                isa,
-                            );
-                            if ka.is_some() {
-                                g[a][comp] += sa;
-                            }
-                            if kc.is_some() {
-                                g[cc][comp] += sc;
-                            }
+                            job.out = clip.clip(start, end);
                         }
                     }
                     // IN: pixels of the face that would be uncovered.
@@ -444,31 +455,43 @@ impl Ctx<'_> {
                     let limit = if limit.is_nan() { d_in } else { limit as i64 };
                     let from = d_in.min(limit).max(along[0] as i64);
                     let to = d_in.max(limit).min(along[1] as i64);
-                    let out_px = match axis {
-                        Axis::U => d_out as usize * w as usize + line,
-                        Axis::V => line * w as usize + d_out as usize,
-                    };
-                    let out_color = &self.image[out_px * c..(out_px + 1) * c];
                     if from <= to {
-                        let (sa, sc) = in_sweep::<C>(
-                            ln,
-                            line,
-                            from as usize..to as usize + 1,
-                            fi,
-                            out_color,
-                            cross,
-                            ka.unwrap_or(0.0),
-                            kc.unwrap_or(0.0),
-                            self.pos,
-                            &mut scratch.ga,
-                            isa,
-                        );
-                        if ka.is_some() {
-                            g[a][comp] += sa;
-                        }
-                        if kc.is_some() {
-                            g[cc][comp] += sc;
-                        }
+                        job.inside = (from as usize, to as usize + 1);
+                        let out_px = match axis {
+                            Axis::U => d_out as usize * w as usize + line,
+                            Axis::V => line * w as usize + d_out as usize,
+                        };
+                        job.out_color = out_px * c;
+                    }
+                    if job.out.0 < job.out.1 || from <= to {
+                        jobs.push(job);
+                    }
+                }
+                let face = FaceLines {
+                    ln,
+                    pos: self.pos,
+                    fi,
+                    key_step,
+                    attrs: attrs_f,
+                    own: (along[0], along[1]),
+                    image: self.image,
+                };
+                run_lines::<C>(&face, jobs, &mut scratch.ga, isa);
+                for job in jobs.iter() {
+                    // A sweep that did not run has sums +0, and adding +0 leaves `g` as it is (`g` is never -0: it
+                    // starts at +0, and a sum is -0 only from two -0s or under round-down).
+                    let (on_a, on_c) = (pc != index_f64(job.line), pa != index_f64(job.line));
+                    if on_a {
+                        g[a][comp] += job.sums[0];
+                    }
+                    if on_c {
+                        g[cc][comp] += job.sums[1];
+                    }
+                    if on_a {
+                        g[a][comp] += job.sums[2];
+                    }
+                    if on_c {
+                        g[cc][comp] += job.sums[3];
                     }
                 }
             }
@@ -635,6 +658,7 @@ fn element_grads(
     partials.par_extend((0..m).into_par_iter().map_init(
         || Scratch {
             ga: vec![0.0; if c > 4 { longest + sweep::LANES } else { 0 }],
+            jobs: Vec::with_capacity(longest),
         },
         |scratch, f| {
             if visible(f) && ctx.setups[f].active {
@@ -755,22 +779,13 @@ mod tests {
     #[test]
     fn clip_keeps_exactly_the_pixels_in_the_clip_range() {
         let mut rng = Rng(2);
-        let attrs = [0.5];
         for _ in 0..2000 {
             let (lo, hi) = (rng.next(), 1.0 + rng.next() * 2.0);
-            let s = OutSweep {
-                fi: 3.0,
+            let s = Clip {
                 key0: rng.next() * 4.0 - 1.0,
                 key_step: (rng.next() - 0.5) * 0.05 * (rng.next() < 0.9) as i32 as f64,
                 key_lo: lo,
                 key_hi: hi,
-                cross: 0.0,
-                ka: 0.0,
-                ea: EPS,
-                kc: 0.0,
-                ec: -EPS,
-                attrs: &attrs,
-                own: (0, 0),
             };
             let (start, end) = ((rng.next() * 60.0) as usize, (rng.next() * 120.0) as usize);
             let (a, b) = s.clip(start, end);

@@ -446,20 +446,6 @@ pub(super) struct LineAt<'a, const C: usize> {
     _lines: PhantomData<&'a Lines>,
 }
 
-impl<'a, const C: usize> LineAt<'a, C> {
-    /// The same pointers without the cotangent's.
-    #[inline(always)]
-    pub fn without_grad(&self) -> LineAt<'a, 0> {
-        LineAt {
-            face: self.face,
-            key: self.key,
-            gi: self.gi,
-            grad: [],
-            _lines: PhantomData,
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use std::mem::MaybeUninit;

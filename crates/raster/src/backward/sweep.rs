@@ -42,10 +42,9 @@ impl Positions {
     }
 }
 
-/// One OUT sweep along a line, with local accumulators for the two edge endpoints.
-pub(super) struct OutSweep<'a> {
-    /// The face, as f64 (compared with the face planes).
-    pub fi: f64,
+/// The clip range of an OUT sweep's depth test along one line: the face's key at pixel `d` is
+/// `key0 + key_step * d` (its plane), and only keys in `key_lo..=key_hi` (the clip range) may be covered.
+pub(super) struct Clip {
     /// Depth-test key of the face's plane at pixel 0 of the line.
     pub key0: f64,
     /// Key increment per pixel along the line.
@@ -54,21 +53,6 @@ pub(super) struct OutSweep<'a> {
     pub key_lo: f64,
     /// Largest key allowed by the clip range.
     pub key_hi: f64,
-    /// Where the edge crosses the line.
-    pub cross: f64,
-    /// `to_ndc` motion of endpoint `a` per pixel of crossing motion (0 when `a` is on the line).
-    pub ka: f64,
-    /// `sign(ka dir) EPS` (1 when `a` is on the line, so that its denominator never vanishes).
-    pub ea: f64,
-    /// As `ka`, endpoint `c`.
-    pub kc: f64,
-    /// As `ea`, endpoint `c`.
-    pub ec: f64,
-    /// The face's attributes.
-    pub attrs: &'a [f64],
-    /// The face's drawn pixels along the line lie in `own.0..=own.1` (from its drawn box): only there does a pixel
-    /// need the test `F[P] != f`.
-    pub own: (usize, usize),
 }
 
 /// First index in `lo..hi` where `pred` is false, for a predicate that is true then false (`hi` if none).
@@ -91,7 +75,7 @@ fn lane_sum(x: &[f64; LANES]) -> f64 {
     (x[0] + x[1]) + (x[2] + x[3])
 }
 
-impl OutSweep<'_> {
+impl Clip {
     /// Depth-test key of the face's plane at pixel `d` of the line.
     #[inline(always)]
     pub fn key(&self, d: usize) -> f64 {
@@ -100,13 +84,25 @@ impl OutSweep<'_> {
 
     /// The pixels of `start..end` where the face's key is within the clip range. Exact: the computed key is a
     /// monotone function of `d` (products and sums round monotonically), so these pixels form one range.
+    #[inline(always)]
     pub fn clip(&self, start: usize, end: usize) -> (usize, usize) {
         let above_lo = |d: usize| self.key(d) >= self.key_lo;
         let below_hi = |d: usize| self.key(d) <= self.key_hi;
         let inside = |d: usize| above_lo(d) && below_hi(d);
         if start >= end || (inside(start) && inside(end - 1)) {
             (start, end)
-        } else if self.key_step > 0.0 {
+        } else {
+            self.search(start, end)
+        }
+    }
+
+    /// [`Clip::clip`] where an end of `start..end` (not empty) is outside the clip range.
+    #[cold]
+    #[inline(never)]
+    fn search(&self, start: usize, end: usize) -> (usize, usize) {
+        let above_lo = |d: usize| self.key(d) >= self.key_lo;
+        let below_hi = |d: usize| self.key(d) <= self.key_hi;
+        if self.key_step > 0.0 {
             let s = partition_point(start, end, |d| !above_lo(d));
             (s, partition_point(s, end, below_hi))
         } else if self.key_step < 0.0 {
@@ -116,74 +112,181 @@ impl OutSweep<'_> {
             (start, start)
         }
     }
+}
 
-    /// Sums the contributions of pixels `start..end` of line `d0` (`scratch` a line of at least
-    /// `end - start + LANES` values), for `C` channels (0: any count; otherwise the attributes' length). Returns the
-    /// sums for endpoints `a` and `c` (meaningful only when their `k` is defined).
-    #[allow(clippy::too_many_arguments)]
-    #[inline(always)]
-    pub fn run<const C: usize>(
-        &self,
-        ln: &Lines,
-        d0: usize,
-        start: usize,
-        end: usize,
-        pos: &Positions,
-        scratch: &mut [f64],
-        isa: Isa,
-    ) -> (f64, f64) {
-        let (start, end) = self.clip(start, end);
-        if start >= end {
-            return (0.0, 0.0);
-        }
-        let attrs = self.attrs;
-        let r = start..end;
-        let pos = pos.at(start, end);
-        match if C == 0 { attrs.len() } else { C } {
-            1 => self.kernel(ln.at::<1>(d0, start, end), Dot::line, pos, &r, isa),
-            2 => self.kernel(ln.at::<2>(d0, start, end), Dot::line, pos, &r, isa),
-            3 => self.kernel(ln.at::<3>(d0, start, end), Dot::line, pos, &r, isa),
-            4 => self.kernel(ln.at::<4>(d0, start, end), Dot::line, pos, &r, isa),
-            _ => {
-                let pre = dot_into(ln, d0, &r, |k| attrs[k], attrs.len(), scratch);
-                let dot = |_: &LineAt<'_, 0>, _: &[f64]| Dot::pre(pre, r.len());
-                self.kernel(ln.at::<0>(d0, start, end), dot, pos, &r, isa)
-            }
+/// The sweeps of one line of a face's edge along one axis, as planned by the caller: what the sweeps need per line,
+/// and (after [`run_lines`]) their sums. A sweep with an empty range does not run and leaves its sums 0.
+#[derive(Clone, Copy)]
+pub(super) struct LineJob {
+    /// The line.
+    pub line: usize,
+    /// Where the edge crosses the line.
+    pub cross: f64,
+    /// `to_ndc` motion of endpoint `a` per pixel of crossing motion (0 when `a` is on the line).
+    pub ka: f64,
+    /// As `ka`, endpoint `c`.
+    pub kc: f64,
+    /// The OUT sweep's pixels (already cut to the cotangent's span and the clip range).
+    pub out: (usize, usize),
+    /// The OUT sweep's `sign(ka dir) EPS` (1 when `a` is on the line, so that its denominator never vanishes).
+    pub ea: f64,
+    /// As `ea`, endpoint `c`.
+    pub ec: f64,
+    /// Depth-test key of the face's plane at pixel 0 of the line.
+    pub key0: f64,
+    /// The IN sweep's pixels.
+    pub inside: (usize, usize),
+    /// Offset of `I[pix(d_out)]` (the colour beyond the edge) in the image.
+    pub out_color: usize,
+    /// Sums for endpoints a and c of the OUT sweep, then of the IN sweep.
+    pub sums: [f64; 4],
+}
+
+/// What the sweeps of one face along one axis share.
+pub(super) struct FaceLines<'a> {
+    /// The line buffers of the axis.
+    pub ln: &'a Lines,
+    /// Pixel positions.
+    pub pos: &'a Positions,
+    /// The face, as f64 (compared with the face planes).
+    pub fi: f64,
+    /// The face's key increment per pixel along a line.
+    pub key_step: f64,
+    /// The face's attributes.
+    pub attrs: &'a [f64],
+    /// The face's drawn pixels along a line lie in `own.0..=own.1` (from its drawn box): only there does an OUT
+    /// sweep's pixel need the test `F[P] != f`.
+    pub own: (usize, usize),
+    /// The image (row-major, as given).
+    pub image: &'a [f32],
+}
+
+/// Runs the OUT and IN sweeps of `jobs` (see [`LineJob`]) on the instruction set `isa`, for `C` channels (0: any
+/// count; otherwise the attributes' length), writing their sums into the jobs. `scratch` is a line of at least the
+/// longest sweep plus [`LANES`] values (used with more than 4 channels).
+#[inline(always)]
+pub(super) fn run_lines<const C: usize>(
+    face: &FaceLines<'_>,
+    jobs: &mut [LineJob],
+    scratch: &mut [f64],
+    isa: Isa,
+) {
+    // SAFETY: `Isa::Avx2` is only passed when the CPU supports AVX2 (see `rasterize_backward_on`); SSE2 is part
+    // of the x86-64 baseline.
+    #[allow(unsafe_code)]
+    unsafe {
+        match isa {
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => lines_avx2::<C>(face, jobs, scratch),
+            #[cfg(target_arch = "x86_64")]
+            _ => lines_on::<std::arch::x86_64::__m128d, C>(face, jobs, scratch),
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => lines_on::<[f64; 2], C>(face, jobs, scratch),
         }
     }
+}
 
-    /// The OUT sweep over the pixels `r` (already clipped) of the line at `at` (and positions at `pos`, both from
-    /// `r.start` and readable as [`Lines::at`] says), with `sum_c G[P, c] A[f, c]` from `dot(at, attrs)`.
-    #[inline(always)]
-    fn kernel<'a, const C: usize>(
-        &self,
-        at: LineAt<'a, C>,
-        dot: impl FnOnce(&LineAt<'a, C>, &[f64]) -> Dot<'a, C>,
-        pos: *const f64,
-        r: &std::ops::Range<usize>,
-        isa: Isa,
-    ) -> (f64, f64) {
+/// [`lines_on`] on AVX2 (its own function, so that the sweeps' registers are allocated apart from the caller's).
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(unsafe_code)]
+#[inline(never)]
+unsafe fn lines_avx2<const C: usize>(
+    face: &FaceLines<'_>,
+    jobs: &mut [LineJob],
+    scratch: &mut [f64],
+) {
+    lines_on::<std::arch::x86_64::__m256d, C>(face, jobs, scratch)
+}
+
+/// [`run_lines`] on vectors `V`: first every OUT sweep, then every IN sweep.
+///
+/// # Safety
+/// `V`'s instructions must be supported by the CPU.
+#[allow(unsafe_code)]
+#[inline(always)]
+unsafe fn lines_on<V: F64s, const C: usize>(
+    face: &FaceLines<'_>,
+    jobs: &mut [LineJob],
+    scratch: &mut [f64],
+) {
+    let (ln, attrs) = (face.ln, face.attrs);
+    let c = if C == 0 { attrs.len() } else { C };
+    for job in jobs.iter_mut() {
+        let (start, end) = job.out;
+        if start >= end {
+            continue;
+        }
+        let r = start..end;
+        let at = ln.at::<C>(job.line, start, end);
+        let pre = if C == 0 {
+            dot_into(ln, job.line, &r, |k| attrs[k], c, scratch)
+        } else {
+            &[]
+        };
         // The sweep's pixels that may be the face's own, relative to its start.
-        let own_lo = self.own.0.max(r.start).min(r.end) - r.start;
-        let own_hi = (self.own.1 + 1).max(r.start).min(r.end) - r.start;
-        OutKernel {
+        let own_lo = face.own.0.max(start).min(end) - start;
+        let own_hi = (face.own.1 + 1).max(start).min(end) - start;
+        let k = OutKernel {
             n: r.len(),
             own: (own_lo, own_hi.max(own_lo)),
-            end: index_f64(r.end),
-            dot: dot(&at, self.attrs),
+            end: index_f64(end),
+            dot: Dot::new(&at, attrs, pre, r.len()),
             face: at.face,
             key: at.key,
             gi: at.gi,
-            pos,
-            ka: self.ka,
-            ba: self.ea - self.ka * self.cross,
-            kc: self.kc,
-            bc: self.ec - self.kc * self.cross,
-            fi: self.fi,
-            key0: self.key0,
-            key_step: self.key_step,
+            pos: face.pos.at(start, end),
+            ka: job.ka,
+            ba: job.ea - job.ka * job.cross,
+            kc: job.kc,
+            bc: job.ec - job.kc * job.cross,
+            fi: face.fi,
+            key0: job.key0,
+            key_step: face.key_step,
+        };
+        // SAFETY: the pointers come from `Lines::at`, `Positions::at` and `Dot::new`, readable for the padded
+        // block count; the caller vouches for `V`.
+        let (sa, sc) = lanes::<V, _>(&k);
+        job.sums[0] = lane_sum(&sa);
+        job.sums[1] = lane_sum(&sc);
+    }
+    for job in jobs.iter_mut() {
+        let (start, end) = job.inside;
+        if start >= end {
+            continue;
         }
-        .sums(isa)
+        let r = start..end;
+        let out_color = &face.image[job.out_color..job.out_color + c];
+        let mut w = [0f64; 4];
+        for (w, &o) in w.iter_mut().zip(out_color) {
+            *w = o as f64;
+        }
+        let at = ln.at::<C>(job.line, start, end);
+        let pre = if C == 0 {
+            dot_into(ln, job.line, &r, |k| out_color[k] as f64, c, scratch)
+        } else {
+            &[]
+        };
+        let k = InSweep {
+            n: r.len(),
+            end: index_f64(end),
+            face: at.face,
+            gi: at.gi,
+            pos: face.pos.at(start, end),
+            fi: face.fi,
+            cross: job.cross,
+            ka: job.ka,
+            kc: job.kc,
+            _data: PhantomData,
+        }
+        .with(Dot::new(&at, &w, pre, r.len()));
+        // SAFETY: as for the OUT sweeps.
+        let (sa, sc) = lanes::<V, _>(&k);
+        job.sums[2] = lane_sum(&sa);
+        job.sums[3] = lane_sum(&sc);
     }
 }
 
@@ -220,26 +323,16 @@ struct Dot<'a, const C: usize> {
 }
 
 impl<'a, const C: usize> Dot<'a, C> {
-    /// The dot product of the cotangent of a line (`at`) with the weights `w[..C]`.
+    /// The dot product of the cotangent of a line (`at`) with the weights `w[..C]`, or (`C = 0`) the sums `pre`
+    /// precomputed by [`dot_into`] for a sweep of `n` pixels.
     #[inline(always)]
-    fn line(at: &LineAt<'a, C>, w: &[f64]) -> Self {
+    fn new(at: &LineAt<'a, C>, w: &[f64], pre: &'a [f64], n: usize) -> Self {
+        if C == 0 {
+            assert!(pre.len() >= n.next_multiple_of(LANES));
+        }
         Dot {
             g: at.grad,
             w: std::array::from_fn(|k| w[k]),
-            pre: std::ptr::null(),
-            _data: PhantomData,
-        }
-    }
-}
-
-impl<'a> Dot<'a, 0> {
-    /// The precomputed sums `pre` of a sweep of `n` pixels.
-    #[inline(always)]
-    fn pre(pre: &'a [f64], n: usize) -> Self {
-        assert!(pre.len() >= n.next_multiple_of(LANES));
-        Dot {
-            g: [],
-            w: [],
             pre: pre.as_ptr(),
             _data: PhantomData,
         }
@@ -300,41 +393,6 @@ trait Kernel {
         c: &Self::Consts<V>,
         i: usize,
     ) -> (V, V);
-
-    /// The sums for the endpoints a and c on the instruction set `isa`, in [`LANES`] lanes added in a fixed order.
-    #[inline(always)]
-    fn sums(&self, isa: Isa) -> (f64, f64)
-    where
-        Self: Sized,
-    {
-        // SAFETY: every pointer may be read for the padded block count (the kernels are built from `Lines::at`,
-        // `Positions::at` and `Dot::pre`, which check it); `Isa::Avx2` is only passed when the CPU supports AVX2
-        // (see `rasterize_backward_on`); SSE2 is part of the x86-64 baseline.
-        #[allow(unsafe_code)]
-        let (sa, sc) = unsafe {
-            match isa {
-                #[cfg(target_arch = "x86_64")]
-                Isa::Avx2 => lanes_avx2(self),
-                #[cfg(target_arch = "x86_64")]
-                _ => lanes::<std::arch::x86_64::__m128d, Self>(self),
-                #[cfg(not(target_arch = "x86_64"))]
-                _ => lanes::<[f64; 2], Self>(self),
-            }
-        };
-        (lane_sum(&sa), lane_sum(&sc))
-    }
-}
-
-/// [`lanes`] on AVX2.
-///
-/// # Safety
-/// As [`lanes`], and the CPU must support AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[allow(unsafe_code)]
-#[inline]
-unsafe fn lanes_avx2<K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
-    lanes::<std::arch::x86_64::__m256d, K>(k)
 }
 
 /// A sweep's lane sums on vectors `V`: whole blocks of [`LANES`] pixels (pixel `i` into lane `i % LANES`), then
@@ -400,7 +458,7 @@ fn blocks(n: usize, own: (usize, usize)) -> [usize; 3] {
 }
 
 /// The per-pixel inputs of one OUT sweep, each pointer at its first pixel and readable for
-/// `n.next_multiple_of(LANES)` values (the line buffers' padding), and its constants (see [`OutSweep`]).
+/// `n.next_multiple_of(LANES)` values (the line buffers' padding), and its constants (see [`LineJob`]).
 struct OutKernel<'a, const C: usize> {
     /// Pixels in the sweep.
     n: usize,
@@ -414,7 +472,7 @@ struct OutKernel<'a, const C: usize> {
     key: *const f64,
     gi: *const f64,
     pos: *const f64,
-    /// `da = ka * d + ba` is `ka * (d - cross) + ea`, the displacement of endpoint a (see [`OutSweep`]).
+    /// `da = ka * d + ba` is `ka * (d - cross) + ea`, the displacement of endpoint a (see [`LineJob`]).
     ka: f64,
     ba: f64,
     /// As `ka`, `ba` for endpoint c.
@@ -497,69 +555,6 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
             (x.and(valid), y.and(valid))
         } else {
             (x, y)
-        }
-    }
-}
-
-/// The IN sweep of one line over the pixels `range`: sums of the contributions to the edge endpoints `a` and `c`,
-/// whose crossing-motion factors are `ka` and `kc` (meaningful only when defined). `out_color` is the colour of the
-/// pixel beyond the edge, `I[pix(d_out)]`; `scratch` a line of at least `range.len() + LANES` values. `C` is the
-/// channel count (0: any count; otherwise `out_color`'s length).
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-pub(super) fn in_sweep<const C: usize>(
-    ln: &Lines,
-    line: usize,
-    range: std::ops::Range<usize>,
-    fi: f64,
-    out_color: &[f32],
-    cross: f64,
-    ka: f64,
-    kc: f64,
-    pos: &Positions,
-    scratch: &mut [f64],
-    isa: Isa,
-) -> (f64, f64) {
-    let (start, end) = (range.start, range.end);
-    let kernel = |at: &LineAt<'_, 0>| InSweep {
-        n: end - start,
-        end: index_f64(end),
-        face: at.face,
-        gi: at.gi,
-        pos: pos.at(start, end),
-        fi,
-        cross,
-        ka,
-        kc,
-        _data: PhantomData,
-    };
-    let mut w = [0f64; 4];
-    for (w, &o) in w.iter_mut().zip(out_color) {
-        *w = o as f64;
-    }
-    let on = |at0: LineAt<'_, 0>| kernel(&at0);
-    match if C == 0 { out_color.len() } else { C } {
-        1 => {
-            let at = ln.at::<1>(line, start, end);
-            on(at.without_grad()).with(Dot::line(&at, &w)).sums(isa)
-        }
-        2 => {
-            let at = ln.at::<2>(line, start, end);
-            on(at.without_grad()).with(Dot::line(&at, &w)).sums(isa)
-        }
-        3 => {
-            let at = ln.at::<3>(line, start, end);
-            on(at.without_grad()).with(Dot::line(&at, &w)).sums(isa)
-        }
-        4 => {
-            let at = ln.at::<4>(line, start, end);
-            on(at.without_grad()).with(Dot::line(&at, &w)).sums(isa)
-        }
-        c => {
-            let pre = dot_into(ln, line, &range, |k| out_color[k] as f64, c, scratch);
-            on(ln.at::<0>(line, start, end))
-                .with(Dot::pre(pre, end - start))
-                .sums(isa)
         }
     }
 }
