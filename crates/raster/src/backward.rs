@@ -449,12 +449,8 @@ impl Ctx<'_> {
                     } else {
                         qo
                     };
-                    let limit = if dir > 0 { ceil(cross2) } else { floor(cross2) };
                     // Cut to the drawn box (only the face's pixels contribute).
-                    // In integers (`limit as i64` saturates, a monotone map; a NaN limit is ignored, as by `f64::min`).
-                    let limit = if limit.is_nan() { d_in } else { limit as i64 };
-                    let from = d_in.min(limit).max(along[0] as i64);
-                    let to = d_in.max(limit).min(along[1] as i64);
+                    let (from, to) = in_range(d_in, cross2, dir, along[0] as i64, along[1] as i64);
                     if from <= to {
                         job.inside = (from as usize, to as usize + 1);
                         let out_px = match axis {
@@ -498,6 +494,28 @@ impl Ctx<'_> {
         }
         g
     }
+}
+
+/// The IN sweep's pixels `from..=to` (empty when `from > to`): `limit = ceil(cross2)` (`dir > 0`) or
+/// `floor(cross2)`, `from = max(min(d_in, limit), lb)`, `to = min(max(d_in, limit), ub)` (the range between the two
+/// crossings, cut to the drawn box `lb..=ub`); a NaN limit is ignored, as by `f64::min`. In integers: `cross2` is
+/// first clamped to `[lb - 1, ub + 1]`, where its truncation is exact. Same range as without the clamp (or both
+/// empty): ceil and floor commute with a clamp to integers, a limit below `lb - 1` gives `from = lb` either way
+/// and `to` equal or below `lb`, and symmetrically above `ub + 1` (tested).
+#[inline(always)]
+fn in_range(d_in: i64, cross2: f64, dir: i64, lb: i64, ub: i64) -> (i64, i64) {
+    let limit = if cross2.is_nan() {
+        d_in
+    } else {
+        let x = cross2.max((lb - 1) as f64).min((ub + 1) as f64);
+        let t = x as i64;
+        if dir > 0 {
+            t + i64::from((t as f64) < x)
+        } else {
+            t - i64::from((t as f64) > x)
+        }
+    };
+    (d_in.min(limit).max(lb), d_in.max(limit).min(ub))
 }
 
 /// `x.floor()` without a library call (the baseline x86-64 target has no rounding instruction).
@@ -747,6 +765,49 @@ mod tests {
                 assert_eq!((d.rows, d.cols), (e.rows, e.cols), "{c} channels");
             }
         }
+    }
+
+    #[test]
+    fn the_in_range_matches_the_unclamped_definition() {
+        let mut rng = Rng(3);
+        let mut cases = 0;
+        for _ in 0..20000 {
+            let len = 1 + rng.below(40) as i64;
+            let d_in = rng.below(len as usize) as i64;
+            let lb = rng.below(len as usize) as i64;
+            let ub = lb + rng.below((len - lb) as usize) as i64;
+            let dir = if rng.below(2) == 0 { 1 } else { -1 };
+            let cross2 = match rng.below(8) {
+                0 => f64::NAN,
+                1 => (rng.next() - 0.5) * 1e300,
+                2 => f64::INFINITY * (rng.next() - 0.5).signum(),
+                3 => (rng.below(60) as f64 - 10.0) * 0.5,
+                _ => (rng.next() - 0.3) * 2.0 * len as f64,
+            };
+            // The definition: f64 ceil / floor, a saturating conversion, NaN ignored.
+            let limit = if dir > 0 {
+                cross2.ceil()
+            } else {
+                cross2.floor()
+            };
+            let limit = if limit.is_nan() { d_in } else { limit as i64 };
+            let (from, to) = (d_in.min(limit).max(lb), d_in.max(limit).min(ub));
+            let got = in_range(d_in, cross2, dir, lb, ub);
+            if from <= to {
+                assert_eq!(
+                    got,
+                    (from, to),
+                    "d_in {d_in} cross2 {cross2} dir {dir} box {lb}..={ub}"
+                );
+                cases += 1;
+            } else {
+                assert!(
+                    got.0 > got.1,
+                    "d_in {d_in} cross2 {cross2} dir {dir} box {lb}..={ub}: {got:?}"
+                );
+            }
+        }
+        assert!(cases > 5000);
     }
 
     #[test]

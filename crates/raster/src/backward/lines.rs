@@ -192,31 +192,57 @@ impl Lines {
         &self.grad[(d0 * self.channels + k) * self.len..]
     }
 
+    /// The buffers' pointers for [`LinesOf::at`], with `C` channels (or 0: no cotangent pointers).
+    #[inline(always)]
+    pub fn of<const C: usize>(&self) -> LinesOf<'_, C> {
+        assert!(C == 0 || C == self.channels);
+        LinesOf {
+            face: self.face.as_ptr(),
+            key: self.key.as_ptr(),
+            gi: self.gi.as_ptr(),
+            grad: self.grad.as_ptr(),
+            len: self.len,
+            lines: self.lines(),
+            channels: self.channels,
+            _lines: PhantomData,
+        }
+    }
+}
+
+/// The buffers of a [`Lines`] with `C` channels (checked once), for many [`LinesOf::at`].
+#[derive(Clone, Copy)]
+pub(super) struct LinesOf<'a, const C: usize> {
+    face: *const i32,
+    key: *const f64,
+    gi: *const f64,
+    grad: *const f32,
+    len: usize,
+    lines: usize,
+    channels: usize,
+    _lines: PhantomData<&'a Lines>,
+}
+
+impl<'a, const C: usize> LinesOf<'a, C> {
     /// Pointers to the data of pixels `start..end` of line `d0` (one bounds check for all of them). Each pointer may
     /// be read for `(end - start).next_multiple_of(LANES)` values: past `end` it reads the next line's data, or for
-    /// the last line the buffer's padding. `C` is the channel count (or 0: no cotangent pointers).
+    /// the last line the buffer's padding.
     #[inline(always)]
-    pub fn at<const C: usize>(&self, d0: usize, start: usize, end: usize) -> LineAt<'_, C> {
-        assert!(
-            d0 < self.lines() && start <= end && end <= self.len && (C == 0 || C == self.channels)
-        );
+    pub fn at(&self, d0: usize, start: usize, end: usize) -> LineAt<'a, C> {
+        assert!(d0 < self.lines && start <= end && end <= self.len);
         let o = d0 * self.len + start;
         // SAFETY: `o < lines * len`, within every buffer (which hold `lines * len` values, or `lines * channels *
-        // len` for the cotangent, plus LANES), and so is `(d0 * channels + k) * len + start` for `k < channels`.
-        // Reads: `start + (end - start).next_multiple_of(LANES) <= len + LANES - 1`, so from line `d0` they stay
-        // within `(d0 + 1) * len + LANES - 1 <= lines * len + LANES - 1` (cotangent: `lines * channels * len +
-        // LANES - 1`), inside the buffers.
+        // len` for the cotangent, plus LANES), and so is `(d0 * channels + k) * len + start` for `k < C <=
+        // channels` (`Lines::of`). Reads: `start + (end - start).next_multiple_of(LANES) <= len + LANES - 1`, so
+        // from line `d0` they stay within `(d0 + 1) * len + LANES - 1 <= lines * len + LANES - 1` (cotangent:
+        // `lines * channels * len + LANES - 1`), inside the buffers.
         #[allow(unsafe_code)]
         unsafe {
+            let g = self.grad.add((d0 * self.channels) * self.len + start);
             LineAt {
-                face: self.face.as_ptr().add(o),
-                key: self.key.as_ptr().add(o),
-                gi: self.gi.as_ptr().add(o),
-                grad: std::array::from_fn(|k| {
-                    self.grad
-                        .as_ptr()
-                        .add((d0 * self.channels + k) * self.len + start)
-                }),
+                face: self.face.add(o),
+                key: self.key.add(o),
+                gi: self.gi.add(o),
+                grad: std::array::from_fn(|k| g.add(k * self.len)),
                 _lines: PhantomData,
             }
         }

@@ -34,11 +34,37 @@ impl Positions {
         Positions((0..len + LANES).map(|d| d as f64).collect())
     }
 
+    /// The positions of lines of `len` pixels (checked once), for many [`PositionsOf::at`].
+    #[inline(always)]
+    fn of(&self, len: usize) -> PositionsOf<'_> {
+        assert!(len + LANES <= self.0.len());
+        PositionsOf {
+            p: self.0.as_ptr(),
+            len,
+            _data: PhantomData,
+        }
+    }
+}
+
+/// The positions of lines of `len` pixels, see [`Positions::of`].
+#[derive(Clone, Copy)]
+struct PositionsOf<'a> {
+    p: *const f64,
+    len: usize,
+    _data: PhantomData<&'a f64>,
+}
+
+impl PositionsOf<'_> {
     /// The positions from `start` on, readable for `(end - start).next_multiple_of(LANES)` values.
     #[inline(always)]
     fn at(&self, start: usize, end: usize) -> *const f64 {
-        assert!(start <= end && end + LANES <= self.0.len());
-        self.0[start..].as_ptr()
+        assert!(start <= end && end <= self.len);
+        // SAFETY: `start <= len`, and `Positions::of` checked that `len + LANES` values exist, which covers the
+        // reads (`start + (end - start).next_multiple_of(LANES) <= len + LANES - 1`).
+        #[allow(unsafe_code)]
+        unsafe {
+            self.p.add(start)
+        }
     }
 }
 
@@ -215,13 +241,14 @@ unsafe fn lines_on<V: F64s, const C: usize>(
 ) {
     let (ln, attrs) = (face.ln, face.attrs);
     let c = if C == 0 { attrs.len() } else { C };
+    let (lines, pos) = (ln.of::<C>(), face.pos.of(ln.len));
     for job in jobs.iter_mut() {
         let (start, end) = job.out;
         if start >= end {
             continue;
         }
         let r = start..end;
-        let at = ln.at::<C>(job.line, start, end);
+        let at = lines.at(job.line, start, end);
         let pre = if C == 0 {
             dot_into(ln, job.line, &r, |k| attrs[k], c, scratch)
         } else {
@@ -238,7 +265,7 @@ unsafe fn lines_on<V: F64s, const C: usize>(
             face: at.face,
             key: at.key,
             gi: at.gi,
-            pos: face.pos.at(start, end),
+            pos: pos.at(start, end),
             ka: job.ka,
             ba: job.ea - job.ka * job.cross,
             kc: job.kc,
@@ -264,7 +291,7 @@ unsafe fn lines_on<V: F64s, const C: usize>(
         for (w, &o) in w.iter_mut().zip(out_color) {
             *w = o as f64;
         }
-        let at = ln.at::<C>(job.line, start, end);
+        let at = lines.at(job.line, start, end);
         let pre = if C == 0 {
             dot_into(ln, job.line, &r, |k| out_color[k] as f64, c, scratch)
         } else {
@@ -275,7 +302,7 @@ unsafe fn lines_on<V: F64s, const C: usize>(
             end: index_f64(end),
             face: at.face,
             gi: at.gi,
-            pos: face.pos.at(start, end),
+            pos: pos.at(start, end),
             fi: face.fi,
             cross: job.cross,
             ka: job.ka,
@@ -494,7 +521,7 @@ struct OutConsts<V, const C: usize> {
     kc: V,
     bc: V,
     end: V,
-    zero: V,
+    neg_zero: V,
 }
 
 impl<const C: usize> Kernel for OutKernel<'_, C> {
@@ -523,7 +550,7 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
             kc: V::splat(self.kc),
             bc: V::splat(self.bc),
             end: V::splat(self.end),
-            zero: V::splat(0.0),
+            neg_zero: V::splat(-0.0),
         }
     }
 
@@ -540,11 +567,13 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
         // covers(f, P) (the clip range is handled by `clip`): `kf > kP`, or `kf == kP` and `f < F[P]`; and
         // `F[P] != f` (only possible in `own`).
         let kp = load(self.key);
-        let nearer = kf.nearer(kp, c.fi.lt(fp));
+        let nearer = kf.nearer(kp, fp.gt(c.fi));
         let covers = if OWN { nearer.and(fp.ne(c.fi)) } else { nearer };
-        // delta where covers and delta < 0, else 0 (`min(delta, 0)` is 0 for delta >= 0 and NaN).
+        // delta where covers and delta < 0, else a zero (`min(delta, -0)` is -0 for delta >= 0 and NaN). A zero
+        // contributes zeros, which leave the lane sums as they are whatever their signs (the sums start at +0, so
+        // they are never -0); -0 rather than +0 because it is not built by zeroing a register in the loop.
         let delta = self.dot.at(&c.w, i).sub(load(self.gi));
-        let m = delta.min(c.zero).and(covers);
+        let m = delta.min(c.neg_zero).and(covers);
         let da = c.ka.mul(pos).add(c.ba);
         let dc = c.kc.mul(pos).add(c.bc);
         // m / da and m / dc with one division.
