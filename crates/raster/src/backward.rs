@@ -374,12 +374,18 @@ impl Ctx<'_> {
                         if !(cross >= 0.0 && cross < len as f64) {
                             continue;
                         }
-                        cross as i64
+                        // SAFETY: `cross` is in [0, len), within i64 (the truncation is exact).
+                        #[allow(unsafe_code)]
+                        unsafe {
+                            cross.to_int_unchecked::<i64>()
+                        }
                     } else {
                         if !(cross > -1.0 && cross <= (len - 1) as f64) {
                             continue;
                         }
-                        let t = cross as i64;
+                        // SAFETY: `cross` is in (-1, len - 1], within i64 (the truncation is exact).
+                        #[allow(unsafe_code)]
+                        let t = unsafe { cross.to_int_unchecked::<i64>() };
                         t + i64::from((t as f64) < cross)
                     };
                     let d_out = d_in + dir;
@@ -413,7 +419,7 @@ impl Ctx<'_> {
                         sums: [0.0; 4],
                     };
                     // OUT: pixels beyond the edge that the face would cover (only where the cotangent is not zero).
-                    if ln.face(line)[d_in as usize] == f as i32 {
+                    if ln.face_at(line, d_in as usize) == f as i32 {
                         let (start, end) = if dir > 0 {
                             (d_out as usize, ln.len)
                         } else {
@@ -507,8 +513,13 @@ fn in_range(d_in: i64, cross2: f64, dir: i64, lb: i64, ub: i64) -> (i64, i64) {
     let limit = if cross2.is_nan() {
         d_in
     } else {
-        let x = cross2.max((lb - 1) as f64).min((ub + 1) as f64);
-        let t = x as i64;
+        // (Not NaN here, so plain compares clamp it.)
+        let (lo, hi) = ((lb - 1) as f64, (ub + 1) as f64);
+        let x = if cross2 > hi { hi } else { cross2 };
+        let x = if x < lo { lo } else { x };
+        // SAFETY: `x` is in [lb - 1, ub + 1], pixel indices, within i64.
+        #[allow(unsafe_code)]
+        let t = unsafe { x.to_int_unchecked::<i64>() };
         if dir > 0 {
             t + i64::from((t as f64) < x)
         } else {

@@ -180,10 +180,11 @@ impl Lines {
             });
     }
 
-    /// Faces drawn along line `d0`.
+    /// The face drawn at pixel `d` of line `d0` (`d < len`).
     #[inline(always)]
-    pub fn face(&self, d0: usize) -> &[i32] {
-        &self.face[d0 * self.len..(d0 + 1) * self.len]
+    pub fn face_at(&self, d0: usize, d: usize) -> i32 {
+        debug_assert!(d < self.len);
+        self.face[d0 * self.len + d]
     }
 
     /// Cotangent channel `k` from the start of line `d0` to the end of the buffer (padding included).

@@ -550,7 +550,9 @@ impl<const C: usize> Kernel for OutKernel<'_, C> {
             kc: V::splat(self.kc),
             bc: V::splat(self.bc),
             end: V::splat(self.end),
-            neg_zero: V::splat(-0.0),
+            // Opaque to the compiler, so that the loop reads it as a memory operand rather than re-broadcasting a
+            // constant in every block.
+            neg_zero: V::splat(std::hint::black_box(-0.0)),
         }
     }
 
