@@ -1,4 +1,4 @@
-"""Child-process entry point that renders pickled :class:`~meshadv.transfer.scene.SceneSpec` objects with Mitsuba.
+"""Child-process entry point that renders pickled :class:`~meshadv.transfer.spec.SceneSpec` objects with Mitsuba.
 
 Run as ``python -m meshadv.transfer._worker IN.pkl OUT.npz VARIANT``. It imports only numpy and mitsuba (never
 torch), so it starts quickly; if Mitsuba aborts, only this process dies. See :mod:`meshadv.transfer.render`.

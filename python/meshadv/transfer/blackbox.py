@@ -30,7 +30,7 @@ from meshadv.transfer.robust import (
     _noise_where,
     _robust_rate,
 )
-from meshadv.transfer.scene import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
+from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
 
 __all__ = [
     "Estimation",
@@ -56,7 +56,7 @@ class HiddenScene:
         camera: the true spherical camera (distance, azimuth, elevation in degrees).
         viewing_angle: field of view (assumed known to the attacker).
         lights: true directional lights + ambient (or None).
-        environment: optional lat-long environment map (e.g. :func:`~meshadv.transfer.scene.outdoor_environment`).
+        environment: optional lat-long environment map (e.g. :func:`~meshadv.transfer.environment.outdoor_environment`).
         environment_scale: multiplier of ``environment``.
         ground: optional ground plane (height, colour).
         base_scene: optional Mitsuba scene file the object is placed in.

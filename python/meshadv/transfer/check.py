@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from meshadv.transfer.render import render_scenes
-from meshadv.transfer.scene import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
+from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ import torch
 
 from meshadv.transfer.render import MitsubaImage, MitsubaRenderError, render_scenes
 from meshadv.transfer.results import ControlledResult
-from meshadv.transfer.scene import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
+from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
 
 __all__ = [
     "ControlledResult",

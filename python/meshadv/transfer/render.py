@@ -1,4 +1,4 @@
-"""Render :class:`~meshadv.transfer.scene.SceneSpec` objects with Mitsuba 3 in an isolated child process.
+"""Render :class:`~meshadv.transfer.spec.SceneSpec` objects with Mitsuba 3 in an isolated child process.
 
 Mitsuba can abort the whole process (e.g. ``llvm_ad_rgb`` with a too-old LLVM), so rendering never happens in the
 caller's process: the specs are pickled to a child (``python -m meshadv.transfer._worker``), which writes the images
@@ -19,7 +19,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from meshadv.transfer.scene import MeshObject, MitsubaCamera, SceneSpec
+from meshadv.transfer.spec import MeshObject, MitsubaCamera, SceneSpec
 from meshadv.transfer.variants import best_variant
 
 #: The variant used when the preferred one fails.

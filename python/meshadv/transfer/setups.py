@@ -16,7 +16,8 @@ from typing import Any, Optional
 import numpy as np
 
 from meshadv.transfer.blackbox import HiddenScene
-from meshadv.transfer.scene import MitsubaLights, outdoor_environment
+from meshadv.transfer.environment import outdoor_environment
+from meshadv.transfer.spec import MitsubaLights
 from meshadv.util.spherical import spherical_direction
 
 #: The hidden camera of the outdoor setup (degrees; distance in object units): slightly below a flying airliner,
