@@ -1,25 +1,34 @@
 """The black-box transfer pipeline: attack a Mitsuba "photo" whose camera and lights are unknown.
 
 The paper's pipeline (:func:`blackbox_classifier`, :func:`blackbox_detector`): a "photo" is rendered by Mitsuba
-under hidden parameters (:class:`HiddenScene`); the camera is estimated from the object's mask, the lights from the
-masked image (:func:`estimate_parameters`); the attack runs in meshadv with random jitter of the estimates at every
-step (:mod:`meshadv.transfer.robust`); the adversarial mesh is re-rendered by Mitsuba under the hidden parameters and
-tested. Every Mitsuba render runs in a child process (:mod:`meshadv.transfer.render`).
+under hidden parameters (:class:`~meshadv.transfer.hidden.HiddenScene`); the camera is estimated from the object's
+mask, the lights from the masked image (:func:`~meshadv.transfer.photo.estimate_parameters`); the attack runs in
+meshadv with random jitter of the estimates at every step (:mod:`meshadv.transfer.robust`); the adversarial mesh is
+re-rendered by Mitsuba under the hidden parameters and tested, and, as a diagnostic, under the estimates
+(:mod:`meshadv.transfer.compositing`). Every Mitsuba render runs in a child process (:mod:`meshadv.transfer.render`).
+
+This module holds the two pipelines and what their result rows share; the steps live in their own modules and are
+re-exported here (``HiddenScene``, ``Estimation``, ``estimate_parameters``, ``estimated_view_spec``, ``composite``,
+``occlusion_mask``, ``detection_scores``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 import torch
 
-from meshadv.transfer.controlled import _images_tensor, _top1_names
 from meshadv.attacks.families import check_perturbation
 from meshadv.render.setup import RenderSetup, split_setup_options
-from meshadv.transfer.object_attacks import _check_smoothing, _texture_attack
-from meshadv.transfer.render import MitsubaImage, render_mask, render_scenes
+from meshadv.transfer._scoring import detection_scores, images_tensor, top1_names
+from meshadv.transfer.compositing import composite, estimated_view_spec
+from meshadv.transfer.hidden import HiddenScene
+from meshadv.transfer.object_attacks import _check_smoothing, _object_attack
+from meshadv.transfer.objects import _merge_meshes, _object_range, occlusion_mask
+from meshadv.transfer.photo import Estimation, background_photo, estimate_parameters
+from meshadv.transfer.render import MitsubaImage, render_scenes
 from meshadv.transfer.results import BlackBoxResult
 from meshadv.transfer.robust import (
     DEFAULT_JITTER,
@@ -30,7 +39,6 @@ from meshadv.transfer.robust import (
     _noise_where,
     _robust_rate,
 )
-from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
 
 __all__ = [
     "Estimation",
@@ -44,234 +52,79 @@ __all__ = [
     "occlusion_mask",
 ]
 
-#: A one-triangle stand-in used where a scene spec needs a mesh that is then dropped.
-_PLACEHOLDER_MESH = MeshObject(np.eye(3, dtype=np.float32), np.array([[0, 1, 2]]), np.ones((1, 3), np.float32))
+
+# ----------------------------------------------------------------------------------------------------------------------
+# Steps shared by the two pipelines
+# ----------------------------------------------------------------------------------------------------------------------
+
+
+def _attack_options(attack_kwargs: Optional[dict[str, Any]],
+                    jitter: Optional[dict[str, float]]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Split ``attack_kwargs`` into render-setup options and the attack's keyword arguments, the latter with the
+    per-step ``jitter`` of the estimates unless given (default :data:`DEFAULT_JITTER`; ``{}``: none)."""
+    setup_options, kwargs = split_setup_options(dict(attack_kwargs or {}))
+    kwargs.setdefault("jitter", dict(DEFAULT_JITTER if jitter is None else jitter) or None)
+    return setup_options, kwargs
+
+
+def _attack_setup(setup_options: dict[str, Any], image_size: tuple[int, int], background: torch.Tensor) -> RenderSetup:
+    """The attack's render setup: the photo's image size and ``background`` unless ``setup_options`` set them."""
+    return RenderSetup(**{"image_size": image_size, "background": background, **setup_options})
 
 
 @dataclass(frozen=True)
-class HiddenScene:
-    """The hidden "real world" of a black-box experiment: what Mitsuba renders, unknown to the attacker.
+class _Measured:
+    """What a black-box run measures of its adversarial mesh after the attack.
 
     Attributes:
-        camera: the true spherical camera (distance, azimuth, elevation in degrees).
-        viewing_angle: field of view (assumed known to the attacker).
-        lights: true directional lights + ambient (or None).
-        environment: optional lat-long environment map (e.g. :func:`~meshadv.transfer.environment.outdoor_environment`).
-        environment_scale: multiplier of ``environment``.
-        ground: optional ground plane (height, colour).
-        base_scene: optional Mitsuba scene file the object is placed in.
-        base_exclude: shapes of the base scene to drop (the object it replaces).
-        image_size: (H, W).
-        spp: samples per pixel; max_depth: path depth.
-        extra_objects: other meshes of the world (beside the object and the base scene).
+        margin_meshadv: 0-dim tensor: the criterion's margin on meshadv's render of the estimated view (the attack's
+            render setup, the victim without pixel noise).
+        image_meshadv: ``(3, H, W)`` that render.
+        robust_rate: :func:`~meshadv.transfer.robust._robust_rate` (None when not verified).
+        adversarial_mitsuba: Mitsuba's render under the hidden parameters.
+        estimated_mitsuba: ``(3, H, W)`` Mitsuba's render under the estimates, composited over the background.
     """
 
-    camera: dict[str, float]
-    viewing_angle: float = 30.0
-    lights: Optional[MitsubaLights] = None
-    environment: Optional[np.ndarray] = None
-    environment_scale: float = 1.0
-    ground: Optional[tuple[float, tuple[float, float, float]]] = None
-    base_scene: Optional[str] = None
-    base_exclude: tuple[str, ...] = ()
-    image_size: tuple[int, int] = (224, 224)
-    spp: int = 64
-    max_depth: int = 8
-    extra_objects: tuple[MeshObject, ...] = field(default=())
+    margin_meshadv: torch.Tensor
+    image_meshadv: torch.Tensor
+    robust_rate: Optional[float]
+    adversarial_mitsuba: MitsubaImage
+    estimated_mitsuba: torch.Tensor
 
-    def mitsuba_camera(self) -> MitsubaCamera:
-        """The true camera for Mitsuba."""
-        c = self.camera
-        return MitsubaCamera.spherical(c["distance"], c["azimuth"], c["elevation"], c.get("tilt", 0.0),
-                                       self.viewing_angle)
-
-    def spec(self, mesh: Any, *, seed: int = 0) -> SceneSpec:
-        """The Mitsuba scene of ``mesh`` in this hidden world (the object first, then any extra objects)."""
-        obj = mesh if isinstance(mesh, MeshObject) else MeshObject.from_mesh(mesh)
-        return SceneSpec(
-            objects=(obj,) + tuple(self.extra_objects),
-            camera=self.mitsuba_camera(),
-            lights=self.lights,
-            image_size=self.image_size,
-            spp=self.spp,
-            max_depth=self.max_depth,
-            background=None,
-            base_scene=self.base_scene,
-            base_exclude=self.base_exclude,
-            environment=self.environment,
-            environment_scale=self.environment_scale,
-            ground=self.ground,
-            seed=seed,
-        )
+    def victim_batch(self, photo: torch.Tensor) -> torch.Tensor:
+        """``(3, 3, H, W)``: the photo (the benign object under the hidden parameters), then the adversarial mesh by
+        Mitsuba under the hidden parameters and under the estimates."""
+        return torch.cat([photo[None], images_tensor([self.adversarial_mitsuba]), self.estimated_mitsuba[None]])
 
 
-@dataclass(frozen=True)
-class Estimation:
-    """Camera and light estimates of a black-box experiment and their errors.
-
-    Attributes:
-        views: the estimated ``ViewSet`` (one view) the attack uses.
-        errors: camera errors (``azimuth_error``, ``elevation_error`` in degrees, ``distance_error`` relative), the
-            masked RMSE of meshadv's re-render under the estimates vs the photo (``light_rmse``), the mask IoU
-            (``mask_iou``) and, when the true lights are directional, ``direction_error`` etc.
-        photo: (3, H, W) the Mitsuba photo (the benign object under the hidden parameters; the pipelines score
-            it as the benign render); mask: (H, W) the object's mask.
-    """
-
-    views: Any
-    errors: dict[str, float]
-    photo: torch.Tensor
-    mask: torch.Tensor
-
-
-def _merge_meshes(meshes: Sequence[Any]) -> Any:
-    """One ``meshadv.mesh.Mesh`` holding all ``meshes`` (faces re-indexed, in order)."""
-    from meshadv.mesh import Mesh
-
-    verts, faces, colors, offset = [], [], [], 0
-    for m in meshes:
-        verts.append(torch.as_tensor(m.vertices, dtype=torch.float32))
-        faces.append(torch.as_tensor(m.faces, dtype=torch.int64) + offset)
-        colors.append(torch.as_tensor(m.face_colors, dtype=torch.float32))
-        offset += int(m.vertices.shape[0])
-    return Mesh(torch.cat(verts), torch.cat(faces), torch.cat(colors))
-
-
-def estimate_parameters(
-    mesh: Any,
-    hidden: HiddenScene,
-    *,
-    known: Optional[Any] = None,
-    light_faces: Optional[tuple[int, int]] = None,
-    num_lights: int = 5,
-    camera_steps: int = 60,
-    light_steps: int = 120,
-    camera_size: int = 128,
-    variant: Optional[str] = None,
-    timeout: float = 1800.0,
-) -> Estimation:
-    """Steps 1-2 of the pipeline: render the photo with Mitsuba, estimate the camera from the mask, then the lights.
+def _measure(seen: Any, adversarial: Any, est: Estimation, hidden: HiddenScene, background: torch.Tensor,
+             setup: RenderSetup, victim: Any, bound: Any, robustness: Robustness, variant: Optional[str],
+             timeout: float, occluded: Optional[torch.Tensor] = None) -> _Measured:
+    """Measure the attack's result: meshadv's margin and robust rate on the estimated view, Mitsuba's renders.
 
     Args:
-        mesh: the benign object (world space) placed in the hidden world.
+        seen: what meshadv and Mitsuba-under-the-estimates render (the adversarial object, or the merged scene).
+        adversarial: the adversarial object, placed in the hidden world.
+        est: the estimation (views, photo).
         hidden: the hidden world.
-        known: the geometry the attacker knows and segments in the photo (its mask and shading are fitted); default
-            ``mesh``. For a scene, the merged mesh of its known objects.
-        light_faces: ``(start, stop)``: fit the lights only on the pixels where one of the faces ``start:stop`` of
-            ``known`` is the visible surface (the attacked object of a scene: the lighting where it stands, which in a
-            room with an area light differs from the average over the scene; occlusion by the other objects is
-            respected). ``None``: every pixel of ``known``. The camera is always fitted on all of ``known``.
-        num_lights: directional lights to estimate.
-        camera_steps: Adam steps of the camera estimation.
-        light_steps: Adam steps of the light estimation.
-        camera_size: the mask is average-pooled to at most this size for the camera fit.
-        variant: Mitsuba variant.
-        timeout: seconds per Mitsuba call.
-
-    Returns:
-        The :class:`Estimation`; ``errors["light_rmse"]`` is measured over the pixels the lights were fitted on,
-        ``errors["light_fit_pixels"]`` counts them.
-
-    Raises:
-        ValueError: ``light_faces`` is not a non-empty range of ``known``'s faces, or selects no visible pixel.
+        background: what Mitsuba's render under the estimates is composited over.
+        setup: the attack's render setup.
+        victim: the victim the attack saw (without pixel noise); ``bound`` its bound criterion.
+        robustness: the run's robustness settings (verification samples).
+        variant: Mitsuba variant; timeout: seconds per Mitsuba call.
+        occluded: ``(H, W)`` pixels where the photo is put back in both images, or None.
     """
-    from meshadv.render import Lights, ViewSet, render
-    from meshadv.transfer.estimate import estimate_camera, estimate_lights, light_errors, masked_rmse
-
-    known = mesh if known is None else known
-    num_faces = int(known.faces.shape[0])
-    if light_faces is not None and not (len(light_faces) == 2 and 0 <= light_faces[0] < light_faces[1] <= num_faces):
-        raise ValueError(f"light_faces must be (start, stop) with 0 <= start < stop <= {num_faces}, got {light_faces}")
-    photo_img = render_scenes([hidden.spec(mesh)], variant=variant, timeout=timeout)[0]
-    mask_np = render_mask(known, hidden.mitsuba_camera(), hidden.image_size, variant=variant, timeout=timeout)
-    photo = torch.from_numpy(photo_img.chw())
-    mask = torch.from_numpy(mask_np)
-    verts = torch.as_tensor(known.vertices, dtype=torch.float32).detach()
-    faces = torch.as_tensor(known.faces, dtype=torch.int64)
-    colors = torch.as_tensor(known.face_colors, dtype=torch.float32).detach()
-    cam_mask = mask
-    if mask.shape[-1] > camera_size:  # the silhouette fit does not need full resolution (NDC is size-independent)
-        cam_mask = torch.nn.functional.adaptive_avg_pool2d(mask[None, None], camera_size)[0, 0]
-    cam_est = estimate_camera(cam_mask, verts, faces, viewing_angle=hidden.viewing_angle, steps=camera_steps)
-    camera = cam_est.camera()
-    light_mask = mask
-    if light_faces is not None:
-        with torch.no_grad():
-            visible = render(verts, faces, colors, camera, Lights.default(), hidden.image_size).face_index[0]
-        light_mask = mask * ((visible >= light_faces[0]) & (visible < light_faces[1])).float()
-        if float(light_mask.sum()) < 1.0:
-            raise ValueError("light_faces: those faces cover no pixel of the photo under the estimated camera")
-    light_est = estimate_lights(photo, light_mask, verts, faces, colors, camera, num_lights=num_lights,
-                                steps=light_steps)
-    errors = cam_est.errors(hidden.camera["distance"], hidden.camera["azimuth"], hidden.camera["elevation"])
-    errors["mask_iou"] = cam_est.iou
-    with torch.no_grad():
-        ours = render(verts, faces, colors, camera, light_est.lights, hidden.image_size, background=(0.0, 0.0, 0.0))
-    both = (light_mask.numpy() > 0.5) & (ours.alpha[0, 0].numpy() > 0.5)
-    errors["light_rmse"] = masked_rmse(ours.image[0].numpy(), photo.numpy(), both) if both.any() else float("nan")
-    errors["light_fit_pixels"] = float(both.sum())
-    if hidden.lights is not None:
-        true = Lights(torch.from_numpy(hidden.lights.directions), torch.from_numpy(hidden.lights.colors),
-                      torch.from_numpy(hidden.lights.ambient))
-        errors.update(light_errors(light_est.lights, true))
-        if hidden.environment is not None:  # the environment is the true ambient: no single colour to compare with
-            errors.pop("ambient_error", None)
-    errors.update(estimated_azimuth=cam_est.azimuth, estimated_elevation=cam_est.elevation,
-                  estimated_distance=cam_est.distance)
-    return Estimation(ViewSet(camera, light_est.lights), errors, photo, mask)
-
-
-def _background_image(hidden: HiddenScene, exclude: Sequence[str], variant: Optional[str],
-                      timeout: float) -> torch.Tensor:
-    """The hidden world rendered by Mitsuba without the attacker's objects: (3, H, W).
-
-    It stands for a photo of the background taken without the object, composited behind meshadv's renders during
-    the attack (the paper composites its renders over the real photo).
-    """
-    spec = hidden.spec(_PLACEHOLDER_MESH)
-    spec = replace(spec, objects=(), base_exclude=tuple(hidden.base_exclude) + tuple(exclude))
-    return torch.from_numpy(render_scenes([spec], variant=variant, timeout=timeout)[0].chw())
-
-def estimated_view_spec(mesh: Any, record: dict[str, Any], hidden: HiddenScene, *, seed: int = 0) -> SceneSpec:
-    """Mitsuba's scene of what the attack optimised: ``mesh`` under the *estimated* camera and lights.
-
-    Directional lights and a constant ambient (no environment map, no base scene), direct light only
-    (``max_depth = 2``), black background: composite the result over the background photo with its alpha
-    (:func:`composite`). Comparing this render with meshadv's separates the renderer mismatch (anti-aliasing,
-    Monte-Carlo noise, shadows, ambient occlusion) from the parameter mismatch (estimated vs true camera and lights).
-
-    Args:
-        mesh: the object (or the merged known objects) in world space.
-        record: the estimated view (``ViewSet.to_records()[0]``).
-        hidden: the hidden world (for the image size and samples per pixel).
-        seed: Mitsuba sampler seed.
-
-    Returns:
-        The scene spec.
-    """
-    return SceneSpec(
-        objects=(MeshObject.from_mesh(mesh),),
-        camera=MitsubaCamera.from_record(record),
-        lights=MitsubaLights.from_record(record),
-        image_size=hidden.image_size,
-        spp=hidden.spp,
-        max_depth=2,
-        background=(0.0, 0.0, 0.0),
-        seed=seed,
-    )
-
-
-def composite(image: MitsubaImage, background: torch.Tensor) -> torch.Tensor:
-    """A Mitsuba render made over black (premultiplied by its alpha) composited over a (3, H, W) background.
-
-    Raises:
-        ValueError: the background's shape does not match the image.
-    """
-    rgb = torch.from_numpy(image.chw())
-    if tuple(background.shape) != tuple(rgb.shape):
-        raise ValueError(f"background {tuple(background.shape)} must match the image {tuple(rgb.shape)}")
-    alpha = torch.from_numpy(image.alpha)[None]
-    return (rgb + (1.0 - alpha) * background.to(rgb.dtype)).clamp(0.0, 1.0)
+    margins, image = _meshadv_margins(setup, seen, est.views, victim, bound)
+    robust_rate = _robust_rate(setup, seen, est.views, victim, bound, robustness)
+    record = est.views.to_records()[0]
+    # the benign render under the hidden parameters is the photo the estimation was made from
+    images = render_scenes([hidden.spec(adversarial), estimated_view_spec(seen, record, hidden)], variant=variant,
+                           timeout=timeout)
+    estimated = composite(images[1], background)
+    if occluded is not None:
+        estimated = estimated * (1.0 - occluded) + est.photo * occluded
+        image = image * (1.0 - occluded) + est.photo * occluded
+    return _Measured(margins[0], image, robust_rate, images[0], estimated)
 
 
 def _attack_record(attack: Any, setup: RenderSetup, result: Any) -> dict[str, Any]:
@@ -286,13 +139,12 @@ def _attack_record(attack: Any, setup: RenderSetup, result: Any) -> dict[str, An
 
 
 def _hwc(image: torch.Tensor) -> np.ndarray:
+    """A ``(3, H, W)`` tensor as an ``(H, W, 3)`` array."""
     return image.detach().permute(1, 2, 0).cpu().numpy()
 
 
 def _finish_row(row: dict[str, Any], attack: Any, setup: RenderSetup, result: Any, robustness: Robustness,
-                est: Estimation,
-                adversarial_render: MitsubaImage, estimated_image: torch.Tensor, ours_image: torch.Tensor,
-                adversarial: Any) -> BlackBoxResult:
+                est: Estimation, measured: _Measured, adversarial: Any) -> BlackBoxResult:
     """Add what every black-box row shares to ``row`` (robustness and attack settings, estimation errors) and wrap
     it with the images (Mitsuba benign = the estimation's photo / adversarial under the hidden parameters /
     adversarial under the estimates, meshadv's render), the adversarial mesh and the attack's result."""
@@ -300,9 +152,20 @@ def _finish_row(row: dict[str, Any], attack: Any, setup: RenderSetup, result: An
     row["pixel_noise_on"] = _noise_where(setup, robustness)
     row.update(_attack_record(attack, setup, result))
     row.update({k: float(v) for k, v in est.errors.items()})
-    images = {"benign_mitsuba": _hwc(est.photo), "adversarial_mitsuba": adversarial_render.image,
-              "adversarial_mitsuba_estimated": _hwc(estimated_image), "adversarial_meshadv": _hwc(ours_image)}
+    images = {"benign_mitsuba": _hwc(est.photo), "adversarial_mitsuba": measured.adversarial_mitsuba.image,
+              "adversarial_mitsuba_estimated": _hwc(measured.estimated_mitsuba),
+              "adversarial_meshadv": _hwc(measured.image_meshadv)}
     return BlackBoxResult(row=dict(row), images=images, adversarial_mesh=adversarial, attack_result=result)
+
+
+def _victim_name(victim: Any) -> str:
+    """The victim's name for the result row (its class name when it has none)."""
+    return getattr(victim, "name", type(victim).__name__)
+
+
+# ----------------------------------------------------------------------------------------------------------------------
+# Classifier
+# ----------------------------------------------------------------------------------------------------------------------
 
 
 def blackbox_classifier(
@@ -368,95 +231,126 @@ def blackbox_classifier(
     Raises:
         ValueError: unknown ``perturbation``, or ``texture_smoothing`` given for a shape attack or negative.
     """
-    from meshadv.attacks import Misclassification, ShapeAttack, TargetedMisclassification
+    from meshadv.attacks import Misclassification, TargetedMisclassification
 
     check_perturbation(perturbation)
     _check_smoothing(texture_smoothing, perturbation)
     robustness = Robustness() if robustness is None else robustness
-    jitter = dict(DEFAULT_JITTER if jitter is None else jitter)
     est = estimate_parameters(mesh, hidden, num_lights=num_lights, camera_steps=camera_steps,
                               light_steps=light_steps, variant=variant, timeout=timeout)
-    background = _background_image(hidden, (), variant, timeout)
-    setup_options, kwargs = split_setup_options(dict(attack_kwargs or {}))
-    setup = RenderSetup(**{"image_size": hidden.image_size, "background": background, **setup_options})
-    kwargs.setdefault("jitter", jitter or None)
-    attack = _texture_attack(texture_smoothing, None, kwargs) if perturbation == "texture" else ShapeAttack(**kwargs)
+    background = background_photo(hidden, variant=variant, timeout=timeout)
+    setup_options, kwargs = _attack_options(attack_kwargs, jitter)
+    setup = _attack_setup(setup_options, hidden.image_size, background)
+    attack = _object_attack(perturbation, texture_smoothing, kwargs)
     criterion = TargetedMisclassification(target) if target else Misclassification(true_class)
     result = _attack_estimated(attack, mesh, est.views, victim, criterion, robustness, setup, callback)
     adversarial = result.mesh
     bound = criterion.bind(victim)
-    ours_margin, ours_image = _meshadv_margins(setup, adversarial, est.views, victim, bound)
+    measured = _measure(adversarial, adversarial, est, hidden, background, setup, victim, bound, robustness, variant,
+                        timeout)
     with torch.no_grad():
-        ours_top1 = _top1_names(victim, victim(ours_image[None]))[0]
-    robust_rate = _robust_rate(setup, adversarial, est.views, victim, bound, robustness)
-    record = est.views.to_records()[0]
-    # the benign render under the hidden parameters is the photo the estimation was made from
-    images = render_scenes([hidden.spec(adversarial), estimated_view_spec(adversarial, record, hidden)],
-                           variant=variant, timeout=timeout)
-    estimated_image = composite(images[1], background)
-    with torch.no_grad():
-        logits = victim(torch.cat([est.photo[None], _images_tensor(images[:1]), estimated_image[None]]))
+        top1_meshadv = top1_names(victim, victim(measured.image_meshadv[None]))[0]
+        logits = victim(measured.victim_batch(est.photo))
+    benign_correct = not bool(Misclassification(true_class).bind(victim).is_adversarial(logits[:1])[0])
     margins = bound.margin(logits).tolist()
-    bound_untargeted = Misclassification(true_class).bind(victim)
-    names = _top1_names(victim, logits)
+    names = top1_names(victim, logits)
     row: dict[str, Any] = {
         "case_id": case_id,
-        "victim": getattr(victim, "name", type(victim).__name__),
+        "victim": _victim_name(victim),
         "true_class": true_class,
         "target": target or "",
         "perturbation": perturbation,
         "view": 0,
-        "success_meshadv": bool(ours_margin[0] > 0),
+        "success_meshadv": bool(measured.margin_meshadv > 0),
         "success_mitsuba_estimated": margins[2] > 0,
         "success_mitsuba": margins[1] > 0,
         "benign_adversarial_mitsuba": margins[0] > 0,
-        "benign_correct_mitsuba": not bool(bound_untargeted.is_adversarial(logits[:1])[0]),
-        "margin_meshadv": float(ours_margin[0]),
+        "benign_correct_mitsuba": benign_correct,
+        "margin_meshadv": float(measured.margin_meshadv),
         "margin_mitsuba_estimated": float(margins[2]),
         "margin_mitsuba": float(margins[1]),
         "margin_benign_mitsuba": float(margins[0]),
-        "robust_rate_meshadv": robust_rate,
-        "top1_meshadv": ours_top1,
+        "robust_rate_meshadv": measured.robust_rate,
+        "top1_meshadv": top1_meshadv,
         "top1_mitsuba_estimated": names[2],
         "top1_benign_mitsuba": names[0],
         "top1_adversarial_mitsuba": names[1],
         "texture_smoothing": texture_smoothing,
         "spp": hidden.spp,
-        "variant": images[0].variant,
+        "variant": measured.adversarial_mitsuba.variant,
     }
-    return _finish_row(row, attack, setup, result, robustness, est, images[0], estimated_image, ours_image,
-                       adversarial)
+    return _finish_row(row, attack, setup, result, robustness, est, measured, adversarial)
 
 
-def occlusion_mask(objects: Sequence[Any], index: int, views: Any, image_size: Any) -> torch.Tensor:
-    """Pixels where object ``index`` alone would be drawn but another of ``objects`` is in front of it.
+# ----------------------------------------------------------------------------------------------------------------------
+# Detector
+# ----------------------------------------------------------------------------------------------------------------------
 
-    Args:
-        objects: ``meshadv.mesh.Mesh`` objects in world space.
-        index: the object of interest.
-        views: a one-view ``ViewSet`` (the estimated view).
-        image_size: int or (H, W).
 
-    Returns:
-        (H, W) float32, 1 where the object is occluded.
+@dataclass(frozen=True)
+class _DetectorContext:
+    """What the attack of :func:`blackbox_detector` renders and what its victim sees (one of its contexts).
 
-    Raises:
-        ValueError: ``index`` out of range.
+    Attributes:
+        background: ``(3, H, W)`` what meshadv's renders are composited over.
+        attacked: the mesh given to the attack (the attacked object, or the merged scene).
+        attack: the attack (masked to the attacked object within a merged scene).
+        part: the rows of ``attacked``'s face colours (texture) or vertices (shape) that are the attacked object.
+        victim: the victim the attack sees (:class:`~meshadv.transfer.robust.Occluded` where the photo hides it).
+        occluded: ``(H, W)`` pixels where another known object hides the attacked one (``"photo"`` only).
     """
-    from meshadv.render import render
 
-    if not 0 <= index < len(objects):
-        raise ValueError(f"index {index} out of range for {len(objects)} objects")
-    merged = _merge_meshes(objects)
-    start = sum(int(o.faces.shape[0]) for o in objects[:index])
-    stop = start + int(objects[index].faces.shape[0])
-    obj = objects[index]
-    with torch.no_grad():
-        scene = render(merged.vertices, merged.faces, merged.face_colors, views.camera, views.lights,
-                       image_size).face_index[0]
-        alone = render(obj.vertices, obj.faces, obj.face_colors, views.camera, views.lights, image_size).face_index[0]
-    visible = (scene >= start) & (scene < stop)
-    return ((alone >= 0) & ~visible).float()
+    background: torch.Tensor
+    attacked: Any
+    attack: Any
+    part: slice
+    victim: Any
+    occluded: Optional[torch.Tensor] = None
+
+
+def _photo_context(objects: Sequence[Any], index: int, est: Estimation, victim: Any, image_size: tuple[int, int],
+                   perturbation: str, texture_smoothing: Optional[int], kwargs: dict[str, Any]) -> _DetectorContext:
+    """The ``"photo"`` context: the attacked object alone, rendered over the photo; the photo put back where another
+    known object hides it in the estimated view."""
+    occluded = occlusion_mask(objects, index, est.views, image_size)
+    seen_victim = Occluded(victim, est.photo, occluded) if bool(occluded.any()) else victim
+    attack = _object_attack(perturbation, texture_smoothing, kwargs)
+    return _DetectorContext(est.photo, objects[index], attack, slice(0, None), seen_victim, occluded)
+
+
+def _render_context(objects: Sequence[Any], index: int, merged: Any, background: torch.Tensor, victim: Any,
+                    perturbation: str, texture_smoothing: Optional[int],
+                    kwargs: dict[str, Any]) -> _DetectorContext:
+    """The ``"render"`` context: every known object rendered (only object ``index`` may change) over ``background``
+    (the world without them)."""
+    part = "faces" if perturbation == "texture" else "vertices"
+    start, stop = _object_range(objects, index, part)
+    mask = torch.zeros(int(getattr(merged, part).shape[0]), dtype=torch.bool)
+    mask[start:stop] = True
+    attack = _object_attack(perturbation, texture_smoothing, kwargs, mask)
+    return _DetectorContext(background, merged, attack, slice(start, stop), victim)
+
+
+def _attacked_object(attacked_mesh: Any, obj: Any, perturbation: str, part: slice) -> Any:
+    """``obj`` with the face colours (texture) or vertices (shape) of rows ``part`` of the attack's result."""
+    if perturbation == "texture":
+        return obj.with_face_colors(attacked_mesh.face_colors.detach()[part].clone())
+    return obj.with_vertices(attacked_mesh.vertices.detach()[part].clone())
+
+
+def _check_detector_options(num_objects: int, object_index: int, perturbation: str, context: str, light_fit: str,
+                            texture_smoothing: Optional[int], score_threshold: float) -> None:
+    """Raise ValueError naming the first bad argument of :func:`blackbox_detector`."""
+    if not 0 <= object_index < num_objects:
+        raise ValueError(f"object_index {object_index} out of range for {num_objects} objects")
+    check_perturbation(perturbation)
+    if context not in ("photo", "render"):
+        raise ValueError(f"context must be 'photo' or 'render', got {context!r}")
+    if light_fit not in ("object", "known"):
+        raise ValueError(f"light_fit must be 'object' or 'known', got {light_fit!r}")
+    _check_smoothing(texture_smoothing, perturbation)
+    if not 0.0 < score_threshold <= 1.0:
+        raise ValueError(f"score_threshold must be in (0, 1], got {score_threshold}")
 
 
 def blackbox_detector(
@@ -541,120 +435,59 @@ def blackbox_detector(
         ValueError: ``object_index`` out of range, unknown ``perturbation``, ``context`` or ``light_fit``, a bad
             ``score_threshold``, or ``texture_smoothing`` given for a shape attack or negative.
     """
-    from meshadv.attacks import Disappearance, ShapeAttack
+    from meshadv.attacks import Disappearance
 
     objects = list(scene_objects)
-    if not 0 <= object_index < len(objects):
-        raise ValueError(f"object_index {object_index} out of range for {len(objects)} objects")
-    check_perturbation(perturbation)
-    if context not in ("photo", "render"):
-        raise ValueError(f"context must be 'photo' or 'render', got {context!r}")
-    if light_fit not in ("object", "known"):
-        raise ValueError(f"light_fit must be 'object' or 'known', got {light_fit!r}")
-    _check_smoothing(texture_smoothing, perturbation)
-    if not 0.0 < score_threshold <= 1.0:
-        raise ValueError(f"score_threshold must be in (0, 1], got {score_threshold}")
+    _check_detector_options(len(objects), object_index, perturbation, context, light_fit, texture_smoothing,
+                            score_threshold)
     robustness = Robustness() if robustness is None else robustness
-    jitter = dict(DEFAULT_JITTER if jitter is None else jitter)
     target_obj = objects[object_index]
     merged = _merge_meshes(objects)
-    first_face = sum(int(o.faces.shape[0]) for o in objects[:object_index])
-    light_faces = (first_face, first_face + int(target_obj.faces.shape[0])) if light_fit == "object" else None
+    light_faces = _object_range(objects, object_index) if light_fit == "object" else None
     est = estimate_parameters(target_obj, hidden, known=merged, light_faces=light_faces, num_lights=num_lights,
                               camera_steps=camera_steps, light_steps=light_steps, variant=variant, timeout=timeout)
-    setup_options, kwargs = split_setup_options(dict(attack_kwargs or {}))
-    setup_options.setdefault("image_size", hidden.image_size)
-    kwargs.setdefault("jitter", jitter or None)
-    occluded: Optional[torch.Tensor] = None
-    seen_victim = victim
+    setup_options, kwargs = _attack_options(attack_kwargs, jitter)
     if context == "photo":
-        background = est.photo
-        setup_options.setdefault("background", background)
-        occluded = occlusion_mask(objects, object_index, est.views, hidden.image_size)
-        if bool(occluded.any()):
-            seen_victim = Occluded(victim, est.photo, occluded)
-        attacked = target_obj
-        attack = (_texture_attack(texture_smoothing, None, kwargs) if perturbation == "texture"
-                  else ShapeAttack(**kwargs))
-        start, stop = 0, None
+        ctx = _photo_context(objects, object_index, est, victim, hidden.image_size, perturbation, texture_smoothing,
+                             kwargs)
     else:
-        background = _background_image(hidden, background_exclude, variant, timeout)
-        setup_options.setdefault("background", background)
-        attacked = merged
-        if perturbation == "texture":
-            start = sum(int(o.faces.shape[0]) for o in objects[:object_index])
-            stop = start + int(target_obj.faces.shape[0])
-            face_mask = torch.zeros(int(merged.faces.shape[0]), dtype=torch.bool)
-            face_mask[start:stop] = True
-            attack = _texture_attack(texture_smoothing, face_mask, kwargs)
-        else:
-            start = sum(int(o.vertices.shape[0]) for o in objects[:object_index])
-            stop = start + int(target_obj.vertices.shape[0])
-            vertex_mask = torch.zeros(int(merged.vertices.shape[0]), dtype=torch.bool)
-            vertex_mask[start:stop] = True
-            attack = ShapeAttack(vertex_mask=vertex_mask, **kwargs)
-    setup = RenderSetup(**setup_options)
+        background = background_photo(hidden, background_exclude, variant=variant, timeout=timeout)
+        ctx = _render_context(objects, object_index, merged, background, victim, perturbation, texture_smoothing,
+                              kwargs)
+    setup = _attack_setup(setup_options, hidden.image_size, ctx.background)
     criterion = Disappearance(hide_class, threshold=score_threshold)
-    result = _attack_estimated(attack, attacked, est.views, seen_victim, criterion, robustness, setup, callback)
-    if perturbation == "texture":
-        adversarial = target_obj.with_face_colors(result.mesh.face_colors.detach()[start:stop].clone())
-    else:
-        adversarial = target_obj.with_vertices(result.mesh.vertices.detach()[start:stop].clone())
+    result = _attack_estimated(ctx.attack, ctx.attacked, est.views, ctx.victim, criterion, robustness, setup,
+                               callback)
+    adversarial = _attacked_object(result.mesh, target_obj, perturbation, ctx.part)
     if context == "photo":
         seen = adversarial
     else:
         seen = _merge_meshes([adversarial if i == object_index else o for i, o in enumerate(objects)])
-    bound = criterion.bind(victim)
-    ours_margin, ours_image = _meshadv_margins(setup, seen, est.views, seen_victim, bound)
-    robust_rate = _robust_rate(setup, seen, est.views, seen_victim, bound, robustness)
-    record = est.views.to_records()[0]
-    # the benign render under the hidden parameters is the photo the estimation was made from
-    images = render_scenes([hidden.spec(adversarial), estimated_view_spec(seen, record, hidden)], variant=variant,
-                           timeout=timeout)
-    estimated_image = composite(images[1], background)
-    if occluded is not None:
-        estimated_image = estimated_image * (1.0 - occluded) + est.photo * occluded
-        ours_image = ours_image * (1.0 - occluded) + est.photo * occluded
-    scores = detection_scores(victim, torch.cat([est.photo[None], _images_tensor(images[:1]), estimated_image[None]]),
-                              hide_class)
+    measured = _measure(seen, adversarial, est, hidden, ctx.background, setup, ctx.victim,
+                        criterion.bind(victim), robustness, variant, timeout, ctx.occluded)
+    scores = detection_scores(victim, measured.victim_batch(est.photo), hide_class)
     row: dict[str, Any] = {
         "case_id": case_id,
-        "victim": getattr(victim, "name", type(victim).__name__),
+        "victim": _victim_name(victim),
         "true_class": hide_class,
         "target": "",
         "perturbation": perturbation,
         "view": 0,
         "context": context,
         "light_fit": light_fit,
-        "success_meshadv": bool(ours_margin[0] > 0),
+        "success_meshadv": bool(measured.margin_meshadv > 0),
         "success_mitsuba_estimated": scores[2] < score_threshold,
         "success_mitsuba": scores[1] < score_threshold,
         "benign_correct_mitsuba": scores[0] >= score_threshold,
         "score_threshold": float(score_threshold),
-        "hide_score_meshadv": float(score_threshold - ours_margin[0]),
+        "hide_score_meshadv": float(score_threshold - measured.margin_meshadv),
         "hide_score_mitsuba_estimated": scores[2],
         "hide_score_benign_mitsuba": scores[0],
         "hide_score_adversarial_mitsuba": scores[1],
-        "robust_rate_meshadv": robust_rate,
-        "occluded_pixels": None if occluded is None else int(occluded.sum()),
+        "robust_rate_meshadv": measured.robust_rate,
+        "occluded_pixels": None if ctx.occluded is None else int(ctx.occluded.sum()),
         "texture_smoothing": texture_smoothing,
         "spp": hidden.spp,
-        "variant": images[0].variant,
+        "variant": measured.adversarial_mitsuba.variant,
     }
-    return _finish_row(row, attack, setup, result, robustness, est, images[0], estimated_image, ours_image,
-                       adversarial)
-
-
-def detection_scores(victim: Any, images: torch.Tensor, class_name: str) -> list[float]:
-    """Best score of ``class_name`` among a detector's outputs, per image (0 when absent).
-
-    Raises:
-        ValueError: ``class_name`` is not one of the victim's classes.
-    """
-    k = victim.class_index(class_name)
-    with torch.no_grad():
-        out = victim(images)
-        scores = out.scores()
-    return [float(v) for v in scores[..., k].amax(dim=-1).tolist()]
-
-
+    return _finish_row(row, ctx.attack, setup, result, robustness, est, measured, adversarial)

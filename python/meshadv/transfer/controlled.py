@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Collection, Optional, Sequence, Union
 
-import numpy as np
 import torch
 
+from meshadv.transfer._scoring import class_names, images_tensor, top1_names
 from meshadv.transfer.render import MitsubaImage, MitsubaRenderError, render_scenes
 from meshadv.transfer.results import ControlledResult
 from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
@@ -243,22 +243,13 @@ def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int 
     ]
 
 
-def _images_tensor(images: Sequence[MitsubaImage]) -> torch.Tensor:
-    return torch.from_numpy(np.stack([im.chw() for im in images])).float()
-
-
 def _criteria(case: TransferCase, victim: Any) -> tuple[Any, Optional[Any]]:
+    """The case's untargeted criterion and, for a targeted case, its targeted one, bound to ``victim``."""
     from meshadv.attacks import Misclassification, TargetedMisclassification
 
     untargeted = Misclassification(case.true_class).bind(victim)
     targeted = TargetedMisclassification(case.target).bind(victim) if case.target else None
     return untargeted, targeted
-
-
-def _top1_names(victim: Any, logits: torch.Tensor) -> list[str]:
-    names = list(getattr(victim, "class_names", []) or [])
-    top = logits.argmax(dim=1).tolist()
-    return [names[i] if i < len(names) else str(i) for i in top]
 
 
 def evaluate_case(
@@ -283,7 +274,7 @@ def evaluate_case(
     scored = evaluate(case.mesh, views, victim, criteria, setup=setup)  # meshadv's side, as the attack scores it
     ours = scored.images[0]
     with torch.no_grad():
-        theirs = _images_tensor(mitsuba_images)
+        theirs = images_tensor(mitsuba_images)
         logits_theirs = victim(theirs)
     un_ours = (scored.margins[0] > 0).tolist()
     un_theirs = untargeted.is_adversarial(logits_theirs).tolist()
@@ -292,9 +283,8 @@ def evaluate_case(
         t_theirs = targeted.is_adversarial(logits_theirs).tolist()
     else:
         t_ours, t_theirs = un_ours, un_theirs
-    names = list(getattr(victim, "class_names", []) or [])
-    top_ours = [names[i] if i < len(names) else str(i) for i in scored.top1[0].tolist()]
-    top_theirs = _top1_names(victim, logits_theirs)
+    top_ours = class_names(victim, scored.top1[0].tolist())
+    top_theirs = top1_names(victim, logits_theirs)
     diff = (ours - theirs).abs().mean(dim=(1, 2, 3)).tolist()
     return [
         ControlledResult(

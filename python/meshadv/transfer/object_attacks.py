@@ -1,4 +1,4 @@
-"""The texture attack of a black-box run: the paper's per-face one or the smoothed per-vertex one.
+"""The attack of a black-box run: shape, or texture (the paper's per-face one or the smoothed per-vertex one).
 
 Attacks restricted to one object of a merged scene are the ordinary attacks of :mod:`meshadv.attacks` with a mask
 hyper-parameter (``ShapeAttack(vertex_mask=...)``, ``TextureAttack(face_mask=...)``,
@@ -31,3 +31,14 @@ def _texture_attack(smoothing: Optional[int], face_mask: Optional[torch.Tensor],
     if smoothing is None:
         return TextureAttack(face_mask=face_mask, **kwargs)
     return SmoothTextureAttack(smoothing=smoothing, face_mask=face_mask, **kwargs)
+
+
+def _object_attack(perturbation: str, smoothing: Optional[int], kwargs: dict[str, Any],
+                   mask: Optional[torch.Tensor] = None) -> Any:
+    """The attack of a black-box run: a texture attack (:func:`_texture_attack`, ``mask`` its face mask) or a
+    ``ShapeAttack`` (``mask`` its vertex mask); ``mask`` None: the whole mesh may change."""
+    from meshadv.attacks import ShapeAttack
+
+    if perturbation == "texture":
+        return _texture_attack(smoothing, mask, kwargs)
+    return ShapeAttack(**kwargs) if mask is None else ShapeAttack(vertex_mask=mask, **kwargs)

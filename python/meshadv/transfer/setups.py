@@ -15,8 +15,8 @@ from typing import Any, Optional
 
 import numpy as np
 
-from meshadv.transfer.blackbox import HiddenScene
 from meshadv.transfer.environment import outdoor_environment
+from meshadv.transfer.hidden import HiddenScene
 from meshadv.transfer.spec import MitsubaLights
 from meshadv.util.spherical import spherical_direction
 
@@ -60,7 +60,7 @@ def outdoor_classifier_setup(
             stands for the distant ground).
 
     Returns:
-        The :class:`~meshadv.transfer.blackbox.HiddenScene`.
+        The :class:`~meshadv.transfer.hidden.HiddenScene`.
     """
     verts = mesh.vertices.detach().cpu().numpy() if hasattr(mesh.vertices, "detach") else np.asarray(mesh.vertices)
     ground_y = float(verts[:, 1].min()) - 0.02

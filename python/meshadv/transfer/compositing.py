@@ -1,0 +1,56 @@
+"""What the attack optimised, rendered by Mitsuba: the scene under the *estimated* camera and lights, and its
+composite over the background photo (the black-box pipeline's diagnostic of renderer vs parameter mismatch)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from meshadv.transfer.hidden import HiddenScene
+from meshadv.transfer.render import MitsubaImage
+from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
+
+__all__ = ["composite", "estimated_view_spec"]
+
+
+def estimated_view_spec(mesh: Any, record: dict[str, Any], hidden: HiddenScene, *, seed: int = 0) -> SceneSpec:
+    """Mitsuba's scene of what the attack optimised: ``mesh`` under the *estimated* camera and lights.
+
+    Directional lights and a constant ambient (no environment map, no base scene), direct light only
+    (``max_depth = 2``), black background: composite the result over the background photo with its alpha
+    (:func:`composite`). Comparing this render with meshadv's separates the renderer mismatch (anti-aliasing,
+    Monte-Carlo noise, shadows, ambient occlusion) from the parameter mismatch (estimated vs true camera and lights).
+
+    Args:
+        mesh: the object (or the merged known objects) in world space.
+        record: the estimated view (``ViewSet.to_records()[0]``).
+        hidden: the hidden world (for the image size and samples per pixel).
+        seed: Mitsuba sampler seed.
+
+    Returns:
+        The scene spec.
+    """
+    return SceneSpec(
+        objects=(MeshObject.from_mesh(mesh),),
+        camera=MitsubaCamera.from_record(record),
+        lights=MitsubaLights.from_record(record),
+        image_size=hidden.image_size,
+        spp=hidden.spp,
+        max_depth=2,
+        background=(0.0, 0.0, 0.0),
+        seed=seed,
+    )
+
+
+def composite(image: MitsubaImage, background: torch.Tensor) -> torch.Tensor:
+    """A Mitsuba render made over black (premultiplied by its alpha) composited over a (3, H, W) background.
+
+    Raises:
+        ValueError: the background's shape does not match the image.
+    """
+    rgb = torch.from_numpy(image.chw())
+    if tuple(background.shape) != tuple(rgb.shape):
+        raise ValueError(f"background {tuple(background.shape)} must match the image {tuple(rgb.shape)}")
+    alpha = torch.from_numpy(image.alpha)[None]
+    return (rgb + (1.0 - alpha) * background.to(rgb.dtype)).clamp(0.0, 1.0)

@@ -1,0 +1,174 @@
+"""Steps 1-2 of the black-box pipeline: Mitsuba's photo of the hidden world, and the camera and lights estimated
+from it (:func:`estimate_parameters`); the photo of the world without the attacker's objects
+(:func:`background_photo`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Optional, Sequence
+
+import torch
+
+from meshadv.transfer.hidden import HiddenScene
+from meshadv.transfer.render import render_mask, render_scenes
+from meshadv.transfer.spec import MitsubaLights
+
+__all__ = ["Estimation", "background_photo", "estimate_parameters"]
+
+
+@dataclass(frozen=True)
+class Estimation:
+    """Camera and light estimates of a black-box experiment and their errors.
+
+    Attributes:
+        views: the estimated ``ViewSet`` (one view) the attack uses.
+        errors: camera errors (``azimuth_error``, ``elevation_error`` in degrees, ``distance_error`` relative), the
+            masked RMSE of meshadv's re-render under the estimates vs the photo (``light_rmse``), the mask IoU
+            (``mask_iou``) and, when the true lights are directional, ``direction_error`` etc.
+        photo: (3, H, W) the Mitsuba photo (the benign object under the hidden parameters; the pipelines score
+            it as the benign render); mask: (H, W) the object's mask.
+    """
+
+    views: Any
+    errors: dict[str, float]
+    photo: torch.Tensor
+    mask: torch.Tensor
+
+
+def estimate_parameters(
+    mesh: Any,
+    hidden: HiddenScene,
+    *,
+    known: Optional[Any] = None,
+    light_faces: Optional[tuple[int, int]] = None,
+    num_lights: int = 5,
+    camera_steps: int = 60,
+    light_steps: int = 120,
+    camera_size: int = 128,
+    variant: Optional[str] = None,
+    timeout: float = 1800.0,
+) -> Estimation:
+    """Steps 1-2 of the pipeline: render the photo with Mitsuba, estimate the camera from the mask, then the lights.
+
+    Args:
+        mesh: the benign object (world space) placed in the hidden world.
+        hidden: the hidden world.
+        known: the geometry the attacker knows and segments in the photo (its mask and shading are fitted); default
+            ``mesh``. For a scene, the merged mesh of its known objects.
+        light_faces: ``(start, stop)``: fit the lights only on the pixels where one of the faces ``start:stop`` of
+            ``known`` is the visible surface (the attacked object of a scene: the lighting where it stands, which in a
+            room with an area light differs from the average over the scene; occlusion by the other objects is
+            respected). ``None``: every pixel of ``known``. The camera is always fitted on all of ``known``.
+        num_lights: directional lights to estimate.
+        camera_steps: Adam steps of the camera estimation.
+        light_steps: Adam steps of the light estimation.
+        camera_size: the mask is average-pooled to at most this size for the camera fit.
+        variant: Mitsuba variant.
+        timeout: seconds per Mitsuba call.
+
+    Returns:
+        The :class:`Estimation`; ``errors["light_rmse"]`` is measured over the pixels the lights were fitted on,
+        ``errors["light_fit_pixels"]`` counts them.
+
+    Raises:
+        ValueError: ``light_faces`` is not a non-empty range of ``known``'s faces, or selects no visible pixel.
+    """
+    from meshadv.render import ViewSet
+    from meshadv.transfer.estimate import estimate_camera, estimate_lights
+
+    known = mesh if known is None else known
+    _check_light_faces(light_faces, int(known.faces.shape[0]))
+    photo_img = render_scenes([hidden.spec(mesh)], variant=variant, timeout=timeout)[0]
+    mask_np = render_mask(known, hidden.mitsuba_camera(), hidden.image_size, variant=variant, timeout=timeout)
+    photo = torch.from_numpy(photo_img.chw())
+    mask = torch.from_numpy(mask_np)
+    verts = torch.as_tensor(known.vertices, dtype=torch.float32).detach()
+    faces = torch.as_tensor(known.faces, dtype=torch.int64)
+    colors = torch.as_tensor(known.face_colors, dtype=torch.float32).detach()
+    cam_est = estimate_camera(_pooled(mask, camera_size), verts, faces, viewing_angle=hidden.viewing_angle,
+                              steps=camera_steps)
+    camera = cam_est.camera()
+    light_mask = mask if light_faces is None else _light_mask(mask, light_faces, verts, faces, colors, camera,
+                                                              hidden.image_size)
+    light_est = estimate_lights(photo, light_mask, verts, faces, colors, camera, num_lights=num_lights,
+                                steps=light_steps)
+    errors = cam_est.errors(hidden.camera["distance"], hidden.camera["azimuth"], hidden.camera["elevation"])
+    errors["mask_iou"] = cam_est.iou
+    errors.update(_light_fit_errors(photo, light_mask, verts, faces, colors, camera, light_est.lights,
+                                    hidden.image_size))
+    if hidden.lights is not None:
+        errors.update(_true_light_errors(light_est.lights, hidden.lights, hidden.environment is not None))
+    errors.update(estimated_azimuth=cam_est.azimuth, estimated_elevation=cam_est.elevation,
+                  estimated_distance=cam_est.distance)
+    return Estimation(ViewSet(camera, light_est.lights), errors, photo, mask)
+
+
+def _check_light_faces(light_faces: Optional[tuple[int, int]], num_faces: int) -> None:
+    """Raise ValueError unless ``light_faces`` is None or a non-empty ``(start, stop)`` range of ``num_faces``."""
+    if light_faces is not None and not (len(light_faces) == 2 and 0 <= light_faces[0] < light_faces[1] <= num_faces):
+        raise ValueError(f"light_faces must be (start, stop) with 0 <= start < stop <= {num_faces}, got {light_faces}")
+
+
+def _pooled(mask: torch.Tensor, size: int) -> torch.Tensor:
+    """``mask`` average-pooled to ``size`` when larger: the silhouette fit does not need full resolution (NDC is
+    size-independent)."""
+    if mask.shape[-1] > size:
+        return torch.nn.functional.adaptive_avg_pool2d(mask[None, None], size)[0, 0]
+    return mask
+
+
+def _light_mask(mask: torch.Tensor, light_faces: tuple[int, int], verts: torch.Tensor, faces: torch.Tensor,
+                colors: torch.Tensor, camera: Any, image_size: tuple[int, int]) -> torch.Tensor:
+    """``mask`` restricted to the pixels where one of the faces ``light_faces`` is visible under ``camera``.
+
+    Raises:
+        ValueError: those faces cover no pixel of ``mask``.
+    """
+    from meshadv.render import Lights, render
+
+    with torch.no_grad():
+        visible = render(verts, faces, colors, camera, Lights.default(), image_size).face_index[0]
+    light_mask = mask * ((visible >= light_faces[0]) & (visible < light_faces[1])).float()
+    if float(light_mask.sum()) < 1.0:
+        raise ValueError("light_faces: those faces cover no pixel of the photo under the estimated camera")
+    return light_mask
+
+
+def _light_fit_errors(photo: torch.Tensor, light_mask: torch.Tensor, verts: torch.Tensor, faces: torch.Tensor,
+                      colors: torch.Tensor, camera: Any, lights: Any, image_size: tuple[int, int]) -> dict[str, float]:
+    """``light_rmse`` (meshadv's render under the estimates vs the photo, on the fitted pixels meshadv covers) and
+    ``light_fit_pixels`` (their count)."""
+    from meshadv.render import render
+    from meshadv.transfer.estimate import masked_rmse
+
+    with torch.no_grad():
+        ours = render(verts, faces, colors, camera, lights, image_size, background=(0.0, 0.0, 0.0))
+    both = (light_mask.numpy() > 0.5) & (ours.alpha[0, 0].numpy() > 0.5)
+    rmse = masked_rmse(ours.image[0].numpy(), photo.numpy(), both) if both.any() else float("nan")
+    return {"light_rmse": rmse, "light_fit_pixels": float(both.sum())}
+
+
+def _true_light_errors(estimated: Any, true_lights: MitsubaLights, has_environment: bool) -> dict[str, float]:
+    """Errors of the estimated lights against the hidden world's directional lights (no ``ambient_error`` when
+    ``has_environment``: the environment map is the true ambient, no single colour to compare with)."""
+    from meshadv.render import Lights
+    from meshadv.transfer.estimate import light_errors
+
+    true = Lights(torch.from_numpy(true_lights.directions), torch.from_numpy(true_lights.colors),
+                  torch.from_numpy(true_lights.ambient))
+    errors = light_errors(estimated, true)
+    if has_environment:
+        errors.pop("ambient_error", None)
+    return errors
+
+
+def background_photo(hidden: HiddenScene, exclude: Sequence[str] = (), *, variant: Optional[str] = None,
+                     timeout: float = 1800.0) -> torch.Tensor:
+    """The hidden world rendered by Mitsuba without the attacker's objects (:meth:`HiddenScene.background_spec`):
+    ``(3, H, W)``.
+
+    It stands for a photo of the background taken without the object, composited behind meshadv's renders during
+    the attack (the paper composites its renders over the real photo).
+    """
+    spec = hidden.background_spec(exclude)
+    return torch.from_numpy(render_scenes([spec], variant=variant, timeout=timeout)[0].chw())
