@@ -66,17 +66,27 @@ impl Lines {
             .enumerate()
             .for_each(|(i, (((face, key), gi), planes))| {
                 let faces = &face_index[i * w..(i + 1) * w];
-                for (j, ((&f, face), key)) in faces.iter().zip(face).zip(key).enumerate() {
-                    face.write(f);
-                    let k = match setups.get(f as usize) {
-                        Some(s) if f >= 0 => match s.depth_at(i as i32, j as i32) {
-                            Some(z) if s.ortho => -z,
-                            Some(z) => 1.0 / z,
-                            None => f64::NEG_INFINITY,
-                        },
-                        _ => f64::NEG_INFINITY,
+                // By runs of one face along the row (its depth's row terms computed once per run).
+                let mut j = 0;
+                while j < w {
+                    let f = faces[j];
+                    let depth = match setups.get(f as usize) {
+                        Some(s) if f >= 0 => Some((s.ortho, s.row_depth(i as i32))),
+                        _ => None,
                     };
-                    key.write(k);
+                    while j < w && faces[j] == f {
+                        face[j].write(f);
+                        let k = match &depth {
+                            Some((ortho, d)) => match d.at(j as i32) {
+                                Some(z) if *ortho => -z,
+                                Some(z) => 1.0 / z,
+                                None => f64::NEG_INFINITY,
+                            },
+                            None => f64::NEG_INFINITY,
+                        };
+                        key[j].write(k);
+                        j += 1;
+                    }
                 }
                 let (g, im) = (
                     &grad[i * w * c..(i + 1) * w * c],

@@ -228,7 +228,7 @@ unsafe fn lines_avx2<const C: usize>(
     lines_on::<std::arch::x86_64::__m256d, C>(face, jobs, scratch)
 }
 
-/// [`run_lines`] on vectors `V`: first every OUT sweep, then every IN sweep.
+/// [`run_lines`] on vectors `V`, job by job: its OUT sweep, then its IN sweep.
 ///
 /// # Safety
 /// `V`'s instructions must be supported by the CPU.
@@ -244,76 +244,72 @@ unsafe fn lines_on<V: F64s, const C: usize>(
     let (lines, pos) = (ln.of::<C>(), face.pos.of(ln.len));
     for job in jobs.iter_mut() {
         let (start, end) = job.out;
-        if start >= end {
-            continue;
+        if start < end {
+            let r = start..end;
+            let at = lines.at(job.line, start, end);
+            let pre = if C == 0 {
+                dot_into(ln, job.line, &r, |k| attrs[k], c, scratch)
+            } else {
+                &[]
+            };
+            // The sweep's pixels that may be the face's own, relative to its start.
+            let own_lo = face.own.0.max(start).min(end) - start;
+            let own_hi = (face.own.1 + 1).max(start).min(end) - start;
+            let k = OutKernel {
+                n: r.len(),
+                own: (own_lo, own_hi.max(own_lo)),
+                end: index_f64(end),
+                dot: Dot::new(&at, attrs, pre, r.len()),
+                face: at.face,
+                key: at.key,
+                gi: at.gi,
+                pos: pos.at(start, end),
+                ka: job.ka,
+                ba: job.ea - job.ka * job.cross,
+                kc: job.kc,
+                bc: job.ec - job.kc * job.cross,
+                fi: face.fi,
+                key0: job.key0,
+                key_step: face.key_step,
+            };
+            // SAFETY: the pointers come from `Lines::at`, `Positions::at` and `Dot::new`, readable for the padded
+            // block count; the caller vouches for `V`.
+            let (sa, sc) = lanes::<V, _>(&k);
+            job.sums[0] = lane_sum(&sa);
+            job.sums[1] = lane_sum(&sc);
         }
-        let r = start..end;
-        let at = lines.at(job.line, start, end);
-        let pre = if C == 0 {
-            dot_into(ln, job.line, &r, |k| attrs[k], c, scratch)
-        } else {
-            &[]
-        };
-        // The sweep's pixels that may be the face's own, relative to its start.
-        let own_lo = face.own.0.max(start).min(end) - start;
-        let own_hi = (face.own.1 + 1).max(start).min(end) - start;
-        let k = OutKernel {
-            n: r.len(),
-            own: (own_lo, own_hi.max(own_lo)),
-            end: index_f64(end),
-            dot: Dot::new(&at, attrs, pre, r.len()),
-            face: at.face,
-            key: at.key,
-            gi: at.gi,
-            pos: pos.at(start, end),
-            ka: job.ka,
-            ba: job.ea - job.ka * job.cross,
-            kc: job.kc,
-            bc: job.ec - job.kc * job.cross,
-            fi: face.fi,
-            key0: job.key0,
-            key_step: face.key_step,
-        };
-        // SAFETY: the pointers come from `Lines::at`, `Positions::at` and `Dot::new`, readable for the padded
-        // block count; the caller vouches for `V`.
-        let (sa, sc) = lanes::<V, _>(&k);
-        job.sums[0] = lane_sum(&sa);
-        job.sums[1] = lane_sum(&sc);
-    }
-    for job in jobs.iter_mut() {
         let (start, end) = job.inside;
-        if start >= end {
-            continue;
+        if start < end {
+            let r = start..end;
+            let out_color = &face.image[job.out_color..job.out_color + c];
+            let mut w = [0f64; 4];
+            for (w, &o) in w.iter_mut().zip(out_color) {
+                *w = o as f64;
+            }
+            let at = lines.at(job.line, start, end);
+            let pre = if C == 0 {
+                dot_into(ln, job.line, &r, |k| out_color[k] as f64, c, scratch)
+            } else {
+                &[]
+            };
+            let k = InSweep {
+                n: r.len(),
+                end: index_f64(end),
+                face: at.face,
+                gi: at.gi,
+                pos: pos.at(start, end),
+                fi: face.fi,
+                cross: job.cross,
+                ka: job.ka,
+                kc: job.kc,
+                _data: PhantomData,
+            }
+            .with(Dot::new(&at, &w, pre, r.len()));
+            // SAFETY: as for the OUT sweeps.
+            let (sa, sc) = lanes::<V, _>(&k);
+            job.sums[2] = lane_sum(&sa);
+            job.sums[3] = lane_sum(&sc);
         }
-        let r = start..end;
-        let out_color = &face.image[job.out_color..job.out_color + c];
-        let mut w = [0f64; 4];
-        for (w, &o) in w.iter_mut().zip(out_color) {
-            *w = o as f64;
-        }
-        let at = lines.at(job.line, start, end);
-        let pre = if C == 0 {
-            dot_into(ln, job.line, &r, |k| out_color[k] as f64, c, scratch)
-        } else {
-            &[]
-        };
-        let k = InSweep {
-            n: r.len(),
-            end: index_f64(end),
-            face: at.face,
-            gi: at.gi,
-            pos: pos.at(start, end),
-            fi: face.fi,
-            cross: job.cross,
-            ka: job.ka,
-            kc: job.kc,
-            _data: PhantomData,
-        }
-        .with(Dot::new(&at, &w, pre, r.len()));
-        // SAFETY: as for the OUT sweeps.
-        let (sa, sc) = lanes::<V, _>(&k);
-        job.sums[2] = lane_sum(&sa);
-        job.sums[3] = lane_sum(&sc);
     }
 }
 
@@ -452,9 +448,18 @@ unsafe fn lanes<V: F64s, K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
             }
         };
     }
-    blocks!(own_lo, false);
-    blocks!(own_hi, true);
-    blocks!(full, false);
+    // Before, in and after the own blocks; the blocks outside are one loop in the code, run twice (a loop for
+    // each of them made the compiler allocate the registers of one of the two worse).
+    let mut to = own_lo;
+    let mut own_next = true;
+    loop {
+        blocks!(to, false);
+        if !own_next {
+            break;
+        }
+        blocks!(own_hi, true);
+        (to, own_next) = (full, false);
+    }
     if full < n {
         for j in 0..per {
             let (x, y) = k.vec::<V, true, true>(&c, full + j * V::N);
