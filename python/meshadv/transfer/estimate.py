@@ -33,6 +33,18 @@ def _as_mask(mask: Any, name: str = "mask") -> torch.Tensor:
     return t.clamp(0.0, 1.0)
 
 
+def _as_image(image: Any, name: str = "image") -> torch.Tensor:
+    """(3, H, W) float32 tensor from an array / tensor of shape (3, H, W), (H, W, 3) or (1, 3, H, W)."""
+    img = torch.as_tensor(np.asarray(image.detach().cpu() if hasattr(image, "detach") else image), dtype=torch.float32)
+    if img.dim() == 4 and img.shape[0] == 1:
+        img = img[0]
+    if img.dim() == 3 and img.shape[-1] == 3 and img.shape[0] != 3:
+        img = img.permute(2, 0, 1)
+    if img.dim() != 3 or img.shape[0] != 3:
+        raise ValueError(f"{name} must have shape (3, H, W) or (H, W, 3), got {tuple(img.shape)}")
+    return img
+
+
 def _wrap_degrees(angle: float) -> float:
     """Wrap an angle difference to (-180, 180]."""
     return (angle + 180.0) % 360.0 - 180.0
@@ -81,6 +93,7 @@ def _silhouettes(
     size: tuple[int, int],
     antialias: int,
 ) -> torch.Tensor:
+    """(B, H, W) silhouettes of the mesh under spherical cameras ``(dist, az, el)`` (each ``(B,)``)."""
     camera = Camera.spherical(dist, az, el, viewing_angle=viewing_angle)
     return render_silhouette(vertices, faces, camera, size, antialias=antialias)[:, 0]
 
@@ -150,6 +163,19 @@ def estimate_camera(
         >>> est.azimuth, est.elevation
     """
     target = _as_mask(mask)
+    _check_camera_options(target, steps, refine, azimuths, elevations, coarse_size, blur)
+    verts = torch.as_tensor(vertices, dtype=torch.float32).detach()
+    faces_t = torch.as_tensor(faces, dtype=torch.int64)
+    az, el, dist = _coarse_starts(verts, faces_t, target, azimuths, elevations, viewing_angle, reference_distance,
+                                  refine, coarse_size, blur)
+    a, e, d = _refine_starts(verts, faces_t, target, az, el, dist, viewing_angle, steps, lr, antialias, blur)
+    final, iou = _silhouette_fit(verts, faces_t, target, d, a, e, viewing_angle)
+    return CameraEstimate(d, a % 360.0, e, float(viewing_angle), final, iou)
+
+
+def _check_camera_options(target: torch.Tensor, steps: int, refine: int, azimuths: Sequence[float],
+                          elevations: Sequence[float], coarse_size: int, blur: float) -> None:
+    """Raise ValueError naming the first bad argument of :func:`estimate_camera`."""
     if float(target.sum()) < 1.0:
         raise ValueError("mask is empty: the object is not visible")
     if steps < 0 or refine < 1:
@@ -158,36 +184,50 @@ def estimate_camera(
         raise ValueError("azimuths and elevations must be non-empty")
     if coarse_size < 8 or blur < 0:
         raise ValueError(f"coarse_size must be >= 8 and blur >= 0, got {coarse_size}, {blur}")
-    verts = torch.as_tensor(vertices, dtype=torch.float32).detach()
-    faces_t = torch.as_tensor(faces, dtype=torch.int64)
-    size = (int(target.shape[0]), int(target.shape[1]))
 
+
+def _coarse_starts(verts: torch.Tensor, faces: torch.Tensor, target: torch.Tensor, azimuths: Sequence[float],
+                   elevations: Sequence[float], viewing_angle: float, reference_distance: float, refine: int,
+                   coarse_size: int, blur: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The ``refine`` best (azimuth, elevation) starts of the grid and their distances, each ``(R,)``.
+
+    Every start is scored without gradients on ``coarse_size`` blurred silhouettes, at the distance that makes its
+    silhouette's area match the mask's (area scales as 1 / distance^2).
+    """
     grid_az = torch.tensor([float(a) for a in azimuths for _ in elevations])
     grid_el = torch.tensor([float(e) for _ in azimuths for e in elevations])
-    coarse = (min(coarse_size, size[0]), min(coarse_size, size[1]))
+    coarse = (min(coarse_size, int(target.shape[0])), min(coarse_size, int(target.shape[1])))
     target_c = torch.nn.functional.adaptive_avg_pool2d(target[None, None], coarse)[0, 0]
     sigma_c = blur * max(coarse)
     with torch.no_grad():
         ref = torch.full_like(grid_az, float(reference_distance))
-        sil = _silhouettes(verts, faces_t, ref, grid_az, grid_el, viewing_angle, coarse, 2)
+        sil = _silhouettes(verts, faces, ref, grid_az, grid_el, viewing_angle, coarse, 2)
         area = sil.sum(dim=(1, 2)).clamp_min(1e-3)
         dist = ref * torch.sqrt(area / target_c.sum().clamp_min(1e-3))
-        sil = _silhouettes(verts, faces_t, dist, grid_az, grid_el, viewing_angle, coarse, 2)
+        sil = _silhouettes(verts, faces, dist, grid_az, grid_el, viewing_angle, coarse, 2)
         loss = ((_blur(sil, sigma_c) - _blur(target_c[None], sigma_c)) ** 2).mean(dim=(1, 2))
     best = torch.argsort(loss)[: min(refine, len(loss))]
+    return grid_az[best], grid_el[best], dist[best]
 
-    az = grid_az[best].clone().requires_grad_(True)
-    el = grid_el[best].clone().requires_grad_(True)
-    log_d = torch.log(dist[best]).clone().requires_grad_(True)
+
+def _refine_starts(verts: torch.Tensor, faces: torch.Tensor, target: torch.Tensor, az0: torch.Tensor,
+                   el0: torch.Tensor, dist0: torch.Tensor, viewing_angle: float, steps: int, lr: float,
+                   antialias: int, blur: float) -> tuple[float, float, float]:
+    """Adam on all starts at once (angles in degrees, distance in log space) with a blur that shrinks to zero over
+    the first two thirds of the steps; the (azimuth, elevation, distance) with the lowest unblurred error."""
+    size = (int(target.shape[0]), int(target.shape[1]))
+    az = az0.clone().requires_grad_(True)
+    el = el0.clone().requires_grad_(True)
+    log_d = torch.log(dist0).clone().requires_grad_(True)
     opt = torch.optim.Adam([{"params": [az, el], "lr": lr}, {"params": [log_d], "lr": lr / 100.0}])
     best_state = (az.detach().clone(), el.detach().clone(), log_d.detach().clone())
-    best_loss = torch.full((len(best),), float("inf"))
+    best_loss = torch.full((len(az0),), float("inf"))
     sigma0 = blur * max(size)
     blur_steps = max(1, (2 * steps) // 3)
     for step in range(steps + 1):
         sigma = sigma0 * max(0.0, 1.0 - step / blur_steps)
         opt.zero_grad()
-        sil = _silhouettes(verts, faces_t, log_d.exp(), az, el, viewing_angle, size, antialias)
+        sil = _silhouettes(verts, faces, log_d.exp(), az, el, viewing_angle, size, antialias)
         per_view = ((_blur(sil, sigma) - _blur(target[None], sigma)) ** 2).mean(dim=(1, 2))
         if sigma < 0.3:  # only unblurred errors are comparable between steps
             with torch.no_grad():
@@ -198,18 +238,23 @@ def estimate_camera(
         opt.step()
         with torch.no_grad():
             el.clamp_(-89.0, 89.0)
-
     i = int(torch.argmin(best_loss))
     a, e, d = (float(s[i]) for s in best_state)
-    d = math.exp(d)
+    return a, e, math.exp(d)
+
+
+def _silhouette_fit(verts: torch.Tensor, faces: torch.Tensor, target: torch.Tensor, distance: float,
+                    azimuth: float, elevation: float, viewing_angle: float) -> tuple[float, float]:
+    """The mean squared error and the IoU of the camera's silhouette (no supersampling) against ``target``."""
+    size = (int(target.shape[0]), int(target.shape[1]))
     with torch.no_grad():
-        sil = _silhouettes(verts, faces_t, torch.tensor([d]), torch.tensor([a]), torch.tensor([e]), viewing_angle,
-                           size, 1)[0]
+        sil = _silhouettes(verts, faces, torch.tensor([distance]), torch.tensor([azimuth]), torch.tensor([elevation]),
+                           viewing_angle, size, 1)[0]
         hard = sil > 0.5
         tgt = target > 0.5
         iou = float((hard & tgt).sum()) / max(float((hard | tgt).sum()), 1.0)
         final = float(((sil - target) ** 2).mean())
-    return CameraEstimate(d, a % 360.0, e, float(viewing_angle), final, iou)
+    return final, iou
 
 
 @dataclass(frozen=True)
@@ -283,13 +328,7 @@ def estimate_lights(
     """
     if num_lights < 0 or steps < 0:
         raise ValueError(f"num_lights and steps must be >= 0, got {num_lights}, {steps}")
-    img = torch.as_tensor(np.asarray(image.detach().cpu() if hasattr(image, "detach") else image), dtype=torch.float32)
-    if img.dim() == 4 and img.shape[0] == 1:
-        img = img[0]
-    if img.dim() == 3 and img.shape[-1] == 3 and img.shape[0] != 3:
-        img = img.permute(2, 0, 1)
-    if img.dim() != 3 or img.shape[0] != 3:
-        raise ValueError(f"image must have shape (3, H, W) or (H, W, 3), got {tuple(img.shape)}")
+    img = _as_image(image)
     m = _as_mask(mask)
     if tuple(m.shape) != tuple(img.shape[1:]):
         raise ValueError(f"mask shape {tuple(m.shape)} does not match image shape {tuple(img.shape[1:])}")
