@@ -350,6 +350,7 @@ def estimate_lights(
     best_loss, best = float("inf"), None
 
     def make_lights() -> Lights:
+        """The lights of the current parameters (unit directions, softplus colours and ambient)."""
         d = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-6) if num_lights else torch.zeros(0, 3)
         c = torch.nn.functional.softplus(raw_colors) if num_lights else torch.zeros(0, 3)
         return Lights(d, c, torch.nn.functional.softplus(raw_ambient))
@@ -390,6 +391,7 @@ def light_errors(estimated: Lights, true: Lights) -> dict[str, float]:
     """
 
     def summary(lights: Lights) -> tuple[torch.Tensor, float, torch.Tensor]:
+        """Colour-weighted sum of the unit directions, total directional intensity, ambient colour."""
         d = lights.directions[0].detach().float()
         d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-9)
         w = lights.colors[0].detach().float().mean(dim=-1)

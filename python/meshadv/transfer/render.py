@@ -25,6 +25,7 @@ from meshadv.transfer.variants import best_variant
 #: The variant used when the preferred one fails.
 FALLBACK_VARIANT = "scalar_rgb"
 
+#: The folder holding the ``meshadv`` package, put on the child's ``PYTHONPATH``.
 _PACKAGE_PARENT = str(Path(__file__).resolve().parents[2])
 
 #: The module run in the child process (``python -m``).
@@ -55,27 +56,44 @@ class MitsubaImage:
 
 
 def _run_worker(specs: Sequence[SceneSpec], variant: str, timeout: float) -> list[MitsubaImage]:
+    """Render ``specs`` in a child process (``python -m`` :data:`_WORKER_MODULE`) through a temporary folder: the
+    specs go in pickled, the images come back in an ``.npz``.
+
+    Raises:
+        MitsubaRenderError: the child timed out, failed or wrote no images.
+    """
     with tempfile.TemporaryDirectory(prefix="meshadv_mitsuba_") as tmp:
         in_path = os.path.join(tmp, "specs.pkl")
         out_path = os.path.join(tmp, "images.npz")
         with open(in_path, "wb") as fh:
             pickle.dump(list(specs), fh, protocol=pickle.HIGHEST_PROTOCOL)
-        env = dict(os.environ)
-        env["PYTHONPATH"] = _PACKAGE_PARENT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
         cmd = [sys.executable, "-m", _WORKER_MODULE, in_path, out_path, variant]
         try:
-            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=_worker_environment())
         except subprocess.TimeoutExpired as exc:
             raise MitsubaRenderError(f"Mitsuba ({variant}) timed out after {timeout:.0f} s") from exc
         if proc.returncode != 0 or not os.path.exists(out_path):
-            code = proc.returncode
-            how = f"was killed by signal {-code}" if code < 0 else f"exited with {code}"
-            tail = "\n".join(proc.stderr.strip().splitlines()[-15:])
-            raise MitsubaRenderError(f"Mitsuba ({variant}) {how}:\n{tail}")
+            raise MitsubaRenderError(_failure_message(proc, variant))
         with np.load(out_path) as data:
             return [
                 MitsubaImage(data[f"image_{i}"].copy(), data[f"alpha_{i}"].copy(), variant) for i in range(len(specs))
             ]
+
+
+def _worker_environment() -> dict[str, str]:
+    """This process's environment with this package's parent folder first on ``PYTHONPATH`` (the child imports
+    the same meshadv, installed or not)."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = _PACKAGE_PARENT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    return env
+
+
+def _failure_message(proc: subprocess.CompletedProcess, variant: str) -> str:
+    """How the child failed (signal or exit code) and the last 15 lines of its standard error."""
+    code = proc.returncode
+    how = f"was killed by signal {-code}" if code < 0 else f"exited with {code}"
+    tail = "\n".join(proc.stderr.strip().splitlines()[-15:])
+    return f"Mitsuba ({variant}) {how}:\n{tail}"
 
 
 def render_scenes(

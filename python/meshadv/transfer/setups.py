@@ -29,6 +29,7 @@ INDOOR_CAMERA = {"distance": 3.4, "azimuth": 145.0, "elevation": 24.0}
 
 
 def _sun(elevation: float, azimuth: float, strength: float) -> MitsubaLights:
+    """One white directional light of colour ``strength`` from (``azimuth``, ``elevation``) degrees, no ambient."""
     direction = spherical_direction(azimuth, elevation)
     return MitsubaLights(np.array([direction]), np.full((1, 3), strength), np.zeros(3))
 
