@@ -215,7 +215,7 @@ impl FaceSetup {
 pub struct RowDepth<'a> {
     s: &'a FaceSetup,
     /// `du * (v - av)` of each edge.
-    row_terms: [f64; 3],
+    pub row_terms: [f64; 3],
 }
 
 impl RowDepth<'_> {

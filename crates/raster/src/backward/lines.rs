@@ -9,7 +9,7 @@ use crate::error::{try_clear_for, try_refill, Result};
 use crate::input::RasterParams;
 use crate::setup::FaceSetup;
 
-use super::sweep::LANES;
+use super::sweep::{F64s, LANES};
 
 /// The per-pixel inputs of the sweeps of one batch element, one line after another: image rows for the row sweeps
 /// (axis V) or image columns for the column sweeps (axis U), so that the inner loops read memory contiguously.
@@ -70,22 +70,16 @@ impl Lines {
                 let mut j = 0;
                 while j < w {
                     let f = faces[j];
-                    let depth = match setups.get(f as usize) {
-                        Some(s) if f >= 0 => Some((s.ortho, s.row_depth(i as i32))),
-                        _ => None,
-                    };
+                    let j0 = j;
                     while j < w && faces[j] == f {
                         face[j].write(f);
-                        let k = match &depth {
-                            Some((ortho, d)) => match d.at(j as i32) {
-                                Some(z) if *ortho => -z,
-                                Some(z) => 1.0 / z,
-                                None => f64::NEG_INFINITY,
-                            },
-                            None => f64::NEG_INFINITY,
-                        };
-                        key[j].write(k);
                         j += 1;
+                    }
+                    match setups.get(f as usize) {
+                        Some(s) if f >= 0 => row_keys(s, i as i32, j0, &mut key[j0..j]),
+                        _ => key[j0..j]
+                            .iter_mut()
+                            .for_each(|k| _ = k.write(f64::NEG_INFINITY)),
                     }
                 }
                 let (g, im) = (
@@ -256,6 +250,63 @@ impl<'a, const C: usize> LinesOf<'a, C> {
                 grad: std::array::from_fn(|k| g.add(k * self.len)),
                 _lines: PhantomData,
             }
+        }
+    }
+}
+
+/// The depth-test keys of the pixels `j0..j0 + key.len()` of row `row`, all drawn by the face of `s`: `1/z`
+/// (perspective) or `-z` (orthographic) of [`FaceSetup::depth_at`], `-inf` where it is undefined. Two pixels at a
+/// time in SSE2 lanes (x86-64 baseline; plain pairs elsewhere): lane by lane the operations of `RowDepth::at` and
+/// `depth_from_weights`, so the same bits (tested).
+#[inline(always)]
+fn row_keys(s: &FaceSetup, row: i32, j0: usize, key: &mut [MaybeUninit<f64>]) {
+    #[cfg(target_arch = "x86_64")]
+    type V = std::arch::x86_64::__m128d;
+    #[cfg(not(target_arch = "x86_64"))]
+    type V = [f64; 2];
+    let rd = s.row_depth(row);
+    // SAFETY: SSE2 is part of the x86-64 baseline; every load and store is of two values from or to arrays of two.
+    #[allow(unsafe_code)]
+    unsafe {
+        let sp = V::splat;
+        let e = &s.edges;
+        let (au, dv, sign, rt) = (
+            [sp(e[0].au), sp(e[1].au), sp(e[2].au)],
+            [sp(e[0].dv), sp(e[1].dv), sp(e[2].dv)],
+            [sp(e[0].sign), sp(e[1].sign), sp(e[2].sign)],
+            [
+                sp(rd.row_terms[0]),
+                sp(rd.row_terms[1]),
+                sp(rd.row_terms[2]),
+            ],
+        );
+        let inv = sp(s.inv_area);
+        let m = if s.ortho { s.z } else { s.inv_z };
+        let m = [sp(m[0]), sp(m[1]), sp(m[2])];
+        let (zero, one, inf, neg_inf) =
+            (sp(0.0), sp(1.0), sp(f64::INFINITY), sp(f64::NEG_INFINITY));
+        let (neg_one, step) = (sp(-1.0), sp(2.0));
+        let mut u = V::load([j0 as f64, j0 as f64 + 1.0].as_ptr());
+        for out in key.chunks_mut(2) {
+            // Barycentric weights as `RowDepth::at`: sign * (row term - dv * (u - au)) * inv_area.
+            let w: [V; 3] =
+                std::array::from_fn(|k| sign[k].mul(rt[k].sub(dv[k].mul(u.sub(au[k])))).mul(inv));
+            // `depth_from_weights`: w0 m0 + w1 m1 + w2 m2, then the key where defined.
+            let x = w[0].mul(m[0]).add(w[1].mul(m[1])).add(w[2].mul(m[2]));
+            let (k, ok) = if s.ortho {
+                // -z (a product by -1 negates exactly, zeros included); defined where z is finite.
+                (x.mul(neg_one), x.lt(inf).and(neg_inf.lt(x)))
+            } else {
+                // 1 / (1 / iz); defined where iz > 0 and finite.
+                (one.div(one.div(x)), x.gt(zero).and(x.lt(inf)))
+            };
+            let k = ok.and(k).or(ok.andnot(neg_inf));
+            let mut two = [0f64; 2];
+            k.store(two.as_mut_ptr());
+            for (o, &v) in out.iter_mut().zip(&two) {
+                o.write(v);
+            }
+            u = u.add(step);
         }
     }
 }
@@ -487,7 +538,64 @@ pub(super) struct LineAt<'a, const C: usize> {
 mod tests {
     use std::mem::MaybeUninit;
 
-    use super::{transpose, Tile, ROWS};
+    use super::{row_keys, transpose, Tile, ROWS};
+    use crate::input::{Projection, RasterParams, ScreenMesh};
+    use crate::setup::FaceSetup;
+
+    #[test]
+    fn the_row_keys_give_the_bits_of_the_scalar_depth() {
+        // Random triangles, perspective (some with corners behind the camera, so that 1/z is not positive everywhere)
+        // and orthographic, keys along rows through and beyond them, runs of every length and start.
+        let mut state = 5u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut defined = 0;
+        for case in 0..300 {
+            let verts: Vec<f32> = (0..9)
+                .map(|k| {
+                    if k % 3 == 2 {
+                        (next() * 6.0 - 0.5) as f32
+                    } else {
+                        (next() * 2.4 - 1.2) as f32
+                    }
+                })
+                .collect();
+            let mesh = ScreenMesh::new(&verts, &[0, 1, 2], 1, 3).expect("valid mesh");
+            let mut params = RasterParams::new(19, 27, 0.1, 100.0);
+            if case % 3 == 0 {
+                params.projection = Projection::Orthographic;
+            }
+            let s = FaceSetup::new(&mesh, 0, 0, &params);
+            for row in 0..19 {
+                let j0 = (next() * 20.0) as usize;
+                let n = 1 + (next() * 7.0) as usize;
+                let mut got = vec![MaybeUninit::new(0.0); n];
+                row_keys(&s, row, j0, &mut got);
+                for (jj, g) in got.iter().enumerate() {
+                    // SAFETY: every slot was initialised above.
+                    #[allow(unsafe_code)]
+                    let g = unsafe { g.assume_init() };
+                    let want = match s.depth_at(row, (j0 + jj) as i32) {
+                        Some(z) if s.ortho => -z,
+                        Some(z) => 1.0 / z,
+                        None => f64::NEG_INFINITY,
+                    };
+                    assert_eq!(
+                        g.to_bits(),
+                        want.to_bits(),
+                        "case {case} row {row} col {}",
+                        j0 + jj
+                    );
+                    defined += usize::from(want > f64::NEG_INFINITY);
+                }
+            }
+        }
+        assert!(defined > 5000, "{defined}");
+    }
 
     /// Checks [`transpose`] on values `value(x)` (bits compared through `bits`), untouched slots holding `fill`.
     fn check<T: Tile + std::fmt::Debug>(

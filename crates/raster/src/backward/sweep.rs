@@ -393,6 +393,8 @@ impl<const C: usize> Dot<'_, C> {
 
 /// A sweep's kernel: the contributions of a vector of pixels to the two edge endpoints.
 trait Kernel {
+    /// Whether sweeps are short, so that every block runs masked (one loop, no separate last block).
+    const SHORT: bool = false;
     /// The kernel's constants as vectors.
     type Consts<V: F64s>;
     /// Pixels in the sweep (every per-pixel pointer may be read for this rounded up to a multiple of [`LANES`]).
@@ -434,6 +436,19 @@ unsafe fn lanes<V: F64s, K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
     // Only the first `per` accumulators are used.
     let (mut sa, mut sc) = ([zero; LANES], [zero; LANES]);
     let n = k.len();
+    if K::SHORT {
+        // Every block masked (a whole block's mask keeps every lane: the same sums).
+        let mut i = 0;
+        while i < n {
+            for j in 0..per {
+                let (x, y) = k.vec::<V, true, true>(&c, i + j * V::N);
+                sa[j] = sa[j].add(x);
+                sc[j] = sc[j].add(y);
+            }
+            i += LANES;
+        }
+        return store_lanes::<V>(&sa, &sc);
+    }
     let [own_lo, own_hi, full] = blocks(n, k.own());
     let mut i = 0;
     macro_rules! blocks {
@@ -467,8 +482,18 @@ unsafe fn lanes<V: F64s, K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
             sc[j] = sc[j].add(y);
         }
     }
+    store_lanes::<V>(&sa, &sc)
+}
+
+/// The lanes of the accumulators of [`lanes`] (the first `LANES / V::N` vectors of each).
+///
+/// # Safety
+/// `V`'s instructions must be supported by the CPU.
+#[allow(unsafe_code)]
+#[inline(always)]
+unsafe fn store_lanes<V: F64s>(sa: &[V; LANES], sc: &[V; LANES]) -> ([f64; LANES], [f64; LANES]) {
     let (mut xa, mut xc) = ([0f64; LANES], [0f64; LANES]);
-    for j in 0..per {
+    for j in 0..LANES / V::N {
         sa[j].store(xa.as_mut_ptr().add(j * V::N));
         sc[j].store(xc.as_mut_ptr().add(j * V::N));
     }
@@ -639,6 +664,8 @@ struct InConsts<V, const C: usize> {
 }
 
 impl<const C: usize> Kernel for InKernel<'_, C> {
+    // IN sweeps are cut to the face's drawn box: a few pixels.
+    const SHORT: bool = true;
     type Consts<V: F64s> = InConsts<V, C>;
 
     #[inline(always)]
@@ -747,6 +774,8 @@ pub(super) unsafe trait F64s: Copy {
     unsafe fn and(self, o: Self) -> Self;
     /// Bitwise or.
     unsafe fn or(self, o: Self) -> Self;
+    /// Bitwise `!self & o`.
+    unsafe fn andnot(self, o: Self) -> Self;
     /// Lane-wise `if self < o { self } else { o }` (x86's `min`: `o` when either is NaN or both are zeros).
     unsafe fn min(self, o: Self) -> Self;
     /// The depth test with ties: lane-wise `self > o`, or `self >= o` where `wins_ties` (a mask) is set.
@@ -822,6 +851,11 @@ unsafe impl F64s for [f64; 2] {
     #[inline(always)]
     unsafe fn or(self, o: Self) -> Self {
         let f = |a: f64, b: f64| f64::from_bits(a.to_bits() | b.to_bits());
+        [f(self[0], o[0]), f(self[1], o[1])]
+    }
+    #[inline(always)]
+    unsafe fn andnot(self, o: Self) -> Self {
+        let f = |a: f64, b: f64| f64::from_bits(!a.to_bits() & b.to_bits());
         [f(self[0], o[0]), f(self[1], o[1])]
     }
     #[inline(always)]
@@ -910,6 +944,10 @@ mod x86 {
             _mm_or_pd(self, o)
         }
         #[inline(always)]
+        unsafe fn andnot(self, o: Self) -> Self {
+            _mm_andnot_pd(self, o)
+        }
+        #[inline(always)]
         unsafe fn min(self, o: Self) -> Self {
             _mm_min_pd(self, o)
         }
@@ -977,6 +1015,10 @@ mod x86 {
         #[inline(always)]
         unsafe fn or(self, o: Self) -> Self {
             _mm256_or_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn andnot(self, o: Self) -> Self {
+            _mm256_andnot_pd(self, o)
         }
         #[inline(always)]
         unsafe fn min(self, o: Self) -> Self {
