@@ -65,7 +65,25 @@ def eot_views(views: Any, samples: int) -> Any:
     return views if samples == 1 else ViewSet.cat([views] * samples)
 
 
-class NoisyVictim:
+class _VictimWrapper:
+    """A victim seen through a transform of its input images: everything but the call (``kind``, ``name``,
+    ``class_names``, ``class_index``, ...) is the wrapped victim's, so an attack or a criterion treats the wrapper as
+    the victim itself.
+
+    Raises:
+        ValueError: ``victim`` is not callable.
+    """
+
+    def __init__(self, victim: Any) -> None:
+        if not callable(victim):
+            raise ValueError(f"victim must be a callable victim, got {type(victim).__name__}")
+        self.__dict__["victim"] = victim
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.__dict__["victim"], name)
+
+
+class NoisyVictim(_VictimWrapper):
     """A victim that adds Gaussian pixel noise to the images it is given (an expectation-over-noise transform).
 
     With ``background`` (the photo the attack composites its renders over), the noise goes only where an image
@@ -95,20 +113,15 @@ class NoisyVictim:
     """
 
     def __init__(self, victim: Any, std: float, *, seed: int = 0, background: Any = None) -> None:
-        if not callable(victim):
-            raise ValueError(f"victim must be a callable victim, got {type(victim).__name__}")
+        super().__init__(victim)
         if isinstance(std, bool) or not isinstance(std, (int, float)) or not (math.isfinite(std) and std > 0):
             raise ValueError(f"std must be a finite number > 0, got {std!r}")
         if background is not None and (not isinstance(background, Tensor) or background.dim() != 3
                                        or background.shape[0] != 3):
             raise ValueError("background must be None or a (3, H, W) tensor")
-        self.__dict__["victim"] = victim
         self.__dict__["std"] = float(std)
         self.__dict__["background"] = None if background is None else background.detach()
         self.__dict__["_generator"] = torch.Generator().manual_seed(int(seed))
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.__dict__["victim"], name)
 
     def __call__(self, images: Tensor) -> Any:
         """``victim(clamp(images + mask * N(0, std^2), 0, 1))``; gradients flow to ``images``."""
@@ -126,7 +139,7 @@ class NoisyVictim:
         return f"NoisyVictim({getattr(self.victim, 'name', type(self.victim).__name__)}, std={self.std:g}, {where})"
 
 
-class Occluded:
+class Occluded(_VictimWrapper):
     """A victim that first restores ``photo`` where ``mask`` is 1: the pixels where, in the photo, something in
     front hides the object being attacked (which the attack renders alone over the photo).
 
@@ -146,8 +159,7 @@ class Occluded:
     """
 
     def __init__(self, victim: Any, photo: Tensor, mask: Tensor) -> None:
-        if not callable(victim):
-            raise ValueError(f"victim must be a callable victim, got {type(victim).__name__}")
+        super().__init__(victim)
         if not isinstance(photo, Tensor) or photo.dim() != 3 or photo.shape[0] != 3:
             raise ValueError(f"photo must be a (3, H, W) tensor, got {getattr(photo, 'shape', type(photo).__name__)}")
         if not isinstance(mask, Tensor) or tuple(mask.shape) != tuple(photo.shape[1:]):
@@ -155,12 +167,8 @@ class Occluded:
                              f"got {getattr(mask, 'shape', type(mask).__name__)}")
         if mask.numel() and (float(mask.min()) < 0 or float(mask.max()) > 1):
             raise ValueError("mask values must be in [0, 1]")
-        self.__dict__["victim"] = victim
         self.__dict__["photo"] = photo.detach().float()
         self.__dict__["mask"] = mask.detach().float()
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.__dict__["victim"], name)
 
     def __call__(self, images: Tensor) -> Any:
         """``victim(images * (1 - mask) + photo * mask)``; gradients flow to the unoccluded pixels."""
@@ -172,7 +180,6 @@ class Occluded:
 
     def __repr__(self) -> str:
         return f"Occluded({self.victim!r}, {int((self.mask > 0).sum())} pixels)"
-
 
 
 @dataclass(frozen=True)
