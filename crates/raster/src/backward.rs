@@ -662,7 +662,7 @@ fn element_grads(
             FaceSetup::default()
         }
     }));
-    rows.fill_rows(setups, face_index, image, grad, c, params)?;
+    rows.fill_rows(isa, setups, face_index, image, grad, c, params)?;
     cols.fill_columns(rows)?;
     try_clear_for(attrs_b, m * c, "backward face attributes")?;
     attrs_b.extend(

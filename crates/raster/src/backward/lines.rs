@@ -10,6 +10,7 @@ use crate::input::RasterParams;
 use crate::setup::FaceSetup;
 
 use super::sweep::{F64s, LANES};
+use super::Isa;
 
 /// The per-pixel inputs of the sweeps of one batch element, one line after another: image rows for the row sweeps
 /// (axis V) or image columns for the column sweeps (axis U), so that the inner loops read memory contiguously.
@@ -47,6 +48,7 @@ impl Lines {
     /// computes it; `-inf` on background). Every value is rewritten; only the buffers' memory is reused.
     pub fn fill_rows(
         &mut self,
+        isa: Isa,
         setups: &[FaceSetup],
         face_index: &[i32],
         image: &[f32],
@@ -76,7 +78,7 @@ impl Lines {
                         j += 1;
                     }
                     match setups.get(f as usize) {
-                        Some(s) if f >= 0 => row_keys(s, i as i32, j0, &mut key[j0..j]),
+                        Some(s) if f >= 0 => row_keys_on(isa, s, i as i32, j0, &mut key[j0..j]),
                         _ => key[j0..j]
                             .iter_mut()
                             .for_each(|k| _ = k.write(f64::NEG_INFINITY)),
@@ -254,60 +256,85 @@ impl<'a, const C: usize> LinesOf<'a, C> {
     }
 }
 
-/// The depth-test keys of the pixels `j0..j0 + key.len()` of row `row`, all drawn by the face of `s`: `1/z`
-/// (perspective) or `-z` (orthographic) of [`FaceSetup::depth_at`], `-inf` where it is undefined. Two pixels at a
-/// time in SSE2 lanes (x86-64 baseline; plain pairs elsewhere): lane by lane the operations of `RowDepth::at` and
-/// `depth_from_weights`, so the same bits (tested).
+/// [`row_keys`] on the instruction set `isa` (which the caller has checked is available): four pixels at a time
+/// with AVX2, two in SSE2 lanes (x86-64 baseline), plain pairs elsewhere.
 #[inline(always)]
-fn row_keys(s: &FaceSetup, row: i32, j0: usize, key: &mut [MaybeUninit<f64>]) {
-    #[cfg(target_arch = "x86_64")]
-    type V = std::arch::x86_64::__m128d;
-    #[cfg(not(target_arch = "x86_64"))]
-    type V = [f64; 2];
-    let rd = s.row_depth(row);
-    // SAFETY: SSE2 is part of the x86-64 baseline; every load and store is of two values from or to arrays of two.
+fn row_keys_on(isa: Isa, s: &FaceSetup, row: i32, j0: usize, key: &mut [MaybeUninit<f64>]) {
+    // SAFETY: `rasterize_backward_on` only passes `Isa::Avx2` when the CPU supports AVX2; SSE2 is part of the
+    // x86-64 baseline.
     #[allow(unsafe_code)]
     unsafe {
-        let sp = V::splat;
-        let e = &s.edges;
-        let (au, dv, sign, rt) = (
-            [sp(e[0].au), sp(e[1].au), sp(e[2].au)],
-            [sp(e[0].dv), sp(e[1].dv), sp(e[2].dv)],
-            [sp(e[0].sign), sp(e[1].sign), sp(e[2].sign)],
-            [
-                sp(rd.row_terms[0]),
-                sp(rd.row_terms[1]),
-                sp(rd.row_terms[2]),
-            ],
-        );
-        let inv = sp(s.inv_area);
-        let m = if s.ortho { s.z } else { s.inv_z };
-        let m = [sp(m[0]), sp(m[1]), sp(m[2])];
-        let (zero, one, inf, neg_inf) =
-            (sp(0.0), sp(1.0), sp(f64::INFINITY), sp(f64::NEG_INFINITY));
-        let (neg_one, step) = (sp(-1.0), sp(2.0));
-        let mut u = V::load([j0 as f64, j0 as f64 + 1.0].as_ptr());
-        for out in key.chunks_mut(2) {
-            // Barycentric weights as `RowDepth::at`: sign * (row term - dv * (u - au)) * inv_area.
-            let w: [V; 3] =
-                std::array::from_fn(|k| sign[k].mul(rt[k].sub(dv[k].mul(u.sub(au[k])))).mul(inv));
-            // `depth_from_weights`: w0 m0 + w1 m1 + w2 m2, then the key where defined.
-            let x = w[0].mul(m[0]).add(w[1].mul(m[1])).add(w[2].mul(m[2]));
-            let (k, ok) = if s.ortho {
-                // -z (a product by -1 negates exactly, zeros included); defined where z is finite.
-                (x.mul(neg_one), x.lt(inf).and(neg_inf.lt(x)))
-            } else {
-                // 1 / (1 / iz); defined where iz > 0 and finite.
-                (one.div(one.div(x)), x.gt(zero).and(x.lt(inf)))
-            };
-            let k = ok.and(k).or(ok.andnot(neg_inf));
-            let mut two = [0f64; 2];
-            k.store(two.as_mut_ptr());
-            for (o, &v) in out.iter_mut().zip(&two) {
-                o.write(v);
-            }
-            u = u.add(step);
+        match isa {
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => row_keys_avx2(s, row, j0, key),
+            #[cfg(target_arch = "x86_64")]
+            _ => row_keys::<std::arch::x86_64::__m128d>(s, row, j0, key),
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => row_keys::<[f64; 2]>(s, row, j0, key),
         }
+    }
+}
+
+/// [`row_keys`] on AVX2.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(unsafe_code)]
+unsafe fn row_keys_avx2(s: &FaceSetup, row: i32, j0: usize, key: &mut [MaybeUninit<f64>]) {
+    row_keys::<std::arch::x86_64::__m256d>(s, row, j0, key)
+}
+
+/// The depth-test keys of the pixels `j0..j0 + key.len()` of row `row`, all drawn by the face of `s`: `1/z`
+/// (perspective) or `-z` (orthographic) of [`FaceSetup::depth_at`], `-inf` where it is undefined. `V::N` pixels at a
+/// time: lane by lane the operations of `RowDepth::at` and `depth_from_weights`, so the same bits (tested).
+///
+/// # Safety
+/// `V`'s instructions must be supported by the CPU.
+#[allow(unsafe_code)]
+#[inline(always)]
+unsafe fn row_keys<V: F64s>(s: &FaceSetup, row: i32, j0: usize, key: &mut [MaybeUninit<f64>]) {
+    let rd = s.row_depth(row);
+    let sp = |x: f64| V::splat(x);
+    let e = &s.edges;
+    let (au, dv, sign, rt) = (
+        [sp(e[0].au), sp(e[1].au), sp(e[2].au)],
+        [sp(e[0].dv), sp(e[1].dv), sp(e[2].dv)],
+        [sp(e[0].sign), sp(e[1].sign), sp(e[2].sign)],
+        [
+            sp(rd.row_terms[0]),
+            sp(rd.row_terms[1]),
+            sp(rd.row_terms[2]),
+        ],
+    );
+    let inv = sp(s.inv_area);
+    let m = if s.ortho { s.z } else { s.inv_z };
+    let m = [sp(m[0]), sp(m[1]), sp(m[2])];
+    let (zero, one, inf, neg_inf) = (sp(0.0), sp(1.0), sp(f64::INFINITY), sp(f64::NEG_INFINITY));
+    let (neg_one, step) = (sp(-1.0), sp(V::N as f64));
+    let j = j0 as f64;
+    let mut u = V::load([j, j + 1.0, j + 2.0, j + 3.0].as_ptr());
+    for out in key.chunks_mut(V::N) {
+        // Barycentric weights as `RowDepth::at`: sign * (row term - dv * (u - au)) * inv_area.
+        let w: [V; 3] =
+            std::array::from_fn(|k| sign[k].mul(rt[k].sub(dv[k].mul(u.sub(au[k])))).mul(inv));
+        // `depth_from_weights`: w0 m0 + w1 m1 + w2 m2, then the key where defined.
+        let x = w[0].mul(m[0]).add(w[1].mul(m[1])).add(w[2].mul(m[2]));
+        let (k, ok) = if s.ortho {
+            // -z (a product by -1 negates exactly, zeros included); defined where z is finite.
+            (x.mul(neg_one), x.lt(inf).and(neg_inf.lt(x)))
+        } else {
+            // 1 / (1 / iz); defined where iz > 0 and finite.
+            (one.div(one.div(x)), x.gt(zero).and(x.lt(inf)))
+        };
+        let k = ok.and(k).or(ok.andnot(neg_inf));
+        let mut lanes = [0f64; 4];
+        k.store(lanes.as_mut_ptr());
+        for (o, &v) in out.iter_mut().zip(&lanes) {
+            o.write(v);
+        }
+        u = u.add(step);
     }
 }
 
@@ -538,7 +565,8 @@ pub(super) struct LineAt<'a, const C: usize> {
 mod tests {
     use std::mem::MaybeUninit;
 
-    use super::{row_keys, transpose, Tile, ROWS};
+    use super::{row_keys_on, transpose, Tile, ROWS};
+    use crate::backward::Isa;
     use crate::input::{Projection, RasterParams, ScreenMesh};
     use crate::setup::FaceSetup;
 
@@ -573,24 +601,30 @@ mod tests {
             for row in 0..19 {
                 let j0 = (next() * 20.0) as usize;
                 let n = 1 + (next() * 7.0) as usize;
-                let mut got = vec![MaybeUninit::new(0.0); n];
-                row_keys(&s, row, j0, &mut got);
-                for (jj, g) in got.iter().enumerate() {
-                    // SAFETY: every slot was initialised above.
-                    #[allow(unsafe_code)]
-                    let g = unsafe { g.assume_init() };
-                    let want = match s.depth_at(row, (j0 + jj) as i32) {
-                        Some(z) if s.ortho => -z,
-                        Some(z) => 1.0 / z,
-                        None => f64::NEG_INFINITY,
-                    };
-                    assert_eq!(
-                        g.to_bits(),
-                        want.to_bits(),
-                        "case {case} row {row} col {}",
-                        j0 + jj
-                    );
-                    defined += usize::from(want > f64::NEG_INFINITY);
+                let mut paths = vec![Isa::Portable];
+                if Isa::detect() == Isa::Avx2 {
+                    paths.push(Isa::Avx2);
+                }
+                for isa in paths {
+                    let mut got = vec![MaybeUninit::new(0.0); n];
+                    row_keys_on(isa, &s, row, j0, &mut got);
+                    for (jj, g) in got.iter().enumerate() {
+                        // SAFETY: every slot was initialised above.
+                        #[allow(unsafe_code)]
+                        let g = unsafe { g.assume_init() };
+                        let want = match s.depth_at(row, (j0 + jj) as i32) {
+                            Some(z) if s.ortho => -z,
+                            Some(z) => 1.0 / z,
+                            None => f64::NEG_INFINITY,
+                        };
+                        assert_eq!(
+                            g.to_bits(),
+                            want.to_bits(),
+                            "case {case} row {row} col {}",
+                            j0 + jj
+                        );
+                        defined += usize::from(want > f64::NEG_INFINITY);
+                    }
                 }
             }
         }
