@@ -246,12 +246,12 @@ def test_estimated_view_spec_is_the_attack_view_with_direct_light_only() -> None
 def _side_by_side(name: str, color: tuple, *, scale: float, half_gap: float) -> tuple:
     """Two copies of a builtin mesh, scaled and centred at x = -half_gap and +half_gap, and their merged mesh."""
     from meshadv.mesh import builtin_mesh
-    from meshadv.transfer.blackbox import _merge_meshes
+    from meshadv.transfer.objects import merge_meshes
 
     left = builtin_mesh(name, color=color)
     left = left.with_vertices(left.vertices * scale + torch.tensor([-half_gap, 0.0, 0.0]))
     right = left.with_vertices(left.vertices + torch.tensor([2 * half_gap, 0.0, 0.0]))
-    return left, right, _merge_meshes([left, right])
+    return left, right, merge_meshes([left, right])
 
 
 @needs_native
@@ -537,7 +537,8 @@ def test_estimate_parameters_can_fit_the_lights_on_one_object() -> None:
     pytest.importorskip("mitsuba")
     from meshadv.mesh import builtin_mesh
     from meshadv.render import render
-    from meshadv.transfer.blackbox import HiddenScene, _merge_meshes, estimate_parameters
+    from meshadv.transfer.blackbox import HiddenScene, estimate_parameters
+    from meshadv.transfer.objects import merge_meshes
     from meshadv.transfer.scene import MeshObject, MitsubaLights
 
     cube = builtin_mesh("cube", color=(0.6, 0.6, 0.6))
@@ -549,7 +550,7 @@ def test_estimate_parameters_can_fit_the_lights_on_one_object() -> None:
     bright = MeshObject(sphere.vertices, sphere.faces, torch.full((sphere.num_faces, 3), 0.95))
     hidden = HiddenScene(camera={"distance": 3.5, "azimuth": 15.0, "elevation": 10.0}, lights=lights,
                          extra_objects=(MeshObject.from_mesh(cube),), image_size=64, spp=16, max_depth=2)
-    merged = _merge_meshes([cube, sphere])
+    merged = merge_meshes([cube, sphere])
     faces = (cube.num_faces, cube.num_faces + sphere.num_faces)
     results = {}
     for name, light_faces in (("known", None), ("object", faces)):

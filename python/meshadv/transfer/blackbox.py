@@ -22,23 +22,16 @@ import torch
 
 from meshadv.attacks.families import check_perturbation
 from meshadv.render.setup import RenderSetup, split_setup_options
+from meshadv.transfer._attack_run import attack_estimated, meshadv_margins, pixel_noise_where, robust_rate
 from meshadv.transfer._scoring import detection_scores, images_tensor, top1_names
 from meshadv.transfer.compositing import composite, estimated_view_spec
 from meshadv.transfer.hidden import HiddenScene
-from meshadv.transfer.object_attacks import _check_smoothing, _object_attack
-from meshadv.transfer.objects import _merge_meshes, _object_range, occlusion_mask
+from meshadv.transfer.object_attacks import check_smoothing, object_attack
+from meshadv.transfer.objects import merge_meshes, object_range, occlusion_mask
 from meshadv.transfer.photo import Estimation, background_photo, estimate_parameters
 from meshadv.transfer.render import MitsubaImage, render_scenes
 from meshadv.transfer.results import BlackBoxResult
-from meshadv.transfer.robust import (
-    DEFAULT_JITTER,
-    Occluded,
-    Robustness,
-    _attack_estimated,
-    _meshadv_margins,
-    _noise_where,
-    _robust_rate,
-)
+from meshadv.transfer.robust import DEFAULT_JITTER, Occluded, Robustness
 
 __all__ = [
     "Estimation",
@@ -80,7 +73,7 @@ class _Measured:
         margin_meshadv: 0-dim tensor: the criterion's margin on meshadv's render of the estimated view (the attack's
             render setup, the victim without pixel noise).
         image_meshadv: ``(3, H, W)`` that render.
-        robust_rate: :func:`~meshadv.transfer.robust._robust_rate` (None when not verified).
+        robust_rate: :func:`~meshadv.transfer._attack_run.robust_rate` (None when not verified).
         adversarial_mitsuba: Mitsuba's render under the hidden parameters.
         estimated_mitsuba: ``(3, H, W)`` Mitsuba's render under the estimates, composited over the background.
     """
@@ -114,8 +107,8 @@ def _measure(seen: Any, adversarial: Any, est: Estimation, hidden: HiddenScene, 
         variant: Mitsuba variant; timeout: seconds per Mitsuba call.
         occluded: ``(H, W)`` pixels where the photo is put back in both images, or None.
     """
-    margins, image = _meshadv_margins(setup, seen, est.views, victim, bound)
-    robust_rate = _robust_rate(setup, seen, est.views, victim, bound, robustness)
+    margins, image = meshadv_margins(setup, seen, est.views, victim, bound)
+    rate = robust_rate(setup, seen, est.views, victim, bound, robustness)
     record = est.views.to_records()[0]
     # the benign render under the hidden parameters is the photo the estimation was made from
     images = render_scenes([hidden.spec(adversarial), estimated_view_spec(seen, record, hidden)], variant=variant,
@@ -124,7 +117,7 @@ def _measure(seen: Any, adversarial: Any, est: Estimation, hidden: HiddenScene, 
     if occluded is not None:
         estimated = estimated * (1.0 - occluded) + est.photo * occluded
         image = image * (1.0 - occluded) + est.photo * occluded
-    return _Measured(margins[0], image, robust_rate, images[0], estimated)
+    return _Measured(margins[0], image, rate, images[0], estimated)
 
 
 def _attack_record(attack: Any, setup: RenderSetup, result: Any) -> dict[str, Any]:
@@ -149,7 +142,7 @@ def _finish_row(row: dict[str, Any], attack: Any, setup: RenderSetup, result: An
     it with the images (Mitsuba benign = the estimation's photo / adversarial under the hidden parameters /
     adversarial under the estimates, meshadv's render), the adversarial mesh and the attack's result."""
     row.update(robustness.to_record())
-    row["pixel_noise_on"] = _noise_where(setup, robustness)
+    row["pixel_noise_on"] = pixel_noise_where(setup, robustness)
     row.update(_attack_record(attack, setup, result))
     row.update({k: float(v) for k, v in est.errors.items()})
     images = {"benign_mitsuba": _hwc(est.photo), "adversarial_mitsuba": measured.adversarial_mitsuba.image,
@@ -234,16 +227,16 @@ def blackbox_classifier(
     from meshadv.attacks import Misclassification, TargetedMisclassification
 
     check_perturbation(perturbation)
-    _check_smoothing(texture_smoothing, perturbation)
+    check_smoothing(texture_smoothing, perturbation)
     robustness = Robustness() if robustness is None else robustness
     est = estimate_parameters(mesh, hidden, num_lights=num_lights, camera_steps=camera_steps,
                               light_steps=light_steps, variant=variant, timeout=timeout)
     background = background_photo(hidden, variant=variant, timeout=timeout)
     setup_options, kwargs = _attack_options(attack_kwargs, jitter)
     setup = _attack_setup(setup_options, hidden.image_size, background)
-    attack = _object_attack(perturbation, texture_smoothing, kwargs)
+    attack = object_attack(perturbation, texture_smoothing, kwargs)
     criterion = TargetedMisclassification(target) if target else Misclassification(true_class)
-    result = _attack_estimated(attack, mesh, est.views, victim, criterion, robustness, setup, callback)
+    result = attack_estimated(attack, mesh, est.views, victim, criterion, robustness, setup, callback)
     adversarial = result.mesh
     bound = criterion.bind(victim)
     measured = _measure(adversarial, adversarial, est, hidden, background, setup, victim, bound, robustness, variant,
@@ -314,7 +307,7 @@ def _photo_context(objects: Sequence[Any], index: int, est: Estimation, victim: 
     known object hides it in the estimated view."""
     occluded = occlusion_mask(objects, index, est.views, image_size)
     seen_victim = Occluded(victim, est.photo, occluded) if bool(occluded.any()) else victim
-    attack = _object_attack(perturbation, texture_smoothing, kwargs)
+    attack = object_attack(perturbation, texture_smoothing, kwargs)
     return _DetectorContext(est.photo, objects[index], attack, slice(0, None), seen_victim, occluded)
 
 
@@ -324,10 +317,10 @@ def _render_context(objects: Sequence[Any], index: int, merged: Any, background:
     """The ``"render"`` context: every known object rendered (only object ``index`` may change) over ``background``
     (the world without them)."""
     part = "faces" if perturbation == "texture" else "vertices"
-    start, stop = _object_range(objects, index, part)
+    start, stop = object_range(objects, index, part)
     mask = torch.zeros(int(getattr(merged, part).shape[0]), dtype=torch.bool)
     mask[start:stop] = True
-    attack = _object_attack(perturbation, texture_smoothing, kwargs, mask)
+    attack = object_attack(perturbation, texture_smoothing, kwargs, mask)
     return _DetectorContext(background, merged, attack, slice(start, stop), victim)
 
 
@@ -348,7 +341,7 @@ def _check_detector_options(num_objects: int, object_index: int, perturbation: s
         raise ValueError(f"context must be 'photo' or 'render', got {context!r}")
     if light_fit not in ("object", "known"):
         raise ValueError(f"light_fit must be 'object' or 'known', got {light_fit!r}")
-    _check_smoothing(texture_smoothing, perturbation)
+    check_smoothing(texture_smoothing, perturbation)
     if not 0.0 < score_threshold <= 1.0:
         raise ValueError(f"score_threshold must be in (0, 1], got {score_threshold}")
 
@@ -442,8 +435,8 @@ def blackbox_detector(
                             score_threshold)
     robustness = Robustness() if robustness is None else robustness
     target_obj = objects[object_index]
-    merged = _merge_meshes(objects)
-    light_faces = _object_range(objects, object_index) if light_fit == "object" else None
+    merged = merge_meshes(objects)
+    light_faces = object_range(objects, object_index) if light_fit == "object" else None
     est = estimate_parameters(target_obj, hidden, known=merged, light_faces=light_faces, num_lights=num_lights,
                               camera_steps=camera_steps, light_steps=light_steps, variant=variant, timeout=timeout)
     setup_options, kwargs = _attack_options(attack_kwargs, jitter)
@@ -456,13 +449,13 @@ def blackbox_detector(
                               kwargs)
     setup = _attack_setup(setup_options, hidden.image_size, ctx.background)
     criterion = Disappearance(hide_class, threshold=score_threshold)
-    result = _attack_estimated(ctx.attack, ctx.attacked, est.views, ctx.victim, criterion, robustness, setup,
+    result = attack_estimated(ctx.attack, ctx.attacked, est.views, ctx.victim, criterion, robustness, setup,
                                callback)
     adversarial = _attacked_object(result.mesh, target_obj, perturbation, ctx.part)
     if context == "photo":
         seen = adversarial
     else:
-        seen = _merge_meshes([adversarial if i == object_index else o for i, o in enumerate(objects)])
+        seen = merge_meshes([adversarial if i == object_index else o for i, o in enumerate(objects)])
     measured = _measure(seen, adversarial, est, hidden, ctx.background, setup, ctx.victim,
                         criterion.bind(victim), robustness, variant, timeout, ctx.occluded)
     scores = detection_scores(victim, measured.victim_batch(est.photo), hide_class)

@@ -11,10 +11,10 @@ from typing import Any, Optional
 
 import torch
 
-__all__: list[str] = []
+__all__ = ["check_smoothing", "object_attack", "texture_attack"]
 
 
-def _check_smoothing(texture_smoothing: Optional[int], perturbation: str) -> None:
+def check_smoothing(texture_smoothing: Optional[int], perturbation: str) -> None:
     """Raise ValueError unless ``texture_smoothing`` is None, or an int >= 0 with ``perturbation == "texture"``."""
     if texture_smoothing is None:
         return
@@ -24,7 +24,7 @@ def _check_smoothing(texture_smoothing: Optional[int], perturbation: str) -> Non
         raise ValueError(f"texture_smoothing must be None or an int >= 0, got {texture_smoothing!r}")
 
 
-def _texture_attack(smoothing: Optional[int], face_mask: Optional[torch.Tensor], kwargs: dict[str, Any]) -> Any:
+def texture_attack(smoothing: Optional[int], face_mask: Optional[torch.Tensor], kwargs: dict[str, Any]) -> Any:
     """The paper's per-face texture attack (``smoothing`` None) or the smoothed per-vertex one."""
     from meshadv.attacks import SmoothTextureAttack, TextureAttack
 
@@ -33,12 +33,12 @@ def _texture_attack(smoothing: Optional[int], face_mask: Optional[torch.Tensor],
     return SmoothTextureAttack(smoothing=smoothing, face_mask=face_mask, **kwargs)
 
 
-def _object_attack(perturbation: str, smoothing: Optional[int], kwargs: dict[str, Any],
+def object_attack(perturbation: str, smoothing: Optional[int], kwargs: dict[str, Any],
                    mask: Optional[torch.Tensor] = None) -> Any:
-    """The attack of a black-box run: a texture attack (:func:`_texture_attack`, ``mask`` its face mask) or a
+    """The attack of a black-box run: a texture attack (:func:`texture_attack`, ``mask`` its face mask) or a
     ``ShapeAttack`` (``mask`` its vertex mask); ``mask`` None: the whole mesh may change."""
     from meshadv.attacks import ShapeAttack
 
     if perturbation == "texture":
-        return _texture_attack(smoothing, mask, kwargs)
+        return texture_attack(smoothing, mask, kwargs)
     return ShapeAttack(**kwargs) if mask is None else ShapeAttack(vertex_mask=mask, **kwargs)

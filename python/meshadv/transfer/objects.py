@@ -10,11 +10,19 @@ from typing import Any, Sequence
 
 import torch
 
-__all__ = ["occlusion_mask"]
+__all__ = ["merge_meshes", "object_range", "occlusion_mask"]
 
 
-def _merge_meshes(meshes: Sequence[Any]) -> Any:
-    """One ``meshadv.mesh.Mesh`` holding all ``meshes`` (faces re-indexed, in order)."""
+def merge_meshes(meshes: Sequence[Any]) -> Any:
+    """One ``meshadv.mesh.Mesh`` holding all ``meshes``, in order (faces re-indexed).
+
+    Args:
+        meshes: meshes with ``vertices`` (N_i, 3), ``faces`` (M_i, 3) and ``face_colors`` (M_i, 3).
+
+    Returns:
+        The merged mesh (float32 vertices and colours, int64 faces); mesh ``i``'s rows are
+        :func:`object_range` ``(meshes, i, ...)``.
+    """
     from meshadv.mesh import Mesh
 
     verts, faces, colors, offset = [], [], [], 0
@@ -26,9 +34,13 @@ def _merge_meshes(meshes: Sequence[Any]) -> Any:
     return Mesh(torch.cat(verts), torch.cat(faces), torch.cat(colors))
 
 
-def _object_range(objects: Sequence[Any], index: int, part: str = "faces") -> tuple[int, int]:
+def object_range(objects: Sequence[Any], index: int, part: str = "faces") -> tuple[int, int]:
     """``(start, stop)``: the rows of object ``index``'s ``part`` (``"faces"`` or ``"vertices"``) in
-    :func:`_merge_meshes` of ``objects``."""
+    :func:`merge_meshes` of ``objects``.
+
+    Example:
+        >>> object_range([cube, sphere], 1, "vertices")  # (8, 8 + sphere's vertex count)  # doctest: +SKIP
+    """
     start = sum(int(getattr(o, part).shape[0]) for o in objects[:index])
     return start, start + int(getattr(objects[index], part).shape[0])
 
@@ -52,8 +64,8 @@ def occlusion_mask(objects: Sequence[Any], index: int, views: Any, image_size: A
 
     if not 0 <= index < len(objects):
         raise ValueError(f"index {index} out of range for {len(objects)} objects")
-    merged = _merge_meshes(objects)
-    start, stop = _object_range(objects, index)
+    merged = merge_meshes(objects)
+    start, stop = object_range(objects, index)
     obj = objects[index]
     with torch.no_grad():
         scene = render(merged.vertices, merged.faces, merged.face_colors, views.camera, views.lights,
