@@ -129,26 +129,12 @@ class MitsubaCamera:
         if all(k in record for k in ("eye", "at", "up")):
             eye, at = _as_numpy(record["eye"], np.float64), _as_numpy(record["at"], np.float64)
             up = _tilted_up(eye, at, _as_numpy(record["up"], np.float64), float(record.get("tilt", 0.0)))
-            return cls(
-                tuple(eye.tolist()),
-                tuple(at.tolist()),
-                tuple(up.tolist()),
-                float(record.get("viewing_angle", 30.0)),
-                float(record.get("near", 0.1)),
-                float(record.get("far", 100.0)),
-            )
+            return cls(tuple(eye.tolist()), tuple(at.tolist()), tuple(up.tolist()), *_lens(record))
         missing = [k for k in ("distance", "azimuth", "elevation") if k not in record]
         if missing:
             raise ValueError(f"record is missing camera keys {missing} (or eye, at, up)")
-        return cls.spherical(
-            float(record["distance"]),
-            float(record["azimuth"]),
-            float(record["elevation"]),
-            float(record.get("tilt", 0.0)),
-            float(record.get("viewing_angle", 30.0)),
-            float(record.get("near", 0.1)),
-            float(record.get("far", 100.0)),
-        )
+        return cls.spherical(float(record["distance"]), float(record["azimuth"]), float(record["elevation"]),
+                             float(record.get("tilt", 0.0)), *_lens(record))
 
     def view_axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """NMR's view axes ``(x, y, z)``: x is image right, y image up, z the viewing direction."""
@@ -176,6 +162,11 @@ class MitsubaCamera:
         y_ndc = view[:, 1] / (view[:, 2] * width)
         h, w = image_size
         return np.stack([(x_ndc + 1) * w / 2, (1 - y_ndc) * h / 2], axis=-1)
+
+
+def _lens(record: Mapping[str, Any]) -> tuple[float, float, float]:
+    """``viewing_angle``, ``near`` and ``far`` of a view record (defaults 30 degrees, 0.1, 100)."""
+    return float(record.get("viewing_angle", 30.0)), float(record.get("near", 0.1)), float(record.get("far", 100.0))
 
 
 def _tilted_up(eye: np.ndarray, target: np.ndarray, up: np.ndarray, tilt: float) -> np.ndarray:
