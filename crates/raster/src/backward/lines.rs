@@ -45,7 +45,9 @@ pub(super) struct Lines {
 impl Lines {
     /// Becomes the row lines of the row-major maps, with the depth-test keys of the drawn faces (`1/z` in
     /// perspective, `-z` in orthographic, larger = nearer; `z` recomputed from the positions exactly as the forward
-    /// computes it; `-inf` on background). Every value is rewritten; only the buffers' memory is reused.
+    /// computes it; `-inf` on background; on the instruction set `isa`, which the caller has checked is available).
+    /// Every value is rewritten; only the buffers' memory is reused.
+    #[allow(clippy::too_many_arguments)]
     pub fn fill_rows(
         &mut self,
         isa: Isa,
@@ -329,10 +331,19 @@ unsafe fn row_keys<V: F64s>(s: &FaceSetup, row: i32, j0: usize, key: &mut [Maybe
             (one.div(one.div(x)), x.gt(zero).and(x.lt(inf)))
         };
         let k = ok.and(k).or(ok.andnot(neg_inf));
-        let mut lanes = [0f64; 4];
-        k.store(lanes.as_mut_ptr());
-        for (o, &v) in out.iter_mut().zip(&lanes) {
-            o.write(v);
+        if out.len() == V::N {
+            // SAFETY: `MaybeUninit<f64>` has the layout of `f64`, and the chunk holds `V::N` values.
+            k.store(out.as_mut_ptr().cast::<f64>());
+        } else {
+            // The last, partial chunk (one value at a time, not a library copy of a variable length).
+            let mut lanes = [0f64; 4];
+            k.store(lanes.as_mut_ptr());
+            match out {
+                [a] => _ = a.write(lanes[0]),
+                [a, b] => (_, _) = (a.write(lanes[0]), b.write(lanes[1])),
+                [a, b, c] => (_, _, _) = (a.write(lanes[0]), b.write(lanes[1]), c.write(lanes[2])),
+                _ => unreachable!("chunks of at most {} values", V::N),
+            }
         }
         u = u.add(step);
     }
