@@ -222,6 +222,30 @@ def test_composite_puts_the_background_where_alpha_is_zero() -> None:
     assert torch.allclose(out[:, 2:], torch.full((3, 2, 4), 0.25))
     with pytest.raises(ValueError, match="background"):
         composite(MitsubaImage(image, alpha, "scalar_rgb"), torch.zeros(3, 5, 5))
+    with pytest.raises(TypeError, match="background"):
+        composite(MitsubaImage(image, alpha, "scalar_rgb"), np.full((3, 4, 4), 0.25))  # type: ignore[arg-type]
+
+
+def test_hidden_scene_and_estimate_parameters_name_a_bad_argument() -> None:
+    """Bad input fails at once, naming the argument, before any Mitsuba render."""
+    from meshadv.mesh import builtin_mesh
+    from meshadv.transfer.blackbox import HiddenScene, estimate_parameters
+
+    with pytest.raises(ValueError, match="camera.*missing \\['elevation'\\]"):
+        HiddenScene(camera={"distance": 3.0, "azimuth": 10.0})
+    for bad in (math.nan, "far", None, True):
+        with pytest.raises(ValueError, match="camera\\['distance'\\] must be a finite number"):
+            HiddenScene(camera={"distance": bad, "azimuth": 10.0, "elevation": 5.0})
+    with pytest.raises(ValueError, match="camera\\['tilt'\\]"):
+        HiddenScene(camera={"distance": 3.0, "azimuth": 10.0, "elevation": 5.0, "tilt": math.inf})
+    hidden = HiddenScene(camera={"distance": 3.0, "azimuth": 10.0, "elevation": 5.0, "tilt": 2})
+    assert hidden.mitsuba_camera().viewing_angle == 30.0
+    cube = builtin_mesh("cube")
+    with pytest.raises(TypeError, match="hidden must be a HiddenScene"):
+        estimate_parameters(cube, {"distance": 3.0, "azimuth": 10.0, "elevation": 5.0})  # type: ignore[arg-type]
+    for bad_size in (4, 64.0):
+        with pytest.raises(ValueError, match="camera_size"):
+            estimate_parameters(cube, hidden, camera_size=bad_size)  # type: ignore[arg-type]
 
 
 def test_estimated_view_spec_is_the_attack_view_with_direct_light_only() -> None:

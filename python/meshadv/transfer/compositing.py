@@ -44,11 +44,21 @@ def estimated_view_spec(mesh: Any, record: dict[str, Any], hidden: HiddenScene, 
 
 
 def composite(image: MitsubaImage, background: torch.Tensor) -> torch.Tensor:
-    """A Mitsuba render made over black (premultiplied by its alpha) composited over a (3, H, W) background.
+    """A Mitsuba render made over black (premultiplied by its alpha) composited over a background.
+
+    Args:
+        image: the render (its ``alpha`` is the coverage).
+        background: ``(3, H, W)`` tensor in ``[0, 1]``.
+
+    Returns:
+        ``(3, H, W)`` float32 ``clamp(rgb + (1 - alpha) * background, 0, 1)``.
 
     Raises:
+        TypeError: ``background`` is not a tensor.
         ValueError: the background's shape does not match the image.
     """
+    if not isinstance(background, torch.Tensor):
+        raise TypeError(f"background must be a (3, H, W) torch tensor, got {type(background).__name__}")
     rgb = torch.from_numpy(image.chw())
     if tuple(background.shape) != tuple(rgb.shape):
         raise ValueError(f"background {tuple(background.shape)} must match the image {tuple(rgb.shape)}")

@@ -6,6 +6,7 @@ Plain numpy values (no torch, no Mitsuba): :class:`HiddenScene` gives the Mitsub
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Optional, Sequence
 
@@ -14,6 +15,16 @@ import numpy as np
 from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
 
 __all__ = ["HiddenScene"]
+
+
+def _is_finite_number(value: Any) -> bool:
+    """Whether ``float(value)`` works and is finite (bools are not numbers here)."""
+    if isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(float(value))
+    except (TypeError, ValueError):
+        return False
 
 
 @dataclass(frozen=True)
@@ -33,6 +44,10 @@ class HiddenScene:
         image_size: (H, W).
         spp: samples per pixel; max_depth: path depth.
         extra_objects: other meshes of the world (beside the object and the base scene).
+
+    Raises:
+        ValueError: ``camera`` lacks one of ``distance``, ``azimuth``, ``elevation`` or has a value (those or
+            ``tilt``) that is not a finite number.
     """
 
     camera: dict[str, float]
@@ -47,6 +62,14 @@ class HiddenScene:
     spp: int = 64
     max_depth: int = 8
     extra_objects: tuple[MeshObject, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        missing = [k for k in ("distance", "azimuth", "elevation") if k not in self.camera]
+        if missing:
+            raise ValueError(f"camera must have the keys distance, azimuth, elevation; missing {missing}")
+        for key in ("distance", "azimuth", "elevation", "tilt"):
+            if key in self.camera and not _is_finite_number(self.camera[key]):
+                raise ValueError(f"camera[{key!r}] must be a finite number, got {self.camera[key]!r}")
 
     def mitsuba_camera(self) -> MitsubaCamera:
         """The true camera for Mitsuba."""

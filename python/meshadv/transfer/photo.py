@@ -71,11 +71,17 @@ def estimate_parameters(
         ``errors["light_fit_pixels"]`` counts them.
 
     Raises:
-        ValueError: ``light_faces`` is not a non-empty range of ``known``'s faces, or selects no visible pixel.
+        TypeError: ``hidden`` is not a :class:`~meshadv.transfer.hidden.HiddenScene`.
+        ValueError: ``light_faces`` is not a non-empty range of ``known``'s faces, or selects no visible pixel;
+            ``camera_size`` < 8.
     """
     from meshadv.render import ViewSet
     from meshadv.transfer.estimate import estimate_camera, estimate_lights
 
+    if not isinstance(hidden, HiddenScene):
+        raise TypeError(f"hidden must be a HiddenScene, got {type(hidden).__name__}")
+    if isinstance(camera_size, bool) or not isinstance(camera_size, int) or camera_size < 8:
+        raise ValueError(f"camera_size must be an int >= 8, got {camera_size!r}")
     known = mesh if known is None else known
     _check_light_faces(light_faces, int(known.faces.shape[0]))
     photo_img = render_scenes([hidden.spec(mesh)], variant=variant, timeout=timeout)[0]
