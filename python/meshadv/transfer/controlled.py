@@ -39,7 +39,17 @@ __all__ = [
 
 
 def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int = 8, seed: int = 0) -> list[SceneSpec]:
-    """One Mitsuba scene per view of ``case``: same camera, lights, image size and background."""
+    """One Mitsuba scene per view of ``case``: same camera, lights, image size and background.
+
+    Args:
+        case: the case.
+        spp: samples per pixel.
+        max_depth: path depth.
+        seed: sampler seed of view 0 (view ``i`` gets ``seed + i``).
+
+    Returns:
+        The scene specs, in view order.
+    """
     obj = MeshObject.from_mesh(case.mesh)
     return [
         SceneSpec(
@@ -169,12 +179,7 @@ def controlled_transfer(
         except MitsubaRenderError as exc:
             if on_error == "raise":
                 raise
-            rows.extend(
-                ControlledResult(case_id=case.case_id, victim=case.victim, true_class=case.true_class,
-                                 target=case.target or "", perturbation=case.perturbation, view=v,
-                                 success_meshadv=None, success_mitsuba=None, error=str(exc))
-                for v in range(len(case.views))
-            )
+            rows.extend(_failed(case, exc))
             continue
         if case.victim not in victims:
             victims[case.victim] = victim_loader(case.victim)
@@ -182,3 +187,13 @@ def controlled_transfer(
         if image_dir is not None:
             save_images(images, Path(image_dir), case.name or case.case_id)
     return rows
+
+
+def _failed(case: TransferCase, error: MitsubaRenderError) -> list[ControlledResult]:
+    """One result per view of ``case`` whose Mitsuba render failed: no successes, ``error`` says why."""
+    return [
+        ControlledResult(case_id=case.case_id, victim=case.victim, true_class=case.true_class,
+                         target=case.target or "", perturbation=case.perturbation, view=v,
+                         success_meshadv=None, success_mitsuba=None, error=str(error))
+        for v in range(len(case.views))
+    ]

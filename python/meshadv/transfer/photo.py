@@ -175,6 +175,15 @@ def background_photo(hidden: HiddenScene, exclude: Sequence[str] = (), *, varian
 
     It stands for a photo of the background taken without the object, composited behind meshadv's renders during
     the attack (the paper composites its renders over the real photo).
+
+    Args:
+        hidden: the hidden world.
+        exclude: base-scene shapes to drop as well (the attacker's known objects).
+        variant: Mitsuba variant.
+        timeout: seconds for the Mitsuba call.
+
+    Raises:
+        MitsubaRenderError: the render failed.
     """
     spec = hidden.background_spec(exclude)
     return torch.from_numpy(render_scenes([spec], variant=variant, timeout=timeout)[0].chw())

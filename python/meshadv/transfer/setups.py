@@ -170,7 +170,8 @@ def scale_on_base(mesh: Any, scale: float) -> Any:
 
 
 def default_aeroplane() -> Any:
-    """The first PASCAL3D+ aeroplane of the shared data, normalised into [-1, 1] with Y up (or a built-in mesh).
+    """The first PASCAL3D+ aeroplane of the shared data (``pascal3d/aeroplane/01.ply``), normalised into [-1, 1]
+    with Y up.
 
     Raises:
         FileNotFoundError: the shared data has no aeroplane.

@@ -41,7 +41,7 @@ print("ok")
 
 
 def mitsuba_available() -> bool:
-    """Return whether the ``mitsuba`` package can be imported (in a child process, importing is cheap)."""
+    """Whether the ``mitsuba`` package is installed (looked up with ``importlib``, without importing it)."""
     try:
         import importlib.util
 
