@@ -31,7 +31,7 @@ from meshadv.transfer.objects import merge_meshes, object_range, occlusion_mask
 from meshadv.transfer.photo import Estimation, background_photo, estimate_parameters
 from meshadv.transfer.render import MitsubaImage, render_scenes
 from meshadv.transfer.results import BlackBoxResult
-from meshadv.transfer.robust import DEFAULT_JITTER, Occluded, Robustness
+from meshadv.transfer.robust import DEFAULT_JITTER, Occluded, Robustness, restore_photo
 
 __all__ = [
     "Estimation",
@@ -66,6 +66,29 @@ def _attack_setup(setup_options: dict[str, Any], image_size: tuple[int, int], ba
 
 
 @dataclass(frozen=True)
+class _Run:
+    """What the steps of one black-box run share once the camera and lights are estimated.
+
+    Attributes:
+        hidden: the hidden world.
+        est: the estimation (views, photo, errors).
+        background: ``(3, H, W)`` what meshadv's renders are composited over during the attack (the photo, or the
+            world without the known objects), and Mitsuba's render under the estimates after it.
+        setup: the attack's render setup.
+        robustness: the run's robustness settings.
+        variant: Mitsuba variant; timeout: seconds per Mitsuba call.
+    """
+
+    hidden: HiddenScene
+    est: Estimation
+    background: torch.Tensor
+    setup: RenderSetup
+    robustness: Robustness
+    variant: Optional[str]
+    timeout: float
+
+
+@dataclass(frozen=True)
 class _Measured:
     """What a black-box run measures of its adversarial mesh after the attack.
 
@@ -90,33 +113,27 @@ class _Measured:
         return torch.cat([photo[None], images_tensor([self.adversarial_mitsuba]), self.estimated_mitsuba[None]])
 
 
-def _measure(seen: Any, adversarial: Any, est: Estimation, hidden: HiddenScene, background: torch.Tensor,
-             setup: RenderSetup, victim: Any, bound: Any, robustness: Robustness, variant: Optional[str],
-             timeout: float, occluded: Optional[torch.Tensor] = None) -> _Measured:
+def _measure(run: _Run, seen: Any, adversarial: Any, victim: Any, bound: Any,
+             occluded: Optional[torch.Tensor] = None) -> _Measured:
     """Measure the attack's result: meshadv's margin and robust rate on the estimated view, Mitsuba's renders.
 
     Args:
+        run: the run.
         seen: what meshadv and Mitsuba-under-the-estimates render (the adversarial object, or the merged scene).
         adversarial: the adversarial object, placed in the hidden world.
-        est: the estimation (views, photo).
-        hidden: the hidden world.
-        background: what Mitsuba's render under the estimates is composited over.
-        setup: the attack's render setup.
         victim: the victim the attack saw (without pixel noise); ``bound`` its bound criterion.
-        robustness: the run's robustness settings (verification samples).
-        variant: Mitsuba variant; timeout: seconds per Mitsuba call.
         occluded: ``(H, W)`` pixels where the photo is put back in both images, or None.
     """
-    margins, image = meshadv_margins(setup, seen, est.views, victim, bound)
-    rate = robust_rate(setup, seen, est.views, victim, bound, robustness)
-    record = est.views.to_records()[0]
+    views = run.est.views
+    margins, image = meshadv_margins(run.setup, seen, views, victim, bound)
+    rate = robust_rate(run.setup, seen, views, victim, bound, run.robustness)
     # the benign render under the hidden parameters is the photo the estimation was made from
-    images = render_scenes([hidden.spec(adversarial), estimated_view_spec(seen, record, hidden)], variant=variant,
-                           timeout=timeout)
-    estimated = composite(images[1], background)
+    specs = [run.hidden.spec(adversarial), estimated_view_spec(seen, views.to_records()[0], run.hidden)]
+    images = render_scenes(specs, variant=run.variant, timeout=run.timeout)
+    estimated = composite(images[1], run.background)
     if occluded is not None:
-        estimated = estimated * (1.0 - occluded) + est.photo * occluded
-        image = image * (1.0 - occluded) + est.photo * occluded
+        estimated = restore_photo(estimated, run.est.photo, occluded)
+        image = restore_photo(image, run.est.photo, occluded)
     return _Measured(margins[0], image, rate, images[0], estimated)
 
 
@@ -136,16 +153,16 @@ def _hwc(image: torch.Tensor) -> np.ndarray:
     return image.detach().permute(1, 2, 0).cpu().numpy()
 
 
-def _finish_row(row: dict[str, Any], attack: Any, setup: RenderSetup, result: Any, robustness: Robustness,
-                est: Estimation, measured: _Measured, adversarial: Any) -> BlackBoxResult:
+def _finish_row(row: dict[str, Any], run: _Run, attack: Any, result: Any, measured: _Measured,
+                adversarial: Any) -> BlackBoxResult:
     """Add what every black-box row shares to ``row`` (robustness and attack settings, estimation errors) and wrap
     it with the images (Mitsuba benign = the estimation's photo / adversarial under the hidden parameters /
     adversarial under the estimates, meshadv's render), the adversarial mesh and the attack's result."""
-    row.update(robustness.to_record())
-    row["pixel_noise_on"] = pixel_noise_where(setup, robustness)
-    row.update(_attack_record(attack, setup, result))
-    row.update({k: float(v) for k, v in est.errors.items()})
-    images = {"benign_mitsuba": _hwc(est.photo), "adversarial_mitsuba": measured.adversarial_mitsuba.image,
+    row.update(run.robustness.to_record())
+    row["pixel_noise_on"] = pixel_noise_where(run.setup, run.robustness)
+    row.update(_attack_record(attack, run.setup, result))
+    row.update({k: float(v) for k, v in run.est.errors.items()})
+    images = {"benign_mitsuba": _hwc(run.est.photo), "adversarial_mitsuba": measured.adversarial_mitsuba.image,
               "adversarial_mitsuba_estimated": _hwc(measured.estimated_mitsuba),
               "adversarial_meshadv": _hwc(measured.image_meshadv)}
     return BlackBoxResult(row=dict(row), images=images, adversarial_mesh=adversarial, attack_result=result)
@@ -239,8 +256,8 @@ def blackbox_classifier(
     result = attack_estimated(attack, mesh, est.views, victim, criterion, robustness, setup, callback)
     adversarial = result.mesh
     bound = criterion.bind(victim)
-    measured = _measure(adversarial, adversarial, est, hidden, background, setup, victim, bound, robustness, variant,
-                        timeout)
+    run = _Run(hidden, est, background, setup, robustness, variant, timeout)
+    measured = _measure(run, adversarial, adversarial, victim, bound)
     with torch.no_grad():
         top1_meshadv = top1_names(victim, victim(measured.image_meshadv[None]))[0]
         logits = victim(measured.victim_batch(est.photo))
@@ -272,7 +289,7 @@ def blackbox_classifier(
         "spp": hidden.spp,
         "variant": measured.adversarial_mitsuba.variant,
     }
-    return _finish_row(row, attack, setup, result, robustness, est, measured, adversarial)
+    return _finish_row(row, run, attack, result, measured, adversarial)
 
 
 # ----------------------------------------------------------------------------------------------------------------------
@@ -456,8 +473,8 @@ def blackbox_detector(
         seen = adversarial
     else:
         seen = merge_meshes([adversarial if i == object_index else o for i, o in enumerate(objects)])
-    measured = _measure(seen, adversarial, est, hidden, ctx.background, setup, ctx.victim,
-                        criterion.bind(victim), robustness, variant, timeout, ctx.occluded)
+    run = _Run(hidden, est, ctx.background, setup, robustness, variant, timeout)
+    measured = _measure(run, seen, adversarial, ctx.victim, criterion.bind(victim), ctx.occluded)
     scores = detection_scores(victim, measured.victim_batch(est.photo), hide_class)
     row: dict[str, Any] = {
         "case_id": case_id,
@@ -483,4 +500,4 @@ def blackbox_detector(
         "spp": hidden.spp,
         "variant": measured.adversarial_mitsuba.variant,
     }
-    return _finish_row(row, ctx.attack, setup, result, robustness, est, measured, adversarial)
+    return _finish_row(row, run, ctx.attack, result, measured, adversarial)

@@ -33,7 +33,7 @@ from torch import Tensor
 
 from meshadv.attacks.criteria import WithMargin
 
-__all__ = ["DEFAULT_JITTER", "NoisyVictim", "Occluded", "Robustness", "WithMargin", "eot_views"]
+__all__ = ["DEFAULT_JITTER", "NoisyVictim", "Occluded", "Robustness", "WithMargin", "eot_views", "restore_photo"]
 
 #: Jitter of the estimated camera and lights at every attack step (the paper's step 3).
 DEFAULT_JITTER = {"azimuth": 5.0, "elevation": 5.0, "distance": 0.05, "light_direction": 0.2, "light_intensity": 0.2}
@@ -62,6 +62,21 @@ def eot_views(views: Any, samples: int) -> Any:
     if not isinstance(views, ViewSet) or len(views) < 1:
         raise ValueError("views must be a non-empty meshadv.render.ViewSet")
     return views if samples == 1 else ViewSet.cat([views] * samples)
+
+
+def restore_photo(images: Tensor, photo: Tensor, mask: Tensor) -> Tensor:
+    """``images * (1 - mask) + photo * mask``: the photo put back where ``mask`` is 1 (where, in the photo, another
+    object hides the one rendered over it).
+
+    Args:
+        images: ``(3, H, W)`` or ``(B, 3, H, W)``.
+        photo: ``(3, H, W)``.
+        mask: ``(H, W)`` in ``[0, 1]``.
+
+    Returns:
+        Images of the shape of ``images``; gradients flow to the unmasked pixels.
+    """
+    return images * (1.0 - mask) + photo * mask
 
 
 class _VictimWrapper:
@@ -174,8 +189,7 @@ class Occluded(_VictimWrapper):
         if tuple(images.shape[-2:]) != tuple(self.mask.shape):
             raise ValueError(f"images {tuple(images.shape[-2:])} must match the occlusion mask "
                              f"{tuple(self.mask.shape)}")
-        mask = self.mask.to(images)
-        return self.victim(images * (1.0 - mask) + self.photo.to(images) * mask)
+        return self.victim(restore_photo(images, self.photo.to(images), self.mask.to(images)))
 
     def __repr__(self) -> str:
         return f"Occluded({self.victim!r}, {int((self.mask > 0).sum())} pixels)"
