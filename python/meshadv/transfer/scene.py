@@ -138,54 +138,73 @@ def build_mitsuba_scene(mi: Any, spec: SceneSpec) -> Any:
     Returns:
         A ``mi.Scene``.
     """
-    scene: dict[str, Any] = {"type": "scene"}
-    if spec.mask:
-        scene["integrator"] = {"type": "path", "max_depth": 1, "hide_emitters": True}
-    else:
-        scene["integrator"] = {
-            "type": "path",
-            "max_depth": int(spec.max_depth),
-            "hide_emitters": spec.background is not None,
-        }
+    scene: dict[str, Any] = {"type": "scene", "integrator": _integrator(spec)}
     scene["sensor"] = sensor_dict(mi, spec.camera, spec.image_size, spec.spp, spec.seed, spec.mask)
     for i, obj in enumerate(spec.objects):
         scene[f"object_{i}"] = _mitsuba_mesh(mi, obj)
     if spec.mask:
         return mi.load_dict(scene)
     if spec.lights is not None:
-        for k, (d, c) in enumerate(zip(spec.lights.directions, spec.lights.colors)):
-            if not np.any(c > 0):
-                continue
-            d = _normalize(np.asarray(d, dtype=np.float64))
-            scene[f"light_{k}"] = {
-                "type": "directional",
-                "direction": (-d).tolist(),
-                "irradiance": {"type": "rgb", "value": (math.pi * np.asarray(c, dtype=np.float64)).tolist()},
-            }
-        if np.any(spec.lights.ambient > 0):
-            scene["ambient"] = {
-                "type": "constant",
-                "radiance": {"type": "rgb", "value": spec.lights.ambient.astype(np.float64).tolist()},
-            }
+        scene.update(_light_emitters(spec.lights))
     if spec.environment is not None:
         bitmap = mi.Bitmap(np.ascontiguousarray(spec.environment, dtype=np.float32))
         scene["environment"] = {"type": "envmap", "bitmap": bitmap, "scale": float(spec.environment_scale)}
     if spec.ground is not None:
-        height, color = spec.ground
-        scene["ground"] = {
-            "type": "rectangle",
-            "to_world": mi.ScalarTransform4f().translate([0.0, float(height), 0.0])
-            @ mi.ScalarTransform4f().rotate([1, 0, 0], -90)
-            @ mi.ScalarTransform4f().scale(50.0),
-            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(map(float, color))}},
-        }
+        scene["ground"] = _ground_plane(mi, spec.ground)
     if spec.base_scene is not None:
-        xml = _base_scene_xml(Path(spec.base_scene), spec.base_exclude, spec.base_emitters)
-        base = mi.load_string(xml)
-        for i, shape in enumerate(base.shapes()):
-            scene[f"base_shape_{i}"] = shape
-        if spec.base_emitters:
-            for i, emitter in enumerate(base.emitters()):
-                if emitter.is_environment():
-                    scene[f"base_emitter_{i}"] = emitter
+        scene.update(_base_scene_parts(mi, spec.base_scene, spec.base_exclude, spec.base_emitters))
     return mi.load_dict(scene)
+
+
+def _integrator(spec: SceneSpec) -> dict[str, Any]:
+    """A path tracer: one bounce with emitters hidden for a coverage mask, else ``max_depth`` bounces with emitters
+    hidden behind a background colour."""
+    if spec.mask:
+        return {"type": "path", "max_depth": 1, "hide_emitters": True}
+    return {"type": "path", "max_depth": int(spec.max_depth), "hide_emitters": spec.background is not None}
+
+
+def _light_emitters(lights: MitsubaLights) -> dict[str, dict[str, Any]]:
+    """meshadv's lights as Mitsuba emitters: a ``directional`` emitter per light of non-zero colour (``light_k``,
+    ``direction = -l``, ``irradiance = pi * colour``) and a ``constant`` one for a non-zero ambient (``ambient``)."""
+    emitters: dict[str, dict[str, Any]] = {}
+    for k, (d, c) in enumerate(zip(lights.directions, lights.colors)):
+        if not np.any(c > 0):
+            continue
+        d = _normalize(np.asarray(d, dtype=np.float64))
+        emitters[f"light_{k}"] = {
+            "type": "directional",
+            "direction": (-d).tolist(),
+            "irradiance": {"type": "rgb", "value": (math.pi * np.asarray(c, dtype=np.float64)).tolist()},
+        }
+    if np.any(lights.ambient > 0):
+        emitters["ambient"] = {
+            "type": "constant",
+            "radiance": {"type": "rgb", "value": lights.ambient.astype(np.float64).tolist()},
+        }
+    return emitters
+
+
+def _ground_plane(mi: Any, ground: tuple[float, tuple[float, float, float]]) -> dict[str, Any]:
+    """The ``(height, colour)`` ground: a 100 x 100 diffuse rectangle of that colour in the plane ``y = height``,
+    facing up."""
+    height, color = ground
+    return {
+        "type": "rectangle",
+        "to_world": mi.ScalarTransform4f().translate([0.0, float(height), 0.0])
+        @ mi.ScalarTransform4f().rotate([1, 0, 0], -90)
+        @ mi.ScalarTransform4f().scale(50.0),
+        "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(map(float, color))}},
+    }
+
+
+def _base_scene_parts(mi: Any, path: str, exclude: Sequence[str], keep_emitters: bool) -> dict[str, Any]:
+    """The shapes of the Mitsuba scene file ``path`` (``base_shape_i``; those matching ``exclude`` dropped) and, with
+    ``keep_emitters``, its environment emitters (``base_emitter_i``)."""
+    base = mi.load_string(_base_scene_xml(Path(path), exclude, keep_emitters))
+    parts: dict[str, Any] = {f"base_shape_{i}": shape for i, shape in enumerate(base.shapes())}
+    if keep_emitters:
+        for i, emitter in enumerate(base.emitters()):
+            if emitter.is_environment():
+                parts[f"base_emitter_{i}"] = emitter
+    return parts
