@@ -4,13 +4,16 @@ meshadv: the steps :mod:`meshadv.transfer.blackbox`'s pipelines share, built on 
 
 from __future__ import annotations
 
-from typing import Any, Callable, Optional
+from typing import TYPE_CHECKING, Any, Callable, Optional
 
 import torch
 from torch import Tensor
 
 from meshadv.render.setup import RenderSetup
 from meshadv.transfer.robust import DEFAULT_JITTER, NoisyVictim, Robustness, WithMargin, eot_views
+
+if TYPE_CHECKING:
+    from meshadv.render import ViewSet
 
 __all__ = ["attack_estimated", "meshadv_margins", "pixel_noise_where", "robust_rate"]
 
@@ -21,7 +24,7 @@ def _photo_background(setup: RenderSetup) -> Optional[Tensor]:
     return setup.background if setup.has_photo else None  # type: ignore[return-value]
 
 
-def attack_estimated(attack: Any, mesh: Any, views: Any, victim: Any, criterion: Any, robustness: Robustness,
+def attack_estimated(attack: Any, mesh: Any, views: ViewSet, victim: Any, criterion: Any, robustness: Robustness,
                      setup: RenderSetup, callback: Optional[Callable[[Any], None]] = None) -> Any:
     """Run ``attack`` with ``setup`` on the estimated ``views`` with the EOT batch, the margin and the pixel noise
     of ``robustness``."""
@@ -40,7 +43,7 @@ def pixel_noise_where(setup: RenderSetup, robustness: Robustness) -> Optional[st
     return "rendered pixels" if _photo_background(setup) is not None else "whole image"
 
 
-def meshadv_margins(setup: RenderSetup, mesh: Any, views: Any, victim: Any, bound: Any,
+def meshadv_margins(setup: RenderSetup, mesh: Any, views: ViewSet, victim: Any, bound: Any,
                     chunk: int = 8) -> tuple[torch.Tensor, Any]:
     """Margins (V,) of ``bound`` on meshadv's renders of ``mesh`` (the attack's render setup, clean victim),
     and the first image (3, H, W)."""
@@ -54,7 +57,7 @@ def meshadv_margins(setup: RenderSetup, mesh: Any, views: Any, victim: Any, boun
     return torch.cat(margins), first
 
 
-def robust_rate(setup: RenderSetup, mesh: Any, views: Any, victim: Any, bound: Any,
+def robust_rate(setup: RenderSetup, mesh: Any, views: ViewSet, victim: Any, bound: Any,
                 robustness: Robustness) -> Optional[float]:
     """Fraction of ``robustness.verify_samples`` fresh views around the estimated ``views``, drawn with
     :data:`DEFAULT_JITTER` whatever jitter the attack used (one yardstick for every run), on which ``mesh`` is

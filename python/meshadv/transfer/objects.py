@@ -6,9 +6,12 @@ attacker knows several objects of the scene and changes one of them.
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import torch
+
+if TYPE_CHECKING:
+    from meshadv.render import ViewSet
 
 __all__ = ["merge_meshes", "object_range", "occlusion_mask"]
 
@@ -45,7 +48,7 @@ def object_range(objects: Sequence[Any], index: int, part: str = "faces") -> tup
     return start, start + int(getattr(objects[index], part).shape[0])
 
 
-def occlusion_mask(objects: Sequence[Any], index: int, views: Any, image_size: Any) -> torch.Tensor:
+def occlusion_mask(objects: Sequence[Any], index: int, views: ViewSet, image_size: Any) -> torch.Tensor:
     """Pixels where object ``index`` alone would be drawn but another of ``objects`` is in front of it.
 
     Args:

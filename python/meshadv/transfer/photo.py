@@ -5,13 +5,16 @@ from it (:func:`estimate_parameters`); the photo of the world without the attack
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 import torch
 
 from meshadv.transfer.hidden import HiddenScene
 from meshadv.transfer.render import render_mask, render_scenes
 from meshadv.transfer.spec import MitsubaLights
+
+if TYPE_CHECKING:
+    from meshadv.render import Camera, Lights, ViewSet
 
 __all__ = ["Estimation", "background_photo", "estimate_parameters"]
 
@@ -29,7 +32,7 @@ class Estimation:
             it as the benign render); mask: (H, W) the object's mask.
     """
 
-    views: Any
+    views: ViewSet
     errors: dict[str, float]
     photo: torch.Tensor
     mask: torch.Tensor
@@ -124,7 +127,7 @@ def _pooled(mask: torch.Tensor, size: int) -> torch.Tensor:
 
 
 def _light_mask(mask: torch.Tensor, light_faces: tuple[int, int], verts: torch.Tensor, faces: torch.Tensor,
-                colors: torch.Tensor, camera: Any, image_size: tuple[int, int]) -> torch.Tensor:
+                colors: torch.Tensor, camera: Camera, image_size: tuple[int, int]) -> torch.Tensor:
     """``mask`` restricted to the pixels where one of the faces ``light_faces`` is visible under ``camera``.
 
     Raises:
@@ -141,7 +144,8 @@ def _light_mask(mask: torch.Tensor, light_faces: tuple[int, int], verts: torch.T
 
 
 def _light_fit_errors(photo: torch.Tensor, light_mask: torch.Tensor, verts: torch.Tensor, faces: torch.Tensor,
-                      colors: torch.Tensor, camera: Any, lights: Any, image_size: tuple[int, int]) -> dict[str, float]:
+                      colors: torch.Tensor, camera: Camera, lights: Lights,
+                      image_size: tuple[int, int]) -> dict[str, float]:
     """``light_rmse`` (meshadv's render under the estimates vs the photo, on the fitted pixels meshadv covers) and
     ``light_fit_pixels`` (their count)."""
     from meshadv.render import render
@@ -154,7 +158,7 @@ def _light_fit_errors(photo: torch.Tensor, light_mask: torch.Tensor, verts: torc
     return {"light_rmse": rmse, "light_fit_pixels": float(both.sum())}
 
 
-def _true_light_errors(estimated: Any, true_lights: MitsubaLights, has_environment: bool) -> dict[str, float]:
+def _true_light_errors(estimated: Lights, true_lights: MitsubaLights, has_environment: bool) -> dict[str, float]:
     """Errors of the estimated lights against the hidden world's directional lights (no ``ambient_error`` when
     ``has_environment``: the environment map is the true ambient, no single colour to compare with)."""
     from meshadv.render import Lights

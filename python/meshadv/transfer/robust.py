@@ -26,12 +26,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor
 
 from meshadv.attacks.criteria import WithMargin
+
+if TYPE_CHECKING:
+    from meshadv.render import ViewSet
 
 __all__ = ["DEFAULT_JITTER", "NoisyVictim", "Occluded", "Robustness", "WithMargin", "eot_views", "restore_photo"]
 
@@ -39,7 +42,7 @@ __all__ = ["DEFAULT_JITTER", "NoisyVictim", "Occluded", "Robustness", "WithMargi
 DEFAULT_JITTER = {"azimuth": 5.0, "elevation": 5.0, "distance": 0.05, "light_direction": 0.2, "light_intensity": 0.2}
 
 
-def eot_views(views: Any, samples: int) -> Any:
+def eot_views(views: ViewSet, samples: int) -> ViewSet:
     """``samples`` copies of every view of ``views`` (view-major blocks: all views, then all views again, ...).
 
     Passed to an attack that has a ``jitter``, each copy is jittered independently at every step: an

@@ -10,11 +10,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Optional, Union
+from typing import TYPE_CHECKING, Any, Mapping, Optional, Union
 
 import numpy as np
 
 from meshadv.util.spherical import spherical_direction
+
+if TYPE_CHECKING:
+    from meshadv.render import Camera, Lights
 
 __all__ = ["MeshObject", "MitsubaCamera", "MitsubaLights", "SceneSpec", "scene_spec"]
 
@@ -92,7 +95,7 @@ class MitsubaCamera:
         return cls(tuple(eye.tolist()), (0.0, 0.0, 0.0), tuple(up.tolist()), viewing_angle, near, far)
 
     @classmethod
-    def from_camera(cls, camera: Any, index: int = 0) -> "MitsubaCamera":
+    def from_camera(cls, camera: Camera, index: int = 0) -> "MitsubaCamera":
         """Build from view ``index`` of a ``meshadv.render.Camera`` (spherical or look-at, tilt applied).
 
         Raises:
@@ -220,7 +223,7 @@ class MitsubaLights:
         )
 
     @classmethod
-    def from_lights(cls, lights: Any, index: int = 0) -> "MitsubaLights":
+    def from_lights(cls, lights: Lights, index: int = 0) -> "MitsubaLights":
         """Build from a ``meshadv.render.Lights`` (view ``index`` of a batched one)."""
         d, c, a = (_as_numpy(t) for t in (lights.directions, lights.colors, lights.ambient))
         if d.ndim == 3:
