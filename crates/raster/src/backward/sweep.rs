@@ -212,14 +212,14 @@ pub(super) fn run_lines<const C: usize>(
     }
 }
 
-/// [`lines_on`] on AVX2 (its own function, so that the sweeps' registers are allocated apart from the caller's).
+/// [`lines_on`] on AVX2.
 ///
 /// # Safety
 /// The CPU must support AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(unsafe_code)]
-#[inline(never)]
+#[inline]
 unsafe fn lines_avx2<const C: usize>(
     face: &FaceLines<'_>,
     jobs: &mut [LineJob],
