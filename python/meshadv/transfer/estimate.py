@@ -289,6 +289,55 @@ def _unit_sphere_directions(count: int, toward: torch.Tensor, generator: torch.G
     return local[:, :1] * u + local[:, 1:2] * v + local[:, 2:3] * w
 
 
+def _inv_softplus(x: float) -> float:
+    """The value whose softplus is ``x`` (> 0)."""
+    return math.log(math.expm1(x))
+
+
+class _LightParameters:
+    """What :func:`estimate_lights` optimises: ``K`` light directions (normalised on use) and the colours and the
+    ambient before a softplus (which keeps them non-negative).
+
+    The directions start spread over the hemisphere facing the camera (:func:`_unit_sphere_directions`, seeded),
+    the colours at a total of about 0.3, the ambient at 0.3.
+    """
+
+    def __init__(self, num_lights: int, toward_camera: torch.Tensor, seed: int) -> None:
+        gen = torch.Generator().manual_seed(seed)
+        self.num_lights = num_lights
+        self.dirs = _unit_sphere_directions(num_lights, toward_camera, gen).requires_grad_(True)
+        self.raw_colors = torch.full((num_lights, 3), _inv_softplus(0.3 / max(num_lights, 1) + 1e-3),
+                                     requires_grad=True)
+        self.raw_ambient = torch.full((3,), _inv_softplus(0.3), requires_grad=True)
+
+    def tensors(self) -> list[torch.Tensor]:
+        """The leaf tensors to optimise (the ambient only when there is no directional light)."""
+        return [self.raw_ambient] + ([self.dirs, self.raw_colors] if self.num_lights else [])
+
+    def lights(self) -> Lights:
+        """The lights of the current parameters (unit directions, softplus colours and ambient)."""
+        n = self.num_lights
+        d = self.dirs / self.dirs.norm(dim=-1, keepdim=True).clamp_min(1e-6) if n else torch.zeros(0, 3)
+        c = torch.nn.functional.softplus(self.raw_colors) if n else torch.zeros(0, 3)
+        return Lights(d, c, torch.nn.functional.softplus(self.raw_ambient))
+
+
+def _masked_pixel_faces(verts: torch.Tensor, faces: torch.Tensor, colors: torch.Tensor, camera: Camera,
+                        lights: Lights, size: tuple[int, int], mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The face drawn at every pixel (``(H*W,)``, background clamped to face 0) and the pixels' weights (the mask
+    where a face is drawn, 0 elsewhere).
+
+    Geometry and camera are fixed while the lights are fitted: rasterize once, then each step only re-shades the
+    faces (exactly what ``render()`` computes at antialias 1: the pixel takes the shaded colour of the face drawn
+    there).
+    """
+    with torch.no_grad():
+        face_index = render(verts, faces, colors, camera, lights, size).face_index[0]
+    covered = face_index >= 0
+    weight = (mask * covered).reshape(-1)
+    return face_index.reshape(-1).clamp_min(0), weight
+
+
 def estimate_lights(
     image: Any,
     mask: Any,
@@ -338,35 +387,16 @@ def estimate_lights(
     verts = torch.as_tensor(vertices, dtype=torch.float32).detach()
     faces_t = torch.as_tensor(faces, dtype=torch.int64)
     colors = torch.as_tensor(face_colors, dtype=torch.float32).detach()
-    gen = torch.Generator().manual_seed(seed)
-
     toward_camera = (camera.eye() - camera.target())[0].detach().float()
-    dirs = _unit_sphere_directions(num_lights, toward_camera, gen).requires_grad_(True)
-    inv_softplus = lambda x: math.log(math.expm1(x))  # noqa: E731
-    raw_colors = torch.full((num_lights, 3), inv_softplus(0.3 / max(num_lights, 1) + 1e-3), requires_grad=True)
-    raw_ambient = torch.full((3,), inv_softplus(0.3), requires_grad=True)
-    params = [raw_ambient] + ([dirs, raw_colors] if num_lights else [])
-    opt = torch.optim.Adam(params, lr=lr)
+    params = _LightParameters(num_lights, toward_camera, seed)
+    opt = torch.optim.Adam(params.tensors(), lr=lr)
     best_loss, best = float("inf"), None
-
-    def make_lights() -> Lights:
-        """The lights of the current parameters (unit directions, softplus colours and ambient)."""
-        d = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-6) if num_lights else torch.zeros(0, 3)
-        c = torch.nn.functional.softplus(raw_colors) if num_lights else torch.zeros(0, 3)
-        return Lights(d, c, torch.nn.functional.softplus(raw_ambient))
-
-    # Geometry and camera are fixed: rasterize once, then each step only re-shades the faces (exactly what render()
-    # computes at antialias 1: the pixel takes the shaded colour of the face drawn there).
-    with torch.no_grad():
-        face_index = render(verts, faces_t, colors, camera, make_lights().detach(), size).face_index[0]
-    covered = face_index >= 0
-    weight = (m * covered).reshape(-1)
-    pix_faces = face_index.reshape(-1).clamp_min(0)
+    pix_faces, weight = _masked_pixel_faces(verts, faces_t, colors, camera, params.lights().detach(), size, m)
     target = img.reshape(3, -1).T
     denom = weight.sum().clamp_min(1.0) * 3.0
     for _ in range(steps + 1):
         opt.zero_grad()
-        lights = make_lights()
+        lights = params.lights()
         shaded = shade(verts, faces_t, colors, lights, camera, two_sided=True)[0]
         loss = (((shaded[pix_faces] - target) ** 2).sum(dim=1) * weight).sum() / denom
         if float(loss.detach()) < best_loss:
