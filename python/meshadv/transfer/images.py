@@ -36,19 +36,13 @@ def write_image_index(image_dir: Union[str, Path], cases: Sequence[TransferCase]
     from meshadv.util.atomic import write_text_atomic
 
     path = Path(image_dir) / "index.csv"
-    entries: dict[str, dict[str, Any]] = {}
-    if path.is_file():
-        with open(path, newline="", encoding="utf-8") as fh:
-            entries = {row["file"]: row for row in csv.DictReader(fh)}
+    entries = _read_index(path)
     stems = {case.case_id: case.name or case.case_id for case in cases}
     for row in rows:
         if row.case_id not in stems or row.error is not None:
             continue
-        file = f"{stems[row.case_id]}_v{row.view}.png"
-        entries[file] = {"file": file, "job_id": row.case_id, "victim": row.victim, "true_class": row.true_class,
-                         "target": row.target, "perturbation": row.perturbation, "view": row.view,
-                         "success_meshadv": row.success_meshadv, "success_mitsuba": row.success_mitsuba,
-                         "top1_meshadv": row.top1_meshadv, "top1_mitsuba": row.top1_mitsuba}
+        entry = _index_entry(stems[row.case_id], row)
+        entries[entry["file"]] = entry
     out = io.StringIO()
     writer = csv.DictWriter(out, fieldnames=INDEX_COLUMNS, lineterminator="\n")
     writer.writeheader()
@@ -57,6 +51,23 @@ def write_image_index(image_dir: Union[str, Path], cases: Sequence[TransferCase]
     path.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(path, out.getvalue())
     return path
+
+
+def _read_index(path: Path) -> dict[str, dict[str, Any]]:
+    """The entries of an existing ``index.csv`` by file name (none when there is no such file)."""
+    if not path.is_file():
+        return {}
+    with open(path, newline="", encoding="utf-8") as fh:
+        return {row["file"]: row for row in csv.DictReader(fh)}
+
+
+def _index_entry(stem: str, row: ControlledResult) -> dict[str, Any]:
+    """The ``index.csv`` entry of the render of ``row``'s view, saved as ``<stem>_v<view>.png``."""
+    file = f"{stem}_v{row.view}.png"
+    return {"file": file, "job_id": row.case_id, "victim": row.victim, "true_class": row.true_class,
+            "target": row.target, "perturbation": row.perturbation, "view": row.view,
+            "success_meshadv": row.success_meshadv, "success_mitsuba": row.success_mitsuba,
+            "top1_meshadv": row.top1_meshadv, "top1_mitsuba": row.top1_mitsuba}
 
 
 def save_images(images: Sequence[MitsubaImage], out_dir: Path, stem: str) -> list[Path]:
