@@ -82,6 +82,11 @@ def evaluate_case(
 ) -> list[ControlledResult]:
     """Evaluate one case on its meshadv renders and its Mitsuba renders (classifier victims).
 
+    Args:
+        case: the case.
+        victim: a classifier victim.
+        mitsuba_images: the case's Mitsuba renders, one per view (:func:`mitsuba_specs_for_case`).
+
     Returns:
         One :class:`~meshadv.transfer.results.ControlledResult` per view: ``success_meshadv`` / ``success_mitsuba``
         (targeted when the case has a target, else untargeted), ``untargeted_meshadv`` / ``untargeted_mitsuba``, the
