@@ -16,7 +16,12 @@
 //!   `gI[P] = sum_c G[P, c] I[P, c]`, so that the OUT sweep's `delta = sum_c G[P, c] A[f, c] - gI[P]`. These, the
 //!   face index and the cotangent are stored along sweep lines (`lines::Lines`): row lines for the row sweeps, a
 //!   transposed copy for the column sweeps, so the inner loops read contiguous memory and vectorise.
+//!   The keys are computed along runs of one face in a row, 4 (AVX2) or 2 (SSE2) pixels at a time with the scalar
+//!   operations lane by lane (same bits).
 //! * Per line, the range of pixels with a non-zero cotangent: an OUT sweep is cut to it (elsewhere `delta = 0`).
+//! * Per face, edge and axis, the lines' sweeps are first planned (scalar work: crossing, ranges, factors, one
+//!   `sweep::LineJob` per line), then run one after another with the face's constants and the buffers' bounds checked
+//!   once, and their sums added to the corners line by line (OUT, then IN), in the definition's order.
 //! * Per face, the box of the pixels it is drawn on: only faces drawn somewhere are set up; lines outside the box
 //!   are skipped (their in-pixel is not the face's, so no OUT sweep) and IN sweeps are cut to it (only the face's
 //!   own pixels contribute).
