@@ -130,6 +130,22 @@ def test_a_truncated_result_json_of_a_finished_job_is_reported(tmp_path: Path) -
     assert "is truncated or not JSON" in damaged[0][1]
 
 
+def test_a_skipped_job_without_result_json_is_not_reported_as_damaged(tmp_path: Path) -> None:
+    """A job skipped because the benign render was misclassified writes its benign images but no result.json."""
+    with ResultStore(tmp_path / "results.db") as store:
+        store.add_jobs([{"a": 1}, {"a": 2}])
+        jobs = store.runnable(2)
+        for job, skipped in zip(jobs, (True, False)):
+            folder = tmp_path / job
+            folder.mkdir()
+            (folder / "benign_v0.png").write_bytes(b"png")
+            store.mark_running(job)
+            store.mark_done(job, {"success": False, "skipped": skipped}, str(folder))
+        damaged = store.damaged_results()
+    assert [job for job, _ in damaged] == [jobs[1]]
+    assert "is missing" in damaged[0][1]
+
+
 def test_report_and_sweep_name_the_damaged_job_and_the_command_that_rebuilds_it(
         tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     from meshadv.commands._job_index import warn_damaged_results

@@ -67,6 +67,17 @@ CREATE TABLE IF NOT EXISTS meta (
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
+def _is_skipped(record: Optional[str]) -> bool:
+    """Whether a stored record (JSON text or ``None``) says its job was skipped rather than run."""
+    if not record:
+        return False
+    try:
+        parsed = json.loads(record)
+    except ValueError:
+        return False
+    return isinstance(parsed, dict) and bool(parsed.get("skipped"))
+
+
 def _check_existing_file(path: Path) -> bool:
     """True when ``path`` exists; refuse an empty or non-SQLite file with advice instead of overwriting it.
 
@@ -371,15 +382,16 @@ class ResultStore:
     def damaged_results(self, marker: str = "result.json") -> List[Tuple[str, str]]:
         """Finished jobs whose artefact folder (on this machine) holds an unreadable ``marker`` file.
 
-        A folder that is absent is not reported (the artefacts live on another machine, or were not kept); a
-        ``result.json`` that is empty, truncated or not JSON is.
+        A folder that is absent is not reported (the artefacts live on another machine, or were not kept), nor is a
+        job its record marks ``skipped`` (e.g. a benign render the victim misclassifies: no attack ran, so no
+        ``marker`` was written); a ``result.json`` that is missing, empty, truncated or not JSON is.
 
         Returns:
             ``(job_id, reason)`` pairs.
         """
         damaged = []
-        for job, out_dir in self._conn.execute("SELECT job_id, out_dir FROM jobs WHERE state = 'done'"):
-            if not out_dir or not Path(out_dir).is_dir():
+        for job, out_dir, record in self._conn.execute("SELECT job_id, out_dir, record FROM jobs WHERE state = 'done'"):
+            if not out_dir or not Path(out_dir).is_dir() or _is_skipped(record):
                 continue
             path = Path(out_dir) / marker
             if not path.is_file():
