@@ -728,25 +728,7 @@ fn element_grads(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Small deterministic generator (SplitMix64) for the backward's tests (the sweep tests use it too).
-    pub(super) struct Rng(pub(super) u64);
-
-    impl Rng {
-        /// A uniform number in `[0, 1)`.
-        pub(super) fn next(&mut self) -> f64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-        }
-
-        /// A uniform index in `[0, n)`.
-        pub(super) fn below(&mut self, n: usize) -> usize {
-            (self.next() * n as f64) as usize
-        }
-    }
+    use crate::test_rng::Rng;
 
     #[test]
     fn the_attribute_gradient_by_runs_matches_pixel_by_pixel_bit_for_bit() {

@@ -19,6 +19,8 @@ pub mod raster;
 pub mod raycast;
 pub mod setup;
 pub mod shading;
+#[cfg(test)]
+mod test_rng;
 
 pub use backward::{rasterize_backward, BackwardInputs, Gradients};
 pub use error::{try_filled_vec, ErrorKind, RasterError, Result};

@@ -242,17 +242,13 @@ pub fn setup_faces(mesh: &ScreenMesh<'_>, b: usize, params: &RasterParams) -> Ve
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_rng::Rng;
 
     #[test]
     fn the_row_depth_gives_the_bits_of_depth_at() {
         // Random triangles (perspective, and orthographic), depths along their rows and beyond (extrapolated).
-        let mut state = 11u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = Rng(11);
+        let mut next = || rng.next();
         let mut checked = 0;
         for case in 0..300 {
             let verts: Vec<f32> = (0..9)

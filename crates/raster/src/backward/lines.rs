@@ -580,18 +580,14 @@ mod tests {
     use crate::backward::Isa;
     use crate::input::{Projection, RasterParams, ScreenMesh};
     use crate::setup::FaceSetup;
+    use crate::test_rng::Rng;
 
     #[test]
     fn the_row_keys_give_the_bits_of_the_scalar_depth() {
         // Random triangles, perspective (some with corners behind the camera, so that 1/z is not positive everywhere)
         // and orthographic, keys along rows through and beyond them, runs of every length and start.
-        let mut state = 5u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = Rng(5);
+        let mut next = || rng.next();
         let mut defined = 0;
         for case in 0..300 {
             let verts: Vec<f32> = (0..9)

@@ -1040,7 +1040,7 @@ mod x86 {
 mod tests {
     use super::*;
 
-    use crate::backward::tests::Rng;
+    use crate::test_rng::Rng;
 
     /// The lane sums of one OUT kernel on every code path this CPU has: generic on `[f64; 2]`, SSE2 and AVX2
     /// vectors; all must give the same bits.
