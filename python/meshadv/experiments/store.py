@@ -67,17 +67,6 @@ CREATE TABLE IF NOT EXISTS meta (
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
-def _is_skipped(record: Optional[str]) -> bool:
-    """Whether a stored record (JSON text or ``None``) says its job was skipped rather than run."""
-    if not record:
-        return False
-    try:
-        parsed = json.loads(record)
-    except ValueError:
-        return False
-    return isinstance(parsed, dict) and bool(parsed.get("skipped"))
-
-
 def _check_existing_file(path: Path) -> bool:
     """True when ``path`` exists; refuse an empty or non-SQLite file with advice instead of overwriting it.
 
@@ -390,17 +379,17 @@ class ResultStore:
             ``(job_id, reason)`` pairs.
         """
         damaged = []
-        for job, out_dir, record in self._conn.execute("SELECT job_id, out_dir, record FROM jobs WHERE state = 'done'"):
-            if not out_dir or not Path(out_dir).is_dir() or _is_skipped(record):
+        for row in self.rows("done"):
+            if not row.out_dir or not Path(row.out_dir).is_dir() or (row.record or {}).get("skipped"):
                 continue
-            path = Path(out_dir) / marker
+            path = Path(row.out_dir) / marker
             if not path.is_file():
-                damaged.append((job, f"{path} is missing"))
+                damaged.append((row.job_id, f"{path} is missing"))
                 continue
             try:
                 json.loads(path.read_text(encoding="utf-8"))
             except (OSError, UnicodeDecodeError, ValueError) as err:
-                damaged.append((job, f"{path} is truncated or not JSON ({err})"))
+                damaged.append((row.job_id, f"{path} is truncated or not JSON ({err})"))
         return damaged
 
     def counts(self) -> Dict[str, int]:
