@@ -185,6 +185,30 @@ class _Progress:
             self.save(self.key, self.partial_row(info.rounds, info.steps))
 
 
+def instance_scene(record: Dict[str, Any], target_faces: int = 4000) -> Tuple[Any, Any]:
+    """``(mesh, views)`` of a benchmark instance's rendering record: its PASCAL3D+ mesh resampled to ``target_faces``
+    (as the sweeps do) and its one view."""
+    from meshadv.experiments.jobs import load_job_mesh
+    from meshadv.render import ViewSet
+
+    mesh = load_job_mesh({"source": "pascal3d", "path": record["mesh"], "target_faces": target_faces,
+                          "max_faces": 100000})
+    return mesh, ViewSet.from_records([record["view"]])
+
+
+def instance_record(name: str) -> Dict[str, Any]:
+    """The rendering record of benchmark instance ``name`` (``"class/index"``, e.g. ``"bottle/1"``).
+
+    Raises:
+        ValueError: ``name`` is not an instance of the benchmark set.
+    """
+    cls, _, index = name.partition("/")
+    found = [r for c, i, r in instances(2, CLASSES) if c == cls and index.isdigit() and i == int(index)]
+    if not found:
+        raise ValueError(f"instance must be one of the benchmark set's 'class/index' names, got {name!r}")
+    return found[0]
+
+
 def run_one(method: str, perturbation: str, cls: str, index: int, record: Dict[str, Any], victim: Any,
             target_faces: int, progress: Optional[Tuple[int, Any]] = None,
             method_options: Optional[Dict[str, Any]] = None,
@@ -199,12 +223,8 @@ def run_one(method: str, perturbation: str, cls: str, index: int, record: Dict[s
     """
     from meshadv.attacks import TargetedMisclassification
     from meshadv.mesh import vertex_edges
-    from meshadv.experiments.jobs import load_job_mesh
-    from meshadv.render import ViewSet
 
-    mesh = load_job_mesh({"source": "pascal3d", "path": record["mesh"], "target_faces": target_faces,
-                          "max_faces": 100000})
-    views = ViewSet.from_records([record["view"]])
+    mesh, views = instance_scene(record, target_faces)
     targets = [c for c in CLASSES if c != cls]
     attack = make_attack(method, perturbation, method_options, attack_options)
     base = {
@@ -375,14 +395,11 @@ def step_cost(steps: int, repeats: int = 3) -> Dict[Tuple[str, str], List[float]
     the cost per target of a method is its steps times this.
     """
     from meshadv.attacks import TargetedMisclassification
-    from meshadv.experiments.jobs import load_job_mesh
-    from meshadv.render import ViewSet
     from meshadv.victims import load_victim
     from meshadv.attacks import make_attack as make_family_attack
 
     _, _, record = instances(1, ["aeroplane"])[0]
-    mesh = load_job_mesh({"source": "pascal3d", "path": record["mesh"], "target_faces": 4000, "max_faces": 100000})
-    views = ViewSet.from_records([record["view"]])
+    mesh, views = instance_scene(record)
     victim = load_victim("efficientnet_lite0")
     out: Dict[Tuple[str, str], List[float]] = {}
     for _ in range(repeats):

@@ -15,17 +15,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import convergence_bench as cb  # noqa: E402
 from meshadv.attacks import TargetedMisclassification  # noqa: E402
-from meshadv.experiments.jobs import load_job_mesh  # noqa: E402
-from meshadv.render import ViewSet  # noqa: E402
 from meshadv.victims import load_victim  # noqa: E402
 
 
 def main(instance: str, target: str) -> None:
     """Run the paper's protocol on ``instance`` (``class/index``) against ``target`` and print its progress."""
-    cls, index = instance.split("/")
-    record = [r for c, i, r in cb.instances(2, cb.CLASSES) if c == cls and i == int(index)][0]
-    mesh = load_job_mesh({"source": "pascal3d", "path": record["mesh"], "target_faces": 4000, "max_faces": 100000})
-    views = ViewSet.from_records([record["view"]])
+    mesh, views = cb.instance_scene(cb.instance_record(instance))
     victim = load_victim("efficientnet_lite0")
     state: Dict[str, Any] = {"step": 0, "best": -1e9, "held": 0, "first": None}
     start = time.process_time()

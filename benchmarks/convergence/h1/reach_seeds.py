@@ -25,8 +25,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import convergence_bench as cb  # noqa: E402
 from meshadv.attacks import TargetedMisclassification  # noqa: E402
-from meshadv.experiments.jobs import load_job_mesh  # noqa: E402
-from meshadv.render import ViewSet  # noqa: E402
 from meshadv.victims import load_victim  # noqa: E402
 
 
@@ -35,10 +33,7 @@ def main(argv: List[str]) -> None:
     if len(argv) != 4:
         raise SystemExit(__doc__)
     inst, target, options, seeds = argv[0], argv[1], json.loads(argv[2]), [int(s) for s in argv[3].split(",")]
-    cls, index = inst.split("/")
-    record = [r for c, i, r in cb.instances(2, cb.CLASSES) if c == cls and i == int(index)][0]
-    mesh0 = load_job_mesh({"source": "pascal3d", "path": record["mesh"], "target_faces": 4000, "max_faces": 100000})
-    views = ViewSet.from_records([record["view"]])
+    mesh0, views = cb.instance_scene(cb.instance_record(inst))
     victim = load_victim("efficientnet_lite0")
     for seed in seeds:
         mesh = mesh0

@@ -24,8 +24,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import convergence_bench as cb  # noqa: E402
 from meshadv.attacks import TargetedMisclassification, make_attack  # noqa: E402
-from meshadv.experiments.jobs import load_job_mesh  # noqa: E402
-from meshadv.render import ViewSet  # noqa: E402
 from meshadv.victims import load_victim  # noqa: E402
 
 
@@ -35,10 +33,7 @@ def main(argv: List[str]) -> None:
         raise SystemExit(__doc__)
     inst, target, lrs, steps = argv[0], argv[1], [float(s) for s in argv[2].split(",")], int(argv[3])
     smoothing = int(argv[4]) if len(argv) == 5 else 0
-    cls, index = inst.split("/")
-    record = [r for c, i, r in cb.instances(2, cb.CLASSES) if c == cls and i == int(index)][0]
-    mesh = load_job_mesh({"source": "pascal3d", "path": record["mesh"], "target_faces": 4000, "max_faces": 100000})
-    views = ViewSet.from_records([record["view"]])
+    mesh, views = cb.instance_scene(cb.instance_record(inst))
     victim = load_victim("efficientnet_lite0")
     diagonal = float((mesh.vertices.max(0).values - mesh.vertices.min(0).values).norm())
     for lr in lrs:
