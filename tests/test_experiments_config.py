@@ -139,3 +139,33 @@ def test_paper_medium_has_the_issue_scale() -> None:
         ("shape", "ddn", 300), ("texture", "ddn", 100)}
     assert {(j["attack"].get("method", "adam"), j["attack"]["steps"], j["attack"]["binary_search_steps"])
             for j in jobs if j.get("protocol") == "paper"} == {("adam", 1000, 5)}
+
+
+def test_multiview_jobs_are_cell_major_and_parts_select() -> None:
+    """Table 2's jobs run the first (view count, azimuth range) cell of every class before the next cell, and
+    select_parts keeps one part of the sweep in order, refusing a part the sweep does not have."""
+    from meshadv.experiments.config import job_part, load_config, select_parts
+
+    jobs = expand_jobs(load_config(Path(__file__).parents[1] / "configs" / "paper_medium.toml"))
+    mv = select_parts(jobs, ["multiview"])
+    assert mv == [j for j in jobs if j["kind"] == "multiview"] and len(mv) == 126
+    first_cell = mv[:7 * 2]  # 7 classes x 2 types
+    assert {(j["num_views"], tuple(j["azimuth_range"])) for j in first_cell} == {(5, (45.0, 60.0))}
+    assert len({j["source_class"] for j in first_cell}) == 7
+    assert [j["num_views"] for j in mv] == sorted(j["num_views"] for j in mv)
+    paper = select_parts(jobs, ["paper", "main"])
+    assert {job_part(j) for j in paper} == {"paper", "main"} and len(paper) == 1344 + 168
+    with pytest.raises(ValueError, match=r"parts \['table2'\].*'multiview'"):
+        select_parts(jobs, ["table2"])
+
+
+def test_sweep_only_names_the_option_on_a_bad_part(tmp_path: Path) -> None:
+    """``meshadv sweep --only`` with a part the sweep lacks is a usage error naming --only, before any job runs."""
+    from meshadv.cli import app
+    from typer.testing import CliRunner
+
+    config = Path(__file__).parents[1] / "configs" / "paper_medium.toml"
+    result = CliRunner().invoke(app, ["sweep", str(config), "--only", "table2", "--db", str(tmp_path / "r.db"),
+                                      "--dry-run"])
+    assert result.exit_code == 2 and "--only" in result.output and "table2" in result.output
+    assert not (tmp_path / "r.db").exists()

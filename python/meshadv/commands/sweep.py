@@ -40,11 +40,15 @@ def sweep(
                                  "files, target classes) and print how many there are."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the progress bars (jobs; attack "
                                   "steps, per step with the local and serial backends, per job with Ray)."),
+    only: Optional[List[str]] = typer.Option(None, help="Run only these parts of the sweep (repeatable): 'main', "
+                                             "a protocol's name (e.g. 'paper') or 'multiview' (Table 2). The "
+                                             "database keeps every part's finished jobs; the other parts wait "
+                                             "for a run without --only."),
 ) -> None:
     """Run (or resume) the attack sweep described by CONFIG."""
     from meshadv.commands._job_index import warn_damaged_results, write_job_index
     from meshadv.experiments import ResultStore, make_backend, run_sweep
-    from meshadv.experiments.config import DEFAULT_JOB, expand_jobs, load_config
+    from meshadv.experiments.config import DEFAULT_JOB, expand_jobs, load_config, select_parts
     from meshadv.experiments.jobs import planned_steps
     from meshadv.experiments.report import environment_versions
 
@@ -53,6 +57,11 @@ def sweep(
     except (ValueError, FileNotFoundError) as err:
         raise typer.BadParameter(str(err), param_hint="CONFIG") from err
     jobs = expand_jobs(cfg)
+    if only:
+        try:
+            jobs = select_parts(jobs, only)
+        except ValueError as err:
+            raise typer.BadParameter(str(err), param_hint="--only") from err
     db_path = db or cfg.db
     out_root = output or cfg.output
     if dry_run:

@@ -50,7 +50,9 @@ Order (the order a fresh sweep runs them in; job ids are hashes of the spec and 
 setting, then each protocol, then the multi-view jobs. Within a setting the jobs are configuration-major, then
 victim: configuration 0 of every class (mesh) for the first victim, then for the next victim, then configuration 1,
 and so on (per class: perturbation types, then targets), so a sweep stopped part-way has covered every class about
-equally instead of the first classes only.
+equally instead of the first classes only. The multi-view jobs are cell-major the same way: the first (view count,
+azimuth range) cell of every class, then the next. :func:`select_parts` keeps only some of these parts (``meshadv
+sweep --only multiview``), to run one table first.
 """
 
 from __future__ import annotations
@@ -69,6 +71,8 @@ __all__ = [
     "load_config",
     "parse_config",
     "expand_jobs",
+    "job_part",
+    "select_parts",
     "view_record",
     "PASCAL3D_CLASSES",
     "DEFAULT_JOB",
@@ -424,7 +428,19 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
                             setting.append(job)
         # configuration-major, then victim; stable, so classes, types and targets keep their order (module docstring)
         jobs += sorted(setting, key=lambda j: (j["config_index"], list(victims).index(j["victim"])))
+    jobs += _multiview_jobs(config, meshes, classes, size)
+    for job in jobs:
+        if job["victim"] in config.victim_weights:
+            job["victim_weights"] = config.victim_weights[job["victim"]]
+    return jobs
+
+
+def _multiview_jobs(config: SweepConfig, meshes: Sequence[Dict[str, Any]], classes: Sequence[str],
+                    size: int) -> List[Dict[str, Any]]:
+    """The Table 2 jobs of ``config.multiview`` (none when disabled), cell-major: the first (view count, azimuth
+    range) cell of every class, then the next cell, so a sweep stopped part-way has every class's first cells."""
     mv = config.multiview
+    jobs: List[Dict[str, Any]] = []
     if mv["enabled"]:
         mv_classes = mv["classes"] or classes
         for mesh in meshes:
@@ -455,7 +471,27 @@ def expand_jobs(config: SweepConfig) -> List[Dict[str, Any]]:
                                     "num_views": int(count), "azimuth_range": [float(lo), float(hi)],
                                     "benign_correct_only": False,
                                 })
-    for job in jobs:
-        if job["victim"] in config.victim_weights:
-            job["victim_weights"] = config.victim_weights[job["victim"]]
-    return jobs
+    # cells in the order each mesh's jobs list them; stable, so within a cell classes, victims, types and targets
+    # keep their order
+    cells = list(dict.fromkeys((j["num_views"], tuple(j["azimuth_range"])) for j in jobs))
+    return sorted(jobs, key=lambda j: cells.index((j["num_views"], tuple(j["azimuth_range"]))))
+
+
+def job_part(job: Dict[str, Any]) -> str:
+    """The part of a sweep a job belongs to: ``"main"``, a protocol's name, or ``"multiview"`` (Table 2)."""
+    if job["kind"] == "multiview":
+        return "multiview"
+    return str(job.get("protocol", "main"))
+
+
+def select_parts(jobs: Sequence[Dict[str, Any]], parts: Sequence[str]) -> List[Dict[str, Any]]:
+    """The jobs of ``jobs`` in the named parts (:func:`job_part`), in their order.
+
+    Raises:
+        ValueError: naming ``parts`` when one is not a part of this sweep (the message lists those that are).
+    """
+    known = list(dict.fromkeys(job_part(j) for j in jobs))
+    unknown = [p for p in parts if p not in known]
+    if unknown:
+        raise ValueError(f"parts {unknown} are not in this sweep; its parts are {known}")
+    return [j for j in jobs if job_part(j) in parts]
