@@ -112,6 +112,22 @@ def test_crashes_are_recorded_and_sweep_goes_on(tmp_path: Path) -> None:
     assert _runs(tmp_path, specs[0]) == 1
 
 
+def test_only_the_given_jobs_run_in_their_order(tmp_path: Path) -> None:
+    """A database holding more jobs than the call names (another part of the sweep, ``--only``) runs and counts only
+    the named ones, in the order named, not the database's insertion order."""
+    specs = [{"probe": "ok", "i": i} for i in range(5)]
+    store = ResultStore(tmp_path / "r.db")
+    store.add_jobs(specs)  # the whole sweep, as a first run registers it
+    order: list[str] = []
+    part = [specs[3], specs[1]]
+    summary = run_sweep(store, part, PROBE, out_root=tmp_path, backend=SerialBackend(), progress=False,
+                        on_outcome=lambda jid, ok: order.append(jid))
+    assert order == [job_id(specs[3]), job_id(specs[1])]
+    assert (summary.total, summary.done, summary.ran) == (2, 2, 2)
+    assert {r.job_id for r in store.rows("pending")} == {job_id(specs[i]) for i in (0, 2, 4)}
+    assert store.counts()["total"] == 5 and store.counts([job_id(specs[3]), "unknown"])["done"] == 1
+
+
 def test_timeout_kills_the_job(tmp_path: Path) -> None:
     store = ResultStore(tmp_path / "r.db")
     backend = LocalBackend(workers=1, threads_per_job=1, timeout=3.0)

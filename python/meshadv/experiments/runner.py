@@ -1,10 +1,11 @@
 """The resumable sweep runner, generic over the job function.
 
 :func:`run_sweep` inserts the jobs into the results database (existing ids are kept), re-queues the ``running`` rows a
-killed run left behind, then keeps ``backend.capacity`` jobs in flight until every job is done or has failed
-``max_attempts`` times. The driver is the only writer: each outcome is written in one transaction as it arrives, after
-the job has put its artefacts in place. Kill the driver at any moment and run it again: finished jobs are skipped,
-interrupted ones run again, nothing is recorded twice.
+killed run left behind, then keeps ``backend.capacity`` jobs in flight, in the order given, until every job is done or
+has failed ``max_attempts`` times. Only the given jobs run and are counted: other jobs the database holds (another
+part of the sweep, ``meshadv sweep --only``) wait for a run that names them. The driver is the only writer: each
+outcome is written in one transaction as it arrives, after the job has put its artefacts in place. Kill the driver
+at any moment and run it again: finished jobs are skipped, interrupted ones run again, nothing is recorded twice.
 
 Example:
     >>> from meshadv.experiments import ResultStore, SerialBackend, run_sweep
@@ -23,7 +24,7 @@ from typing import Any, Callable, Dict, Iterable, Optional, Union
 from meshadv.experiments.artifacts import deliver
 from meshadv.experiments.backends import Backend, LocalBackend
 from meshadv.experiments.progress import Progress
-from meshadv.experiments.spec import JobFn, job_ref
+from meshadv.experiments.spec import JobFn, job_id, job_ref
 from meshadv.experiments.store import ResultStore, driver_lock
 from meshadv.experiments.worker import StepReport
 
@@ -91,7 +92,7 @@ def run_sweep(
     planned_steps: Optional[Callable[[Dict[str, Any]], Optional[int]]] = None,
     on_steps: Optional[Callable[[StepReport], None]] = None,
 ) -> SweepSummary:
-    """Run every job of a sweep that is not done yet, resumably.
+    """Run every job of ``jobs`` that is not done yet, in their order, resumably.
 
     Attack jobs (:func:`meshadv.experiments.jobs.run_attack_job`) run with the database's pinned defaults
     (:func:`meshadv.experiments.jobs.pin_defaults`): what a spec does not name is fixed when its kind of job first
@@ -127,14 +128,17 @@ def run_sweep(
     ref = job_ref(job)
     out_root = Path(out_root).resolve()  # workers (Ray, spawned processes) may run in another directory
     own_backend = backend is None
+    specs = list(jobs)
+    ids = list(dict.fromkeys(job_id(s) for s in specs))  # this sweep's jobs, in its order
     with driver_lock(store.path):
-        store.add_jobs(jobs)
+        store.add_jobs(specs)
         requeued = store.requeue_running()
-        skipped = store.counts()["done"]
+        skipped = store.counts(ids)["done"]
         be = backend if backend is not None else LocalBackend()
-        queue = store.runnable(max_attempts)
+        runnable = set(store.runnable(max_attempts))
+        queue = [jid for jid in ids if jid in runnable]
         pins = _attack_job_pins(ref, store, queue)
-        counts = store.counts()
+        counts = store.counts(ids)
         planned = {jid: planned_steps(store.spec(jid)) for jid in queue} if planned_steps is not None else None
         bar = Progress(total=counts["total"], done=counts["done"], successes=counts["successes"],
                        failed=0, enabled=progress, planned=planned)
@@ -184,7 +188,7 @@ def run_sweep(
             bar.close()
             if own_backend:
                 be.close()
-        counts = store.counts()
+        counts = store.counts(ids)
     return SweepSummary(
         total=counts["total"],
         done=counts["done"],

@@ -29,7 +29,7 @@ import sqlite3
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, Iterable, Iterator, List, Optional, Tuple, Union
+from typing import Any, Collection, Dict, Iterable, Iterator, List, Optional, Tuple, Union
 
 from meshadv.experiments.spec import canonical, canonical_json, job_id
 
@@ -392,14 +392,21 @@ class ResultStore:
                 damaged.append((row.job_id, f"{path} is truncated or not JSON ({err})"))
         return damaged
 
-    def counts(self) -> Dict[str, int]:
-        """Number of jobs in each state (every state present, zero when empty), plus ``total`` and ``successes``."""
+    def counts(self, job_ids: Optional[Collection[str]] = None) -> Dict[str, int]:
+        """Number of jobs in each state (every state present, zero when empty), plus ``total`` and ``successes``.
+
+        Args:
+            job_ids: count only these jobs (ids not in the database are not counted); ``None``: every job.
+        """
         out = {s: 0 for s in STATES}
-        for state, n in self._conn.execute("SELECT state, COUNT(*) FROM jobs GROUP BY state"):
-            out[state] = int(n)
+        successes = 0
+        wanted = None if job_ids is None else set(job_ids)
+        for jid, state, success in self._conn.execute("SELECT job_id, state, success FROM jobs"):
+            if wanted is None or jid in wanted:
+                out[state] += 1
+                successes += int(state == "done" and success == 1)
         out["total"] = sum(out[s] for s in STATES)
-        row = self._conn.execute("SELECT COUNT(*) FROM jobs WHERE state = 'done' AND success = 1").fetchone()
-        out["successes"] = int(row[0])
+        out["successes"] = successes
         return out
 
     def rows(self, state: Optional[str] = None) -> List[JobRow]:
