@@ -31,12 +31,16 @@ from torch import Tensor
 from meshadv import _validate
 from meshadv.attacks.criteria import CLASSIFIER_LOSSES, Criterion
 from meshadv.attacks.distances import mesh_distances
-from meshadv.attacks.pipeline import StepWorkers, cat_outputs, output_tensors, rebuild_output, split_images
+from meshadv.attacks.evaluation import Evaluation, evaluate
+from meshadv.attacks.outputs import cat_outputs, output_tensors, rebuild_output, slice_output
+from meshadv.attacks.pipeline import StepWorkers, split_images
 from meshadv.attacks.result import AttackResult
 from meshadv.attacks.update import make_update_rule, update_rules
 from meshadv.mesh.adjacency import vertex_edges
 from meshadv.render.setup import RenderSetup
 
+#: ``Evaluation``, ``evaluate`` (:mod:`meshadv.attacks.evaluation`) and ``slice_output``
+#: (:mod:`meshadv.attacks.outputs`) are re-exported from their old home.
 __all__ = ["MeshAttack", "StepInfo", "Evaluation", "evaluate", "slice_output"]
 
 #: Largest accepted ``step_workers``.
@@ -75,16 +79,6 @@ class StepInfo:
     top1: Tuple[Optional[int], ...]
     best_distance: Tuple[Optional[float], ...]
     active: int
-
-
-def slice_output(output: Any, start: int, stop: int) -> Any:
-    """Rows ``start:stop`` of a victim output (logits tensor or ``DetectorOutput``)."""
-    if isinstance(output, Tensor):
-        return output[start:stop]
-    cls = type(output)
-    obj = output.objectness
-    return cls(boxes=output.boxes[start:stop], objectness=None if obj is None else obj[start:stop],
-               class_probs=output.class_probs[start:stop])
 
 
 def _check_jitter(jitter: Any) -> Optional[Dict[str, float]]:
@@ -594,65 +588,3 @@ class _Call:
     victim: Any
     setup: RenderSetup
     edges: Tensor
-
-
-@dataclass(frozen=True)
-class Evaluation:
-    """Meshes re-rendered from scratch and scored against criteria (:func:`evaluate`).
-
-    Attributes:
-        margins: ``(T, V)`` criterion margins (``> 0``: adversarial).
-        scores: ``(T, V)`` criterion scores.
-        images: ``(K, V, 3, H, W)`` the renders (``K`` meshes).
-        top1: ``(K, V)`` top-1 classes for a classifier, else ``None``.
-    """
-
-    margins: Tensor
-    scores: Tensor
-    images: Tensor
-    top1: Optional[Tensor]
-
-    @property
-    def success(self) -> Tensor:
-        """``(T, V)`` bool: ``margins > 0``."""
-        return self.margins > 0
-
-
-def evaluate(meshes: Union[Any, Sequence[Any]], views: Any, victim: Any,
-             criterion: Union[Criterion, Sequence[Criterion]], *, setup: Optional[RenderSetup] = None) -> Evaluation:
-    """Render ``meshes`` from ``views`` with ``setup`` (no gradients) and score them against each criterion.
-
-    One mesh is scored against every criterion; ``T`` meshes are scored one-to-one against ``T`` criteria.
-
-    Args:
-        meshes: a ``Mesh`` or a sequence of meshes sharing one topology.
-        views: a ``ViewSet`` of ``V`` views.
-        victim: the victim.
-        criterion: a criterion (bound or not) or a sequence of them.
-        setup: the render setup (default ``RenderSetup()``).
-
-    Returns:
-        An :class:`Evaluation`.
-
-    Raises:
-        ValueError: several meshes but a different number of criteria.
-    """
-    meshes = [meshes] if hasattr(meshes, "vertices") else list(meshes)
-    criteria = [criterion] if isinstance(criterion, Criterion) else list(criterion)
-    shared = len(meshes) == 1
-    if not shared and len(meshes) != len(criteria):
-        raise ValueError(f"meshes ({len(meshes)}) must be one mesh or one per criterion ({len(criteria)})")
-    criteria = [c.bind(victim) for c in criteria]  # binding is idempotent
-    setup = setup or RenderSetup()
-    num_v = len(views)
-    verts = torch.stack([m.vertices for m in meshes])
-    colors = torch.stack([m.face_colors for m in meshes])
-    with torch.no_grad():
-        images, _ = setup.render(verts, meshes[0].faces, colors, views)
-        output = victim(images)
-        parts = [slice_output(output, 0, num_v) if shared else slice_output(output, t * num_v, (t + 1) * num_v)
-                 for t in range(len(criteria))]
-        margins = torch.stack([c.margin(o) for c, o in zip(criteria, parts)])
-        scores = torch.stack([c.score(o) for c, o in zip(criteria, parts)])
-        top1 = output.argmax(dim=1).view(len(meshes), num_v) if isinstance(output, Tensor) else None
-    return Evaluation(margins, scores, images.view(len(meshes), num_v, *images.shape[1:]), top1)

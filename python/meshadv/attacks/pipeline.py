@@ -34,7 +34,8 @@ from concurrent.futures import Future, ThreadPoolExecutor, wait
 from typing import Any, Callable, List, Optional, Sequence, Tuple, TypeVar
 
 import torch
-from torch import Tensor
+
+from meshadv.attacks.outputs import cat_outputs, output_tensors, rebuild_output  # re-exported (their old home)
 
 __all__ = ["StepWorkers", "split_chunks", "split_images", "output_tensors", "rebuild_output", "cat_outputs"]
 
@@ -93,34 +94,6 @@ def split_images(num_targets: int, num_views: int, parts: int) -> List[List[Tupl
                 pos = end
         chunks.append(blocks)
     return chunks
-
-
-def output_tensors(output: Any) -> List[Optional[Tensor]]:
-    """A victim output's tensors, one row per image: ``[logits]`` or a ``DetectorOutput``'s
-    ``[boxes, objectness, class_probs]`` (``objectness`` may be ``None``).
-
-    Raises:
-        TypeError: neither a tensor nor a ``DetectorOutput``-like object.
-    """
-    if isinstance(output, Tensor):
-        return [output]
-    if all(hasattr(output, name) for name in ("boxes", "objectness", "class_probs")):
-        return [output.boxes, output.objectness, output.class_probs]
-    raise TypeError(f"victim output must be a Tensor or a DetectorOutput, got {type(output).__name__}")
-
-
-def rebuild_output(like: Any, tensors: Sequence[Optional[Tensor]]) -> Any:
-    """The output of the type of ``like`` holding ``tensors`` (inverse of :func:`output_tensors`)."""
-    if isinstance(like, Tensor):
-        return tensors[0]
-    return type(like)(boxes=tensors[0], objectness=tensors[1], class_probs=tensors[2])
-
-
-def cat_outputs(outputs: Sequence[Any]) -> Any:
-    """Victim outputs of consecutive image chunks concatenated along the image axis."""
-    fields = [output_tensors(o) for o in outputs]
-    cat = [None if parts[0] is None else torch.cat(list(parts)) for parts in zip(*fields)]
-    return rebuild_output(outputs[0], cat)
 
 
 class _TaskGate:
