@@ -34,7 +34,8 @@ from meshadv.attacks.distances import mesh_distances
 from meshadv.attacks.evaluation import Evaluation, evaluate
 from meshadv.attacks.outputs import cat_outputs, output_tensors, rebuild_output, slice_output
 from meshadv.attacks.pipeline import StepWorkers, split_images
-from meshadv.attacks.result import AttackResult
+from meshadv.attacks.result import AttackResult, enough_views
+from meshadv.attacks.targets import StopRule, TargetState
 from meshadv.attacks.update import make_update_rule, update_rules
 from meshadv.mesh.adjacency import vertex_edges
 from meshadv.render.setup import RenderSetup
@@ -96,56 +97,6 @@ def _check_jitter(jitter: Any) -> Optional[Dict[str, float]]:
     if unknown:
         raise ValueError(f"jitter has unknown keys {sorted(map(str, unknown))}; known: {_JITTER_KEYS}")
     return {k: _validate.finite_float(f"jitter[{k!r}]", v, low=0.0) for k, v in jitter.items()}
-
-
-@dataclass
-class _Target:
-    """Per-target state of one attack call: its criterion, the best result so far and the current round's flags."""
-
-    criterion: Criterion
-    best_params: Optional[Tensor] = None
-    best_distance: float = math.inf
-    best_lambda: float = math.nan
-    fallback: Optional[Tensor] = None
-    fallback_key: Tuple[float, float] = (-math.inf, -math.inf)
-    first_step: Optional[int] = None
-    first_time: Optional[float] = None
-    active: bool = True
-    hold: int = 0
-    round_success: bool = False
-
-    def start_round(self) -> None:
-        """Every target is optimised again from the pristine mesh."""
-        self.active, self.hold, self.round_success = True, 0, False
-
-    def observe(self, params: Tensor, distance: float, fraction: float, margins: Tensor, lam: float,
-                attack: "MeshAttack", total_steps: int, elapsed: float) -> None:
-        """Record one step's parameters (before the update), distortion and per-view margins."""
-        ok = fraction >= attack.success_fraction - 1e-9
-        within = attack.max_distortion is None or distance <= attack.max_distortion
-        if ok and within:
-            self.round_success = True
-            if self.first_step is None:
-                self.first_step, self.first_time = total_steps, elapsed
-            if distance < self.best_distance:
-                self.best_distance = distance
-                self.best_params = params.detach().clone()
-                self.best_lambda = lam
-        key = (fraction, float(margins.mean()))
-        if self.best_params is None and key > self.fallback_key:
-            self.fallback_key = key
-            self.fallback = params.detach().clone()
-        self.hold = self.hold + 1 if ok and float(margins.min()) >= attack.early_stop_margin else 0
-        if attack.early_stop is not None and self.hold >= attack.early_stop:
-            self.active = False
-        if not within:
-            self.active = False
-
-    def chosen(self, pristine: Tensor) -> Tensor:
-        """The least distorted success, else the step closest to success, else ``pristine``."""
-        if self.best_params is not None:
-            return self.best_params
-        return self.fallback if self.fallback is not None else pristine
 
 
 @dataclass(frozen=True)
@@ -266,6 +217,11 @@ class MeshAttack(ABC):
         """``(perceptual, distance)`` per target, each ``(K,)``; a family whose two terms share work overrides it."""
         return (self._perceptual(params, mesh, edges, images, alpha, num_views),
                 self._distance(params, mesh, edges))
+
+    def _stop_rule(self) -> StopRule:
+        """The thresholds of a target's success and stop (:mod:`meshadv.attacks.targets`)."""
+        return StopRule(success_fraction=self.success_fraction, max_distortion=self.max_distortion,
+                        early_stop=self.early_stop, early_stop_margin=self.early_stop_margin)
 
     def workers_for(self, num_images: int) -> int:
         """The step workers used for a step of ``num_images`` images (active targets x views): ``step_workers``, never
@@ -432,7 +388,8 @@ class MeshAttack(ABC):
         config = self.config()  # the hyper-parameters the run starts with, for the result
         rule = make_update_rule(self.method, attack=self, num_targets=num_t, **self.method_options)
         rule.prepare(mesh, edges)
-        targets = [_Target(c) for c in criteria]
+        targets = [TargetState(c) for c in criteria]
+        stop = self._stop_rule()
         history: List[Dict[str, Any]] = []
         total_steps = 0
         interrupted = False
@@ -465,7 +422,7 @@ class MeshAttack(ABC):
                                                                                  rule)
                         with torch.no_grad():
                             fractions = (margins > 0).float().mean(dim=1)
-                            is_adv = fractions >= self.success_fraction - 1e-9
+                            is_adv = enough_views(fractions, self.success_fraction)
                         rule.step(params, idx, is_adv)
                     except KeyboardInterrupt:
                         interrupted = True
@@ -481,7 +438,7 @@ class MeshAttack(ABC):
                     top1: List[Optional[int]] = [None] * num_t
                     for a, t in enumerate(act):
                         d = float(dist[a])
-                        targets[t].observe(p[a], d, float(fractions[a]), margins[a], float(lambdas[t]), self,
+                        targets[t].observe(p[a], d, float(fractions[a]), margins[a], float(lambdas[t]), stop,
                                            total_steps, time.perf_counter() - t_start)
                         row["loss"][t] = float(total[a])
                         row["adv"][t] = float(adv[a])
@@ -522,7 +479,7 @@ class MeshAttack(ABC):
         return self._finish(call, targets, eval_views, chosen, run)
 
     # ------------------------------------------------------------------ final evaluation
-    def _finish(self, call: "_Call", targets: List[_Target], eval_views: Any, params: Tensor,
+    def _finish(self, call: "_Call", targets: List[TargetState], eval_views: Any, params: Tensor,
                 run: _RunInfo) -> AttackResult:
         from meshadv.mesh import Mesh
 

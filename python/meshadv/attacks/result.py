@@ -32,10 +32,19 @@ from torch import Tensor
 from meshadv.util.atomic import write_json_atomic
 from meshadv.util.png import save_png
 
-__all__ = ["AttackResult", "load_result_record", "RESULT_FILE"]
+__all__ = ["AttackResult", "load_result_record", "RESULT_FILE", "enough_views"]
 
 #: Name of the JSON record inside a result folder.
 RESULT_FILE = "result.json"
+
+#: Slack of the ``success_fraction`` comparison, so a fraction that equals it up to float rounding counts.
+_FRACTION_SLACK = 1e-9
+
+
+def enough_views(fraction: Any, success_fraction: float) -> Any:
+    """Whether ``fraction`` (a float or a tensor of fractions of adversarial views) reaches ``success_fraction``:
+    ``fraction >= success_fraction - 1e-9``, a bool or a bool tensor like ``fraction``."""
+    return fraction >= success_fraction - _FRACTION_SLACK
 
 
 def _json_float(value: float) -> Optional[float]:
@@ -139,7 +148,7 @@ class AttackResult:
     @property
     def succeeded(self) -> Tensor:
         """bool ``(T,)``: the target holds on at least ``success_fraction`` of the victim views."""
-        return self.success_rate >= self.success_fraction - 1e-9
+        return enough_views(self.success_rate, self.success_fraction)
 
     def _name(self, idx: int) -> str:
         return self.class_names[idx] if 0 <= idx < len(self.class_names) else str(idx)
