@@ -103,6 +103,24 @@ def test_table2_by_hand() -> None:
     assert "35°–70°" in to_markdown([five, ten])
 
 
+def test_table2_per_class_splits_a_cell_by_class() -> None:
+    """per_class gives one row per (class, target) within a cell; the pooled table keeps one row per cell."""
+    def job(source: str, target: str, rate: float) -> dict:
+        return {"spec": {"kind": "multiview", "victim": "v", "perturbation": "shape", "num_views": 5,
+                         "azimuth_range": [45, 60], "source_class": source, "target": target},
+                "record": {"success": True, "eval_success_rate": rate}}
+
+    jobs = [job("chair", "sofa", 0.2), job("sofa", "chair", 0.6), job("chair", "sofa", 0.4)]
+    (pooled,) = table2(jobs)
+    assert pooled.attacks == 3 and pooled.unseen_success == pytest.approx(0.4) and pooled.pair == ""
+    chair, sofa = table2(jobs, per_class=True)
+    assert (chair.pair, chair.attacks, sofa.pair, sofa.attacks) == ("chair -> sofa", 2, "sofa -> chair", 1)
+    assert chair.unseen_success == pytest.approx(0.3) and sofa.unseen_success == pytest.approx(0.6)
+    text = to_markdown([chair, sofa])
+    assert "class -> target" in text and "| chair -> sofa | 5 |" in text
+    assert "class -> target" not in to_markdown([pooled])
+
+
 def test_benign_correct_filter() -> None:
     mesh = {"source": "pascal3d", "path": "p.ply", "class": "chair"}
 

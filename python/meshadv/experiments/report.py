@@ -7,6 +7,7 @@ Output folder layout::
     table1_benign_correct.*    the same over instances whose benign render was classified correctly (written when
                                the sweep also attacked misclassified ones, benign_correct_only = false)
     table2.md / table2.csv     multi-view robustness (when the sweep had multi-view jobs)
+    table2_per_class.*         the same per class and target (the paper's Table 2 pools the classes of a cell)
     paper_comparison.md        Tables 1-3 beside the paper's numbers (meshadv.experiments.paper), shortfalls
     figures/grid_<victim>_<type>.png        classes x classes renders (diagonal benign, failed attacks labelled)
     figures/flow_heatmap_<victim>.png       flow magnitude, rendered and canonical views
@@ -401,7 +402,9 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
     t1_correct = table1(attack_rows(done, benign_correct_only=True))
     mixed = any(r.record.get("benign_correct") is False and not r.record.get("skipped") for r in done)
     t2 = table2(done)
-    for name, table in (("table1", t1), ("table1_benign_correct", t1_correct), ("table2", t2)):
+    t2_classes = table2(done, per_class=True)
+    for name, table in (("table1", t1), ("table1_benign_correct", t1_correct), ("table2", t2),
+                        ("table2_per_class", t2_classes)):
         if not table and name != "table1" or name == "table1_benign_correct" and not mixed:
             continue
         for ext, text in (("md", to_markdown(table)), ("csv", to_csv(table))):
@@ -593,7 +596,8 @@ def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[An
                   "Only the instances whose benign render the victim classified as their class:", "",
                   to_markdown(t1_correct)]
     if t2:
-        lines += ["## Table 2: multi-view robustness (success on unseen views)", "", to_markdown(t2)]
+        lines += ["## Table 2: multi-view robustness (success on unseen views)", "", to_markdown(t2),
+                  "Per class and target: [table2_per_class.md](table2_per_class.md).", ""]
     if transfer:
         lines += [transfer, ""]
     if comparison:

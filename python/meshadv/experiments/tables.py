@@ -183,6 +183,7 @@ class Table2Row:
     attacks: int
     attack_view_success: float
     unseen_success: float
+    pair: str = ""  #: ``"chair -> sofa"`` in a per-class table (:func:`table2` with ``per_class``); empty when pooled
 
 
 def _mean(values: Sequence[float]) -> float:
@@ -269,11 +270,16 @@ def table1(rows: Iterable[AttackRow]) -> List[Table1Row]:
     return out
 
 
-def table2(jobs: Iterable[Any]) -> List[Table2Row]:
+def table2(jobs: Iterable[Any], *, per_class: bool = False) -> List[Table2Row]:
     """Compute Table 2 from finished multi-view jobs (``JobRow`` objects or ``{"spec", "record"}`` dicts).
 
     A job's unseen success rate is the fraction of its unseen views on which the target is reached
     (``record["eval_success_rate"]``).
+
+    Args:
+        jobs: finished jobs; single-view, skipped and unfinished ones are left out.
+        per_class: one row per (source class, target) and cell instead of pooling the classes of a cell (the
+            paper's Table 2 pools them); the rows' ``pair`` names the class and its target.
     """
     groups: Dict[Tuple[Any, ...], List[Tuple[bool, float]]] = defaultdict(list)
     for job in jobs:
@@ -284,12 +290,13 @@ def table2(jobs: Iterable[Any]) -> List[Table2Row]:
         rate = record.get("eval_success_rate")
         if rate is None:
             continue
-        key = (spec["victim"], spec["perturbation"], int(spec["num_views"]), tuple(spec["azimuth_range"]))
+        pair = f"{spec['source_class']} -> {spec['target']}" if per_class else ""
+        key = (spec["victim"], spec["perturbation"], int(spec["num_views"]), tuple(spec["azimuth_range"]), pair)
         groups[key].append((bool(record.get("success")), float(rate)))
     return [
         Table2Row(victim=k[0], perturbation=k[1], num_views=k[2], azimuth_range=(float(k[3][0]), float(k[3][1])),
                   attacks=len(v), attack_view_success=_mean([float(s) for s, _ in v]),
-                  unseen_success=_mean([r for _, r in v]))
+                  unseen_success=_mean([r for _, r in v]), pair=k[4])
         for k, v in sorted(groups.items())
     ]
 
@@ -363,10 +370,12 @@ def to_markdown(rows: Sequence[Any]) -> str:
                 + (f" ({r.incomplete} incomplete)" if r.incomplete else "") + f" | {r.targets} | "
                 + tail_cells(r.tail) + " |")
         return "\n".join(lines) + "\n"
-    lines = ["| victim | type | attack views | azimuth range | attacks | success on attack views | "
-             "success on unseen views |", "|---|---|---|---|---|---|---|"]
+    per_class = any(r.pair for r in rows)
+    lines = ["| victim | type | " + ("class -> target | " if per_class else "") + "attack views | azimuth range | "
+             "attacks | success on attack views | success on unseen views |",
+             "|---|---|---|---|---|---|---|" + ("---|" if per_class else "")]
     for r in rows:
-        lines.append(f"| {r.victim} | {r.perturbation} | {r.num_views} | {r.azimuth_range[0]:g}°–"
-                     f"{r.azimuth_range[1]:g}° | {r.attacks} | {_fmt(r.attack_view_success, 'pct')} | "
-                     f"{_fmt(r.unseen_success, 'pct')} |")
+        lines.append(f"| {r.victim} | {r.perturbation} | " + (f"{r.pair} | " if per_class else "")
+                     + f"{r.num_views} | {r.azimuth_range[0]:g}°–{r.azimuth_range[1]:g}° | {r.attacks} | "
+                     f"{_fmt(r.attack_view_success, 'pct')} | {_fmt(r.unseen_success, 'pct')} |")
     return "\n".join(lines) + "\n"
