@@ -1,6 +1,6 @@
 """Update rules: how the attack loop turns losses into parameter updates (pluggable, chosen by ``method=``).
 
-The loop in :mod:`meshadv.attacks.base` owns everything a rule should not care about: rendering, the victim, the
+The loop in :mod:`meshadv.attacks.loop` owns everything a rule should not care about: rendering, the victim, the
 criteria, the per-target bookkeeping (best result, early stopping, budget) and the final evaluation. A rule owns the
 optimisation itself. Contract, per attack call with ``T`` targets:
 

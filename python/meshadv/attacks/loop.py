@@ -1,0 +1,257 @@
+"""The one optimisation loop of the mesh attacks: rounds of steps over the active targets, then the final result.
+
+An attack minimises ``L_adv + lambda * L_perceptual`` over a per-target parameter tensor ``(T, ...)``: the ``T``
+targets are a batch dimension, so one step renders ``T x V`` images (``V`` victim views) and evaluates the victim
+once. Because the paper's Adam is element-wise and the total loss is a sum of per-target terms, the targets are
+optimised exactly as if they ran one at a time. A target stops being rendered once it is finished (early stopping or
+budget). How losses become updates is the attack's update rule (``method=``, :mod:`meshadv.attacks.update`); this
+loop serves every rule.
+
+Per round (``rule.rounds`` of them: for ``method="adam"`` the ``binary_search_steps`` rounds of the per-target
+``lambda`` search, :class:`~meshadv.attacks.search.LambdaSearch`) the parameters restart from the pristine mesh and
+the jitter generator from the attack's seed. Per step, the active targets are rendered and differentiated
+(:mod:`meshadv.attacks.step`), the update rule steps the parameters, and each target records the per-view margins and
+the distortion of the parameters *before* the update (:class:`~meshadv.attacks.targets.TargetState`): a target whose
+views are adversarial (at least ``success_fraction`` of them) within the distortion budget keeps those parameters when
+their distortion is the least seen so far. The step's loss-history row is kept and the callback, if any, gets a
+:class:`~meshadv.attacks.progress.StepInfo`.
+
+The result's success and scores are measured on the final meshes re-rendered from scratch (without jitter,
+:func:`~meshadv.attacks.evaluation.evaluate`), never on the optimiser's last images. Ctrl-C (``KeyboardInterrupt``)
+in a step, in the callback or between steps ends the loop; the result is then the best so far, with
+``interrupted=True``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Callable, Dict, List, Optional, Tuple
+
+import torch
+from torch import Tensor
+
+from meshadv.attacks.criteria import Criterion
+from meshadv.attacks.distances import mesh_distances
+from meshadv.attacks.evaluation import evaluate
+from meshadv.attacks.pipeline import StepWorkers
+from meshadv.attacks.progress import StepInfo, first_view_top1, history_row, step_info
+from meshadv.attacks.result import AttackResult, enough_views
+from meshadv.attacks.step import AttackCall, StepTerms, pipelined_step, serial_step
+from meshadv.attacks.targets import TargetState
+from meshadv.attacks.update import make_update_rule
+
+if TYPE_CHECKING:
+    from meshadv.attacks.base import MeshAttack
+
+__all__ = ["run_attack"]
+
+
+@dataclass(frozen=True)
+class _RunInfo:
+    """What the loop hands to the final evaluation besides the chosen parameters."""
+
+    history: Tuple[Dict[str, Any], ...]
+    steps: int
+    wall_time: float
+    interrupted: bool
+    config: Dict[str, Any]
+
+
+def run_attack(attack: "MeshAttack", call: AttackCall, criteria: List[Criterion], eval_views: Any,
+               callback: Optional[Callable[[StepInfo], None]]) -> AttackResult:
+    """Run ``attack`` on ``call`` towards the bound ``criteria`` (one per target) and return its result.
+
+    Args:
+        attack: the attack (hyper-parameters and parametrisation).
+        call: the mesh, views, victim, render setup and edges of the call (validated).
+        criteria: the ``T`` bound criteria.
+        eval_views: optional held-out ``ViewSet`` the final meshes are also scored on.
+        callback: called with a :class:`StepInfo` after every step (``KeyboardInterrupt`` there stops the attack).
+    """
+    loop = _Loop(attack, call, criteria, callback)
+    try:
+        loop.run_rounds()
+    except KeyboardInterrupt:  # Ctrl-C between steps: keep what we have
+        loop.interrupted = True
+    finally:
+        loop.close()
+    return loop.finish(eval_views)
+
+
+class _Loop:
+    """The state of one attack call's loop: the update rule, the targets, the loss history and the step count."""
+
+    def __init__(self, attack: "MeshAttack", call: AttackCall, criteria: List[Criterion],
+                 callback: Optional[Callable[[StepInfo], None]]) -> None:
+        self.t_start = time.perf_counter()
+        self.attack, self.call, self.callback = attack, call, callback
+        self.num_targets, self.num_views = len(criteria), len(call.views)
+        self.config = attack.config()  # the hyper-parameters the run starts with, for the result
+        self.rule = make_update_rule(attack.method, attack=attack, num_targets=self.num_targets,
+                                     **attack.method_options)
+        self.rule.prepare(call.mesh, call.edges)
+        self.targets = [TargetState(c) for c in criteria]
+        self.stop = attack._stop_rule()
+        self.history: List[Dict[str, Any]] = []
+        self.total_steps = 0
+        self.interrupted = False
+        self.classifier = getattr(call.victim, "kind", "") == "classifier"
+        most = attack.workers_for(self.num_targets * self.num_views)
+        self.workers = StepWorkers(most, max(1, torch.get_num_threads() // most)) if most > 1 else None
+
+    def run_rounds(self) -> None:
+        """Every round, until the rule's rounds are done or the attack is interrupted."""
+        for rnd in range(self.rule.rounds):
+            self._run_round(rnd)
+            if self.interrupted:
+                break
+            self.rule.end_round([tg.round_success for tg in self.targets])
+
+    def _run_round(self, rnd: int) -> None:
+        """One round from the pristine mesh: steps until every target is finished or ``steps`` are done."""
+        attack = self.attack
+        generator = torch.Generator().manual_seed(attack.seed)
+        params = attack._init_params(self.call.mesh, self.num_targets).detach().clone().requires_grad_(True)
+        self.rule.start_round(params)
+        lambdas = self.rule.lambdas
+        for target in self.targets:
+            target.start_round()
+        for step in range(attack.steps):
+            active = [t for t in range(self.num_targets) if self.targets[t].active]
+            if not active:
+                break
+            try:
+                idx = torch.tensor(active, dtype=torch.long)
+                p, terms, fractions = self._step(params, active, idx, generator)
+            except KeyboardInterrupt:
+                self.interrupted = True
+                return
+            self.total_steps += 1
+            row, top1 = self._record(rnd, step, active, idx, p, terms, fractions, lambdas)
+            if self.callback is not None and not self._report(self.callback, row, top1):
+                return
+
+    def _step(self, params: Tensor, active: List[int], idx: Tensor,
+              generator: torch.Generator) -> Tuple[Tensor, StepTerms, Tensor]:
+        """Render and differentiate the active targets, then let the rule update ``params``. Returns the rendered
+        parameters of the active targets (before the update), the step's terms and the fraction of adversarial
+        views per active target."""
+        attack, call = self.attack, self.call
+        step_views = call.views.jitter(generator, **attack.jitter) if attack.jitter else call.views
+        p = params[idx]
+        crits = [self.targets[t].criterion for t in active]
+        if self.workers is not None and attack.workers_for(len(active) * self.num_views) > 1:
+            terms = pipelined_step(attack, params, idx, crits, call, step_views, self.rule, self.workers)
+        else:
+            terms = serial_step(attack, p, idx, crits, call, step_views, self.rule)
+        with torch.no_grad():
+            fractions = (terms.margins > 0).float().mean(dim=1)
+            is_adv = enough_views(fractions, attack.success_fraction)
+        self.rule.step(params, idx, is_adv)
+        return p, terms, fractions
+
+    def _record(self, rnd: int, step: int, active: List[int], idx: Tensor, p: Tensor, terms: StepTerms,
+                fractions: Tensor, lambdas: Tensor) -> Tuple[Dict[str, Any], List[Optional[int]]]:
+        """Let every active target observe the step and keep its history row; returns the row and the first-view
+        top-1 classes."""
+        with torch.no_grad():
+            adv, perc, dist = terms.adv.detach(), terms.perceptual.detach(), terms.distance.detach()
+            total = adv + lambdas[idx] * perc
+            top = (terms.output.detach().argmax(dim=1).view(len(active), self.num_views)[:, 0] if self.classifier
+                   else None)
+        for a, t in enumerate(active):
+            self.targets[t].observe(p[a], float(dist[a]), float(fractions[a]), terms.margins[a], float(lambdas[t]),
+                                    self.stop, self.total_steps, time.perf_counter() - self.t_start)
+        row = history_row(rnd, step, self.num_targets, active, total, adv, perc, dist, terms.margins, lambdas)
+        self.history.append(row)
+        return row, first_view_top1(top, self.num_targets, active)
+
+    def _report(self, callback: Callable[[StepInfo], None], row: Dict[str, Any], top1: List[Optional[int]]) -> bool:
+        """Call ``callback`` with the step's :class:`StepInfo`; ``False`` when it raised ``KeyboardInterrupt`` (the
+        attack stops)."""
+        info = step_info(row, top1, rounds=self.rule.rounds, steps=self.attack.steps, total_step=self.total_steps,
+                         targets=self.targets)
+        try:
+            callback(info)
+        except KeyboardInterrupt:
+            self.interrupted = True
+            return False
+        return True
+
+    def close(self) -> None:
+        """Stop the step workers, if any."""
+        if self.workers is not None:
+            self.workers.close()
+
+    def finish(self, eval_views: Any) -> AttackResult:
+        """Every target's chosen parameters as its adversarial mesh, measured from scratch."""
+        pristine = self.attack._init_params(self.call.mesh, 1)[0].detach()
+        chosen = torch.stack([tg.chosen(pristine) for tg in self.targets])
+        run = _RunInfo(history=tuple(self.history), steps=self.total_steps,
+                       wall_time=time.perf_counter() - self.t_start, interrupted=self.interrupted, config=self.config)
+        return _final_result(self.attack, self.call, self.targets, eval_views, chosen, run)
+
+
+def _adversarial_meshes(attack: "MeshAttack", call: AttackCall, params: Tensor) -> Tuple[Any, ...]:
+    """The ``T`` adversarial meshes of parameters ``(T, ...)`` (float32, contiguous, detached copies)."""
+    from meshadv.mesh import Mesh
+
+    mesh = call.mesh
+    num_t = params.shape[0]
+    with torch.no_grad():
+        verts, colors = attack._apply(params, mesh, call.edges)
+        if colors.dim() == 2:
+            colors = colors.unsqueeze(0).expand(num_t, -1, -1)
+    return tuple(
+        Mesh(verts[t].detach().clone().float().contiguous(), mesh.faces,
+             colors[t].detach().clone().float().contiguous())
+        for t in range(num_t)
+    )
+
+
+def _final_result(attack: "MeshAttack", call: AttackCall, targets: List[TargetState], eval_views: Any,
+                  params: Tensor, run: _RunInfo) -> AttackResult:
+    """The result of a run: the chosen parameters' meshes scored on the views (and ``eval_views``) from scratch."""
+    mesh, views, victim = call.mesh, call.views, call.victim
+    adversarial = _adversarial_meshes(attack, call, params)
+    criteria = [tg.criterion for tg in targets]
+    after = evaluate(adversarial, views, victim, criteria, setup=call.setup)
+    before = evaluate([mesh], views, victim, criteria, setup=call.setup)
+    eval_success = eval_scores = None
+    if eval_views is not None:
+        held_out = evaluate(adversarial, eval_views.detach(), victim, criteria, setup=call.setup)
+        eval_success, eval_scores = held_out.success, held_out.scores
+    distances = tuple(
+        mesh_distances(mesh.vertices, mesh.face_colors, m.vertices, m.face_colors, call.edges) for m in adversarial
+    )
+    return AttackResult(
+        original=mesh,
+        adversarial=adversarial,
+        perturbation=attack.perturbation,
+        criteria=tuple(c.to_record() for c in criteria),
+        success=after.success,
+        scores=after.scores,
+        original_scores=before.scores,
+        margins=after.margins,
+        top1=after.top1,
+        original_top1=None if before.top1 is None else before.top1[0],
+        eval_success=eval_success,
+        eval_scores=eval_scores,
+        distances=distances,
+        lambdas=tuple(tg.best_lambda for tg in targets),
+        loss_history=run.history,
+        steps=run.steps,
+        steps_to_success=tuple(tg.first_step for tg in targets),
+        time_to_success=tuple(tg.first_time for tg in targets),
+        wall_time=run.wall_time,
+        interrupted=run.interrupted,
+        success_fraction=attack.success_fraction,
+        original_images=before.images[0],
+        images=after.images,
+        view_records=tuple(views.to_records()),
+        eval_view_records=None if eval_views is None else tuple(eval_views.to_records()),
+        config={**run.config, **call.setup.config()},
+        victim=str(getattr(victim, "name", type(victim).__name__)),
+        class_names=tuple(getattr(victim, "class_names", ()) or ()),
+    )
