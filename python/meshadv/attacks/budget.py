@@ -83,13 +83,15 @@ from __future__ import annotations
 import math
 from typing import Any, Dict, Optional, Tuple
 
-import numpy as np
 import torch
 from torch import Tensor
 
-from meshadv.attacks.losses import laplacian_flow_loss
+from meshadv.attacks.norms import TINY, ColorNorm, LaplacianNorm, positive_option, unit_rows
+from meshadv.attacks.shape import ShapeAttack
+from meshadv.attacks.texture import COLOR_EPS, TextureAttack
 from meshadv.attacks.update import UpdateRule, register_update_rule
 
+#: ``LaplacianNorm`` and ``ColorNorm`` live in :mod:`meshadv.attacks.norms` and are re-exported here.
 __all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS", "ANNEAL_MODES", "REACH_MODES"]
 
 #: Default options of ``method="ddn"`` per perturbation (norm units, see the module docstring).
@@ -113,131 +115,6 @@ _ADAM_EPS = 1e-8
 
 #: Values of the ``anneal`` option: when the step length falls (see the module docstring).
 ANNEAL_MODES = ("cosine", "after_success")
-
-_TINY = 1e-30
-_COLOR_EPS = 1e-4  # the texture attack's logit clamp
-
-
-def _positive(name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or not value > 0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-    return float(value)
-
-
-def _unit(u: Tensor, size: Tensor) -> Tensor:
-    """``u / size`` per target (``size (K,)``), zero where ``size`` is 0."""
-    size = size.view((-1,) + (1,) * (u.dim() - 1))
-    return torch.where(size > _TINY, u / size.clamp(min=_TINY), torch.zeros_like(u))
-
-
-class LaplacianNorm:
-    """The shape norm ``sqrt(laplacian_pair_mean(dv))`` and its preconditioned steepest-descent direction.
-
-    Args:
-        edges: int ``(E, 2)`` unique undirected mesh edges, ``E >= 1``.
-        num_vertices: ``N``.
-        smoothness: ``s`` of the metric ``L + I / s`` in which steps are steepest; ``None`` = the Laplacian alone
-            (the steepest direction for the Laplacian distance itself: the smoothest, most global one).
-        vertex_mask: optional bool ``(N,)``: only these vertices move.
-
-    Raises:
-        ValueError: bad ``edges``, ``num_vertices``, ``smoothness`` or ``vertex_mask``.
-    """
-
-    def __init__(self, edges: Tensor, num_vertices: int, smoothness: Optional[float] = 1.0,
-                 vertex_mask: Optional[Tensor] = None) -> None:
-        import scipy.sparse as sp
-        from scipy.sparse.csgraph import connected_components
-        from scipy.sparse.linalg import factorized
-
-        if isinstance(num_vertices, bool) or int(num_vertices) != num_vertices or num_vertices < 1:
-            raise ValueError(f"num_vertices must be an integer >= 1, got {num_vertices!r}")
-        if not isinstance(edges, Tensor) or edges.dim() != 2 or edges.shape[1] != 2 or edges.is_floating_point():
-            raise ValueError("edges must be an integer tensor of shape (E, 2)")
-        n = int(num_vertices)
-        e = edges.detach().cpu().long().numpy()
-        if len(e) == 0 or e.min() < 0 or e.max() >= n:
-            raise ValueError(f"edges must be a non-empty list of vertex pairs in [0, {n})")
-        self.smoothness = None if smoothness is None else _positive("smoothness", smoothness)
-        if vertex_mask is not None and (not isinstance(vertex_mask, Tensor) or tuple(vertex_mask.shape) != (n,)):
-            raise ValueError(f"vertex_mask must be None or a bool tensor of shape ({n},)")
-        self.vertex_mask = None if vertex_mask is None else vertex_mask.detach().bool().cpu()
-        self.edges = edges.detach().long().cpu()
-        self.num_vertices = n
-        self.num_pairs = 2 * len(e)
-        adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
-        adj = ((adj + adj.T) > 0).astype(np.float64)
-        lap = sp.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj
-        count, labels = connected_components(adj, directed=False)
-        self.num_components = int(count)
-        self._labels = torch.from_numpy(labels.astype(np.int64))
-        self._sizes = torch.bincount(self._labels, minlength=count).to(torch.float64).clamp(min=1)
-        # L alone is singular on translations; the tiny shift is harmless: both sides are projected off them
-        shift = 1.0 / self.smoothness if self.smoothness is not None else 1e-8 * float(lap.diagonal().mean())
-        self._solve = factorized((lap + shift * sp.identity(n)).tocsc())
-
-    def distance(self, dv: Tensor) -> Tensor:
-        """The Eq. 4 Laplacian (the sum) of ``dv (T, N, 3)``, ``(T,)``."""
-        return laplacian_flow_loss(dv, self.edges.to(dv.device))
-
-    def norm(self, dv: Tensor) -> Tensor:
-        """``sqrt(distance / 2E)`` per target, ``(T,)``."""
-        return (self.distance(dv) / self.num_pairs).clamp(min=0).sqrt()
-
-    def from_distance(self, distance: float) -> float:
-        """The norm of a perturbation whose Eq. 4 distance is ``distance``."""
-        return math.sqrt(max(distance, 0.0) / self.num_pairs)
-
-    def project(self, dv: Tensor) -> Tensor:
-        """``dv (T, N, 3)`` masked and without its per-connected-component translation (invisible to the norm)."""
-        out = dv.double()
-        if self.vertex_mask is not None:
-            out = out * self.vertex_mask.to(dv.device).view(1, -1, 1)
-        labels = self._labels.to(dv.device)
-        sums = torch.zeros(dv.shape[0], self.num_components, 3, dtype=torch.float64, device=dv.device)
-        sums.index_add_(1, labels, out)
-        out = out - (sums / self._sizes.to(dv.device).view(1, -1, 1))[:, labels]
-        if self.vertex_mask is not None:  # a masked vertex inside a moving component: keep it still
-            out = out * self.vertex_mask.to(dv.device).view(1, -1, 1)
-        return out.to(dv.dtype)
-
-    def direction(self, grad: Tensor) -> Tensor:
-        """Unit-norm descent direction ``-(L + I/s)^-1 grad`` (projected) per target; zero where ``grad`` is 0."""
-        g = self.project(grad).double()
-        t = g.shape[0]
-        rhs = g.permute(1, 0, 2).reshape(self.num_vertices, 3 * t).cpu().numpy()
-        u = torch.from_numpy(np.asarray(self._solve(rhs))).reshape(self.num_vertices, t, 3).permute(1, 0, 2)
-        u = self.project(u.to(grad.device))
-        return _unit(-u, self.norm(u)).to(grad.dtype)
-
-
-class ColorNorm:
-    """The texture norm: the face-colour RMSE of ``dt (T, M, 3)`` (over the faces of ``face_mask`` when given)."""
-
-    def __init__(self, face_mask: Optional[Tensor] = None) -> None:
-        self.face_mask = None if face_mask is None else face_mask.detach().bool().cpu()
-
-    def norm(self, dt: Tensor) -> Tensor:
-        """RMSE per target, ``(T,)``."""
-        if self.face_mask is not None:
-            dt = dt[:, self.face_mask.to(dt.device)]
-        return dt.pow(2).sum(dim=-1).mean(dim=-1).sqrt()
-
-    def from_distance(self, distance: float) -> float:
-        """The texture distance is the norm itself."""
-        return float(distance)
-
-    def project(self, dt: Tensor) -> Tensor:
-        """Faces outside ``face_mask`` keep their colour."""
-        if self.face_mask is None:
-            return dt
-        return dt * self.face_mask.to(dt.device).view(1, -1, 1).to(dt.dtype)
-
-    def direction(self, grad: Tensor) -> Tensor:
-        """Unit-RMSE descent direction ``-grad`` per target; zero where ``grad`` is 0."""
-        g = self.project(grad)
-        return _unit(-g, self.norm(g))
-
 
 class BudgetState:
     """Per-target budgets and the step schedule of the distortion-budget rule (see the module docstring).
@@ -264,18 +141,18 @@ class BudgetState:
             raise ValueError(f"num_targets must be an integer >= 1, got {num_targets!r}")
         if isinstance(steps, bool) or int(steps) != steps or steps < 1:
             raise ValueError(f"steps must be an integer >= 1, got {steps!r}")
-        self.init_budget = _positive("init_budget", init_budget)
-        self.gamma = _positive("gamma", gamma)
+        self.init_budget = positive_option("init_budget", init_budget)
+        self.gamma = positive_option("gamma", gamma)
         if self.gamma >= 1:
             raise ValueError(f"gamma must be in (0, 1), got {gamma!r}")
-        self.step_size = _positive("step_size", step_size)
-        self.final_step_size = _positive("final_step_size", final_step_size)
+        self.step_size = positive_option("step_size", step_size)
+        self.final_step_size = positive_option("final_step_size", final_step_size)
         if self.final_step_size > self.step_size:
             raise ValueError(f"final_step_size ({final_step_size}) must be <= step_size ({step_size})")
-        self.min_budget = _positive("min_budget", min_budget)
+        self.min_budget = positive_option("min_budget", min_budget)
         if self.min_budget > self.init_budget:
             raise ValueError(f"min_budget ({min_budget}) must be <= init_budget ({init_budget})")
-        self.cap = None if cap is None else max(_positive("cap", cap), self.min_budget)
+        self.cap = None if cap is None else max(positive_option("cap", cap), self.min_budget)
         if not isinstance(anneal, str) or anneal not in ANNEAL_MODES:
             raise ValueError(f"anneal must be one of {ANNEAL_MODES}, got {anneal!r}")
         self.anneal = anneal
@@ -342,7 +219,7 @@ class BudgetState:
             alpha = self.step_lengths(rows, step).to(direction.dtype).to(direction.device)
             moved = norm.project(delta + alpha.view((-1,) + (1,) * (direction.dim() - 1)) * direction)
         size = norm.norm(moved).double().cpu()
-        scale = torch.where(size > budgets, budgets / size.clamp(min=_TINY), torch.ones_like(size))
+        scale = torch.where(size > budgets, budgets / size.clamp(min=TINY), torch.ones_like(size))
         return moved * scale.to(moved.dtype).to(moved.device).view((-1,) + (1,) * (moved.dim() - 1))
 
 
@@ -370,9 +247,6 @@ class DDNRule(UpdateRule):
     rounds = 1
 
     def __init__(self, *, attack: Any, num_targets: int, **options: Any) -> None:
-        from meshadv.attacks.shape import ShapeAttack
-        from meshadv.attacks.texture import TextureAttack
-
         kind = getattr(attack, "perturbation", None)
         if kind not in DDN_DEFAULTS:
             raise ValueError(f"method='ddn' supports the shape and texture attacks, not {type(attack).__name__}")
@@ -400,7 +274,7 @@ class DDNRule(UpdateRule):
         opts = {k: v for k, v in self.options.items() if k not in _RULE_OPTIONS}
         smoothness = self.options.get("smoothness")
         if smoothness is not None:
-            _positive("smoothness", smoothness)
+            positive_option("smoothness", smoothness)
         self.smoothness = smoothness
         momentum = self.options["momentum"]
         if isinstance(momentum, bool) or not isinstance(momentum, (int, float)) or not 0 <= momentum < 1:
@@ -410,7 +284,7 @@ class DDNRule(UpdateRule):
         if isinstance(stall_steps, bool) or not isinstance(stall_steps, int) or stall_steps < 0:
             raise ValueError(f"stall_steps must be an integer >= 0 (0: off), got {stall_steps!r}")
         self.stall_steps = int(stall_steps)
-        self.stall_factor = _positive("stall_factor", self.options["stall_factor"])
+        self.stall_factor = positive_option("stall_factor", self.options["stall_factor"])
         if self.stall_factor > 1:
             raise ValueError(f"stall_factor must be in (0, 1], got {self.stall_factor!r}")
         reach = self.options["reach"]
@@ -451,7 +325,7 @@ class DDNRule(UpdateRule):
             self._origin = torch.zeros_like(mesh.vertices)
         else:
             self.norm = ColorNorm(getattr(attack, "face_mask", None))
-            self._origin = mesh.face_colors.detach().clamp(_COLOR_EPS, 1 - _COLOR_EPS)
+            self._origin = mesh.face_colors.detach().clamp(COLOR_EPS, 1 - COLOR_EPS)
         # a hair inside max_distortion, so float rounding never pushes a target past it (the loop would stop it)
         cap = None if attack.max_distortion is None else self.norm.from_distance(attack.max_distortion) * (1 - 1e-6)
         self.state = BudgetState(self.num_targets, attack.steps, cap=cap, **self._budget_options)
@@ -518,7 +392,7 @@ class DDNRule(UpdateRule):
             return direction
         v = self.momentum * self._velocity[idx] + direction.to(self._velocity.dtype)
         self._velocity[idx] = v
-        return _unit(v, self.norm.norm(v)).to(direction.dtype)
+        return unit_rows(v, self.norm.norm(v)).to(direction.dtype)
 
     def _reach(self, idx: Tensor, grad: Tensor, heading: Tensor) -> Tensor:
         """``reach="adam"``: the rows of ``idx`` whose target has not held yet in this round step along Adam's
@@ -540,7 +414,7 @@ class DDNRule(UpdateRule):
         t = self._adam_t[rows].double().view(shape)
         d = -(m / (1 - b1 ** t)) / ((v / (1 - b2 ** t)).sqrt() + _ADAM_EPS)
         d = self.norm.project(d)
-        d = _unit(d, self.norm.norm(d)).to(heading.dtype).to(heading.device)
+        d = unit_rows(d, self.norm.norm(d)).to(heading.dtype).to(heading.device)
         heading = heading.clone()
         heading[unheld] = d
         return heading
@@ -555,7 +429,7 @@ class DDNRule(UpdateRule):
         with torch.no_grad():
             if self.kind == "texture":  # d loss / d colour = d loss / d logit / (c (1 - c))
                 colors = torch.sigmoid(params[idx].detach())
-                grad = grad / (colors * (1 - colors)).clamp(min=_TINY)
+                grad = grad / (colors * (1 - colors)).clamp(min=TINY)
             delta = self._delta[idx]
             budgets = self.state.update(idx, is_adversarial, self.norm.norm(delta), self._step)
             delta, restarted = self._restart_stalled(idx, delta, is_adversarial.detach().cpu().bool())
@@ -568,7 +442,7 @@ class DDNRule(UpdateRule):
             if self.kind == "texture":
                 moved = (self._origin + moved).clamp(0.0, 1.0) - self._origin
                 moved = self.norm.project(moved)
-                params[idx] = torch.logit((self._origin + moved).clamp(_COLOR_EPS, 1 - _COLOR_EPS)).to(params.dtype)
+                params[idx] = torch.logit((self._origin + moved).clamp(COLOR_EPS, 1 - COLOR_EPS)).to(params.dtype)
             else:
                 params[idx] = moved.to(params.dtype)
             self._delta[idx] = moved

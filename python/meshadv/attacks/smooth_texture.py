@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 from meshadv.attacks.flow import smooth_flow
-from meshadv.attacks.texture import _EPS, TextureAttack
+from meshadv.attacks.texture import COLOR_EPS, TextureAttack
 
 __all__ = ["SmoothTextureAttack"]
 
@@ -61,6 +61,6 @@ class SmoothTextureAttack(TextureAttack):
 
     def _colors(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
         """Face colours ``(K, M, 3)`` for per-vertex offsets ``params`` ``(K, N, 3)`` (before the face mask)."""
-        base = torch.logit(mesh.face_colors.clamp(_EPS, 1 - _EPS))
+        base = torch.logit(mesh.face_colors.clamp(COLOR_EPS, 1 - COLOR_EPS))
         offset = smooth_flow(params, edges, self.smoothing)[:, mesh.faces].mean(dim=2)
         return torch.sigmoid(base.unsqueeze(0) + offset)

@@ -26,7 +26,8 @@ from meshadv.attacks.masks import check_mask, check_mask_fits, mask_config
 
 __all__ = ["TextureAttack"]
 
-_EPS = 1e-4
+#: Colours are clamped into ``[COLOR_EPS, 1 - COLOR_EPS]`` before their logit (the parametrisation's start).
+COLOR_EPS = 1e-4
 
 
 class TextureAttack(MeshAttack):
@@ -58,7 +59,7 @@ class TextureAttack(MeshAttack):
         check_mask_fits(self.face_mask, "face_mask", mesh.faces.shape[0], "faces")
 
     def _init_params(self, mesh: Any, num_targets: int) -> Tensor:
-        logits = torch.logit(mesh.face_colors.clamp(_EPS, 1 - _EPS))
+        logits = torch.logit(mesh.face_colors.clamp(COLOR_EPS, 1 - COLOR_EPS))
         return logits.unsqueeze(0).repeat(num_targets, 1, 1)
 
     def colors(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:

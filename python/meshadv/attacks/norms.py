@@ -1,0 +1,149 @@
+"""The norms of the distortion-budget rule (``method="ddn"``, :mod:`meshadv.attacks.budget`): how large a
+perturbation is, which step is steepest, and what a step may not change.
+
+* :class:`LaplacianNorm` (shape): ``sqrt(laplacian_pair_mean(dv))``, directions preconditioned by
+  ``(L + I / smoothness)^-1``, perturbations kept free of every connected component's translation;
+* :class:`ColorNorm` (texture): the face-colour RMSE, directions along the colour gradient.
+
+Both work on ``(T, ...)`` rows, one per target; the module docstring of :mod:`meshadv.attacks.budget` explains the
+choices and their measurements.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Optional
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from meshadv.attacks.losses import laplacian_flow_loss
+
+__all__ = ["LaplacianNorm", "ColorNorm", "positive_option", "unit_rows"]
+
+#: Sizes below this count as zero (a zero gradient has no direction).
+TINY = 1e-30
+
+
+def positive_option(name: str, value: Any) -> float:
+    """``value`` as a float when it is a finite real number ``> 0``; a ``ValueError`` naming ``name`` for any other
+    value, of any type (the options of ``method="ddn"`` come as one JSON-able dict, ``method_options``)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or not value > 0:
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return float(value)
+
+
+def unit_rows(u: Tensor, size: Tensor) -> Tensor:
+    """``u / size`` per target (``size (K,)``), zero where ``size`` is 0."""
+    size = size.view((-1,) + (1,) * (u.dim() - 1))
+    return torch.where(size > TINY, u / size.clamp(min=TINY), torch.zeros_like(u))
+
+
+class LaplacianNorm:
+    """The shape norm ``sqrt(laplacian_pair_mean(dv))`` and its preconditioned steepest-descent direction.
+
+    Args:
+        edges: int ``(E, 2)`` unique undirected mesh edges, ``E >= 1``.
+        num_vertices: ``N``.
+        smoothness: ``s`` of the metric ``L + I / s`` in which steps are steepest; ``None`` = the Laplacian alone
+            (the steepest direction for the Laplacian distance itself: the smoothest, most global one).
+        vertex_mask: optional bool ``(N,)``: only these vertices move.
+
+    Raises:
+        ValueError: bad ``edges``, ``num_vertices``, ``smoothness`` or ``vertex_mask``.
+    """
+
+    def __init__(self, edges: Tensor, num_vertices: int, smoothness: Optional[float] = 1.0,
+                 vertex_mask: Optional[Tensor] = None) -> None:
+        import scipy.sparse as sp
+        from scipy.sparse.csgraph import connected_components
+        from scipy.sparse.linalg import factorized
+
+        if isinstance(num_vertices, bool) or int(num_vertices) != num_vertices or num_vertices < 1:
+            raise ValueError(f"num_vertices must be an integer >= 1, got {num_vertices!r}")
+        if not isinstance(edges, Tensor) or edges.dim() != 2 or edges.shape[1] != 2 or edges.is_floating_point():
+            raise ValueError("edges must be an integer tensor of shape (E, 2)")
+        n = int(num_vertices)
+        e = edges.detach().cpu().long().numpy()
+        if len(e) == 0 or e.min() < 0 or e.max() >= n:
+            raise ValueError(f"edges must be a non-empty list of vertex pairs in [0, {n})")
+        self.smoothness = None if smoothness is None else positive_option("smoothness", smoothness)
+        if vertex_mask is not None and (not isinstance(vertex_mask, Tensor) or tuple(vertex_mask.shape) != (n,)):
+            raise ValueError(f"vertex_mask must be None or a bool tensor of shape ({n},)")
+        self.vertex_mask = None if vertex_mask is None else vertex_mask.detach().bool().cpu()
+        self.edges = edges.detach().long().cpu()
+        self.num_vertices = n
+        self.num_pairs = 2 * len(e)
+        adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+        adj = ((adj + adj.T) > 0).astype(np.float64)
+        lap = sp.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj
+        count, labels = connected_components(adj, directed=False)
+        self.num_components = int(count)
+        self._labels = torch.from_numpy(labels.astype(np.int64))
+        self._sizes = torch.bincount(self._labels, minlength=count).to(torch.float64).clamp(min=1)
+        # L alone is singular on translations; the tiny shift is harmless: both sides are projected off them
+        shift = 1.0 / self.smoothness if self.smoothness is not None else 1e-8 * float(lap.diagonal().mean())
+        self._solve = factorized((lap + shift * sp.identity(n)).tocsc())
+
+    def distance(self, dv: Tensor) -> Tensor:
+        """The Eq. 4 Laplacian (the sum) of ``dv (T, N, 3)``, ``(T,)``."""
+        return laplacian_flow_loss(dv, self.edges.to(dv.device))
+
+    def norm(self, dv: Tensor) -> Tensor:
+        """``sqrt(distance / 2E)`` per target, ``(T,)``."""
+        return (self.distance(dv) / self.num_pairs).clamp(min=0).sqrt()
+
+    def from_distance(self, distance: float) -> float:
+        """The norm of a perturbation whose Eq. 4 distance is ``distance``."""
+        return math.sqrt(max(distance, 0.0) / self.num_pairs)
+
+    def project(self, dv: Tensor) -> Tensor:
+        """``dv (T, N, 3)`` masked and without its per-connected-component translation (invisible to the norm)."""
+        out = dv.double()
+        if self.vertex_mask is not None:
+            out = out * self.vertex_mask.to(dv.device).view(1, -1, 1)
+        labels = self._labels.to(dv.device)
+        sums = torch.zeros(dv.shape[0], self.num_components, 3, dtype=torch.float64, device=dv.device)
+        sums.index_add_(1, labels, out)
+        out = out - (sums / self._sizes.to(dv.device).view(1, -1, 1))[:, labels]
+        if self.vertex_mask is not None:  # a masked vertex inside a moving component: keep it still
+            out = out * self.vertex_mask.to(dv.device).view(1, -1, 1)
+        return out.to(dv.dtype)
+
+    def direction(self, grad: Tensor) -> Tensor:
+        """Unit-norm descent direction ``-(L + I/s)^-1 grad`` (projected) per target; zero where ``grad`` is 0."""
+        g = self.project(grad).double()
+        t = g.shape[0]
+        rhs = g.permute(1, 0, 2).reshape(self.num_vertices, 3 * t).cpu().numpy()
+        u = torch.from_numpy(np.asarray(self._solve(rhs))).reshape(self.num_vertices, t, 3).permute(1, 0, 2)
+        u = self.project(u.to(grad.device))
+        return unit_rows(-u, self.norm(u)).to(grad.dtype)
+
+
+class ColorNorm:
+    """The texture norm: the face-colour RMSE of ``dt (T, M, 3)`` (over the faces of ``face_mask`` when given)."""
+
+    def __init__(self, face_mask: Optional[Tensor] = None) -> None:
+        self.face_mask = None if face_mask is None else face_mask.detach().bool().cpu()
+
+    def norm(self, dt: Tensor) -> Tensor:
+        """RMSE per target, ``(T,)``."""
+        if self.face_mask is not None:
+            dt = dt[:, self.face_mask.to(dt.device)]
+        return dt.pow(2).sum(dim=-1).mean(dim=-1).sqrt()
+
+    def from_distance(self, distance: float) -> float:
+        """The texture distance is the norm itself."""
+        return float(distance)
+
+    def project(self, dt: Tensor) -> Tensor:
+        """Faces outside ``face_mask`` keep their colour."""
+        if self.face_mask is None:
+            return dt
+        return dt * self.face_mask.to(dt.device).view(1, -1, 1).to(dt.dtype)
+
+    def direction(self, grad: Tensor) -> Tensor:
+        """Unit-RMSE descent direction ``-grad`` per target; zero where ``grad`` is 0."""
+        g = self.project(grad)
+        return unit_rows(-g, self.norm(g))
