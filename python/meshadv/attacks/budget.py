@@ -86,7 +86,7 @@ from typing import Any, Dict, Optional, Tuple
 import torch
 from torch import Tensor
 
-from meshadv.attacks.norms import TINY, ColorNorm, LaplacianNorm, positive_option, unit_rows
+from meshadv.attacks.norms import TINY, ColorNorm, LaplacianNorm, per_row, positive_option, unit_rows
 from meshadv.attacks.shape import ShapeAttack
 from meshadv.attacks.texture import COLOR_EPS, TextureAttack
 from meshadv.attacks.update import UpdateRule, register_update_rule
@@ -217,10 +217,42 @@ class BudgetState:
         else:
             rows = torch.arange(delta.shape[0]) if index is None else index
             alpha = self.step_lengths(rows, step).to(direction.dtype).to(direction.device)
-            moved = norm.project(delta + alpha.view((-1,) + (1,) * (direction.dim() - 1)) * direction)
+            moved = norm.project(delta + per_row(alpha, direction) * direction)
         size = norm.norm(moved).double().cpu()
         scale = torch.where(size > budgets, budgets / size.clamp(min=TINY), torch.ones_like(size))
-        return moved * scale.to(moved.dtype).to(moved.device).view((-1,) + (1,) * (moved.dim() - 1))
+        return moved * per_row(scale.to(moved.dtype).to(moved.device), moved)
+
+
+def _ddn_perturbation(attack: Any, options: Dict[str, Any]) -> str:
+    """The perturbation of ``attack`` when ``method="ddn"`` can step it with ``options``.
+
+    Raises:
+        ValueError: another attack family or parametrisation, an option unknown for the perturbation, a ``lambda``
+            search (``binary_search_steps != 1``), a smoothed or clamped shape flow.
+    """
+    kind = getattr(attack, "perturbation", None)
+    if kind not in DDN_DEFAULTS:
+        raise ValueError(f"method='ddn' supports the shape and texture attacks, not {type(attack).__name__}")
+    unknown = set(options) - set(DDN_DEFAULTS[kind])
+    if unknown:
+        raise ValueError(f"method_options has unknown keys {sorted(unknown)} for method='ddn' on {kind}; "
+                         f"known: {sorted(DDN_DEFAULTS[kind])}")
+    if getattr(attack, "binary_search_steps", 1) != 1:
+        raise ValueError(f"binary_search_steps must be 1 with method='ddn' (it searches no lambda), got "
+                         f"{attack.binary_search_steps}")
+    if kind == "shape":
+        if not isinstance(attack, ShapeAttack) or type(attack).displacement is not ShapeAttack.displacement:
+            raise ValueError(f"method='ddn' cannot step the parametrisation of {type(attack).__name__}")
+        if attack.smoothing != 0:
+            raise ValueError(f"smoothing must be 0 with method='ddn' (its preconditioner smooths the steps), "
+                             f"got {attack.smoothing}")
+        if attack.max_step is not None:
+            raise ValueError(f"max_step must be None with method='ddn', got {attack.max_step}")
+    else:
+        same = [getattr(type(attack), n, None) is getattr(TextureAttack, n, None) for n in ("_apply", "_colors")]
+        if not isinstance(attack, TextureAttack) or not all(same):
+            raise ValueError(f"method='ddn' cannot step the parametrisation of {type(attack).__name__}")
+    return kind
 
 
 class DDNRule(UpdateRule):
@@ -245,33 +277,31 @@ class DDNRule(UpdateRule):
     """
 
     rounds = 1
+    # the per-round step state (:meth:`_reset_round_state`)
+    _delta: Optional[Tensor]
+    _velocity: Optional[Tensor]
+    _best_delta: Optional[Tensor]
+    _adam_m: Optional[Tensor]
+    _adam_v: Optional[Tensor]
+    _last_loss: Optional[Tensor]
 
     def __init__(self, *, attack: Any, num_targets: int, **options: Any) -> None:
-        kind = getattr(attack, "perturbation", None)
-        if kind not in DDN_DEFAULTS:
-            raise ValueError(f"method='ddn' supports the shape and texture attacks, not {type(attack).__name__}")
-        unknown = set(options) - set(DDN_DEFAULTS[kind])
-        if unknown:
-            raise ValueError(f"method_options has unknown keys {sorted(unknown)} for method='ddn' on {kind}; "
-                             f"known: {sorted(DDN_DEFAULTS[kind])}")
-        if getattr(attack, "binary_search_steps", 1) != 1:
-            raise ValueError(f"binary_search_steps must be 1 with method='ddn' (it searches no lambda), got "
-                             f"{attack.binary_search_steps}")
-        if kind == "shape":
-            if not isinstance(attack, ShapeAttack) or type(attack).displacement is not ShapeAttack.displacement:
-                raise ValueError(f"method='ddn' cannot step the parametrisation of {type(attack).__name__}")
-            if attack.smoothing != 0:
-                raise ValueError(f"smoothing must be 0 with method='ddn' (its preconditioner smooths the steps), "
-                                 f"got {attack.smoothing}")
-            if attack.max_step is not None:
-                raise ValueError(f"max_step must be None with method='ddn', got {attack.max_step}")
-        else:
-            same = [getattr(type(attack), n, None) is getattr(TextureAttack, n, None) for n in ("_apply", "_colors")]
-            if not isinstance(attack, TextureAttack) or not all(same):
-                raise ValueError(f"method='ddn' cannot step the parametrisation of {type(attack).__name__}")
+        kind = _ddn_perturbation(attack, options)
         self.kind = kind
         self.options = {**DDN_DEFAULTS[kind], **options}
         opts = {k: v for k, v in self.options.items() if k not in _RULE_OPTIONS}
+        self._read_rule_options()
+        self._attack = attack
+        self._budget_options = opts
+        BudgetState(num_targets, attack.steps, **opts)  # validate every option now
+        self.num_targets = int(num_targets)
+        self.state: Optional[BudgetState] = None
+        self.norm: Any = None
+        self._origin: Optional[Tensor] = None
+        self._reset_round_state(None)
+
+    def _read_rule_options(self) -> None:
+        """Validate and keep the options that are the rule's own (not :class:`BudgetState`'s)."""
         smoothness = self.options.get("smoothness")
         if smoothness is not None:
             positive_option("smoothness", smoothness)
@@ -291,24 +321,25 @@ class DDNRule(UpdateRule):
         if not isinstance(reach, str) or reach not in REACH_MODES:
             raise ValueError(f"reach must be one of {REACH_MODES}, got {reach!r}")
         self.reach = reach
-        self._attack = attack
-        self._budget_options = opts
-        BudgetState(num_targets, attack.steps, **opts)  # validate every option now
-        self.num_targets = int(num_targets)
-        self.state: Optional[BudgetState] = None
-        self.norm: Any = None
-        self._origin: Optional[Tensor] = None
-        self._delta: Optional[Tensor] = None
-        self._velocity: Optional[Tensor] = None
+
+    def _reset_round_state(self, delta: Optional[Tensor]) -> None:
+        """The per-round step state: the perturbation ``delta`` (``None`` before the first round), what the momentum,
+        stall restarts and ``reach="adam"`` keep (only when on), the step lengths' scales and the step count."""
+        self._delta = delta
+        if delta is None:
+            self._velocity = self._best_delta = self._adam_m = self._adam_v = None
+        else:
+            self._velocity = torch.zeros_like(delta) if self.momentum > 0 else None
+            self._best_delta = delta.clone() if self.stall_steps > 0 else None
+            adam = self.reach == "adam"
+            self._adam_m = torch.zeros_like(delta, dtype=torch.float64) if adam else None
+            self._adam_v = torch.zeros_like(delta, dtype=torch.float64) if adam else None
         self._scale = torch.ones(self.num_targets, dtype=torch.float64)
         self._best_loss = torch.full((self.num_targets,), math.inf, dtype=torch.float64)
-        self._best_delta: Optional[Tensor] = None
         self._since_best = torch.zeros(self.num_targets, dtype=torch.long)
-        self._last_loss: Optional[Tensor] = None
         self.restarts = torch.zeros(self.num_targets, dtype=torch.long)
-        self._adam_m: Optional[Tensor] = None
-        self._adam_v: Optional[Tensor] = None
         self._adam_t = torch.zeros(self.num_targets, dtype=torch.long)
+        self._last_loss = None
         self._step = 0
 
     @property
@@ -335,19 +366,7 @@ class DDNRule(UpdateRule):
         if self.state is None or self._origin is None:
             raise RuntimeError("DDNRule.prepare(mesh, edges) must be called before start_round")
         self.state.reset()
-        self._delta = torch.zeros((params.shape[0], *self._origin.shape), dtype=params.dtype)
-        self._velocity = torch.zeros_like(self._delta) if self.momentum > 0 else None
-        self._scale = torch.ones(self.num_targets, dtype=torch.float64)
-        self._best_loss = torch.full((self.num_targets,), math.inf, dtype=torch.float64)
-        self._best_delta = self._delta.clone() if self.stall_steps > 0 else None
-        self._since_best = torch.zeros(self.num_targets, dtype=torch.long)
-        self.restarts = torch.zeros(self.num_targets, dtype=torch.long)
-        adam = self.reach == "adam"
-        self._adam_m = torch.zeros_like(self._delta, dtype=torch.float64) if adam else None
-        self._adam_v = torch.zeros_like(self._delta, dtype=torch.float64) if adam else None
-        self._adam_t = torch.zeros(self.num_targets, dtype=torch.long)
-        self._last_loss = None
-        self._step = 0
+        self._reset_round_state(torch.zeros((params.shape[0], *self._origin.shape), dtype=params.dtype))
         params.grad = None
 
     def objective(self, adv: Tensor, perceptual: Tensor, distance: Tensor, active: Tensor) -> Tensor:
@@ -410,8 +429,7 @@ class DDNRule(UpdateRule):
         v = b2 * self._adam_v[rows] + (1 - b2) * g * g
         self._adam_m[rows], self._adam_v[rows] = m, v
         self._adam_t[rows] += 1
-        shape = (-1,) + (1,) * (g.dim() - 1)
-        t = self._adam_t[rows].double().view(shape)
+        t = per_row(self._adam_t[rows].double(), g)
         d = -(m / (1 - b1 ** t)) / ((v / (1 - b2 ** t)).sqrt() + _ADAM_EPS)
         d = self.norm.project(d)
         d = unit_rows(d, self.norm.norm(d)).to(heading.dtype).to(heading.device)
@@ -424,12 +442,8 @@ class DDNRule(UpdateRule):
         if self._delta is None or self.state is None or self._origin is None:
             raise RuntimeError("DDNRule.start_round must be called before step")
         idx = active.cpu().long()
-        grad = params.grad
-        grad = torch.zeros_like(params[idx]) if grad is None else grad[idx].detach()
         with torch.no_grad():
-            if self.kind == "texture":  # d loss / d colour = d loss / d logit / (c (1 - c))
-                colors = torch.sigmoid(params[idx].detach())
-                grad = grad / (colors * (1 - colors)).clamp(min=TINY)
+            grad = self._gradient(params, idx)
             delta = self._delta[idx]
             budgets = self.state.update(idx, is_adversarial, self.norm.norm(delta), self._step)
             delta, restarted = self._restart_stalled(idx, delta, is_adversarial.detach().cpu().bool())
@@ -439,15 +453,31 @@ class DDNRule(UpdateRule):
             scale = torch.where(restarted, torch.zeros_like(self._scale[idx]), self._scale[idx])
             heading = heading * scale.to(heading.dtype).to(heading.device).view((-1,) + (1,) * (heading.dim() - 1))
             moved = self.state.move(delta, heading, budgets, self._step, self.norm, idx)
-            if self.kind == "texture":
-                moved = (self._origin + moved).clamp(0.0, 1.0) - self._origin
-                moved = self.norm.project(moved)
-                params[idx] = torch.logit((self._origin + moved).clamp(COLOR_EPS, 1 - COLOR_EPS)).to(params.dtype)
-            else:
-                params[idx] = moved.to(params.dtype)
-            self._delta[idx] = moved
+            self._delta[idx] = self._write_params(params, idx, moved, self._origin)
         params.grad = None
         self._step += 1
+
+    def _gradient(self, params: Tensor, idx: Tensor) -> Tensor:
+        """The gradient of the rows ``idx`` with respect to what the rule steps: the flow (shape) or the colours
+        (texture: ``d loss / d colour = d loss / d logit / (c (1 - c))``); zeros when there is none."""
+        grad = params.grad
+        grad = torch.zeros_like(params[idx]) if grad is None else grad[idx].detach()
+        if self.kind == "texture":
+            colors = torch.sigmoid(params[idx].detach())
+            grad = grad / (colors * (1 - colors)).clamp(min=TINY)
+        return grad
+
+    def _write_params(self, params: Tensor, idx: Tensor, moved: Tensor, origin: Tensor) -> Tensor:
+        """Write the perturbation ``moved`` of the rows ``idx`` into the attack's parameters (texture: the colours
+        ``origin + moved`` clipped into ``[0, 1]``, projected again and written as logits) and return the perturbation
+        kept."""
+        if self.kind == "texture":
+            moved = (origin + moved).clamp(0.0, 1.0) - origin
+            moved = self.norm.project(moved)
+            params[idx] = torch.logit((origin + moved).clamp(COLOR_EPS, 1 - COLOR_EPS)).to(params.dtype)
+        else:
+            params[idx] = moved.to(params.dtype)
+        return moved
 
     def config(self) -> Dict[str, Any]:
         """The effective options (defaults filled in)."""

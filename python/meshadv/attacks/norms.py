@@ -20,7 +20,7 @@ from torch import Tensor
 
 from meshadv.attacks.losses import laplacian_flow_loss
 
-__all__ = ["LaplacianNorm", "ColorNorm", "positive_option", "unit_rows"]
+__all__ = ["LaplacianNorm", "ColorNorm", "positive_option", "per_row", "unit_rows"]
 
 #: Sizes below this count as zero (a zero gradient has no direction).
 TINY = 1e-30
@@ -34,9 +34,14 @@ def positive_option(name: str, value: Any) -> float:
     return float(value)
 
 
+def per_row(values: Tensor, like: Tensor) -> Tensor:
+    """``values (K,)`` viewed as ``(K, 1, ..., 1)`` to scale the rows of ``like (K, ...)``."""
+    return values.view((-1,) + (1,) * (like.dim() - 1))
+
+
 def unit_rows(u: Tensor, size: Tensor) -> Tensor:
     """``u / size`` per target (``size (K,)``), zero where ``size`` is 0."""
-    size = size.view((-1,) + (1,) * (u.dim() - 1))
+    size = per_row(size, u)
     return torch.where(size > TINY, u / size.clamp(min=TINY), torch.zeros_like(u))
 
 
