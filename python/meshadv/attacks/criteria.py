@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar, Dict, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, ClassVar, Dict, Optional, Sequence, Tuple, Union
 
 import torch
 from torch import Tensor
@@ -164,8 +164,53 @@ def _require_bound(indices: Tuple[int, ...]) -> Tuple[int, ...]:
     return indices
 
 
+class _ClassCriterion(Criterion):
+    """What the two classifier criteria share: a class spec (field ``spec_field``) resolved by :meth:`bind` to
+    ImageNet indices (``indices``) and a label (``name``), a cross-entropy or C&W loss towards or away from them, and
+    the class (group) probability as the score. Subclasses are frozen dataclasses with the fields
+    ``<spec_field>``, ``indices`` and ``name`` and give the margin's sign and the label."""
+
+    victim_kind: ClassVar[str] = "classifier"
+    #: The name of the class-spec field (and of the argument in error messages and records).
+    spec_field: ClassVar[str] = ""
+    #: The ``"ce"`` and ``"cw"`` losses of the criterion, ``(logits, classes[, kappa]) -> (B,)``.
+    _cross_entropy: ClassVar[Callable[..., Tensor]]
+    _cw_margin: ClassVar[Callable[..., Tensor]]
+    indices: Tuple[int, ...]
+    name: str
+
+    @property
+    def _spec(self) -> ClassSpec:
+        return getattr(self, self.spec_field)
+
+    def bind(self, victim: Any) -> Any:
+        """Resolve the class spec against the ImageNet label set (see :class:`Criterion`)."""
+        self.check_victim(victim)
+        idx, label = resolve_imagenet_classes(self._spec, self.spec_field)
+        return replace(self, indices=idx, name=label)  # type: ignore[type-var]
+
+    def _bound(self) -> Tuple[int, ...]:
+        return _require_bound(self.indices)
+
+    def loss(self, output: Tensor, *, loss: str = "ce", kappa: float = 0.0) -> Tensor:
+        """The cross-entropy (``"ce"``) or C&W (``"cw"``, confidence ``kappa``) loss per image (module docstring)."""
+        _check_loss_name(loss)
+        if loss == "ce":
+            return type(self)._cross_entropy(output, self._bound())
+        return type(self)._cw_margin(output, self._bound(), kappa)
+
+    def score(self, output: Tensor) -> Tensor:
+        """Softmax probability of the class (group)."""
+        idx = torch.as_tensor(self._bound(), dtype=torch.long, device=output.device)
+        return torch.softmax(output, dim=1)[:, idx].sum(dim=1)
+
+    def to_record(self) -> Dict[str, Any]:
+        """JSON-able description including the resolved indices."""
+        return {**super().to_record(), self.spec_field: self.name or str(self._spec), "indices": list(self.indices)}
+
+
 @dataclass(frozen=True)
-class TargetedMisclassification(Criterion):
+class TargetedMisclassification(_ClassCriterion):
     """Adversarial when the top-1 class is the target (or any member of the target group).
 
     Losses: ``"ce"`` targeted (grouped) cross-entropy; ``"cw"`` C&W margin with confidence ``kappa``.
@@ -174,49 +219,25 @@ class TargetedMisclassification(Criterion):
         target_class: the target, see :data:`ClassSpec`.
     """
 
-    victim_kind: ClassVar[str] = "classifier"
+    spec_field: ClassVar[str] = "target_class"
+    _cross_entropy = staticmethod(losses.targeted_cross_entropy)
+    _cw_margin = staticmethod(losses.cw_targeted_margin)
     target_class: ClassSpec
     indices: Tuple[int, ...] = field(default=(), compare=False)
     name: str = field(default="", compare=False)
 
-    def bind(self, victim: Any) -> "TargetedMisclassification":
-        """Resolve the target against the ImageNet label set (see :class:`Criterion`)."""
-        self.check_victim(victim)
-        idx, label = resolve_imagenet_classes(self.target_class, "target_class")
-        return replace(self, indices=idx, name=label)
-
-    def _bound(self) -> Tuple[int, ...]:
-        return _require_bound(self.indices)
-
-    def loss(self, output: Tensor, *, loss: str = "ce", kappa: float = 0.0) -> Tensor:
-        """Targeted CE or C&W loss per image (see module docstring)."""
-        _check_loss_name(loss)
-        if loss == "ce":
-            return losses.targeted_cross_entropy(output, self._bound())
-        return losses.cw_targeted_margin(output, self._bound(), kappa)
-
     def margin(self, output: Tensor) -> Tensor:
         """Best target logit minus best other logit."""
         return _top1_margin(output, self._bound())
-
-    def score(self, output: Tensor) -> Tensor:
-        """Softmax probability of the target (group)."""
-        idx = torch.as_tensor(self._bound(), dtype=torch.long, device=output.device)
-        return torch.softmax(output, dim=1)[:, idx].sum(dim=1)
 
     @property
     def label(self) -> str:
         """``"target=<name>"``."""
         return f"target={self.name or self.target_class}"
 
-    def to_record(self) -> Dict[str, Any]:
-        """JSON-able description including the resolved indices."""
-        return {**super().to_record(), "target_class": self.name or str(self.target_class),
-                "indices": list(self.indices)}
-
 
 @dataclass(frozen=True)
-class Misclassification(Criterion):
+class Misclassification(_ClassCriterion):
     """Untargeted: adversarial when the top-1 class is not the true class (nor any member of the true group).
 
     Losses: ``"ce"`` minus the (grouped) cross-entropy of the true class; ``"cw"`` C&W untargeted margin.
@@ -225,44 +246,21 @@ class Misclassification(Criterion):
         true_class: the true class, see :data:`ClassSpec`.
     """
 
-    victim_kind: ClassVar[str] = "classifier"
+    spec_field: ClassVar[str] = "true_class"
+    _cross_entropy = staticmethod(losses.untargeted_cross_entropy)
+    _cw_margin = staticmethod(losses.cw_untargeted_margin)
     true_class: ClassSpec
     indices: Tuple[int, ...] = field(default=(), compare=False)
     name: str = field(default="", compare=False)
-
-    def bind(self, victim: Any) -> "Misclassification":
-        """Resolve the true class against the ImageNet label set."""
-        self.check_victim(victim)
-        idx, label = resolve_imagenet_classes(self.true_class, "true_class")
-        return replace(self, indices=idx, name=label)
-
-    def _bound(self) -> Tuple[int, ...]:
-        return _require_bound(self.indices)
-
-    def loss(self, output: Tensor, *, loss: str = "ce", kappa: float = 0.0) -> Tensor:
-        """Untargeted CE or C&W loss per image."""
-        _check_loss_name(loss)
-        if loss == "ce":
-            return losses.untargeted_cross_entropy(output, self._bound())
-        return losses.cw_untargeted_margin(output, self._bound(), kappa)
 
     def margin(self, output: Tensor) -> Tensor:
         """Best other logit minus best true logit."""
         return -_top1_margin(output, self._bound())
 
-    def score(self, output: Tensor) -> Tensor:
-        """Softmax probability of the true class (group)."""
-        idx = torch.as_tensor(self._bound(), dtype=torch.long, device=output.device)
-        return torch.softmax(output, dim=1)[:, idx].sum(dim=1)
-
     @property
     def label(self) -> str:
         """``"untargeted(true=<name>)"``."""
         return f"untargeted(true={self.name or self.true_class})"
-
-    def to_record(self) -> Dict[str, Any]:
-        """JSON-able description including the resolved indices."""
-        return {**super().to_record(), "true_class": self.name or str(self.true_class), "indices": list(self.indices)}
 
 
 @dataclass(frozen=True)
