@@ -129,6 +129,40 @@ def mitsuba_verdicts(spec: Dict[str, Any], job: str, out_dir: Path) -> Dict[str,
     }
 
 
+def benign_rows(specs: Sequence[Dict[str, Any]]) -> List[Dict[str, Any]]:
+    """The control: each instance's *benign* mesh rendered by meshadv and by Mitsuba under the attack's views, and
+    whether the victim already misclassifies it (``untargeted_*`` true = not the source class). An attack "transfers
+    untargeted" for free where Mitsuba's benign render is already misclassified. One row per instance (mesh and
+    views), ``margin`` null, ``kind`` ``"benign"``."""
+    from meshadv.experiments.jobs import load_job_mesh
+    from meshadv.transfer.cases import TransferCase
+    from meshadv.transfer.controlled import controlled_transfer
+
+    seen, rows = set(), []
+    for spec in specs:
+        key = json.dumps([spec["mesh"], spec["views"]], sort_keys=True)
+        if key in seen:
+            continue
+        seen.add(key)
+        antialias = int(spec.get("attack", {}).get("antialias", 1))
+        case = TransferCase(case_id=f"benign:{spec['mesh']['path']}", mesh=load_job_mesh(spec["mesh"]),
+                            views=tuple(spec["views"]), victim=spec["victim"], true_class=spec["source_class"],
+                            perturbation="benign", image_size=int(spec.get("image_size", 224)), antialias=antialias)
+        res = controlled_transfer([case], victim_loader=_load_victim)
+        rows.append({
+            "key": f"benign:{spec['mesh']['path']}:{spec.get('kind', 'single')}:{len(spec['views'])}",
+            "kind": "benign", "margin": None, "part": "multiview" if spec.get("kind") == "multiview" else "main",
+            "source_class": spec["source_class"], "mesh": spec["mesh"]["path"],
+            "config_index": spec.get("config_index"),
+            "num_views": len(spec["views"]),
+            "untargeted_meshadv": [bool(r.untargeted_meshadv) for r in res],
+            "untargeted_mitsuba": [bool(r.untargeted_mitsuba) for r in res],
+            "top1_meshadv": [r.top1_meshadv for r in res], "top1_mitsuba": [r.top1_mitsuba for r in res],
+            "mitsuba_error": next((r.error for r in res if getattr(r, "error", None)), None),
+        })
+    return rows
+
+
 def run_one(spec: Dict[str, Any], margin: float, work: Path, *, transfer: bool) -> Dict[str, Any]:
     """Run the attack job ``spec`` with ``required_margin = margin`` and (when it succeeds and ``transfer``) its
     Mitsuba transfer; returns the study row."""
@@ -199,6 +233,25 @@ def reference_rows(db: Path, specs: Iterable[Dict[str, Any]]) -> List[Dict[str, 
         rows.append(row)
     con.close()
     return rows
+
+
+def attack_rows(rows: Sequence[Dict[str, Any]]) -> List[Dict[str, Any]]:
+    """The attack rows of a results file (not the ``benign`` control rows)."""
+    out = []
+    for r in rows:
+        if r.get("kind") == "benign" or r.get("margin") is None:
+            continue
+        out.append(r)
+    return out
+
+
+def benign_correct_meshes(rows: Sequence[Dict[str, Any]]) -> Optional[set]:
+    """``(part, source_class)`` of the instances whose benign Mitsuba render is classified as the source class in
+    every view (``benign`` rows), or None when the file has no ``benign`` rows."""
+    benign = [r for r in rows if r.get("kind") == "benign"]
+    if not benign:
+        return None
+    return {(r["part"], r["source_class"]) for r in benign if not any(r["untargeted_mitsuba"])}
 
 
 def _fmt(x: Optional[float]) -> str:
@@ -321,18 +374,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     common.add_argument("--config-index", type=int, default=0, help="rendering configuration of the main setting")
     common.add_argument("--part", default="main", choices=["main", "multiview"],
                         help="main setting (single view) or Table 2's multi-view jobs")
+    common.add_argument("--views", type=int, nargs="*", default=None,
+                     help="multi-view: keep only jobs with these attack-view counts (e.g. 5)")
+    common.add_argument("--ranges", nargs="*", default=None,
+                     help="multi-view: keep only these azimuth ranges, as LO-HI (e.g. 45-60)")
     run = sub.add_parser("run", parents=[common], help="run the attacks (and their Mitsuba transfer)")
     run.add_argument("--margins", nargs="+", type=float, default=[1.0, 4.0],
                      help="required logit margins; per target, every margin in this order")
     run.add_argument("--limit", type=int, default=None, help="at most this many new attacks")
-    run.add_argument("--views", type=int, nargs="*", default=None,
-                     help="multi-view: keep only jobs with these attack-view counts (e.g. 5)")
-    run.add_argument("--ranges", nargs="*", default=None,
-                     help="multi-view: keep only these azimuth ranges, as LO-HI (e.g. 45-60)")
     run.add_argument("--work", type=Path, default=None, help="artefact folder (default: a temporary one)")
     run.add_argument("--no-transfer", action="store_true", help="skip the Mitsuba pass")
     run.add_argument("--threads", type=int, default=1, help="torch threads")
     run.add_argument("--deadline", default=None, help="start no attack after this UTC time, HH:MM")
+    sub.add_parser("benign", parents=[common], help="control: Mitsuba verdicts of the benign meshes")
     sub.add_parser("import-reference", parents=[common], help="m = 0 rows from paper_medium's database").add_argument(
         "--db", type=Path, default=DEFAULT_REFERENCE, help="reference sweep database")
     summ = sub.add_parser("summary", parents=[common], help="markdown tables of the results file")
@@ -342,10 +396,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = ap.parse_args(argv)
 
     if args.command == "summary":
-        rows = read_rows(args.out)
+        everything = read_rows(args.out)
+        rows = attack_rows(everything)
         if not rows:
-            raise SystemExit(f"--out {args.out} holds no rows")
+            raise SystemExit(f"--out {args.out} holds no attack rows")
         print("\n".join(summarize(rows)))
+        correct = benign_correct_meshes(everything)
+        if correct is not None:
+            kept = [r for r in rows if (r["part"], r["source_class"]) in correct]
+            print(f"\ninstances whose benign Mitsuba render is the source class in every view ({len(correct)}):")
+            print("\n".join(summarize(kept)))
         if args.paired:
             print(f"\npaired over margins {args.paired}:")
             print("\n".join(summarize(paired_rows(rows, args.paired))))
@@ -356,6 +416,17 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     specs = study_jobs(args.config, perturbations=args.perturbations, classes=args.classes,
                        config_index=args.config_index, part=args.part)
     done = {r["key"] for r in read_rows(args.out)}
+    if args.views:
+        specs = [s for s in specs if len(s["views"]) in set(args.views)]
+    if args.ranges:
+        wanted = {tuple(float(x) for x in r.split("-")) for r in args.ranges}
+        specs = [s for s in specs if tuple(float(x) for x in s.get("azimuth_range", ())) in wanted]
+    if args.command == "benign":
+        new = [r for r in benign_rows(specs) if r["key"] not in done]
+        for r in new:
+            append_row(args.out, r)
+            print(f"{r['source_class']} {r['mesh']}: meshadv {r['top1_meshadv']} mitsuba {r['top1_mitsuba']}")
+        return 0
     if args.command == "import-reference":
         new = [r for r in reference_rows(args.db, specs) if r["key"] not in done]
         for r in new:
@@ -367,11 +438,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     torch.set_num_threads(max(1, args.threads))
     margins = _margins(args.margins)
-    if args.views:
-        specs = [s for s in specs if len(s["views"]) in set(args.views)]
-    if args.ranges:
-        wanted = {tuple(float(x) for x in r.split("-")) for r in args.ranges}
-        specs = [s for s in specs if tuple(float(x) for x in s.get("azimuth_range", ())) in wanted]
     work = args.work or Path(tempfile.mkdtemp(prefix="margin_study_"))
     count = 0
     for spec in specs:
