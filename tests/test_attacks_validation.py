@@ -80,3 +80,36 @@ def test_perturbation_registry() -> None:
     assert isinstance(make_attack("shape", steps=3), ShapeAttack)
     with pytest.raises(ValueError, match="perturbation"):
         make_attack("colour")
+
+
+def test_bad_call_and_helper_arguments_raise_naming_them() -> None:
+    """evaluate, the criteria, the lambda search and the rule registry check their arguments by name."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import Disappearance, LambdaSearch, Misclassification, evaluate, register_update_rule
+    from meshadv.mesh import builtin_mesh
+    from meshadv.render import ViewSet
+
+    victim, mesh = PooledLinearClassifier(), builtin_mesh("cube")
+    views = ViewSet.orbit([40.0], elevation=20.0, distance=2.6)
+    with pytest.raises(ValueError, match="meshes must be a Mesh or a non-empty sequence"):
+        evaluate([], views, victim, Misclassification(1))
+    for bad in ([], 5, [Misclassification(1), "boat"]):
+        with pytest.raises(ValueError, match="criterion must be a Criterion"):
+            evaluate(mesh, views, victim, bad)
+        with pytest.raises(ValueError, match="criterion must be a Criterion"):
+            TextureAttack(steps=1)(mesh, views, victim, bad)
+    with pytest.raises(TypeError, match="threshold"):
+        Disappearance("blob", threshold="high")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="threshold"):
+        Disappearance("blob", threshold=math.nan)
+    with pytest.raises(TypeError, match="factory must be callable"):
+        register_update_rule("not-a-rule", "adam")  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="initial"):
+        LambdaSearch("1")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="initial"):
+        LambdaSearch(-1.0)
+    with pytest.raises(TypeError, match="num_targets"):
+        LambdaSearch(1.0, 1.5)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="factor"):
+        LambdaSearch(1.0, factor=1.0)

@@ -16,7 +16,7 @@ from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 from torch import Tensor
 
 from meshadv import _validate
-from meshadv.attacks.criteria import CLASSIFIER_LOSSES, Criterion
+from meshadv.attacks.criteria import CLASSIFIER_LOSSES, Criterion, as_criteria
 from meshadv.attacks.evaluation import Evaluation, evaluate
 from meshadv.attacks.loop import run_attack
 from meshadv.attacks.outputs import slice_output
@@ -230,12 +230,9 @@ class MeshAttack(ABC):
         Raises:
             ValueError: bad mesh, views or criterion, or a criterion that does not suit the victim.
         """
-        criteria = [criterion] if isinstance(criterion, Criterion) else list(criterion)
-        if not criteria or not all(isinstance(c, Criterion) for c in criteria):
-            raise ValueError("criterion must be a Criterion or a non-empty sequence of Criterion objects")
-        for name, value in (("mesh", mesh), ):
-            if not hasattr(value, "vertices") or not hasattr(value, "faces") or not hasattr(value, "face_colors"):
-                raise ValueError(f"{name} must be a meshadv.mesh.Mesh, got {type(value).__name__}")
+        criteria = as_criteria(criterion)
+        if not all(hasattr(mesh, name) for name in ("vertices", "faces", "face_colors")):
+            raise ValueError(f"mesh must be a meshadv.mesh.Mesh, got {type(mesh).__name__}")
         if not hasattr(views, "camera") or len(views) < 1:
             raise ValueError("views must be a non-empty meshadv.render.ViewSet")
         if eval_views is not None and (not hasattr(eval_views, "camera") or len(eval_views) < 1):

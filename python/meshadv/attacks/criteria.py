@@ -23,11 +23,12 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, ClassVar, Dict, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, ClassVar, Dict, List, Optional, Sequence, Tuple, Union
 
 import torch
 from torch import Tensor
 
+from meshadv import _validate
 from meshadv.attacks import losses
 
 __all__ = [
@@ -38,6 +39,7 @@ __all__ = [
     "Disappearance",
     "WithMargin",
     "resolve_imagenet_classes",
+    "as_criteria",
 ]
 
 #: A class given by index, by name (ImageNet or PASCAL3D+ group), or as a group of indices.
@@ -94,6 +96,23 @@ def resolve_imagenet_classes(spec: ClassSpec, name: str = "class") -> Tuple[Tupl
         raise ValueError(f"{name} indices must be in [0, {len(names)}), got {list(idx)}")
     label = names[idx[0]] if len(idx) == 1 else "group(" + ",".join(str(i) for i in idx) + ")"
     return idx, label
+
+
+def as_criteria(criterion: Any) -> List["Criterion"]:
+    """``criterion`` as a non-empty list: one :class:`Criterion`, or a sequence of them (one per target).
+
+    Raises:
+        ValueError: not a criterion nor a non-empty sequence of criteria (the message names ``criterion``).
+    """
+    if isinstance(criterion, Criterion):
+        return [criterion]
+    try:
+        criteria = list(criterion)
+    except TypeError:
+        criteria = []
+    if not criteria or not all(isinstance(c, Criterion) for c in criteria):
+        raise ValueError("criterion must be a Criterion or a non-empty sequence of Criterion objects")
+    return criteria
 
 
 class Criterion(ABC):
@@ -283,6 +302,7 @@ class Disappearance(Criterion):
     bound: bool = field(default=False, compare=False)
 
     def __post_init__(self) -> None:
+        _validate.finite_float("threshold", self.threshold)  # TypeError for a non-number
         if not 0.0 < float(self.threshold) <= 1.0:
             raise ValueError(f"threshold must be in (0, 1], got {self.threshold}")
 

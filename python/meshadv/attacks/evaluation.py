@@ -18,7 +18,7 @@ from typing import Any, Optional, Sequence, Union
 import torch
 from torch import Tensor
 
-from meshadv.attacks.criteria import Criterion
+from meshadv.attacks.criteria import Criterion, as_criteria
 from meshadv.attacks.outputs import slice_output
 from meshadv.render.setup import RenderSetup
 
@@ -64,10 +64,12 @@ def evaluate(meshes: Union[Any, Sequence[Any]], views: Any, victim: Any,
         An :class:`Evaluation`.
 
     Raises:
-        ValueError: several meshes but a different number of criteria.
+        ValueError: no mesh or no criterion, or several meshes but a different number of criteria.
     """
     meshes = [meshes] if hasattr(meshes, "vertices") else list(meshes)
-    criteria = [criterion] if isinstance(criterion, Criterion) else list(criterion)
+    if not meshes or not all(hasattr(m, "vertices") for m in meshes):
+        raise ValueError("meshes must be a Mesh or a non-empty sequence of meshes")
+    criteria = as_criteria(criterion)
     shared = len(meshes) == 1
     if not shared and len(meshes) != len(criteria):
         raise ValueError(f"meshes ({len(meshes)}) must be one mesh or one per criterion ({len(criteria)})")

@@ -24,9 +24,8 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, List, Optional, Tuple, Union
 
-import torch
 from torch import Tensor
 
 from meshadv.util.atomic import write_json_atomic
@@ -255,10 +254,3 @@ class AttackResult:
         finally:
             shutil.rmtree(staging, ignore_errors=True)
         return out / RESULT_FILE
-
-
-def stack_or_none(values: Sequence[Optional[Tensor]]) -> Optional[Tensor]:
-    """Stack tensors, or return ``None`` when any is ``None``."""
-    if any(v is None for v in values):
-        return None
-    return torch.stack(list(values))  # type: ignore[arg-type]

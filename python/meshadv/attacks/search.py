@@ -24,6 +24,8 @@ from typing import List, Sequence
 
 import torch
 
+from meshadv import _validate
+
 __all__ = ["LambdaSearch"]
 
 
@@ -36,17 +38,14 @@ class LambdaSearch:
         factor: growth / shrink factor used while one of the bounds is unknown (> 1).
 
     Raises:
-        ValueError: negative ``initial``, ``num_targets < 1`` or ``factor <= 1``.
+        TypeError: ``initial`` or ``factor`` not a real number, ``num_targets`` not an integer.
+        ValueError: ``initial`` negative or not finite, ``num_targets < 1`` or ``factor <= 1``.
     """
 
     def __init__(self, initial: float, num_targets: int = 1, *, factor: float = 10.0) -> None:
-        if not initial >= 0 or not math.isfinite(initial):
-            raise ValueError(f"initial lambda must be a finite number >= 0, got {initial}")
-        if num_targets < 1:
-            raise ValueError(f"num_targets must be >= 1, got {num_targets}")
-        if not factor > 1:
-            raise ValueError(f"factor must be > 1, got {factor}")
-        self.factor = float(factor)
+        initial = _validate.finite_float("initial", initial, low=0.0)
+        num_targets = _validate.positive_int("num_targets", num_targets)
+        self.factor = _validate.finite_float("factor", factor, low=1.0, low_open=True)
         self._lam: List[float] = [float(initial)] * num_targets
         self._lo: List[float] = [-1.0] * num_targets  # -1: no success yet
         self._hi: List[float] = [math.inf] * num_targets

@@ -150,11 +150,14 @@ def register_update_rule(name: str, factory: RuleFactory) -> None:
 
     Raises:
         ValueError: ``name`` is empty or already registered.
+        TypeError: ``factory`` is not callable.
     """
     if not isinstance(name, str) or not name:
         raise ValueError(f"name must be a non-empty string, got {name!r}")
     if name in _RULES:
         raise ValueError(f"update rule {name!r} is already registered")
+    if not callable(factory):
+        raise TypeError(f"factory must be callable, got {type(factory).__name__}")
     _RULES[name] = factory
 
 
