@@ -21,7 +21,7 @@ Adversarial losses (lower = more adversarial), on classifier logits ``(B, K)``:
 
 from __future__ import annotations
 
-from typing import Optional, Sequence, Union
+from typing import Optional, Sequence, Tuple, Union
 
 import torch
 from torch import Tensor
@@ -135,6 +135,12 @@ def _check_logits(logits: Tensor) -> Tensor:
     return logits
 
 
+def _logits_and_classes(logits: Tensor, classes: ClassIndices) -> Tuple[Tensor, Tensor]:
+    """Validated ``(B, K)`` logits and the int64 indices of ``classes`` (argument name ``classes``)."""
+    logits = _check_logits(logits)
+    return logits, _class_index_tensor(classes, logits.shape[1], logits.device, "classes")
+
+
 def group_logit(logits: Tensor, classes: ClassIndices) -> Tensor:
     """The logit of a class group: ``logsumexp`` of its members' logits (the member's logit for one class).
 
@@ -145,8 +151,7 @@ def group_logit(logits: Tensor, classes: ClassIndices) -> Tensor:
     Returns:
         ``(B,)``.
     """
-    logits = _check_logits(logits)
-    idx = _class_index_tensor(classes, logits.shape[1], logits.device, "classes")
+    logits, idx = _logits_and_classes(logits, classes)
     return torch.logsumexp(logits[:, idx], dim=1)
 
 
@@ -160,8 +165,7 @@ def best_other_logit(logits: Tensor, classes: ClassIndices) -> Tensor:
     Returns:
         ``(B,)``.
     """
-    logits = _check_logits(logits)
-    idx = _class_index_tensor(classes, logits.shape[1], logits.device, "classes")
+    logits, idx = _logits_and_classes(logits, classes)
     masked = logits.index_fill(1, idx, float("-inf"))
     return masked.max(dim=1).values
 
@@ -197,6 +201,12 @@ def classification_margin(logits: Tensor, classes: ClassIndices) -> Tensor:
     return group_logit(logits, classes) - best_other_logit(logits, classes)
 
 
+def _check_kappa(kappa: float) -> None:
+    """``ValueError`` naming ``kappa`` when it is negative."""
+    if kappa < 0:
+        raise ValueError(f"kappa must be >= 0, got {kappa}")
+
+
 def cw_targeted_margin(logits: Tensor, target: ClassIndices, kappa: float = 0.0) -> Tensor:
     """Carlini & Wagner targeted loss ``max(max_{j not in T} z_j - z_T, -kappa)``.
 
@@ -211,8 +221,7 @@ def cw_targeted_margin(logits: Tensor, target: ClassIndices, kappa: float = 0.0)
     Raises:
         ValueError: negative ``kappa``.
     """
-    if kappa < 0:
-        raise ValueError(f"kappa must be >= 0, got {kappa}")
+    _check_kappa(kappa)
     return torch.clamp(-classification_margin(logits, target), min=-float(kappa))
 
 
@@ -230,8 +239,7 @@ def cw_untargeted_margin(logits: Tensor, true_class: ClassIndices, kappa: float 
     Raises:
         ValueError: negative ``kappa``.
     """
-    if kappa < 0:
-        raise ValueError(f"kappa must be >= 0, got {kappa}")
+    _check_kappa(kappa)
     return torch.clamp(classification_margin(logits, true_class), min=-float(kappa))
 
 

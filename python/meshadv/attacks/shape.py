@@ -26,7 +26,7 @@ Example:
 
 from __future__ import annotations
 
-from typing import Any, Optional, Tuple
+from typing import Any, Dict, Optional, Tuple
 
 from torch import Tensor
 
@@ -77,7 +77,7 @@ class ShapeAttack(MeshAttack):
         self.max_step = None if max_step is None else _validate.positive_float("max_step", max_step)
         self.vertex_mask = check_mask(vertex_mask, "vertex_mask", "vertex")
 
-    def config(self) -> dict:
+    def config(self) -> Dict[str, Any]:
         """Hyper-parameters, including ``smoothing``, ``max_step`` and ``vertex_mask``."""
         return {**super().config(), "smoothing": self.smoothing, "max_step": self.max_step,
                 "vertex_mask": mask_config(self.vertex_mask)}

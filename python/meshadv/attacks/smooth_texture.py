@@ -22,7 +22,7 @@ Example:
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Dict
 
 import torch
 from torch import Tensor
@@ -52,7 +52,7 @@ class SmoothTextureAttack(TextureAttack):
             raise ValueError(f"smoothing must be an int >= 0, got {smoothing!r}")
         self.smoothing = int(smoothing)
 
-    def config(self) -> dict:
+    def config(self) -> Dict[str, Any]:
         """Hyper-parameters, including ``smoothing``."""
         return {**super().config(), "smoothing": self.smoothing}
 

@@ -14,7 +14,7 @@ Example:
 
 from __future__ import annotations
 
-from typing import Any, Optional, Tuple
+from typing import Any, Dict, Optional, Tuple
 
 import torch
 from torch import Tensor
@@ -51,7 +51,7 @@ class TextureAttack(MeshAttack):
         super().__init__(**kwargs)
         self.face_mask = check_mask(face_mask, "face_mask", "face")
 
-    def config(self) -> dict:
+    def config(self) -> Dict[str, Any]:
         """Hyper-parameters, including ``face_mask``."""
         return {**super().config(), "face_mask": mask_config(self.face_mask)}
 
