@@ -214,6 +214,22 @@ class AttackResult:
             "loss_history": list(self.loss_history),
         }
 
+    def _write_meshes(self, folder: Path) -> None:
+        """Every target's adversarial mesh as PLY and OBJ (:meth:`mesh_filenames`) into ``folder``."""
+        from meshadv.mesh import save_mesh
+
+        for t, mesh in enumerate(self.adversarial):
+            for name in self.mesh_filenames(t):
+                save_mesh(mesh.detach(), folder / name)
+
+    def _write_images(self, folder: Path) -> None:
+        """The pristine and adversarial renders of every view as PNG into ``folder``."""
+        for v in range(self.original_images.shape[0]):
+            save_png(self.original_images[v], folder / f"before_v{v}.png")
+            for t in range(self.num_targets):
+                name = f"after_v{v}.png" if self.num_targets == 1 else f"after_t{t}_v{v}.png"
+                save_png(self.images[t, v], folder / name)
+
     def save(self, out_dir: Union[str, Path], *, images: bool = True) -> Path:
         """Write meshes (PLY and OBJ), PNG renders and ``result.json`` into ``out_dir`` atomically.
 
@@ -227,8 +243,6 @@ class AttackResult:
         Raises:
             ValueError: ``out_dir`` exists and is not a folder.
         """
-        from meshadv.mesh import save_mesh
-
         out = Path(out_dir)
         if out.exists() and not out.is_dir():
             raise ValueError(f"out_dir {out} exists and is not a folder")
@@ -236,15 +250,9 @@ class AttackResult:
         staging = Path(tempfile.mkdtemp(prefix=".staging-", dir=str(out)))
         try:
             written: List[str] = []
-            for t, mesh in enumerate(self.adversarial):
-                for name in self.mesh_filenames(t):
-                    save_mesh(mesh.detach(), staging / name)
+            self._write_meshes(staging)
             if images:
-                for v in range(self.original_images.shape[0]):
-                    save_png(self.original_images[v], staging / f"before_v{v}.png")
-                    for t in range(self.num_targets):
-                        name = f"after_v{v}.png" if self.num_targets == 1 else f"after_t{t}_v{v}.png"
-                        save_png(self.images[t, v], staging / name)
+                self._write_images(staging)
             for path in sorted(staging.iterdir()):
                 os.replace(path, out / path.name)
                 written.append(path.name)
