@@ -62,29 +62,14 @@ def resolve_imagenet_classes(spec: ClassSpec, name: str = "class") -> Tuple[Tupl
     Raises:
         ValueError: unknown name or index out of ``[0, 1000)``.
     """
-    from meshadv.victims.labels import PASCAL3D_TO_IMAGENET, imagenet_class_names
+    from meshadv.victims.labels import imagenet_class_names
 
     names = imagenet_class_names()
     if isinstance(spec, str):
         text = spec.strip()
-        if text.lstrip("-").isdigit():
-            spec = int(text)
-        elif text.lower() in PASCAL3D_TO_IMAGENET:
-            return tuple(PASCAL3D_TO_IMAGENET[text.lower()]), text.lower()
-        else:
-            low = text.lower()
-            for i, full in enumerate(names):
-                if full.lower() == low:
-                    return (i,), full
-            for i, full in enumerate(names):
-                if low in (s.strip().lower() for s in full.split(",")):
-                    return (i,), full
-            from meshadv._validate import suggest
-
-            close = suggest(low, [*PASCAL3D_TO_IMAGENET, *(n.lower() for n in names)])
-            raise ValueError(f"{name} {spec!r} is neither an ImageNet class name, a PASCAL3D+ class "
-                             f"({', '.join(PASCAL3D_TO_IMAGENET)}) nor an index"
-                             + (f"; did you mean {close!r}?" if close else ""))
+        if not text.lstrip("-").isdigit():
+            return _resolve_class_name(text, spec, name, names)
+        spec = int(text)
     if isinstance(spec, (int,)) and not isinstance(spec, bool):
         idx: Tuple[int, ...] = (int(spec),)
     else:
@@ -113,6 +98,30 @@ def as_criteria(criterion: Any) -> List["Criterion"]:
     if not criteria or not all(isinstance(c, Criterion) for c in criteria):
         raise ValueError("criterion must be a Criterion or a non-empty sequence of Criterion objects")
     return criteria
+
+
+def _resolve_class_name(text: str, spec: str, name: str, names: Sequence[str]) -> Tuple[Tuple[int, ...], str]:
+    """Indices and label of a class given by name (``text``, stripped ``spec``): a PASCAL3D+ class (a group), an
+    ImageNet class's full name, else one of its comma-separated synonyms (case-insensitive).
+
+    Raises:
+        ValueError: no such class (naming ``name``, with the closest name when there is one).
+    """
+    from meshadv.victims.labels import PASCAL3D_TO_IMAGENET
+
+    low = text.lower()
+    if low in PASCAL3D_TO_IMAGENET:
+        return tuple(PASCAL3D_TO_IMAGENET[low]), low
+    for i, full in enumerate(names):
+        if full.lower() == low:
+            return (i,), full
+    for i, full in enumerate(names):
+        if low in (s.strip().lower() for s in full.split(",")):
+            return (i,), full
+    close = _validate.suggest(low, [*PASCAL3D_TO_IMAGENET, *(n.lower() for n in names)])
+    raise ValueError(f"{name} {spec!r} is neither an ImageNet class name, a PASCAL3D+ class "
+                     f"({', '.join(PASCAL3D_TO_IMAGENET)}) nor an index"
+                     + (f"; did you mean {close!r}?" if close else ""))
 
 
 class Criterion(ABC):
