@@ -127,7 +127,11 @@ class LaplacianNorm:
 
 
 class ColorNorm:
-    """The texture norm: the face-colour RMSE of ``dt (T, M, 3)`` (over the faces of ``face_mask`` when given)."""
+    """The texture norm: the face-colour RMSE of ``dt (T, M, 3)`` (over the faces of ``face_mask`` when given).
+
+    Args:
+        face_mask: optional bool ``(M,)``: only these faces change colour and count in the norm.
+    """
 
     def __init__(self, face_mask: Optional[Tensor] = None) -> None:
         self.face_mask = None if face_mask is None else face_mask.detach().bool().cpu()

@@ -106,15 +106,20 @@ class ShapeAttack(MeshAttack):
     def _apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
         return mesh.vertices.unsqueeze(0) + self.displacement(params, edges), mesh.face_colors
 
-    def _perceptual(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
-                    num_views: int) -> Tensor:
+    def _laplacian(self, params: Tensor, edges: Tensor) -> Tensor:
+        """The Eq. 4 Laplacian of the applied displacement per target ``(K,)``: the perceptual loss and the
+        distance of the shape attack."""
         return laplacian_flow_loss(self.displacement(params, edges), edges)
 
+    def _perceptual(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
+                    num_views: int) -> Tensor:
+        return self._laplacian(params, edges)
+
     def _distance(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
-        return laplacian_flow_loss(self.displacement(params, edges), edges)
+        return self._laplacian(params, edges)
 
     def _terms(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
                num_views: int) -> Tuple[Tensor, Tensor]:
         """The perceptual loss and the distance are the same Laplacian: computed once."""
-        loss = laplacian_flow_loss(self.displacement(params, edges), edges)
+        loss = self._laplacian(params, edges)
         return loss, loss
