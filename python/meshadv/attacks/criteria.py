@@ -15,7 +15,7 @@ of the name also matches), a PASCAL3D+ class (``"boat"`` -> every ImageNet index
 
 Example:
     >>> crit = TargetedMisclassification("bicycle").bind(victim)    # doctest: +SKIP
-    >>> crit.margin(victim(images)) > 0                              # doctest: +SKIP  (adversarial?)
+    >>> crit.margin(victim(images)) > 0          # adversarial?        # doctest: +SKIP
 """
 
 from __future__ import annotations
