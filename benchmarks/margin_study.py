@@ -302,6 +302,29 @@ def summarize(rows: Sequence[Dict[str, Any]], *, paired_with: Optional[float] = 
     return lines
 
 
+def transfer_pairs(rows: Sequence[Dict[str, Any]], base: float = 0.0) -> List[str]:
+    """Per margin ``m != base`` (single-view shape/texture rows): over the jobs that succeed at both ``base`` and
+    ``m`` and have Mitsuba verdicts, how many transfer (untargeted, every view) at both, at ``base`` only, at ``m``
+    only, at neither: the discordant counts are what a margin changes."""
+    by = {(r["part"], r["perturbation"], r["job_id"], float(r["margin"])): r for r in rows}
+    out = []
+    for part, pert, m in sorted({(r["part"], r["perturbation"], float(r["margin"])) for r in rows}):
+        if m == base:
+            continue
+        counts = {"both": 0, "base only": 0, "m only": 0, "neither": 0}
+        for (p2, t2, job, m2), r in by.items():
+            ref = by.get((p2, t2, job, float(base)))
+            if (p2, t2, m2) != (part, pert, m) or ref is None:
+                continue
+            if not (r.get("untargeted_mitsuba") and ref.get("untargeted_mitsuba")):
+                continue
+            a, b = all(ref["untargeted_mitsuba"]), all(r["untargeted_mitsuba"])
+            counts["both" if a and b else "base only" if a else "m only" if b else "neither"] += 1
+        out.append(f"{part} {pert} m={m:g} vs m={base:g} (jobs successful at both): "
+                   + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    return out
+
+
 def paired_rows(rows: Sequence[Dict[str, Any]], margins: Sequence[float]) -> List[Dict[str, Any]]:
     """The rows of the jobs that have a (non-skipped) row at every one of ``margins``: the paired sample."""
     have: Dict[str, set] = {}
@@ -401,6 +424,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if not rows:
             raise SystemExit(f"--out {args.out} holds no attack rows")
         print("\n".join(summarize(rows)))
+        print("\nuntargeted Mitsuba transfer, paired:")
+        print("\n".join(transfer_pairs(rows)))
         correct = benign_correct_meshes(everything)
         if correct is not None:
             kept = [r for r in rows if (r["part"], r["source_class"]) in correct]
