@@ -108,11 +108,12 @@ def test_table2_per_class_splits_a_cell_by_class() -> None:
     def job(source: str, target: str, rate: float) -> dict:
         return {"spec": {"kind": "multiview", "victim": "v", "perturbation": "shape", "num_views": 5,
                          "azimuth_range": [45, 60], "source_class": source, "target": target},
-                "record": {"success": True, "eval_success_rate": rate}}
+                "record": {"success": True, "eval_success_rate": rate, "benign_correct": source == "sofa"}}
 
     jobs = [job("chair", "sofa", 0.2), job("sofa", "chair", 0.6), job("chair", "sofa", 0.4)]
     (pooled,) = table2(jobs)
     assert pooled.attacks == 3 and pooled.unseen_success == pytest.approx(0.4) and pooled.pair == ""
+    assert pooled.benign_correct == 1  # only the sofa's benign views were all classified right
     chair, sofa = table2(jobs, per_class=True)
     assert (chair.pair, chair.attacks, sofa.pair, sofa.attacks) == ("chair -> sofa", 2, "sofa -> chair", 1)
     assert chair.unseen_success == pytest.approx(0.3) and sofa.unseen_success == pytest.approx(0.6)

@@ -184,6 +184,7 @@ class Table2Row:
     attack_view_success: float
     unseen_success: float
     pair: str = ""  #: ``"chair -> sofa"`` in a per-class table (:func:`table2` with ``per_class``); empty when pooled
+    benign_correct: int = 0  #: attacks whose victim classified every benign attack view as the source class
 
 
 def _mean(values: Sequence[float]) -> float:
@@ -292,11 +293,11 @@ def table2(jobs: Iterable[Any], *, per_class: bool = False) -> List[Table2Row]:
             continue
         pair = f"{spec['source_class']} -> {spec['target']}" if per_class else ""
         key = (spec["victim"], spec["perturbation"], int(spec["num_views"]), tuple(spec["azimuth_range"]), pair)
-        groups[key].append((bool(record.get("success")), float(rate)))
+        groups[key].append((bool(record.get("success")), float(rate), bool(record.get("benign_correct"))))
     return [
         Table2Row(victim=k[0], perturbation=k[1], num_views=k[2], azimuth_range=(float(k[3][0]), float(k[3][1])),
-                  attacks=len(v), attack_view_success=_mean([float(s) for s, _ in v]),
-                  unseen_success=_mean([r for _, r in v]), pair=k[4])
+                  attacks=len(v), attack_view_success=_mean([float(s) for s, _, _ in v]),
+                  unseen_success=_mean([r for _, r, _ in v]), pair=k[4], benign_correct=sum(c for _, _, c in v))
         for k, v in sorted(groups.items())
     ]
 
@@ -372,10 +373,10 @@ def to_markdown(rows: Sequence[Any]) -> str:
         return "\n".join(lines) + "\n"
     per_class = any(r.pair for r in rows)
     lines = ["| victim | type | " + ("class -> target | " if per_class else "") + "attack views | azimuth range | "
-             "attacks | success on attack views | success on unseen views |",
-             "|---|---|---|---|---|---|---|" + ("---|" if per_class else "")]
+             "attacks | benign views all right | success on attack views | success on unseen views |",
+             "|---|---|---|---|---|---|---|---|" + ("---|" if per_class else "")]
     for r in rows:
         lines.append(f"| {r.victim} | {r.perturbation} | " + (f"{r.pair} | " if per_class else "")
                      + f"{r.num_views} | {r.azimuth_range[0]:g}°–{r.azimuth_range[1]:g}° | {r.attacks} | "
-                     f"{_fmt(r.attack_view_success, 'pct')} | {_fmt(r.unseen_success, 'pct')} |")
+                     f"{r.benign_correct} | {_fmt(r.attack_view_success, 'pct')} | {_fmt(r.unseen_success, 'pct')} |")
     return "\n".join(lines) + "\n"
