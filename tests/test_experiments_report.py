@@ -157,6 +157,8 @@ def test_tiny_sweep_commands_tables_and_figures(tmp_path: Path) -> None:
         checked += 1
     assert checked >= 3  # shape in both conventions and texture
     assert "45°–60°" in (out / "table2.md").read_text()
+    assert "class -> target" in (out / "table2_per_class.md").read_text()
+    assert not (out / "table1_benign_correct.md").exists()  # every attacked benign render was classified right
     figs = {p.name for p in (out / "figures").glob("*.png")}
     assert figs == {"grid_v1_shape.png", "grid_v1_texture.png", "flow_heatmap_v1.png", "flow_quiver_v1.png",
                     "curvature_v1.png"}
@@ -166,6 +168,19 @@ def test_tiny_sweep_commands_tables_and_figures(tmp_path: Path) -> None:
     settings = json.loads((out / "settings.json").read_text())
     assert settings["counts"]["done"] == 28 and "python" in settings["report_versions"]
     assert "Pearson" in (out / "README.md").read_text()
+
+
+def test_only_single_view_attacks_on_misclassified_renders_add_the_benign_correct_table() -> None:
+    """A multi-view job on a misclassified benign render (they are not filtered) does not split Table 1."""
+    from types import SimpleNamespace
+
+    from meshadv.experiments.report import attacked_misclassified
+
+    def row(kind: str, correct: bool, skipped: bool = False) -> SimpleNamespace:
+        return SimpleNamespace(spec={"kind": kind}, record={"benign_correct": correct, "skipped": skipped})
+
+    assert not attacked_misclassified([row("single", True), row("multiview", False), row("single", False, True)])
+    assert attacked_misclassified([row("single", True), row("single", False)])
 
 
 def test_report_counts_failed_and_unsuccessful_jobs(tmp_path: Path) -> None:

@@ -400,7 +400,7 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
     done = [r for r in rows if r.state == "done" and r.record is not None]
     t1 = table1(attack_rows(done))
     t1_correct = table1(attack_rows(done, benign_correct_only=True))
-    mixed = any(r.record.get("benign_correct") is False and not r.record.get("skipped") for r in done)
+    mixed = attacked_misclassified(done)
     t2 = table2(done)
     t2_classes = table2(done, per_class=True)
     for name, table in (("table1", t1), ("table1_benign_correct", t1_correct), ("table2", t2),
@@ -579,6 +579,14 @@ def figure_caption(name: str) -> str:
         return ("the paper's Fig. 3, flow vs. curvature: per-vertex flow magnitude against |mean curvature|, "
                 "coloured by distance to the camera (correlations below)")
     return ""
+
+
+def attacked_misclassified(done: List[Any]) -> bool:
+    """Whether a single-view attack of ``done`` ran on a benign render its victim got wrong (then Table 1 is also
+    written over the benign-correct instances only). Multi-view jobs are not benign-filtered; Table 2 counts theirs.
+    """
+    return any(r.record.get("benign_correct") is False and not r.record.get("skipped")
+               and r.spec.get("kind", "single") == "single" for r in done)
 
 
 def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[Any]], t2: List[Any],
