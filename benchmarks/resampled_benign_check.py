@@ -22,8 +22,6 @@ import torch
 
 from meshadv.experiments import jobs
 from meshadv.experiments.config import expand_jobs, load_config
-from meshadv.render import ViewSet
-from meshadv.render.setup import RenderSetup
 
 
 def instances(config: Path) -> List[Dict[str, Any]]:
@@ -39,16 +37,13 @@ def instances(config: Path) -> List[Dict[str, Any]]:
 
 def check(spec: Dict[str, Any]) -> Dict[str, Any]:
     """Benign verdicts of one instance on the original mesh (``target_faces`` 0) and on the sweep's mesh."""
-    setup_options, _, _ = jobs._attack_options(spec)  # the job's own render settings and benign check
-    setup = RenderSetup(image_size=int(spec.get("image_size", 224)), **setup_options)
-    views = ViewSet.from_records(spec["views"])
-    victim = jobs._victim(spec["victim"], spec.get("victim_weights"), jobs.victim_optimize(spec))
+    context = jobs.JobContext.from_spec(spec)  # the job's own views, victim, render settings and benign check
     row: Dict[str, Any] = {"victim": spec["victim"], "class": spec["source_class"], "config": spec["config_index"],
                            "mesh": spec["mesh"]["path"]}
     for name, target_faces in (("original", 0), ("sweep", int(spec["mesh"].get("target_faces", 0)))):
         mesh = jobs.load_job_mesh({**spec["mesh"], "target_faces": target_faces})
-        correct, top1, _ = jobs._benign_check(mesh, views, victim, spec["source_class"], setup)
-        row[name] = {"faces": int(mesh.faces.shape[0]), "correct": correct, "top1": top1[0]}
+        verdict = context.benign_verdict(mesh)
+        row[name] = {"faces": int(mesh.faces.shape[0]), "correct": verdict.correct, "top1": verdict.top1[0]}
     return row
 
 

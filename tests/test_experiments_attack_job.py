@@ -80,3 +80,24 @@ def test_attack_job_required_margin_wraps_the_criterion(tmp_path: Path) -> None:
     assert strict["success"] is False  # no render leads its runner-up by 1000 logits
     margins = np.asarray(strict_json["margins"][0])
     assert (margins < 0).all() and (margins < np.asarray(plain_json["margins"][0])).all()
+
+
+def test_job_context_benign_verdict_is_the_jobs_own_check(tmp_path: Path) -> None:
+    """``JobContext.benign_verdict`` (used by benchmarks/resampled_benign_check.py) gives the verdict the job
+    records, and a job told to attack only right renders skips exactly when that verdict is wrong."""
+    from meshadv.experiments.jobs import JobContext, load_job_mesh, run_attack_job
+
+    try:
+        from meshadv.victims import load_victim
+
+        load_victim("efficientnet_lite0")
+    except (ImportError, ValueError, OSError) as err:
+        pytest.skip(f"victim efficientnet_lite0 unavailable: {err}")
+    spec = next(j for j in expand_jobs(parse_config(TINY)) if j["perturbation"] == "texture")
+    job = {**spec, "attack": {**spec["attack"], "steps": 1}, "benign_correct_only": True}
+    verdict = JobContext.from_spec(job).benign_verdict(load_job_mesh(job["mesh"]))
+    assert len(verdict.top1) == len(job["views"]) == verdict.images.shape[0]
+    assert verdict.correct == all(label == job["source_class"] for label in verdict.top1)
+    record = run_attack_job(job, tmp_path)
+    assert record["benign_correct"] == verdict.correct and record["benign_top1"] == verdict.top1
+    assert record["skipped"] is (not verdict.correct)

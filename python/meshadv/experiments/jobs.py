@@ -23,11 +23,12 @@ driver (:func:`meshadv.experiments.worker.report_steps`); :func:`planned_steps` 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Tuple
 
-__all__ = ["run_attack_job", "load_job_mesh", "planned_steps", "victim_optimize", "default_attack_options",
-           "pin_defaults", "seed_pinned_defaults", "DISTANCE_KEYS", "PINNED_DEFAULTS_KEY"]
+__all__ = ["run_attack_job", "load_job_mesh", "JobContext", "BenignVerdict", "planned_steps", "victim_optimize",
+           "default_attack_options", "pin_defaults", "seed_pinned_defaults", "DISTANCE_KEYS", "PINNED_DEFAULTS_KEY"]
 
 #: Distance key of the record's ``distance`` per perturbation type: the measure comparable with the paper
 #: (``meshadv.attacks.distances.PAPER_COMPARABLE``; the record's ``distances`` holds every measure).
@@ -210,15 +211,60 @@ def _victim(name: str, weights: Any = None, optimize: bool = True) -> Any:
     return _VICTIM_CACHE[key]
 
 
-def _benign_check(mesh: Any, views: Any, victim: Any, source: str, setup: Any) -> Tuple[bool, List[str], Any]:
-    from meshadv.attacks import TargetedMisclassification, evaluate
+@dataclass(frozen=True)
+class BenignVerdict:
+    """How the job's victim classifies a mesh's benign render over the job's attack views."""
 
-    benign = evaluate(mesh, views, victim, TargetedMisclassification(source), setup=setup)
-    correct = bool(benign.success.all())
-    names = getattr(victim, "class_names", None)
-    top1 = benign.top1[0].tolist() if benign.top1 is not None else []
-    labels = [names[i] if names and i < len(names) else str(i) for i in top1]
-    return correct, labels, benign.images[0]
+    #: whether every attack view is classified as the job's source class
+    correct: bool
+    #: the victim's top-1 label per view
+    top1: List[str]
+    #: the benign renders, ``(views, 3, H, W)``
+    images: Any
+
+
+@dataclass(frozen=True)
+class JobContext:
+    """What a job renders and attacks with, built from its spec alone: views, victim, render setup, attack options."""
+
+    spec: Dict[str, Any]
+    views: Any
+    eval_views: Any
+    victim: Any
+    victim_optimize: bool
+    setup: Any
+    attack_options: Dict[str, Any]
+    required_margin: float
+
+    @classmethod
+    def from_spec(cls, spec: Dict[str, Any]) -> "JobContext":
+        """The context of ``spec`` (the victim is loaded once per process and cached)."""
+        from meshadv.render import ViewSet
+        from meshadv.render.setup import RenderSetup
+
+        optimize = victim_optimize(spec)
+        setup_options, options, required_margin = _attack_options(spec)
+        return cls(
+            spec=spec,
+            views=ViewSet.from_records(spec["views"]),
+            eval_views=ViewSet.from_records(spec["eval_views"]) if spec.get("eval_views") else None,
+            victim=_victim(spec["victim"], spec.get("victim_weights"), optimize),
+            victim_optimize=optimize,
+            setup=RenderSetup(image_size=int(spec.get("image_size", 224)), **setup_options),
+            attack_options=options,
+            required_margin=required_margin,
+        )
+
+    def benign_verdict(self, mesh: Any) -> BenignVerdict:
+        """Judge ``mesh``'s benign render as the attack renders it: the job's check before it attacks."""
+        from meshadv.attacks import TargetedMisclassification, evaluate
+
+        benign = evaluate(mesh, self.views, self.victim, TargetedMisclassification(self.spec["source_class"]),
+                          setup=self.setup)
+        names = getattr(self.victim, "class_names", None)
+        top1 = benign.top1[0].tolist() if benign.top1 is not None else []
+        labels = [names[i] if names and i < len(names) else str(i) for i in top1]
+        return BenignVerdict(correct=bool(benign.success.all()), top1=labels, images=benign.images[0])
 
 
 def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
@@ -241,48 +287,40 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     from meshadv.experiments.worker import attack_step_callback
     from meshadv.util.png import save_png
     from meshadv.mesh import save_mesh
-    from meshadv.render import ViewSet
-    from meshadv.render.setup import RenderSetup
 
     start, cpu_start = time.perf_counter(), time.process_time()
     out = Path(out_dir)
     perturbation = check_perturbation(spec["perturbation"], "spec['perturbation']")
     torch.manual_seed(int(spec.get("seed", 0)))
     mesh = load_job_mesh(spec["mesh"])
-    views = ViewSet.from_records(spec["views"])
-    eval_views = ViewSet.from_records(spec["eval_views"]) if spec.get("eval_views") else None
-    optimize = victim_optimize(spec)
-    victim = _victim(spec["victim"], spec.get("victim_weights"), optimize)
-    setup_options, options, required_margin = _attack_options(spec)
-    setup = RenderSetup(image_size=int(spec.get("image_size", 224)), **setup_options)
-    # judge the benign render as the attack renders it
-    correct, benign_top1, benign_images = _benign_check(mesh, views, victim, spec["source_class"], setup)
+    context = JobContext.from_spec(spec)
+    benign = context.benign_verdict(mesh)  # judge the benign render as the attack renders it
     save_mesh(mesh, out / "benign.ply")
     benign_pngs = []
-    for j in range(benign_images.shape[0]):
-        save_png(benign_images[j], out / f"benign_v{j}.png")
+    for j in range(benign.images.shape[0]):
+        save_png(benign.images[j], out / f"benign_v{j}.png")
         benign_pngs.append(f"benign_v{j}.png")
     record: Dict[str, Any] = {
-        "benign_correct": correct,
-        "benign_top1": benign_top1,
-        "victim_optimize": optimize,
+        "benign_correct": benign.correct,
+        "benign_top1": benign.top1,
+        "victim_optimize": context.victim_optimize,
         "num_vertices": int(mesh.vertices.shape[0]),
         "num_faces": int(mesh.faces.shape[0]),
         "artifacts": {"benign_mesh": "benign.ply", "benign_images": benign_pngs},
     }
-    if spec.get("benign_correct_only") and not correct:
+    if spec.get("benign_correct_only") and not benign.correct:
         record.update(skipped=True, success=False, distance=None, steps=0, time=time.perf_counter() - start,
-                      reason=f"benign render classified as {benign_top1}, not {spec['source_class']}")
+                      reason=f"benign render classified as {benign.top1}, not {spec['source_class']}")
         return record
-    attack = _make_job_attack(spec, options)
+    attack = _make_job_attack(spec, context.attack_options)
     # the effective hyper-parameters, defaults filled in (a spec names only what its config sets): regeneration
     # (meshadv.experiments.regenerate) pins them, so a later change of a default does not change a rerun
     record["attack_config"] = attack.config()
     criterion: Criterion = TargetedMisclassification(spec["target"])
-    if required_margin > 0:
-        criterion = WithMargin(criterion, required_margin)
-    result = attack(mesh, views, victim, criterion, setup=setup, eval_views=eval_views,
-                    callback=attack_step_callback)
+    if context.required_margin > 0:
+        criterion = WithMargin(criterion, context.required_margin)
+    result = attack(mesh, context.views, context.victim, criterion, setup=context.setup,
+                    eval_views=context.eval_views, callback=attack_step_callback)
     result.save(out)
     distances = dict(result.distances[0])
     ply, obj = result.mesh_filenames(0)
