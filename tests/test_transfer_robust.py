@@ -517,8 +517,10 @@ def test_smooth_texture_starts_at_the_original_colours_and_spreads_a_vertex_offs
     colors = smooth.colors(bump * 100, mesh, edges)
     assert float(colors.min()) >= 0.0 and float(colors.max()) <= 1.0  # always valid reflectances
     assert smooth.config()["smoothing"] == 16 and smooth.config()["face_mask"] is None
-    for bad in (-1, 1.5, True):
-        with pytest.raises(ValueError, match="smoothing"):
+    with pytest.raises(ValueError, match="smoothing"):
+        SmoothTextureAttack(smoothing=-1)
+    for bad in (1.5, True, "16"):
+        with pytest.raises(TypeError, match="smoothing"):
             SmoothTextureAttack(smoothing=bad)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="face_mask"):
         SmoothTextureAttack(face_mask=torch.zeros(3, dtype=torch.bool))

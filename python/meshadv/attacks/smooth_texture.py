@@ -27,6 +27,7 @@ from typing import Any, Dict
 import torch
 from torch import Tensor
 
+from meshadv._validate import non_negative_int
 from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.texture import COLOR_EPS, TextureAttack
 
@@ -43,14 +44,13 @@ class SmoothTextureAttack(TextureAttack):
             included; default ``lr`` 0.05 in logit space).
 
     Raises:
-        ValueError: ``smoothing`` is not an int ``>= 0``, or a hyper-parameter of the base attack is out of range.
+        TypeError: ``smoothing`` is not an integer.
+        ValueError: ``smoothing < 0``, or a hyper-parameter of the base attack is out of range.
     """
 
     def __init__(self, *, smoothing: int = 16, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        if isinstance(smoothing, bool) or not isinstance(smoothing, int) or smoothing < 0:
-            raise ValueError(f"smoothing must be an int >= 0, got {smoothing!r}")
-        self.smoothing = int(smoothing)
+        self.smoothing = non_negative_int("smoothing", smoothing)
 
     def config(self) -> Dict[str, Any]:
         """Hyper-parameters, including ``smoothing``."""
