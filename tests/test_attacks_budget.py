@@ -401,7 +401,7 @@ def test_adam_reach_moves_every_coordinate_until_the_target_holds() -> None:
     loss = (torch.sigmoid(params[idx]) * weights).sum(dim=(1, 2))
     rule.objective(loss, loss * 0, loss * 0, idx).backward()
     rule.step(params, idx, torch.tensor([True]))
-    assert int(rule.state.first_held[0]) == 1 and int(rule._adam_t[0]) == 1  # Adam's moments stopped
+    assert int(rule.state.first_held[0]) == 1 and int(rule._adam.t[0]) == 1  # Adam's moments stopped
     unit = -weights / weights.pow(2).sum(-1).mean().sqrt()
     expected = moved + 0.01 * unit
     expected = expected * (0.9 * 0.01) / float(expected.pow(2).sum(-1).mean().sqrt())  # eps = (1 - gamma) ||delta||

@@ -86,7 +86,8 @@ from typing import Any, Dict, Optional, Tuple
 import torch
 from torch import Tensor
 
-from meshadv.attacks.norms import TINY, ColorNorm, LaplacianNorm, per_row, positive_option, unit_rows
+from meshadv.attacks.budget_modifiers import AdamReach, Momentum, StallRestarts
+from meshadv.attacks.norms import TINY, ColorNorm, LaplacianNorm, per_row, positive_option
 from meshadv.attacks.shape import ShapeAttack
 from meshadv.attacks.texture import COLOR_EPS, TextureAttack
 from meshadv.attacks.update import UpdateRule, register_update_rule
@@ -108,10 +109,6 @@ _RULE_OPTIONS = ("smoothness", "momentum", "stall_steps", "stall_factor", "reach
 
 #: Values of the ``reach`` option: the step direction of a target that has not held yet (see the module docstring).
 REACH_MODES = ("budget", "adam")
-
-#: Adam's moment decays and denominator offset for ``reach="adam"`` (torch's defaults).
-_ADAM_BETAS = (0.9, 0.999)
-_ADAM_EPS = 1e-8
 
 #: Values of the ``anneal`` option: when the step length falls (see the module docstring).
 ANNEAL_MODES = ("cosine", "after_success")
@@ -277,12 +274,11 @@ class DDNRule(UpdateRule):
     """
 
     rounds = 1
-    # the per-round step state (:meth:`_reset_round_state`)
+    # the per-round step state (:meth:`_reset_round_state`); a modifier is None while its option is off
     _delta: Optional[Tensor]
-    _velocity: Optional[Tensor]
-    _best_delta: Optional[Tensor]
-    _adam_m: Optional[Tensor]
-    _adam_v: Optional[Tensor]
+    _momentum: Optional[Momentum]
+    _stall: Optional[StallRestarts]
+    _adam: Optional[AdamReach]
     _last_loss: Optional[Tensor]
 
     def __init__(self, *, attack: Any, num_targets: int, **options: Any) -> None:
@@ -323,22 +319,15 @@ class DDNRule(UpdateRule):
         self.reach = reach
 
     def _reset_round_state(self, delta: Optional[Tensor]) -> None:
-        """The per-round step state: the perturbation ``delta`` (``None`` before the first round), what the momentum,
-        stall restarts and ``reach="adam"`` keep (only when on), the step lengths' scales and the step count."""
+        """The per-round step state: the perturbation ``delta`` (``None`` before the first round), the step modifiers
+        whose options are on (:mod:`meshadv.attacks.budget_modifiers`), the step lengths' scales and the step count."""
         self._delta = delta
-        if delta is None:
-            self._velocity = self._best_delta = self._adam_m = self._adam_v = None
-        else:
-            self._velocity = torch.zeros_like(delta) if self.momentum > 0 else None
-            self._best_delta = delta.clone() if self.stall_steps > 0 else None
-            adam = self.reach == "adam"
-            self._adam_m = torch.zeros_like(delta, dtype=torch.float64) if adam else None
-            self._adam_v = torch.zeros_like(delta, dtype=torch.float64) if adam else None
+        on = delta is not None
+        self._momentum = Momentum(self.momentum, delta) if on and self.momentum > 0 else None
+        self._stall = StallRestarts(self.stall_steps, delta) if on and self.stall_steps > 0 else None
+        self._adam = AdamReach(delta) if on and self.reach == "adam" else None
         self._scale = torch.ones(self.num_targets, dtype=torch.float64)
-        self._best_loss = torch.full((self.num_targets,), math.inf, dtype=torch.float64)
-        self._since_best = torch.zeros(self.num_targets, dtype=torch.long)
         self.restarts = torch.zeros(self.num_targets, dtype=torch.long)
-        self._adam_t = torch.zeros(self.num_targets, dtype=torch.long)
         self._last_loss = None
         self._step = 0
 
@@ -375,66 +364,30 @@ class DDNRule(UpdateRule):
         return adv.sum()
 
     def _restart_stalled(self, idx: Tensor, delta: Tensor, held: Tensor) -> Tuple[Tensor, Tensor]:
-        """Stall handling (``stall_steps > 0``): every target of ``idx`` whose adversarial loss has not improved for
-        ``stall_steps`` steps without holding is put back at its lowest-loss point (this step's gradient, taken
-        elsewhere, is not used for it); its step length is multiplied by ``stall_factor`` and its momentum cleared.
-        Returns the new ``delta`` and the restarted rows (bool ``(K,)``)."""
+        """Stall handling (``stall_steps > 0``): every target of ``idx`` that has stalled (:class:`StallRestarts`)
+        is put back at its lowest-loss point (this step's gradient, taken elsewhere, is not used for it); its step
+        length is multiplied by ``stall_factor`` and its momentum cleared. Returns the new ``delta`` and the
+        restarted rows (bool ``(K,)``)."""
         none = torch.zeros(len(idx), dtype=torch.bool)
-        if self.stall_steps == 0 or self._best_delta is None or self._last_loss is None:
+        if self._stall is None or self._last_loss is None or len(self._last_loss) != len(idx):
             return delta, none
-        if len(self._last_loss) != len(idx):
-            return delta, none
-        loss = self._last_loss
-        better = loss < self._best_loss[idx]
-        self._best_loss[idx] = torch.where(better, loss, self._best_loss[idx])
-        rows = idx[better]
-        if len(rows):
-            self._best_delta[rows] = delta[better].to(self._best_delta.dtype)
-        since = torch.where(better | held, torch.zeros_like(self._since_best[idx]), self._since_best[idx] + 1)
-        stalled = since >= self.stall_steps
+        delta, stalled = self._stall.check(idx, delta, self._last_loss, held)
         if bool(stalled.any()):
             rows = idx[stalled]
-            delta = delta.clone()
-            delta[stalled] = self._best_delta[rows].to(delta.dtype)
             self._scale[rows] *= self.stall_factor
             self.restarts[rows] += 1
-            since = torch.where(stalled, torch.zeros_like(since), since)
-            if self._velocity is not None:
-                self._velocity[rows] = 0
-        self._since_best[idx] = since
+            if self._momentum is not None:
+                self._momentum.clear(rows)
         return delta, stalled
 
-    def _heading(self, idx: Tensor, direction: Tensor) -> Tensor:
-        """The unit step direction of the targets ``idx``: ``direction``, or with ``momentum = beta > 0`` the
-        normalised running sum ``v <- beta v + direction`` of the unit directions (MI-FGSM's accumulation)."""
-        if self._velocity is None:
-            return direction
-        v = self.momentum * self._velocity[idx] + direction.to(self._velocity.dtype)
-        self._velocity[idx] = v
-        return unit_rows(v, self.norm.norm(v)).to(direction.dtype)
-
-    def _reach(self, idx: Tensor, grad: Tensor, heading: Tensor) -> Tensor:
-        """``reach="adam"``: the rows of ``idx`` whose target has not held yet in this round step along Adam's
-        per-coordinate normalised direction ``-m_hat / (sqrt(v_hat) + eps)`` of their (projected) gradients, made unit
-        in the budget's norm; the other rows keep ``heading``. Adam's moments advance only while a target is unheld."""
-        if self._adam_m is None or self._adam_v is None or self.state is None:
-            return heading
-        unheld = self.state.first_held[idx] < 0
-        if not bool(unheld.any()):
-            return heading
-        rows = idx[unheld]
-        g = self.norm.project(grad[unheld]).to(torch.float64).cpu()
-        b1, b2 = _ADAM_BETAS
-        m = b1 * self._adam_m[rows] + (1 - b1) * g
-        v = b2 * self._adam_v[rows] + (1 - b2) * g * g
-        self._adam_m[rows], self._adam_v[rows] = m, v
-        self._adam_t[rows] += 1
-        t = per_row(self._adam_t[rows].double(), g)
-        d = -(m / (1 - b1 ** t)) / ((v / (1 - b2 ** t)).sqrt() + _ADAM_EPS)
-        d = self.norm.project(d)
-        d = unit_rows(d, self.norm.norm(d)).to(heading.dtype).to(heading.device)
-        heading = heading.clone()
-        heading[unheld] = d
+    def _heading(self, idx: Tensor, grad: Tensor) -> Tensor:
+        """The unit step direction of the targets ``idx``: the budget norm's direction of ``grad``, through the
+        momentum when it is on, and Adam's direction for the targets not held yet with ``reach="adam"``."""
+        heading = self.norm.direction(grad)
+        if self._momentum is not None:
+            heading = self._momentum.heading(idx, heading, self.norm)
+        if self._adam is not None and self.state is not None:
+            heading = self._adam.heading(idx, self.state.first_held[idx] < 0, grad, heading, self.norm)
         return heading
 
     def step(self, params: Tensor, active: Tensor, is_adversarial: Tensor) -> None:
@@ -447,9 +400,9 @@ class DDNRule(UpdateRule):
             delta = self._delta[idx]
             budgets = self.state.update(idx, is_adversarial, self.norm.norm(delta), self._step)
             delta, restarted = self._restart_stalled(idx, delta, is_adversarial.detach().cpu().bool())
-            heading = self._reach(idx, grad, self._heading(idx, self.norm.direction(grad)))
-            if self._velocity is not None and bool(restarted.any()):
-                self._velocity[idx[restarted]] = 0
+            heading = self._heading(idx, grad)
+            if self._momentum is not None and bool(restarted.any()):
+                self._momentum.clear(idx[restarted])
             scale = torch.where(restarted, torch.zeros_like(self._scale[idx]), self._scale[idx])
             heading = heading * scale.to(heading.dtype).to(heading.device).view((-1,) + (1,) * (heading.dim() - 1))
             moved = self.state.move(delta, heading, budgets, self._step, self.norm, idx)
