@@ -25,7 +25,8 @@ from meshadv.experiments.figures import (
     mean_curvature_np,
 )
 from meshadv.experiments.regenerate import load_assumed, pinned_spec
-from meshadv.experiments.report import ArtifactSource, _grid_cells, settings_mix, write_report
+from meshadv.experiments.report import ArtifactSource, settings_mix, write_report
+from meshadv.experiments.report_figures import grid_cells
 from sweep_fixtures import run_probe_sweep
 
 CONFIG = textwrap.dedent("""
@@ -76,7 +77,7 @@ def test_report_regenerates_only_the_jobs_its_figures_use(moved_db: Path, tmp_pa
         rows = store.rows()
     assert len(rows) == 12
     # without a place to regenerate into, nothing is drawn from missing folders
-    cells, classes, _ = _grid_cells(rows, ArtifactSource(moved_db, None))
+    cells, classes, _ = grid_cells(rows, ArtifactSource(moved_db, None))
     assert cells == {} and classes == ["aeroplane", "bicycle", "boat"]
     out = write_report(moved_db, tmp_path / "report", artifacts=tmp_path / "regen")
     names = sorted(p.name for p in out.figures)
@@ -102,7 +103,7 @@ def test_report_regenerates_only_the_jobs_its_figures_use(moved_db: Path, tmp_pa
     assert {p: p.stat().st_mtime_ns for p in (tmp_path / "regen").rglob("regeneration.json")} == stamps
     # the grid from regenerated renders: every diagonal cell is a benign render, every off-diagonal an attack
     source = ArtifactSource(moved_db, tmp_path / "regen")
-    cells, classes, failed = _grid_cells(rows, source)
+    cells, classes, failed = grid_cells(rows, source)
     assert failed == set()
     assert set(cells) == {(a, b) for a in classes for b in classes}
     assert all(cells[(c, c)].name == "benign_v0.png" for c in classes)

@@ -11,7 +11,8 @@ import pytest
 from meshadv.experiments import ResultStore
 from meshadv.experiments.config import expand_jobs, parse_config
 from meshadv.experiments.figures import grid_figure, render_grid
-from meshadv.experiments.report import _grid_cells, write_report
+from meshadv.experiments.report import write_report
+from meshadv.experiments.report_figures import grid_cells
 from sweep_fixtures import run_probe_sweep
 
 CONFIG = textwrap.dedent("""
@@ -51,7 +52,7 @@ def _texts(fig) -> List:
 def test_grid_marks_missing_and_failed_cells_and_keeps_titles_inside(small_db: Path) -> None:
     with ResultStore(small_db, read_only=True) as store:
         rows = store.rows()
-    cells, classes, failed = _grid_cells(rows)
+    cells, classes, failed = grid_cells(rows)
     assert classes == ["boat", "chair", "diningtable"]
     assert failed == {("boat", "chair")}
     long_title = "shape attacks on efficientnet_lite0 (rows: benign class, columns: target; diagonal: benign; " \

@@ -21,21 +21,22 @@ Output folder layout::
 from __future__ import annotations
 
 import json
-import platform
-import sys
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Sequence, Set, Tuple, Union
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
-import numpy as np
 
+from meshadv.experiments.artifact_source import ArtifactSource
 from meshadv.experiments.compare import paper_comparison
+from meshadv.experiments.provenance import environment_versions
+from meshadv.experiments.report_figures import PAPER_FLOW_EXAMPLE, flow_figures, grid_cells, slug_of
 from meshadv.experiments.store import JobRow, ResultStore
 from meshadv.experiments.tables import (
     DISTANCE_NAMES,
     PAPER_WORST,
     attack_rows,
+    instance_key,
     table1,
     table2,
     to_csv,
@@ -66,40 +67,6 @@ paper's own attacks lie above it too). A mean or median alone hides a tail of vi
     shape=PAPER_WORST["shape"], texture=PAPER_WORST["texture"])
 
 
-def _git_state(folder: Path) -> Dict[str, str]:
-    """``{"git_commit": ..., "git_dirty": "yes"/"no"}`` of the checkout holding ``folder`` (``{}`` outside one): the
-    package version alone does not say which code ran, and an editable install runs uncommitted edits too."""
-    import subprocess
-
-    try:
-        commit = subprocess.run(["git", "-C", str(folder), "rev-parse", "HEAD"], capture_output=True, text=True,
-                                timeout=10, check=True).stdout.strip()
-        status = subprocess.run(["git", "-C", str(folder), "status", "--porcelain", "--untracked-files=no", "--",
-                                 "."], capture_output=True, text=True, timeout=10, check=True).stdout
-    except (OSError, subprocess.SubprocessError):
-        return {}
-    return {"git_commit": commit, "git_dirty": "yes" if status.strip() else "no"} if commit else {}
-
-
-def environment_versions() -> Dict[str, str]:
-    """Versions of Python, the platform and the main packages (those importable), and, when meshadv runs from a git
-    checkout, its commit and whether the package's files had uncommitted changes (``git_dirty``)."""
-    out = {"python": sys.version.split()[0], "platform": platform.platform()}
-    for name in ("meshadv", "torch", "numpy", "matplotlib", "ray"):
-        try:
-            module = __import__(name)
-            out[name] = str(getattr(module, "__version__", "?"))
-        except Exception:  # noqa: BLE001 - a missing optional package is simply not listed
-            continue
-    try:
-        import meshadv
-
-        out.update(_git_state(Path(meshadv.__file__).resolve().parent))
-    except Exception:  # noqa: BLE001 - versions are informative, never fatal
-        pass
-    return out
-
-
 @dataclass
 class ReportOutput:
     """What :func:`write_report` wrote.
@@ -118,237 +85,6 @@ class ReportOutput:
     correlations: Dict[str, Dict[str, float]] = field(default_factory=dict)
     counts: Dict[str, int] = field(default_factory=dict)
     regenerations: Dict[str, Dict[str, Any]] = field(default_factory=dict)
-
-
-def _slug(text: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_" else "_" for c in text)
-
-
-def _artifact_names(record: Dict[str, Any]) -> List[str]:
-    """The file names a record's ``artifacts`` lists (relative ones: what a complete job folder holds)."""
-    names: List[str] = []
-    for value in (record.get("artifacts") or {}).values():
-        for name in value if isinstance(value, list) else [value]:
-            if isinstance(name, str) and name and not Path(name).is_absolute():
-                names.append(name)
-    return names
-
-
-def _complete(folder: Optional[Union[str, Path]], record: Dict[str, Any]) -> bool:
-    """Whether ``folder`` holds every artefact ``record`` lists (a folder the job finished writing)."""
-    if not folder or "://" in str(folder):
-        return False
-    names = _artifact_names(record)
-    return bool(names) and all((Path(folder) / n).is_file() for n in names)
-
-
-class ArtifactSource:
-    """Where the report finds the artefacts (meshes, renders) of a finished job.
-
-    The folder the database records for the job when it is complete on this machine (``use_stored``), else
-    ``<root>/jobs/<id[:2]>/<id>`` when it is complete there (regenerated earlier), else, with ``root`` set, the job is
-    regenerated there from its stored spec and seed (:func:`meshadv.experiments.regenerate.regenerate_job`) and its
-    new record is compared with the stored one; each regeneration's check is kept in :attr:`checks` and written to
-    ``regeneration.json`` in the job's folder (read back when a later report reuses the folder).
-
-    Args:
-        db_path: the results database. root: the folder for regenerated artefacts (``None``: never regenerate).
-        use_stored: use the folders the database records. threads: intra-op threads of a regeneration.
-        assume: the sweep's defaults for records that do not pin them (:func:`~meshadv.experiments.regenerate.
-            pinned_spec`).
-    """
-
-    def __init__(self, db_path: Union[str, Path], root: Optional[Union[str, Path]] = None, *,
-                 use_stored: bool = True, threads: int = 1, assume: Optional[Dict[str, Any]] = None) -> None:
-        self.db_path = Path(db_path)
-        self.root = None if root is None else Path(root)
-        self.use_stored = bool(use_stored)
-        self.threads = int(threads)
-        self.assume = dict(assume or {})
-        self.checks: Dict[str, Dict[str, Any]] = {}
-        self._folders: Dict[str, Optional[Path]] = {}
-
-    def folder(self, row: JobRow, *, regenerate: bool = True) -> Optional[Path]:
-        """The job's complete artefact folder, regenerating it when allowed and needed; ``None`` when there is none."""
-        if row.job_id in self._folders and (self._folders[row.job_id] is not None or not regenerate):
-            return self._folders[row.job_id]
-        record = row.record or {}
-        found: Optional[Path] = None
-        if self.use_stored and _complete(row.out_dir, record):
-            found = Path(str(row.out_dir))
-        elif self.root is not None:
-            from meshadv.experiments.runner import job_out_dir
-
-            target = job_out_dir(self.root, row.job_id)
-            check_file = target / "regeneration.json"
-            if _complete(target, record) and check_file.is_file():
-                found = target
-                self.checks[row.job_id] = json.loads(check_file.read_text(encoding="utf-8"))
-            elif regenerate:
-                found = self._regenerate(row, target)
-        self._folders[row.job_id] = found
-        return found
-
-    def _regenerate(self, row: JobRow, target: Path) -> Path:
-        import time
-
-        from meshadv.experiments.regenerate import regenerate_job
-
-        cpu = time.process_time()
-        done = regenerate_job(self.db_path, row.job_id, target, threads=self.threads, assume=self.assume)
-        check = {"job_id": row.job_id, "matches": done.matches, "differences": list(done.differences),
-                 "notes": list(done.notes), "cpu_s": round(time.process_time() - cpu, 2),
-                 "stored": {k: (done.stored or {}).get(k) for k in ("success", "steps", "distance")},
-                 "regenerated": {k: done.record.get(k) for k in ("success", "steps", "distance")}}
-        (target / "regeneration.json").write_text(json.dumps(check, indent=2, sort_keys=True), encoding="utf-8")
-        self.checks[row.job_id] = check
-        return target
-
-
-def _art(row: JobRow, key: str, index: int = 0, source: Optional[ArtifactSource] = None) -> Optional[Path]:
-    arts = (row.record or {}).get("artifacts", {})
-    value = arts.get(key)
-    if isinstance(value, list):
-        value = value[index] if index < len(value) else None
-    if not value:
-        return None
-    if source is not None:
-        folder = source.folder(row)
-    else:
-        folder = None if row.out_dir is None else Path(row.out_dir)
-    if folder is None:
-        return None
-    path = folder / value
-    return path if path.exists() else None
-
-
-def _instance(row: JobRow) -> Tuple[Any, ...]:
-    mesh = row.spec["mesh"]
-    return (mesh.get("path") or mesh.get("name"), row.spec.get("config_index"), row.spec.get("seed"),
-            row.spec.get("protocol"))
-
-
-def _grid_cells(rows: List[JobRow], source: Optional[ArtifactSource] = None,
-                ) -> Tuple[Dict[Tuple[str, str], Path], List[str], Set[Tuple[str, str]]]:
-    """Pick, per source class, the instance with the most successful targets (from the records alone); return its
-    renders, the classes and the ``(source, target)`` cells whose attack failed. Only the chosen instances' jobs are
-    looked up in ``source`` (regenerated when it regenerates)."""
-    by_instance: Dict[Tuple[Any, ...], List[JobRow]] = defaultdict(list)
-    for row in rows:
-        by_instance[_instance(row)].append(row)
-    best: Dict[str, List[JobRow]] = {}
-    for inst_rows in by_instance.values():
-        src = inst_rows[0].spec["source_class"]
-        score = sum(bool(r.record.get("success")) for r in inst_rows)
-        if src not in best or score > sum(bool(r.record.get("success")) for r in best[src]):
-            best[src] = inst_rows
-    from meshadv.experiments.config import PASCAL3D_CLASSES
-
-    classes = sorted({r.spec["source_class"] for r in rows} | {r.spec["target"] for r in rows},
-                     key=lambda c: (PASCAL3D_CLASSES.index(c) if c in PASCAL3D_CLASSES else 99, c))
-    cells: Dict[Tuple[str, str], Path] = {}
-    failed: Set[Tuple[str, str]] = set()
-    for src, inst_rows in best.items():
-        for r in inst_rows:
-            benign = _art(r, "benign_images", 0, source)
-            if benign is not None:
-                cells.setdefault((src, src), benign)
-            adv = _art(r, "adversarial_images", 0, source)
-            if adv is not None:
-                cells[(src, r.spec["target"])] = adv
-                if not r.record.get("success"):
-                    failed.add((src, r.spec["target"]))
-    return cells, classes, failed
-
-
-def _load_pair(row: JobRow, source: Optional[ArtifactSource] = None,
-               ) -> Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    import trimesh
-
-    benign, adv = _art(row, "benign_mesh", 0, source), _art(row, "adversarial_mesh", 0, source)
-    if benign is None or adv is None:
-        return None
-    a = trimesh.load(benign, process=False, force="mesh")
-    b = trimesh.load(adv, process=False, force="mesh")
-    if a.vertices.shape != b.vertices.shape:
-        return None
-    return np.asarray(a.vertices), np.asarray(b.vertices), np.asarray(a.faces)
-
-
-def _curvature(vertices: np.ndarray, faces: np.ndarray) -> Optional[np.ndarray]:
-    try:
-        import torch
-
-        from meshadv.mesh import Mesh, mean_curvature
-
-        mesh = Mesh(torch.as_tensor(vertices, dtype=torch.float32), torch.as_tensor(faces, dtype=torch.int64),
-                    torch.full((len(faces), 3), 0.7))
-        return mean_curvature(mesh).detach().cpu().numpy().astype(np.float64)
-    except Exception:  # noqa: BLE001 - fall back to the figures module's own estimate
-        return None
-
-
-#: The example of the paper's Fig. 3 (flow directions on an aeroplane attacked towards "bicycle"): the flow figures
-#: show this attack when a victim has a successful one, else the attack chosen by :func:`_flow_order`.
-PAPER_FLOW_EXAMPLE = ("aeroplane", "bicycle")
-
-
-def _flow_order(row: JobRow) -> Tuple[Any, ...]:
-    """Sort key of the flow figures' candidates: the paper's example first, then a successful attack on the densest
-    mesh with the largest flow (the clearest picture of the flow field)."""
-    rec = row.record or {}
-    paper = (row.spec.get("source_class"), row.spec.get("target")) == PAPER_FLOW_EXAMPLE and bool(rec.get("success"))
-    return (not paper, not rec.get("success"), -(rec.get("num_vertices") or 0),
-            -((rec.get("distances") or {}).get("max_displacement") or 0.0), row.job_id)
-
-
-def _flow_pair(rows: List[JobRow], source: ArtifactSource,
-               ) -> Optional[Tuple[JobRow, Tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-    """The first candidate (in :func:`_flow_order`) whose meshes are on this machine; else the first one,
-    regenerated when ``source`` regenerates (one job, not every candidate)."""
-    ordered = sorted(rows, key=_flow_order)
-    for row in ordered:
-        if source.folder(row, regenerate=False) is not None:
-            pair = _load_pair(row, source)
-            if pair is not None:
-                return row, pair
-    if ordered and source.root is not None:
-        pair = _load_pair(ordered[0], source)
-        if pair is not None:
-            return ordered[0], pair
-    return None
-
-
-def _flow_figures(rows: List[JobRow], fig_dir: Path, out: ReportOutput,
-                  source: Optional[ArtifactSource] = None) -> None:
-    """Flow heatmaps (rendered and canonical view), quiver plot and flow vs curvature of one shape attack per victim
-    (the paper's Fig. 3)."""
-    from meshadv.experiments import figures
-
-    if source is None:
-        source = ArtifactSource(Path("."), None)
-    by_victim: Dict[str, List[JobRow]] = defaultdict(list)
-    for row in rows:
-        if row.spec.get("perturbation") == "shape" and not row.record.get("skipped"):
-            by_victim[victim_label(row.spec)].append(row)
-    for victim, vrows in sorted(by_victim.items()):
-        found = _flow_pair(vrows, source)
-        if found is None:
-            continue
-        row, (v, va, f) = found
-        view = row.spec["views"][0]
-        label = f"{victim}: {row.spec['source_class']} → {row.spec['target']}" + (
-            "" if row.record.get("success") else " (attack failed)")
-        slug = _slug(victim)
-        out.figures.append(figures.flow_heatmaps(v, va, f, fig_dir / f"flow_heatmap_{slug}.png",
-                                                 view=view, title=label))
-        out.figures.append(figures.flow_quiver(v, va, f, fig_dir / f"flow_quiver_{slug}.png",
-                                               title=f"{label}: flow directions"))
-        path, corr = figures.curvature_scatter(v, va, f, fig_dir / f"curvature_{slug}.png",
-                                               curvature=_curvature(v, f), eye=figures.camera_eye(view),
-                                               title=label)
-        out.figures.append(path)
-        out.correlations[victim] = {**corr, "job_id": row.job_id}
 
 
 #: A section a caller adds to the report: ``section(done_rows, out_dir) -> (markdown, files written)``; the
@@ -430,13 +166,14 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
 
         source = ArtifactSource(db, artifacts, use_stored=use_stored, threads=threads, assume=assume)
         for (victim, perturbation), grows in sorted(groups.items()):
-            cells, classes, failed = _grid_cells(grows, source)
+            cells, classes, failed = grid_cells(grows, source)
             if cells:
-                out.figures.append(render_grid(cells, classes, fig_dir / f"grid_{_slug(victim)}_{perturbation}.png",
+                out.figures.append(render_grid(cells, classes, fig_dir / f"grid_{slug_of(victim)}_{perturbation}.png",
                                                title=f"{perturbation} attacks on {victim} (rows: benign class, "
                                                      f"columns: target; diagonal: benign; red: attack failed)",
                                                failed=failed))
-        _flow_figures(single, fig_dir, out, source)
+        flow_paths, out.correlations = flow_figures(single, fig_dir, source)
+        out.figures.extend(flow_paths)
         out.regenerations = dict(source.checks)
         if out.regenerations:
             out.tables.extend(_write_regenerations(out.out_dir, out.regenerations, done))
@@ -547,7 +284,8 @@ def _run_stats(done: List[JobRow]) -> List[str]:
         if r.spec.get("kind", "single") == "single":
             groups[(victim_label(r.spec), r.spec["perturbation"])].append(r)
     for (victim, perturbation), rows in sorted(groups.items()):
-        instances = {_instance(r): bool(r.record.get("benign_correct")) for r in rows if "benign_correct" in r.record}
+        instances = {instance_key(r.spec): bool(r.record.get("benign_correct"))
+                     for r in rows if "benign_correct" in r.record}
         attacked = [r for r in rows if not r.record.get("skipped")]
         steps = [r.record["steps"] for r in attacked if r.record.get("steps") is not None]
         secs = [r.record["time"] for r in attacked if r.record.get("time") is not None]

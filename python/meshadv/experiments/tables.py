@@ -196,6 +196,13 @@ def victim_label(spec: Dict[str, Any]) -> str:
     return spec["victim"] + (f" [{spec['protocol']}]" if spec.get("protocol") else "")
 
 
+def instance_key(spec: Dict[str, Any]) -> Tuple[Any, ...]:
+    """The benign input a job attacks: ``(mesh path or name, rendering configuration, seed)`` (with the victim and
+    perturbation type, an *instance* of the module docstring)."""
+    mesh = spec["mesh"]
+    return mesh.get("path") or mesh.get("name"), spec.get("config_index"), spec.get("seed")
+
+
 def attack_rows(jobs: Iterable[Any], *, benign_correct_only: bool = False) -> List[AttackRow]:
     """Flatten finished single-view jobs (``JobRow`` objects or ``{"spec", "record"}`` dicts) into :class:`AttackRow`.
 
@@ -214,8 +221,7 @@ def attack_rows(jobs: Iterable[Any], *, benign_correct_only: bool = False) -> Li
         if benign_correct_only and record.get("benign_correct") is False:
             continue
         perturbation = spec["perturbation"]
-        mesh = spec["mesh"]
-        key = (mesh.get("path") or mesh.get("name"), spec.get("config_index"), spec.get("seed"))
+        key = instance_key(spec)
         distances = record.get("distances") or {}
         victim = victim_label(spec)
         for measure in DISTANCE_NAMES.get(perturbation, ("distance",)):

@@ -1,0 +1,146 @@
+"""The data behind the report's figures: which attacks the 7x7 grids and the flow figures (the paper's Figs. 2 and 3)
+show, and their artefacts (:mod:`meshadv.experiments.figures` draws them)."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Set, Tuple
+
+import numpy as np
+
+from meshadv.experiments.artifact_source import ArtifactSource, artifact_path
+from meshadv.experiments.store import JobRow
+from meshadv.experiments.tables import instance_key, victim_label
+
+__all__ = ["grid_cells", "flow_figures", "slug_of", "PAPER_FLOW_EXAMPLE"]
+
+
+def slug_of(text: str) -> str:
+    """``text`` with every character but letters, digits, ``-`` and ``_`` replaced by ``_`` (a file-name part)."""
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in text)
+
+
+def grid_cells(rows: List[JobRow], source: Optional[ArtifactSource] = None,
+                ) -> Tuple[Dict[Tuple[str, str], Path], List[str], Set[Tuple[str, str]]]:
+    """Pick, per source class, the instance with the most successful targets (from the records alone); return its
+    renders, the classes and the ``(source, target)`` cells whose attack failed. Only the chosen instances' jobs are
+    looked up in ``source`` (regenerated when it regenerates)."""
+    by_instance: Dict[Tuple[Any, ...], List[JobRow]] = defaultdict(list)
+    for row in rows:
+        by_instance[instance_key(row.spec)].append(row)
+    best: Dict[str, List[JobRow]] = {}
+    for inst_rows in by_instance.values():
+        src = inst_rows[0].spec["source_class"]
+        score = sum(bool(r.record.get("success")) for r in inst_rows)
+        if src not in best or score > sum(bool(r.record.get("success")) for r in best[src]):
+            best[src] = inst_rows
+    from meshadv.experiments.config import PASCAL3D_CLASSES
+
+    classes = sorted({r.spec["source_class"] for r in rows} | {r.spec["target"] for r in rows},
+                     key=lambda c: (PASCAL3D_CLASSES.index(c) if c in PASCAL3D_CLASSES else 99, c))
+    cells: Dict[Tuple[str, str], Path] = {}
+    failed: Set[Tuple[str, str]] = set()
+    for src, inst_rows in best.items():
+        for r in inst_rows:
+            benign = artifact_path(r, "benign_images", 0, source)
+            if benign is not None:
+                cells.setdefault((src, src), benign)
+            adv = artifact_path(r, "adversarial_images", 0, source)
+            if adv is not None:
+                cells[(src, r.spec["target"])] = adv
+                if not r.record.get("success"):
+                    failed.add((src, r.spec["target"]))
+    return cells, classes, failed
+
+
+def _load_pair(row: JobRow, source: Optional[ArtifactSource] = None,
+               ) -> Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    import trimesh
+
+    benign, adv = artifact_path(row, "benign_mesh", 0, source), artifact_path(row, "adversarial_mesh", 0, source)
+    if benign is None or adv is None:
+        return None
+    a = trimesh.load(benign, process=False, force="mesh")
+    b = trimesh.load(adv, process=False, force="mesh")
+    if a.vertices.shape != b.vertices.shape:
+        return None
+    return np.asarray(a.vertices), np.asarray(b.vertices), np.asarray(a.faces)
+
+
+def _curvature(vertices: np.ndarray, faces: np.ndarray) -> Optional[np.ndarray]:
+    try:
+        import torch
+
+        from meshadv.mesh import Mesh, mean_curvature
+
+        mesh = Mesh(torch.as_tensor(vertices, dtype=torch.float32), torch.as_tensor(faces, dtype=torch.int64),
+                    torch.full((len(faces), 3), 0.7))
+        return mean_curvature(mesh).detach().cpu().numpy().astype(np.float64)
+    except Exception:  # noqa: BLE001 - fall back to the figures module's own estimate
+        return None
+
+
+#: The example of the paper's Fig. 3 (flow directions on an aeroplane attacked towards "bicycle"): the flow figures
+#: show this attack when a victim has a successful one, else the attack chosen by :func:`_flow_order`.
+PAPER_FLOW_EXAMPLE = ("aeroplane", "bicycle")
+
+
+def _flow_order(row: JobRow) -> Tuple[Any, ...]:
+    """Sort key of the flow figures' candidates: the paper's example first, then a successful attack on the densest
+    mesh with the largest flow (the clearest picture of the flow field)."""
+    rec = row.record or {}
+    paper = (row.spec.get("source_class"), row.spec.get("target")) == PAPER_FLOW_EXAMPLE and bool(rec.get("success"))
+    return (not paper, not rec.get("success"), -(rec.get("num_vertices") or 0),
+            -((rec.get("distances") or {}).get("max_displacement") or 0.0), row.job_id)
+
+
+def _flow_pair(rows: List[JobRow], source: ArtifactSource,
+               ) -> Optional[Tuple[JobRow, Tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    """The first candidate (in :func:`_flow_order`) whose meshes are on this machine; else the first one,
+    regenerated when ``source`` regenerates (one job, not every candidate)."""
+    ordered = sorted(rows, key=_flow_order)
+    for row in ordered:
+        if source.folder(row, regenerate=False) is not None:
+            pair = _load_pair(row, source)
+            if pair is not None:
+                return row, pair
+    if ordered and source.root is not None:
+        pair = _load_pair(ordered[0], source)
+        if pair is not None:
+            return ordered[0], pair
+    return None
+
+
+def flow_figures(rows: List[JobRow], fig_dir: Path, source: Optional[ArtifactSource] = None,
+                 ) -> Tuple[List[Path], Dict[str, Dict[str, Any]]]:
+    """Flow heatmaps (rendered and canonical view), quiver plot and flow vs curvature of one shape attack per victim
+    (the paper's Fig. 3); returns the figures written and, per victim, the flow / curvature correlations."""
+    from meshadv.experiments import figures
+
+    if source is None:
+        source = ArtifactSource(Path("."), None)
+    written: List[Path] = []
+    correlations: Dict[str, Dict[str, Any]] = {}
+    by_victim: Dict[str, List[JobRow]] = defaultdict(list)
+    for row in rows:
+        if row.spec.get("perturbation") == "shape" and not row.record.get("skipped"):
+            by_victim[victim_label(row.spec)].append(row)
+    for victim, vrows in sorted(by_victim.items()):
+        found = _flow_pair(vrows, source)
+        if found is None:
+            continue
+        row, (v, va, f) = found
+        view = row.spec["views"][0]
+        label = f"{victim}: {row.spec['source_class']} → {row.spec['target']}" + (
+            "" if row.record.get("success") else " (attack failed)")
+        slug = slug_of(victim)
+        written.append(figures.flow_heatmaps(v, va, f, fig_dir / f"flow_heatmap_{slug}.png", view=view, title=label))
+        written.append(figures.flow_quiver(v, va, f, fig_dir / f"flow_quiver_{slug}.png",
+                                           title=f"{label}: flow directions"))
+        path, corr = figures.curvature_scatter(v, va, f, fig_dir / f"curvature_{slug}.png",
+                                               curvature=_curvature(v, f), eye=figures.camera_eye(view),
+                                               title=label)
+        written.append(path)
+        correlations[victim] = {**corr, "job_id": row.job_id}
+    return written, correlations
