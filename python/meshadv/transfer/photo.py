@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 import torch
 
+from meshadv.transfer._inputs import as_geometry
 from meshadv.transfer.hidden import HiddenScene
 from meshadv.transfer.render import render_mask, render_scenes
 from meshadv.transfer.spec import MitsubaLights
@@ -79,7 +80,8 @@ def estimate_parameters(
             ``camera_size`` < 8.
     """
     from meshadv.render import ViewSet
-    from meshadv.transfer.estimate import estimate_camera, estimate_lights
+    from meshadv.transfer.camera_estimate import estimate_camera
+    from meshadv.transfer.light_estimate import estimate_lights
 
     if not isinstance(hidden, HiddenScene):
         raise TypeError(f"hidden must be a HiddenScene, got {type(hidden).__name__}")
@@ -91,8 +93,7 @@ def estimate_parameters(
     mask_np = render_mask(known, hidden.mitsuba_camera(), hidden.image_size, variant=variant, timeout=timeout)
     photo = torch.from_numpy(photo_img.chw())
     mask = torch.from_numpy(mask_np)
-    verts = torch.as_tensor(known.vertices, dtype=torch.float32).detach()
-    faces = torch.as_tensor(known.faces, dtype=torch.int64)
+    verts, faces = as_geometry(known.vertices, known.faces)
     colors = torch.as_tensor(known.face_colors, dtype=torch.float32).detach()
     cam_est = estimate_camera(_pooled(mask, camera_size), verts, faces, viewing_angle=hidden.viewing_angle,
                               steps=camera_steps)
@@ -149,7 +150,7 @@ def _light_fit_errors(photo: torch.Tensor, light_mask: torch.Tensor, verts: torc
     """``light_rmse`` (meshadv's render under the estimates vs the photo, on the fitted pixels meshadv covers) and
     ``light_fit_pixels`` (their count)."""
     from meshadv.render import render
-    from meshadv.transfer.estimate import masked_rmse
+    from meshadv.transfer.light_estimate import masked_rmse
 
     with torch.no_grad():
         ours = render(verts, faces, colors, camera, lights, image_size, background=(0.0, 0.0, 0.0))
@@ -162,7 +163,7 @@ def _true_light_errors(estimated: Lights, true_lights: MitsubaLights, has_enviro
     """Errors of the estimated lights against the hidden world's directional lights (no ``ambient_error`` when
     ``has_environment``: the environment map is the true ambient, no single colour to compare with)."""
     from meshadv.render import Lights
-    from meshadv.transfer.estimate import light_errors
+    from meshadv.transfer.light_estimate import light_errors
 
     true = Lights(torch.from_numpy(true_lights.directions), torch.from_numpy(true_lights.colors),
                   torch.from_numpy(true_lights.ambient))
