@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from meshadv.transfer.render import render_scenes
-from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
+from meshadv.transfer.spec import MeshObject, MitsubaCamera, mask_spec, scene_spec
 
 
 @dataclass(frozen=True)
@@ -106,10 +106,9 @@ def conversion_check(
     ours_img = ours.image[0].permute(1, 2, 0).numpy()
     ours_mask = ours.alpha[0, 0].numpy() > 0.5
     obj = MeshObject.from_mesh(mesh)
-    camera = MitsubaCamera.from_record(record)
-    lights = MitsubaLights.from_record(record)
-    shaded = SceneSpec((obj,), camera, lights, image_size=image_size, spp=spp, max_depth=2, background=(1.0, 1.0, 1.0))
-    mask = SceneSpec((obj,), camera, None, image_size=image_size, spp=1, mask=True, background=None)
+    shaded = scene_spec(obj, record, lights=record, image_size=image_size, spp=spp, max_depth=2,
+                        background=(1.0, 1.0, 1.0))
+    mask = mask_spec(obj, MitsubaCamera.from_record(record), image_size, spp=1)
     theirs, theirs_mask = render_scenes([shaded, mask], variant=variant, timeout=timeout)
     both = _erode(ours_mask) & _erode(theirs_mask.alpha > 0.5) & _erode(theirs.alpha > 0.999)
     diff = np.abs(ours_img - theirs.image).mean(axis=-1)[both]

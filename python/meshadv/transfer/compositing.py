@@ -9,7 +9,7 @@ import torch
 
 from meshadv.transfer.hidden import HiddenScene
 from meshadv.transfer.render import MitsubaImage
-from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
+from meshadv.transfer.spec import SceneSpec, scene_spec
 
 __all__ = ["composite", "estimated_view_spec"]
 
@@ -31,16 +31,8 @@ def estimated_view_spec(mesh: Any, record: dict[str, Any], hidden: HiddenScene, 
     Returns:
         The scene spec.
     """
-    return SceneSpec(
-        objects=(MeshObject.from_mesh(mesh),),
-        camera=MitsubaCamera.from_record(record),
-        lights=MitsubaLights.from_record(record),
-        image_size=hidden.image_size,
-        spp=hidden.spp,
-        max_depth=2,
-        background=(0.0, 0.0, 0.0),
-        seed=seed,
-    )
+    return scene_spec(mesh, record, lights=record, image_size=hidden.image_size, spp=hidden.spp, max_depth=2,
+                      background=(0.0, 0.0, 0.0), seed=seed)
 
 
 def composite(image: MitsubaImage, background: torch.Tensor) -> torch.Tensor:

@@ -22,7 +22,7 @@ from meshadv.transfer.cases import TransferCase, case_name, cases_from_store
 from meshadv.transfer.images import INDEX_COLUMNS, save_images, write_image_index
 from meshadv.transfer.render import MitsubaImage, MitsubaRenderError, render_scenes
 from meshadv.transfer.results import ControlledResult
-from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
+from meshadv.transfer.spec import MeshObject, SceneSpec, scene_spec
 
 __all__ = [
     "ControlledResult",
@@ -51,19 +51,8 @@ def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int 
         The scene specs, in view order.
     """
     obj = MeshObject.from_mesh(case.mesh)
-    return [
-        SceneSpec(
-            objects=(obj,),
-            camera=MitsubaCamera.from_record(rec),
-            lights=MitsubaLights.from_record(rec),
-            image_size=case.image_size,
-            spp=spp,
-            max_depth=max_depth,
-            background=case.background,
-            seed=seed + i,
-        )
-        for i, rec in enumerate(case.views)
-    ]
+    return [scene_spec(obj, rec, lights=rec, image_size=case.image_size, spp=spp, max_depth=max_depth,
+                       background=case.background, seed=seed + i) for i, rec in enumerate(case.views)]
 
 
 def _criteria(case: TransferCase, victim: Any) -> tuple[Any, Optional[Any]]:

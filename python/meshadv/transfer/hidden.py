@@ -12,7 +12,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec
+from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec, as_mesh_object
 
 __all__ = ["HiddenScene"]
 
@@ -79,8 +79,7 @@ class HiddenScene:
 
     def spec(self, mesh: Any, *, seed: int = 0) -> SceneSpec:
         """The Mitsuba scene of ``mesh`` in this hidden world (the object first, then any extra objects)."""
-        obj = mesh if isinstance(mesh, MeshObject) else MeshObject.from_mesh(mesh)
-        return self._scene((obj,) + tuple(self.extra_objects), self.base_exclude, seed)
+        return self._scene((as_mesh_object(mesh),) + tuple(self.extra_objects), self.base_exclude, seed)
 
     def background_spec(self, exclude: Sequence[str] = (), *, seed: int = 0) -> SceneSpec:
         """The Mitsuba scene of this world without the attacker's objects: no object, no extra object, and the

@@ -19,7 +19,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from meshadv.transfer.spec import MeshObject, MitsubaCamera, SceneSpec
+from meshadv.transfer.spec import MitsubaCamera, SceneSpec, mask_spec
 from meshadv.transfer.variants import best_variant
 
 #: The variant used when the preferred one fails.
@@ -156,7 +156,7 @@ def render_mask(
     With ``spp == 1`` one ray goes through each pixel centre, meshadv's coverage rule, so the mask is binary.
 
     Args:
-        mesh: a ``meshadv.mesh.Mesh`` or :class:`MeshObject`.
+        mesh: a ``meshadv.mesh.Mesh`` or :class:`~meshadv.transfer.spec.MeshObject`.
         camera: the camera.
         image_size: int or (H, W).
         spp: rays per pixel (> 1 gives fractional, anti-aliased coverage).
@@ -165,9 +165,7 @@ def render_mask(
     Returns:
         (H, W) float32 coverage in [0, 1].
     """
-    obj = mesh if isinstance(mesh, MeshObject) else MeshObject.from_mesh(mesh)
-    spec = SceneSpec(objects=(obj,), camera=camera, image_size=image_size, spp=spp, mask=True, background=None)
-    return render_scene(spec, **kwargs).alpha
+    return render_scene(mask_spec(mesh, camera, image_size, spp=spp), **kwargs).alpha
 
 
 __all__ = ["MitsubaImage", "MitsubaRenderError", "render_mask", "render_scene", "render_scenes", "FALLBACK_VARIANT"]

@@ -19,7 +19,7 @@ from meshadv.util.spherical import spherical_direction
 if TYPE_CHECKING:
     from meshadv.render import Camera, Lights
 
-__all__ = ["MeshObject", "MitsubaCamera", "MitsubaLights", "SceneSpec", "scene_spec"]
+__all__ = ["MeshObject", "MitsubaCamera", "MitsubaLights", "SceneSpec", "as_mesh_object", "mask_spec", "scene_spec"]
 
 
 def _as_numpy(value: Any, dtype: Any = np.float32) -> np.ndarray:
@@ -361,7 +361,7 @@ def scene_spec(
     Example:
         >>> spec = scene_spec(builtin_mesh("sphere"), views.to_records()[0], image_size=64)  # doctest: +SKIP
     """
-    obj = mesh if isinstance(mesh, MeshObject) else MeshObject.from_mesh(mesh)
+    obj = as_mesh_object(mesh)
     if isinstance(camera, Mapping):
         record = camera
         camera = MitsubaCamera.from_record(record)
@@ -370,3 +370,17 @@ def scene_spec(
     if isinstance(lights, Mapping):
         lights = MitsubaLights.from_record(lights)
     return SceneSpec(objects=(obj,), camera=camera, lights=lights, **kwargs)
+
+
+def mask_spec(mesh: Any, camera: MitsubaCamera, image_size: Any = 224, *, spp: int = 1) -> SceneSpec:
+    """The scene of the coverage mask of ``mesh`` (a ``meshadv.mesh.Mesh`` or :class:`MeshObject`) seen by
+    ``camera``: no lights, no background; with ``spp == 1`` one ray through each pixel centre, meshadv's coverage
+    rule, so the mask is binary."""
+    return SceneSpec(objects=(as_mesh_object(mesh),), camera=camera, image_size=image_size, spp=spp, mask=True,
+                     background=None)
+
+
+def as_mesh_object(mesh: Any) -> MeshObject:
+    """``mesh`` itself when it is a :class:`MeshObject`, else :meth:`MeshObject.from_mesh` of it (a
+    ``meshadv.mesh.Mesh`` or anything with vertices, faces and face_colors)."""
+    return mesh if isinstance(mesh, MeshObject) else MeshObject.from_mesh(mesh)
