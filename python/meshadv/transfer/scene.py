@@ -32,7 +32,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from meshadv.transfer.environment import outdoor_environment
-from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec, _normalize, scene_spec
+from meshadv.transfer._arrays import normalize
+from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec, scene_spec
 
 __all__ = [
     "MeshObject",
@@ -171,7 +172,7 @@ def _light_emitters(lights: MitsubaLights) -> dict[str, dict[str, Any]]:
     for k, (d, c) in enumerate(zip(lights.directions, lights.colors)):
         if not np.any(c > 0):
             continue
-        d = _normalize(np.asarray(d, dtype=np.float64))
+        d = normalize(np.asarray(d, dtype=np.float64))
         emitters[f"light_{k}"] = {
             "type": "directional",
             "direction": (-d).tolist(),

@@ -1,4 +1,5 @@
-"""What Mitsuba renders, as plain numpy values: camera, lights, meshes and the scene settings.
+"""What Mitsuba renders, as plain numpy values: camera (:mod:`~meshadv.transfer.camera_spec`, re-exported here),
+lights, meshes and the scene settings.
 
 Nothing here imports Mitsuba or torch, so a :class:`SceneSpec` can be pickled to the child process that renders it
 (:mod:`meshadv.transfer.render`), where :func:`~meshadv.transfer.scene.build_mitsuba_scene` turns it into a Mitsuba
@@ -7,181 +8,19 @@ scene. The conventions of the conversion (camera, lights, material) are describe
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Optional, Union
 
 import numpy as np
 
-from meshadv.util.spherical import spherical_direction
+from meshadv.transfer._arrays import as_numpy
+from meshadv.transfer.camera_spec import MitsubaCamera
 
 if TYPE_CHECKING:
-    from meshadv.render import Camera, Lights
+    from meshadv.render import Lights
 
 __all__ = ["MeshObject", "MitsubaCamera", "MitsubaLights", "SceneSpec", "as_mesh_object", "mask_spec", "scene_spec"]
-
-
-def _as_numpy(value: Any, dtype: Any = np.float32) -> np.ndarray:
-    """Convert a tensor, list or array to a numpy array of ``dtype`` (detached, on the CPU)."""
-    if hasattr(value, "detach"):
-        value = value.detach().cpu().numpy()
-    return np.asarray(value, dtype=dtype)
-
-
-def _normalize(v: np.ndarray) -> np.ndarray:
-    """``v`` divided by its length; raise ValueError for a zero vector."""
-    norm = float(np.linalg.norm(v))
-    if norm < 1e-12:
-        raise ValueError("cannot normalise a zero vector (camera eye equals target, or up is parallel to the view)")
-    return v / norm
-
-
-@dataclass(frozen=True)
-class MitsubaCamera:
-    """A pinhole camera in meshadv's conventions, ready for Mitsuba.
-
-    Attributes:
-        eye: camera position (3,) in world space.
-        target: the point looked at (3,).
-        up: up vector (3,), before orthogonalisation (tilt already applied).
-        viewing_angle: full horizontal field of view in degrees (NMR ``viewing_angle``).
-        near: near clip distance.
-        far: far clip distance.
-    """
-
-    eye: tuple[float, float, float]
-    target: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
-    viewing_angle: float = 30.0
-    near: float = 0.1
-    far: float = 100.0
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.viewing_angle < 180.0:
-            raise ValueError(f"viewing_angle must be in (0, 180) degrees, got {self.viewing_angle}")
-        if not 0.0 < self.near < self.far:
-            raise ValueError(f"need 0 < near < far, got near={self.near}, far={self.far}")
-
-    @classmethod
-    def spherical(
-        cls,
-        distance: float,
-        azimuth: float,
-        elevation: float,
-        tilt: float = 0.0,
-        viewing_angle: float = 30.0,
-        near: float = 0.1,
-        far: float = 100.0,
-    ) -> "MitsubaCamera":
-        """A camera on a sphere around the origin, exactly as ``meshadv.render.Camera.spherical``.
-
-        Args:
-            distance: distance from the origin (> 0).
-            azimuth: degrees; ``eye = d * (cos(el) sin(az), sin(el), -cos(el) cos(az))``.
-            elevation: degrees.
-            tilt: degrees; rotates the up vector about the viewing axis, counter-clockwise in the image.
-            viewing_angle: full field of view in degrees.
-            near: near clip distance.
-            far: far clip distance.
-
-        Raises:
-            ValueError: ``distance`` is not positive.
-        """
-        if not distance > 0:
-            raise ValueError(f"distance must be positive, got {distance}")
-        eye = distance * np.array(spherical_direction(azimuth, elevation))
-        up = _tilted_up(eye, np.zeros(3), np.array([0.0, 1.0, 0.0]), tilt)
-        return cls(tuple(eye.tolist()), (0.0, 0.0, 0.0), tuple(up.tolist()), viewing_angle, near, far)
-
-    @classmethod
-    def from_camera(cls, camera: Camera, index: int = 0) -> "MitsubaCamera":
-        """Build from view ``index`` of a ``meshadv.render.Camera`` (spherical or look-at, tilt applied).
-
-        Raises:
-            ValueError: the camera is orthographic or ``index`` is out of range.
-        """
-        if getattr(camera, "orthographic", False):
-            raise ValueError("camera: orthographic cameras are not supported by the Mitsuba conversion")
-        if not 0 <= index < len(camera):
-            raise ValueError(f"index {index} out of range for a camera batch of {len(camera)}")
-        eye = _as_numpy(camera.eye()[index], np.float64)
-        target = _as_numpy(camera.target()[index], np.float64)
-        up = _as_numpy(camera.rotation()[index, 1], np.float64)
-        return cls(
-            tuple(eye.tolist()),
-            tuple(target.tolist()),
-            tuple(up.tolist()),
-            float(camera.viewing_angle[index]),
-            float(camera.near[index]),
-            float(camera.far[index]),
-        )
-
-    @classmethod
-    def from_record(cls, record: Mapping[str, Any]) -> "MitsubaCamera":
-        """Build from a ``ViewSet.to_records()`` record.
-
-        Spherical records have keys distance, azimuth, elevation; look-at records have eye, at, up; both may have
-        tilt, viewing_angle, near, far.
-
-        Raises:
-            ValueError: required keys are missing, or the record is orthographic.
-        """
-        if record.get("orthographic", False):
-            raise ValueError("record: orthographic cameras are not supported by the Mitsuba conversion")
-        if all(k in record for k in ("eye", "at", "up")):
-            eye, at = _as_numpy(record["eye"], np.float64), _as_numpy(record["at"], np.float64)
-            up = _tilted_up(eye, at, _as_numpy(record["up"], np.float64), float(record.get("tilt", 0.0)))
-            return cls(tuple(eye.tolist()), tuple(at.tolist()), tuple(up.tolist()), *_lens(record))
-        missing = [k for k in ("distance", "azimuth", "elevation") if k not in record]
-        if missing:
-            raise ValueError(f"record is missing camera keys {missing} (or eye, at, up)")
-        return cls.spherical(float(record["distance"]), float(record["azimuth"]), float(record["elevation"]),
-                             float(record.get("tilt", 0.0)), *_lens(record))
-
-    def view_axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """NMR's view axes ``(x, y, z)``: x is image right, y image up, z the viewing direction."""
-        eye, target, up = (np.asarray(v, dtype=np.float64) for v in (self.eye, self.target, self.up))
-        z = _normalize(target - eye)
-        x = _normalize(np.cross(up, z))
-        y = _normalize(np.cross(z, x))
-        return x, y, z
-
-    def project(self, points_world: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
-        """Project world points to pixel coordinates ``(column, row)`` (floats, pixel centres at ``k + 0.5``).
-
-        Args:
-            points_world: (P, 3) points.
-            image_size: (H, W).
-
-        Returns:
-            (P, 2) array of (column, row) positions.
-        """
-        x, y, z = self.view_axes()
-        rel = np.asarray(points_world, dtype=np.float64) - np.asarray(self.eye)
-        view = np.stack([rel @ x, rel @ y, rel @ z], axis=-1)
-        width = math.tan(math.radians(self.viewing_angle) / 2)
-        x_ndc = view[:, 0] / (view[:, 2] * width)
-        y_ndc = view[:, 1] / (view[:, 2] * width)
-        h, w = image_size
-        return np.stack([(x_ndc + 1) * w / 2, (1 - y_ndc) * h / 2], axis=-1)
-
-
-def _lens(record: Mapping[str, Any]) -> tuple[float, float, float]:
-    """``viewing_angle``, ``near`` and ``far`` of a view record (defaults 30 degrees, 0.1, 100)."""
-    return float(record.get("viewing_angle", 30.0)), float(record.get("near", 0.1)), float(record.get("far", 100.0))
-
-
-def _tilted_up(eye: np.ndarray, target: np.ndarray, up: np.ndarray, tilt: float) -> np.ndarray:
-    """Rotate ``up`` about the viewing axis by ``tilt`` degrees, counter-clockwise in the image."""
-    if tilt == 0.0:
-        return up.astype(np.float64)
-    z = _normalize(target - eye)
-    x = _normalize(np.cross(up, z))
-    y = np.cross(z, x)
-    t = math.radians(tilt)
-    # Image up (0, 1) rotated counter-clockwise by t is (-sin t, cos t) in image (right, up) coordinates.
-    return math.cos(t) * y - math.sin(t) * x
 
 
 @dataclass(frozen=True)
@@ -219,13 +58,13 @@ class MitsubaLights:
         if missing:
             raise ValueError(f"record is missing light keys {missing}")
         return cls(
-            _as_numpy(record["light_directions"]), _as_numpy(record["light_colors"]), _as_numpy(record["ambient"])
+            as_numpy(record["light_directions"]), as_numpy(record["light_colors"]), as_numpy(record["ambient"])
         )
 
     @classmethod
     def from_lights(cls, lights: Lights, index: int = 0) -> "MitsubaLights":
         """Build from a ``meshadv.render.Lights`` (view ``index`` of a batched one)."""
-        d, c, a = (_as_numpy(t) for t in (lights.directions, lights.colors, lights.ambient))
+        d, c, a = (as_numpy(t) for t in (lights.directions, lights.colors, lights.ambient))
         if d.ndim == 3:
             d, c = d[index], c[index]
         if a.ndim == 2:
@@ -252,9 +91,9 @@ class MeshObject:
     name: str = "object"
 
     def __post_init__(self) -> None:
-        v = _as_numpy(self.vertices, np.float32)
-        f = _as_numpy(self.faces, np.int64)
-        c = _as_numpy(self.face_colors, np.float32)
+        v = as_numpy(self.vertices, np.float32)
+        f = as_numpy(self.faces, np.int64)
+        c = as_numpy(self.face_colors, np.float32)
         if v.ndim != 2 or v.shape[1] != 3:
             raise ValueError(f"vertices must have shape (N, 3), got {v.shape}")
         if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
@@ -267,7 +106,7 @@ class MeshObject:
         object.__setattr__(self, "faces", f.astype(np.uint32))
         object.__setattr__(self, "face_colors", np.clip(c, 0.0, 1.0))
         if self.to_world is not None:
-            m = _as_numpy(self.to_world, np.float64)
+            m = as_numpy(self.to_world, np.float64)
             if m.shape != (4, 4):
                 raise ValueError(f"to_world must be a 4x4 matrix, got {m.shape}")
             object.__setattr__(self, "to_world", m)
@@ -334,7 +173,7 @@ class SceneSpec:
         if self.base_scene is not None and not Path(self.base_scene).is_file():
             raise FileNotFoundError(f"base_scene {self.base_scene} does not exist")
         if self.environment is not None:
-            env = _as_numpy(self.environment, np.float32)
+            env = as_numpy(self.environment, np.float32)
             if env.ndim != 3 or env.shape[2] != 3:
                 raise ValueError(f"environment must be (H, W, 3), got {env.shape}")
             object.__setattr__(self, "environment", env)
