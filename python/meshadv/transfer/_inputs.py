@@ -43,5 +43,15 @@ def as_image(image: Any, name: str = "image") -> torch.Tensor:
 
 
 def as_geometry(vertices: Any, faces: Any) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(N, 3)`` float32 vertices (detached: the estimation never changes the mesh) and ``(M, 3)`` int64 faces."""
-    return torch.as_tensor(vertices, dtype=torch.float32).detach(), torch.as_tensor(faces, dtype=torch.int64)
+    """``(N, 3)`` float32 vertices (detached: the estimation never changes the mesh) and ``(M, 3)`` int64 faces.
+
+    Raises:
+        ValueError: ``vertices`` or ``faces`` does not have shape ``(N, 3)`` / ``(M, 3)`` with ``M > 0``.
+    """
+    verts = torch.as_tensor(vertices, dtype=torch.float32).detach()
+    faces_t = torch.as_tensor(faces, dtype=torch.int64)
+    if verts.dim() != 2 or verts.shape[1] != 3:
+        raise ValueError(f"vertices must have shape (N, 3), got {tuple(verts.shape)}")
+    if faces_t.dim() != 2 or faces_t.shape[1] != 3 or faces_t.shape[0] == 0:
+        raise ValueError(f"faces must have shape (M, 3) with M > 0, got {tuple(faces_t.shape)}")
+    return verts, faces_t

@@ -13,6 +13,7 @@ from typing import Any, Sequence
 
 import torch
 
+from meshadv import _validate
 from meshadv.render import Camera, render_silhouette
 from meshadv.transfer._inputs import as_geometry, as_mask
 
@@ -130,14 +131,17 @@ def estimate_camera(
         The :class:`CameraEstimate`.
 
     Raises:
-        ValueError: an empty mask, bad shapes, or non-positive ``steps``/``refine``.
+        TypeError: an argument of the wrong type (e.g. a float ``steps``), naming it.
+        ValueError: an empty mask, bad shapes, or an argument out of range (``steps < 0``, ``refine < 1``, empty
+            ``azimuths``/``elevations``, ``coarse_size < 8``, ...), naming it.
 
     Example:
         >>> est = estimate_camera(mask, mesh.vertices, mesh.faces)  # doctest: +SKIP
         >>> est.azimuth, est.elevation
     """
     target = as_mask(mask)
-    _check_camera_options(target, steps, refine, azimuths, elevations, coarse_size, blur)
+    _check_camera_options(target, viewing_angle, azimuths, elevations, reference_distance, refine, steps, lr,
+                          antialias, coarse_size, blur)
     verts, faces_t = as_geometry(vertices, faces)
     az, el, dist = _coarse_starts(verts, faces_t, target, azimuths, elevations, viewing_angle, reference_distance,
                                   refine, coarse_size, blur)
@@ -146,17 +150,26 @@ def estimate_camera(
     return CameraEstimate(d, a % 360.0, e, float(viewing_angle), final, iou)
 
 
-def _check_camera_options(target: torch.Tensor, steps: int, refine: int, azimuths: Sequence[float],
-                          elevations: Sequence[float], coarse_size: int, blur: float) -> None:
-    """Raise ValueError naming the first bad argument of :func:`estimate_camera`."""
+def _check_camera_options(target: torch.Tensor, viewing_angle: float, azimuths: Sequence[float],
+                          elevations: Sequence[float], reference_distance: float, refine: int, steps: int, lr: float,
+                          antialias: int, coarse_size: int, blur: float) -> None:
+    """Raise naming the first bad argument of :func:`estimate_camera` (TypeError for a wrong type, ValueError for a
+    bad value)."""
     if float(target.sum()) < 1.0:
         raise ValueError("mask is empty: the object is not visible")
-    if steps < 0 or refine < 1:
-        raise ValueError(f"steps must be >= 0 and refine >= 1, got steps={steps}, refine={refine}")
+    _validate.finite_float("viewing_angle", viewing_angle, low=0.0, high=180.0, low_open=True, high_open=True)
     if not azimuths or not elevations:
         raise ValueError("azimuths and elevations must be non-empty")
-    if coarse_size < 8 or blur < 0:
-        raise ValueError(f"coarse_size must be >= 8 and blur >= 0, got {coarse_size}, {blur}")
+    for name, values in (("azimuths", azimuths), ("elevations", elevations)):
+        for i, value in enumerate(values):
+            _validate.finite_float(f"{name}[{i}]", value)
+    _validate.positive_float("reference_distance", reference_distance)
+    _validate.positive_int("refine", refine)
+    _validate.non_negative_int("steps", steps)
+    _validate.positive_float("lr", lr)
+    _validate.positive_int("antialias", antialias)
+    _validate.integer("coarse_size", coarse_size, low=8)
+    _validate.finite_float("blur", blur, low=0.0)
 
 
 def _coarse_starts(verts: torch.Tensor, faces: torch.Tensor, target: torch.Tensor, azimuths: Sequence[float],

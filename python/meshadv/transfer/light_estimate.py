@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from meshadv import _validate
 from meshadv.render import Camera, Lights, render, shade
 from meshadv.transfer._inputs import as_geometry, as_image, as_mask
 
@@ -43,7 +44,7 @@ def _unit_sphere_directions(count: int, toward: torch.Tensor, generator: torch.G
         r = math.sqrt(max(0.0, 1.0 - z * z))
         phi = i * golden + offset
         dirs.append([r * math.cos(phi), r * math.sin(phi), z])
-    local = torch.tensor(dirs, dtype=torch.float32)
+    local = torch.tensor(dirs, dtype=torch.float32).reshape(count, 3)  # (0, 3) when there are no lights
     w = toward / toward.norm()
     helper = torch.tensor([0.0, 1.0, 0.0]) if abs(float(w[1])) < 0.9 else torch.tensor([1.0, 0.0, 0.0])
     u = torch.linalg.cross(helper, w)
@@ -136,10 +137,11 @@ def estimate_lights(
         The :class:`LightEstimate`.
 
     Raises:
-        ValueError: bad shapes, empty mask, or negative ``num_lights``/``steps``.
+        TypeError: ``camera`` is not a ``meshadv.render.Camera``, or ``num_lights``, ``steps``, ``lr`` or ``seed`` has
+            the wrong type.
+        ValueError: bad shapes, empty mask, negative ``num_lights``/``steps``/``seed`` or a non-positive ``lr``.
     """
-    if num_lights < 0 or steps < 0:
-        raise ValueError(f"num_lights and steps must be >= 0, got {num_lights}, {steps}")
+    _check_light_options(camera, num_lights, steps, lr, seed)
     img = as_image(image)
     m = as_mask(mask)
     if tuple(m.shape) != tuple(img.shape[1:]):
@@ -167,6 +169,16 @@ def estimate_lights(
         loss.backward()
         opt.step()
     return LightEstimate(best, best_loss)
+
+
+def _check_light_options(camera: Camera, num_lights: int, steps: int, lr: float, seed: int) -> None:
+    """Raise naming the first bad argument of :func:`estimate_lights`."""
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a meshadv.render.Camera, got {type(camera).__name__}")
+    _validate.non_negative_int("num_lights", num_lights)
+    _validate.non_negative_int("steps", steps)
+    _validate.positive_float("lr", lr)
+    _validate.seed("seed", seed)
 
 
 def light_errors(estimated: Lights, true: Lights) -> dict[str, float]:
