@@ -122,3 +122,116 @@ def test_estimate_lights_with_no_directional_light_fits_the_ambient_only() -> No
     assert float(est.lights.ambient.min()) > 0.0 and math.isfinite(est.loss)
     one = estimate_lights(image, mask, chair.vertices, chair.faces, chair.face_colors, camera, num_lights=1, steps=5)
     assert tuple(one.lights.directions.shape) == (1, 1, 3)
+
+
+# ----------------------------------------------------------------------------------------------------------------------
+# The photo's estimation and the black-box pipelines: every argument before the first Mitsuba render
+# ----------------------------------------------------------------------------------------------------------------------
+
+
+def _hidden() -> Any:
+    from meshadv.transfer.hidden import HiddenScene
+    from meshadv.transfer.spec import MitsubaLights
+
+    lights = MitsubaLights([[0.3, 0.8, -0.5]], [[0.5, 0.5, 0.5]], [0.4, 0.4, 0.4])
+    return HiddenScene(camera={"distance": 3.2, "azimuth": 50.0, "elevation": 20.0}, lights=lights, image_size=32,
+                       spp=4, max_depth=2)
+
+
+@pytest.mark.parametrize(
+    "kwargs,error,name",
+    [
+        ({"num_lights": -1}, ValueError, "num_lights"),
+        ({"camera_steps": 1.5}, TypeError, "camera_steps"),
+        ({"light_steps": -2}, ValueError, "light_steps"),
+    ],
+)
+def test_estimate_parameters_checks_the_step_counts_before_the_photo(no_render: list[Any], kwargs: dict[str, Any],
+                                                                     error: type, name: str) -> None:
+    from meshadv.transfer.photo import estimate_parameters
+
+    with pytest.raises(error, match=f"^{name}"):
+        estimate_parameters(builtin_mesh("chair"), _hidden(), **kwargs)
+    assert no_render == []
+
+
+def _classifier_victim() -> Any:
+    from stand_in_victims import PooledLinearClassifier
+
+    return PooledLinearClassifier()
+
+
+def _detector_victim() -> Any:
+    from stand_in_victims import DarkBlobDetector
+
+    return DarkBlobDetector()
+
+
+@pytest.mark.parametrize(
+    "kwargs,error,match",
+    [
+        ({"hidden": {"distance": 3.0}}, TypeError, "^hidden must be a HiddenScene"),
+        ({"victim": 42}, TypeError, "^victim must be a callable"),
+        ({"victim": "detector"}, ValueError, "needs a classifier"),
+        ({"true_class": "no such class"}, ValueError, "^true_class 'no such class'"),
+        ({"target": "no such class"}, ValueError, "no such class"),
+        ({"robustness": {"eot": 2}}, TypeError, "^robustness must be a Robustness"),
+        ({"attack_kwargs": [("steps", 2)]}, TypeError, "^attack_kwargs must be a dict"),
+        ({"attack_kwargs": {"stepz": 2}}, TypeError, "stepz"),
+        ({"attack_kwargs": {"antialias": 0}}, ValueError, "^antialias"),
+        ({"jitter": 0.5}, TypeError, "^jitter must be a dict"),
+        ({"num_lights": -1}, ValueError, "^num_lights"),
+        ({"camera_steps": 1.5}, TypeError, "^camera_steps"),
+        ({"light_steps": True}, TypeError, "^light_steps"),
+        ({"timeout": 0}, ValueError, "^timeout"),
+        ({"case_id": ""}, ValueError, "^case_id"),
+        ({"case_id": 7}, TypeError, "^case_id"),
+        ({"perturbation": "paint"}, ValueError, "perturbation"),
+    ],
+)
+def test_blackbox_classifier_names_a_bad_argument_before_any_render(no_render: list[Any], kwargs: dict[str, Any],
+                                                                    error: type, match: str) -> None:
+    from meshadv.transfer.blackbox import blackbox_classifier
+
+    args: dict[str, Any] = {"hidden": _hidden(), "victim": _classifier_victim(), "true_class": "chair",
+                            "attack_kwargs": {"steps": 1}, **kwargs}
+    if args["victim"] == "detector":
+        args["victim"] = _detector_victim()
+    with pytest.raises(error, match=match):
+        blackbox_classifier(builtin_mesh("chair"), args.pop("hidden"), **args)
+    assert no_render == []
+
+
+@pytest.mark.parametrize(
+    "kwargs,error,match",
+    [
+        ({"scene_objects": "cube"}, TypeError, "^scene_objects\\[0\\] must be a meshadv.mesh.Mesh"),
+        ({"object_index": 1.0}, TypeError, "^object_index must be an integer"),
+        ({"object_index": 2}, ValueError, "^object_index 2 out of range"),
+        ({"score_threshold": "high"}, TypeError, "^score_threshold"),
+        ({"score_threshold": 1.5}, ValueError, "^score_threshold must be in"),
+        ({"background_exclude": "desk"}, TypeError, "^background_exclude"),
+        ({"hide_class": "chair"}, ValueError, "'chair' is not a class of dark_blob"),
+        ({"victim": "classifier"}, ValueError, "needs a detector"),
+        ({"context": "room"}, ValueError, "^context"),
+        ({"light_fit": "all"}, ValueError, "^light_fit"),
+        ({"attack_kwargs": {"stepz": 2}}, TypeError, "stepz"),
+        ({"hidden": None}, TypeError, "^hidden must be a HiddenScene"),
+        ({"robustness": 3}, TypeError, "^robustness"),
+        ({"timeout": -1.0}, ValueError, "^timeout"),
+    ],
+)
+def test_blackbox_detector_names_a_bad_argument_before_any_render(no_render: list[Any], kwargs: dict[str, Any],
+                                                                  error: type, match: str) -> None:
+    from meshadv.transfer.blackbox import blackbox_detector
+
+    cube = builtin_mesh("cube", color=(0.1, 0.1, 0.1))
+    sphere = builtin_mesh("sphere", color=(0.8, 0.8, 0.8))
+    args: dict[str, Any] = {"scene_objects": [cube, sphere], "object_index": 1, "hidden": _hidden(),
+                            "victim": _detector_victim(), "hide_class": "blob", "attack_kwargs": {"steps": 1},
+                            **kwargs}
+    if args["victim"] == "classifier":
+        args["victim"] = _classifier_victim()
+    with pytest.raises(error, match=match):
+        blackbox_detector(args.pop("scene_objects"), args.pop("object_index"), args.pop("hidden"), **args)
+    assert no_render == []

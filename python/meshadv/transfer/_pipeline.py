@@ -6,11 +6,12 @@ and the parts of the result row that every run has."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Any, Mapping, Optional
 
 import numpy as np
 import torch
 
+from meshadv import _validate
 from meshadv.render.setup import RenderSetup, split_setup_options
 from meshadv.transfer._attack_run import meshadv_margins, pixel_noise_where, robust_rate
 from meshadv.transfer._scoring import images_tensor
@@ -21,7 +22,39 @@ from meshadv.transfer.render import MitsubaImage, render_scenes
 from meshadv.transfer.results import BlackBoxResult
 from meshadv.transfer.robust import DEFAULT_JITTER, Robustness, restore_photo
 
-__all__ = ["BlackBoxRun", "Measured", "attack_options", "attack_setup", "finish_row", "measure", "row_head"]
+__all__ = ["BlackBoxRun", "Measured", "attack_options", "attack_setup", "check_run_options", "finish_row", "measure",
+           "row_head"]
+
+
+def check_run_options(hidden: Any, victim: Any, robustness: Any, attack_kwargs: Any, jitter: Any, num_lights: Any,
+                      camera_steps: Any, light_steps: Any, timeout: Any, case_id: Any) -> Robustness:
+    """Raise naming the first bad argument that both pipelines take, before any render; return the robustness
+    settings (``Robustness()`` for None).
+
+    Raises:
+        TypeError: ``hidden`` is not a :class:`~meshadv.transfer.hidden.HiddenScene`, ``victim`` is not callable,
+            ``robustness`` is not a :class:`~meshadv.transfer.robust.Robustness` (or None), ``attack_kwargs`` or
+            ``jitter`` is not a mapping (or None), ``case_id`` is not a string, or a count or ``timeout`` is not a
+            number of the right kind.
+        ValueError: a negative count, a non-positive ``timeout`` or an empty ``case_id``.
+    """
+    if not isinstance(hidden, HiddenScene):
+        raise TypeError(f"hidden must be a HiddenScene, got {type(hidden).__name__}")
+    if not callable(victim):
+        raise TypeError(f"victim must be a callable meshadv victim, got {type(victim).__name__}")
+    if robustness is not None and not isinstance(robustness, Robustness):
+        raise TypeError(f"robustness must be a Robustness or None, got {type(robustness).__name__}")
+    for name, value in (("attack_kwargs", attack_kwargs), ("jitter", jitter)):
+        if value is not None and not isinstance(value, Mapping):
+            raise TypeError(f"{name} must be a dict or None, got {type(value).__name__}")
+    for name, value in (("num_lights", num_lights), ("camera_steps", camera_steps), ("light_steps", light_steps)):
+        _validate.non_negative_int(name, value)
+    _validate.positive_float("timeout", timeout)
+    if not isinstance(case_id, str):
+        raise TypeError(f"case_id must be a string, got {type(case_id).__name__}")
+    if not case_id:
+        raise ValueError("case_id must be a non-empty string")
+    return Robustness() if robustness is None else robustness
 
 
 def attack_options(attack_kwargs: Optional[dict[str, Any]],
@@ -33,9 +66,19 @@ def attack_options(attack_kwargs: Optional[dict[str, Any]],
     return setup_options, kwargs
 
 
-def attack_setup(setup_options: dict[str, Any], image_size: tuple[int, int], background: torch.Tensor) -> RenderSetup:
-    """The attack's render setup: the photo's image size and ``background`` unless ``setup_options`` set them."""
-    return RenderSetup(**{"image_size": image_size, "background": background, **setup_options})
+def attack_setup(setup_options: dict[str, Any], image_size: tuple[int, int],
+                 background: Optional[torch.Tensor] = None) -> RenderSetup:
+    """The attack's render setup: the photo's image size and ``background`` unless ``setup_options`` set them.
+
+    Called without ``background`` (before the photo is rendered), it checks ``setup_options`` early.
+
+    Raises:
+        TypeError, ValueError: a bad render-setup option (from :class:`~meshadv.render.setup.RenderSetup`).
+    """
+    defaults: dict[str, Any] = {"image_size": image_size}
+    if background is not None:
+        defaults["background"] = background
+    return RenderSetup(**{**defaults, **setup_options})
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from meshadv.transfer._pipeline import (
     Measured,
     attack_options,
     attack_setup,
+    check_run_options,
     finish_row,
     measure,
     row_head,
@@ -92,27 +93,34 @@ def blackbox_classifier(
         AttackResult.
 
     Raises:
-        ValueError: unknown ``perturbation``, or ``texture_smoothing`` given for a shape attack or negative.
+        TypeError: an argument of the wrong type (see
+            :func:`~meshadv.transfer._pipeline.check_run_options`), or an unknown attack option.
+        ValueError: unknown ``perturbation``, a class the victim does not know, ``texture_smoothing`` given for a
+            shape attack or negative, a bad count, ``timeout`` or render-setup option; all before any render.
     """
     from meshadv.attacks import Misclassification, TargetedMisclassification
 
+    # every argument is checked (the attack and its criterion built) before the first Mitsuba render
     check_perturbation(perturbation)
     check_smoothing(texture_smoothing, perturbation)
-    robustness = Robustness() if robustness is None else robustness
+    robustness = check_run_options(hidden, victim, robustness, attack_kwargs, jitter, num_lights, camera_steps,
+                                   light_steps, timeout, case_id)
+    setup_options, kwargs = attack_options(attack_kwargs, jitter)
+    attack_setup(setup_options, hidden.image_size)
+    attack = object_attack(perturbation, texture_smoothing, kwargs)
+    criterion = TargetedMisclassification(target) if target else Misclassification(true_class)
+    bound = criterion.bind(victim)
+    untargeted = Misclassification(true_class).bind(victim)
     est = estimate_parameters(mesh, hidden, num_lights=num_lights, camera_steps=camera_steps,
                               light_steps=light_steps, variant=variant, timeout=timeout)
     background = background_photo(hidden, variant=variant, timeout=timeout)
-    setup_options, kwargs = attack_options(attack_kwargs, jitter)
     setup = attack_setup(setup_options, hidden.image_size, background)
-    attack = object_attack(perturbation, texture_smoothing, kwargs)
-    criterion = TargetedMisclassification(target) if target else Misclassification(true_class)
     result = attack_estimated(attack, mesh, est.views, victim, criterion, robustness, setup, callback)
     adversarial = result.mesh
     run = BlackBoxRun(hidden, est, background, setup, robustness, variant, timeout)
-    bound = criterion.bind(victim)
     measured = measure(run, adversarial, adversarial, victim, bound)
     row = row_head(case_id, victim, true_class, target, perturbation)
-    row.update(_classifier_outcome(victim, bound, Misclassification(true_class).bind(victim), measured, est.photo))
+    row.update(_classifier_outcome(victim, bound, untargeted, measured, est.photo))
     return finish_row(row, run, attack, result, measured, adversarial, texture_smoothing)
 
 

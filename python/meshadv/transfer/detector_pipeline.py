@@ -12,6 +12,7 @@ from typing import Any, Callable, Optional, Sequence
 
 import torch
 
+from meshadv import _validate
 from meshadv.attacks.families import check_perturbation
 from meshadv.transfer._attack_run import attack_estimated
 from meshadv.transfer._pipeline import (
@@ -19,6 +20,7 @@ from meshadv.transfer._pipeline import (
     Measured,
     attack_options,
     attack_setup,
+    check_run_options,
     finish_row,
     measure,
     row_head,
@@ -41,41 +43,42 @@ class _DetectorContext:
     Attributes:
         background: ``(3, H, W)`` what meshadv's renders are composited over.
         attacked: the mesh given to the attack (the attacked object, or the merged scene).
-        attack: the attack (masked to the attacked object within a merged scene).
-        part: the rows of ``attacked``'s face colours (texture) or vertices (shape) that are the attacked object.
         victim: the victim the attack sees (:class:`~meshadv.transfer.robust.Occluded` where the photo hides it).
         occluded: ``(H, W)`` pixels where another known object hides the attacked one (``"photo"`` only).
     """
 
     background: torch.Tensor
     attacked: Any
-    attack: Any
-    part: slice
     victim: Any
     occluded: Optional[torch.Tensor] = None
 
 
-def _photo_context(objects: Sequence[Any], index: int, est: Estimation, victim: Any, image_size: tuple[int, int],
-                   perturbation: str, texture_smoothing: Optional[int], kwargs: dict[str, Any]) -> _DetectorContext:
-    """The ``"photo"`` context: the attacked object alone, rendered over the photo; the photo put back where another
-    known object hides it in the estimated view."""
-    occluded = occlusion_mask(objects, index, est.views, image_size)
-    seen_victim = Occluded(victim, est.photo, occluded) if bool(occluded.any()) else victim
-    attack = object_attack(perturbation, texture_smoothing, kwargs)
-    return _DetectorContext(est.photo, objects[index], attack, slice(0, None), seen_victim, occluded)
-
-
-def _render_context(objects: Sequence[Any], index: int, merged: Any, background: torch.Tensor, victim: Any,
-                    perturbation: str, texture_smoothing: Optional[int],
-                    kwargs: dict[str, Any]) -> _DetectorContext:
-    """The ``"render"`` context: every known object rendered (only object ``index`` may change) over ``background``
-    (the world without them)."""
+def _scene_attack(context: str, objects: Sequence[Any], index: int, merged: Any, perturbation: str,
+                  texture_smoothing: Optional[int], kwargs: dict[str, Any]) -> tuple[Any, slice]:
+    """The attack of object ``index`` and the rows of the attacked mesh's face colours (texture) or vertices (shape)
+    that are that object: the object alone (``"photo"``), or the merged scene with the attack masked to the object
+    (``"render"``)."""
+    if context == "photo":
+        return object_attack(perturbation, texture_smoothing, kwargs), slice(0, None)
     part = "faces" if perturbation == "texture" else "vertices"
     start, stop = object_range(objects, index, part)
     mask = torch.zeros(int(getattr(merged, part).shape[0]), dtype=torch.bool)
     mask[start:stop] = True
-    attack = object_attack(perturbation, texture_smoothing, kwargs, mask)
-    return _DetectorContext(background, merged, attack, slice(start, stop), victim)
+    return object_attack(perturbation, texture_smoothing, kwargs, mask), slice(start, stop)
+
+
+def _context(context: str, objects: Sequence[Any], index: int, merged: Any, est: Estimation, hidden: HiddenScene,
+             victim: Any, background_exclude: Sequence[str], variant: Optional[str],
+             timeout: float) -> _DetectorContext:
+    """The attack's context. ``"photo"``: the attacked object alone, rendered over the photo, the photo put back
+    where another known object hides it in the estimated view. ``"render"``: every known object rendered (only
+    object ``index`` may change) over Mitsuba's photo of the world without them (``background_exclude``)."""
+    if context == "photo":
+        occluded = occlusion_mask(objects, index, est.views, hidden.image_size)
+        seen_victim = Occluded(victim, est.photo, occluded) if bool(occluded.any()) else victim
+        return _DetectorContext(est.photo, objects[index], seen_victim, occluded)
+    background = background_photo(hidden, background_exclude, variant=variant, timeout=timeout)
+    return _DetectorContext(background, merged, victim)
 
 
 def _attacked_object(attacked_mesh: Any, obj: Any, perturbation: str, part: slice) -> Any:
@@ -85,19 +88,28 @@ def _attacked_object(attacked_mesh: Any, obj: Any, perturbation: str, part: slic
     return obj.with_vertices(attacked_mesh.vertices.detach()[part].clone())
 
 
-def _check_detector_options(num_objects: int, object_index: int, perturbation: str, context: str, light_fit: str,
-                            texture_smoothing: Optional[int], score_threshold: float) -> None:
-    """Raise ValueError naming the first bad argument of :func:`blackbox_detector`."""
-    if not 0 <= object_index < num_objects:
-        raise ValueError(f"object_index {object_index} out of range for {num_objects} objects")
+def _check_detector_options(objects: Sequence[Any], object_index: Any, perturbation: str, context: str,
+                            light_fit: str, texture_smoothing: Optional[int], score_threshold: Any,
+                            background_exclude: Any) -> None:
+    """Raise naming the first bad argument of :func:`blackbox_detector` that is its own (TypeError for a wrong
+    type, ValueError for a bad value)."""
+    for i, obj in enumerate(objects):
+        if not all(hasattr(obj, a) for a in ("vertices", "faces", "face_colors")):
+            raise TypeError(f"scene_objects[{i}] must be a meshadv.mesh.Mesh, got {type(obj).__name__}")
+    _validate.integer("object_index", object_index)
+    if not 0 <= object_index < len(objects):
+        raise ValueError(f"object_index {object_index} out of range for {len(objects)} objects")
     check_perturbation(perturbation)
     if context not in ("photo", "render"):
         raise ValueError(f"context must be 'photo' or 'render', got {context!r}")
     if light_fit not in ("object", "known"):
         raise ValueError(f"light_fit must be 'object' or 'known', got {light_fit!r}")
     check_smoothing(texture_smoothing, perturbation)
+    _validate.finite_float("score_threshold", score_threshold)
     if not 0.0 < score_threshold <= 1.0:
         raise ValueError(f"score_threshold must be in (0, 1], got {score_threshold}")
+    if isinstance(background_exclude, str) or not all(isinstance(name, str) for name in background_exclude):
+        raise TypeError(f"background_exclude must be a sequence of shape names (strings), got {background_exclude!r}")
 
 
 def blackbox_detector(
@@ -180,51 +192,46 @@ def blackbox_detector(
         :func:`~meshadv.transfer.classifier_pipeline.blackbox_classifier`.
 
     Raises:
+        TypeError: an argument of the wrong type (see :func:`~meshadv.transfer._pipeline.check_run_options`; also
+            ``scene_objects``, ``object_index``, ``score_threshold``, ``background_exclude``), or an unknown attack
+            option.
         ValueError: ``object_index`` out of range, unknown ``perturbation``, ``context`` or ``light_fit``, a bad
-            ``score_threshold``, or ``texture_smoothing`` given for a shape attack or negative.
+            ``score_threshold``, a ``hide_class`` the victim does not know, ``texture_smoothing`` given for a shape
+            attack or negative, a bad count, ``timeout`` or render-setup option; all before any render.
     """
     from meshadv.attacks import Disappearance
 
     objects = list(scene_objects)
-    _check_detector_options(len(objects), object_index, perturbation, context, light_fit, texture_smoothing,
-                            score_threshold)
-    robustness = Robustness() if robustness is None else robustness
+    # every argument is checked (the attack and its criterion built) before the first Mitsuba render
+    _check_detector_options(objects, object_index, perturbation, context, light_fit, texture_smoothing,
+                            score_threshold, background_exclude)
+    robustness = check_run_options(hidden, victim, robustness, attack_kwargs, jitter, num_lights, camera_steps,
+                                   light_steps, timeout, case_id)
+    setup_options, kwargs = attack_options(attack_kwargs, jitter)
+    attack_setup(setup_options, hidden.image_size)
+    criterion = Disappearance(hide_class, threshold=score_threshold)
+    bound = criterion.bind(victim)
     target_obj = objects[object_index]
     merged = merge_meshes(objects)
+    attack, part = _scene_attack(context, objects, object_index, merged, perturbation, texture_smoothing, kwargs)
     light_faces = object_range(objects, object_index) if light_fit == "object" else None
     est = estimate_parameters(target_obj, hidden, known=merged, light_faces=light_faces, num_lights=num_lights,
                               camera_steps=camera_steps, light_steps=light_steps, variant=variant, timeout=timeout)
-    setup_options, kwargs = attack_options(attack_kwargs, jitter)
-    ctx = _context(context, objects, object_index, merged, est, hidden, victim, perturbation, texture_smoothing,
-                   kwargs, background_exclude, variant, timeout)
+    ctx = _context(context, objects, object_index, merged, est, hidden, victim, background_exclude, variant, timeout)
     setup = attack_setup(setup_options, hidden.image_size, ctx.background)
-    criterion = Disappearance(hide_class, threshold=score_threshold)
-    result = attack_estimated(ctx.attack, ctx.attacked, est.views, ctx.victim, criterion, robustness, setup,
-                               callback)
-    adversarial = _attacked_object(result.mesh, target_obj, perturbation, ctx.part)
+    result = attack_estimated(attack, ctx.attacked, est.views, ctx.victim, criterion, robustness, setup, callback)
+    adversarial = _attacked_object(result.mesh, target_obj, perturbation, part)
     if context == "photo":
         seen = adversarial
     else:
         seen = merge_meshes([adversarial if i == object_index else o for i, o in enumerate(objects)])
     run = BlackBoxRun(hidden, est, ctx.background, setup, robustness, variant, timeout)
-    measured = measure(run, seen, adversarial, ctx.victim, criterion.bind(victim), ctx.occluded)
+    measured = measure(run, seen, adversarial, ctx.victim, bound, ctx.occluded)
     row = row_head(case_id, victim, hide_class, None, perturbation)
     row.update(context=context, light_fit=light_fit)
     row.update(_detector_outcome(victim, hide_class, score_threshold, measured, est.photo))
     row["occluded_pixels"] = None if ctx.occluded is None else int(ctx.occluded.sum())
-    return finish_row(row, run, ctx.attack, result, measured, adversarial, texture_smoothing)
-
-
-def _context(context: str, objects: Sequence[Any], index: int, merged: Any, est: Estimation, hidden: HiddenScene,
-             victim: Any, perturbation: str, texture_smoothing: Optional[int], kwargs: dict[str, Any],
-             background_exclude: Sequence[str], variant: Optional[str], timeout: float) -> _DetectorContext:
-    """The attack's context: :func:`_photo_context`, or :func:`_render_context` over Mitsuba's photo of the world
-    without the known objects (``background_exclude``)."""
-    if context == "photo":
-        return _photo_context(objects, index, est, victim, hidden.image_size, perturbation, texture_smoothing,
-                              kwargs)
-    background = background_photo(hidden, background_exclude, variant=variant, timeout=timeout)
-    return _render_context(objects, index, merged, background, victim, perturbation, texture_smoothing, kwargs)
+    return finish_row(row, run, attack, result, measured, adversarial, texture_smoothing)
 
 
 def _detector_outcome(victim: Any, hide_class: str, score_threshold: float, measured: Measured,

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 import torch
 
+from meshadv import _validate
 from meshadv.transfer._inputs import as_geometry
 from meshadv.transfer.hidden import HiddenScene
 from meshadv.transfer.render import render_mask, render_scenes
@@ -75,9 +76,10 @@ def estimate_parameters(
         ``errors["light_fit_pixels"]`` counts them.
 
     Raises:
-        TypeError: ``hidden`` is not a :class:`~meshadv.transfer.hidden.HiddenScene`.
+        TypeError: ``hidden`` is not a :class:`~meshadv.transfer.hidden.HiddenScene`; ``num_lights``,
+            ``camera_steps`` or ``light_steps`` is not an integer.
         ValueError: ``light_faces`` is not a non-empty range of ``known``'s faces, or selects no visible pixel;
-            ``camera_size`` < 8.
+            ``camera_size`` < 8; a negative ``num_lights``, ``camera_steps`` or ``light_steps``.
     """
     from meshadv.render import ViewSet
     from meshadv.transfer.camera_estimate import estimate_camera
@@ -87,6 +89,8 @@ def estimate_parameters(
         raise TypeError(f"hidden must be a HiddenScene, got {type(hidden).__name__}")
     if isinstance(camera_size, bool) or not isinstance(camera_size, int) or camera_size < 8:
         raise ValueError(f"camera_size must be an int >= 8, got {camera_size!r}")
+    for name, value in (("num_lights", num_lights), ("camera_steps", camera_steps), ("light_steps", light_steps)):
+        _validate.non_negative_int(name, value)  # checked here, not after the photo is rendered
     known = mesh if known is None else known
     _check_light_faces(light_faces, int(known.faces.shape[0]))
     photo_img = render_scenes([hidden.spec(mesh)], variant=variant, timeout=timeout)[0]
