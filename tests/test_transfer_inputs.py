@@ -235,3 +235,135 @@ def test_blackbox_detector_names_a_bad_argument_before_any_render(no_render: lis
     with pytest.raises(error, match=match):
         blackbox_detector(args.pop("scene_objects"), args.pop("object_index"), args.pop("hidden"), **args)
     assert no_render == []
+
+
+# ----------------------------------------------------------------------------------------------------------------------
+# Scene values, the hidden world, the controlled transfer and the sweep reader
+# ----------------------------------------------------------------------------------------------------------------------
+
+
+def _record() -> dict[str, Any]:
+    from meshadv.render import ViewSet
+
+    return ViewSet.orbit([30.0], elevation=15.0, distance=3.0).to_records()[0]
+
+
+@pytest.mark.parametrize(
+    "kwargs,error,match",
+    [
+        ({"spp": 1.5}, TypeError, "^spp must be an integer"),
+        ({"spp": 0}, ValueError, "^spp must be an integer >= 1"),
+        ({"max_depth": 2.0}, TypeError, "^max_depth"),
+        ({"max_depth": 0}, ValueError, "^max_depth"),
+        ({"seed": -1}, ValueError, "^seed"),
+        ({"image_size": 32.5}, TypeError, "^image_size"),
+        ({"image_size": (32, 32, 3)}, ValueError, "^image_size"),
+        ({"image_size": (32, 48)}, ValueError, "square"),
+        ({"environment_scale": math.inf}, ValueError, "^environment_scale"),
+        ({"objects": ("mesh",)}, TypeError, "^objects\\[0\\] must be a MeshObject"),
+        ({"camera": {"distance": 3.0}}, TypeError, "^camera must be a MitsubaCamera"),
+        ({"lights": [1.0]}, TypeError, "^lights must be a MitsubaLights"),
+    ],
+)
+def test_scene_spec_names_a_bad_field(kwargs: dict[str, Any], error: type, match: str) -> None:
+    from meshadv.transfer.spec import MeshObject, MitsubaCamera, SceneSpec
+
+    fields: dict[str, Any] = {"objects": (MeshObject.from_mesh(builtin_mesh("cube")),),
+                              "camera": MitsubaCamera.from_record(_record()), "image_size": 32, **kwargs}
+    with pytest.raises(error, match=match):
+        SceneSpec(**fields)
+
+
+def test_scene_spec_accepts_numpy_integers_and_keeps_the_size_square() -> None:
+    import numpy as np
+
+    from meshadv.transfer.spec import MeshObject, MitsubaCamera, SceneSpec
+
+    spec = SceneSpec((MeshObject.from_mesh(builtin_mesh("cube")),), MitsubaCamera.from_record(_record()),
+                     image_size=(np.int64(16), 16), spp=np.int32(4), max_depth=-1)
+    assert spec.image_size == (16, 16) and spec.spp == 4
+
+
+@pytest.mark.parametrize(
+    "kwargs,error,match",
+    [
+        ({"eye": (0.0, 0.0)}, ValueError, "^eye must be 3 numbers"),
+        ({"up": (0.0, math.nan, 0.0)}, ValueError, "^up\\[1\\]"),
+        ({"target": (0.0, "x", 0.0)}, TypeError, "^target\\[1\\]"),
+        ({"viewing_angle": "30"}, TypeError, "^viewing_angle"),
+        ({"near": None}, TypeError, "^near"),
+    ],
+)
+def test_mitsuba_camera_names_a_bad_field(kwargs: dict[str, Any], error: type, match: str) -> None:
+    from meshadv.transfer.spec import MitsubaCamera
+
+    with pytest.raises(error, match=match):
+        MitsubaCamera(**{"eye": (0.0, 0.0, -3.0), **kwargs})
+
+
+@pytest.mark.parametrize(
+    "kwargs,error,match",
+    [
+        ({"camera": [3.0, 10.0, 5.0]}, TypeError, "^camera must be a dict"),
+        ({"extra_objects": ("cube",)}, TypeError, "^extra_objects\\[0\\]"),
+        ({"spp": 0}, ValueError, "^spp"),
+        ({"image_size": (32, 64)}, ValueError, "square"),
+        ({"max_depth": "deep"}, TypeError, "^max_depth"),
+        ({"viewing_angle": 200.0}, ValueError, "^viewing_angle"),
+        ({"lights": {"ambient": [0.1] * 3}}, TypeError, "^lights"),
+        ({"base_scene": "/no/such/scene.xml"}, FileNotFoundError, "base_scene"),
+    ],
+)
+def test_hidden_scene_checks_its_settings_when_built(kwargs: dict[str, Any], error: type, match: str) -> None:
+    """Not at the first render, minutes later, inside a pipeline."""
+    from meshadv.transfer.hidden import HiddenScene
+
+    fields: dict[str, Any] = {"camera": {"distance": 3.0, "azimuth": 10.0, "elevation": 5.0}, **kwargs}
+    with pytest.raises(error, match=match):
+        HiddenScene(**fields)
+
+
+def _case() -> Any:
+    from meshadv.transfer.cases import TransferCase
+
+    return TransferCase("c0", builtin_mesh("cube"), (_record(),), "stand-in", "bottle", image_size=16)
+
+
+@pytest.mark.parametrize(
+    "kwargs,error,match",
+    [
+        ({"cases": ["c0"]}, TypeError, "^cases\\[0\\] must be a TransferCase"),
+        ({"spp": 0}, ValueError, "^spp"),
+        ({"spp": 2.5}, TypeError, "^spp"),
+        ({"max_depth": 0}, ValueError, "^max_depth"),
+        ({"timeout": 0.0}, ValueError, "^timeout"),
+        ({"victim_loader": "efficientnet_lite0"}, TypeError, "^victim_loader"),
+        ({"on_error": "ignore"}, ValueError, "^on_error"),
+    ],
+)
+def test_controlled_transfer_names_a_bad_argument_before_any_render(no_render: list[Any], kwargs: dict[str, Any],
+                                                                    error: type, match: str) -> None:
+    from meshadv.transfer.controlled import controlled_transfer
+
+    args: dict[str, Any] = {"cases": [_case()], "victim_loader": lambda name: pytest.fail("no victim is needed"),
+                            **kwargs}
+    with pytest.raises(error, match=match):
+        controlled_transfer(args.pop("cases"), **args)
+    assert no_render == []
+
+
+def test_cases_from_store_rejects_a_limit_below_one_and_a_string_skip(tmp_path: Any) -> None:
+    """``limit=0`` used to return one case (the limit was tested after the first case was added)."""
+    from meshadv.experiments import ResultStore
+    from meshadv.transfer.cases import cases_from_store
+
+    db = tmp_path / "results.db"
+    with ResultStore(db):
+        pass
+    assert cases_from_store(db, limit=3) == []
+    with pytest.raises(ValueError, match="^limit"):
+        cases_from_store(db, limit=0)
+    with pytest.raises(TypeError, match="^limit"):
+        cases_from_store(db, limit=2.0)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="^skip"):
+        cases_from_store(db, skip="4bdd3c57")

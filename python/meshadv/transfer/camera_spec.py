@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
+from meshadv import _validate
 from meshadv.transfer._arrays import as_numpy, normalize
 from meshadv.util.spherical import spherical_direction
 
@@ -39,6 +40,14 @@ class MitsubaCamera:
     far: float = 100.0
 
     def __post_init__(self) -> None:
+        for name in ("eye", "target", "up"):
+            value = getattr(self, name)
+            if isinstance(value, (str, bytes)) or len(value) != 3:
+                raise ValueError(f"{name} must be 3 numbers, got {value!r}")
+            for i, v in enumerate(value):
+                _validate.finite_float(f"{name}[{i}]", v)
+        for name in ("viewing_angle", "near", "far"):
+            _validate.finite_float(name, getattr(self, name))
         if not 0.0 < self.viewing_angle < 180.0:
             raise ValueError(f"viewing_angle must be in (0, 180) degrees, got {self.viewing_angle}")
         if not 0.0 < self.near < self.far:

@@ -9,6 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Collection, Optional, Union
 
+from meshadv import _validate
+
 __all__ = ["TransferCase", "case_name", "cases_from_store"]
 
 
@@ -101,11 +103,17 @@ def cases_from_store(
 
     Raises:
         FileNotFoundError: ``db_path`` does not exist.
+        TypeError: ``limit`` is not an int (or None), or ``skip`` is a single string.
+        ValueError: ``limit < 1``.
     """
     from meshadv.experiments import ResultStore
 
     if not Path(db_path).is_file():
         raise FileNotFoundError(f"db_path {db_path} does not exist")
+    if limit is not None:
+        _validate.positive_int("limit", limit)  # 0 used to give one case
+    if isinstance(skip, (str, bytes)):
+        raise TypeError("skip must be a collection of job ids, got a single string")
     cases: list[TransferCase] = []
     with ResultStore(db_path) as store:
         rows = store.rows("done")

@@ -17,6 +17,7 @@ from typing import Any, Callable, Optional, Sequence, Union
 
 import torch
 
+from meshadv import _validate
 from meshadv.transfer._scoring import class_names, images_tensor, top1_names
 from meshadv.transfer.cases import TransferCase, case_name, cases_from_store
 from meshadv.transfer.images import INDEX_COLUMNS, save_images, write_image_index
@@ -155,11 +156,13 @@ def controlled_transfer(
         failed render gives results with ``error`` set and no success.
 
     Raises:
-        ValueError: unknown ``on_error``.
+        TypeError: a case is not a :class:`~meshadv.transfer.cases.TransferCase`, ``victim_loader`` is not
+            callable, or ``spp``, ``max_depth`` or ``timeout`` has the wrong type.
+        ValueError: unknown ``on_error``, ``spp < 1``, ``max_depth`` neither ``>= 1`` nor ``-1``, or ``timeout <= 0``.
         MitsubaRenderError: a render failed and ``on_error == "raise"``.
     """
-    if on_error not in ("record", "raise"):
-        raise ValueError(f"on_error must be 'record' or 'raise', got {on_error!r}")
+    cases = list(cases)
+    _check_transfer_options(cases, spp, max_depth, timeout, victim_loader, on_error)
     if victim_loader is None:
         from meshadv.victims import load_victim
 
@@ -181,6 +184,22 @@ def controlled_transfer(
         if image_dir is not None:
             save_images(images, Path(image_dir), case.name or case.case_id)
     return rows
+
+
+def _check_transfer_options(cases: Sequence[Any], spp: Any, max_depth: Any, timeout: Any, victim_loader: Any,
+                            on_error: Any) -> None:
+    """Raise naming the first bad argument of :func:`controlled_transfer`, before any case is rendered."""
+    for i, case in enumerate(cases):
+        if not isinstance(case, TransferCase):
+            raise TypeError(f"cases[{i}] must be a TransferCase, got {type(case).__name__}")
+    _validate.positive_int("spp", spp)
+    if _validate.integer("max_depth", max_depth) < 1 and max_depth != -1:
+        raise ValueError(f"max_depth must be >= 1 (or -1 for unlimited), got {max_depth}")
+    _validate.positive_float("timeout", timeout)
+    if victim_loader is not None and not callable(victim_loader):
+        raise TypeError(f"victim_loader must be a callable or None, got {type(victim_loader).__name__}")
+    if on_error not in ("record", "raise"):
+        raise ValueError(f"on_error must be 'record' or 'raise', got {on_error!r}")
 
 
 def _failed(case: TransferCase, error: MitsubaRenderError) -> list[ControlledResult]:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Optional, Sequence
+from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
 
@@ -46,8 +46,12 @@ class HiddenScene:
         extra_objects: other meshes of the world (beside the object and the base scene).
 
     Raises:
+        TypeError: ``camera`` is not a dict, an extra object is not a :class:`~meshadv.transfer.spec.MeshObject`, or
+            a setting has the wrong type (checked by building the world's :class:`~meshadv.transfer.spec.SceneSpec`).
         ValueError: ``camera`` lacks one of ``distance``, ``azimuth``, ``elevation`` or has a value (those or
-            ``tilt``) that is not a finite number.
+            ``tilt``) that is not a finite number; a bad ``viewing_angle``, ``image_size``, ``spp`` or
+            ``max_depth``.
+        FileNotFoundError: ``base_scene`` does not exist.
     """
 
     camera: dict[str, float]
@@ -64,12 +68,19 @@ class HiddenScene:
     extra_objects: tuple[MeshObject, ...] = field(default=())
 
     def __post_init__(self) -> None:
+        if not isinstance(self.camera, Mapping):
+            raise TypeError(f"camera must be a dict with distance, azimuth, elevation, "
+                            f"got {type(self.camera).__name__}")
         missing = [k for k in ("distance", "azimuth", "elevation") if k not in self.camera]
         if missing:
             raise ValueError(f"camera must have the keys distance, azimuth, elevation; missing {missing}")
         for key in ("distance", "azimuth", "elevation", "tilt"):
             if key in self.camera and not _is_finite_number(self.camera[key]):
                 raise ValueError(f"camera[{key!r}] must be a finite number, got {self.camera[key]!r}")
+        for i, obj in enumerate(self.extra_objects):
+            if not isinstance(obj, MeshObject):
+                raise TypeError(f"extra_objects[{i}] must be a MeshObject, got {type(obj).__name__}")
+        self._scene((), self.base_exclude, 0)  # checks the rest now (image size, spp, depth, lights, base scene, ...)
 
     def mitsuba_camera(self) -> MitsubaCamera:
         """The true camera for Mitsuba."""

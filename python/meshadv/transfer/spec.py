@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Optional, Union
 
 import numpy as np
 
+from meshadv import _validate
 from meshadv.transfer._arrays import as_numpy
 from meshadv.transfer.camera_spec import MitsubaCamera
 
@@ -158,18 +159,21 @@ class SceneSpec:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        size = self.image_size
-        if isinstance(size, int):
-            size = (size, size)
-        size = (int(size[0]), int(size[1]))
-        if min(size) <= 0 or size[0] != size[1]:
-            raise ValueError(f"image_size must be positive and square (H == W), got {size}")
-        object.__setattr__(self, "image_size", size)
+        object.__setattr__(self, "image_size", _square_size(self.image_size))
         object.__setattr__(self, "objects", tuple(self.objects))
-        if self.spp < 1:
-            raise ValueError(f"spp must be >= 1, got {self.spp}")
+        for i, obj in enumerate(self.objects):
+            if not isinstance(obj, MeshObject):
+                raise TypeError(f"objects[{i}] must be a MeshObject, got {type(obj).__name__}")
+        if not isinstance(self.camera, MitsubaCamera):
+            raise TypeError(f"camera must be a MitsubaCamera, got {type(self.camera).__name__}")
+        if self.lights is not None and not isinstance(self.lights, MitsubaLights):
+            raise TypeError(f"lights must be a MitsubaLights or None, got {type(self.lights).__name__}")
+        _validate.positive_int("spp", self.spp)
+        _validate.integer("max_depth", self.max_depth)
         if self.max_depth < 1 and self.max_depth != -1:
             raise ValueError(f"max_depth must be >= 1 (or -1 for unlimited), got {self.max_depth}")
+        _validate.seed("seed", self.seed)
+        _validate.finite_float("environment_scale", self.environment_scale, low=0.0)
         if self.base_scene is not None and not Path(self.base_scene).is_file():
             raise FileNotFoundError(f"base_scene {self.base_scene} does not exist")
         if self.environment is not None:
@@ -177,6 +181,25 @@ class SceneSpec:
             if env.ndim != 3 or env.shape[2] != 3:
                 raise ValueError(f"environment must be (H, W, 3), got {env.shape}")
             object.__setattr__(self, "environment", env)
+
+
+def _square_size(image_size: Any) -> tuple[int, int]:
+    """``(S, S)`` from an int ``S`` or an ``(H, W)`` pair of ints with ``H == W`` (Mitsuba's images are square).
+
+    Raises:
+        TypeError: ``image_size`` is not an int or a pair of ints.
+        ValueError: a side is not positive, or ``H != W``.
+    """
+    if isinstance(image_size, (tuple, list)) and len(image_size) == 2:
+        size = (_validate.integer("image_size[0]", image_size[0]), _validate.integer("image_size[1]", image_size[1]))
+    elif isinstance(image_size, (tuple, list)):
+        raise ValueError(f"image_size must be an int or (H, W), got {image_size!r}")
+    else:
+        side = _validate.integer("image_size", image_size)
+        size = (side, side)
+    if min(size) <= 0 or size[0] != size[1]:
+        raise ValueError(f"image_size must be positive and square (H == W), got {size}")
+    return size
 
 
 def scene_spec(
