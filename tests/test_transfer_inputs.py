@@ -367,3 +367,66 @@ def test_cases_from_store_rejects_a_limit_below_one_and_a_string_skip(tmp_path: 
         cases_from_store(db, limit=2.0)  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="^skip"):
         cases_from_store(db, skip="4bdd3c57")
+
+
+# ----------------------------------------------------------------------------------------------------------------------
+# Robustness tools: a wrong type is a TypeError (it was a ValueError before the project's rule reached them)
+# ----------------------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"eot": 2.0}, "^eot must be an integer"),
+        ({"eot": True}, "^eot must be an integer"),
+        ({"verify_samples": "16"}, "^verify_samples"),
+        ({"seed": 0.5}, "^seed"),
+        ({"margin": "1"}, "^margin"),
+        ({"pixel_noise": None}, "^pixel_noise"),
+    ],
+)
+def test_robustness_wrong_types_are_type_errors(kwargs: dict[str, Any], match: str) -> None:
+    from meshadv.transfer.robust import Robustness
+
+    with pytest.raises(TypeError, match=match):
+        Robustness(**kwargs)
+
+
+def test_robustness_keeps_json_able_ints_from_numpy_integers() -> None:
+    import json
+
+    import numpy as np
+
+    from meshadv.transfer.robust import Robustness
+
+    record = Robustness(eot=np.int64(3), verify_samples=np.int32(2), seed=np.int64(5)).to_record()
+    assert (record["eot"], record["verify_samples"], record["robust_seed"]) == (3, 2, 5)
+    json.dumps(record)
+
+
+def test_robust_tools_wrong_types_are_type_errors() -> None:
+    from meshadv.render import ViewSet
+    from meshadv.transfer.object_attacks import check_smoothing
+    from meshadv.transfer.robust import NoisyVictim, Occluded, eot_views
+
+    victim = _classifier_victim()
+    views = ViewSet.orbit([10.0], elevation=5.0, distance=3.0)
+    for bad in (1.5, True):
+        with pytest.raises(TypeError, match="^samples"):
+            eot_views(views, bad)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="^views"):
+        eot_views(views.to_records(), 2)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="^std"):
+        NoisyVictim(victim, True)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="^victim"):
+        NoisyVictim("efficientnet_lite0", 0.1)
+    with pytest.raises(TypeError, match="^background"):
+        NoisyVictim(victim, 0.1, background=[[0.5] * 8] * 3)
+    with pytest.raises(TypeError, match="^photo must be a tensor"):
+        Occluded(victim, [[0.0]], torch.zeros(1, 1))  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="^mask must be a tensor"):
+        Occluded(victim, torch.zeros(3, 4, 4), [[0.0] * 4] * 4)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="^texture_smoothing"):
+        check_smoothing(2.0, "texture")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="^texture_smoothing"):
+        check_smoothing(-1, "texture")

@@ -137,10 +137,10 @@ def test_eot_views_copies_then_jitter_draws_independent_samples() -> None:
     azimuths = [r["azimuth"] for r in jittered]
     assert len({round(a, 6) for a in azimuths[0::2]}) == 3  # three different samples of the first view
     assert all(abs(a - b) <= 5.0 for a, b in zip(azimuths, [10.0, 50.0] * 3))
-    for bad in (0, -2, 1.5, True):
+    for bad in (0, -2):  # wrong types (1.5, True): test_transfer_inputs.py
         with pytest.raises(ValueError, match="samples"):
             eot_views(views, bad)  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match="views"):
+    with pytest.raises(TypeError, match="views"):
         eot_views([1, 2], 2)
 
 
@@ -165,10 +165,10 @@ def test_noisy_victim_adds_reproducible_noise_and_passes_attributes_and_gradient
     out.sum().backward()
     assert torch.allclose(images.grad, torch.ones_like(images))
     assert float(NoisyVictim(inner, 0.5)(torch.ones(1, 3, 8, 8)).max()) <= 1.0  # clamped like a render
-    for bad in (0.0, -0.1, math.inf, True):
+    for bad in (0.0, -0.1, math.inf):  # wrong types (True): test_transfer_inputs.py
         with pytest.raises(ValueError, match="std"):
             NoisyVictim(inner, bad)  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match="victim"):
+    with pytest.raises(TypeError, match="victim"):
         NoisyVictim(42, 0.1)
 
 
@@ -195,7 +195,7 @@ def test_robustness_validates_its_fields() -> None:
     r = Robustness(eot=4, margin=2.5, pixel_noise=0.01)
     assert r.to_record() == {"eot": 4, "required_margin": 2.5, "pixel_noise": 0.01, "verify_samples": 16,
                              "robust_seed": 0}
-    for kwargs, name in (({"eot": 0}, "eot"), ({"eot": 2.0}, "eot"), ({"margin": -1.0}, "margin"),
+    for kwargs, name in (({"eot": 0}, "eot"), ({"margin": -1.0}, "margin"),
                          ({"pixel_noise": math.nan}, "pixel_noise"), ({"verify_samples": -1}, "verify_samples")):
         with pytest.raises(ValueError, match=name):
             Robustness(**kwargs)

@@ -11,17 +11,23 @@ from typing import Any, Optional
 
 import torch
 
+from meshadv import _validate
+
 __all__ = ["check_smoothing", "object_attack", "texture_attack"]
 
 
 def check_smoothing(texture_smoothing: Optional[int], perturbation: str) -> None:
-    """Raise ValueError unless ``texture_smoothing`` is None, or an int >= 0 with ``perturbation == "texture"``."""
+    """Check that ``texture_smoothing`` is None, or an int >= 0 with ``perturbation == "texture"``.
+
+    Raises:
+        TypeError: ``texture_smoothing`` is neither None nor an int.
+        ValueError: it is negative, or given for a shape attack.
+    """
     if texture_smoothing is None:
         return
     if perturbation != "texture":
         raise ValueError("texture_smoothing applies to texture attacks only (perturbation='texture')")
-    if isinstance(texture_smoothing, bool) or not isinstance(texture_smoothing, int) or texture_smoothing < 0:
-        raise ValueError(f"texture_smoothing must be None or an int >= 0, got {texture_smoothing!r}")
+    _validate.non_negative_int("texture_smoothing", texture_smoothing)
 
 
 def texture_attack(smoothing: Optional[int], face_mask: Optional[torch.Tensor], kwargs: dict[str, Any]) -> Any:

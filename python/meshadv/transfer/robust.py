@@ -24,13 +24,13 @@ changing it:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor
 
+from meshadv import _validate
 from meshadv.attacks.criteria import WithMargin
 
 if TYPE_CHECKING:
@@ -56,13 +56,15 @@ def eot_views(views: ViewSet, samples: int) -> ViewSet:
         A ``ViewSet`` of ``samples * len(views)`` views.
 
     Raises:
-        ValueError: ``samples`` is not a positive int, or ``views`` is not a non-empty ViewSet.
+        TypeError: ``samples`` is not an int, or ``views`` is not a ``ViewSet``.
+        ValueError: ``samples < 1``, or ``views`` is empty.
     """
     from meshadv.render import ViewSet
 
-    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
-        raise ValueError(f"samples must be an int >= 1, got {samples!r}")
-    if not isinstance(views, ViewSet) or len(views) < 1:
+    _validate.positive_int("samples", samples)
+    if not isinstance(views, ViewSet):
+        raise TypeError(f"views must be a meshadv.render.ViewSet, got {type(views).__name__}")
+    if len(views) < 1:
         raise ValueError("views must be a non-empty meshadv.render.ViewSet")
     return views if samples == 1 else ViewSet.cat([views] * samples)
 
@@ -88,12 +90,12 @@ class _VictimWrapper:
     the victim itself.
 
     Raises:
-        ValueError: ``victim`` is not callable.
+        TypeError: ``victim`` is not callable.
     """
 
     def __init__(self, victim: Any) -> None:
         if not callable(victim):
-            raise ValueError(f"victim must be a callable victim, got {type(victim).__name__}")
+            raise TypeError(f"victim must be a callable victim, got {type(victim).__name__}")
         self.__dict__["victim"] = victim
 
     def __getattr__(self, name: str) -> Any:
@@ -121,8 +123,9 @@ class NoisyVictim(_VictimWrapper):
         background: optional ``(3, H, W)`` image: noise only where the images differ from it.
 
     Raises:
-        ValueError: ``std`` is not a positive finite number, ``victim`` is not callable, or ``background`` is not a
-            ``(3, H, W)`` tensor (or, at call time, does not match the images).
+        TypeError: ``victim`` is not callable, ``std`` is not a number, or ``background`` is not a tensor.
+        ValueError: ``std`` is not positive and finite, or ``background`` is not ``(3, H, W)`` (or, at call time,
+            does not match the images).
 
     Example:
         >>> noisy = NoisyVictim(victim, 0.05, background=photo)  # doctest: +SKIP
@@ -131,11 +134,11 @@ class NoisyVictim(_VictimWrapper):
 
     def __init__(self, victim: Any, std: float, *, seed: int = 0, background: Any = None) -> None:
         super().__init__(victim)
-        if isinstance(std, bool) or not isinstance(std, (int, float)) or not (math.isfinite(std) and std > 0):
-            raise ValueError(f"std must be a finite number > 0, got {std!r}")
-        if background is not None and (not isinstance(background, Tensor) or background.dim() != 3
-                                       or background.shape[0] != 3):
-            raise ValueError("background must be None or a (3, H, W) tensor")
+        _validate.positive_float("std", std)
+        if background is not None and not isinstance(background, Tensor):
+            raise TypeError(f"background must be None or a (3, H, W) tensor, got {type(background).__name__}")
+        if background is not None and (background.dim() != 3 or background.shape[0] != 3):
+            raise ValueError(f"background must be None or a (3, H, W) tensor, got shape {tuple(background.shape)}")
         self.__dict__["std"] = float(std)
         self.__dict__["background"] = None if background is None else background.detach()
         self.__dict__["_generator"] = torch.Generator().manual_seed(int(seed))
@@ -169,6 +172,7 @@ class Occluded(_VictimWrapper):
         mask: ``(H, W)`` occluded pixels in ``[0, 1]`` (1 = show the photo).
 
     Raises:
+        TypeError: ``victim`` is not callable, or ``photo`` or ``mask`` is not a tensor.
         ValueError: shapes that do not match, or a mask outside ``[0, 1]``.
 
     Example:
@@ -177,9 +181,12 @@ class Occluded(_VictimWrapper):
 
     def __init__(self, victim: Any, photo: Tensor, mask: Tensor) -> None:
         super().__init__(victim)
-        if not isinstance(photo, Tensor) or photo.dim() != 3 or photo.shape[0] != 3:
-            raise ValueError(f"photo must be a (3, H, W) tensor, got {getattr(photo, 'shape', type(photo).__name__)}")
-        if not isinstance(mask, Tensor) or tuple(mask.shape) != tuple(photo.shape[1:]):
+        for name, value in (("photo", photo), ("mask", mask)):
+            if not isinstance(value, Tensor):
+                raise TypeError(f"{name} must be a tensor, got {type(value).__name__}")
+        if photo.dim() != 3 or photo.shape[0] != 3:
+            raise ValueError(f"photo must be a (3, H, W) tensor, got {tuple(photo.shape)}")
+        if tuple(mask.shape) != tuple(photo.shape[1:]):
             raise ValueError(f"mask must be an (H, W) tensor matching the photo {tuple(photo.shape[1:])}, "
                              f"got {getattr(mask, 'shape', type(mask).__name__)}")
         if mask.numel() and (float(mask.min()) < 0 or float(mask.max()) > 1):
@@ -220,6 +227,7 @@ class Robustness:
         seed: seed of the pixel noise and of the verification samples.
 
     Raises:
+        TypeError: a field of the wrong type (a float ``eot``, a string ``margin``, ...), naming it.
         ValueError: a field out of range, naming it.
     """
 
@@ -230,19 +238,12 @@ class Robustness:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("eot", "verify_samples", "seed"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ValueError(f"{name} must be an int, got {value!r}")
-        if self.eot < 1:
-            raise ValueError(f"eot must be >= 1, got {self.eot}")
-        if self.verify_samples < 0:
-            raise ValueError(f"verify_samples must be >= 0, got {self.verify_samples}")
+        # stored as Python ints (a NumPy integer would not be JSON-able in the result row)
+        object.__setattr__(self, "eot", _validate.positive_int("eot", self.eot))
+        object.__setattr__(self, "verify_samples", _validate.non_negative_int("verify_samples", self.verify_samples))
+        object.__setattr__(self, "seed", _validate.integer("seed", self.seed))
         for name in ("margin", "pixel_noise"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value)
-                                                                                       and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+            _validate.finite_float(name, getattr(self, name), low=0.0)
 
     def to_record(self) -> dict[str, Any]:
         """The fields as result-row entries (``required_margin`` for ``margin``)."""
