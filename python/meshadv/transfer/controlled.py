@@ -12,6 +12,7 @@ and outcome (:mod:`meshadv.transfer.images`). Those names are re-exported here.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence, Union
 
@@ -82,48 +83,72 @@ def evaluate_case(
         (targeted when the case has a target, else untargeted), ``untargeted_meshadv`` / ``untargeted_mitsuba``, the
         top-1 labels and the Mitsuba variant.
     """
-    from meshadv.attacks import evaluate
-    from meshadv.render import RenderSetup, ViewSet
-
-    views = ViewSet.from_records(list(case.views))
     untargeted, targeted = _criteria(case, victim)
-    criteria = [untargeted] if targeted is None else [untargeted, targeted]
-    setup = RenderSetup(image_size=case.image_size, background=case.background, antialias=case.antialias)
-    scored = evaluate(case.mesh, views, victim, criteria, setup=setup)  # meshadv's side, as the attack scores it
-    ours = scored.images[0]
-    with torch.no_grad():
-        theirs = images_tensor(mitsuba_images)
-        logits_theirs = victim(theirs)
-    un_ours = (scored.margins[0] > 0).tolist()
-    un_theirs = untargeted.is_adversarial(logits_theirs).tolist()
-    if targeted is not None:
-        t_ours = (scored.margins[1] > 0).tolist()
-        t_theirs = targeted.is_adversarial(logits_theirs).tolist()
-    else:
-        t_ours, t_theirs = un_ours, un_theirs
-    top_ours = class_names(victim, scored.top1[0].tolist())
-    top_theirs = top1_names(victim, logits_theirs)
-    diff = (ours - theirs).abs().mean(dim=(1, 2, 3)).tolist()
+    ours, images_ours = _meshadv_verdicts(case, victim, untargeted, targeted)
+    images_theirs = images_tensor(mitsuba_images)
+    theirs = _victim_verdicts(victim, images_theirs, untargeted, targeted)
+    diff = (images_ours - images_theirs).abs().mean(dim=(1, 2, 3)).tolist()
     return [
         ControlledResult(
-            case_id=case.case_id,
-            victim=case.victim,
-            true_class=case.true_class,
-            target=case.target or "",
-            perturbation=case.perturbation,
-            view=v,
-            success_meshadv=bool(t_ours[v]),
-            success_mitsuba=bool(t_theirs[v]),
-            untargeted_meshadv=bool(un_ours[v]),
-            untargeted_mitsuba=bool(un_theirs[v]),
-            top1_meshadv=top_ours[v],
-            top1_mitsuba=top_theirs[v],
+            **_identity(case, v),
+            success_meshadv=ours.targeted[v],
+            success_mitsuba=theirs.targeted[v],
+            untargeted_meshadv=ours.untargeted[v],
+            untargeted_mitsuba=theirs.untargeted[v],
+            top1_meshadv=ours.top1[v],
+            top1_mitsuba=theirs.top1[v],
             mean_abs_image_difference=float(diff[v]),
             variant=mitsuba_images[v].variant,
             benign_correct=case.benign_correct,
         )
         for v in range(len(case.views))
     ]
+
+
+@dataclass(frozen=True)
+class _Verdicts:
+    """One renderer's verdicts on the views of a case.
+
+    Attributes:
+        untargeted: per view, the victim's top-1 is outside the true class.
+        targeted: per view, the case's success: targeted for a targeted case, else ``untargeted``.
+        top1: per view, the victim's top-1 class name.
+    """
+
+    untargeted: list[bool]
+    targeted: list[bool]
+    top1: list[str]
+
+
+def _meshadv_verdicts(case: TransferCase, victim: Any, untargeted: Any,
+                      targeted: Optional[Any]) -> tuple[_Verdicts, torch.Tensor]:
+    """The verdicts on meshadv's renders of the case (its image size, background and the attack's supersampling,
+    scored as the attack scores them) and those renders ``(V, 3, H, W)``."""
+    from meshadv.attacks import evaluate
+    from meshadv.render import RenderSetup, ViewSet
+
+    views = ViewSet.from_records(list(case.views))
+    criteria = [untargeted] if targeted is None else [untargeted, targeted]
+    setup = RenderSetup(image_size=case.image_size, background=case.background, antialias=case.antialias)
+    scored = evaluate(case.mesh, views, victim, criteria, setup=setup)
+    un = [bool(x) for x in (scored.margins[0] > 0).tolist()]
+    success = un if targeted is None else [bool(x) for x in (scored.margins[1] > 0).tolist()]
+    return _Verdicts(un, success, class_names(victim, scored.top1[0].tolist())), scored.images[0]
+
+
+def _victim_verdicts(victim: Any, images: torch.Tensor, untargeted: Any, targeted: Optional[Any]) -> _Verdicts:
+    """The verdicts of ``victim`` on ``images`` ``(V, 3, H, W)`` (Mitsuba's renders)."""
+    with torch.no_grad():
+        logits = victim(images)
+    un = [bool(x) for x in untargeted.is_adversarial(logits).tolist()]
+    success = un if targeted is None else [bool(x) for x in targeted.is_adversarial(logits).tolist()]
+    return _Verdicts(un, success, top1_names(victim, logits))
+
+
+def _identity(case: TransferCase, view: int) -> dict[str, Any]:
+    """The fields that name a result row: the case, its victim, classes, perturbation and the view."""
+    return {"case_id": case.case_id, "victim": case.victim, "true_class": case.true_class,
+            "target": case.target or "", "perturbation": case.perturbation, "view": view}
 
 
 def controlled_transfer(
@@ -205,8 +230,6 @@ def _check_transfer_options(cases: Sequence[Any], spp: Any, max_depth: Any, time
 def _failed(case: TransferCase, error: MitsubaRenderError) -> list[ControlledResult]:
     """One result per view of ``case`` whose Mitsuba render failed: no successes, ``error`` says why."""
     return [
-        ControlledResult(case_id=case.case_id, victim=case.victim, true_class=case.true_class,
-                         target=case.target or "", perturbation=case.perturbation, view=v,
-                         success_meshadv=None, success_mitsuba=None, error=str(error))
+        ControlledResult(**_identity(case, v), success_meshadv=None, success_mitsuba=None, error=str(error))
         for v in range(len(case.views))
     ]

@@ -17,6 +17,7 @@ from meshadv.transfer.spec import MitsubaLights
 
 if TYPE_CHECKING:
     from meshadv.render import Camera, Lights, ViewSet
+    from meshadv.transfer.camera_estimate import CameraEstimate
 
 __all__ = ["Estimation", "background_photo", "estimate_parameters"]
 
@@ -93,10 +94,7 @@ def estimate_parameters(
         _validate.non_negative_int(name, value)  # checked here, not after the photo is rendered
     known = mesh if known is None else known
     _check_light_faces(light_faces, int(known.faces.shape[0]))
-    photo_img = render_scenes([hidden.spec(mesh)], variant=variant, timeout=timeout)[0]
-    mask_np = render_mask(known, hidden.mitsuba_camera(), hidden.image_size, variant=variant, timeout=timeout)
-    photo = torch.from_numpy(photo_img.chw())
-    mask = torch.from_numpy(mask_np)
+    photo, mask = _photo_and_mask(mesh, known, hidden, variant, timeout)
     verts, faces = as_geometry(known.vertices, known.faces)
     colors = torch.as_tensor(known.face_colors, dtype=torch.float32).detach()
     cam_est = estimate_camera(_pooled(mask, camera_size), verts, faces, viewing_angle=hidden.viewing_angle,
@@ -106,15 +104,34 @@ def estimate_parameters(
                                                               hidden.image_size)
     light_est = estimate_lights(photo, light_mask, verts, faces, colors, camera, num_lights=num_lights,
                                 steps=light_steps)
+    errors = _estimation_errors(hidden, cam_est, light_est.lights, photo, light_mask, verts, faces, colors)
+    return Estimation(ViewSet(camera, light_est.lights), errors, photo, mask)
+
+
+def _photo_and_mask(mesh: Any, known: Any, hidden: HiddenScene, variant: Optional[str],
+                    timeout: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mitsuba's photo of ``mesh`` in the hidden world ``(3, H, W)`` and the mask of the ``known`` geometry under
+    the hidden camera ``(H, W)`` (the attacker's segmentation of the photo)."""
+    photo = render_scenes([hidden.spec(mesh)], variant=variant, timeout=timeout)[0]
+    mask = render_mask(known, hidden.mitsuba_camera(), hidden.image_size, variant=variant, timeout=timeout)
+    return torch.from_numpy(photo.chw()), torch.from_numpy(mask)
+
+
+def _estimation_errors(hidden: HiddenScene, cam_est: CameraEstimate, lights: Lights, photo: torch.Tensor,
+                       light_mask: torch.Tensor, verts: torch.Tensor, faces: torch.Tensor,
+                       colors: torch.Tensor) -> dict[str, float]:
+    """The errors of :class:`Estimation`: the camera's against the hidden one, the mask IoU, the light fit on the
+    fitted pixels, the lights' against the hidden world's directional lights (when it has some) and the estimated
+    camera itself."""
     errors = cam_est.errors(hidden.camera["distance"], hidden.camera["azimuth"], hidden.camera["elevation"])
     errors["mask_iou"] = cam_est.iou
-    errors.update(_light_fit_errors(photo, light_mask, verts, faces, colors, camera, light_est.lights,
+    errors.update(_light_fit_errors(photo, light_mask, verts, faces, colors, cam_est.camera(), lights,
                                     hidden.image_size))
     if hidden.lights is not None:
-        errors.update(_true_light_errors(light_est.lights, hidden.lights, hidden.environment is not None))
+        errors.update(_true_light_errors(lights, hidden.lights, hidden.environment is not None))
     errors.update(estimated_azimuth=cam_est.azimuth, estimated_elevation=cam_est.elevation,
                   estimated_distance=cam_est.distance)
-    return Estimation(ViewSet(camera, light_est.lights), errors, photo, mask)
+    return errors
 
 
 def _check_light_faces(light_faces: Optional[tuple[int, int]], num_faces: int) -> None:
