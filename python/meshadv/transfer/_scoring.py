@@ -1,4 +1,5 @@
-"""How the transfer pipelines read a victim: Mitsuba images as one batch, top-1 class names, a class's best score.
+"""How the transfer pipelines read a victim: the classifier criteria of a case, Mitsuba images as one batch, top-1
+class names, a class's best score.
 
 Shared by the controlled transfer (:mod:`meshadv.transfer.controlled`) and the black-box pipeline
 (:mod:`meshadv.transfer.blackbox`).
@@ -6,14 +7,28 @@ Shared by the controlled transfer (:mod:`meshadv.transfer.controlled`) and the b
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 import torch
 
 from meshadv.transfer.render import MitsubaImage
 
-__all__ = ["class_names", "detection_scores", "images_tensor", "top1_names"]
+__all__ = ["class_names", "classifier_criteria", "detection_scores", "images_tensor", "top1_names"]
+
+
+def classifier_criteria(victim: Any, true_class: str, target: Optional[str]) -> tuple[Any, Optional[Any]]:
+    """The untargeted criterion of ``true_class`` and, when ``target`` is given, the targeted one, bound to
+    ``victim`` (a classifier).
+
+    Raises:
+        ValueError: ``victim`` is not a classifier, or a class it does not know.
+    """
+    from meshadv.attacks import Misclassification, TargetedMisclassification
+
+    untargeted = Misclassification(true_class).bind(victim)
+    targeted = TargetedMisclassification(target).bind(victim) if target else None
+    return untargeted, targeted
 
 
 def images_tensor(images: Sequence[MitsubaImage]) -> torch.Tensor:

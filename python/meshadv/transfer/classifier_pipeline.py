@@ -22,7 +22,7 @@ from meshadv.transfer._pipeline import (
     measure,
     row_head,
 )
-from meshadv.transfer._scoring import top1_names
+from meshadv.transfer._scoring import classifier_criteria, top1_names
 from meshadv.transfer.hidden import HiddenScene
 from meshadv.transfer.object_attacks import check_smoothing, object_attack
 from meshadv.transfer.photo import background_photo, estimate_parameters
@@ -98,8 +98,6 @@ def blackbox_classifier(
         ValueError: unknown ``perturbation``, a class the victim does not know, ``texture_smoothing`` given for a
             shape attack or negative, a bad count, ``timeout`` or render-setup option; all before any render.
     """
-    from meshadv.attacks import Misclassification, TargetedMisclassification
-
     # every argument is checked (the attack and its criterion built) before the first Mitsuba render
     check_perturbation(perturbation)
     check_smoothing(texture_smoothing, perturbation)
@@ -108,9 +106,8 @@ def blackbox_classifier(
     setup_options, kwargs = attack_options(attack_kwargs, jitter)
     attack_setup(setup_options, hidden.image_size)
     attack = object_attack(perturbation, texture_smoothing, kwargs)
-    criterion = TargetedMisclassification(target) if target else Misclassification(true_class)
-    bound = criterion.bind(victim)
-    untargeted = Misclassification(true_class).bind(victim)
+    untargeted, targeted = classifier_criteria(victim, true_class, target)
+    criterion = untargeted if targeted is None else targeted
     est = estimate_parameters(mesh, hidden, num_lights=num_lights, camera_steps=camera_steps,
                               light_steps=light_steps, variant=variant, timeout=timeout)
     background = background_photo(hidden, variant=variant, timeout=timeout)
@@ -118,9 +115,9 @@ def blackbox_classifier(
     result = attack_estimated(attack, mesh, est.views, victim, criterion, robustness, setup, callback)
     adversarial = result.mesh
     run = BlackBoxRun(hidden, est, background, setup, robustness, variant, timeout)
-    measured = measure(run, adversarial, adversarial, victim, bound)
+    measured = measure(run, adversarial, adversarial, victim, criterion)
     row = row_head(case_id, victim, true_class, target, perturbation)
-    row.update(_classifier_outcome(victim, bound, untargeted, measured, est.photo))
+    row.update(_classifier_outcome(victim, criterion, untargeted, measured, est.photo))
     return finish_row(row, run, attack, result, measured, adversarial, texture_smoothing)
 
 

@@ -19,7 +19,7 @@ from typing import Any, Callable, Optional, Sequence, Union
 import torch
 
 from meshadv import _validate
-from meshadv.transfer._scoring import class_names, images_tensor, top1_names
+from meshadv.transfer._scoring import class_names, classifier_criteria, images_tensor, top1_names
 from meshadv.transfer.cases import TransferCase, case_name, cases_from_store
 from meshadv.transfer.images import INDEX_COLUMNS, save_images, write_image_index
 from meshadv.transfer.render import MitsubaImage, MitsubaRenderError, render_scenes
@@ -57,15 +57,6 @@ def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int 
                        background=case.background, seed=seed + i) for i, rec in enumerate(case.views)]
 
 
-def _criteria(case: TransferCase, victim: Any) -> tuple[Any, Optional[Any]]:
-    """The case's untargeted criterion and, for a targeted case, its targeted one, bound to ``victim``."""
-    from meshadv.attacks import Misclassification, TargetedMisclassification
-
-    untargeted = Misclassification(case.true_class).bind(victim)
-    targeted = TargetedMisclassification(case.target).bind(victim) if case.target else None
-    return untargeted, targeted
-
-
 def evaluate_case(
     case: TransferCase,
     victim: Any,
@@ -83,7 +74,7 @@ def evaluate_case(
         (targeted when the case has a target, else untargeted), ``untargeted_meshadv`` / ``untargeted_mitsuba``, the
         top-1 labels and the Mitsuba variant.
     """
-    untargeted, targeted = _criteria(case, victim)
+    untargeted, targeted = classifier_criteria(victim, case.true_class, case.target)
     ours, images_ours = _meshadv_verdicts(case, victim, untargeted, targeted)
     images_theirs = images_tensor(mitsuba_images)
     theirs = _victim_verdicts(victim, images_theirs, untargeted, targeted)
