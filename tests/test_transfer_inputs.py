@@ -430,3 +430,61 @@ def test_robust_tools_wrong_types_are_type_errors() -> None:
         check_smoothing(2.0, "texture")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="^texture_smoothing"):
         check_smoothing(-1, "texture")
+
+
+# ----------------------------------------------------------------------------------------------------------------------
+# Rendering entry points, the setups and the results database
+# ----------------------------------------------------------------------------------------------------------------------
+
+
+def test_render_scenes_names_a_bad_argument_before_starting_mitsuba(no_render: list[Any]) -> None:
+    from meshadv.transfer.render import render_scenes
+    from meshadv.transfer.spec import scene_spec
+
+    spec = scene_spec(builtin_mesh("cube"), _record(), image_size=8, spp=1)
+    with pytest.raises(TypeError, match="^specs\\[1\\] must be a SceneSpec"):
+        render_scenes([spec, "spec"])  # type: ignore[list-item]
+    with pytest.raises(ValueError, match="^timeout"):
+        render_scenes([spec], timeout=-5.0)
+    with pytest.raises(TypeError, match="^timeout"):
+        render_scenes([spec], timeout="60")  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="^variant"):
+        render_scenes([spec], variant="")
+    assert no_render == []
+
+
+def test_environment_and_setups_name_a_bad_argument() -> None:
+    from meshadv.transfer.environment import outdoor_environment
+    from meshadv.transfer.setups import indoor_detector_setup, scale_on_base
+
+    with pytest.raises(TypeError, match="^height"):
+        outdoor_environment(height=16.0)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="^height"):
+        outdoor_environment(height=3)
+    cube = builtin_mesh("cube")
+    with pytest.raises(TypeError, match="^scale"):
+        scale_on_base(cube, "2")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="^scale"):
+        scale_on_base(cube, -1.0)
+    with pytest.raises(TypeError, match="^object_scale"):
+        indoor_detector_setup(object_scale=None)  # type: ignore[arg-type]
+
+
+def test_results_database_names_a_bad_kind_or_experiment(tmp_path: Any) -> None:
+    from meshadv.transfer.database import load_transfer_rows, save_transfer_rows
+
+    db = tmp_path / "results.db"
+    row = {"case_id": "a", "victim": "v", "true_class": "chair", "target": "", "perturbation": "shape", "view": 0,
+           "success_meshadv": True, "success_mitsuba": False}
+    assert save_transfer_rows(db, [row], experiment="e") == 1
+    with pytest.raises(ValueError, match="^kind must be one of 'controlled', 'blackbox', got 'blackbx'"):
+        save_transfer_rows(db, [row], kind="blackbx")
+    with pytest.raises(TypeError, match="experiment"):
+        save_transfer_rows(db, [row], experiment=None)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="^experiment"):
+        save_transfer_rows(db, [row], experiment="")
+    with pytest.raises(ValueError, match="^kind"):
+        load_transfer_rows(db, kind="controled")  # it used to return [] silently
+    with pytest.raises(TypeError, match="^experiment"):
+        load_transfer_rows(db, experiment=1)  # type: ignore[arg-type]
+    assert [r["case_id"] for r in load_transfer_rows(db, experiment="e", kind="controlled")] == ["a"]

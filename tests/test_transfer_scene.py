@@ -74,7 +74,7 @@ def test_bad_inputs_raise_value_error() -> None:
         SceneSpec((_quad(),), MitsubaCamera((0.0, 0.0, -3.0)), spp=0)
     with pytest.raises(FileNotFoundError, match="base_scene"):
         SceneSpec((_quad(),), MitsubaCamera((0.0, 0.0, -3.0)), base_scene="/nonexistent/scene.xml")
-    with pytest.raises(ValueError, match="specs"):
+    with pytest.raises(TypeError, match="specs"):
         render_scenes(["not a spec"])  # type: ignore[list-item]
 
 

@@ -21,6 +21,8 @@ import time
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Optional, Union
 
+from meshadv import _validate
+
 __all__ = ["load_transfer_rows", "save_transfer_rows"]
 
 #: The ``transfer`` table.
@@ -88,6 +90,20 @@ def _with_perturbation(row: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
+#: The kinds of transfer row.
+KINDS = ("controlled", "blackbox")
+
+
+def _check_selection(experiment: Optional[str], kind: Optional[str]) -> None:
+    """Raise unless ``experiment`` is a non-empty string and ``kind`` one of :data:`KINDS` (either may be None)."""
+    if experiment is not None and not isinstance(experiment, str):
+        raise TypeError(f"experiment must be a string, got {type(experiment).__name__}")
+    if experiment == "":
+        raise ValueError("experiment must be a non-empty name")
+    if kind is not None:
+        _validate.choice("kind", kind, KINDS)
+
+
 def save_transfer_rows(
     db_path: Union[str, Path], rows: Iterable[dict[str, Any]], *, experiment: str = "default", kind: str = "controlled"
 ) -> int:
@@ -104,10 +120,12 @@ def save_transfer_rows(
         The number of rows written.
 
     Raises:
-        ValueError: a row lacks a required key, or ``kind`` is unknown.
+        TypeError: ``experiment`` or ``kind`` is not a string.
+        ValueError: a row lacks a required key, ``kind`` is unknown or ``experiment`` is empty.
     """
-    if kind not in ("controlled", "blackbox"):
-        raise ValueError(f"kind must be 'controlled' or 'blackbox', got {kind!r}")
+    if experiment is None or kind is None:
+        raise TypeError(f"experiment and kind must be strings, got {experiment!r} and {kind!r}")
+    _check_selection(experiment, kind)
     rows = list(rows)
     for i, row in enumerate(rows):
         missing = [c for c in _COLUMNS if c not in row]
@@ -155,7 +173,10 @@ def load_transfer_rows(
 
     Raises:
         FileNotFoundError: ``db_path`` does not exist.
+        TypeError: ``experiment`` is neither a string nor None.
+        ValueError: ``kind`` is neither ``"controlled"``, ``"blackbox"`` nor None, or ``experiment`` is empty.
     """
+    _check_selection(experiment, kind)
     with _read_only(db_path) as conn:
         if not conn.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'transfer'").fetchone():
             return []  # no transfer pass has written to this database yet

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from meshadv import _validate
 from meshadv.util.spherical import spherical_direction
 
 __all__ = ["outdoor_environment"]
@@ -35,10 +36,10 @@ def outdoor_environment(
         (height, 2 * height, 3) float32 radiance, Mitsuba's lat-long layout (+Y up).
 
     Raises:
+        TypeError: ``height`` is not an int.
         ValueError: ``height`` < 4.
     """
-    if height < 4:
-        raise ValueError(f"height must be >= 4, got {height}")
+    _validate.integer("height", height, low=4)
     w = 2 * height
     theta = (np.arange(height) + 0.5) / height * math.pi  # 0 at +Y
     phi = (np.arange(w) + 0.5) / w * 2 * math.pi

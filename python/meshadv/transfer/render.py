@@ -19,6 +19,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from meshadv import _validate
 from meshadv.transfer.spec import MitsubaCamera, SceneSpec, mask_spec
 from meshadv.transfer.variants import best_variant
 
@@ -115,7 +116,9 @@ def render_scenes(
         One :class:`MitsubaImage` per spec, in order.
 
     Raises:
-        ValueError: ``specs`` contains something other than a SceneSpec.
+        TypeError: ``specs`` contains something other than a SceneSpec, or ``timeout`` or ``variant`` has the wrong
+            type.
+        ValueError: ``timeout`` is not positive.
         MitsubaRenderError: rendering failed (crash, error or timeout), after the fallback.
 
     Example:
@@ -124,11 +127,12 @@ def render_scenes(
     specs = list(specs)
     for i, spec in enumerate(specs):
         if not isinstance(spec, SceneSpec):
-            raise ValueError(f"specs[{i}] must be a SceneSpec, got {type(spec).__name__}")
+            raise TypeError(f"specs[{i}] must be a SceneSpec, got {type(spec).__name__}")
+    _validate.positive_float("timeout", timeout)
+    if variant is not None and (not isinstance(variant, str) or not variant):
+        raise TypeError(f"variant must be a Mitsuba variant name or None, got {variant!r}")
     if not specs:
         return []
-    if timeout <= 0:
-        raise ValueError(f"timeout must be positive, got {timeout}")
     chosen = variant or best_variant()
     try:
         return _run_worker(specs, chosen, timeout)

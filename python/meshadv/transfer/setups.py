@@ -8,13 +8,14 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
 
+from meshadv import _validate
+from meshadv.transfer._arrays import as_numpy
 from meshadv.transfer.environment import outdoor_environment
 from meshadv.transfer.hidden import HiddenScene
 from meshadv.transfer.spec import MitsubaLights
@@ -63,7 +64,7 @@ def outdoor_classifier_setup(
     Returns:
         The :class:`~meshadv.transfer.hidden.HiddenScene`.
     """
-    verts = mesh.vertices.detach().cpu().numpy() if hasattr(mesh.vertices, "detach") else np.asarray(mesh.vertices)
+    verts = as_numpy(mesh.vertices)
     ground_y = float(verts[:, 1].min()) - 0.02
     env = outdoor_environment(height=64, sun_strength=0.0)
     return HiddenScene(
@@ -122,18 +123,18 @@ def indoor_detector_setup(
 
     Raises:
         FileNotFoundError: the scene is missing.
+        TypeError: ``object_scale`` is not a number.
         ValueError: ``object_scale`` is not a positive finite number.
     """
     from meshadv.data import require_shared_data
     from meshadv.mesh import Mesh
     from meshadv.scenes.indoor import load_indoor_scene
 
+    _validate.positive_float("object_scale", object_scale)
     root = Path(scene_dir) if scene_dir is not None else require_shared_data("scenes/indoor")
     xml = root / "scene.xml"
     if not xml.is_file():
         raise FileNotFoundError(f"scene_dir {root} has no scene.xml")
-    if not (math.isfinite(object_scale) and object_scale > 0):
-        raise ValueError(f"object_scale must be a positive finite number, got {object_scale}")
     scene = load_indoor_scene(root).scene
     objects = tuple(
         Mesh(scene[name].world_vertices().detach(), scene[name].mesh.faces, scene[name].mesh.face_colors)
@@ -159,10 +160,10 @@ def scale_on_base(mesh: Any, scale: float) -> Any:
     where it stood.
 
     Raises:
+        TypeError: ``scale`` is not a number.
         ValueError: ``scale`` is not a positive finite number.
     """
-    if not (math.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale must be a positive finite number, got {scale}")
+    _validate.positive_float("scale", scale)
     lo, hi = mesh.bounds()
     pivot = (lo + hi) / 2
     pivot[1] = lo[1]
