@@ -488,3 +488,25 @@ def test_results_database_names_a_bad_kind_or_experiment(tmp_path: Any) -> None:
     with pytest.raises(TypeError, match="^experiment"):
         load_transfer_rows(db, experiment=1)  # type: ignore[arg-type]
     assert [r["case_id"] for r in load_transfer_rows(db, experiment="e", kind="controlled")] == ["a"]
+
+
+@needs_native
+def test_coverage_mask_is_rendered_by_the_fallback_variant_too() -> None:
+    """``scalar_rgb`` (the fallback when the fast variant fails) used to return an all-zero mask: its path tracer
+    leaves the alpha empty at ``max_depth = 1``. The mask must match meshadv's coverage in either variant."""
+    pytest.importorskip("mitsuba")
+    from meshadv.transfer.check import mask_iou
+    from meshadv.transfer.render import render_mask
+    from meshadv.transfer.spec import MitsubaCamera
+    from meshadv.transfer.variants import probe_variant
+
+    chair = builtin_mesh("chair")
+    camera = Camera.spherical(3.2, 50.0, 20.0)
+    with torch.no_grad():
+        ours = render_silhouette(chair.vertices, chair.faces, camera, 32)[0, 0].numpy()
+    for variant in ("scalar_rgb", "llvm_ad_rgb"):
+        if not probe_variant(variant):
+            continue
+        theirs = render_mask(chair, MitsubaCamera.from_camera(camera), 32, variant=variant, fallback=False)
+        assert theirs.sum() > 100, variant
+        assert mask_iou(ours, theirs) > 0.95, variant

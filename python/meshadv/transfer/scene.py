@@ -158,10 +158,11 @@ def build_mitsuba_scene(mi: Any, spec: SceneSpec) -> Any:
 
 
 def _integrator(spec: SceneSpec) -> dict[str, Any]:
-    """A path tracer: one bounce with emitters hidden for a coverage mask, else ``max_depth`` bounces with emitters
-    hidden behind a background colour."""
+    """A path tracer: for a coverage mask, emitters hidden and ``max_depth = 2`` (a mask scene has no emitters, so
+    the colour is black whatever the depth; with ``max_depth = 1`` the ``scalar_rgb`` variant, the fallback, leaves
+    the alpha empty); else ``max_depth`` bounces with emitters hidden behind a background colour."""
     if spec.mask:
-        return {"type": "path", "max_depth": 1, "hide_emitters": True}
+        return {"type": "path", "max_depth": 2, "hide_emitters": True}
     return {"type": "path", "max_depth": int(spec.max_depth), "hide_emitters": spec.background is not None}
 
 
