@@ -15,7 +15,7 @@ import numpy as np
 from meshadv.util.atomic import atomic_path
 
 
-def main(argv: list) -> int:
+def main(argv: list[str]) -> int:
     """Render every spec of ``argv[0]`` (a pickled list) with variant ``argv[2]`` into the npz ``argv[1]``."""
     in_path, out_path, variant = argv[0], argv[1], argv[2]
     import mitsuba as mi

@@ -70,10 +70,12 @@ def _index_entry(stem: str, row: ControlledResult) -> dict[str, Any]:
             "top1_meshadv": row.top1_meshadv, "top1_mitsuba": row.top1_mitsuba}
 
 
-def save_images(images: Sequence[MitsubaImage], out_dir: Path, stem: str) -> list[Path]:
-    """Save Mitsuba renders as 8-bit PNGs ``<stem>_v<i>.png`` (linear values, as meshadv's images)."""
+def save_images(images: Sequence[MitsubaImage], out_dir: Union[str, Path], stem: str) -> list[Path]:
+    """Save Mitsuba renders as 8-bit PNGs ``<stem>_v<i>.png`` in ``out_dir`` (created if missing; linear values, as
+    meshadv's images) and return their paths."""
     from meshadv.util.png import save_png
 
+    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     for i, im in enumerate(images):
