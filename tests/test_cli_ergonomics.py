@@ -242,6 +242,8 @@ def test_transfer_controlled_without_successes_mentions_all(tmp_path: Path) -> N
         store.add_jobs(expand_jobs(load_config(config))[:1])
     result = runner.invoke(app, ["transfer", "controlled", str(tmp_path / "results.db")])
     assert result.exit_code == 1 and "--all" in result.output
+    limit = runner.invoke(app, ["transfer", "controlled", str(tmp_path / "results.db"), "--limit", "0"])
+    assert limit.exit_code == 2 and "--limit" in limit.output and "Traceback" not in limit.output
 
 
 def test_version_and_python_dash_m() -> None:

@@ -156,7 +156,7 @@ def attack_cmd(
 @transfer_app.command("controlled")
 def controlled_cmd(
     results: Path = typer.Argument(..., help="Results database of a finished `meshadv sweep`."),
-    limit: Optional[int] = typer.Option(None, help="At most this many adversarial meshes in this run."),
+    limit: Optional[int] = typer.Option(None, min=1, help="At most this many adversarial meshes in this run."),
     spp: int = typer.Option(64, help="Mitsuba samples per pixel."),
     max_depth: int = typer.Option(8, help="Path depth (>= 3 adds interreflection)."),
     experiment: str = typer.Option("controlled", help="Name of this transfer run in the database."),
