@@ -2,7 +2,8 @@
 
 Results go to the SQLite database named by the config (``<output>/results.db`` by default). Run the same command
 again after a kill to resume: finished jobs are skipped, interrupted ones re-run, failed ones retried up to
-``max_attempts``.
+``max_attempts``. Ctrl-C and SIGTERM (``kill``, a batch scheduler's stop) end a run the same way: the workers are
+stopped, running jobs go back to pending and the database is closed cleanly.
 
 Progress: one bar counts the jobs (successes, failures, ETA), a second one the attack steps out of the most the
 planned jobs can run, moving at every step of every running job with the local and serial backends (the workers
@@ -12,13 +13,34 @@ report their steps to this process) and per finished job with Ray.
 from __future__ import annotations
 
 import shlex
+import signal
 import sys
+import threading
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Any, Dict, Iterator, List, Optional
 
 import typer
 
-__all__ = ["register", "sweep"]
+__all__ = ["register", "sweep", "terminate_as_interrupt"]
+
+
+@contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """While the block runs (in the main thread), SIGTERM raises ``KeyboardInterrupt``, so a ``kill`` takes
+    Ctrl-C's path; the previous handler is restored afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def sweep(
@@ -106,9 +128,10 @@ def sweep(
         store.set_meta("command", "meshadv sweep " + " ".join(shlex.quote(a) for a in sys.argv[2:]))
         store.set_meta("sweep_versions", environment_versions())
         try:
-            summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be, max_attempts=attempts,
-                                progress=progress,
-                                planned_steps=planned_steps if runner["job"] == DEFAULT_JOB else None)
+            with terminate_as_interrupt():
+                summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be,
+                                    max_attempts=attempts, progress=progress,
+                                    planned_steps=planned_steps if runner["job"] == DEFAULT_JOB else None)
             write_job_index(store, out_root, out_root)  # index.csv / index.md: job id -> folder and settings
         except KeyboardInterrupt:
             be.close()
