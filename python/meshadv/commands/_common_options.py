@@ -7,19 +7,26 @@ callback so that
   :func:`meshadv.threads.apply_threads` before the command runs;
 - the exceptions a user's mistake raises (a missing file, a bad value, an optional package not installed) end the
   command with one line, ``Error: <message>`` and exit status 1, instead of a traceback. Set ``MESHADV_DEBUG=1`` to
-  get the traceback.
+  get the traceback;
+- SIGTERM (``kill``, a batch scheduler's stop) takes Ctrl-C's path (:func:`terminate_as_interrupt`): commands that
+  keep their finished work on Ctrl-C (``sweep``, ``attack``, ``transfer controlled``) keep it on ``kill`` too, and an
+  interrupt that no command handles ends with one line and exit status 130, the shell's code for it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import inspect
 import os
-from typing import Any, Callable, Dict, Optional
+import signal
+import threading
+from typing import Any, Callable, Dict, Iterator, Optional
 
 import typer
 
-__all__ = ["DEBUG_ENV_VAR", "OPTIONAL_PACKAGES", "install", "one_line_error", "wrap_command"]
+__all__ = ["DEBUG_ENV_VAR", "INTERRUPTED_EXIT_CODE", "OPTIONAL_PACKAGES", "install", "one_line_error",
+           "terminate_as_interrupt", "wrap_command"]
 
 #: Environment variable that turns the one-line errors back into tracebacks.
 DEBUG_ENV_VAR = "MESHADV_DEBUG"
@@ -31,11 +38,31 @@ OPTIONAL_PACKAGES: Dict[str, str] = {
     "cv2": "pip install opencv-python-headless",
     "selenium": "pip install selenium",
 }
+#: Exit status of a command stopped by Ctrl-C or SIGTERM (128 + SIGINT, as a shell reports it).
+INTERRUPTED_EXIT_CODE = 130
 _WRAPPED = "__meshadv_common_options__"
 #: click's ClickException as typer uses it (typer >= 0.20 vendors click, older typer uses the click package).
 _ClickException = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
 _THREADS_HELP = ("Threads for the renderer and torch (default: $MESHADV_THREADS, else the CPUs available); results "
                  "are reproducible for a given --seed and --threads.")
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """While the block runs (in the main thread), SIGTERM raises ``KeyboardInterrupt``, so a ``kill`` takes
+    Ctrl-C's path; the previous handler is restored afterwards (elsewhere than the main thread it does nothing)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def one_line_error(exc: BaseException) -> Optional[str]:
@@ -65,7 +92,8 @@ def one_line_error(exc: BaseException) -> Optional[str]:
 
 
 def wrap_command(func: Callable[..., Any]) -> Callable[..., Any]:
-    """``func`` with ``--threads`` added (unless it has a ``threads`` parameter) and one-line errors.
+    """``func`` with ``--threads`` added (unless it has a ``threads`` parameter), one-line errors, and SIGTERM
+    taken as Ctrl-C.
 
     Args:
         func: a typer command callback.
@@ -85,9 +113,13 @@ def wrap_command(func: Callable[..., Any]) -> Callable[..., Any]:
 
             apply_threads(kwargs.pop("threads", None))
         try:
-            return func(*args, **kwargs)
+            with terminate_as_interrupt():
+                return func(*args, **kwargs)
         except (_ClickException, typer.Exit, typer.Abort):
             raise
+        except KeyboardInterrupt:
+            typer.echo("\ninterrupted", err=True)
+            raise typer.Exit(INTERRUPTED_EXIT_CODE) from None
         except Exception as exc:
             message = one_line_error(exc)
             if message is None or os.environ.get(DEBUG_ENV_VAR):

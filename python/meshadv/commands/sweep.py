@@ -13,34 +13,13 @@ report their steps to this process) and per finished job with Ray.
 from __future__ import annotations
 
 import shlex
-import signal
 import sys
-import threading
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Dict, Iterator, List, Optional
+from typing import Dict, List, Optional
 
 import typer
 
-__all__ = ["register", "sweep", "terminate_as_interrupt"]
-
-
-@contextmanager
-def terminate_as_interrupt() -> Iterator[None]:
-    """While the block runs (in the main thread), SIGTERM raises ``KeyboardInterrupt``, so a ``kill`` takes
-    Ctrl-C's path; the previous handler is restored afterwards."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def _interrupt(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
-
-    previous = signal.signal(signal.SIGTERM, _interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+__all__ = ["register", "sweep"]
 
 
 def sweep(
@@ -68,6 +47,7 @@ def sweep(
                                              "for a run without --only."),
 ) -> None:
     """Run (or resume) the attack sweep described by CONFIG."""
+    from meshadv.commands._common_options import INTERRUPTED_EXIT_CODE
     from meshadv.commands._job_index import warn_damaged_results, write_job_index
     from meshadv.experiments import ResultStore, make_backend, run_sweep
     from meshadv.experiments.config import DEFAULT_JOB, expand_jobs, load_config, select_parts
@@ -128,10 +108,9 @@ def sweep(
         store.set_meta("command", "meshadv sweep " + " ".join(shlex.quote(a) for a in sys.argv[2:]))
         store.set_meta("sweep_versions", environment_versions())
         try:
-            with terminate_as_interrupt():
-                summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be,
-                                    max_attempts=attempts, progress=progress,
-                                    planned_steps=planned_steps if runner["job"] == DEFAULT_JOB else None)
+            summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be,
+                                max_attempts=attempts, progress=progress,
+                                planned_steps=planned_steps if runner["job"] == DEFAULT_JOB else None)
             write_job_index(store, out_root, out_root)  # index.csv / index.md: job id -> folder and settings
         except KeyboardInterrupt:
             be.close()
@@ -140,7 +119,7 @@ def sweep(
             typer.echo(f"\ninterrupted: {counts.get('done', 0)} finished job(s) are kept in {db_path}; "
                        f"{requeued} running job(s) were put back to pending; run the same command again to resume",
                        err=True)
-            raise typer.Exit(130) from None
+            raise typer.Exit(INTERRUPTED_EXIT_CODE) from None
         finally:
             be.close()
     typer.echo(f"{summary.done}/{summary.total} done ({summary.successes} successful), {summary.failed} failed; "

@@ -167,6 +167,7 @@ def controlled_cmd(
     variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
 ) -> None:
     """Re-render RESULTS' adversarial meshes with Mitsuba under the same views and test the victims (resumable)."""
+    from meshadv.commands._common_options import INTERRUPTED_EXIT_CODE
     from meshadv.transfer.controlled import cases_from_store, controlled_transfer, write_image_index
     from meshadv.transfer.results import load_transfer_rows, save_transfer_rows, transfer_report
 
@@ -181,11 +182,19 @@ def controlled_cmd(
         typer.echo(f"no finished single-view attacks with an adversarial mesh in this database{hint}")
         raise typer.Exit(code=1)
     typer.echo(f"{len(done)} adversarial meshes already transferred, transferring {len(todo)}")
-    for case in todo:  # one case at a time, saved at once: an interrupted run resumes where it stopped
-        rows = controlled_transfer([case], spp=spp, max_depth=max_depth, variant=variant, image_dir=images)
-        save_transfer_rows(results, [row.to_record() for row in rows], experiment=experiment, kind="controlled")
-        if images is not None:
-            write_image_index(images, [case], rows)
+    finished = 0
+    try:
+        for case in todo:  # one case at a time, saved at once: an interrupted run resumes where it stopped
+            rows = controlled_transfer([case], spp=spp, max_depth=max_depth, variant=variant, image_dir=images)
+            save_transfer_rows(results, [row.to_record() for row in rows], experiment=experiment,
+                               kind="controlled")
+            if images is not None:
+                write_image_index(images, [case], rows)
+            finished += 1
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: every finished mesh is already in the database
+        typer.echo(f"\ninterrupted: {len(done) + finished} transferred adversarial meshes are kept in {results}; "
+                   f"run the same command again to transfer the other {len(todo) - finished}", err=True)
+        raise typer.Exit(INTERRUPTED_EXIT_CODE) from None
     typer.echo(transfer_report(load_transfer_rows(results, experiment=experiment, kind="controlled")))
 
 
