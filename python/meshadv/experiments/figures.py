@@ -19,9 +19,13 @@ from __future__ import annotations
 import math
 import textwrap
 from pathlib import Path
-from typing import AbstractSet, Any, Dict, Mapping, Optional, Sequence, Tuple, Union
+from types import ModuleType
+from typing import TYPE_CHECKING, AbstractSet, Any, Dict, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from mpl_toolkits.mplot3d import Axes3D
 
 __all__ = [
     "render_grid",
@@ -43,7 +47,8 @@ CANONICAL_VIEW = (135.0, 45.0)
 PathLike = Union[str, Path]
 
 
-def _pyplot():
+def _pyplot() -> "ModuleType":
+    """matplotlib.pyplot on the non-interactive Agg backend (imported on first use)."""
     import matplotlib
 
     matplotlib.use("Agg", force=True)
@@ -118,7 +123,8 @@ def _to_plot(points: np.ndarray) -> np.ndarray:
     return np.stack([points[..., 0], -points[..., 2], points[..., 1]], axis=-1)
 
 
-def _set_view(ax, azimuth: float, elevation: float, points: np.ndarray) -> None:
+def _set_view(ax: "Axes3D", azimuth: float, elevation: float, points: np.ndarray) -> None:
+    """Point the 3-D axes ``ax`` at meshadv's (``azimuth``, ``elevation``) view of ``points``, equal scales."""
     ax.view_init(elev=elevation, azim=90.0 - azimuth)
     p = _to_plot(points)
     centre = (p.max(0) + p.min(0)) / 2

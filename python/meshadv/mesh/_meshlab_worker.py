@@ -19,10 +19,14 @@ import resource
 import signal
 import sys
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from meshadv.util.atomic import atomic_path
+
+if TYPE_CHECKING:
+    import pymeshlab
 
 #: Accept a face count within this relative tolerance of the target.
 TARGET_TOLERANCE = 0.2
@@ -34,7 +38,8 @@ class WorkerError(Exception):
     """A handled failure, reported to the parent on stderr."""
 
 
-def _new_meshset(vertices: np.ndarray, faces: np.ndarray):  # noqa: ANN202 - pymeshlab type
+def _new_meshset(vertices: np.ndarray, faces: np.ndarray) -> "pymeshlab.MeshSet":
+    """A MeshLab mesh set holding one mesh."""
     import pymeshlab
 
     ms = pymeshlab.MeshSet()
@@ -42,7 +47,8 @@ def _new_meshset(vertices: np.ndarray, faces: np.ndarray):  # noqa: ANN202 - pym
     return ms
 
 
-def _result(ms) -> "tuple[np.ndarray, np.ndarray]":  # noqa: ANN001 - pymeshlab type
+def _result(ms: "pymeshlab.MeshSet") -> "tuple[np.ndarray, np.ndarray]":
+    """The current mesh of ``ms`` as (float64 vertices, int32 faces); WorkerError when it is empty."""
     mesh = ms.current_mesh()
     # Checked before touching the matrices: an empty result is where MeshLab has been seen to segfault.
     if mesh.face_number() == 0 or mesh.vertex_number() == 0:

@@ -23,7 +23,7 @@ Degenerate up vectors (stable choice):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Union
 
@@ -341,7 +341,7 @@ class Camera:
         ]
         return {n: getattr(self, n) for n in names}
 
-    def _replace(self, fn) -> Camera:
+    def _replace(self, fn: Callable[[torch.Tensor], torch.Tensor]) -> Camera:
         """A camera with ``fn`` applied to each tensor field."""
         fields = {k: (fn(v) if v is not None else None) for k, v in self._fields().items()}
         return Camera(orthographic=self.orthographic, **fields)

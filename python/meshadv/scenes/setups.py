@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from meshadv.scenes.attack import SceneSetup
+
+if TYPE_CHECKING:
+    from meshadv.mesh import Mesh
 
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png")
 
@@ -50,7 +53,7 @@ def build_setup(scene: str, obj: str, place: str = "0.5,0.75,0.3", width: Option
     return photo_setup(path, mesh, center_uv=center, height_fraction=height, width=width)
 
 
-def _photo_object(obj: str):
+def _photo_object(obj: str) -> "Mesh":
     """The mesh to insert into a photo: a file, or the shared bunny (built-in sphere when absent)."""
     from meshadv.data import shared_data_dir
     from meshadv.mesh import builtin_mesh, load_mesh
