@@ -233,10 +233,12 @@ def test_hidden_scene_and_estimate_parameters_name_a_bad_argument() -> None:
 
     with pytest.raises(ValueError, match="camera.*missing \\['elevation'\\]"):
         HiddenScene(camera={"distance": 3.0, "azimuth": 10.0})
-    for bad in (math.nan, "far", None, True):
-        with pytest.raises(ValueError, match="camera\\['distance'\\] must be a finite number"):
+    for bad in ("far", "3.0", None, True):  # the wrong type: TypeError, like every other entry point
+        with pytest.raises(TypeError, match="camera\\['distance'\\] must be a real number"):
             HiddenScene(camera={"distance": bad, "azimuth": 10.0, "elevation": 5.0})
-    with pytest.raises(ValueError, match="camera\\['tilt'\\]"):
+    with pytest.raises(ValueError, match="camera\\['distance'\\] must be finite"):
+        HiddenScene(camera={"distance": math.nan, "azimuth": 10.0, "elevation": 5.0})
+    with pytest.raises(ValueError, match="camera\\['tilt'\\] must be finite"):
         HiddenScene(camera={"distance": 3.0, "azimuth": 10.0, "elevation": 5.0, "tilt": math.inf})
     hidden = HiddenScene(camera={"distance": 3.0, "azimuth": 10.0, "elevation": 5.0, "tilt": 2})
     assert hidden.mitsuba_camera().viewing_angle == 30.0

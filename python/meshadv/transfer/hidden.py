@@ -6,25 +6,15 @@ Plain numpy values (no torch, no Mitsuba): :class:`HiddenScene` gives the Mitsub
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
 
+from meshadv import _validate
 from meshadv.transfer.spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec, as_mesh_object
 
 __all__ = ["HiddenScene"]
-
-
-def _is_finite_number(value: Any) -> bool:
-    """Whether ``float(value)`` works and is finite (bools are not numbers here)."""
-    if isinstance(value, bool):
-        return False
-    try:
-        return math.isfinite(float(value))
-    except (TypeError, ValueError):
-        return False
 
 
 @dataclass(frozen=True)
@@ -46,11 +36,12 @@ class HiddenScene:
         extra_objects: other meshes of the world (beside the object and the base scene).
 
     Raises:
-        TypeError: ``camera`` is not a dict, an extra object is not a :class:`~meshadv.transfer.spec.MeshObject`, or
-            a setting has the wrong type (checked by building the world's :class:`~meshadv.transfer.spec.SceneSpec`).
-        ValueError: ``camera`` lacks one of ``distance``, ``azimuth``, ``elevation`` or has a value (those or
-            ``tilt``) that is not a finite number; a bad ``viewing_angle``, ``image_size``, ``spp`` or
-            ``max_depth``.
+        TypeError: ``camera`` is not a dict, one of its values (``distance``, ``azimuth``, ``elevation``, ``tilt``)
+            is not a real number (a string, ``None``, a bool), an extra object is not a
+            :class:`~meshadv.transfer.spec.MeshObject`, or a setting has the wrong type (checked by building the
+            world's :class:`~meshadv.transfer.spec.SceneSpec`).
+        ValueError: ``camera`` lacks one of ``distance``, ``azimuth``, ``elevation`` or has a value that is not
+            finite; a bad ``viewing_angle``, ``image_size``, ``spp`` or ``max_depth``.
         FileNotFoundError: ``base_scene`` does not exist.
     """
 
@@ -75,8 +66,8 @@ class HiddenScene:
         if missing:
             raise ValueError(f"camera must have the keys distance, azimuth, elevation; missing {missing}")
         for key in ("distance", "azimuth", "elevation", "tilt"):
-            if key in self.camera and not _is_finite_number(self.camera[key]):
-                raise ValueError(f"camera[{key!r}] must be a finite number, got {self.camera[key]!r}")
+            if key in self.camera:
+                _validate.finite_float(f"camera[{key!r}]", self.camera[key])
         for i, obj in enumerate(self.extra_objects):
             if not isinstance(obj, MeshObject):
                 raise TypeError(f"extra_objects[{i}] must be a MeshObject, got {type(obj).__name__}")
