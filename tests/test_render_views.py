@@ -90,3 +90,32 @@ def test_jitter_keeps_gradients() -> None:
     jittered = views.jitter(torch.Generator().manual_seed(0), azimuth=2.0)
     jittered.camera.eye().sum().backward()
     assert az.grad is not None and az.grad.abs().sum() > 0
+
+
+def test_jitter_draws_tilt_then_distance_azimuth_elevation_and_keeps_the_other_fields() -> None:
+    """The camera noise, drawn in a fixed order from the generator; every other field is carried over unchanged."""
+
+    def draws(seed: int, n: int, b: int) -> list[torch.Tensor]:
+        g = torch.Generator().manual_seed(seed)
+        return [torch.rand(b, generator=g) * 2 - 1 for _ in range(n)]
+
+    sph = Camera.spherical(2.0, [10.0, 20.0, 30.0], 5.0, tilt=1.0, viewing_angle=40.0, near=0.2, far=50.0)
+    got = ViewSet(sph, Lights.default(sph)).jitter(
+        torch.Generator().manual_seed(3), azimuth=4.0, elevation=2.0, distance=0.1, tilt=3.0
+    ).camera
+    t, d, a, e = draws(3, 4, 3)
+    torch.testing.assert_close(got.tilt, sph.tilt + t * 3.0)
+    torch.testing.assert_close(got.distance, sph.distance * (1 + d * 0.1))
+    torch.testing.assert_close(got.azimuth, sph.azimuth + a * 4.0)
+    torch.testing.assert_close(got.elevation, sph.elevation + e * 2.0)
+    assert got.viewing_angle is sph.viewing_angle and got.near is sph.near and got.far is sph.far
+    assert got.ortho_scale is sph.ortho_scale and not got.orthographic and got.eye_position is None
+
+    la = Camera.look_at([[1.0, 2.0, 3.0], [0.0, 1.0, 4.0]], tilt=2.0, orthographic=True, ortho_scale=1.5)
+    got = ViewSet(la, Lights.default(la)).jitter(torch.Generator().manual_seed(4), tilt=5.0).camera
+    (t,) = draws(4, 1, 2)
+    torch.testing.assert_close(got.tilt, la.tilt + t * 5.0)
+    assert got.eye_position is la.eye_position and got.at is la.at and got.up is la.up
+    assert got.orthographic and got.ortho_scale is la.ortho_scale and got.distance is None
+    with pytest.raises(ValueError, match="spherical camera"):
+        ViewSet(la, Lights.default(la)).jitter(torch.Generator(), azimuth=1.0)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -161,14 +161,11 @@ class ViewSet:
             noise = (torch.rand(*shape, generator=generator) * 2 - 1) * mag
             return noise.to(dtype=cam.dtype, device=cam.device)
 
+        # the noise is drawn in this order (tilt, distance, azimuth, elevation): keyword arguments run left to right
         if cam.is_spherical:
-            new_cam = Camera(
-                viewing_angle=cam.viewing_angle,
+            new_cam = replace(
+                cam,
                 tilt=cam.tilt + uniform((b,), tilt),
-                near=cam.near,
-                far=cam.far,
-                ortho_scale=cam.ortho_scale,
-                orthographic=cam.orthographic,
                 distance=cam.distance * (1 + uniform((b,), distance)),
                 azimuth=cam.azimuth + uniform((b,), azimuth),
                 elevation=cam.elevation + uniform((b,), elevation),
@@ -176,17 +173,7 @@ class ViewSet:
         else:
             if azimuth or elevation or distance:
                 raise ValueError("azimuth/elevation/distance jitter needs a spherical camera")
-            new_cam = Camera(
-                viewing_angle=cam.viewing_angle,
-                tilt=cam.tilt + uniform((b,), tilt),
-                near=cam.near,
-                far=cam.far,
-                ortho_scale=cam.ortho_scale,
-                orthographic=cam.orthographic,
-                eye_position=cam.eye_position,
-                at=cam.at,
-                up=cam.up,
-            )
+            new_cam = replace(cam, tilt=cam.tilt + uniform((b,), tilt))
         dirs = lights.directions
         if light_direction > 0:
             noise = torch.randn(*dirs.shape, generator=generator).to(dirs.dtype) * light_direction
