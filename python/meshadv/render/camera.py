@@ -201,19 +201,7 @@ class Camera:
         )
         if not orthographic and bool((p["distance"].detach() <= 0).any()):
             raise ValueError(f"distance must be > 0, got {p['distance'].detach().cpu().tolist()}")
-        cam = cls(
-            viewing_angle=p["viewing_angle"],
-            tilt=p["tilt"],
-            near=p["near"],
-            far=p["far"],
-            ortho_scale=p["ortho_scale"],
-            orthographic=bool(orthographic),
-            distance=p["distance"],
-            azimuth=p["azimuth"],
-            elevation=p["elevation"],
-        )
-        cam._check_ranges()
-        return cam
+        return cls._checked(p, orthographic)
 
     @classmethod
     def look_at(
@@ -271,17 +259,12 @@ class Camera:
             raise ValueError("eye and at must differ (the viewing direction is undefined)")
         if bool((v["up"].detach().abs().amax(dim=-1) <= 1e-9).any()):
             raise ValueError("up must be a non-zero vector")
-        cam = cls(
-            viewing_angle=p["viewing_angle"],
-            tilt=p["tilt"],
-            near=p["near"],
-            far=p["far"],
-            ortho_scale=p["ortho_scale"],
-            orthographic=bool(orthographic),
-            eye_position=v["eye"],
-            at=v["at"],
-            up=v["up"],
-        )
+        return cls._checked({**p, "eye_position": v["eye"], "at": v["at"], "up": v["up"]}, orthographic)
+
+    @classmethod
+    def _checked(cls, fields: dict[str, torch.Tensor], orthographic: bool) -> Camera:
+        """A camera from its batched tensor fields (by field name), after :meth:`_check_ranges`."""
+        cam = cls(orthographic=bool(orthographic), **fields)
         cam._check_ranges()
         return cam
 
