@@ -140,10 +140,7 @@ class Mesh:
         Raises:
             ValueError: wrong shape or dtype.
         """
-        if not isinstance(vertices, torch.Tensor) or tuple(vertices.shape) != tuple(self.vertices.shape):
-            shape = tuple(vertices.shape) if isinstance(vertices, torch.Tensor) else type(vertices).__name__
-            raise ValueError(f"vertices must be a tensor of shape {tuple(self.vertices.shape)}, got {shape}")
-        return dataclasses.replace(self, vertices=vertices)
+        return self._with_same_shape("vertices", vertices)
 
     def with_face_colors(self, face_colors: torch.Tensor) -> "Mesh":
         """Return a mesh sharing vertices and faces with new per-face colours (autograd is kept).
@@ -154,10 +151,15 @@ class Mesh:
         Raises:
             ValueError: wrong shape or dtype.
         """
-        if not isinstance(face_colors, torch.Tensor) or tuple(face_colors.shape) != tuple(self.face_colors.shape):
-            shape = tuple(face_colors.shape) if isinstance(face_colors, torch.Tensor) else type(face_colors).__name__
-            raise ValueError(f"face_colors must be a tensor of shape {tuple(self.face_colors.shape)}, got {shape}")
-        return dataclasses.replace(self, face_colors=face_colors)
+        return self._with_same_shape("face_colors", face_colors)
+
+    def _with_same_shape(self, name: str, value: torch.Tensor) -> "Mesh":
+        """This mesh with the tensor field ``name`` replaced by ``value``, which must have the field's shape."""
+        expected = tuple(getattr(self, name).shape)
+        if not isinstance(value, torch.Tensor) or tuple(value.shape) != expected:
+            shape = tuple(value.shape) if isinstance(value, torch.Tensor) else type(value).__name__
+            raise ValueError(f"{name} must be a tensor of shape {expected}, got {shape}")
+        return dataclasses.replace(self, **{name: value})
 
     def detach(self) -> "Mesh":
         """Return a copy whose tensors are detached from any autograd graph."""
