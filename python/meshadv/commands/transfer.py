@@ -246,7 +246,18 @@ def _robustness(eot: int, margin: float, pixel_noise: float, verify: int, seed: 
     return Robustness(eot=eot, margin=margin, pixel_noise=pixel_noise, verify_samples=verify, seed=seed)
 
 
-def _check_smoothing(texture_smoothing: Optional[int], perturbation: str) -> None:
+def _check_blackbox_render(perturbation: str, size: int, spp: int, texture_smoothing: Optional[int]) -> None:
+    """The options both black-box commands check alike: --perturbation, --size, --spp and --texture-smoothing."""
+    from meshadv.attacks.families import check_perturbation
+
+    try:
+        check_perturbation(perturbation, "--perturbation")
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--perturbation") from exc
+    if size < 8:
+        raise typer.BadParameter("size must be >= 8", param_hint="--size")
+    if spp < 1:
+        raise typer.BadParameter("spp must be >= 1", param_hint="--spp")
     if texture_smoothing is None:
         return
     if texture_smoothing < 0:
@@ -256,13 +267,15 @@ def _check_smoothing(texture_smoothing: Optional[int], perturbation: str) -> Non
 
 
 def _settings_suffix(jitter: float, eot: int, margin: float, pixel_noise: float, antialias: int, steps: int,
-                     defaults_steps: int, light_jitter: Optional[float] = None, seed: int = 0) -> str:
+                     defaults_steps: int, light_jitter: Optional[float] = None, seed: int = 0,
+                     texture_smoothing: Optional[int] = None, spp: int = 64) -> str:
     """The non-default settings of a black-box run, for its default case id (e.g. ``_eot8_margin10_aa3_seed1``)."""
     parts = [f"_jitter{jitter:g}" if jitter != 1.0 else "",
              f"_lightjitter{light_jitter:g}" if light_jitter is not None else ""]
     parts += [f"_eot{eot}" if eot != 1 else "", f"_margin{margin:g}" if margin else "",
               f"_noise{pixel_noise:g}" if pixel_noise else "", f"_aa{antialias}" if antialias != 1 else "",
               f"_steps{steps}" if steps != defaults_steps else "", f"_seed{seed}" if seed != 0 else ""]
+    parts += [f"_smooth{texture_smoothing}" if texture_smoothing is not None else "", f"_spp{spp}" if spp != 64 else ""]
     return "".join(parts)
 
 
@@ -351,17 +364,7 @@ def blackbox_classifier_cmd(
     from meshadv.transfer.setups import default_aeroplane, outdoor_classifier_setup
     from meshadv.victims import load_victim
 
-    from meshadv.attacks.families import check_perturbation
-
-    try:
-        check_perturbation(perturbation, "--perturbation")
-    except ValueError as exc:
-        raise typer.BadParameter(str(exc), param_hint="--perturbation") from exc
-    if size < 8:
-        raise typer.BadParameter("size must be >= 8", param_hint="--size")
-    if spp < 1:
-        raise typer.BadParameter("spp must be >= 1", param_hint="--spp")
-    _check_smoothing(texture_smoothing, perturbation)
+    _check_blackbox_render(perturbation, size, spp, texture_smoothing)
     kwargs = _attack_kwargs(steps, lr, lambda_perceptual, antialias, loss, kappa, early_stop, seed)
     robustness = _robustness(eot, margin, pixel_noise, verify, seed)
     callback = _progress(progress)
@@ -370,9 +373,8 @@ def blackbox_classifier_cmd(
     hidden = outdoor_classifier_setup(mesh_obj, image_size=size, spp=spp)
     if case_id is None:
         case_id = (f"outdoor_{Path(mesh).stem}_{perturbation}_{target or 'untargeted'}"
-                   + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed)
-                   + (f"_smooth{texture_smoothing}" if texture_smoothing is not None else "")
-                   + (f"_spp{spp}" if spp != 64 else ""))
+                   + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed,
+                                      texture_smoothing, spp))
     row = blackbox_classifier(mesh_obj, hidden, victim=load_victim(victim), true_class=true_class, target=target,
                               perturbation=perturbation, attack_kwargs=kwargs, jitter=jitter_dict,
                               robustness=robustness, texture_smoothing=texture_smoothing, case_id=case_id,
@@ -418,16 +420,7 @@ def blackbox_detector_cmd(
     from meshadv.transfer.setups import indoor_detector_setup
     from meshadv.victims import load_victim
 
-    from meshadv.attacks.families import check_perturbation
-
-    try:
-        check_perturbation(perturbation, "--perturbation")
-    except ValueError as exc:
-        raise typer.BadParameter(str(exc), param_hint="--perturbation") from exc
-    if size < 8:
-        raise typer.BadParameter("size must be >= 8", param_hint="--size")
-    if spp < 1:
-        raise typer.BadParameter("spp must be >= 1", param_hint="--spp")
+    _check_blackbox_render(perturbation, size, spp, texture_smoothing)
     if context not in ("photo", "render"):
         raise typer.BadParameter("context must be photo or render", param_hint="--context")
     if light_fit not in ("object", "known"):
@@ -436,7 +429,6 @@ def blackbox_detector_cmd(
         raise typer.BadParameter("score-threshold must be in (0, 1]", param_hint="--score-threshold")
     if not object_scale > 0:
         raise typer.BadParameter("object-scale must be > 0", param_hint="--object-scale")
-    _check_smoothing(texture_smoothing, perturbation)
     kwargs = _attack_kwargs(steps, lr, lambda_perceptual, antialias, early_stop=early_stop, seed=seed)
     robustness = _robustness(eot, margin, pixel_noise, verify, seed)
     callback = _progress(progress)
@@ -448,9 +440,8 @@ def blackbox_detector_cmd(
                    + (f"_{context}" if context != "photo" else "")
                    + ("_lightsknown" if light_fit != "object" else "")
                    + (f"_scale{object_scale:g}" if object_scale != 1.0 else "")
-                   + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed)
-                   + (f"_smooth{texture_smoothing}" if texture_smoothing is not None else "")
-                   + (f"_spp{spp}" if spp != 64 else ""))
+                   + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed,
+                                      texture_smoothing, spp))
     row = blackbox_detector(setup.objects, setup.object_index, setup.hidden, victim=load_victim(victim),
                             hide_class=hide, perturbation=perturbation, context=context, light_fit=light_fit,
                             background_exclude=setup.background_exclude,
