@@ -60,6 +60,7 @@ import torch
 
 from meshadv.render.views import frame_distance
 from meshadv.util.atomic import write_json_atomic
+from meshadv.util.json_file import read_json
 from meshadv.util.markdown import markdown_table
 from meshadv.util.spherical import spherical_direction
 from meshadv.victims.base import ClassifierVictim, DetectorVictim, Victim
@@ -222,13 +223,7 @@ def load_rendering_set(path: PathLike) -> dict[str, Any]:
         FileNotFoundError: ``path`` does not exist.
         ValueError: not a rendering-set file, or an unsupported version.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"path {path} does not exist")
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"path {path} is not a JSON rendering-set file: {exc}") from exc
+    doc = read_json(Path(path), "path")
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ValueError(f"path {path} is not a {FORMAT} file")
     if doc.get("version") != VERSION:

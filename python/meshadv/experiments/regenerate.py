@@ -170,15 +170,10 @@ def load_assumed(path: Union[str, Path, None]) -> Dict[str, Any]:
     """
     if path is None:
         return {}
-    import json
+    from meshadv.util.json_file import read_json
 
     file = Path(path)
-    if not file.is_file():
-        raise FileNotFoundError(f"assumed-defaults file {file} does not exist")
-    try:
-        data = json.loads(file.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as err:
-        raise ValueError(f"assumed-defaults file {file} is not JSON: {err}") from err
+    data = read_json(file, "assumed-defaults file")
     if not isinstance(data, dict):
         raise ValueError(f"assumed-defaults file {file} must hold a JSON object")
     data = {k: v for k, v in data.items() if not k.startswith("_")}  # "_comment" and the like
