@@ -19,6 +19,31 @@ def require_instance(value: Any, cls: type, name: str) -> None:
         raise TypeError(f"{name} must be a {cls.__name__}, got {type(value).__name__}")
 
 
+def check_faces(faces: Any, num_vertices: int) -> torch.Tensor:
+    """Check that ``faces`` is a non-empty ``(M, 3)`` integer tensor of indices into ``num_vertices`` vertices.
+
+    Returns:
+        ``faces`` itself (any integer dtype; callers convert it).
+
+    Raises:
+        TypeError: ``faces`` is not a tensor.
+        ValueError: not an integer dtype, not of shape ``(M, 3)``, no faces, or an index outside
+            ``[0, num_vertices)``; each message starts with ``faces``.
+    """
+    require_instance(faces, torch.Tensor, "faces")
+    if faces.is_floating_point() or faces.is_complex() or faces.dtype == torch.bool:
+        raise ValueError(f"faces must be an integer tensor, got {faces.dtype}")
+    if faces.dim() != 2 or faces.shape[1] != 3:
+        raise ValueError(f"faces must have shape (M,3), got {tuple(faces.shape)}")
+    if faces.shape[0] == 0:
+        raise ValueError("faces is empty (M = 0 triangles)")
+    n = num_vertices
+    fmin, fmax = int(faces.min()), int(faces.max())
+    if fmin < 0 or fmax >= n:
+        raise ValueError(f"faces holds vertex indices in [{fmin}, {fmax}] but must be in [0, {n - 1}] (N = {n})")
+    return faces
+
+
 def _is_complex(value: Any) -> bool:
     """True when ``value`` (a number, array or nested sequence) holds complex numbers."""
     if isinstance(value, complex):

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from .. import _validate
-from ._checks import as_float_tensor, require_instance
+from ._checks import as_float_tensor, check_faces, require_instance
 from ._memory import check_memory, estimate_forward_bytes
 
 __all__ = ["MAX_IMAGE_SIDE", "RasterOutput", "native_available", "parse_image_size", "rasterize"]
@@ -229,17 +229,7 @@ def rasterize(
     if n == 0:
         raise ValueError("verts_screen is empty (N = 0 vertices)")
 
-    require_instance(faces, torch.Tensor, "faces")
-    if faces.is_floating_point() or faces.is_complex() or faces.dtype == torch.bool:
-        raise ValueError(f"faces must be an integer tensor (int32 or int64), got {faces.dtype}")
-    if faces.dim() != 2 or faces.shape[1] != 3:
-        raise ValueError(f"faces must have shape (M,3), got {tuple(faces.shape)}")
-    m = faces.shape[0]
-    if m == 0:
-        raise ValueError("faces is empty (M = 0 triangles)")
-    fmin, fmax = int(faces.min()), int(faces.max())
-    if fmin < 0 or fmax >= n:
-        raise ValueError(f"faces holds vertex indices in [{fmin}, {fmax}] but must be in [0, {n - 1}] (N = {n})")
+    m = check_faces(faces, n).shape[0]
 
     face_attrs = _check_float_tensor(face_attrs, "face_attrs", (2, 3), "(B,M,C) or (M,C)")
     if face_attrs.dim() == 2:

@@ -8,7 +8,7 @@ from typing import Any
 
 import torch
 
-from ._checks import as_float_tensor, require_instance
+from ._checks import as_float_tensor, check_faces, require_instance
 from .camera import Camera
 from .lighting import Lights, shade
 from .rasterize import RasterOutput, parse_image_size, rasterize
@@ -48,17 +48,7 @@ def _check_mesh(vertices: Any, faces: Any) -> tuple[torch.Tensor, torch.Tensor]:
         raise ValueError(f"vertices is empty, shape {tuple(vertices.shape)}")
     if not bool(torch.isfinite(verts.detach()).all()):
         raise ValueError("vertices contains NaN or Inf")
-    require_instance(faces, torch.Tensor, "faces")
-    if faces.is_floating_point() or faces.is_complex() or faces.dtype == torch.bool:
-        raise ValueError(f"faces must be an integer tensor, got {faces.dtype}")
-    if faces.dim() != 2 or faces.shape[1] != 3:
-        raise ValueError(f"faces must have shape (M,3), got {tuple(faces.shape)}")
-    if faces.shape[0] == 0:
-        raise ValueError("faces is empty (M = 0 triangles)")
-    n = verts.shape[1]
-    fmin, fmax = int(faces.min()), int(faces.max())
-    if fmin < 0 or fmax >= n:
-        raise ValueError(f"faces holds vertex indices in [{fmin}, {fmax}] but must be in [0, {n - 1}] (N = {n})")
+    check_faces(faces, verts.shape[1])
     return verts, faces.to(device=verts.device, dtype=torch.long)
 
 
