@@ -3,21 +3,16 @@
 from __future__ import annotations
 
 import argparse
-import importlib.util
 from pathlib import Path
 from types import ModuleType
 from typing import Optional
 
 import pytest
+from benchmark_scripts import load_benchmark
 
 
 def _bench() -> ModuleType:
-    path = Path(__file__).parents[1] / "benchmarks" / "convergence_bench.py"
-    spec = importlib.util.spec_from_file_location("convergence_bench", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("convergence_bench")
 
 
 def test_method_and_attack_options_reach_the_attack() -> None:

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 from types import ModuleType
 
 import pytest
+from benchmark_scripts import load_benchmark
 
 CONFIG = """
 [meshes]
@@ -28,12 +28,7 @@ steps = 50
 
 
 def _paper_cost() -> ModuleType:
-    path = Path(__file__).parents[1] / "benchmarks" / "paper_cost.py"
-    spec = importlib.util.spec_from_file_location("paper_cost", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("paper_cost")
 
 
 def test_projection_steps_and_borrowing(tmp_path: Path) -> None:
