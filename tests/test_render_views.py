@@ -57,22 +57,9 @@ def test_records_round_trip_spherical_and_look_at() -> None:
 
 def test_jitter_bounds_and_reproducibility() -> None:
     views = ViewSet.orbit(torch.zeros(64), elevation=10.0, distance=2.0)
-    j1 = views.jitter(
-        torch.Generator().manual_seed(5),
-        azimuth=5.0,
-        elevation=3.0,
-        distance=0.1,
-        light_intensity=0.2,
-        light_direction=0.1,
-    )
-    j2 = views.jitter(
-        torch.Generator().manual_seed(5),
-        azimuth=5.0,
-        elevation=3.0,
-        distance=0.1,
-        light_intensity=0.2,
-        light_direction=0.1,
-    )
+    scales = {"azimuth": 5.0, "elevation": 3.0, "distance": 0.1, "light_intensity": 0.2, "light_direction": 0.1}
+    j1 = views.jitter(torch.Generator().manual_seed(5), **scales)
+    j2 = views.jitter(torch.Generator().manual_seed(5), **scales)
     torch.testing.assert_close(j1.camera.azimuth, j2.camera.azimuth)
     assert j1.camera.azimuth.abs().max() <= 5.0 and j1.camera.azimuth.std() > 1.0
     assert ((j1.camera.elevation - 10.0).abs() <= 3.0).all()
