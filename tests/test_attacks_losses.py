@@ -190,6 +190,13 @@ class _FakeDetector:
         return self.class_names.index(name)
 
 
+class _NamesOnlyDetector:
+    """A detector with class names but no class_index: Disappearance.bind looks the names up itself."""
+
+    kind = "detector"
+    class_names = _FakeDetector.class_names
+
+
 def test_criteria_margins() -> None:
     logits = torch.full((2, 1000), -5.0)
     logits[0, 444] = 3.0  # bicycle-built-for-two wins
@@ -218,5 +225,6 @@ def test_disappearance_criterion() -> None:
     assert everything.is_adversarial(scores).tolist() == [False, False]
     with pytest.raises(ValueError, match="threshold"):
         Disappearance("chair", threshold=0.0)
-    with pytest.raises(ValueError):
-        Disappearance("giraffe").bind(_FakeDetector())
+    assert Disappearance(["chair", "person"]).bind(_NamesOnlyDetector()).indices == (2, 0)
+    with pytest.raises(ValueError, match="^class_name 'giraffe' is not a class of the victim"):
+        Disappearance(["chair", "giraffe"]).bind(_NamesOnlyDetector())

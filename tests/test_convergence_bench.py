@@ -35,8 +35,8 @@ def test_command_line_parsers_reject_bad_values() -> None:
     for bad in ("sofa", "car/0", "sofa/x"):
         with pytest.raises(argparse.ArgumentTypeError, match="CLASS/INDEX"):
             cb._instance(bad)
-    for bad in ("[1]", "{momentum: 1}"):
-        with pytest.raises(argparse.ArgumentTypeError):
+    for bad, match in (("[1]", "must be a JSON object"), ("{momentum: 1}", "not valid JSON")):
+        with pytest.raises(argparse.ArgumentTypeError, match=match):
             cb._json_object(bad)
 
 

@@ -106,7 +106,7 @@ def test_config_errors_name_the_key(raw: dict, match: str) -> None:
 
 
 def test_load_config_errors(tmp_path: Path) -> None:
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(FileNotFoundError, match="missing.toml"):
         load_config(tmp_path / "missing.toml")
     (tmp_path / "x.json").write_text("{}")
     with pytest.raises(ValueError, match=".toml"):
@@ -203,7 +203,7 @@ def test_report_counts_failed_and_unsuccessful_jobs(tmp_path: Path) -> None:
     csv = (tmp_path / "rep" / "table1.csv").read_text().splitlines()
     row = dict(zip(csv[0].split(","), csv[1].split(",")))
     assert float(row["best_success_rate"]) == pytest.approx(0.5)
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(FileNotFoundError, match="nope.db"):
         write_report(tmp_path / "nope.db", tmp_path / "rep")
     assert not (tmp_path / "rep" / "transfer.md").exists()
     # Mitsuba transfer rows in the same database join the report.

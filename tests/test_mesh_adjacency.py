@@ -82,7 +82,7 @@ def test_boundary_and_watertight() -> None:
 def test_faces_validation() -> None:
     with pytest.raises(ValueError, match="faces"):
         vertex_edges(torch.zeros(3, 2, dtype=torch.int64))
-    with pytest.raises(ValueError, match="integers"):
+    with pytest.raises(ValueError, match="^faces must hold integers"):
         vertex_edges(torch.zeros(3, 3))
 
 

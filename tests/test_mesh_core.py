@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -70,7 +72,7 @@ def test_mesh_to_and_detach() -> None:
     assert m.to("cpu") is m
     v = m.vertices.clone().requires_grad_(True)
     assert not m.with_vertices(v).detach().vertices.requires_grad
-    with pytest.raises(Exception):
+    with pytest.raises(dataclasses.FrozenInstanceError, match="'vertices'"):
         m.vertices = torch.zeros(4, 3)  # frozen
 
 

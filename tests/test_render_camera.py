@@ -118,7 +118,7 @@ def test_batching_and_indexing() -> None:
     assert len(both) == 4
     with pytest.raises(ValueError, match="batch size"):
         cam.project(torch.randn(2, 4, 3))
-    with pytest.raises(IndexError):
+    with pytest.raises(IndexError, match="^camera index 3 is out of range"):
         cam[3]
 
 

@@ -115,7 +115,7 @@ def test_lights_constructors_and_validation() -> None:
         Lights(torch.zeros(1, 3), torch.ones(1, 3), torch.ones(3))
     with pytest.raises(ValueError, match="ambient"):
         Lights(torch.ones(1, 3), torch.ones(1, 3), torch.ones(4))
-    with pytest.raises(ValueError, match="same number"):
+    with pytest.raises(ValueError, match="^directions and colors must hold the same number"):
         Lights(torch.ones(2, 3), torch.ones(1, 3), torch.ones(3))
     with pytest.raises(ValueError, match="batch"):
         Lights(torch.ones(2, 1, 3), torch.ones(3, 1, 3), torch.ones(3))

@@ -51,7 +51,7 @@ def test_records_round_trip_spherical_and_look_at() -> None:
     torch.testing.assert_close(back.camera.project(pts), la.camera.project(pts))
     with pytest.raises(ValueError, match="records"):
         ViewSet.from_records([])
-    with pytest.raises(ValueError, match="missing"):
+    with pytest.raises(ValueError, match=r"^records\[0\] is missing keys"):
         ViewSet.from_records([{"distance": 1.0}])
 
 

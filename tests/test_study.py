@@ -92,7 +92,7 @@ def test_selection_finds_successful_attacks_controls_and_checks(study_db: Path, 
         select_stimuli(study_db, tmp_path, controls=10)
     with pytest.raises(ValueError, match="max_images"):
         select_stimuli(study_db, tmp_path, max_images=0)
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(FileNotFoundError, match="none.db"):
         select_stimuli(tmp_path / "none.db", tmp_path)
 
 
@@ -127,7 +127,7 @@ def test_export_writes_a_self_contained_folder(study_db: Path, tmp_path: Path) -
         assert (out / "images" / stim["file"]).is_file(), image_id
     assert plan["settings"]["exposure_ms"] == 2000.0 and plan["per_image"] == 3
     assert len(plan["participants"]) == math.ceil(11 * 3 / 5)
-    with pytest.raises(FileExistsError):
+    with pytest.raises(FileExistsError, match="exists and is not empty"):
         export_study(study_db, out)
     with pytest.raises(ValueError, match="post_url"):
         export_study(study_db, tmp_path / "x", post_url="ftp://example.org")

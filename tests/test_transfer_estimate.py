@@ -66,7 +66,7 @@ def test_camera_estimation_from_mitsuba_mask() -> None:
 
 def test_camera_estimation_rejects_bad_masks() -> None:
     mesh = _asymmetric_mesh()
-    with pytest.raises(ValueError, match="empty"):
+    with pytest.raises(ValueError, match="^mask is empty"):
         estimate_camera(np.zeros((32, 32)), mesh.vertices, mesh.faces)
     with pytest.raises(ValueError, match="mask"):
         estimate_camera(np.zeros((2, 2, 32, 32)), mesh.vertices, mesh.faces)

@@ -59,7 +59,7 @@ def test_controlled_result_records_keep_the_old_row_format(tmp_path: Path) -> No
                               success_meshadv=None, success_mitsuba=None, error="killed by signal 6")
     assert set(ok.to_record()) == OLD_CONTROLLED_KEYS  # "error" only on a failed render, as before
     assert failed.to_record()["error"] == "killed by signal 6" and failed.to_record()["success_mitsuba"] is None
-    with pytest.raises(dataclasses.FrozenInstanceError):
+    with pytest.raises(dataclasses.FrozenInstanceError, match="'view'"):
         ok.view = 2  # type: ignore[misc]
     db = tmp_path / "r.db"
     save_transfer_rows(db, [ok.to_record(), failed.to_record()], experiment="e")

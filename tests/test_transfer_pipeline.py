@@ -56,11 +56,11 @@ def test_results_roundtrip_tables_and_confusion(tmp_path) -> None:
     assert "Controlled parameters" in text and "| chair |" in text
     with sqlite3.connect(db) as conn:  # lives beside any other table of the results database
         assert conn.execute("SELECT COUNT(*) FROM transfer").fetchone()[0] == 4
-    with pytest.raises(ValueError, match="missing keys"):
+    with pytest.raises(ValueError, match=r"^rows\[0\] is missing keys"):
         save_transfer_rows(db, [{"case_id": "x"}])
     with pytest.raises(ValueError, match="kind"):
         save_transfer_rows(db, rows, kind="other")
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(FileNotFoundError, match="^db_path .*missing.db"):
         load_transfer_rows(tmp_path / "missing.db")
 
 
@@ -116,7 +116,7 @@ def test_controlled_transfer_survives_a_crashed_render(monkeypatch, victim) -> N
     case = controlled.TransferCase("c", builtin_mesh("cube"), tuple(_views(1)), "efficientnet_lite0", "bottle")
     rows = controlled.controlled_transfer([case], victim_loader=lambda name: victim)
     assert len(rows) == 1 and "signal 6" in rows[0].error and rows[0].success_mitsuba is None
-    with pytest.raises(MitsubaRenderError):
+    with pytest.raises(MitsubaRenderError, match="killed by signal 6"):
         controlled.controlled_transfer([case], victim_loader=lambda name: victim, on_error="raise")
 
 
@@ -161,7 +161,7 @@ def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
     assert case.antialias == 2, "the meshadv reference render uses the attack's supersampling"
     assert case.mesh.faces.shape == builtin_mesh("bottle").faces.shape
     assert len(cases_from_store(db, only_successful=False)) == 2
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(FileNotFoundError, match="^db_path .*nope.db"):
         cases_from_store(tmp_path / "nope.db")
 
 

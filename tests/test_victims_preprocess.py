@@ -50,7 +50,7 @@ def test_image_helpers(tmp_path) -> None:
     torch.testing.assert_close(tensor[0, :, 2, 3], torch.from_numpy(array[2, 3].astype(np.float32) / 255.0))
     Image.fromarray(array).save(tmp_path / "a.png")
     torch.testing.assert_close(load_image(tmp_path / "a.png"), tensor)
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(FileNotFoundError, match="^path .*missing.png"):
         load_image(tmp_path / "missing.png")
     crop = center_crop(torch.rand(1, 3, 10, 20), 0.5)
     assert crop.shape == (1, 3, 5, 5)
