@@ -67,13 +67,25 @@ def test_inception_without_aux_head_and_wrapped_state_dict(tmp_path) -> None:
         torch.testing.assert_close(victim(images), model((images - 0.5) / 0.5), rtol=0, atol=0)
 
 
-def test_gradient_reaches_input(densenet_file: tuple) -> None:
+def test_gradient_reaches_input_and_matches_finite_differences(densenet_file: tuple) -> None:
+    """The input gradient (through the resize to 224 px, the normalisation and the network) is the derivative: a
+    central difference along a random direction in float64 agrees with it."""
     _, path = densenet_file
     victim = load_victim("densenet121", weights=path)
     assert not any(p.requires_grad for p in victim.parameters())
     images = torch.rand(1, 3, 64, 64, requires_grad=True)
     victim(images)[0, 3].backward()
     assert images.grad is not None and images.grad.abs().sum() > 0
+    victim = victim.double()
+    seeded = [torch.Generator().manual_seed(seed) for seed in (5, 6, 7)]
+    x = torch.rand(1, 3, 64, 64, dtype=torch.float64, generator=seeded[0], requires_grad=True)
+    weights = torch.randn(1, 1000, dtype=torch.float64, generator=seeded[1])
+    (grad,) = torch.autograd.grad((victim(x) * weights).sum(), x)
+    direction = torch.randn(x.shape, dtype=torch.float64, generator=seeded[2])
+    eps = 1e-8  # ReLU kinks: a larger step crosses some of them
+    with torch.no_grad():
+        numeric = float(((victim(x + eps * direction) - victim(x - eps * direction)) * weights).sum() / (2 * eps))
+    assert numeric == pytest.approx(float((grad * direction).sum()), rel=1e-5, abs=1e-8)
 
 
 def test_errors(tmp_path, densenet_file: tuple) -> None:
