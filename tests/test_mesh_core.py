@@ -58,6 +58,15 @@ def test_with_vertices_keeps_autograd() -> None:
     moved = m.with_vertices(m.vertices + delta)
     moved.face_areas().sum().backward()
     assert delta.grad is not None and delta.grad.abs().sum() > 0
+    # the gradient is the derivative of the total area: central differences, coordinate by coordinate
+    eps = 1e-2
+    numeric = torch.zeros_like(m.vertices)
+    for i, j in np.ndindex(*m.vertices.shape):
+        step = torch.zeros_like(m.vertices)
+        step[i, j] = eps
+        plus, minus = (m.with_vertices(m.vertices + s * step).face_areas().sum() for s in (1, -1))
+        numeric[i, j] = (plus - minus) / (2 * eps)
+    torch.testing.assert_close(delta.grad, numeric, rtol=1e-3, atol=1e-4)
     assert moved.faces is m.faces
     with pytest.raises(ValueError, match="vertices"):
         m.with_vertices(torch.zeros(5, 3))

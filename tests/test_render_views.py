@@ -77,6 +77,11 @@ def test_jitter_keeps_gradients() -> None:
     jittered = views.jitter(torch.Generator().manual_seed(0), azimuth=2.0)
     jittered.camera.eye().sum().backward()
     assert az.grad is not None and az.grad.abs().sum() > 0
+    # the noise is a constant offset: the gradient is the un-jittered camera's at the jittered azimuth
+    shifted = jittered.camera.azimuth.detach().requires_grad_(True)
+    assert not torch.equal(shifted, az.detach())
+    Camera.spherical(2.0, shifted, 0.0).eye().sum().backward()
+    torch.testing.assert_close(az.grad, shifted.grad)
 
 
 def test_jitter_draws_tilt_then_distance_azimuth_elevation_and_keeps_the_other_fields() -> None:
