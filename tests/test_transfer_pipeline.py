@@ -8,6 +8,7 @@ import sqlite3
 import pytest
 import torch
 
+from cli_output import unwrapped
 from meshadv.render import native_available
 from meshadv.transfer.results import (
     confusion_matrices,
@@ -224,7 +225,9 @@ def test_cli_transfer_check_and_report(tmp_path) -> None:
     result = runner.invoke(app, ["transfer", "report", str(db)])
     assert result.exit_code == 0 and "Transfer to Mitsuba 3" in result.output
     result = runner.invoke(app, ["transfer", "report", str(tmp_path / "missing.db")])
-    assert result.exit_code != 0
+    assert result.exit_code == 2, result.output  # a usage error naming the argument, not a crash
+    message = unwrapped(result.output)
+    assert "Invalid value for RESULTS: " in message and message.endswith("does not exist"), message
 
 
 @needs_native
