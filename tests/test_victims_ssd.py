@@ -330,11 +330,14 @@ def test_bad_weights_path(tmp_path: Path) -> None:
         ssd.SSDMobileNetV2Victim.from_package(other)
 
 
-def test_registry_loads_ssd() -> None:
+def test_registry_loads_ssd(victim: ssd.SSDMobileNetV2Victim) -> None:
+    """The registry name gives the packaged model: a frozen, eval-mode COCO detector with the package's weights."""
     from meshadv.victims import load_victim
 
-    try:
-        victim = load_victim("ssd_mobilenet_v2_coco")
-    except ImportError as exc:
-        pytest.skip(str(exc))
-    assert isinstance(victim, ssd.SSDMobileNetV2Victim)
+    loaded = load_victim("ssd_mobilenet_v2_coco")
+    assert isinstance(loaded, ssd.SSDMobileNetV2Victim)
+    assert (loaded.name, loaded.kind, loaded.input_size) == ("ssd_mobilenet_v2_coco", "detector", (300, 300))
+    assert len(loaded.class_names) == 80 and loaded.class_names[:3] == ("person", "bicycle", "car")
+    assert not loaded.training and not any(p.requires_grad for p in loaded.parameters())
+    got, want = loaded.state_dict(), victim.state_dict()
+    assert got.keys() == want.keys() and all(torch.equal(got[k], want[k]) for k in want)
