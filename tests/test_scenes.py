@@ -168,7 +168,15 @@ def test_attack_scene_command_writes_images_mesh_and_record(shared_data: Path, t
     for name in ("before.png", "after.png", "adversarial.ply", "result.json"):
         assert (tmp_path / name).is_file(), name
     record = json.loads((tmp_path / "result.json").read_text())
-    assert record["hide"] == "dining table"
-    assert record["steps"] >= 1
-    assert isinstance(record["detections_before"], list)
-    assert "color_rmse" in record["distances"]
+    assert record["hide"] == "dining table" and record["perturbation"] == "texture"
+    assert 1 <= record["steps"] <= 2 and len(record["loss_history"]) == record["steps"]
+    # the record agrees with itself: the hidden class's pristine score is its detection, the flag is the threshold's
+    before = {d["label"]: d["score"] for d in record["detections_before"]}
+    assert before["dining table"] == pytest.approx(record["score_before"], abs=1e-4) and record["score_before"] >= 0.2
+    assert record["success"] == (record["score_after"] < 0.2)
+    distances = record["distances"]  # a texture attack moves no vertex and changes some colour
+    assert distances["laplacian_sum"] == 0.0 and distances["max_displacement"] == 0.0 and distances["color_rmse"] > 0
+    from PIL import Image
+
+    with Image.open(tmp_path / "before.png") as before_png, Image.open(tmp_path / "after.png") as after_png:
+        assert before_png.size == after_png.size and before_png.size[0] == 160
