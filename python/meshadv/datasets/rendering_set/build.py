@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Optional, Union
+from typing import TYPE_CHECKING, Any, Callable, Optional, Union
 
 import numpy as np
 
@@ -18,6 +18,9 @@ from meshadv.datasets.rendering_set.set_file import PathLike, content_identity, 
 from meshadv.util.atomic import write_json_atomic
 from meshadv.victims.base import Victim
 from meshadv.victims.labels import PASCAL3D_CLASSES, PASCAL3D_TO_IMAGENET, imagenet_class_names
+
+if TYPE_CHECKING:
+    from meshadv.mesh import Mesh
 
 __all__ = ["build_rendering_set"]
 
@@ -220,7 +223,7 @@ def _fill_class(
 def _judge_candidates(
     plan: _Plan,
     judges: Sequence[Judge],
-    meshes: Sequence[tuple[Any, np.ndarray]],
+    meshes: Sequence[tuple[Mesh, np.ndarray]],
     class_index: int,
     cls: str,
     candidates: Sequence[int],

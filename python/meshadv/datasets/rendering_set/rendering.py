@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 import numpy as np
 import torch
@@ -14,10 +14,14 @@ from meshadv.datasets.rendering_set.mesh_paths import rendering_mesh_path
 from meshadv.datasets.rendering_set.sampling import RenderingSetConfig, sampling_config
 from meshadv.datasets.rendering_set.set_file import PathLike
 
+if TYPE_CHECKING:
+    from meshadv.mesh import Mesh
+    from meshadv.render import ViewSet
+
 __all__ = ["load_set_mesh", "record_views", "render_mesh_views", "render_records"]
 
 
-def load_set_mesh(path: PathLike, config: RenderingSetConfig) -> tuple[Any, np.ndarray]:
+def load_set_mesh(path: PathLike, config: RenderingSetConfig) -> tuple[Mesh, np.ndarray]:
     """Load mesh file ``path`` normalised into ``[-1, 1]`` (turned Y-up when ``config.z_up``) as the set uses it.
 
     Returns:
@@ -29,7 +33,7 @@ def load_set_mesh(path: PathLike, config: RenderingSetConfig) -> tuple[Any, np.n
     return mesh, mesh.vertices.detach().double().numpy()
 
 
-def render_mesh_views(mesh: Any, view_set: Any, config: RenderingSetConfig) -> torch.Tensor:
+def render_mesh_views(mesh: Mesh, view_set: ViewSet, config: RenderingSetConfig) -> torch.Tensor:
     """Render ``mesh`` (its face colours) from every view of ``view_set`` with the set's size, background and
     antialiasing, without gradients.
 
@@ -51,7 +55,7 @@ def render_mesh_views(mesh: Any, view_set: Any, config: RenderingSetConfig) -> t
         ).image
 
 
-def record_views(records: Sequence[Mapping[str, Any]]) -> Any:
+def record_views(records: Sequence[Mapping[str, Any]]) -> ViewSet:
     """The :class:`meshadv.render.ViewSet` of rendering-set records (their ``"view"`` entries).
 
     Args:
