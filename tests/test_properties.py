@@ -136,11 +136,12 @@ def test_normalize_mesh_extent_gives_finite_vertices_or_a_documented_error(exten
     cube = builtin_mesh("cube")
     try:
         mesh, _ = normalize_mesh(cube, extent=extent)
-    except TypeError:
-        assert isinstance(extent, str)
+    except TypeError as exc:
+        assert isinstance(extent, str) and str(exc).startswith("extent must be"), exc
         return
-    except ValueError:
+    except ValueError as exc:
         assert not (isinstance(extent, (int, float)) and math.isfinite(extent) and 0 < extent <= 1e30)
+        assert str(exc).startswith("extent must be"), exc
         return
     assert torch.isfinite(mesh.vertices).all()
     assert float(mesh.vertices.abs().max()) == pytest.approx(float(extent), rel=1e-5)
