@@ -1,4 +1,4 @@
-"""Where meshadv finds the shared data folder (real meshes, scenes, photos).
+"""Where meshadv finds the shared data folder (real meshes, scenes, photos), and the PASCAL3D+ classes it holds.
 
 The data are never shipped inside the package. They are looked up, in order, at the path in the
 ``MESHADV_DATA`` environment variable and at ``../shared/data`` beside the repository checkout.
@@ -10,6 +10,9 @@ import os
 from pathlib import Path
 from typing import Optional
 
+#: The 7 PASCAL3D+ classes of the MeshAdv paper, in its order (the one definition; the mesh catalogue, the
+#: victims' label groups and sweep files import it from here).
+PASCAL3D_CLASSES: tuple[str, ...] = ("aeroplane", "bicycle", "boat", "bottle", "chair", "diningtable", "sofa")
 #: Environment variable that points at the shared data folder.
 DATA_ENV_VAR = "MESHADV_DATA"
 #: What the shared data are and where they come from (for error messages).

@@ -41,12 +41,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Sequence, Tuple, Union
 
+from meshadv.data import PASCAL3D_CLASSES
 from meshadv.experiments.config_keys import check_attack_values, check_keys
 
 __all__ = ["DEFAULT_JOB", "PASCAL3D_CLASSES", "SweepConfig", "load_config", "parse_config"]
 
-#: The 7 PASCAL3D+ classes of the paper, in its order.
-PASCAL3D_CLASSES = ("aeroplane", "bicycle", "boat", "bottle", "chair", "diningtable", "sofa")
 
 #: The attack job function used unless ``[runner] job`` says otherwise.
 DEFAULT_JOB = "meshadv.experiments.jobs:run_attack_job"

@@ -10,13 +10,11 @@ import os
 from pathlib import Path
 from typing import Optional, Union
 
-from meshadv.data import shared_data_dir
+from meshadv.data import PASCAL3D_CLASSES, shared_data_dir
 from meshadv.mesh.io import load_mesh
 from meshadv.mesh.normalize import normalize_mesh
 from meshadv.mesh.structure import Mesh
 
-#: The 7 PASCAL3D+ classes of the MeshAdv paper.
-PASCAL3D_CLASSES = ("aeroplane", "bicycle", "boat", "bottle", "chair", "diningtable", "sofa")
 #: Mesh file extensions the catalogue lists, in order of preference.
 MODEL_EXTENSIONS = (".ply", ".off")
 

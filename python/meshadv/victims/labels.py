@@ -32,6 +32,8 @@ from importlib import resources
 import torch
 from torch import Tensor
 
+from meshadv.data import PASCAL3D_CLASSES
+
 __all__ = [
     "PASCAL3D_CLASSES",
     "PASCAL3D_TO_COCO",
@@ -45,8 +47,6 @@ __all__ = [
     "imagenet_index",
 ]
 
-#: The 7 PASCAL3D+ classes used by the paper, in a fixed order.
-PASCAL3D_CLASSES: tuple[str, ...] = ("aeroplane", "bicycle", "boat", "bottle", "chair", "diningtable", "sofa")
 
 #: PASCAL3D+ class -> ImageNet-1k indices of the classes that count as that class (sorted).
 PASCAL3D_TO_IMAGENET: dict[str, list[int]] = {
