@@ -113,5 +113,8 @@ def test_clean_arrays_counts_and_identity_on_clean_input() -> None:
 
 
 def test_degenerate_mask_keeps_tiny_but_nonzero_faces() -> None:
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1e-6, 0]], dtype=np.float32)
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1e-6, 0], [2, 0, 0], [0, 1e-30, 0]], dtype=np.float32)
     assert not degenerate_face_mask(v, np.array([[0, 1, 2]])).any()
+    # beside them, a collinear face (zero area) and a repeated corner are flagged; 1e-30 is tiny but not zero
+    faces = np.array([[0, 1, 2], [0, 1, 3], [0, 0, 2], [0, 1, 4], [2, 1, 2]])
+    assert degenerate_face_mask(v, faces).tolist() == [False, True, True, False, True]
