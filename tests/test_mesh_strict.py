@@ -49,7 +49,11 @@ def test_wellformed_text_files_still_load(tmp_path: Path) -> None:
     (tmp_path / "ok.off").write_text("OFF\n# comment\n3 1 0\n" + TRIANGLE + "3 0 1 2\n")
     (tmp_path / "ok.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -1\n")
     for name in ("ok.ply", "ok.off", "ok.obj"):
-        assert load_mesh(tmp_path / name).num_faces == 1
+        mesh = load_mesh(tmp_path / name)
+        assert mesh.num_faces == 1
+        corners = mesh.vertices[mesh.faces[0]]  # the file's triangle, with its winding (normal along +z)
+        assert sorted(map(tuple, corners.tolist())) == [(0.0, 0.0, 0.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0)], name
+        assert float(torch.cross(corners[1] - corners[0], corners[2] - corners[0], dim=0)[2]) > 0, name
 
 
 def _obj_with_kd(tmp_path: Path, kd: str) -> Path:
