@@ -211,7 +211,7 @@ def test_criteria_margins() -> None:
     assert un.is_adversarial(logits).tolist() == [False, True]
     with pytest.raises(ValueError, match="victim"):
         crit.bind(_FakeDetector())
-    with pytest.raises(ValueError, match="bound"):
+    with pytest.raises(ValueError, match="^criterion is not bound"):
         TargetedMisclassification(1).margin(logits)
 
 

@@ -94,10 +94,10 @@ def test_expansion_counts_and_determinism(tmp_path: Path) -> None:
     [
         ({"victims": {"names": ["v"]}, "bogus": {}}, r"unknown config section \[bogus\]"),
         ({}, "victims.names"),
-        ({"victims": {"names": ["v"]}, "meshes": {"classes": ["cat"]}}, "PASCAL3D"),
+        ({"victims": {"names": ["v"]}, "meshes": {"classes": ["cat"]}}, r"^meshes.classes must be PASCAL3D\+ classes"),
         ({"victims": {"names": ["v"]}, "attack": {"types": ["colour"]}}, "attack.types"),
         ({"victims": {"names": ["v"]}, "render": {"azimuth": [10, 0]}}, "render.azimuth"),
-        ({"victims": {"names": ["v"]}, "runner": {"max_attempts": 0}}, "max_attempts"),
+        ({"victims": {"names": ["v"]}, "runner": {"max_attempts": 0}}, "^runner.max_attempts must be"),
     ],
 )
 def test_config_errors_name_the_key(raw: dict, match: str) -> None:
@@ -109,7 +109,7 @@ def test_load_config_errors(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="missing.toml"):
         load_config(tmp_path / "missing.toml")
     (tmp_path / "x.json").write_text("{}")
-    with pytest.raises(ValueError, match=".toml"):
+    with pytest.raises(ValueError, match="^config must be a .toml"):
         load_config(tmp_path / "x.json")
 
 

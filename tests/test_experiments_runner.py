@@ -46,9 +46,9 @@ def test_job_id_is_canonical_and_sensitive() -> None:
 
 def test_job_ref_rejects_unimportable_functions() -> None:
     assert job_ref(PROBE) == PROBE
-    with pytest.raises(ValueError, match="module-level"):
+    with pytest.raises(ValueError, match="^job must be a module-level function"):
         job_ref(lambda spec, out: {})
-    with pytest.raises(ValueError, match="package.module:function"):
+    with pytest.raises(ValueError, match="^job must look like 'package.module:function'"):
         job_ref("no_colon")
 
 

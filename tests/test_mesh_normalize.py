@@ -62,11 +62,11 @@ def test_transform_matrix_dict_and_gradients() -> None:
 
 def test_normalize_rejects_bad_input() -> None:
     point = Mesh.from_numpy(np.ones((3, 3)), np.array([[0, 1, 2]]))
-    with pytest.raises(ValueError, match="zero extent"):
+    with pytest.raises(ValueError, match="^mesh has zero extent"):
         normalize_mesh(point)
     with pytest.raises(ValueError, match="extent"):
         normalize_mesh(_random_mesh(), extent=0.0)
-    with pytest.raises(ValueError, match="center"):
+    with pytest.raises(ValueError, match="^data must have center, scale and rotation"):
         NormalizeTransform.from_dict({"scale": 1.0})
 
 

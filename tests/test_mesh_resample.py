@@ -147,5 +147,5 @@ def test_bad_arguments(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="edge_length"):
         resample_mesh(sphere, edge_length=-1.0, cache_dir=tmp_path)
     empty = Mesh(torch.zeros(0, 3), torch.zeros(0, 3, dtype=torch.int64), torch.zeros(0, 3))
-    with pytest.raises(ValueError, match="no faces"):
+    with pytest.raises(ValueError, match="^mesh has no faces"):
         resample_mesh(empty, cache_dir=tmp_path)

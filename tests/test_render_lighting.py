@@ -141,7 +141,7 @@ def test_list_indexing_of_lights_and_views() -> None:
 def test_lights_refuse_complex_and_empty_batches() -> None:
     with pytest.raises(TypeError, match="^direction must be real"):
         Lights.single(direction=torch.tensor([0.0, 0.0, -1.0 + 1.0j]))
-    with pytest.raises(ValueError, match="batch size 0"):
+    with pytest.raises(ValueError, match=r"^lights must hold at least one light set \(batch size 0\)"):
         Lights(torch.ones(0, 1, 3), torch.ones(0, 1, 3), torch.ones(0, 3))
 
 

@@ -108,8 +108,8 @@ def test_bad_input_raises_value_error() -> None:
             },
             "batch",
         ),
-        ({"vertices": verts - torch.tensor([0.0, 0.0, 10.0])}, "behind"),
-        ({"camera": Camera.spherical(3.0, far=1.0)}, "far"),
+        ({"vertices": verts - torch.tensor([0.0, 0.0, 10.0])}, "^camera: all geometry is behind"),
+        ({"camera": Camera.spherical(3.0, far=1.0)}, "^camera: all geometry is beyond the camera's far plane"),
     ]
     for change, match in cases:
         kwargs = {

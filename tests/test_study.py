@@ -58,7 +58,7 @@ def test_plan_is_balanced_and_never_repeats_an_image(n: int, per_image: int, max
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [({"image_ids": []}, "image_ids"), ({"per_image": 0}, "per_image"),
-                                               ({"image_ids": ["a", "a"]}, "unique"),
+                                               ({"image_ids": ["a", "a"]}, "^image_ids and attention_ids must be"),
                                                ({"max_trials": 1, "attention_ids": ["attention_0"]}, "max_trials")])
 def test_plan_rejects_bad_arguments(kwargs: Dict[str, Any], match: str) -> None:
     args = {"image_ids": ["a", "b"], **kwargs}
@@ -198,7 +198,7 @@ def test_image_proxies_order_distortions() -> None:
     mse = np.mean((clean.astype(float) - small.astype(float)) ** 2)
     assert p_small == pytest.approx(10 * np.log10(255 ** 2 / mse))
     assert image_proxies(clean, clean) == (1.0, math.inf)
-    with pytest.raises(ValueError, match="same shape"):
+    with pytest.raises(ValueError, match="^benign and adversarial images must have the same shape"):
         image_proxies(clean, clean[:16])
 
 

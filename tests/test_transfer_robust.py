@@ -78,7 +78,7 @@ def test_with_margin_checks_its_arguments_and_the_victim_kind() -> None:
     assert WithMargin(Disappearance("blob"), 0.1).victim_kind == "detector"
     with pytest.raises(ValueError, match="classifier"):  # a detector criterion on a classifier victim
         WithMargin(Disappearance("blob"), 0.1).bind(RedClassifier())
-    with pytest.raises(ValueError, match="not bound"):
+    with pytest.raises(ValueError, match="^criterion is not bound"):
         WithMargin(Misclassification(0), 1.0).margin(_logits(2.0, 0.0))
 
 

@@ -106,7 +106,7 @@ def test_orientation_and_face_colors() -> None:
     assert cols.min() == first and cols.max() == 39 - first
     assert rows.min() == first and rows.max() == 39 - first
     assert set(np.unique(mask)) <= {0.0, 1.0}
-    with pytest.raises(ValueError, match="square"):
+    with pytest.raises(ValueError, match="^image_size must be positive and square"):
         SceneSpec((_quad(),), cam, lights, image_size=(32, 40))
 
 

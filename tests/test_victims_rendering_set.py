@@ -171,7 +171,7 @@ def test_resume_after_interruption(tmp_path: Path, sofa_meshes: list[Path]) -> N
 
 
 def test_bad_arguments(tmp_path: Path, sofa_meshes: list[Path]) -> None:
-    with pytest.raises(ValueError, match="unknown class"):
+    with pytest.raises(ValueError, match="^mesh_paths_by_class: unknown class 'cat'"):
         build_rendering_set({"cat": sofa_meshes}, [CoverageVictim()], 1, 0, tmp_path / "x.json")
     with pytest.raises(FileNotFoundError, match="missing.ply"):
         build_rendering_set({"sofa": [tmp_path / "missing.ply"]}, [CoverageVictim()], 1, 0, tmp_path / "x.json")
@@ -219,7 +219,7 @@ def test_mesh_root_makes_the_file_portable(tmp_path: Path, sofa_meshes: list[Pat
     assert rendering_mesh_path(doc["renderings"][0], root) == root / doc["renderings"][0]["mesh"]
     with pytest.raises(FileNotFoundError, match="does not exist"):
         rendering_mesh_path(doc["renderings"][0], tmp_path)
-    with pytest.raises(ValueError, match="not inside mesh_root"):
+    with pytest.raises(ValueError, match="^mesh_paths_by_class: mesh .* is not inside mesh_root"):
         build_rendering_set(
             {"sofa": sofa_meshes}, [CoverageVictim()], 2, 0, tmp_path / "q.json", config=SMALL, mesh_root=tmp_path
         )

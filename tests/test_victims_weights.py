@@ -72,5 +72,5 @@ def test_device_types_and_names() -> None:
         check_device(0)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="is not a torch device"):
         check_device("gpu")
-    with pytest.raises(ValueError, match="did you mean 'densenet121'"):
+    with pytest.raises(ValueError, match="^name must be one of .*did you mean 'densenet121'"):
         load_victim("densenet12")
