@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 from meshadv.experiments.config import expand_jobs, parse_config
 from sweep_fixtures import run_probe_sweep
@@ -17,7 +18,9 @@ TINY_STUDY_SWEEP = {
 }
 
 
-def make_study_db(root: Path) -> Path:
-    """Run the synthetic sweep (:func:`meshadv.experiments.probes.mesh_probe_job`) into ``root``; return the db."""
-    jobs = [{**j, "success": i % 4 != 3} for i, j in enumerate(expand_jobs(parse_config(TINY_STUDY_SWEEP)))]
+def make_study_db(root: Path, classes: Sequence[str] = ("boat", "chair", "sofa")) -> Path:
+    """Run the synthetic sweep (:func:`meshadv.experiments.probes.mesh_probe_job`) over ``classes`` into ``root``;
+    return the db. Every fourth job fails."""
+    raw = {**TINY_STUDY_SWEEP, "meshes": {"classes": list(classes)}}
+    jobs = [{**j, "success": i % 4 != 3} for i, j in enumerate(expand_jobs(parse_config(raw)))]
     return run_probe_sweep(root / "results.db", jobs, root / "run")

@@ -7,7 +7,8 @@ Python snippets with the real EfficientNet-Lite0 and their own budgets and check
 
 Lines that install software, build the wheel, run the test suite itself or need the products of a long sweep are
 not run; :data:`NOT_RUN` lists them with the reason, and a test checks that nothing else is left out. A
-``meshadv sweep CONFIG`` line (hours) is run as ``--dry-run``: its config must expand and pass the checks.
+``meshadv sweep CONFIG`` line (hours) is run as ``--dry-run``: its config must expand and pass the checks. The
+``meshadv study`` lines run on stand-ins of what they read (a synthetic sweep database, two answer files).
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ NOT_RUN = {
     "bash scripts/test.sh": "runs this test suite",
     "maturin build": "builds the release wheel (minutes of compilation; the wheel tag is checked by hand)",
     "pip install": "installs software",
-    "meshadv study": "needs a finished sweep database (out/sweep/results.db) and participants' answers",
 }
 
 
@@ -63,6 +63,38 @@ def bash_commands() -> Iterator[Tuple[int, str]]:
 
 #: Prefix of commands that need the products of a ``meshadv sweep`` earlier in their block.
 AFTER_SWEEP = "after-sweep: "
+
+
+def _study_stand_ins(args: List[str], root: Path) -> List[str]:
+    """Write what the README's study commands read, which only a finished sweep and real participants would give.
+
+    ``study export DB ...``: a synthetic sweep database at ``DB`` (probe attacks over four classes, 18 successful:
+    enough for the README's 10 controls). ``study analyze PATTERN ...``: two participants' answer files matching
+    ``PATTERN``, which is expanded as the shell would; participant a picks the true class in 2 of 2 trials, b in 1 of
+    2 (mean 75%, sample std 35.36%). Returns the arguments to run.
+    """
+    from study_fixtures import make_study_db
+
+    if args[:2] == ["study", "export"]:
+        make_study_db((root / args[2]).parent, classes=("boat", "chair", "sofa", "bottle"))
+        return args
+    if args[:2] == ["study", "analyze"]:
+        import csv
+        import fnmatch
+
+        for session, correct in (("a", [True, True]), ("b", [True, False])):
+            name = f"answers_{session}.csv"
+            assert fnmatch.fnmatch(name, args[2]), f"{name} does not match the README's {args[2]}"
+            rows = [{"study_id": "s", "session": session, "participant": 0, "trial": i, "image_id": f"adv{i}",
+                     "kind": "adversarial", "correct": str(c).lower(), "perturbation": "shape", "victim": "v1",
+                     "target": "chair", "distance": 0.1 * (i + 1), "exposure_ms": 2000.0, "exposure_target_ms": 2000.0}
+                    for i, c in enumerate(correct)]
+            with open(root / name, "w", newline="", encoding="utf-8") as f:
+                writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+                writer.writeheader()
+                writer.writerows(rows)
+        return [*args[:2], *sorted(p.name for p in root.glob(args[2])), *args[3:]]
+    return args
 
 
 def _skipped(command: str) -> bool:
@@ -148,8 +180,12 @@ def test_cli_snippets_run(stand_in: Path, line_no: int, command: str) -> None:
     pytest.importorskip("meshadv._raster")
     from meshadv.cli import app
 
-    result = CliRunner().invoke(app, shlex.split(command)[1:])
+    result = CliRunner().invoke(app, _study_stand_ins(shlex.split(command)[1:], stand_in))
     assert result.exit_code == 0, f"README line {line_no}: {command}\n{result.output}"
+    if command.startswith("meshadv study export"):
+        assert "10 controls, 3 attention checks" in result.output and (stand_in / "out/study/index.html").is_file()
+    if command.startswith("meshadv study analyze"):
+        assert "true class chosen: 75.00 ± 35.36% (4 answers, 2 participants" in result.output, result.output
     for i, arg in enumerate(shlex.split(command)):
         if arg in ("-o", "--output", "--out"):
             assert (stand_in / shlex.split(command)[i + 1]).exists(), f"{command} wrote nothing"
