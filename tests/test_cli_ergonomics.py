@@ -158,7 +158,7 @@ def test_sweep_dry_run_finds_what_would_fail_every_job(tmp_path: Path) -> None:
     text = config.read_text().replace('names = ["efficientnet_lite0"]', 'names = ["efficientnet_lite3"]')
     (tmp_path / "bad.toml").write_text(text.replace('output = "../out/paper_small"', 'output = "out"'))
     result = runner.invoke(app, ["sweep", str(tmp_path / "bad.toml"), "--dry-run"])
-    assert result.exit_code != 0 and "efficientnet_lite2" in result.output
+    assert result.exit_code == 1 and "efficientnet_lite2" in result.output, result.output  # problems found, not a crash
 
 
 def test_report_explains_a_config_and_lists_failed_jobs(tmp_path: Path) -> None:

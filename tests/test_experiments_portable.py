@@ -73,4 +73,4 @@ def test_copied_database_resumes_and_regenerates(tmp_path: Path, victim_availabl
     assert res.exit_code == 0, res.output
     assert "matches the stored one" in res.output
     res = CliRunner().invoke(build_app(), ["regenerate", str(second / "results.db"), "zzzz"])
-    assert res.exit_code != 0 and "matches 0 jobs" in res.output
+    assert res.exit_code == 2 and "matches 0 jobs" in res.output

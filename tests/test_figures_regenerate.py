@@ -253,10 +253,10 @@ def test_report_command_regenerates_and_names_bad_options(moved_db: Path, tmp_pa
     _set_job_ref(moved_db)
     app = build_app()
     res = CliRunner().invoke(app, ["report", str(moved_db), "-o", str(tmp_path / "r"), "--no-stored"])
-    assert res.exit_code != 0 and "--artifacts" in res.output
+    assert res.exit_code == 2 and "--artifacts" in res.output
     res = CliRunner().invoke(app, ["report", str(moved_db), "-o", str(tmp_path / "r"), "--artifacts",
                                    str(tmp_path / "a"), "--assume", str(tmp_path / "missing.json")])
-    assert res.exit_code != 0 and "--assume" in res.output
+    assert res.exit_code == 2 and "--assume" in res.output
     res = CliRunner().invoke(app, ["report", str(moved_db), "-o", str(tmp_path / "r"), "--artifacts",
                                    str(tmp_path / "a")])
     assert res.exit_code == 0, res.output

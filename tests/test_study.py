@@ -222,13 +222,13 @@ def test_study_commands(study_db: Path, tmp_path: Path) -> None:
     assert res.exit_code == 0, res.output
     assert "7 adversarial images, 1 controls, 1 attention checks; 2 participants" in res.output
     res = runner.invoke(app, ["study", "export", str(tmp_path / "missing.db"), "-o", str(tmp_path / "t")])
-    assert res.exit_code != 0 and "does not exist" in unwrapped(res.output)
+    assert res.exit_code == 2 and "does not exist" in unwrapped(res.output)
     (tmp_path / "a.json").write_text(json.dumps(_answers("a", [True, False])))
     res = runner.invoke(app, ["study", "analyze", str(tmp_path / "a.json"), "-o", str(tmp_path / "an")])
     assert res.exit_code == 0, res.output
     assert "50.00 ± 0.00%" in res.output and (tmp_path / "an" / "README.md").is_file()
     res = runner.invoke(app, ["study", "analyze", str(tmp_path / "nope.csv"), "-o", str(tmp_path / "an")])
-    assert res.exit_code != 0 and "missing answer files" in res.output
+    assert res.exit_code == 2 and "missing answer files" in res.output
 
 
 def test_sweep_report_shows_the_proxies(study_db: Path, tmp_path: Path) -> None:
