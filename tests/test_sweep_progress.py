@@ -24,7 +24,7 @@ def _victim_or_skip() -> None:
         from meshadv.victims import load_victim
 
         load_victim("efficientnet_lite0")
-    except (ImportError, ValueError, OSError) as err:
+    except ImportError as err:  # the package is missing; broken weights must fail, not skip
         pytest.skip(f"victim efficientnet_lite0 unavailable: {err}")
 
 
