@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any, Dict, List, Optional, Union
 
 from meshadv.experiments.store import JobRow
+from meshadv.util.atomic import write_text_atomic
 
 __all__ = ["ArtifactSource", "artifact_path"]
 
@@ -28,6 +29,16 @@ def _complete(folder: Optional[Union[str, Path]], record: Dict[str, Any]) -> boo
         return False
     names = _artifact_names(record)
     return bool(names) and all((Path(folder) / n).is_file() for n in names)
+
+
+def _read_check(path: Path) -> Optional[Dict[str, Any]]:
+    """The regeneration check stored at ``path``, or ``None`` when there is none or it is not a JSON object (a file
+    cut short by a kill under an older version, which wrote it in place): the job is then regenerated again."""
+    try:
+        check = json.loads(path.read_text(encoding="utf-8"))
+    except (FileNotFoundError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    return check if isinstance(check, dict) else None
 
 
 class ArtifactSource:
@@ -68,10 +79,10 @@ class ArtifactSource:
             from meshadv.experiments.runner import job_out_dir
 
             target = job_out_dir(self.root, row.job_id)
-            check_file = target / "regeneration.json"
-            if _complete(target, record) and check_file.is_file():
+            check = _read_check(target / "regeneration.json") if _complete(target, record) else None
+            if check is not None:
                 found = target
-                self.checks[row.job_id] = json.loads(check_file.read_text(encoding="utf-8"))
+                self.checks[row.job_id] = check
             elif regenerate:
                 found = self._regenerate(row, target)
         self._folders[row.job_id] = found
@@ -88,7 +99,7 @@ class ArtifactSource:
                  "notes": list(done.notes), "cpu_s": round(time.process_time() - cpu, 2),
                  "stored": {k: (done.stored or {}).get(k) for k in ("success", "steps", "distance")},
                  "regenerated": {k: done.record.get(k) for k in ("success", "steps", "distance")}}
-        (target / "regeneration.json").write_text(json.dumps(check, indent=2, sort_keys=True), encoding="utf-8")
+        write_text_atomic(target / "regeneration.json", json.dumps(check, indent=2, sort_keys=True))
         self.checks[row.job_id] = check
         return target
 

@@ -57,6 +57,18 @@ def _pyplot() -> "ModuleType":
     return plt
 
 
+def _save_figure(fig: Any, path: PathLike) -> Path:
+    """Save ``fig`` to ``path`` at 100 dpi, atomically (:mod:`meshadv.util.atomic`; the folder is created), in the
+    format its suffix names; returns the path."""
+    from meshadv.util.atomic import atomic_path
+
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out, suffix=out.suffix) as tmp:
+        fig.savefig(tmp, dpi=100, format=out.suffix.lstrip(".") or "png")
+    return out
+
+
 def _check_mesh(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndarray) -> Tuple[np.ndarray, ...]:
     v = np.asarray(vertices, dtype=np.float64)
     va = np.asarray(vertices_adv, dtype=np.float64)
@@ -209,9 +221,7 @@ def render_grid(cells: Mapping[Tuple[str, str], PathLike], classes: Sequence[str
     """
     plt = _pyplot()
     fig = grid_figure(cells, classes, title=title, failed=failed)
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
+    out = _save_figure(fig, path)
     plt.close(fig)
     return out
 
@@ -297,9 +307,7 @@ def flow_heatmaps(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndar
                  label="flow magnitude |v_adv - v| (mesh units)")
     if title:
         fig.suptitle(title)
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
+    out = _save_figure(fig, path)
     plt.close(fig)
     return out
 
@@ -345,9 +353,7 @@ def flow_quiver(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.ndarra
         view = (math.degrees(math.atan2(c[0], -c[2])), math.degrees(math.asin(float(np.clip(c[1], -1, 1)))))
     _set_view(ax, view[0], view[1], pts)
     ax.set_title(title or f"flow directions near the most displaced vertex ({len(idx)} vertices)", fontsize=9)
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
+    out = _save_figure(fig, path)
     plt.close(fig)
     return out
 
@@ -436,8 +442,6 @@ def curvature_scatter(vertices: np.ndarray, vertices_adv: np.ndarray, faces: np.
         summary += f"; flow vs camera distance ρ = {stats['spearman_camera_distance']:.3f}"
     ax.set_title(f"{title}\n{summary}" if title else summary, fontsize=9)
     fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
+    out = _save_figure(fig, path)
     plt.close(fig)
     return out, stats

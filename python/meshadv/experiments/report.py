@@ -32,6 +32,7 @@ from meshadv.experiments.compare import paper_comparison
 from meshadv.experiments.provenance import environment_versions
 from meshadv.experiments.report_figures import PAPER_FLOW_EXAMPLE, flow_figures, grid_cells, slug_of
 from meshadv.experiments.store import JobRow, ResultStore
+from meshadv.util.atomic import write_text_atomic
 from meshadv.experiments.tables import (
     DISTANCE_NAMES,
     PAPER_WORST,
@@ -144,18 +145,12 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         if not table and name != "table1" or name == "table1_benign_correct" and not mixed:
             continue
         for ext, text in (("md", to_markdown(table)), ("csv", to_csv(table))):
-            path = out.out_dir / f"{name}.{ext}"
-            path.write_text(text, encoding="utf-8")
-            out.tables.append(path)
+            out.tables.append(write_text_atomic(out.out_dir / f"{name}.{ext}", text))
     transfer = transfer_markdown
     comparison = paper_comparison(t1_correct if mixed else t1, t2, list(transfer_rows))
-    path = out.out_dir / "paper_comparison.md"
-    path.write_text(comparison, encoding="utf-8")
-    out.tables.append(path)
+    out.tables.append(write_text_atomic(out.out_dir / "paper_comparison.md", comparison))
     if transfer:
-        path = out.out_dir / "transfer.md"
-        path.write_text(transfer, encoding="utf-8")
-        out.tables.append(path)
+        out.tables.append(write_text_atomic(out.out_dir / "transfer.md", transfer))
     if figures:
         fig_dir = out.out_dir / "figures"
         single = [r for r in done if r.spec.get("kind", "single") == "single" and not r.record.get("skipped")]
@@ -187,11 +182,9 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
                 "counts": out.counts, "correlations": out.correlations}
     if out.regenerations:
         settings["regenerated_with"] = {"threads": threads, "assume": assume or {}}
-    (out.out_dir / "settings.json").write_text(json.dumps(settings, indent=2, sort_keys=True), encoding="utf-8")
-    _write_readme(out, t1, t1_correct if mixed else None, t2, meta, _run_stats(done), transfer, comparison)
-    for text in extra:  # the callers' sections close the README
-        with open(out.out_dir / "README.md", "a", encoding="utf-8") as fh:
-            fh.write("\n" + text)
+    write_text_atomic(out.out_dir / "settings.json", json.dumps(settings, indent=2, sort_keys=True))
+    # the callers' sections close the README (written once, atomically, with them)
+    _write_readme(out, t1, t1_correct if mixed else None, t2, meta, _run_stats(done), transfer, comparison, extra)
     return out
 
 
@@ -233,16 +226,15 @@ def _write_regenerations(out_dir: Path, checks: Dict[str, Dict[str, Any]], done:
         lines += ["Not pinned by the database (today's defaults used):", ""] + [f"- {t}" for t in notes] + [""]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in table]
-    md = out_dir / "regeneration.md"
-    md.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    md = write_text_atomic(out_dir / "regeneration.md", "\n".join(lines) + "\n")
     import csv
+    import io
 
-    path = out_dir / "regeneration.csv"
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(header)
-        writer.writerows(table)
-    return [md, path]
+    buffer = io.StringIO(newline="")
+    writer = csv.writer(buffer)
+    writer.writerow(header)
+    writer.writerows(table)
+    return [md, write_text_atomic(out_dir / "regeneration.csv", buffer.getvalue())]
 
 
 def settings_mix(done: List[JobRow]) -> List[str]:
@@ -328,7 +320,9 @@ def attacked_misclassified(done: List[Any]) -> bool:
 
 
 def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[Any]], t2: List[Any],
-                  meta: Dict[str, Any], stats: List[str], transfer: str = "", comparison: str = "") -> None:
+                  meta: Dict[str, Any], stats: List[str], transfer: str = "", comparison: str = "",
+                  extra: Sequence[str] = ()) -> None:
+    """README.md (atomically): counts, the tables, figures and definitions, then the sections ``extra``."""
     c = out.counts
     lines = [f"# Results: {meta.get('name', 'sweep')}", "",
              f"Jobs: {c.get('total', 0)} total, {c.get('done', 0)} done ({c.get('successes', 0)} successful), "
@@ -366,4 +360,5 @@ def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[An
     lines += ["", f"Distances: {'; '.join(f'{k} → ' + ', '.join(v) for k, v in DISTANCE_NAMES.items())} "
               "(the first of each is the paper's measure). "
               "Settings and versions: settings.json.", ""]
-    (out.out_dir / "README.md").write_text("\n".join(lines), encoding="utf-8")
+    text = "\n".join(lines) + "".join("\n" + section for section in extra)
+    write_text_atomic(out.out_dir / "README.md", text)
