@@ -80,12 +80,13 @@ def check_cmd(
     result = conversion_check(mesh_obj, record, image_size=size, spp=spp)
     _echo_json(result.summary())
     if out is not None:
+        from meshadv.util.atomic import write_json_atomic
         from meshadv.util.png import save_png
 
         out.mkdir(parents=True, exist_ok=True)
         for name, img in (("meshadv.png", result.meshadv_image), ("mitsuba.png", result.mitsuba_image)):
             save_png(img, out / name)
-        (out / "check.json").write_text(json.dumps(result.summary(), indent=2))
+        write_json_atomic(result.summary(), out / "check.json")
 
 
 @transfer_app.command("render")
@@ -280,7 +281,11 @@ def _settings_suffix(jitter: float, eot: int, margin: float, pixel_noise: float,
 
 
 def _save_blackbox(result: Any, db: Optional[Path], out: Optional[Path], experiment: str) -> None:
+    """Print the row, write ``out`` (every file atomically) and add the row to ``db``; an attack cut short by Ctrl-C
+    or SIGTERM keeps its best mesh so far in ``out`` but stays out of ``db`` and exits with status 130."""
+    from meshadv.commands._common_options import INTERRUPTED_EXIT_CODE
     from meshadv.transfer.results import save_transfer_rows
+    from meshadv.util.atomic import write_text_atomic
     from meshadv.util.png import save_png
 
     public = result.to_record()
@@ -289,11 +294,18 @@ def _save_blackbox(result: Any, db: Optional[Path], out: Optional[Path], experim
         out.mkdir(parents=True, exist_ok=True)
         for name, im in result.images.items():
             save_png(im, out / f"{name}.png")
-        (out / "blackbox.json").write_text(json.dumps(public, indent=2, default=str))
         from meshadv.mesh import save_mesh
 
         save_mesh(result.adversarial_mesh.detach(), out / "adversarial.ply")
-        (out / "loss_history.json").write_text(json.dumps(list(result.attack_result.loss_history), default=str))
+        write_text_atomic(out / "loss_history.json",
+                          json.dumps(list(result.attack_result.loss_history), default=str))
+        write_text_atomic(out / "blackbox.json", json.dumps(public, indent=2, default=str))
+    if public.get("interrupted"):
+        kept = f"the best mesh so far and its renders are in {out}; " if out is not None else ""
+        typer.echo(f"\ninterrupted after {public.get('steps_run')} of {public.get('steps')} attack steps: {kept}"
+                   f"the row is not added to {db if db is not None else 'a database'}; run the same command "
+                   "again for a full run", err=True)
+        raise typer.Exit(INTERRUPTED_EXIT_CODE)
     if db is not None:
         save_transfer_rows(db, [public], experiment=experiment, kind="blackbox")
 
@@ -467,8 +479,10 @@ def report_cmd(
     if out is None:
         typer.echo(text)
     else:
+        from meshadv.util.atomic import write_text_atomic
+
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(text)
+        write_text_atomic(out, text)
         typer.echo(f"wrote {out}")
 
 

@@ -159,7 +159,7 @@ def _attack_record(attack: Any, setup: RenderSetup, result: Any) -> dict[str, An
     record = {k: config[k] for k in ("steps", "lr", "lambda_perceptual", "loss", "kappa", "early_stop")}
     record["antialias"] = setup.antialias
     record.update(steps_run=int(result.steps), steps_to_success=result.steps_to_success[0],
-                  attack_time=float(result.wall_time))
+                  attack_time=float(result.wall_time), interrupted=bool(getattr(result, "interrupted", False)))
     record.update({k: float(v) for k, v in result.distances[0].items()})
     return record
 
