@@ -11,8 +11,9 @@ final meshes re-rendered from scratch, the distances, final scores, loss history
       result.json                                     the record (written last)
 
 Every file is first written into a private temporary folder inside ``out_dir`` and then moved into place with
-``os.replace`` (atomic on one file system); ``result.json`` is moved last, so a folder with a ``result.json`` always
-holds a complete result. :func:`load_result_record` reads the record back.
+``os.replace`` (atomic on one file system); an earlier ``result.json`` is removed first and the new one moved last,
+so a folder with a ``result.json`` always holds a complete result, also when a save into a used folder is killed.
+:func:`load_result_record` reads the record back.
 """
 
 from __future__ import annotations
@@ -253,6 +254,9 @@ class AttackResult:
             self._write_meshes(staging)
             if images:
                 self._write_images(staging)
+            # an earlier result's record goes first: a kill while the new files replace the old ones leaves a folder
+            # without result.json (incomplete), never an old record beside new meshes
+            (out / RESULT_FILE).unlink(missing_ok=True)
             for path in sorted(staging.iterdir()):
                 os.replace(path, out / path.name)
                 written.append(path.name)

@@ -78,6 +78,7 @@ def attack_scene(
 
     result = attack_scene(attack, setup, detector, criterion, callback=progress)
     output.mkdir(parents=True, exist_ok=True)
+    (output / "result.json").unlink(missing_ok=True)  # no earlier record beside new files if this save is killed
     save_png(draw_detections(result.image_before, result.detections_before), output / "before.png")
     save_png(draw_detections(result.image_after, result.detections_after), output / "after.png")
     save_mesh(result.object_mesh, output / "adversarial.ply")
@@ -90,6 +91,8 @@ def attack_scene(
         **result.to_record(),
     }
     write_json_atomic(record, output / "result.json")
+    if result.interrupted:
+        typer.echo("interrupted: saved the best result so far (result.json says interrupted: true)")
     typer.echo(
         f"{'success' if result.success else 'failure'}: hidden score {result.score_before:.3f} -> "
         f"{result.score_after:.3f} in {result.steps} steps; wrote {output}"

@@ -111,6 +111,7 @@ class SceneAttackResult:
             ``color_rmse``, ...).
         loss_history: total loss per step; steps: steps taken; wall_time: seconds.
         config: the attack's hyper-parameters and render setup.
+        interrupted: the attack was stopped early by Ctrl-C / SIGTERM (the result is the best so far).
     """
 
     success: bool
@@ -126,6 +127,7 @@ class SceneAttackResult:
     steps: int = 0
     wall_time: float = 0.0
     config: Dict[str, Any] = field(default_factory=dict)
+    interrupted: bool = False
 
     def to_record(self) -> dict:
         """JSON-able summary (detections, scores, distances, steps, time)."""
@@ -137,6 +139,7 @@ class SceneAttackResult:
             "detections_after": self.detections_after.to_records(),
             "distances": self.distances,
             "steps": self.steps,
+            "interrupted": self.interrupted,
             "wall_time": self.wall_time,
             "loss_history": self.loss_history,
             "attack": self.config,
@@ -184,4 +187,5 @@ def attack_scene(attack: MeshAttack, setup: SceneSetup, victim: Any, criterion: 
         steps=result.steps,
         wall_time=result.wall_time,
         config=dict(result.config),
+        interrupted=bool(getattr(result, "interrupted", False)),
     )
