@@ -83,6 +83,7 @@ def report(
     """Write the pass-rate table and a contact sheet (rows = classes) of a rendering set."""
     from meshadv.datasets.rendering_set import load_rendering_set, pass_rate_table, render_records
     from meshadv.datasets.rendering_set_sheet import contact_sheet
+    from meshadv.util.atomic import write_text_atomic
 
     try:
         doc = load_rendering_set(rendering_set)
@@ -92,7 +93,7 @@ def report(
     table = pass_rate_table(doc, markdown=True)
     command = "meshadv rendering-set report " + " ".join(shlex.quote(a) for a in sys.argv[3:])
     intro = f"Pass rates recorded in `{rendering_set.name}` by its build (this file: `{command}`):"
-    (out / "pass_rates.md").write_text(f"{intro}\n\n{table}\n", encoding="utf-8")
+    write_text_atomic(out / "pass_rates.md", f"{intro}\n\n{table}\n")
     rows = {}
     for cls in doc["classes"]:
         records = [r for r in doc["renderings"] if r["class"] == cls][:per_class]

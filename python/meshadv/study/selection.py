@@ -150,10 +150,9 @@ def attention_image(word: str, path: Union[str, Path], size: int = 224) -> Path:
         font_size -= 2
         font = ImageFont.load_default(size=font_size)
     draw.text((size / 2, size / 2), word.upper(), fill=(0, 0, 0), font=font, anchor="mm")
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    image.save(out)
-    return out
+    from meshadv.util.png import save_png
+
+    return save_png(image, path)
 
 
 def _successful(rows: List[JobRow]) -> List[JobRow]:

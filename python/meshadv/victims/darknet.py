@@ -341,7 +341,7 @@ def save_darknet_weights(net: DarknetNet, path: PathLike, header: DarknetHeader 
 
     Args:
         net: the network.
-        path: output file (overwritten).
+        path: output file (replaced atomically; its folder must exist).
         header: header to write.
     """
     parts = [np.array([header.major, header.minor, header.revision], dtype="<i4").tobytes()]
@@ -349,4 +349,6 @@ def save_darknet_weights(net: DarknetNet, path: PathLike, header: DarknetHeader 
     for conv in net.conv_layers():
         for tensor in _conv_tensors(conv):
             parts.append(tensor.detach().cpu().numpy().astype("<f4").ravel().tobytes())
-    Path(path).write_bytes(b"".join(parts))
+    from meshadv.util.atomic import write_bytes_atomic
+
+    write_bytes_atomic(path, b"".join(parts))
