@@ -61,7 +61,8 @@ def test_copied_database_resumes_and_regenerates(tmp_path: Path, victim_availabl
 
     # artefacts on demand: the transfer pass's cases regenerate the missing folders next to the database
     cases = cases_from_store(second / "results.db", only_successful=False)
-    assert {c.case_id for c in cases} == {r.job_id for r in ResultStore(second / "results.db").rows("done")}
+    with ResultStore(second / "results.db", read_only=True) as store:  # closed: an open one leaves its mark
+        assert {c.case_id for c in cases} == {r.job_id for r in store.rows("done")}
     for jid in stored:
         assert (second / "jobs" / jid[:2] / jid / "result.json").is_file()
     # and they reproduce the stored records (success, steps, distance)

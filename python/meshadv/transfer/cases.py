@@ -115,7 +115,7 @@ def cases_from_store(
     if isinstance(skip, (str, bytes)):
         raise TypeError("skip must be a collection of job ids, got a single string")
     cases: list[TransferCase] = []
-    with ResultStore(db_path) as store:
+    with ResultStore(db_path, read_only=True) as store:  # only read: a kill leaves no "open" mark behind
         rows = store.rows("done")
     for row in rows:
         if not _wanted(row, skip, only_successful):
