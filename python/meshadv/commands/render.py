@@ -63,9 +63,7 @@ def render(
     records = []
     for j, rec in enumerate(view_set.to_records()):
         name = f"view_{j}.png"
-        tmp = output / f".tmp-{name}"
-        save_png(images[j], tmp)
-        tmp.replace(output / name)
+        save_png(images[j], output / name)  # atomic (meshadv.util.atomic)
         records.append({"file": name, "azimuth": rec["azimuth"], "elevation": rec["elevation"],
                         "distance": rec["distance"]})
     typer.echo(f"{label}: {mesh_obj.num_vertices} vertices, {mesh_obj.num_faces} faces; wrote {len(records)} views")
