@@ -250,3 +250,36 @@ def test_small_writers_are_atomic(tmp_path: Path, replaced: Set[Path]) -> None:
                                 ["transfer", "report", str(db), "-o", str(tmp_path / "rep" / "transfer.md")])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "rep" / "transfer.md").resolve() in replaced
+
+
+def test_a_study_export_interrupted_while_replacing_keeps_the_old_study(tmp_path: Path,
+                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """--overwrite moves the old study folder aside until the new one is in place: Ctrl-C / SIGTERM between the two
+    leaves the old study where it was (before, it had already been deleted and the new one was thrown away)."""
+    from meshadv.study.export import write_study_folder
+    from meshadv.study.plan import make_plan
+    from meshadv.study.selection import Stimulus, attention_image
+
+    picture = attention_image("dog", tmp_path / "dog.png", size=16)
+    stimuli = [Stimulus(f"img{i}", "adversarial", "dog", "cat", "v", "shape", 0.1, f"job{i}", str(picture))
+               for i in range(2)]
+    plan = make_plan([s.image_id for s in stimuli], per_image=1, max_trials=2)
+    out = tmp_path / "study"
+    write_study_folder(out, stimuli[:1], make_plan(["img0"], per_image=1, max_trials=1), {})
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    real_rename = Path.rename
+
+    def interrupted_rename(self: Path, target: Any) -> Any:
+        if ".staging-" in self.name:
+            raise KeyboardInterrupt
+        return real_rename(self, target)
+
+    monkeypatch.setattr(Path, "rename", interrupted_rename)
+    with pytest.raises(KeyboardInterrupt):
+        write_study_folder(out, stimuli, plan, {}, overwrite=True)
+    monkeypatch.setattr(Path, "rename", real_rename)
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dog.png", "study"], "nothing hidden left behind"
+    write_study_folder(out, stimuli, plan, {}, overwrite=True)
+    assert sorted(p.name for p in (out / "images").iterdir()) == ["img0.png", "img1.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dog.png", "study"]

@@ -90,6 +90,7 @@ def write_study_folder(out_dir: Union[str, Path], stimuli: List[Stimulus], plan:
         raise FileExistsError(f"output folder {out} exists and is not empty (pass overwrite / --overwrite)")
     out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.staging-", dir=str(out.parent)))
+    previous: Optional[Path] = None
     try:
         (staging / "images").mkdir()
         table: Dict[str, Dict[str, Any]] = {}
@@ -104,12 +105,19 @@ def write_study_folder(out_dir: Union[str, Path], stimuli: List[Stimulus], plan:
         web = resources.files("meshadv.study") / "web"
         for name in WEB_FILES:
             (staging / name).write_bytes((web / name).read_bytes())
-        if out.exists():
-            shutil.rmtree(out)
+        if out.exists():  # the old folder is moved aside (one rename), not deleted, until the new one is in place
+            previous = Path(tempfile.mkdtemp(prefix=f".{out.name}.previous-", dir=str(out.parent))) / out.name
+            out.rename(previous)
         staging.rename(out)
     finally:
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)
+        if previous is not None:
+            if out.exists():
+                shutil.rmtree(previous.parent, ignore_errors=True)
+            else:  # interrupted between the two renames: the old study comes back
+                previous.rename(out)
+                previous.parent.rmdir()
     return out
 
 
