@@ -19,6 +19,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from cli_output import unwrapped
 from sweep_fixtures import run_probe_sweep
 
 
@@ -130,19 +131,26 @@ def _blackbox_result(interrupted: bool) -> Any:
                           attack_result=SimpleNamespace(loss_history=[{"loss": [1.0]}]))
 
 
-def _run_blackbox(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, interrupted: bool) -> Any:
+def _run_blackbox(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, interrupted: bool, *extra: str,
+                  runs: Any = None) -> Any:
+    """``transfer blackbox-classifier --db tmp/t.db -o tmp/out`` with a stand-in pipeline (appends to ``runs``)."""
     import meshadv.transfer.blackbox as blackbox
     import meshadv.transfer.setups as setups
     import meshadv.victims as victims
     from meshadv.cli import build_app
 
-    monkeypatch.setattr(blackbox, "blackbox_classifier", lambda *a, **k: _blackbox_result(interrupted))
+    def pipeline(*_args: Any, **_kwargs: Any) -> Any:
+        if runs is not None:
+            runs.append(1)
+        return _blackbox_result(interrupted)
+
+    monkeypatch.setattr(blackbox, "blackbox_classifier", pipeline)
     monkeypatch.setattr(setups, "default_aeroplane", lambda: None)
     monkeypatch.setattr(setups, "outdoor_classifier_setup", lambda *a, **k: None)
     monkeypatch.setattr(victims, "load_victim", lambda name: name)
     return CliRunner().invoke(build_app({"transfer": "transfer:transfer"}),
                               ["transfer", "blackbox-classifier", "--db", str(tmp_path / "t.db"),
-                               "-o", str(tmp_path / "out"), "--progress", "0"])
+                               "-o", str(tmp_path / "out"), "--progress", "0", "--case-id", "case", *extra])
 
 
 def test_blackbox_writes_its_folder_atomically_and_stores_a_finished_row(
@@ -163,9 +171,39 @@ def test_an_interrupted_blackbox_attack_keeps_its_files_but_not_a_row(tmp_path: 
     not get a row that reads like a finished run, and the command exits 130."""
     result = _run_blackbox(monkeypatch, tmp_path, interrupted=True)
     assert result.exit_code == 130, result.output
-    assert "interrupted after 3 of 100 attack steps" in result.output
+    assert "interrupted after 3 of 100 attack steps" in unwrapped(result.output)
     assert json.loads((tmp_path / "out" / "blackbox.json").read_text())["interrupted"] is True
     assert not (tmp_path / "t.db").exists()
+
+
+def test_blackbox_resume_skips_a_finished_case_and_reruns_an_interrupted_one(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--resume``: a list of black-box commands run again after a kill redoes only the unfinished runs."""
+    from meshadv.transfer.results import load_transfer_rows
+
+    runs: List[int] = []
+    interrupted = _run_blackbox(monkeypatch, tmp_path, True, "--resume", runs=runs)
+    assert interrupted.exit_code == 130 and len(runs) == 1
+    finished = _run_blackbox(monkeypatch, tmp_path, False, "--resume", runs=runs)
+    assert finished.exit_code == 0 and len(runs) == 2, "an interrupted run left no row: it runs again"
+    skipped = _run_blackbox(monkeypatch, tmp_path, False, "--resume", runs=runs)
+    assert skipped.exit_code == 0 and len(runs) == 2, skipped.output
+    assert "case: already in" in unwrapped(skipped.output) and "skipped (--resume)" in unwrapped(skipped.output)
+    other = _run_blackbox(monkeypatch, tmp_path, False, "--resume", "--experiment", "other", runs=runs)
+    assert other.exit_code == 0 and len(runs) == 3, "another experiment's row does not count"
+    again = _run_blackbox(monkeypatch, tmp_path, False, runs=runs)
+    assert again.exit_code == 0 and len(runs) == 4, "without --resume the run is made again"
+    assert len(load_transfer_rows(tmp_path / "t.db", kind="blackbox")) == 2  # (blackbox, case) and (other, case)
+
+
+def test_blackbox_resume_needs_a_database(monkeypatch: pytest.MonkeyPatch) -> None:
+    import meshadv.transfer.blackbox as blackbox
+    from meshadv.cli import build_app
+
+    monkeypatch.setattr(blackbox, "blackbox_classifier", lambda *a, **k: pytest.fail("ran without --db"))
+    result = CliRunner().invoke(build_app({"transfer": "transfer:transfer"}),
+                                ["transfer", "blackbox-detector", "--resume"])
+    assert result.exit_code == 2 and "--resume needs --db" in unwrapped(result.output)
 
 
 def test_blackbox_rows_say_whether_the_attack_was_interrupted() -> None:

@@ -280,6 +280,27 @@ def _settings_suffix(jitter: float, eot: int, margin: float, pixel_noise: float,
     return "".join(parts)
 
 
+def _skip_finished(resume: bool, db: Optional[Path], experiment: str, case_id: str) -> bool:
+    """With ``--resume``: whether ``db`` already holds the black-box row ``case_id`` of ``experiment`` (then says so).
+
+    Raises:
+        typer.BadParameter: ``--resume`` without ``--db``.
+    """
+    if not resume:
+        return False
+    if db is None:
+        raise typer.BadParameter("--resume needs --db (the database that holds the finished rows)",
+                                 param_hint="--resume")
+    if not db.is_file():
+        return False
+    from meshadv.transfer.results import load_transfer_rows
+
+    if not any(r.get("case_id") == case_id for r in load_transfer_rows(db, experiment=experiment, kind="blackbox")):
+        return False
+    typer.echo(f"{case_id}: already in {db} (experiment {experiment}); skipped (--resume)")
+    return True
+
+
 def _save_blackbox(result: Any, db: Optional[Path], out: Optional[Path], experiment: str) -> None:
     """Print the row, write ``out`` (every file atomically) and add the row to ``db``; an attack cut short by Ctrl-C
     or SIGTERM keeps its best mesh so far in ``out`` but stays out of ``db`` and exits with status 130."""
@@ -326,6 +347,9 @@ def _progress(every: int) -> Optional[Callable[[Any], None]]:
     return report
 
 
+_RESUME_HELP = ("Skip this run when --db already holds its row (same --experiment and case id): run a list of "
+                "black-box commands again after a kill and only the unfinished ones run. The case id names most "
+                "settings but not all (not --lr, for one): give --case-id when others differ.")
 _LIGHT_JITTER_HELP = "Scale of the light part of the jitter (default: --jitter)."
 _EOT_HELP = "Jittered samples of the estimated view per attack step (expectation over transformation)."
 _MARGIN_HELP = ("Margin the criterion must hold with on every sample of a step to count as a success "
@@ -369,6 +393,7 @@ def blackbox_classifier_cmd(
     db: Optional[Path] = typer.Option(None, help="Results database to add the row to."),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="Folder for images, mesh and numbers."),
     experiment: str = typer.Option("blackbox", help="Name of this run in the database."),
+    resume: bool = typer.Option(False, "--resume", help=_RESUME_HELP),
 ) -> None:
     """Black-box pipeline against a classifier: estimate camera + lights from a Mitsuba photo, attack, re-render."""
     from meshadv.commands._common import load_mesh_arg
@@ -381,12 +406,14 @@ def blackbox_classifier_cmd(
     robustness = _robustness(eot, margin, pixel_noise, verify, seed)
     callback = _progress(progress)
     jitter_dict = _jitter(jitter, light_jitter)
-    mesh_obj = default_aeroplane() if mesh == "aeroplane" else load_mesh_arg(mesh)[0]
-    hidden = outdoor_classifier_setup(mesh_obj, image_size=size, spp=spp)
     if case_id is None:
         case_id = (f"outdoor_{Path(mesh).stem}_{perturbation}_{target or 'untargeted'}"
                    + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed,
                                       texture_smoothing, spp))
+    if _skip_finished(resume, db, experiment, case_id):
+        return
+    mesh_obj = default_aeroplane() if mesh == "aeroplane" else load_mesh_arg(mesh)[0]
+    hidden = outdoor_classifier_setup(mesh_obj, image_size=size, spp=spp)
     row = blackbox_classifier(mesh_obj, hidden, victim=load_victim(victim), true_class=true_class, target=target,
                               perturbation=perturbation, attack_kwargs=kwargs, jitter=jitter_dict,
                               robustness=robustness, texture_smoothing=texture_smoothing, case_id=case_id,
@@ -426,6 +453,7 @@ def blackbox_detector_cmd(
     db: Optional[Path] = typer.Option(None, help="Results database to add the row to."),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="Folder for images, mesh and numbers."),
     experiment: str = typer.Option("blackbox", help="Name of this run in the database."),
+    resume: bool = typer.Option(False, "--resume", help=_RESUME_HELP),
 ) -> None:
     """Black-box pipeline against a detector: the bunny on the indoor desk hides the table (or the chair)."""
     from meshadv.transfer.blackbox import blackbox_detector
@@ -445,7 +473,6 @@ def blackbox_detector_cmd(
     robustness = _robustness(eot, margin, pixel_noise, verify, seed)
     callback = _progress(progress)
     jitter_dict = _jitter(jitter, light_jitter)
-    setup = indoor_detector_setup(image_size=size, spp=spp, object_scale=object_scale)
     if case_id is None:
         case_id = (f"indoor_bunny_hide_{hide.replace(' ', '_')}"
                    + (f"_{perturbation}" if perturbation != "texture" else "")
@@ -454,6 +481,9 @@ def blackbox_detector_cmd(
                    + (f"_scale{object_scale:g}" if object_scale != 1.0 else "")
                    + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed,
                                       texture_smoothing, spp))
+    if _skip_finished(resume, db, experiment, case_id):
+        return
+    setup = indoor_detector_setup(image_size=size, spp=spp, object_scale=object_scale)
     row = blackbox_detector(setup.objects, setup.object_index, setup.hidden, victim=load_victim(victim),
                             hide_class=hide, perturbation=perturbation, context=context, light_fit=light_fit,
                             background_exclude=setup.background_exclude,
