@@ -321,3 +321,30 @@ def test_a_study_export_interrupted_while_replacing_keeps_the_old_study(tmp_path
     write_study_folder(out, stimuli, plan, {}, overwrite=True)
     assert sorted(p.name for p in (out / "images").iterdir()) == ["img0.png", "img1.png"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dog.png", "study"]
+
+
+def test_private_files_are_never_readable_by_others(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``mode=0o600`` (the local Ray cluster's token): owner-only while written and after; the default follows the
+    umask as before."""
+    import stat
+
+    from meshadv.experiments.ray_local import write_token
+    from meshadv.util import atomic
+
+    modes: List[int] = []
+    real = os.replace
+
+    def checking(src: Any, dst: Any, **kwargs: Any) -> None:
+        modes.append(stat.S_IMODE(os.stat(src).st_mode))  # the finished temporary file, just before it is moved
+        real(src, dst, **kwargs)
+
+    monkeypatch.setattr(os, "replace", checking)
+    token = write_token(tmp_path / "cluster" / "auth_token")
+    assert stat.S_IMODE(token.stat().st_mode) == 0o600 and modes == [0o600]
+    assert len(token.read_text()) == 64
+    old_mask = os.umask(0o022)
+    try:
+        plain = atomic.write_text_atomic(tmp_path / "plain.txt", "x")
+    finally:
+        os.umask(old_mask)
+    assert stat.S_IMODE(plain.stat().st_mode) == 0o644

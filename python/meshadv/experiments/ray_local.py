@@ -34,11 +34,12 @@ def write_token(path: Union[str, Path]) -> Path:
     """Write a fresh random authentication token for a local cluster to ``path`` (owner-only) and return it."""
     import secrets
 
+    from meshadv.util.atomic import write_bytes_atomic
+
     token = Path(path)
     token.parent.mkdir(parents=True, exist_ok=True)
-    token.write_text(secrets.token_hex(32))
-    token.chmod(0o600)
-    return token
+    # atomic and owner-only from the first byte (the temporary file is 0600; no moment readable by others)
+    return write_bytes_atomic(token, secrets.token_hex(32).encode("ascii"), mode=0o600)
 
 
 def _free_port() -> int:

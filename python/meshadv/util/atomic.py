@@ -18,7 +18,7 @@ import os
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Union
+from typing import Any, Iterator, Optional, Union
 
 __all__ = ["atomic_path", "write_bytes_atomic", "write_text_atomic", "write_json_atomic"]
 
@@ -32,7 +32,7 @@ def _umask() -> int:
 
 
 @contextmanager
-def atomic_path(path: PathLike, *, suffix: str = ".tmp") -> Iterator[Path]:
+def atomic_path(path: PathLike, *, suffix: str = ".tmp", mode: Optional[int] = None) -> Iterator[Path]:
     """A temporary path next to ``path`` to write to; moved over ``path`` when the block ends without error.
 
     For writers that want a file name (``np.savez``, ``PIL.Image.save``, ``mitsuba``). The folder must exist.
@@ -40,6 +40,8 @@ def atomic_path(path: PathLike, *, suffix: str = ".tmp") -> Iterator[Path]:
     Args:
         path: destination.
         suffix: suffix of the temporary name (e.g. ``".npz"`` for writers that insist on one).
+        mode: permission bits of the result (default ``0o666`` minus the umask). The temporary file is ``0o600``
+            while it is written, so a private file (``mode=0o600``) is never readable by others.
 
     Yields:
         The temporary path (the file exists, empty).
@@ -51,16 +53,17 @@ def atomic_path(path: PathLike, *, suffix: str = ".tmp") -> Iterator[Path]:
         yield Path(tmp)
         with open(tmp, "rb") as handle:
             os.fsync(handle.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())
+        os.chmod(tmp, 0o666 & ~_umask() if mode is None else mode)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
 
 
-def write_bytes_atomic(path: PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically; returns the path. The folder must exist."""
-    with atomic_path(path) as tmp:
+def write_bytes_atomic(path: PathLike, data: bytes, *, mode: Optional[int] = None) -> Path:
+    """Write ``data`` to ``path`` atomically (permission bits ``mode``, see :func:`atomic_path`); returns the path.
+    The folder must exist."""
+    with atomic_path(path, mode=mode) as tmp:
         tmp.write_bytes(data)
     return Path(path)
 
