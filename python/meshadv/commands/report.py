@@ -77,8 +77,17 @@ def report(
         assumed = load_assumed(assume)
     except (FileNotFoundError, ValueError) as err:
         raise typer.BadParameter(str(err), param_hint="--assume") from err
-    output = write_full_report(results, out, figures=figures, artifacts=artifacts, use_stored=stored,
-                               threads=threads, assume=assumed)
+    try:
+        output = write_full_report(results, out, figures=figures, artifacts=artifacts, use_stored=stored,
+                                   threads=threads, assume=assumed)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: every finished regeneration is complete in --artifacts
+        if artifacts is None:
+            raise
+        from meshadv.commands._common_options import INTERRUPTED_EXIT_CODE
+
+        typer.echo(f"\ninterrupted: the jobs regenerated so far are kept in {artifacts}; run the same command again "
+                   "and only the others are regenerated", err=True)
+        raise typer.Exit(INTERRUPTED_EXIT_CODE) from None
     typer.echo(f"wrote {len(output.tables)} table files and {len(output.figures)} figures to {output.out_dir}")
     typer.echo(f"job index (job id -> folder, settings, state): {index}")
     regen = getattr(output, "regenerations", {})
