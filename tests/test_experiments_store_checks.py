@@ -161,3 +161,25 @@ def test_report_and_sweep_name_the_damaged_job_and_the_command_that_rebuilds_it(
     err = capsys.readouterr().err
     assert f"job {job} is recorded as done but" in err and "is truncated or not JSON" in err
     assert f"meshadv regenerate {tmp_path / 'results.db'} {job}" in err
+
+
+def test_a_store_dropped_without_close_leaves_a_database_that_reopens(tmp_path: Path) -> None:
+    """An owner that dies on an exception without closing its store (SQLite then closes the connection and removes
+    the -wal file) must not leave the open mark that makes the next open refuse the file as a WAL-less copy."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "results.db"
+    script = ("import sys\nfrom meshadv.experiments import ResultStore\n"
+              f"store = ResultStore({str(path)!r})\nstore.add_jobs([{{'a': 1}}])\n"
+              "raise KeyboardInterrupt  # the store is never closed\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0 and "KeyboardInterrupt" in proc.stderr
+    assert not Path(str(path) + "-wal").exists()  # SQLite's own close removed the write-ahead log
+    with ResultStore(path) as reopened:
+        assert reopened.counts()["pending"] == 1
+    conn = sqlite3.connect(path)
+    try:
+        assert conn.execute("SELECT value FROM meta WHERE key = 'open'").fetchone() == ("0",)
+    finally:
+        conn.close()

@@ -146,6 +146,7 @@ class ResultStore:
             self._conn = sqlite3.connect(uri, uri=True, timeout=timeout, isolation_level=None)
         else:
             self._conn = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)
+        self._closed = False
         try:
             if existed and not wal_present:
                 self._check_not_a_lost_wal_copy()
@@ -156,9 +157,11 @@ class ResultStore:
             self._conn.execute("PRAGMA synchronous=NORMAL")
             self._conn.executescript(_SCHEMA)
         except sqlite3.DatabaseError as err:
+            self._closed = True
             self._conn.close()
             raise ValueError(f"path {self.path!r} is not a meshadv results database: {err}") from err
         except ValueError:
+            self._closed = True
             self._conn.close()
             raise
         if self.path != ":memory:":
@@ -188,7 +191,11 @@ class ResultStore:
                 )
 
     def close(self) -> None:
-        """Close the connection (after a checkpoint, so the ``.db`` file alone holds every result)."""
+        """Close the connection (after a checkpoint, so the ``.db`` file alone holds every result); closing twice
+        does nothing."""
+        if self._closed:
+            return
+        self._closed = True
         if self.read_only:
             self._conn.close()
             return
@@ -197,6 +204,14 @@ class ResultStore:
                 self._conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('open', '0')")
         self.checkpoint()
         self._conn.close()
+
+    def __del__(self) -> None:
+        # A store dropped without close() (an exception or an interrupt in its owner): clear the open mark while the
+        # connection is alive. Otherwise SQLite's own close at garbage collection checkpoints and deletes the -wal
+        # file but leaves the mark, and the next open refuses the file as a copy that lost its write-ahead log.
+        if not getattr(self, "_closed", True):
+            with contextlib.suppress(Exception):
+                self.close()
 
     def checkpoint(self) -> None:
         """Copy the write-ahead log into the ``.db`` file, so that a copy of that one file (committed to git, moved
