@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Dict, Iterable, Sequence
+from typing import Any, Dict, Iterable, List, Sequence
 
 from meshadv.experiments import ResultStore, SerialBackend, run_sweep
+from meshadv.experiments.config import expand_jobs, parse_config
 
 
 def tiny_builtin_config(name: str, *, image_size: int = 32, steps: int = 3,
@@ -30,3 +31,11 @@ def run_probe_sweep(db: Path, jobs: Iterable[Dict[str, Any]], out_root: Path) ->
         run_sweep(store, jobs, "meshadv.experiments.probes:mesh_probe_job", out_root=out_root,
                   backend=SerialBackend(), progress=False)
     return db
+
+
+def probe_jobs(classes: Sequence[str], *, configurations: int = 1) -> List[Dict[str, Any]]:
+    """The job specs of a shape-attack sweep of the PASCAL3D+ ``classes`` (``configurations`` drawn views each, the
+    stand-in victim name ``"v"``, every other listed class a target), for :func:`run_probe_sweep`."""
+    return expand_jobs(parse_config({"meshes": {"classes": list(classes)},
+                                     "render": {"configurations": configurations},
+                                     "victims": {"names": ["v"]}, "attack": {"types": ["shape"]}}))

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import textwrap
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any, Callable, List, Set
@@ -20,7 +19,7 @@ import torch
 from typer.testing import CliRunner
 
 from cli_output import unwrapped
-from sweep_fixtures import run_probe_sweep
+from sweep_fixtures import probe_jobs, run_probe_sweep
 
 
 @pytest.fixture
@@ -42,21 +41,7 @@ def _files(folder: Path) -> Set[Path]:
 
 
 def _probe_db(tmp_path: Path) -> Path:
-    import tomllib
-
-    from meshadv.experiments.config import expand_jobs, parse_config
-
-    cfg = parse_config(tomllib.loads(textwrap.dedent("""
-        [meshes]
-        classes = ["boat", "chair"]
-        [render]
-        configurations = 1
-        [victims]
-        names = ["v"]
-        [attack]
-        types = ["shape"]
-    """)))
-    jobs = [{**j, "success": j["source_class"] == "boat"} for j in expand_jobs(cfg)]
+    jobs = [{**j, "success": j["source_class"] == "boat"} for j in probe_jobs(["boat", "chair"])]
     return run_probe_sweep(tmp_path / "r.db", jobs, tmp_path / "run")
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,7 @@ from meshadv.experiments import ResultStore, job_id
 from meshadv.experiments.config import expand_jobs, load_config, parse_config
 from meshadv.experiments.figures import curvature_scatter, flow_heatmaps, flow_quiver, mean_curvature_np
 from meshadv.experiments.report import write_report
-from sweep_fixtures import run_probe_sweep
+from sweep_fixtures import probe_jobs, run_probe_sweep
 
 TINY = """
 [experiment]
@@ -184,19 +183,7 @@ def test_only_single_view_attacks_on_misclassified_renders_add_the_benign_correc
 
 
 def test_report_counts_failed_and_unsuccessful_jobs(tmp_path: Path) -> None:
-    import tomllib
-
-    cfg = parse_config(tomllib.loads(textwrap.dedent("""
-        [meshes]
-        classes = ["boat", "chair"]
-        [render]
-        configurations = 1
-        [victims]
-        names = ["v"]
-        [attack]
-        types = ["shape"]
-    """)))
-    jobs = [{**j, "success": j["source_class"] == "boat"} for j in expand_jobs(cfg)]
+    jobs = [{**j, "success": j["source_class"] == "boat"} for j in probe_jobs(["boat", "chair"])]
     run_probe_sweep(tmp_path / "r.db", jobs, tmp_path)
     out = write_report(tmp_path / "r.db", tmp_path / "rep", figures=False)
     assert out.counts["successes"] == 1 and out.figures == []

@@ -8,7 +8,6 @@ from __future__ import annotations
 import json
 import shutil
 import sqlite3
-import textwrap
 from pathlib import Path
 from typing import Tuple
 
@@ -27,18 +26,7 @@ from meshadv.experiments.figures import (
 from meshadv.experiments.regenerate import load_assumed, pinned_spec
 from meshadv.experiments.report import ArtifactSource, settings_mix, write_report
 from meshadv.experiments.report_figures import grid_cells
-from sweep_fixtures import run_probe_sweep
-
-CONFIG = textwrap.dedent("""
-    [meshes]
-    classes = ["aeroplane", "bicycle", "boat"]
-    [render]
-    configurations = 2
-    [victims]
-    names = ["v"]
-    [attack]
-    types = ["shape"]
-""")
+from sweep_fixtures import probe_jobs, run_probe_sweep
 
 
 def _ellipsoid() -> Tuple[np.ndarray, np.ndarray]:
@@ -53,13 +41,11 @@ def moved_db(tmp_path: Path) -> Path:
     """A probe sweep (3 classes x 2 configurations x 2 targets, shape) whose artefact folders are gone, as on a
     machine that has only the committed database; configuration 1 of every class has one failed target, so the grid
     picks configuration 0 (all targets succeeded)."""
-    import tomllib
-
     def fails(job: dict) -> bool:
         return job["config_index"] == 1 and job["target"] == ("bicycle" if job["source_class"] == "aeroplane"
                                                                else "aeroplane")
 
-    jobs = [{**j, "success": not fails(j)} for j in expand_jobs(parse_config(tomllib.loads(CONFIG)))]
+    jobs = [{**j, "success": not fails(j)} for j in probe_jobs(["aeroplane", "bicycle", "boat"], configurations=2)]
     db = run_probe_sweep(tmp_path / "r.db", jobs, tmp_path / "run")
     shutil.rmtree(tmp_path / "run")
     return db

@@ -2,39 +2,24 @@
 
 from __future__ import annotations
 
-import textwrap
 from pathlib import Path
 from typing import List
 
 import pytest
 
 from meshadv.experiments import ResultStore
-from meshadv.experiments.config import expand_jobs, parse_config
 from meshadv.experiments.figures import grid_figure, render_grid
 from meshadv.experiments.report import write_report
 from meshadv.experiments.report_figures import grid_cells
-from sweep_fixtures import run_probe_sweep
-
-CONFIG = textwrap.dedent("""
-    [meshes]
-    classes = ["boat", "chair", "diningtable"]
-    [render]
-    configurations = 1
-    [victims]
-    names = ["v"]
-    [attack]
-    types = ["shape"]
-""")
+from sweep_fixtures import probe_jobs, run_probe_sweep
 
 
 @pytest.fixture()
 def small_db(tmp_path: Path) -> Path:
     """A database of synthetic attacks (mesh_probe_job): no diningtable source (its diagonal has no benign render),
     the boat -> chair attack failed, and the chair -> boat render was deleted."""
-    import tomllib
-
     jobs = [{**j, "success": (j["source_class"], j["target"]) != ("boat", "chair")}
-            for j in expand_jobs(parse_config(tomllib.loads(CONFIG))) if j["source_class"] != "diningtable"]
+            for j in probe_jobs(["boat", "chair", "diningtable"]) if j["source_class"] != "diningtable"]
     db = run_probe_sweep(tmp_path / "r.db", jobs, tmp_path / "run")
     with ResultStore(db, read_only=True) as store:
         for row in store.rows():

@@ -13,7 +13,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
 from typing import Any, Dict, List
@@ -21,7 +20,7 @@ from typing import Any, Dict, List
 import pytest
 
 from meshadv.experiments import ResultStore
-from sweep_fixtures import run_probe_sweep
+from sweep_fixtures import probe_jobs, run_probe_sweep
 
 #: Seconds each regeneration sleeps before running the probe.
 SLOW_S = 0.8
@@ -38,21 +37,8 @@ def slow_mesh_probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
 def _moved_db(tmp_path: Path) -> Path:
     """A probe sweep of 3 classes x 1 configuration x 2 targets whose artefact folders are gone; regenerating runs
     :func:`slow_mesh_probe_job`."""
-    import tomllib
-
-    from meshadv.experiments.config import expand_jobs, parse_config
-
-    cfg = parse_config(tomllib.loads(textwrap.dedent("""
-        [meshes]
-        classes = ["aeroplane", "bicycle", "boat"]
-        [render]
-        configurations = 1
-        [victims]
-        names = ["v"]
-        [attack]
-        types = ["shape"]
-    """)))
-    db = run_probe_sweep(tmp_path / "r.db", [{**j, "success": True} for j in expand_jobs(cfg)], tmp_path / "run")
+    jobs = [{**j, "success": True} for j in probe_jobs(["aeroplane", "bicycle", "boat"])]
+    db = run_probe_sweep(tmp_path / "r.db", jobs, tmp_path / "run")
     shutil.rmtree(tmp_path / "run")
     with ResultStore(db) as store:
         store.set_meta("config_text", '[runner]\njob = "test_resume_report:slow_mesh_probe_job"\n')
