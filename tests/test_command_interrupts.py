@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import textwrap
@@ -16,6 +15,7 @@ from typer.testing import CliRunner
 
 from meshadv.cli import app
 from meshadv.transfer.results import ControlledResult, load_transfer_rows
+from signal_fixtures import terminate_when
 
 SLEEPING_COMMAND = textwrap.dedent('''
     import sys, time
@@ -44,14 +44,8 @@ def test_sigterm_ends_any_command_like_ctrl_c(tmp_path: Path) -> None:
     script.write_text(SLEEPING_COMMAND)
     proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    try:
-        assert proc.stdout is not None
-        assert proc.stdout.readline().strip() == "ready"
-        proc.send_signal(signal.SIGTERM)
-        _, stderr = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    assert proc.stdout is not None
+    _, stderr = terminate_when(proc, lambda: proc.stdout.readline().strip() == "ready", exit_timeout=60)
     assert proc.returncode == 130, stderr
     assert "interrupted" in stderr
     assert "Traceback" not in stderr

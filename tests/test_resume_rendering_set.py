@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any, Dict, Optional
+from signal_fixtures import terminate_when
 
 
 
@@ -33,19 +32,11 @@ def test_sigterm_mid_build_keeps_finished_batches_and_resumes(tmp_path: Path, sh
             "--batch-size", "2", "--threads", "1"]
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1", "RAYON_NUM_THREADS": "1"}
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    try:
-        deadline = time.monotonic() + 180
-        while proc.poll() is None and time.monotonic() < deadline:
-            doc = _load(out)
-            if doc is not None and doc["classes"]["sofa"]["tried"] >= 4:
-                break
-            time.sleep(0.05)
-        assert proc.poll() is None, "the build finished before it could be interrupted"
-        proc.send_signal(signal.SIGTERM)
-        _, stderr = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    def four_tried() -> bool:
+        doc = _load(out)
+        return doc is not None and doc["classes"]["sofa"]["tried"] >= 4
+
+    _, stderr = terminate_when(proc, four_tried, timeout=180)
     assert proc.returncode == 130, stderr
     assert "interrupted: the finished batches are kept in" in stderr and "Traceback" not in stderr
     partial = _load(out)

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -21,6 +20,7 @@ import pytest
 
 from meshadv.experiments import ResultStore
 from sweep_fixtures import probe_jobs, run_probe_sweep
+from signal_fixtures import terminate_when
 
 #: Seconds each regeneration sleeps before running the probe.
 SLOW_S = 0.8
@@ -61,16 +61,7 @@ def test_sigterm_during_report_regeneration_keeps_finished_jobs(tmp_path: Path,
     proc = subprocess.Popen([sys.executable, "-m", "meshadv", "report", str(db), "-o", str(tmp_path / "rep"),
                              "--artifacts", str(regen)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=env)
-    try:
-        deadline = time.monotonic() + 120
-        while len(_checks(regen)) < 2 and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert proc.poll() is None, "the report finished before it could be interrupted: " + proc.stderr.read()
-        proc.send_signal(signal.SIGTERM)
-        _, stderr = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    _, stderr = terminate_when(proc, lambda: len(_checks(regen)) >= 2, exit_timeout=60)
     assert proc.returncode == 130, stderr
     assert "interrupted: the jobs regenerated so far are kept in" in stderr and "Traceback" not in stderr
     kept = _checks(regen)

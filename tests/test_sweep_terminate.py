@@ -4,12 +4,12 @@ pending, the database closed cleanly (not left marked open)."""
 from __future__ import annotations
 
 import os
-import signal
 import sqlite3
 import subprocess
 import sys
-import time
 from pathlib import Path
+
+from signal_fixtures import terminate_when
 
 CONFIG = """
 [experiment]
@@ -69,24 +69,14 @@ def test_sigterm_requeues_running_jobs_and_closes_the_database(tmp_path: Path) -
     proc = subprocess.Popen([sys.executable, "-m", "meshadv.cli", "sweep", str(tmp_path / "sweep.toml"), "--db",
                              str(db), "--output", str(out), "--workers", "1", "--no-progress"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
-    try:
-        deadline = time.monotonic() + 120
-        states: dict = {}
-        while time.monotonic() < deadline and proc.poll() is None:
-            if db.is_file():
-                try:
-                    states = _states(db)
-                except sqlite3.OperationalError:  # the schema is not there yet
-                    states = {}
-                if states.get("done") == 1 and states.get("running") == 1:
-                    break
-            time.sleep(0.2)
-        assert states.get("done") == 1 and states.get("running") == 1, (states, proc.poll())
-        proc.send_signal(signal.SIGTERM)
-        output, _ = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    def one_done_one_running() -> bool:
+        try:
+            states = _states(db) if db.is_file() else {}
+        except sqlite3.OperationalError:  # the schema is not there yet
+            states = {}
+        return states.get("done") == 1 and states.get("running") == 1
+
+    output, _ = terminate_when(proc, one_done_one_running, poll=0.2)
     assert proc.returncode == 130, output
     assert "interrupted" in output and "put back to pending" in output
     assert _states(db) == {"done": 1, "pending": 1}  # chair -> sofa and sofa -> chair
