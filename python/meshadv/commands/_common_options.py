@@ -25,8 +25,8 @@ from typing import Any, Callable, Dict, Iterator, Optional
 
 import typer
 
-__all__ = ["DEBUG_ENV_VAR", "INTERRUPTED_EXIT_CODE", "OPTIONAL_PACKAGES", "install", "one_line_error",
-           "terminate_as_interrupt", "wrap_command"]
+__all__ = ["DEBUG_ENV_VAR", "INTERRUPTED_EXIT_CODE", "OPTIONAL_PACKAGES", "install", "interrupted_exit",
+           "one_line_error", "terminate_as_interrupt", "wrap_command"]
 
 #: Environment variable that turns the one-line errors back into tracebacks.
 DEBUG_ENV_VAR = "MESHADV_DEBUG"
@@ -63,6 +63,13 @@ def terminate_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def interrupted_exit(message: str = "interrupted") -> typer.Exit:
+    """How a command ends on Ctrl-C or SIGTERM: print ``message`` (what was kept, how to resume) on a line of its own
+    to stderr and return the ``typer.Exit`` with :data:`INTERRUPTED_EXIT_CODE` for the caller to raise."""
+    typer.echo(f"\n{message}", err=True)
+    return typer.Exit(INTERRUPTED_EXIT_CODE)
 
 
 def one_line_error(exc: BaseException) -> Optional[str]:
@@ -118,8 +125,7 @@ def wrap_command(func: Callable[..., Any]) -> Callable[..., Any]:
         except (_ClickException, typer.Exit, typer.Abort):
             raise
         except KeyboardInterrupt:
-            typer.echo("\ninterrupted", err=True)
-            raise typer.Exit(INTERRUPTED_EXIT_CODE) from None
+            raise interrupted_exit() from None
         except Exception as exc:
             message = one_line_error(exc)
             if message is None or os.environ.get(DEBUG_ENV_VAR):

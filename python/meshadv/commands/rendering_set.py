@@ -70,11 +70,10 @@ def build(
     except (FileNotFoundError, ValueError) as err:
         raise typer.BadParameter(str(err)) from err
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the file holds every finished batch (written atomically)
-        from meshadv.commands._common_options import INTERRUPTED_EXIT_CODE
+        from meshadv.commands._common_options import interrupted_exit
 
         kept = f"the finished batches are kept in {out}" if out.is_file() else "no batch had finished"
-        typer.echo(f"\ninterrupted: {kept}; run the same command again to resume", err=True)
-        raise typer.Exit(INTERRUPTED_EXIT_CODE) from None
+        raise interrupted_exit(f"interrupted: {kept}; run the same command again to resume") from None
     typer.echo(pass_rate_table(doc))
     short = [c for c, s in doc["classes"].items() if s["kept"] < per_class]
     typer.echo(f"wrote {out} ({len(doc['renderings'])} renderings)" + (f"; short: {', '.join(short)}" if short else ""))

@@ -83,11 +83,10 @@ def report(
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: every finished regeneration is complete in --artifacts
         if artifacts is None:
             raise
-        from meshadv.commands._common_options import INTERRUPTED_EXIT_CODE
+        from meshadv.commands._common_options import interrupted_exit
 
-        typer.echo(f"\ninterrupted: the jobs regenerated so far are kept in {artifacts}; run the same command again "
-                   "and only the others are regenerated", err=True)
-        raise typer.Exit(INTERRUPTED_EXIT_CODE) from None
+        raise interrupted_exit(f"interrupted: the jobs regenerated so far are kept in {artifacts}; run the same "
+                               "command again and only the others are regenerated") from None
     typer.echo(f"wrote {len(output.tables)} table files and {len(output.figures)} figures to {output.out_dir}")
     typer.echo(f"job index (job id -> folder, settings, state): {index}")
     regen = getattr(output, "regenerations", {})

@@ -47,7 +47,7 @@ def sweep(
                                              "for a run without --only."),
 ) -> None:
     """Run (or resume) the attack sweep described by CONFIG."""
-    from meshadv.commands._common_options import INTERRUPTED_EXIT_CODE
+    from meshadv.commands._common_options import interrupted_exit
     from meshadv.commands._job_index import warn_damaged_results, write_job_index
     from meshadv.experiments import ResultStore, make_backend, run_sweep
     from meshadv.experiments.config import DEFAULT_JOB, expand_jobs, load_config, select_parts
@@ -116,10 +116,9 @@ def sweep(
             be.close()
             requeued = store.requeue_running()
             counts = store.counts()
-            typer.echo(f"\ninterrupted: {counts.get('done', 0)} finished job(s) are kept in {db_path}; "
-                       f"{requeued} running job(s) were put back to pending; run the same command again to resume",
-                       err=True)
-            raise typer.Exit(INTERRUPTED_EXIT_CODE) from None
+            raise interrupted_exit(f"interrupted: {counts.get('done', 0)} finished job(s) are kept in {db_path}; "
+                                   f"{requeued} running job(s) were put back to pending; run the same command again "
+                                   "to resume") from None
         finally:
             be.close()
     typer.echo(f"{summary.done}/{summary.total} done ({summary.successes} successful), {summary.failed} failed; "

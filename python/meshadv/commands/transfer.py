@@ -168,7 +168,7 @@ def controlled_cmd(
     variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
 ) -> None:
     """Re-render RESULTS' adversarial meshes with Mitsuba under the same views and test the victims (resumable)."""
-    from meshadv.commands._common_options import INTERRUPTED_EXIT_CODE
+    from meshadv.commands._common_options import interrupted_exit
     from meshadv.transfer.controlled import cases_from_store, controlled_transfer, write_image_index
     from meshadv.transfer.results import load_transfer_rows, save_transfer_rows, transfer_report
 
@@ -193,9 +193,9 @@ def controlled_cmd(
                 write_image_index(images, [case], rows)
             finished += 1
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: every finished mesh is already in the database
-        typer.echo(f"\ninterrupted: {len(done) + finished} transferred adversarial meshes are kept in {results}; "
-                   f"run the same command again to transfer the other {len(todo) - finished}", err=True)
-        raise typer.Exit(INTERRUPTED_EXIT_CODE) from None
+        raise interrupted_exit(f"interrupted: {len(done) + finished} transferred adversarial meshes are kept in "
+                               f"{results}; run the same command again to transfer the other "
+                               f"{len(todo) - finished}") from None
     typer.echo(transfer_report(load_transfer_rows(results, experiment=experiment, kind="controlled")))
 
 
@@ -304,7 +304,7 @@ def _skip_finished(resume: bool, db: Optional[Path], experiment: str, case_id: s
 def _save_blackbox(result: Any, db: Optional[Path], out: Optional[Path], experiment: str) -> None:
     """Print the row, write ``out`` (every file atomically) and add the row to ``db``; an attack cut short by Ctrl-C
     or SIGTERM keeps its best mesh so far in ``out`` but stays out of ``db`` and exits with status 130."""
-    from meshadv.commands._common_options import INTERRUPTED_EXIT_CODE
+    from meshadv.commands._common_options import interrupted_exit
     from meshadv.transfer.results import save_transfer_rows
     from meshadv.util.atomic import write_text_atomic
     from meshadv.util.png import save_png
@@ -323,10 +323,9 @@ def _save_blackbox(result: Any, db: Optional[Path], out: Optional[Path], experim
         write_text_atomic(out / "blackbox.json", json.dumps(public, indent=2, default=str))
     if public.get("interrupted"):
         kept = f"the best mesh so far and its renders are in {out}; " if out is not None else ""
-        typer.echo(f"\ninterrupted after {public.get('steps_run')} of {public.get('steps')} attack steps: {kept}"
-                   f"the row is not added to {db if db is not None else 'a database'}; run the same command "
-                   "again for a full run", err=True)
-        raise typer.Exit(INTERRUPTED_EXIT_CODE)
+        raise interrupted_exit(f"interrupted after {public.get('steps_run')} of {public.get('steps')} attack steps: "
+                               f"{kept}the row is not added to {db if db is not None else 'a database'}; run the "
+                               "same command again for a full run")
     if db is not None:
         save_transfer_rows(db, [public], experiment=experiment, kind="blackbox")
 

@@ -202,8 +202,7 @@ def regenerate_job(db_path: Union[str, Path], job: str, out_dir: Optional[Union[
     db = Path(db_path)
     if not db.is_file():
         raise FileNotFoundError(f"results database {db} does not exist")
-    # read only: a read-write open marks the file open until it is closed, and a kill in between (SIGTERM during a
-    # long report) would leave a database that the next open refuses as "not closed cleanly"
+    # read only: regeneration only reads, so the database (a committed one too) stays byte-identical
     with ResultStore(db, read_only=True) as store:
         ids = [r.job_id for r in store.rows() if r.job_id.startswith(job)]
         if len(ids) != 1:
