@@ -157,6 +157,10 @@ def test_tiny_sweep_commands_tables_and_figures(tmp_path: Path) -> None:
     assert checked >= 3  # shape in both conventions and texture
     assert "45°–60°" in (out / "table2.md").read_text()
     assert "class -> target" in (out / "table2_per_class.md").read_text()
+    # per class pair: each single-view job once, the same total as table1's instances x targets
+    pairs = list(csv_module.DictReader((out / "table1_pairs.csv").read_text().splitlines()))
+    assert sum(int(r["attacks"]) for r in pairs) == 24
+    assert "### Table 1 by source and target class" in (out / "README.md").read_text()
     assert not (out / "table1_benign_correct.md").exists()  # every attacked benign render was classified right
     figs = {p.name for p in (out / "figures").glob("*.png")}
     assert figs == {"grid_v1_shape.png", "grid_v1_texture.png", "flow_heatmap_v1.png", "flow_quiver_v1.png",

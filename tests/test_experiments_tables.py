@@ -6,7 +6,17 @@ import math
 
 import pytest
 
-from meshadv.experiments.tables import AttackRow, attack_rows, table1, table2, to_csv, to_markdown
+from meshadv.experiments.tables import (
+    AttackRow,
+    PairSuccess,
+    attack_rows,
+    pair_success,
+    pair_success_markdown,
+    table1,
+    table2,
+    to_csv,
+    to_markdown,
+)
 
 
 def _row(inst: str, target: str, success: bool, dist: float, victim: str = "v", ptype: str = "shape") -> AttackRow:
@@ -188,3 +198,21 @@ def test_tail_columns_over_successful_attacks_and_the_paper_threshold() -> None:
     (total,) = table1([AttackRow(**{**r.__dict__, "measure": "laplacian_sum"}) for r in rows])
     assert total.tail is not None and total.tail.above_n == 0 and math.isnan(total.tail.above)
     assert to_markdown([total]).rstrip().endswith("| 0.0012 | – |")
+
+
+def test_pair_success_counts_each_attack_once_per_class_pair() -> None:
+    """Both shape conventions are rows of one job: counted once; a failed pair is bold, totals per target."""
+    def rows(source: str, target: str, success: bool, victim: str = "v") -> list:
+        return [AttackRow(victim=victim, perturbation="shape", instance=(source, i), source=source, target=target,
+                          success=success, distance=1e-4, measure=measure)
+                for i in range(2) for measure in ("laplacian_pair_mean", "laplacian_sum")]
+
+    pairs = pair_success(rows("chair", "sofa", True) + rows("sofa", "chair", False) + rows("chair", "sofa", True, "w"))
+    assert pairs == [PairSuccess("v", "shape", "chair", "sofa", 2, 2), PairSuccess("v", "shape", "sofa", "chair", 2, 0),
+                     PairSuccess("w", "shape", "chair", "sofa", 2, 2)]
+    md = pair_success_markdown(pairs)
+    assert "| source \\ target | chair | sofa | all targets |" in md
+    assert "| chair | – | 2/2 | 2/2 |" in md and "| sofa | **0/2** | – | **0/2** |" in md
+    assert "| all sources | **0/2** | 2/2 | **2/4** |" in md
+    assert md.count("**v, shape**") == 1 and md.count("**w, shape**") == 1
+    assert pair_success_markdown([]) == "_no results_\n"

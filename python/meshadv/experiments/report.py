@@ -6,6 +6,7 @@ Output folder layout::
     table1.md / table1.csv     best / average / worst case per victim and perturbation type
     table1_benign_correct.*    the same over instances whose benign render was classified correctly (written when
                                the sweep also attacked misclassified ones, benign_correct_only = false)
+    table1_pairs.md / .csv     Table 1's attacks per source and target class (successful / attacks), where misses are
     table2.md / table2.csv     multi-view robustness (when the sweep had multi-view jobs)
     table2_per_class.*         the same per class and target (the paper's Table 2 pools the classes of a cell)
     paper_comparison.md        Tables 1-3 beside the paper's numbers (meshadv.experiments.paper), shortfalls
@@ -38,6 +39,8 @@ from meshadv.experiments.tables import (
     PAPER_WORST,
     attack_rows,
     instance_key,
+    pair_success,
+    pair_success_markdown,
     table1,
     table2,
     to_csv,
@@ -138,6 +141,7 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
     t1 = table1(attack_rows(done))
     t1_correct = table1(attack_rows(done, benign_correct_only=True))
     mixed = attacked_misclassified(done)
+    pairs = pair_success(attack_rows(done, benign_correct_only=mixed))
     t2 = table2(done)
     t2_classes = table2(done, per_class=True)
     for name, table in (("table1", t1), ("table1_benign_correct", t1_correct), ("table2", t2),
@@ -146,6 +150,9 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
             continue
         for ext, text in (("md", to_markdown(table)), ("csv", to_csv(table))):
             out.tables.append(write_text_atomic(out.out_dir / f"{name}.{ext}", text))
+    if pairs:
+        out.tables.append(write_text_atomic(out.out_dir / "table1_pairs.md", pair_success_markdown(pairs)))
+        out.tables.append(write_text_atomic(out.out_dir / "table1_pairs.csv", to_csv(pairs)))
     transfer = transfer_markdown
     comparison = paper_comparison(t1_correct if mixed else t1, t2, list(transfer_rows))
     out.tables.append(write_text_atomic(out.out_dir / "paper_comparison.md", comparison))
@@ -184,7 +191,8 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         settings["regenerated_with"] = {"threads": threads, "assume": assume or {}}
     write_text_atomic(out.out_dir / "settings.json", json.dumps(settings, indent=2, sort_keys=True))
     # the callers' sections close the README (written once, atomically, with them)
-    _write_readme(out, t1, t1_correct if mixed else None, t2, meta, _run_stats(done), transfer, comparison, extra)
+    _write_readme(out, t1, t1_correct if mixed else None, t2, meta, _run_stats(done), transfer, comparison, extra,
+                  pairs)
     return out
 
 
@@ -321,8 +329,9 @@ def attacked_misclassified(done: List[Any]) -> bool:
 
 def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[Any]], t2: List[Any],
                   meta: Dict[str, Any], stats: List[str], transfer: str = "", comparison: str = "",
-                  extra: Sequence[str] = ()) -> None:
-    """README.md (atomically): counts, the tables, figures and definitions, then the sections ``extra``."""
+                  extra: Sequence[str] = (), pairs: Sequence[Any] = ()) -> None:
+    """README.md (atomically): counts, the tables (Table 1's ``pairs`` after it), figures and definitions, then the
+    sections ``extra``."""
     c = out.counts
     lines = [f"# Results: {meta.get('name', 'sweep')}", "",
              f"Jobs: {c.get('total', 0)} total, {c.get('done', 0)} done ({c.get('successes', 0)} successful), "
@@ -335,6 +344,11 @@ def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[An
         lines += ["### Table 1, benign-correct instances only (the paper's protocol)", "",
                   "Only the instances whose benign render the victim classified as their class:", "",
                   to_markdown(t1_correct)]
+    if pairs:
+        lines += ["### Table 1 by source and target class", "",
+                  "Every attack of Table 1 counted per class pair (bold: a pair with a failed attack), so that a "
+                  "shortfall can be traced to the pairs it comes from; the paper reports only the pooled cases.",
+                  "", pair_success_markdown(pairs)]
     if t2:
         lines += ["## Table 2: multi-view robustness (success on unseen views)", "", to_markdown(t2),
                   "Per class and target: [table2_per_class.md](table2_per_class.md).", ""]

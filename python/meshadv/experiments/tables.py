@@ -28,6 +28,9 @@ instances: shape 3.0e-4 per-pair mean, texture 3.2e-2 colour RMSE). The paper re
 have no counterpart there; the ones that compare with the paper are the three cases' distance and success columns
 of the rows in the paper's measure.
 
+**Success by class pair** (:func:`pair_success`): Table 1's attacks counted per (source class, target class), so
+that a shortfall can be traced to the pairs it comes from (the paper reports only the pooled cases).
+
 **Table 2**: for each (victim, type, number of attack views, azimuth range), the fraction of attacks that succeed on
 their attack views and the mean success rate on the unseen views of the same range.
 """
@@ -49,11 +52,14 @@ from meshadv.experiments import paper
 __all__ = [
     "AttackRow",
     "CaseStats",
+    "PairSuccess",
     "PAPER_WORST",
     "TailStats",
     "Table1Row",
     "Table2Row",
     "attack_rows",
+    "pair_success",
+    "pair_success_markdown",
     "table1",
     "table2",
     "to_markdown",
@@ -275,6 +281,65 @@ def table1(rows: Iterable[AttackRow]) -> List[Table1Row]:
             tail=tail_stats(avg_d, PAPER_WORST.get(perturbation) if paper_measure else None),
         ))
     return out
+
+
+@dataclass(frozen=True)
+class PairSuccess:
+    """Table 1's attacks of one (victim, perturbation type, source class, target class): ``successes`` of
+    ``attacks``."""
+
+    victim: str
+    perturbation: str
+    source: str
+    target: str
+    attacks: int
+    successes: int
+
+
+def pair_success(rows: Iterable[AttackRow]) -> List[PairSuccess]:
+    """Count the attacks of ``rows`` (as from :func:`attack_rows`) and their successes per (victim, type, source,
+    target), sorted. Each job counts once: only its rows in the first measure of :data:`DISTANCE_NAMES`."""
+    counts: Dict[Tuple[str, str, str, str], List[int]] = defaultdict(lambda: [0, 0])
+    for row in rows:
+        if row.measure != DISTANCE_NAMES.get(row.perturbation, ("distance",))[0]:
+            continue
+        cell = counts[(row.victim, row.perturbation, row.source, row.target)]
+        cell[0] += 1
+        cell[1] += int(row.success)
+    return [PairSuccess(*key, attacks=n, successes=won) for key, (n, won) in sorted(counts.items())]
+
+
+def pair_success_markdown(pairs: Sequence[PairSuccess]) -> str:
+    """One Markdown matrix per (victim, type) of :func:`pair_success`'s counts: rows the source class, columns the
+    target, cells ``successes/attacks`` (bold when some attack failed), and a last row with each target's total."""
+    if not pairs:
+        return "_no results_\n"
+    groups: Dict[Tuple[str, str], List[PairSuccess]] = defaultdict(list)
+    for pair in pairs:
+        groups[(pair.victim, pair.perturbation)].append(pair)
+    blocks = []
+    for (victim, perturbation), cells in sorted(groups.items()):
+        sources = sorted({c.source for c in cells})
+        targets = sorted({c.target for c in cells})
+        by_key = {(c.source, c.target): c for c in cells}
+        lines = [f"**{victim}, {perturbation}**: successful / attacks (source class in rows, target in columns)", "",
+                 "| source \\ target | " + " | ".join(targets) + " | all targets |",
+                 "|---|" + "---|" * (len(targets) + 1)]
+
+        def cell(won: int, n: int) -> str:
+            return f"**{won}/{n}**" if won < n else f"{won}/{n}"
+
+        for source in sources:
+            row = [by_key.get((source, t)) for t in targets]
+            n, won = sum(c.attacks for c in row if c), sum(c.successes for c in row if c)
+            lines.append(f"| {source} | " + " | ".join(cell(c.successes, c.attacks) if c else "–" for c in row)
+                         + f" | {cell(won, n)} |")
+        totals = [[c for c in cells if c.target == t] for t in targets]
+        n, won = sum(c.attacks for c in cells), sum(c.successes for c in cells)
+        lines.append("| all sources | " + " | ".join(cell(sum(c.successes for c in col), sum(c.attacks for c in col))
+                                                  for col in totals) + f" | {cell(won, n)} |")
+        blocks.append("\n".join(lines) + "\n")
+    return "\n".join(blocks)
 
 
 def table2(jobs: Iterable[Any], *, per_class: bool = False) -> List[Table2Row]:
