@@ -6,17 +6,8 @@ import math
 
 import pytest
 
-from meshadv.experiments.tables import (
-    AttackRow,
-    PairSuccess,
-    attack_rows,
-    pair_success,
-    pair_success_markdown,
-    table1,
-    table2,
-    to_csv,
-    to_markdown,
-)
+from meshadv.experiments.tables import AttackRow, PairSuccess, attack_rows, pair_success, table1, table2
+from meshadv.experiments.tables import pair_success_markdown, to_csv, to_markdown
 
 
 def _row(inst: str, target: str, success: bool, dist: float, victim: str = "v", ptype: str = "shape") -> AttackRow:
