@@ -268,12 +268,3 @@ def test_view_record_follows_the_camera_convention() -> None:
     assert rec["light_directions"][0] == pytest.approx([0.0, 0.0, 1.0], abs=1e-6)
     assert rec["distance"] == 4.0 and rec["elevation"] == 90.0
 
-
-def test_transfer_rows_of_a_protocol_are_labelled_as_in_table1() -> None:
-    """Table 3 keeps an extra protocol's attacks apart: the row of a protocol job is ``victim [protocol]``."""
-    from meshadv.commands.report import labelled_by_protocol
-
-    rows = [{"case_id": "a", "victim": "v"}, {"case_id": "b", "victim": "v"}, {"case_id": "gone", "victim": "v"}]
-    specs = {"a": {"victim": "v"}, "b": {"victim": "v", "protocol": "paper"}}
-    assert [r["victim"] for r in labelled_by_protocol(rows, specs)] == ["v", "v [paper]", "v"]
-    assert rows[1]["victim"] == "v"  # the input rows are not changed

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from meshadv.experiments.tables import AttackRow, PairSuccess, attack_rows, pair_success, table1, table2
-from meshadv.experiments.tables import pair_success_markdown, to_csv, to_markdown
+from meshadv.experiments.tables import labelled_by_protocol, pair_success_markdown, to_csv, to_markdown
 
 
 def _row(inst: str, target: str, success: bool, dist: float, victim: str = "v", ptype: str = "shape") -> AttackRow:
@@ -207,3 +207,11 @@ def test_pair_success_counts_each_attack_once_per_class_pair() -> None:
     assert "| all sources | **0/2** | 2/2 | **2/4** |" in md
     assert md.count("**v, shape**") == 1 and md.count("**w, shape**") == 1
     assert pair_success_markdown([]) == "_no results_\n"
+
+
+def test_transfer_rows_of_a_protocol_are_labelled_as_in_table1() -> None:
+    """Table 3 keeps an extra protocol's attacks apart: the row of a protocol job is ``victim [protocol]``."""
+    rows = [{"case_id": "a", "victim": "v"}, {"case_id": "b", "victim": "v"}, {"case_id": "gone", "victim": "v"}]
+    specs = {"a": {"victim": "v"}, "b": {"victim": "v", "protocol": "paper"}}
+    assert [r["victim"] for r in labelled_by_protocol(rows, specs)] == ["v", "v [paper]", "v"]
+    assert rows[1]["victim"] == "v"  # the input rows are not changed

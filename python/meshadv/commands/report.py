@@ -3,21 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, Optional
 
 import typer
 
-__all__ = ["register", "report", "write_full_report", "labelled_by_protocol"]
-
-
-def labelled_by_protocol(rows: List[Dict[str, Any]], specs: Dict[str, Dict[str, Any]]) -> List[Dict[str, Any]]:
-    """Transfer ``rows`` whose ``victim`` is named as the tables name it: ``victim [protocol]`` when the row's case is
-    a job (``specs``: job id -> spec) of an extra attack protocol, so that Table 3 keeps those attacks apart as
-    Table 1 does; other rows unchanged."""
-    from meshadv.experiments.tables import victim_label
-
-    return [dict(row, victim=victim_label(specs[row["case_id"]])) if row.get("case_id") in specs else row
-            for row in rows]
+__all__ = ["register", "report", "write_full_report"]
 
 
 def write_full_report(results: Path, out: Path, *, figures: bool = True, artifacts: Optional[Path] = None,
@@ -41,13 +31,8 @@ def write_full_report(results: Path, out: Path, *, figures: bool = True, artifac
         return text, [out_dir / "proxies.csv"] if text else []
 
     rows = load_transfer_rows(results) if Path(results).is_file() else []
-    if rows:
-        from meshadv.experiments.store import ResultStore
-
-        with ResultStore(results, read_only=True) as store:
-            rows = labelled_by_protocol(rows, {job.job_id: job.spec for job in store.rows()})
-    return write_report(results, out, figures=figures, transfer_rows=rows,
-                        transfer_markdown=transfer_report(rows) if rows else "", sections=[proxies],
+    return write_report(results, out, figures=figures, transfer_rows=rows, transfer_section=transfer_report,
+                        sections=[proxies],
                         artifacts=artifacts, use_stored=use_stored, threads=threads, assume=assume)
 
 

@@ -39,6 +39,7 @@ from meshadv.experiments.tables import (
     PAPER_WORST,
     attack_rows,
     instance_key,
+    labelled_by_protocol,
     pair_success,
     pair_success_markdown,
     table1,
@@ -98,7 +99,8 @@ ReportSection = Callable[[List[JobRow], Path], Tuple[str, List[Path]]]
 
 
 def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figures: bool = True,
-                 transfer_rows: Sequence[Dict[str, Any]] = (), transfer_markdown: str = "",
+                 transfer_rows: Sequence[Dict[str, Any]] = (),
+                 transfer_section: Optional[Callable[[List[Dict[str, Any]]], str]] = None,
                  sections: Sequence[ReportSection] = (), artifacts: Optional[Union[str, Path]] = None,
                  use_stored: bool = True, threads: int = 1, assume: Optional[Dict[str, Any]] = None) -> ReportOutput:
     """Write the tables, figures and settings of a sweep's results database.
@@ -111,8 +113,9 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         out_dir: the report folder (created).
         figures: also draw the figures.
         transfer_rows: Mitsuba transfer rows (``meshadv.transfer.results.load_transfer_rows``) for the paper
-            comparison's Table 3.
-        transfer_markdown: the transfer section (written to ``transfer.md`` and into the README), ``""`` for none.
+            comparison's Table 3; an extra protocol's rows are named as in Table 1 (:func:`labelled_by_protocol`).
+        transfer_section: the transfer section (written to ``transfer.md`` and into the README) of those rows, so
+            named (``meshadv.transfer.results.transfer_report``); ``None`` or no rows: none.
         sections: extra sections, in order (see :data:`ReportSection`).
         artifacts: where the artefacts the figures need are regenerated when they are not on this machine
             (:class:`ArtifactSource`; only the jobs a figure uses); ``None``: never regenerate.
@@ -138,10 +141,10 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         meta = store.meta()
         out.counts = store.counts()
     done = [r for r in rows if r.state == "done" and r.record is not None]
-    t1 = table1(attack_rows(done))
-    t1_correct = table1(attack_rows(done, benign_correct_only=True))
+    attacks, attacks_correct = attack_rows(done), attack_rows(done, benign_correct_only=True)
+    t1, t1_correct = table1(attacks), table1(attacks_correct)
     mixed = attacked_misclassified(done)
-    pairs = pair_success(attack_rows(done, benign_correct_only=mixed))
+    pairs = pair_success(attacks_correct if mixed else attacks)
     t2 = table2(done)
     t2_classes = table2(done, per_class=True)
     for name, table in (("table1", t1), ("table1_benign_correct", t1_correct), ("table2", t2),
@@ -153,8 +156,9 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
     if pairs:
         out.tables.append(write_text_atomic(out.out_dir / "table1_pairs.md", pair_success_markdown(pairs)))
         out.tables.append(write_text_atomic(out.out_dir / "table1_pairs.csv", to_csv(pairs)))
-    transfer = transfer_markdown
-    comparison = paper_comparison(t1_correct if mixed else t1, t2, list(transfer_rows))
+    transfer_rows = labelled_by_protocol(transfer_rows, {r.job_id: r.spec for r in done})
+    transfer = transfer_section(transfer_rows) if transfer_section and transfer_rows else ""
+    comparison = paper_comparison(t1_correct if mixed else t1, t2, transfer_rows)
     out.tables.append(write_text_atomic(out.out_dir / "paper_comparison.md", comparison))
     if transfer:
         out.tables.append(write_text_atomic(out.out_dir / "transfer.md", transfer))

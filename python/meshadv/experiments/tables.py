@@ -58,6 +58,7 @@ __all__ = [
     "Table1Row",
     "Table2Row",
     "attack_rows",
+    "labelled_by_protocol",
     "pair_success",
     "pair_success_markdown",
     "table1",
@@ -202,6 +203,14 @@ def victim_label(spec: Dict[str, Any]) -> str:
     return spec["victim"] + (f" [{spec['protocol']}]" if spec.get("protocol") else "")
 
 
+def labelled_by_protocol(rows: Sequence[Dict[str, Any]], specs: Dict[str, Dict[str, Any]]) -> List[Dict[str, Any]]:
+    """Transfer ``rows`` (keyed by ``case_id``) with ``victim`` named as :func:`victim_label` names it when the case is
+    a job (``specs``: job id -> spec), so that Table 3 keeps an extra protocol's attacks apart as Table 1 does; other
+    rows unchanged."""
+    return [dict(row, victim=victim_label(specs[row["case_id"]])) if row.get("case_id") in specs else row
+            for row in rows]
+
+
 def instance_key(spec: Dict[str, Any]) -> Tuple[Any, ...]:
     """The benign input a job attacks: ``(mesh path or name, rendering configuration, seed)`` (with the victim and
     perturbation type, an *instance* of the module docstring)."""
@@ -309,6 +318,11 @@ def pair_success(rows: Iterable[AttackRow]) -> List[PairSuccess]:
     return [PairSuccess(*key, attacks=n, successes=won) for key, (n, won) in sorted(counts.items())]
 
 
+def _ratio_cell(won: int, n: int) -> str:
+    """``"won/n"``, bold when some attack failed."""
+    return f"**{won}/{n}**" if won < n else f"{won}/{n}"
+
+
 def pair_success_markdown(pairs: Sequence[PairSuccess]) -> str:
     """One Markdown matrix per (victim, type) of :func:`pair_success`'s counts: rows the source class, columns the
     target, cells ``successes/attacks`` (bold when some attack failed), and a last row with each target's total."""
@@ -325,19 +339,16 @@ def pair_success_markdown(pairs: Sequence[PairSuccess]) -> str:
         lines = [f"**{victim}, {perturbation}**: successful / attacks (source class in rows, target in columns)", "",
                  "| source \\ target | " + " | ".join(targets) + " | all targets |",
                  "|---|" + "---|" * (len(targets) + 1)]
-
-        def cell(won: int, n: int) -> str:
-            return f"**{won}/{n}**" if won < n else f"{won}/{n}"
-
         for source in sources:
             row = [by_key.get((source, t)) for t in targets]
             n, won = sum(c.attacks for c in row if c), sum(c.successes for c in row if c)
-            lines.append(f"| {source} | " + " | ".join(cell(c.successes, c.attacks) if c else "–" for c in row)
-                         + f" | {cell(won, n)} |")
+            lines.append(f"| {source} | " + " | ".join(_ratio_cell(c.successes, c.attacks) if c else "–" for c in row)
+                         + f" | {_ratio_cell(won, n)} |")
         totals = [[c for c in cells if c.target == t] for t in targets]
         n, won = sum(c.attacks for c in cells), sum(c.successes for c in cells)
-        lines.append("| all sources | " + " | ".join(cell(sum(c.successes for c in col), sum(c.attacks for c in col))
-                                                  for col in totals) + f" | {cell(won, n)} |")
+        lines.append("| all sources | " + " | ".join(
+            _ratio_cell(sum(c.successes for c in col), sum(c.attacks for c in col)) for col in totals)
+            + f" | {_ratio_cell(won, n)} |")
         blocks.append("\n".join(lines) + "\n")
     return "\n".join(blocks)
 
