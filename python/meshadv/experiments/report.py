@@ -10,6 +10,8 @@ Output folder layout::
     table2.md / table2.csv     multi-view robustness (when the sweep had multi-view jobs)
     table2_per_class.*         the same per class and target (the paper's Table 2 pools the classes of a cell)
     paper_comparison.md        Tables 1-3 beside the paper's numbers (meshadv.experiments.paper), shortfalls
+    protocols.md / .csv        an extra protocol's attacks beside the main attack's on the same inputs (when the
+                               sweep ran one: meshadv.experiments.protocols)
     figures/grid_<victim>_<type>.png        classes x classes renders (diagonal benign, failed attacks labelled)
     figures/flow_heatmap_<victim>.png       flow magnitude, rendered and canonical views
     figures/flow_quiver_<victim>.png        flow directions around the most displaced vertex
@@ -30,6 +32,7 @@ from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 from meshadv.experiments.artifact_source import ArtifactSource
 from meshadv.experiments.compare import paper_comparison
+from meshadv.experiments.protocols import protocol_section
 from meshadv.experiments.provenance import environment_versions
 from meshadv.experiments.report_figures import PAPER_FLOW_EXAMPLE, flow_figures, grid_cells, slug_of
 from meshadv.experiments.store import JobRow, ResultStore
@@ -116,7 +119,8 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
             comparison's Table 3; an extra protocol's rows are named as in Table 1 (:func:`labelled_by_protocol`).
         transfer_section: the transfer section (written to ``transfer.md`` and into the README) of those rows, so
             named (``meshadv.transfer.results.transfer_report``); ``None`` or no rows: none.
-        sections: extra sections, in order (see :data:`ReportSection`).
+        sections: extra sections, in order (see :data:`ReportSection`), after the built-in one comparing an extra
+            protocol with the main attack (:func:`meshadv.experiments.protocols.protocol_section`).
         artifacts: where the artefacts the figures need are regenerated when they are not on this machine
             (:class:`ArtifactSource`; only the jobs a figure uses); ``None``: never regenerate.
         use_stored: use the artefact folders the database records (``False``: every figure from regenerated
@@ -184,7 +188,7 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         if out.regenerations:
             out.tables.extend(_write_regenerations(out.out_dir, out.regenerations, done))
     extra = []
-    for section in sections:
+    for section in (protocol_section, *sections):
         text, files = section(done, out.out_dir)
         out.tables.extend(files)
         if text:
