@@ -15,6 +15,7 @@ __all__ = [
     "MeshInput",
     "load_mesh_input",
     "parse_azimuth_range",
+    "parse_duration",
     "DEFAULT_DISTANCE",
     "DEFAULT_ELEVATION",
     "DEFAULT_BACKGROUND",
@@ -113,6 +114,20 @@ def parse_azimuth_range(text: str, name: str = "--azimuths") -> Tuple[float, flo
     if hi < lo:
         raise ValueError(f"{name} must have LOW <= HIGH, got {text!r}")
     return lo, hi
+
+
+def parse_duration(text: str, name: str) -> float:
+    """Seconds of a duration written ``90m``, ``2h``, ``1h30m``, ``45s`` or a bare number of seconds (``3600``).
+
+    Raises:
+        ValueError: anything else (the message names ``name``).
+    """
+    number = r"(\d+(?:\.\d*)?|\.\d+)"
+    match = re.fullmatch(rf"\s*(?:{number}\s*h)?\s*(?:{number}\s*m)?\s*(?:{number}\s*s?)?\s*", text)
+    if match is None or not any(match.groups()):
+        raise ValueError(f"{name} must be a duration such as 90m, 2h, 1h30m, 45s or a number of seconds, got {text!r}")
+    hours, minutes, seconds = (float(g) if g else 0.0 for g in match.groups())
+    return hours * 3600.0 + minutes * 60.0 + seconds
 
 
 def make_views(

@@ -3,7 +3,9 @@
 Results go to the SQLite database named by the config (``<output>/results.db`` by default). Run the same command
 again after a kill to resume: finished jobs are skipped, interrupted ones re-run, failed ones retried up to
 ``max_attempts``. Ctrl-C and SIGTERM (``kill``, a batch scheduler's stop) end a run the same way: the workers are
-stopped, running jobs go back to pending and the database is closed cleanly.
+stopped, running jobs go back to pending and the database is closed cleanly. To end without losing the running jobs'
+work, ``--stop-starting-after DURATION`` or SIGUSR1 to the driver stop starting jobs: the running ones finish and are
+recorded, then the command exits (a batch slot's time limit; e.g. Slurm's ``--signal=USR1@900``).
 
 Progress: one bar counts the jobs (successes, failures, ETA), a second one the attack steps out of the most the
 planned jobs can run, moving at every step of every running job with the local and serial backends (the workers
@@ -12,14 +14,50 @@ report their steps to this process) and per finished job with Ray.
 
 from __future__ import annotations
 
+import contextlib
 import shlex
+import signal
 import sys
+import threading
+import time
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Any, Dict, Iterator, List, Optional
 
 import typer
 
-__all__ = ["register", "sweep"]
+__all__ = ["StopStarting", "register", "sweep"]
+
+
+class StopStarting:
+    """When a sweep stops starting jobs (``run_sweep``'s ``stop_starting``): once ``after_s`` seconds have passed
+    since it was made, or once SIGUSR1 arrives while :meth:`on_sigusr1` is active. ``reason`` says which."""
+
+    def __init__(self, after_s: Optional[float] = None) -> None:
+        self.deadline = None if after_s is None else time.monotonic() + after_s
+        self.reason: Optional[str] = None
+
+    def __call__(self) -> bool:
+        """Whether to stop starting jobs."""
+        if self.reason is None and self.deadline is not None and time.monotonic() >= self.deadline:
+            self.reason = "--stop-starting-after reached"
+        return self.reason is not None
+
+    @contextlib.contextmanager
+    def on_sigusr1(self) -> Iterator[None]:
+        """While the block runs (in the main thread, where the platform has SIGUSR1), SIGUSR1 stops the starting of
+        jobs; the previous handler is restored afterwards."""
+        if not hasattr(signal, "SIGUSR1") or threading.current_thread() is not threading.main_thread():
+            yield
+            return
+
+        def _stop(signum: int, frame: Any) -> None:
+            self.reason = self.reason or "SIGUSR1 received"
+
+        previous = signal.signal(signal.SIGUSR1, _stop)
+        try:
+            yield
+        finally:
+            signal.signal(signal.SIGUSR1, previous)
 
 
 def sweep(
@@ -45,8 +83,13 @@ def sweep(
                                              "a protocol's name (e.g. 'paper') or 'multiview' (Table 2). The "
                                              "database keeps every part's finished jobs; the other parts wait "
                                              "for a run without --only."),
+    stop_starting_after: Optional[str] = typer.Option(
+        None, "--stop-starting-after", help="Start no job after this long (90m, 2h, 1h30m; a bare number is "
+        "seconds): the running jobs finish and are recorded, the rest wait for the next run. SIGUSR1 to this "
+        "process does the same at once (e.g. Slurm's --signal=USR1@900)."),
 ) -> None:
     """Run (or resume) the attack sweep described by CONFIG."""
+    from meshadv.commands._common import parse_duration
     from meshadv.commands._common_options import interrupted_exit
     from meshadv.commands._job_index import warn_damaged_results, write_job_index
     from meshadv.experiments import ResultStore, make_backend, run_sweep
@@ -64,6 +107,11 @@ def sweep(
             jobs = select_parts(jobs, only)
         except ValueError as err:
             raise typer.BadParameter(str(err), param_hint="--only") from err
+    try:
+        after_s = None if stop_starting_after is None else parse_duration(stop_starting_after,
+                                                                           "--stop-starting-after")
+    except ValueError as err:
+        raise typer.BadParameter(str(err), param_hint="--stop-starting-after") from err
     db_path = db or cfg.db
     out_root = output or cfg.output
     if dry_run:
@@ -107,10 +155,13 @@ def sweep(
         store.set_meta("config_text", cfg.text)
         store.set_meta("command", "meshadv sweep " + " ".join(shlex.quote(a) for a in sys.argv[2:]))
         store.set_meta("sweep_versions", environment_versions())
+        stop = StopStarting(after_s)
         try:
-            summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be,
-                                max_attempts=attempts, progress=progress,
-                                planned_steps=planned_steps if runner["job"] == DEFAULT_JOB else None)
+            with stop.on_sigusr1():
+                summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be,
+                                    max_attempts=attempts, progress=progress,
+                                    planned_steps=planned_steps if runner["job"] == DEFAULT_JOB else None,
+                                    stop_starting=stop)
             write_job_index(store, out_root, out_root)  # index.csv / index.md: job id -> folder and settings
         except KeyboardInterrupt:
             be.close()
@@ -124,6 +175,9 @@ def sweep(
     typer.echo(f"{summary.done}/{summary.total} done ({summary.successes} successful), {summary.failed} failed; "
                f"ran {summary.ran}, skipped {summary.skipped} finished, re-queued {summary.requeued} interrupted; "
                f"results in {db_path}")
+    if summary.not_started:
+        typer.echo(f"stopped starting jobs ({stop.reason}): {summary.not_started} job(s) wait for the next run; run "
+                   "the same command again to continue")
     with ResultStore(db_path) as store:
         warn_damaged_results(store, db_path)
     if summary.failed:

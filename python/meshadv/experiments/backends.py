@@ -69,6 +69,10 @@ class Backend:
         self.close()
 
 
+#: SIGUSR1 where the platform has it (and ``pthread_sigmask``): workers ignore it (see :func:`_worker_main`).
+_USR1 = getattr(signal, "SIGUSR1", None) if hasattr(signal, "pthread_sigmask") else None
+
+
 def _parent_watchdog(parent_pid: int) -> None:
     while True:
         time.sleep(1.0)
@@ -79,6 +83,9 @@ def _parent_watchdog(parent_pid: int) -> None:
 def _worker_main(conn: Any, parent_pid: int, threads: int) -> None:
     """Body of a local worker process: run the jobs received on ``conn`` until told to stop."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the driver, which then stops its workers
+    if _USR1 is not None:  # the driver's "stop starting jobs" (meshadv sweep), sent to the whole process group, must
+        signal.signal(_USR1, signal.SIG_IGN)  # not kill a job (SIGUSR1's default action); blocked since the spawn
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {_USR1})  # (_Worker), so none arriving meanwhile is lost on us
     threading.Thread(target=_parent_watchdog, args=(parent_pid,), daemon=True).start()
     while True:
         try:
@@ -106,7 +113,12 @@ class _Worker:
     def __init__(self, ctx: Any, threads: int) -> None:
         self.conn, child = ctx.Pipe(duplex=True)
         self.proc = ctx.Process(target=_worker_main, args=(child, os.getpid(), threads), name="meshadv-worker")
-        self.proc.start()
+        blocked = {_USR1} if _USR1 is not None else set()
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, blocked)  # the child inherits this thread's mask
+        try:
+            self.proc.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
         child.close()
         self.jobs = 0
 

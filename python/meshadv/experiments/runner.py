@@ -45,6 +45,7 @@ class SweepSummary:
         failed: jobs that exhausted their attempts (``state == 'failed'``).
         ran: attempts started by this call; skipped: jobs already done when it started; requeued: ``running``
             rows of a killed run put back to ``pending``.
+        not_started: jobs left waiting because ``stop_starting`` said so (0 when the run went to the end).
     """
 
     total: int
@@ -54,6 +55,7 @@ class SweepSummary:
     ran: int
     skipped: int
     requeued: int
+    not_started: int = 0
 
 
 def job_out_dir(out_root: Union[str, Path], job_id: str) -> Path:
@@ -91,6 +93,7 @@ def run_sweep(
     on_outcome: Optional[Callable[[str, bool], None]] = None,
     planned_steps: Optional[Callable[[Dict[str, Any]], Optional[int]]] = None,
     on_steps: Optional[Callable[[StepReport], None]] = None,
+    stop_starting: Optional[Callable[[], bool]] = None,
 ) -> SweepSummary:
     """Run every job of ``jobs`` that is not done yet, in their order, resumably.
 
@@ -115,6 +118,9 @@ def run_sweep(
         planned_steps: the most steps a job spec can run (``None``: unknown), for the step bar's total; e.g.
             :func:`meshadv.experiments.jobs.planned_steps` for the attack job.
         on_steps: called in the driver (from a backend thread) with every step report of a running job.
+        stop_starting: asked before each job is started; once it returns true no job starts any more, the running
+            ones finish and are recorded, and the rest stay for the next run (e.g. a batch slot running out:
+            ``meshadv sweep --stop-starting-after``, SIGUSR1).
 
     Returns:
         The :class:`SweepSummary`.
@@ -152,9 +158,13 @@ def run_sweep(
         be.on_steps = _steps
         in_flight: Dict[Any, str] = {}
         ran = finished = 0
+        stopped = False
         try:
-            while queue or in_flight:
-                while queue and len(in_flight) < be.capacity:
+            while (queue and not stopped) or in_flight:
+                while queue and not stopped and len(in_flight) < be.capacity:
+                    if stop_starting is not None and stop_starting():
+                        stopped = True
+                        break
                     jid = queue.pop(0)
                     store.mark_running(jid)
                     out_dir = job_out_dir(out_root, jid)
@@ -197,4 +207,5 @@ def run_sweep(
         ran=ran,
         skipped=skipped,
         requeued=requeued,
+        not_started=len(queue) if stopped else 0,
     )
