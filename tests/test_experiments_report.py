@@ -7,17 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import typer
 from PIL import Image
 from typer.testing import CliRunner
 
-from meshadv.commands import report as report_cmd
-from meshadv.commands import sweep as sweep_cmd
 from meshadv.experiments import ResultStore, job_id
 from meshadv.experiments.config import expand_jobs, load_config, parse_config
 from meshadv.experiments.figures import curvature_scatter, flow_heatmaps, flow_quiver, mean_curvature_np
 from meshadv.experiments.report import write_report
-from sweep_fixtures import probe_jobs, run_probe_sweep
+from sweep_fixtures import probe_jobs, run_probe_sweep, sweep_cli
 
 TINY = """
 [experiment]
@@ -55,13 +52,6 @@ classes = ["chair"]
 job = "meshadv.experiments.probes:mesh_probe_job"
 max_attempts = 1
 """
-
-
-def _app() -> typer.Typer:
-    app = typer.Typer()
-    sweep_cmd.register(app)
-    report_cmd.register(app)
-    return app
 
 
 def test_expansion_counts_and_determinism(tmp_path: Path) -> None:
@@ -115,19 +105,19 @@ def test_load_config_errors(tmp_path: Path) -> None:
 def test_tiny_sweep_commands_tables_and_figures(tmp_path: Path) -> None:
     (tmp_path / "tiny.toml").write_text(TINY)
     runner = CliRunner()
-    res = runner.invoke(_app(), ["sweep", str(tmp_path / "tiny.toml"), "--dry-run"])
+    res = runner.invoke(sweep_cli(), ["sweep", str(tmp_path / "tiny.toml"), "--dry-run"])
     assert res.exit_code == 0, res.output
     assert "28 jobs (24 single-view, 4 multi-view)" in res.output
-    res = runner.invoke(_app(), ["sweep", str(tmp_path / "tiny.toml"), "--backend", "serial", "--no-progress"])
+    res = runner.invoke(sweep_cli(), ["sweep", str(tmp_path / "tiny.toml"), "--backend", "serial", "--no-progress"])
     assert res.exit_code == 0, res.output
     assert "28/28 done" in res.output
     db = tmp_path / "run" / "results.db"
     with ResultStore(db) as store:
         assert store.get_meta("name") == "tiny" and "[multiview]" in store.get_meta("config_text")
-    res = runner.invoke(_app(), ["sweep", str(tmp_path / "tiny.toml"), "--backend", "serial", "--no-progress"])
+    res = runner.invoke(sweep_cli(), ["sweep", str(tmp_path / "tiny.toml"), "--backend", "serial", "--no-progress"])
     assert "ran 0, skipped 28" in res.output
     out = tmp_path / "report"
-    res = runner.invoke(_app(), ["report", str(db), "-o", str(out)])
+    res = runner.invoke(sweep_cli(), ["report", str(db), "-o", str(out)])
     assert res.exit_code == 0, res.output
     for name in ("table1.md", "table1.csv", "table2.md", "table2.csv", "settings.json", "README.md",
                  "paper_comparison.md"):
@@ -211,7 +201,7 @@ def test_report_counts_failed_and_unsuccessful_jobs(tmp_path: Path) -> None:
     assert "Transfer to Mitsuba 3" in (tmp_path / "rep" / "README.md").read_text()
     # A report only reads: the database file stays byte-identical and no file appears beside it.
     before, beside = (tmp_path / "r.db").read_bytes(), sorted(p.name for p in tmp_path.glob("r.db*"))
-    result = CliRunner().invoke(_app(), ["report", str(tmp_path / "r.db"), "-o", str(tmp_path / "rep2"),
+    result = CliRunner().invoke(sweep_cli(), ["report", str(tmp_path / "r.db"), "-o", str(tmp_path / "rep2"),
                                          "--no-figures"])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "r.db").read_bytes() == before

@@ -5,31 +5,20 @@ from __future__ import annotations
 
 import os
 import signal
-import sqlite3
 import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Callable
 
 import pytest
-import typer
 from typer.testing import CliRunner
 
 from meshadv.commands import sweep as sweep_cmd
 from meshadv.commands._common import parse_duration
 from meshadv.experiments import ResultStore, SerialBackend, run_sweep
-from sweep_fixtures import probe_jobs
+from sweep_fixtures import job_states, probe_jobs, start_sweep_process, sweep_cli, two_job_config
 
 PROBE = "meshadv.experiments.probes:mesh_probe_job"
-
-
-def _states(db: Path) -> dict:
-    conn = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
-    try:
-        return dict(conn.execute("SELECT state, COUNT(*) FROM jobs GROUP BY state").fetchall())
-    finally:
-        conn.close()
 
 
 def test_run_sweep_stops_starting_and_the_next_run_continues(tmp_path: Path) -> None:
@@ -76,52 +65,18 @@ def test_bad_durations_name_the_option(text: str) -> None:
         parse_duration(text, "--stop-starting-after")
 
 
-CONFIG = """
-[experiment]
-name = "stop"
-
-[meshes]
-source = "builtin"
-builtin = [{{name = "chair", class = "chair"}}, {{name = "sofa", class = "sofa"}}]
-
-[render]
-image_size = 32
-configurations = 1
-distance = 2.4
-elevation = [15, 25]
-
-[victims]
-names = ["efficientnet_lite0"]
-
-[attack]
-types = ["shape"]
-benign_correct_only = false
-
-[runner]
-job = "{job}"
-max_attempts = 1
-"""
-
-
-def _app() -> typer.Typer:
-    app = typer.Typer()
-    sweep_cmd.register(app)
-    app.command("unused")(lambda: None)  # two commands: typer keeps `sweep` as a subcommand
-    return app
-
-
 def test_cli_stop_starting_after_zero_starts_nothing_and_a_bad_value_is_named(tmp_path: Path) -> None:
-    (tmp_path / "sweep.toml").write_text(CONFIG.format(job=PROBE))
+    (tmp_path / "sweep.toml").write_text(two_job_config("stop", PROBE))
     db = tmp_path / "results.db"
     args = ["sweep", str(tmp_path / "sweep.toml"), "--db", str(db), "--output", str(tmp_path / "out"),
             "--backend", "serial", "--no-progress"]
-    res = CliRunner().invoke(_app(), args + ["--stop-starting-after", "0"])
+    res = CliRunner().invoke(sweep_cli(), args + ["--stop-starting-after", "0"])
     assert res.exit_code == 0, res.output
     assert "stopped starting jobs (--stop-starting-after reached): 2 job(s) wait for the next run" in res.output
-    assert _states(db) == {"pending": 2}
-    res = CliRunner().invoke(_app(), args + ["--stop-starting-after", "soon"])
+    assert job_states(db) == {"pending": 2}
+    res = CliRunner().invoke(sweep_cli(), args + ["--stop-starting-after", "soon"])
     assert res.exit_code == 2 and "--stop-starting-after" in res.output
-    res = CliRunner().invoke(_app(), args)
+    res = CliRunner().invoke(sweep_cli(), args)
     assert res.exit_code == 0 and "2/2 done" in res.output and "stopped starting" not in res.output
 
 
@@ -130,7 +85,7 @@ import time
 from pathlib import Path
 
 
-def gated_job(spec, out_dir):
+def job(spec, out_dir):
     """Say it started (``started`` beside the output folder's ``jobs`` tree), wait until the test creates
     ``release`` there, then succeed."""
     (Path(out_dir).parents[2] / "started").write_text("1")
@@ -155,23 +110,10 @@ def _wait_for(condition: Callable[[], bool], proc: subprocess.Popen, timeout: fl
 def test_sigusr1_to_the_process_group_lets_the_running_job_finish(tmp_path: Path, when: str) -> None:
     """SIGUSR1 to the sweep's whole process group, while its worker process is still starting (importing torch:
     SIGUSR1 is blocked from the spawn until the worker ignores it) or while the job runs."""
-    (tmp_path / "sweep.toml").write_text(CONFIG.format(job="gated_probe:gated_job"))
-    (tmp_path / "gated_probe.py").write_text(GATED_JOB)
-    db, out = tmp_path / "results.db", tmp_path / "out"
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]),
-           "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "meshadv.cli", "sweep", str(tmp_path / "sweep.toml"), "--db",
-                             str(db), "--output", str(out), "--workers", "1", "--no-progress"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-                            start_new_session=True)  # its own process group: the signal reaches its worker too
+    proc, db, out = start_sweep_process(tmp_path, "stop", "gated_probe", GATED_JOB,
+                                        start_new_session=True)  # its own process group: the signal reaches its worker
     try:
-        def one_running() -> bool:
-            try:
-                return db.is_file() and _states(db).get("running") == 1
-            except sqlite3.OperationalError:  # the schema is not there yet
-                return False
-
-        _wait_for(one_running, proc)
+        _wait_for(lambda: job_states(db).get("running") == 1, proc)
         if when == "job running":
             _wait_for((out / "started").exists, proc)
         os.killpg(proc.pid, signal.SIGUSR1)  # as a batch scheduler signals a job's processes
@@ -184,4 +126,4 @@ def test_sigusr1_to_the_process_group_lets_the_running_job_finish(tmp_path: Path
             proc.communicate()
     assert proc.returncode == 0, output
     assert "stopped starting jobs (SIGUSR1 received): 1 job(s) wait for the next run" in output
-    assert _states(db) == {"done": 1, "pending": 1}  # the running job finished; the other was not started
+    assert job_states(db) == {"done": 1, "pending": 1}  # the running job finished; the other was not started
