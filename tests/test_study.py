@@ -22,7 +22,7 @@ from meshadv.experiments import ResultStore
 from meshadv.study.analysis import PAPER, analyze, load_answers, write_analysis
 from meshadv.study.export import export_study
 from meshadv.study.plan import make_plan
-from meshadv.study.proxies import attack_proxies, image_proxies, proxy_section
+from meshadv.study.proxies import attack_proxies, image_proxies, proxy_section, read_proxies
 from meshadv.study.selection import MissingRenderError, job_render, select_stimuli
 
 
@@ -210,6 +210,21 @@ def test_proxy_section_covers_every_attack(study_db: Path, tmp_path: Path) -> No
     text = proxy_section(rows, tmp_path)
     assert "| v1 | shape |" in text and "| v1 | texture |" in text
     assert len((tmp_path / "proxies.csv").read_text().splitlines()) == 13
+
+
+def test_proxies_of_attacks_without_renders_are_kept_from_the_last_report(tmp_path: Path) -> None:
+    db = make_study_db(tmp_path / "sweep")  # its own: renders are deleted below
+    with ResultStore(db) as store:
+        rows = store.rows("done")
+    proxy_section(rows, tmp_path)
+    before = (tmp_path / "proxies.csv").read_text()
+    for row in rows[:5]:  # another machine: these renders are not there
+        for name in row.record["artifacts"]["adversarial_images"]:
+            (Path(row.out_dir) / name).unlink()
+    assert attack_proxies(rows)[1] == 5  # without the earlier values: 5 missing
+    text = proxy_section(rows, tmp_path)
+    assert (tmp_path / "proxies.csv").read_text() == before and "no renders on disk" not in text
+    assert read_proxies(tmp_path / "proxies.csv")[rows[0].job_id][2] >= 1
 
 
 def test_study_commands(study_db: Path, tmp_path: Path) -> None:

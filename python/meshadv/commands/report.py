@@ -11,10 +11,12 @@ __all__ = ["register", "report", "write_full_report"]
 
 
 def write_full_report(results: Path, out: Path, *, figures: bool = True, artifacts: Optional[Path] = None,
-                      use_stored: bool = True, threads: int = 1, assume: Optional[Dict[str, Any]] = None) -> object:
+                      use_stored: bool = True, threads: int = 1, assume: Optional[Dict[str, Any]] = None,
+                      redraw: bool = False) -> object:
     """The sweep report with what other packages add: the Mitsuba transfer section (rows of ``meshadv transfer``
     in the same database) and the perceptual proxies (SSIM / PSNR, ``proxies.csv``). ``artifacts``, ``use_stored``,
-    ``threads`` and ``assume``: where the figures' artefacts come from (``meshadv.experiments.report.write_report``).
+    ``threads`` and ``assume``: where the figures' artefacts come from; ``redraw``: draw figures that are up to
+    date too (``meshadv.experiments.report.write_report``).
 
     Returns:
         The :class:`~meshadv.experiments.report.ReportOutput`.
@@ -33,7 +35,7 @@ def write_full_report(results: Path, out: Path, *, figures: bool = True, artifac
     rows = load_transfer_rows(results) if Path(results).is_file() else []
     return write_report(results, out, figures=figures, transfer_rows=rows, transfer_section=transfer_report,
                         sections=[proxies],
-                        artifacts=artifacts, use_stored=use_stored, threads=threads, assume=assume)
+                        artifacts=artifacts, use_stored=use_stored, threads=threads, assume=assume, redraw=redraw)
 
 
 def report(
@@ -51,6 +53,9 @@ def report(
     assume: Optional[Path] = typer.Option(
         None, "--assume", help="JSON file of the sweep's defaults for records that do not pin them "
                                "(meshadv.experiments.regenerate.pinned_spec)."),
+    redraw: bool = typer.Option(False, "--redraw", help="Draw every figure again (by default a grid or flow figure "
+                                "already in the report folder, drawn from the same jobs and outcomes, is kept and "
+                                "its artefacts are not regenerated)."),
 ) -> None:
     """Write Table 1, Table 2, the figures and the run's settings from RESULTS; index.csv / index.md map the job
     folders (named by hash) to their settings; failed jobs' errors are printed."""
@@ -79,7 +84,7 @@ def report(
         raise typer.BadParameter(str(err), param_hint="--assume") from err
     try:
         output = write_full_report(results, out, figures=figures, artifacts=artifacts, use_stored=stored,
-                                   threads=threads, assume=assumed)
+                                   threads=threads, assume=assumed, redraw=redraw)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: every finished regeneration is complete in --artifacts
         if artifacts is None:
             raise

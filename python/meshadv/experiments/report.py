@@ -34,9 +34,20 @@ from meshadv.experiments.artifact_source import ArtifactSource
 from meshadv.experiments.compare import paper_comparison
 from meshadv.experiments.protocols import protocol_section
 from meshadv.experiments.provenance import environment_versions
-from meshadv.experiments.report_figures import PAPER_FLOW_EXAMPLE, flow_figures, grid_cells, slug_of
+from meshadv.experiments.figures import render_grid
+from meshadv.experiments.report_figures import (
+    PAPER_FLOW_EXAMPLE,
+    STAMP_KEY,
+    flow_figures,
+    grid_cells,
+    grid_choice,
+    grid_stamp,
+    is_current,
+    slug_of,
+)
 from meshadv.experiments.store import JobRow, ResultStore
 from meshadv.util.atomic import write_text_atomic
+from meshadv.util.png import add_png_text
 from meshadv.experiments.tables import (
     DISTANCE_NAMES,
     PAPER_WORST,
@@ -105,7 +116,8 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
                  transfer_rows: Sequence[Dict[str, Any]] = (),
                  transfer_section: Optional[Callable[[List[Dict[str, Any]]], str]] = None,
                  sections: Sequence[ReportSection] = (), artifacts: Optional[Union[str, Path]] = None,
-                 use_stored: bool = True, threads: int = 1, assume: Optional[Dict[str, Any]] = None) -> ReportOutput:
+                 use_stored: bool = True, threads: int = 1, assume: Optional[Dict[str, Any]] = None,
+                 redraw: bool = False) -> ReportOutput:
     """Write the tables, figures and settings of a sweep's results database.
 
     The full report (with the Mitsuba transfer rows and the perceptual proxies) is composed by
@@ -128,6 +140,10 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         threads: intra-op threads of each regeneration.
         assume: the sweep's defaults for records that do not pin them (:func:`meshadv.experiments.regenerate.
             pinned_spec`).
+        redraw: draw every figure again (so does ``use_stored=False``). By default a figure whose PNG in
+            ``out_dir`` records that it was drawn from the same jobs and outcomes (``report_figures.grid_stamp``,
+            ``flow_stamp``) is kept, so that a report re-run on a machine without the artefacts does not regenerate
+            them (a grid drawn with cells missing records nothing).
 
     Returns:
         A :class:`ReportOutput`.
@@ -172,17 +188,24 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         groups: Dict[Tuple[str, str], List[JobRow]] = defaultdict(list)
         for r in single:
             groups[(victim_label(r.spec), r.spec["perturbation"])].append(r)
-        from meshadv.experiments.figures import render_grid
-
         source = ArtifactSource(db, artifacts, use_stored=use_stored, threads=threads, assume=assume)
+        reuse = use_stored and not redraw
         for (victim, perturbation), grows in sorted(groups.items()):
+            path = fig_dir / f"grid_{slug_of(victim)}_{perturbation}.png"
+            title = (f"{perturbation} attacks on {victim} (rows: benign class, columns: target; diagonal: benign; "
+                     "red: attack failed)")
+            stamp = grid_stamp(grows, title)
+            if reuse and is_current([path], stamp):  # drawn from the same jobs and outcomes already
+                out.figures.append(path)
+                continue
             cells, classes, failed = grid_cells(grows, source)
             if cells:
-                out.figures.append(render_grid(cells, classes, fig_dir / f"grid_{slug_of(victim)}_{perturbation}.png",
-                                               title=f"{perturbation} attacks on {victim} (rows: benign class, "
-                                                     f"columns: target; diagonal: benign; red: attack failed)",
-                                               failed=failed))
-        flow_paths, out.correlations = flow_figures(single, fig_dir, source)
+                out.figures.append(render_grid(cells, classes, path, title=title, failed=failed))
+                best, _ = grid_choice(grows)
+                if all((src, src) in cells and (src, r.spec["target"]) in cells
+                       for src, inst_rows in best.items() for r in inst_rows):  # no cell missing: worth keeping
+                    add_png_text(path, {STAMP_KEY: stamp})
+        flow_paths, out.correlations = flow_figures(single, fig_dir, source, redraw=not reuse)
         out.figures.extend(flow_paths)
         out.regenerations = dict(source.checks)
         if out.regenerations:

@@ -3,6 +3,8 @@ show, and their artefacts (:mod:`meshadv.experiments.figures` draws them)."""
 
 from __future__ import annotations
 
+import hashlib
+import json
 from collections import defaultdict
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Set, Tuple
@@ -12,8 +14,10 @@ import numpy as np
 from meshadv.experiments.artifact_source import ArtifactSource, artifact_path
 from meshadv.experiments.store import JobRow
 from meshadv.experiments.tables import instance_key, victim_label
+from meshadv.util.png import add_png_text, png_text
 
-__all__ = ["grid_cells", "flow_figures", "slug_of", "PAPER_FLOW_EXAMPLE"]
+__all__ = ["grid_cells", "grid_choice", "grid_stamp", "flow_figures", "flow_stamp", "is_current", "slug_of",
+           "PAPER_FLOW_EXAMPLE", "FIGURE_DRAWING_VERSION", "STAMP_KEY", "CORRELATIONS_KEY"]
 
 
 def slug_of(text: str) -> str:
@@ -21,11 +25,28 @@ def slug_of(text: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in text)
 
 
-def grid_cells(rows: List[JobRow], source: Optional[ArtifactSource] = None,
-                ) -> Tuple[Dict[Tuple[str, str], Path], List[str], Set[Tuple[str, str]]]:
-    """Pick, per source class, the instance with the most successful targets (from the records alone); return its
-    renders, the classes and the ``(source, target)`` cells whose attack failed. Only the chosen instances' jobs are
-    looked up in ``source`` (regenerated when it regenerates)."""
+#: Bump when the figures' drawing changes, so that stamps no longer match figures drawn before.
+FIGURE_DRAWING_VERSION = 1
+#: PNG text key under which a figure records what it was drawn from (:func:`grid_stamp`, :func:`flow_stamp`).
+STAMP_KEY = "meshadv-stamp"
+#: PNG text key of the flow / curvature correlations, kept in the curvature figure so that a kept figure has them.
+CORRELATIONS_KEY = "meshadv-correlations"
+
+
+def _stamp(kind: str, content: Any) -> str:
+    """A hash of what a figure of ``kind`` is drawn from."""
+    text = json.dumps({"kind": kind, "version": FIGURE_DRAWING_VERSION, "content": content}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def is_current(paths: List[Path], stamp: str) -> bool:
+    """Whether every PNG of ``paths`` exists and records ``stamp``."""
+    return all(png_text(p).get(STAMP_KEY) == stamp for p in paths)
+
+
+def grid_choice(rows: List[JobRow]) -> Tuple[Dict[str, List[JobRow]], List[str]]:
+    """Per source class, the jobs of the instance with the most successful targets (from the records alone), and
+    the classes in the grid's order."""
     by_instance: Dict[Tuple[Any, ...], List[JobRow]] = defaultdict(list)
     for row in rows:
         by_instance[instance_key(row.spec)].append(row)
@@ -39,6 +60,23 @@ def grid_cells(rows: List[JobRow], source: Optional[ArtifactSource] = None,
 
     classes = sorted({r.spec["source_class"] for r in rows} | {r.spec["target"] for r in rows},
                      key=lambda c: (PASCAL3D_CLASSES.index(c) if c in PASCAL3D_CLASSES else 99, c))
+    return best, classes
+
+
+def grid_stamp(rows: List[JobRow], title: str) -> str:
+    """What a grid of ``rows`` is drawn from: the chosen jobs (:func:`grid_choice`) with their outcomes, the classes
+    and the title, hashed. A grid whose PNG records the same stamp need not be drawn again (nor its jobs' artefacts
+    regenerated)."""
+    best, classes = grid_choice(rows)
+    chosen = sorted((r.job_id, bool(r.record.get("success"))) for inst_rows in best.values() for r in inst_rows)
+    return _stamp("grid", {"classes": classes, "title": title, "jobs": chosen})
+
+
+def grid_cells(rows: List[JobRow], source: Optional[ArtifactSource] = None,
+               ) -> Tuple[Dict[Tuple[str, str], Path], List[str], Set[Tuple[str, str]]]:
+    """The renders of :func:`grid_choice`'s instances, the classes and the ``(source, target)`` cells whose attack
+    failed. Only the chosen instances' jobs are looked up in ``source`` (regenerated when it regenerates)."""
+    best, classes = grid_choice(rows)
     cells: Dict[Tuple[str, str], Path] = {}
     failed: Set[Tuple[str, str]] = set()
     for src, inst_rows in best.items():
@@ -112,10 +150,24 @@ def _flow_pair(rows: List[JobRow], source: ArtifactSource,
     return None
 
 
-def flow_figures(rows: List[JobRow], fig_dir: Path, source: Optional[ArtifactSource] = None,
-                 ) -> Tuple[List[Path], Dict[str, Dict[str, Any]]]:
+def flow_stamp(row: JobRow, victim: str) -> str:
+    """What the flow figures of ``victim`` are drawn from when they show ``row``'s attack, hashed."""
+    return _stamp("flow", {"victim": victim, "job": row.job_id, "success": bool(row.record.get("success"))})
+
+
+def _flow_paths(fig_dir: Path, victim: str) -> List[Path]:
+    """The flow heatmaps, quiver plot and curvature scatter of ``victim``, in that order."""
+    slug = slug_of(victim)
+    return [fig_dir / f"flow_heatmap_{slug}.png", fig_dir / f"flow_quiver_{slug}.png",
+            fig_dir / f"curvature_{slug}.png"]
+
+
+def flow_figures(rows: List[JobRow], fig_dir: Path, source: Optional[ArtifactSource] = None, *,
+                 redraw: bool = False) -> Tuple[List[Path], Dict[str, Dict[str, Any]]]:
     """Flow heatmaps (rendered and canonical view), quiver plot and flow vs curvature of one shape attack per victim
-    (the paper's Fig. 3); returns the figures written and, per victim, the flow / curvature correlations."""
+    (the paper's Fig. 3); returns the figures written and, per victim, the flow / curvature correlations. Figures
+    already in ``fig_dir`` that record the first candidate's :func:`flow_stamp` are kept (with the correlations they
+    record) unless ``redraw``."""
     from meshadv.experiments import figures
 
     if source is None:
@@ -127,6 +179,13 @@ def flow_figures(rows: List[JobRow], fig_dir: Path, source: Optional[ArtifactSou
         if row.spec.get("perturbation") == "shape" and not row.record.get("skipped"):
             by_victim[victim_label(row.spec)].append(row)
     for victim, vrows in sorted(by_victim.items()):
+        paths = _flow_paths(fig_dir, victim)
+        first = min(vrows, key=_flow_order)
+        kept = png_text(paths[2]).get(CORRELATIONS_KEY)
+        if not redraw and kept is not None and is_current(paths, flow_stamp(first, victim)):
+            written.extend(paths)
+            correlations[victim] = json.loads(kept)
+            continue
         found = _flow_pair(vrows, source)
         if found is None:
             continue
@@ -134,13 +193,14 @@ def flow_figures(rows: List[JobRow], fig_dir: Path, source: Optional[ArtifactSou
         view = row.spec["views"][0]
         label = f"{victim}: {row.spec['source_class']} → {row.spec['target']}" + (
             "" if row.record.get("success") else " (attack failed)")
-        slug = slug_of(victim)
-        written.append(figures.flow_heatmaps(v, va, f, fig_dir / f"flow_heatmap_{slug}.png", view=view, title=label))
-        written.append(figures.flow_quiver(v, va, f, fig_dir / f"flow_quiver_{slug}.png",
-                                           title=f"{label}: flow directions"))
-        path, corr = figures.curvature_scatter(v, va, f, fig_dir / f"curvature_{slug}.png",
-                                               curvature=_curvature(v, f), eye=figures.camera_eye(view),
-                                               title=label)
-        written.append(path)
+        figures.flow_heatmaps(v, va, f, paths[0], view=view, title=label)
+        figures.flow_quiver(v, va, f, paths[1], title=f"{label}: flow directions")
+        _, corr = figures.curvature_scatter(v, va, f, paths[2], curvature=_curvature(v, f),
+                                            eye=figures.camera_eye(view), title=label)
         correlations[victim] = {**corr, "job_id": row.job_id}
+        stamp = flow_stamp(row, victim)
+        for path in paths:
+            add_png_text(path, {STAMP_KEY: stamp, **({CORRELATIONS_KEY: json.dumps(correlations[victim])}
+                                                     if path == paths[2] else {})})
+        written.extend(paths)
     return written, correlations

@@ -3,7 +3,9 @@
 They give "imperceptible" a number before anyone is asked: SSIM (Wang et al. 2004; 1 = identical) and PSNR in dB
 (infinite when identical), per view, averaged over a job's views. :func:`proxy_section` writes ``proxies.csv`` (one
 row per attack) and returns the Markdown section the sweep report shows (means per victim and perturbation type, over
-successful attacks and over all attacks).
+successful attacks and over all attacks). A job whose renders are not on this machine keeps the values of the
+``proxies.csv`` already in the report folder (a report re-run from the database alone), so they need no
+regeneration.
 """
 
 from __future__ import annotations
@@ -14,11 +16,11 @@ import math
 from collections import defaultdict
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-__all__ = ["ProxyRow", "image_proxies", "attack_proxies", "proxy_section"]
+__all__ = ["ProxyRow", "image_proxies", "attack_proxies", "proxy_section", "read_proxies"]
 
 
 @dataclass(frozen=True)
@@ -26,7 +28,8 @@ class ProxyRow:
     """The proxies of one attack job.
 
     Attributes:
-        job_id, victim, perturbation, source_class, target: the job.
+        job_id, victim, perturbation, source_class, target: the job (``victim`` with ``[protocol]`` for an extra
+            protocol's jobs, as the report's tables name them).
         success: whether the attack succeeded. distance: its distance (Laplacian or colour RMSE).
         ssim: mean SSIM over views. psnr: mean PSNR over views in dB (``inf`` when the renders are identical).
         views: number of view pairs compared.
@@ -93,16 +96,21 @@ def _images(row: Any, key: str) -> List[Path]:
     return [Path(row.out_dir) / n for n in names] if row.out_dir else []
 
 
-def attack_proxies(rows: Sequence[Any]) -> Tuple[List[ProxyRow], int]:
-    """SSIM and PSNR of every attack job whose benign and adversarial renders are on disk.
+def attack_proxies(rows: Sequence[Any], previous: Optional[Mapping[str, Tuple[float, float, int]]] = None,
+                   ) -> Tuple[List[ProxyRow], int]:
+    """SSIM and PSNR of every attack job whose benign and adversarial renders are on disk, or in ``previous``.
 
     Args:
         rows: ``done`` job rows (:class:`~meshadv.experiments.store.JobRow`).
+        previous: job id -> ``(ssim, psnr, views)`` measured before (:func:`read_proxies`), used for a job whose
+            renders are not on disk.
 
     Returns:
-        ``(proxies, missing)``: one :class:`ProxyRow` per attack with renders, and the number of attacks (done, not
-        skipped) whose renders are missing.
+        ``(proxies, missing)``: one :class:`ProxyRow` per attack with renders or earlier values, and the number of
+        attacks (done, not skipped) with neither.
     """
+    from meshadv.experiments.tables import victim_label
+
     out: List[ProxyRow] = []
     missing = 0
     for row in rows:
@@ -111,18 +119,31 @@ def attack_proxies(rows: Sequence[Any]) -> Tuple[List[ProxyRow], int]:
             continue
         pairs = [(a, b) for a, b in zip(_images(row, "benign_images"), _images(row, "adversarial_images"))
                  if a.is_file() and b.is_file()]
-        if not pairs:
+        if pairs:
+            values = [image_proxies(a, b) for a, b in pairs]
+            measured = (float(np.mean([v[0] for v in values])), float(np.mean([v[1] for v in values])), len(values))
+        elif previous and row.job_id in previous:
+            measured = previous[row.job_id]
+        else:
             missing += 1
             continue
-        values = [image_proxies(a, b) for a, b in pairs]
         out.append(ProxyRow(
-            job_id=row.job_id, victim=str(row.spec.get("victim", "")),
+            job_id=row.job_id, victim=victim_label(row.spec) if "victim" in row.spec else "",
             perturbation=str(row.spec.get("perturbation", "")), source_class=str(row.spec.get("source_class", "")),
             target=str(row.spec["target"]), success=bool(rec.get("success")),
             distance=None if rec.get("distance") is None else float(rec["distance"]),
-            ssim=float(np.mean([v[0] for v in values])), psnr=float(np.mean([v[1] for v in values])),
-            views=len(values)))
+            ssim=measured[0], psnr=measured[1], views=measured[2]))
     return out, missing
+
+
+def read_proxies(path: Union[str, Path]) -> Dict[str, Tuple[float, float, int]]:
+    """Job id -> ``(ssim, psnr, views)`` of a ``proxies.csv`` written by :func:`proxy_section` (``{}`` when there is
+    no such file)."""
+    path = Path(path)
+    if not path.is_file():
+        return {}
+    with open(path, newline="", encoding="utf-8") as fh:
+        return {r["job_id"]: (float(r["ssim"]), float(r["psnr"]), int(r["views"])) for r in csv.DictReader(fh)}
 
 
 def _mean(values: List[float]) -> str:
@@ -133,7 +154,8 @@ def _mean(values: List[float]) -> str:
 
 
 def proxy_section(rows: Sequence[Any], out_dir: Union[str, Path]) -> str:
-    """Write ``proxies.csv`` into ``out_dir`` and return the report's Markdown section (``""`` without attacks).
+    """Write ``proxies.csv`` into ``out_dir`` and return the report's Markdown section (``""`` without attacks); an
+    attack whose renders are not on disk keeps its values from the ``proxies.csv`` already there.
 
     Args:
         rows: ``done`` job rows of a sweep.
@@ -144,7 +166,7 @@ def proxy_section(rows: Sequence[Any], out_dir: Union[str, Path]) -> str:
     """
     from meshadv.util.atomic import write_bytes_atomic
 
-    proxies, missing = attack_proxies(rows)
+    proxies, missing = attack_proxies(rows, read_proxies(Path(out_dir) / "proxies.csv"))
     if not proxies:
         return ""
     buf = io.StringIO()
