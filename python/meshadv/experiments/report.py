@@ -13,6 +13,8 @@ Output folder layout::
     protocols.md / .csv        an extra protocol's attacks beside the main attack's on the same inputs (when the
                                sweep ran one: meshadv.experiments.protocols)
     figures/grid_<victim>_<type>.png        classes x classes renders (diagonal benign, failed attacks labelled)
+    figures/cells/<job>_<render>.png        the grids' cell renders, kept small, so that a report re-run from the
+                                            database alone can draw a grid again without the run's artefacts
     figures/flow_heatmap_<victim>.png       flow magnitude, rendered and canonical views
     figures/flow_quiver_<victim>.png        flow directions around the most displaced vertex
     figures/curvature_<victim>.png          flow magnitude vs. mean curvature (+ correlation in README)
@@ -198,7 +200,7 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
             if reuse and is_current([path], stamp):  # drawn from the same jobs and outcomes already
                 out.figures.append(path)
                 continue
-            cells, classes, failed = grid_cells(grows, source)
+            cells, classes, failed = grid_cells(grows, source, cache=fig_dir / "cells")
             if cells:
                 out.figures.append(render_grid(cells, classes, path, title=title, failed=failed))
                 best, _ = grid_choice(grows)

@@ -14,10 +14,10 @@ import numpy as np
 from meshadv.experiments.artifact_source import ArtifactSource, artifact_path
 from meshadv.experiments.store import JobRow
 from meshadv.experiments.tables import instance_key, victim_label
-from meshadv.util.png import add_png_text, png_text
+from meshadv.util.png import add_png_text, png_text, save_png
 
 __all__ = ["grid_cells", "grid_choice", "grid_stamp", "flow_figures", "flow_stamp", "is_current", "slug_of",
-           "PAPER_FLOW_EXAMPLE", "FIGURE_DRAWING_VERSION", "STAMP_KEY", "CORRELATIONS_KEY"]
+           "PAPER_FLOW_EXAMPLE", "FIGURE_DRAWING_VERSION", "STAMP_KEY", "CORRELATIONS_KEY", "CELL_CACHE_PX"]
 
 
 def slug_of(text: str) -> str:
@@ -72,19 +72,43 @@ def grid_stamp(rows: List[JobRow], title: str) -> str:
     return _stamp("grid", {"classes": classes, "title": title, "jobs": chosen})
 
 
-def grid_cells(rows: List[JobRow], source: Optional[ArtifactSource] = None,
+#: Largest side, in pixels, of the grid-cell renders kept in a report's cell cache (a grid cell is drawn at 160 px).
+CELL_CACHE_PX = 160
+
+
+def _cell(row: JobRow, key: str, source: Optional[ArtifactSource], cache: Optional[Path]) -> Optional[Path]:
+    """The render ``key`` (``benign_images`` / ``adversarial_images``, first view) of ``row`` for a grid cell: from
+    ``cache`` when it holds it (no artefact needed), else the artefact (regenerated when ``source`` regenerates),
+    then kept in ``cache`` at :data:`CELL_CACHE_PX`."""
+    cached = None if cache is None else cache / f"{row.job_id}_{key}.png"
+    if cached is not None and cached.is_file():
+        return cached
+    path = artifact_path(row, key, 0, source)
+    if path is None or cached is None:
+        return path
+    from PIL import Image
+
+    with Image.open(path) as img:
+        thumb = img.convert("RGB")
+        thumb.thumbnail((CELL_CACHE_PX, CELL_CACHE_PX))
+    return save_png(thumb, cached)
+
+
+def grid_cells(rows: List[JobRow], source: Optional[ArtifactSource] = None, cache: Optional[Path] = None,
                ) -> Tuple[Dict[Tuple[str, str], Path], List[str], Set[Tuple[str, str]]]:
     """The renders of :func:`grid_choice`'s instances, the classes and the ``(source, target)`` cells whose attack
-    failed. Only the chosen instances' jobs are looked up in ``source`` (regenerated when it regenerates)."""
+    failed. Only the chosen instances' jobs are looked up: in ``cache`` first (a folder of the report where every
+    cell render found is kept small, so that a later report from the database alone can draw the grid again), then
+    in ``source`` (regenerated when it regenerates)."""
     best, classes = grid_choice(rows)
     cells: Dict[Tuple[str, str], Path] = {}
     failed: Set[Tuple[str, str]] = set()
     for src, inst_rows in best.items():
         for r in inst_rows:
-            benign = artifact_path(r, "benign_images", 0, source)
+            benign = _cell(r, "benign_images", source, cache) if (src, src) not in cells else None
             if benign is not None:
-                cells.setdefault((src, src), benign)
-            adv = artifact_path(r, "adversarial_images", 0, source)
+                cells[(src, src)] = benign
+            adv = _cell(r, "adversarial_images", source, cache)
             if adv is not None:
                 cells[(src, r.spec["target"])] = adv
                 if not r.record.get("success"):
