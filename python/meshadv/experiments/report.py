@@ -187,26 +187,10 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
     if figures:
         fig_dir = out.out_dir / "figures"
         single = [r for r in done if r.spec.get("kind", "single") == "single" and not r.record.get("skipped")]
-        groups: Dict[Tuple[str, str], List[JobRow]] = defaultdict(list)
-        for r in single:
-            groups[(victim_label(r.spec), r.spec["perturbation"])].append(r)
         source = ArtifactSource(db, artifacts, use_stored=use_stored, threads=threads, assume=assume)
         reuse = use_stored and not redraw
-        for (victim, perturbation), grows in sorted(groups.items()):
-            path = fig_dir / f"grid_{slug_of(victim)}_{perturbation}.png"
-            title = (f"{perturbation} attacks on {victim} (rows: benign class, columns: target; diagonal: benign; "
-                     "red: attack failed)")
-            stamp = grid_stamp(grows, title)
-            if reuse and is_current([path], stamp):  # drawn from the same jobs and outcomes already
-                out.figures.append(path)
-                continue
-            cells, classes, failed = grid_cells(grows, source, cache=fig_dir / "cells")
-            if cells:
-                out.figures.append(render_grid(cells, classes, path, title=title, failed=failed))
-                best, _ = grid_choice(grows)
-                if all((src, src) in cells and (src, r.spec["target"]) in cells
-                       for src, inst_rows in best.items() for r in inst_rows):  # no cell missing: worth keeping
-                    add_png_text(path, {STAMP_KEY: stamp})
+        cache = fig_dir / "cells" if use_stored else None  # --no-stored: every render regenerated, none cached
+        out.figures.extend(_grids(single, fig_dir, source, reuse=reuse, cache=cache))
         flow_paths, out.correlations = flow_figures(single, fig_dir, source, redraw=not reuse)
         out.figures.extend(flow_paths)
         out.regenerations = dict(source.checks)
@@ -227,6 +211,34 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
     _write_readme(out, t1, t1_correct if mixed else None, t2, meta, _run_stats(done), transfer, comparison, extra,
                   pairs)
     return out
+
+
+def _grids(single: List[JobRow], fig_dir: Path, source: ArtifactSource, *, reuse: bool,
+           cache: Optional[Path]) -> List[Path]:
+    """The 7x7 grid of each (victim, type) of the single-view jobs: kept when ``reuse`` and its PNG records the
+    stamp of the jobs and outcomes it would show, else drawn (from ``cache``'s cell renders, else the artefacts) and
+    stamped when no cell is missing. Returns the grids."""
+    groups: Dict[Tuple[str, str], List[JobRow]] = defaultdict(list)
+    for r in single:
+        groups[(victim_label(r.spec), r.spec["perturbation"])].append(r)
+    written = []
+    for (victim, perturbation), grows in sorted(groups.items()):
+        path = fig_dir / f"grid_{slug_of(victim)}_{perturbation}.png"
+        title = (f"{perturbation} attacks on {victim} (rows: benign class, columns: target; diagonal: benign; "
+                 "red: attack failed)")
+        stamp = grid_stamp(grows, title)
+        if reuse and is_current([path], stamp):  # drawn from the same jobs and outcomes already
+            written.append(path)
+            continue
+        cells, classes, failed = grid_cells(grows, source, cache=cache)
+        if not cells:
+            continue
+        written.append(render_grid(cells, classes, path, title=title, failed=failed))
+        best, _ = grid_choice(grows)
+        if all((src, src) in cells and (src, r.spec["target"]) in cells
+               for src, inst_rows in best.items() for r in inst_rows):  # no cell missing: worth keeping
+            add_png_text(path, {STAMP_KEY: stamp})
+    return written
 
 
 def _write_regenerations(out_dir: Path, checks: Dict[str, Dict[str, Any]], done: List[JobRow]) -> List[Path]:
