@@ -101,3 +101,25 @@ def test_job_context_benign_verdict_is_the_jobs_own_check(tmp_path: Path) -> Non
     record = run_attack_job(job, tmp_path)
     assert record["benign_correct"] == verdict.correct and record["benign_top1"] == verdict.top1
     assert record["skipped"] is (not verdict.correct)
+
+
+def test_an_interrupted_attack_job_records_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C in a job's attack (the attack keeps its best so far) propagates: a job cut short is not a result, so
+    that a serial sweep re-queues it and a report's regeneration is not taken for the job's artefacts."""
+    from meshadv.experiments import jobs, worker
+
+    try:
+        from meshadv.victims import load_victim
+
+        load_victim("efficientnet_lite0")
+    except ImportError as err:
+        pytest.skip(f"victim efficientnet_lite0 unavailable: {err}")
+    spec = next(j for j in expand_jobs(parse_config(TINY)) if j["perturbation"] == "texture")
+
+    def interrupt(info: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(worker, "attack_step_callback", interrupt)
+    with pytest.raises(KeyboardInterrupt, match="interrupted after"):
+        jobs.run_attack_job({**spec, "attack": {**spec["attack"], "steps": 5}}, tmp_path)
+    assert not (tmp_path / "result.json").exists()

@@ -279,6 +279,8 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
 
     Raises:
         ValueError: bad spec (unknown perturbation type, victim, class...).
+        KeyboardInterrupt: the attack was interrupted (Ctrl-C, or SIGTERM where it takes Ctrl-C's path): nothing is
+            recorded, so that a sweep re-queues the job and a regeneration is not taken for the job's artefacts.
     """
     import torch
 
@@ -321,6 +323,8 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         criterion = WithMargin(criterion, context.required_margin)
     result = attack(mesh, context.views, context.victim, criterion, setup=context.setup,
                     eval_views=context.eval_views, callback=attack_step_callback)
+    if result.interrupted:  # the attack keeps its best so far on Ctrl-C; a job cut short is not a result
+        raise KeyboardInterrupt(f"attack job interrupted after {result.steps} steps")
     result.save(out)
     distances = dict(result.distances[0])
     ply, obj = result.mesh_filenames(0)
