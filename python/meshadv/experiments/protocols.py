@@ -20,7 +20,7 @@ from statistics import median
 from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 
 from meshadv.attacks.distances import PAPER_COMPARABLE, read_distance
-from meshadv.experiments.tables import instance_key, to_csv
+from meshadv.experiments.tables import format_cell, instance_key, single_view_results, to_csv
 from meshadv.util.atomic import write_text_atomic
 
 __all__ = ["AttackOutcome", "ProtocolPair", "ProtocolSummary", "protocol_pairs", "protocol_summary",
@@ -129,11 +129,7 @@ def protocol_pairs(jobs: Iterable[Any]) -> List[ProtocolPair]:
     protocol, source, instance and target."""
     main: Dict[Tuple[Any, ...], AttackOutcome] = {}
     extra: List[Tuple[Dict[str, Any], AttackOutcome]] = []
-    for job in jobs:
-        spec = job["spec"] if isinstance(job, dict) else job.spec
-        record = job["record"] if isinstance(job, dict) else job.record
-        if record is None or spec.get("kind", "single") != "single" or record.get("skipped"):
-            continue
+    for spec, record in single_view_results(jobs):
         outcome = _outcome(spec, record)
         if spec.get("protocol"):
             extra.append((spec, outcome))
@@ -162,13 +158,18 @@ def _methods(outcomes: Iterable[AttackOutcome]) -> str:
     return ", ".join(sorted({o.method or "?" for o in outcomes}))
 
 
-def protocol_summary(pairs: Iterable[ProtocolPair]) -> List[ProtocolSummary]:
-    """One :class:`ProtocolSummary` per (victim, perturbation, protocol) of ``pairs``, sorted."""
+def _by_group(pairs: Iterable[ProtocolPair]) -> List[Tuple[Tuple[str, str, str], List[ProtocolPair]]]:
+    """``pairs`` grouped by (victim, perturbation, protocol), sorted."""
     groups: Dict[Tuple[str, str, str], List[ProtocolPair]] = defaultdict(list)
     for pair in pairs:
         groups[(pair.victim, pair.perturbation, pair.protocol)].append(pair)
+    return sorted(groups.items())
+
+
+def protocol_summary(pairs: Iterable[ProtocolPair]) -> List[ProtocolSummary]:
+    """One :class:`ProtocolSummary` per (victim, perturbation, protocol) of ``pairs``, sorted."""
     out = []
-    for (victim, perturbation, protocol), group in sorted(groups.items()):
+    for (victim, perturbation, protocol), group in _by_group(pairs):
         both = [p for p in group if p.main.success and p.extra.success
                 and p.main.distance is not None and p.extra.distance is not None]
         ratios = [p.extra.distance / p.main.distance for p in both if p.main.distance > 0]
@@ -186,11 +187,6 @@ def protocol_summary(pairs: Iterable[ProtocolPair]) -> List[ProtocolSummary]:
     return out
 
 
-def _num(value: Optional[float], digits: int = 3) -> str:
-    """A number for a Markdown cell (``–`` for missing)."""
-    return "–" if value is None or math.isnan(value) else f"{value:.{digits}g}"
-
-
 def _pct(value: Optional[float]) -> str:
     """A fraction as a percentage cell (``–`` for missing)."""
     return "–" if value is None or math.isnan(value) else f"{100.0 * value:.2g}%"
@@ -198,11 +194,11 @@ def _pct(value: Optional[float]) -> str:
 
 def _cells(outcome: AttackOutcome, shape: bool) -> List[str]:
     """One attack's cells: reached, distance, (largest displacement), first success, CPU s."""
-    cells = ["yes" if outcome.success else "**no**", _num(outcome.distance)]
+    cells = ["yes" if outcome.success else "**no**", format_cell(outcome.distance)]
     if shape:
         cells.append(_pct(outcome.max_displacement))
     return cells + ["–" if outcome.steps_to_success is None else str(outcome.steps_to_success),
-                    _num(outcome.cpu_s, 3)]
+                    format_cell(outcome.cpu_s)]
 
 
 def protocol_summary_markdown(summaries: Sequence[ProtocolSummary]) -> str:
@@ -217,19 +213,16 @@ def protocol_summary_markdown(summaries: Sequence[ProtocolSummary]) -> str:
         lines.append(f"| {s.victim} | {s.perturbation} | {s.protocol} | {s.main_method}, {s.extra_method} | "
                      f"{s.pairs} ({s.instances}) | "
                      f"{s.main_successes}/{s.pairs} | {s.extra_successes}/{s.pairs} | {s.both} | "
-                     f"{s.extra_lower}/{s.both} | {_num(s.main_distance)} | {_num(s.extra_distance)} | "
-                     f"{_num(s.distance_ratio)} | {_pct(s.main_displacement)} | {_pct(s.extra_displacement)} | "
-                     f"{_num(s.main_cpu_s)} | {_num(s.extra_cpu_s)} |")
+                     f"{s.extra_lower}/{s.both} | {format_cell(s.main_distance)} | {format_cell(s.extra_distance)} | "
+                     f"{format_cell(s.distance_ratio)} | {_pct(s.main_displacement)} | {_pct(s.extra_displacement)} | "
+                     f"{format_cell(s.main_cpu_s)} | {format_cell(s.extra_cpu_s)} |")
     return "\n".join(lines) + "\n"
 
 
 def protocol_pairs_markdown(pairs: Sequence[ProtocolPair]) -> str:
     """One Markdown table per (victim, type, protocol) of ``pairs``: the two attacks of a pair side by side."""
-    groups: Dict[Tuple[str, str, str], List[ProtocolPair]] = defaultdict(list)
-    for pair in pairs:
-        groups[(pair.victim, pair.perturbation, pair.protocol)].append(pair)
     blocks = []
-    for (victim, perturbation, protocol), group in sorted(groups.items()):
+    for (victim, perturbation, protocol), group in _by_group(pairs):
         shape = perturbation == "shape"
         measure = PAPER_COMPARABLE.get(perturbation, "distance")
         side = ["reached", measure] + (["largest displacement"] if shape else []) + ["first success", "CPU s"]

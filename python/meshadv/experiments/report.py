@@ -226,17 +226,17 @@ def _grids(single: List[JobRow], fig_dir: Path, source: ArtifactSource, *, reuse
         path = fig_dir / f"grid_{slug_of(victim)}_{perturbation}.png"
         title = (f"{perturbation} attacks on {victim} (rows: benign class, columns: target; diagonal: benign; "
                  "red: attack failed)")
-        stamp = grid_stamp(grows, title)
+        choice = grid_choice(grows)
+        stamp = grid_stamp(choice, title)
         if reuse and is_current([path], stamp):  # drawn from the same jobs and outcomes already
             written.append(path)
             continue
-        cells, classes, failed = grid_cells(grows, source, cache=cache)
+        cells, classes, failed = grid_cells(grows, source, cache=cache, choice=choice)
         if not cells:
             continue
         written.append(render_grid(cells, classes, path, title=title, failed=failed))
-        best, _ = grid_choice(grows)
         if all((src, src) in cells and (src, r.spec["target"]) in cells
-               for src, inst_rows in best.items() for r in inst_rows):  # no cell missing: worth keeping
+               for src, inst_rows in choice[0].items() for r in inst_rows):  # no cell missing: worth keeping
             add_png_text(path, {STAMP_KEY: stamp})
     return written
 

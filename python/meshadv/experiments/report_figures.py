@@ -16,8 +16,8 @@ from meshadv.experiments.store import JobRow
 from meshadv.experiments.tables import instance_key, victim_label
 from meshadv.util.png import add_png_text, png_text, save_png
 
-__all__ = ["grid_cells", "grid_choice", "grid_stamp", "flow_figures", "flow_stamp", "is_current", "slug_of",
-           "PAPER_FLOW_EXAMPLE", "FIGURE_DRAWING_VERSION", "STAMP_KEY", "CORRELATIONS_KEY", "CELL_CACHE_PX"]
+__all__ = ["GridChoice", "grid_cells", "grid_choice", "grid_stamp", "flow_figures", "flow_stamp", "is_current",
+           "slug_of", "PAPER_FLOW_EXAMPLE", "FIGURE_DRAWING_VERSION", "STAMP_KEY", "CORRELATIONS_KEY", "CELL_CACHE_PX"]
 
 
 def slug_of(text: str) -> str:
@@ -44,7 +44,11 @@ def is_current(paths: List[Path], stamp: str) -> bool:
     return all(png_text(p).get(STAMP_KEY) == stamp for p in paths)
 
 
-def grid_choice(rows: List[JobRow]) -> Tuple[Dict[str, List[JobRow]], List[str]]:
+#: What :func:`grid_choice` returns: per source class the chosen instance's jobs, and the classes in order.
+GridChoice = Tuple[Dict[str, List[JobRow]], List[str]]
+
+
+def grid_choice(rows: List[JobRow]) -> GridChoice:
     """Per source class, the jobs of the instance with the most successful targets (from the records alone), and
     the classes in the grid's order."""
     by_instance: Dict[Tuple[Any, ...], List[JobRow]] = defaultdict(list)
@@ -63,11 +67,11 @@ def grid_choice(rows: List[JobRow]) -> Tuple[Dict[str, List[JobRow]], List[str]]
     return best, classes
 
 
-def grid_stamp(rows: List[JobRow], title: str) -> str:
-    """What a grid of ``rows`` is drawn from: the chosen jobs (:func:`grid_choice`) with their outcomes, the classes
-    and the title, hashed. A grid whose PNG records the same stamp need not be drawn again (nor its jobs' artefacts
+def grid_stamp(choice: GridChoice, title: str) -> str:
+    """What a grid is drawn from: the jobs :func:`grid_choice` chose with their outcomes, the classes and the title,
+    hashed. A grid whose PNG records the same stamp need not be drawn again (nor its jobs' artefacts
     regenerated)."""
-    best, classes = grid_choice(rows)
+    best, classes = choice
     chosen = sorted((r.job_id, bool(r.record.get("success"))) for inst_rows in best.values() for r in inst_rows)
     return _stamp("grid", {"classes": classes, "title": title, "jobs": chosen})
 
@@ -95,12 +99,13 @@ def _cell(row: JobRow, key: str, source: Optional[ArtifactSource], cache: Option
 
 
 def grid_cells(rows: List[JobRow], source: Optional[ArtifactSource] = None, cache: Optional[Path] = None,
+               choice: Optional[GridChoice] = None,
                ) -> Tuple[Dict[Tuple[str, str], Path], List[str], Set[Tuple[str, str]]]:
-    """The renders of :func:`grid_choice`'s instances, the classes and the ``(source, target)`` cells whose attack
-    failed. Only the chosen instances' jobs are looked up: in ``cache`` first (a folder of the report where every
-    cell render found is kept small, so that a later report from the database alone can draw the grid again), then
-    in ``source`` (regenerated when it regenerates)."""
-    best, classes = grid_choice(rows)
+    """The renders of :func:`grid_choice`'s instances (``choice`` when the caller has it), the classes and the
+    ``(source, target)`` cells whose attack failed. Only the chosen instances' jobs are looked up: in ``cache``
+    first (a folder of the report where every cell render found is kept small, so that a later report from the
+    database alone can draw the grid again), then in ``source`` (regenerated when it regenerates)."""
+    best, classes = choice if choice is not None else grid_choice(rows)
     cells: Dict[Tuple[str, str], Path] = {}
     failed: Set[Tuple[str, str]] = set()
     for src, inst_rows in best.items():
@@ -205,10 +210,11 @@ def flow_figures(rows: List[JobRow], fig_dir: Path, source: Optional[ArtifactSou
     for victim, vrows in sorted(by_victim.items()):
         paths = _flow_paths(fig_dir, victim)
         first = min(vrows, key=_flow_order)
-        kept = png_text(paths[2]).get(CORRELATIONS_KEY)
-        if not redraw and kept is not None and is_current(paths, flow_stamp(first, victim)):
+        texts = [png_text(p) for p in paths]
+        stamp = flow_stamp(first, victim)
+        if not redraw and CORRELATIONS_KEY in texts[2] and all(t.get(STAMP_KEY) == stamp for t in texts):
             written.extend(paths)
-            correlations[victim] = json.loads(kept)
+            correlations[victim] = json.loads(texts[2][CORRELATIONS_KEY])
             continue
         found = _flow_pair(vrows, source)
         if found is None:

@@ -42,7 +42,7 @@ import io
 import math
 from collections import defaultdict
 from dataclasses import asdict, dataclass, fields
-from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
+from typing import Any, Dict, Iterable, Iterator, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -58,6 +58,8 @@ __all__ = [
     "Table1Row",
     "Table2Row",
     "attack_rows",
+    "format_cell",
+    "single_view_results",
     "labelled_by_protocol",
     "pair_success",
     "pair_success_markdown",
@@ -218,6 +220,16 @@ def instance_key(spec: Dict[str, Any]) -> Tuple[Any, ...]:
     return mesh.get("path") or mesh.get("name"), spec.get("config_index"), spec.get("seed")
 
 
+def single_view_results(jobs: Iterable[Any]) -> Iterator[Tuple[Dict[str, Any], Dict[str, Any]]]:
+    """``(spec, record)`` of every finished single-view attack among ``jobs`` (``JobRow`` objects or ``{"spec",
+    "record"}`` dicts): jobs without a record, multi-view jobs and jobs whose record says ``skipped`` are left out."""
+    for job in jobs:
+        spec = job["spec"] if isinstance(job, dict) else job.spec
+        record = job["record"] if isinstance(job, dict) else job.record
+        if record is not None and spec.get("kind", "single") == "single" and not record.get("skipped"):
+            yield spec, record
+
+
 def attack_rows(jobs: Iterable[Any], *, benign_correct_only: bool = False) -> List[AttackRow]:
     """Flatten finished single-view jobs (``JobRow`` objects or ``{"spec", "record"}`` dicts) into :class:`AttackRow`.
 
@@ -228,11 +240,7 @@ def attack_rows(jobs: Iterable[Any], *, benign_correct_only: bool = False) -> Li
     ``benign_correct: false`` (the paper's protocol when the sweep attacked every configuration).
     """
     out = []
-    for job in jobs:
-        spec = job["spec"] if isinstance(job, dict) else job.spec
-        record = job["record"] if isinstance(job, dict) else job.record
-        if record is None or spec.get("kind", "single") != "single" or record.get("skipped"):
-            continue
+    for spec, record in single_view_results(jobs):
         if benign_correct_only and record.get("benign_correct") is False:
             continue
         perturbation = spec["perturbation"]
@@ -384,7 +392,9 @@ def table2(jobs: Iterable[Any], *, per_class: bool = False) -> List[Table2Row]:
     ]
 
 
-def _fmt(value: float, kind: str) -> str:
+def format_cell(value: Optional[float], kind: str = "num") -> str:
+    """A Markdown cell: ``kind`` ``"pct"`` a fraction as a percentage (one decimal), else 3 significant digits;
+    ``–`` for a missing or NaN value."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "–"
     if kind == "pct":
@@ -403,7 +413,7 @@ def tail_cells(tail: Optional[TailStats]) -> str:
     """The four Markdown cells of a :class:`TailStats` (median, p90, max, share above the threshold)."""
     if tail is None:
         return " | ".join(["–"] * 4)
-    return (f"{_fmt(tail.median, 'num')} | {_fmt(tail.p90, 'num')} | {_fmt(tail.max, 'num')} | "
+    return (f"{format_cell(tail.median, 'num')} | {format_cell(tail.p90, 'num')} | {format_cell(tail.max, 'num')} | "
             f"{above_text(tail)}")
 
 
@@ -446,10 +456,10 @@ def to_markdown(rows: Sequence[Any]) -> str:
         for r in rows:
             lines.append(
                 f"| {r.victim} | {r.perturbation} | {r.distance_name} | {'yes' if r.paper_measure else 'no'} | "
-                f"{_fmt(r.best.distance, 'num')} | "
-                f"{_fmt(r.best.success_rate, 'pct')} | {_fmt(r.average.distance, 'num')} | "
-                f"{_fmt(r.average.success_rate, 'pct')} | {_fmt(r.worst.distance, 'num')} | "
-                f"{_fmt(r.worst.success_rate, 'pct')} | {r.instances}"
+                f"{format_cell(r.best.distance, 'num')} | "
+                f"{format_cell(r.best.success_rate, 'pct')} | {format_cell(r.average.distance, 'num')} | "
+                f"{format_cell(r.average.success_rate, 'pct')} | {format_cell(r.worst.distance, 'num')} | "
+                f"{format_cell(r.worst.success_rate, 'pct')} | {r.instances}"
                 + (f" ({r.incomplete} incomplete)" if r.incomplete else "") + f" | {r.targets} | "
                 + tail_cells(r.tail) + " |")
         return "\n".join(lines) + "\n"
@@ -460,5 +470,6 @@ def to_markdown(rows: Sequence[Any]) -> str:
     for r in rows:
         lines.append(f"| {r.victim} | {r.perturbation} | " + (f"{r.pair} | " if per_class else "")
                      + f"{r.num_views} | {r.azimuth_range[0]:g}°–{r.azimuth_range[1]:g}° | {r.attacks} | "
-                     f"{r.benign_correct} | {_fmt(r.attack_view_success, 'pct')} | {_fmt(r.unseen_success, 'pct')} |")
+                     f"{r.benign_correct} | {format_cell(r.attack_view_success, 'pct')} | "
+                     f"{format_cell(r.unseen_success, 'pct')} |")
     return "\n".join(lines) + "\n"

@@ -74,7 +74,7 @@ def add_png_text(path: Union[str, Path], items: Mapping[str, str]) -> Path:
     with Image.open(path) as img:
         img.load()
         info = PngInfo()
-        for key, value in {**png_text(path), **dict(items)}.items():
+        for key, value in {**dict(getattr(img, "text", {}) or {}), **dict(items)}.items():
             info.add_text(key, value)
         with atomic_path(path, suffix=".png") as tmp:
             img.save(tmp, format="PNG", pnginfo=info)
