@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any, List, Optional, Sequence, Tuple
 
 import pytest
 
@@ -57,7 +58,7 @@ def test_write_files_is_confined_and_writes_the_marker_last(tmp_path: Path) -> N
 class _ReturningBackend(SerialBackend):
     """A backend whose jobs never see the driver's folder: the serial backend through run_detached."""
 
-    def wait(self, handles, timeout=None):  # type: ignore[no-untyped-def]
+    def wait(self, handles: Sequence[Any], timeout: Optional[float] = None) -> List[Tuple[Any, Outcome]]:
         for handle in handles:
             if handle in self._pending:
                 ref, jid, spec, _out_dir = self._pending.pop(handle)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from typing import Callable
 
 import pytest
 import torch
@@ -130,7 +131,8 @@ def test_bad_input_raises_value_error() -> None:
             render(**kwargs)
 
 
-def fd_check(fn, inputs: list[torch.Tensor], eps: float, rtol: float, atol: float, seed: int = 0) -> None:
+def fd_check(fn: Callable[..., torch.Tensor], inputs: list[torch.Tensor], eps: float, rtol: float, atol: float,
+             seed: int = 0) -> None:
     """Compare autograd with central finite differences of a random linear functional of ``fn``."""
     out = fn(*inputs)
     cot = torch.randn(out.shape, generator=torch.Generator().manual_seed(seed), dtype=out.dtype)

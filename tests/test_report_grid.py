@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import List
 
 import pytest
+from matplotlib.figure import Figure
 
 from meshadv.experiments import ResultStore
 from meshadv.experiments.figures import grid_figure, render_grid
@@ -28,7 +29,7 @@ def small_db(tmp_path: Path) -> Path:
     return db
 
 
-def _texts(fig) -> List:
+def _texts(fig: Figure) -> List:
     """Every visible, non-empty text artist of the figure (suptitle, titles, axis labels, cell notes)."""
     return [t for t in fig.findobj(lambda a: hasattr(a, "get_text") and hasattr(a, "get_window_extent"))
             if t.get_visible() and t.get_text().strip()]

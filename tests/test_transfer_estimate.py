@@ -7,7 +7,9 @@ import math
 import numpy as np
 import pytest
 import torch
+import trimesh
 
+from meshadv.mesh import Mesh
 from meshadv.render import Camera, Lights, native_available, render, render_silhouette
 from meshadv.transfer.estimate import (
     CameraEstimate,
@@ -20,12 +22,8 @@ from meshadv.transfer.estimate import (
 pytestmark = pytest.mark.skipif(not native_available(), reason="native module meshadv._raster not built")
 
 
-def _asymmetric_mesh():
+def _asymmetric_mesh() -> Mesh:
     """An L-shaped block with a post: no mirror or rotational symmetry, so the view is identifiable."""
-    import trimesh
-
-    from meshadv.mesh import Mesh
-
     parts = [
         trimesh.creation.box(extents=(1.2, 0.3, 0.5)),
         trimesh.creation.box(extents=(0.3, 0.8, 0.5), transform=trimesh.transformations.translation_matrix(

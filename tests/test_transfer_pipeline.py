@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import NoReturn
 import json
 import sqlite3
 
@@ -10,6 +12,7 @@ import torch
 
 from cli_output import unwrapped
 from meshadv.render import native_available
+from meshadv.victims import Victim
 from meshadv.transfer.results import (
     confusion_matrices,
     load_transfer_rows,
@@ -28,7 +31,7 @@ def _row(case: str, view: int, true: str, target: str, ok_ours: bool, ok_theirs:
             "untargeted_meshadv": True, "untargeted_mitsuba": ok_theirs or view == 0}
 
 
-def test_results_roundtrip_tables_and_confusion(tmp_path) -> None:
+def test_results_roundtrip_tables_and_confusion(tmp_path: Path) -> None:
     db = tmp_path / "results.db"
     rows = [
         _row("a", 0, "chair", "sofa", True, True),
@@ -66,7 +69,7 @@ def test_results_roundtrip_tables_and_confusion(tmp_path) -> None:
 
 
 @pytest.fixture(scope="module")
-def victim():
+def victim() -> Victim:
     from meshadv.victims import load_victim
 
     return load_victim("efficientnet_lite0")
@@ -79,7 +82,7 @@ def _views(n: int) -> list:
 
 
 @needs_native
-def test_controlled_transfer_tiny_run_produces_its_table(tmp_path, victim) -> None:
+def test_controlled_transfer_tiny_run_produces_its_table(tmp_path: Path, victim: Victim) -> None:
     pytest.importorskip("mitsuba")
     from meshadv.mesh import builtin_mesh
     from meshadv.transfer.controlled import TransferCase, controlled_transfer
@@ -105,12 +108,12 @@ def test_controlled_transfer_tiny_run_produces_its_table(tmp_path, victim) -> No
 
 
 @needs_native
-def test_controlled_transfer_survives_a_crashed_render(monkeypatch, victim) -> None:
+def test_controlled_transfer_survives_a_crashed_render(monkeypatch: pytest.MonkeyPatch, victim: Victim) -> None:
     from meshadv.mesh import builtin_mesh
     from meshadv.transfer import controlled
     from meshadv.transfer.render import MitsubaRenderError
 
-    def crash(*args, **kwargs):
+    def crash(*args: object, **kwargs: object) -> NoReturn:
         raise MitsubaRenderError("Mitsuba (llvm_ad_rgb) was killed by signal 6")
 
     monkeypatch.setattr(controlled, "render_scenes", crash)
@@ -121,7 +124,7 @@ def test_controlled_transfer_survives_a_crashed_render(monkeypatch, victim) -> N
         controlled.controlled_transfer([case], victim_loader=lambda name: victim, on_error="raise")
 
 
-def _fake_sweep(tmp_path):
+def _fake_sweep(tmp_path: Path) -> tuple[Path, list]:
     """A sweep database with two finished texture attacks (one successful), as the experiment runner writes them."""
     from meshadv.experiments import ResultStore
     from meshadv.mesh import builtin_mesh, save_mesh
@@ -147,7 +150,7 @@ def _fake_sweep(tmp_path):
     return db, views
 
 
-def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
+def test_cases_from_store_reads_finished_attacks(tmp_path: Path) -> None:
     from meshadv.mesh import builtin_mesh
     from meshadv.transfer.controlled import cases_from_store
 
@@ -167,7 +170,7 @@ def test_cases_from_store_reads_finished_attacks(tmp_path) -> None:
 
 
 @needs_native
-def test_blackbox_classifier_tiny_run(victim) -> None:
+def test_blackbox_classifier_tiny_run(victim: Victim) -> None:
     pytest.importorskip("mitsuba")
     from meshadv.mesh import builtin_mesh
     from meshadv.transfer.blackbox import blackbox_classifier
@@ -207,7 +210,7 @@ def test_blackbox_classifier_tiny_run(victim) -> None:
 
 
 @needs_native
-def test_cli_transfer_check_and_report(tmp_path) -> None:
+def test_cli_transfer_check_and_report(tmp_path: Path) -> None:
     pytest.importorskip("mitsuba")
     from typer.testing import CliRunner
 
@@ -231,7 +234,7 @@ def test_cli_transfer_check_and_report(tmp_path) -> None:
 
 
 @needs_native
-def test_cli_controlled_transfer_is_resumable(tmp_path) -> None:
+def test_cli_controlled_transfer_is_resumable(tmp_path: Path) -> None:
     pytest.importorskip("mitsuba")
     from typer.testing import CliRunner
 

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 import numpy as np
 import pytest
 import torch
 
+from meshadv.mesh import Mesh
 from meshadv.render import Camera, Lights, ViewSet, native_available, render_silhouette
 from meshadv.transfer import MitsubaCamera, SceneSpec, render_mask, render_scene, scene_spec
 from meshadv.transfer.check import conversion_check, mask_iou
@@ -21,14 +23,14 @@ def _record(distance: float, azimuth: float, elevation: float, tilt: float = 0.0
 
 
 @pytest.fixture(scope="module")
-def chair():
+def chair() -> Mesh:
     from meshadv.mesh import builtin_mesh
 
     return builtin_mesh("chair")
 
 
 @pytest.mark.parametrize("az,el,tilt", [(30.0, 20.0, 0.0), (200.0, -15.0, 25.0), (100.0, 55.0, -10.0)])
-def test_mask_iou_builtin_chair(chair, az: float, el: float, tilt: float) -> None:
+def test_mask_iou_builtin_chair(chair: Mesh, az: float, el: float, tilt: float) -> None:
     cam = Camera.spherical(3.2, az, el, tilt=tilt, viewing_angle=30.0)
     ours = render_silhouette(chair.vertices, chair.faces, cam, 80)[0, 0].numpy()
     theirs = render_mask(chair, MitsubaCamera.from_camera(cam), 80)
@@ -38,7 +40,7 @@ def test_mask_iou_builtin_chair(chair, az: float, el: float, tilt: float) -> Non
     assert mask_iou(ours, theirs[:, ::-1]) < 0.95 or mask_iou(ours, theirs.T) < 0.95
 
 
-def test_mask_iou_pascal3d_mesh(shared_data) -> None:
+def test_mask_iou_pascal3d_mesh(shared_data: Path) -> None:
     from meshadv.mesh import load_mesh, normalize_mesh
 
     mesh, _ = normalize_mesh(load_mesh(shared_data / "pascal3d/aeroplane/01.ply"), z_up=True)
@@ -81,7 +83,7 @@ def test_mismatched_lighting_is_detected() -> None:
     assert bright_diff > 3 * ours.mean_abs_difference
 
 
-def test_shadows_and_interreflection_only_in_mitsuba(chair) -> None:
+def test_shadows_and_interreflection_only_in_mitsuba(chair: Mesh) -> None:
     """Deeper paths add light (interreflection) on a concave object; direct-only does not."""
     record = _record(3.2, 30.0, 20.0)
     direct = render_scene(scene_spec(chair, record, image_size=48, spp=64, max_depth=2, seed=1))
@@ -90,7 +92,7 @@ def test_shadows_and_interreflection_only_in_mitsuba(chair) -> None:
     assert (bounce.image - direct.image).mean(axis=-1)[inside].mean() > 0.002
 
 
-def test_scene_spec_from_record_keeps_views(chair) -> None:
+def test_scene_spec_from_record_keeps_views(chair: Mesh) -> None:
     record = _record(3.0, 10.0, 5.0)
     spec = scene_spec(chair, record, image_size=32)
     assert isinstance(spec, SceneSpec)

@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from stand_in_victims import DarkBlobDetector
 
-from meshadv.attacks import Disappearance, Misclassification, TextureAttack
+from meshadv.attacks import Criterion, Disappearance, Misclassification, TextureAttack
 from meshadv.render import native_available
 from meshadv.transfer.robust import NoisyVictim, WithMargin, eot_views
 from meshadv.victims.base import ClassifierVictim
@@ -106,7 +106,7 @@ def test_attack_with_margin_keeps_a_step_that_holds_the_margin() -> None:
     attack = TextureAttack(steps=60, lr=0.05, lambda_perceptual=0.0)
     base = Misclassification(0).bind(victim)
 
-    def final_margin(criterion) -> float:
+    def final_margin(criterion: Criterion) -> float:
         result = attack(mesh, views, victim, criterion, setup=RenderSetup(image_size=32))
         adv = result.mesh
         with torch.no_grad():

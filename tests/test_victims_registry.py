@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 import pytest
 
 import meshadv.victims as victims
@@ -24,7 +25,7 @@ def test_unknown_name() -> None:
         load_victim("resnet9000")
 
 
-def test_missing_weights_messages_say_what_to_pass(tmp_path) -> None:
+def test_missing_weights_messages_say_what_to_pass(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="densenet121 needs weights="):
         load_victim("densenet121")
     with pytest.raises(ValueError, match="inception_v3 needs weights="):

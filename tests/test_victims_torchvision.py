@@ -3,6 +3,7 @@ preprocessing (224 / 299 px, normalisation), gradients and the promised errors."
 
 from __future__ import annotations
 
+from pathlib import Path
 import pytest
 import torch
 import torchvision
@@ -12,7 +13,7 @@ from meshadv.victims.torchvision_models import TorchvisionVictim, read_state_dic
 
 
 @pytest.fixture(scope="module")
-def densenet_file(tmp_path_factory) -> tuple:
+def densenet_file(tmp_path_factory: pytest.TempPathFactory) -> tuple:
     torch.manual_seed(0)
     model = torchvision.models.densenet121(weights=None).eval()
     path = tmp_path_factory.mktemp("densenet") / "densenet121.pth"
@@ -21,7 +22,7 @@ def densenet_file(tmp_path_factory) -> tuple:
 
 
 @pytest.fixture(scope="module")
-def inception_file(tmp_path_factory) -> tuple:
+def inception_file(tmp_path_factory: pytest.TempPathFactory) -> tuple:
     torch.manual_seed(1)
     model = torchvision.models.inception_v3(weights=None, aux_logits=True, init_weights=False).eval()
     path = tmp_path_factory.mktemp("inception") / "inception_v3.pth"
@@ -55,7 +56,7 @@ def test_inception_round_trip_at_299(inception_file: tuple) -> None:
     torch.testing.assert_close(victim(images), expected, rtol=0, atol=0)
 
 
-def test_inception_without_aux_head_and_wrapped_state_dict(tmp_path) -> None:
+def test_inception_without_aux_head_and_wrapped_state_dict(tmp_path: Path) -> None:
     torch.manual_seed(2)
     model = torchvision.models.inception_v3(weights=None, aux_logits=False, init_weights=False).eval()
     wrapped = {"state_dict": {f"module.{k}": v for k, v in model.state_dict().items()}}
@@ -88,7 +89,7 @@ def test_gradient_reaches_input_and_matches_finite_differences(densenet_file: tu
     assert numeric == pytest.approx(float((grad * direction).sum()), rel=1e-5, abs=1e-8)
 
 
-def test_errors(tmp_path, densenet_file: tuple) -> None:
+def test_errors(tmp_path: Path, densenet_file: tuple) -> None:
     _, densenet_path = densenet_file
     with pytest.raises(ValueError, match="weights="):
         load_victim("densenet121")

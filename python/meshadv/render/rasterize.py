@@ -141,7 +141,9 @@ class _Rasterize(torch.autograd.Function):
         return image_t, index_t, depth_t
 
     @staticmethod
-    def backward(ctx: Any, grad_image: torch.Tensor | None, _grad_index: Any, _grad_depth: Any):
+    def backward(
+        ctx: Any, grad_image: torch.Tensor | None, _grad_index: Any, _grad_depth: Any
+    ) -> tuple[torch.Tensor | None, ...]:
         verts_screen, face_attrs, faces, background, image, face_index = ctx.saved_tensors
         height, width, near, far, cull_backfaces, num_threads, orthographic = ctx.params
         need_v, need_a = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
