@@ -10,11 +10,16 @@ recorded, then the command exits (a batch slot's time limit; e.g. Slurm's ``--si
 Progress: one bar counts the jobs (successes, failures, ETA), a second one the attack steps out of the most the
 planned jobs can run, moving at every step of every running job with the local and serial backends (the workers
 report their steps to this process) and per finished job with Ray.
+
+With ``[attack.retry]`` in the config, every main-setting attack that fails is run again with a larger budget
+(:mod:`meshadv.experiments.retries`): the retries of earlier runs' failures come right after the main setting's
+jobs, and the failures of this run are retried before the command ends (``--only retry`` runs the retries alone).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import shlex
 import signal
 import sys
@@ -95,18 +100,23 @@ def sweep(
     from meshadv.experiments import ResultStore, make_backend, run_sweep
     from meshadv.experiments.config import DEFAULT_JOB, expand_jobs, load_config, select_parts
     from meshadv.experiments.jobs import planned_steps
+    from meshadv.experiments.retries import RETRY_PART, place_retries, retry_jobs
     from meshadv.experiments.report import environment_versions
 
     try:
         cfg = load_config(config)
     except (ValueError, FileNotFoundError) as err:
         raise typer.BadParameter(str(err), param_hint="CONFIG") from err
-    jobs = expand_jobs(cfg)
-    if only:
-        try:
-            jobs = select_parts(jobs, only)
-        except ValueError as err:
-            raise typer.BadParameter(str(err), param_hint="--only") from err
+    expanded = expand_jobs(cfg)
+    retry_parts = [RETRY_PART] if cfg.attack["retry"] else []
+
+    def selected(specs: List[Dict[str, Any]]) -> List[Dict[str, Any]]:
+        return select_parts(specs, only, also_known=retry_parts) if only else specs
+
+    try:
+        jobs = selected(expanded)
+    except ValueError as err:
+        raise typer.BadParameter(str(err), param_hint="--only") from err
     try:
         after_s = None if stop_starting_after is None else parse_duration(stop_starting_after,
                                                                            "--stop-starting-after")
@@ -156,12 +166,28 @@ def sweep(
         store.set_meta("command", "meshadv sweep " + " ".join(shlex.quote(a) for a in sys.argv[2:]))
         store.set_meta("sweep_versions", environment_versions())
         stop = StopStarting(after_s)
+
+        def with_due_retries() -> List[Dict[str, Any]]:
+            """The sweep's jobs with the retries of the main attacks that have failed so far."""
+            due = retry_jobs(cfg.attack["retry"], store.rows()) if retry_parts else []
+            return selected(place_retries(expanded, due))
+
         try:
             with stop.on_sigusr1():
-                summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be,
-                                    max_attempts=attempts, progress=progress,
-                                    planned_steps=planned_steps if runner["job"] == DEFAULT_JOB else None,
-                                    stop_starting=stop)
+                jobs, ran = with_due_retries(), 0
+                while True:  # again while this run's failures added retries
+                    summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be,
+                                        max_attempts=attempts, progress=progress,
+                                        planned_steps=planned_steps if runner["job"] == DEFAULT_JOB else None,
+                                        stop_starting=stop)
+                    ran += summary.ran
+                    if summary.not_started:
+                        break
+                    more = with_due_retries()
+                    if len(more) == len(jobs):
+                        break
+                    jobs = more
+                summary = dataclasses.replace(summary, ran=ran)
             write_job_index(store, out_root, out_root)  # index.csv / index.md: job id -> folder and settings
         except KeyboardInterrupt:
             be.close()

@@ -39,7 +39,7 @@ SECTION_KEYS: Dict[str, frozenset] = {
         }
     ),  # fmt: skip
     "victims": frozenset({"names", "weights", "configurations"}),
-    "attack": frozenset({"perturbations", "types", "targets", "benign_correct_only", "protocols"}),
+    "attack": frozenset({"perturbations", "types", "targets", "benign_correct_only", "protocols", "retry"}),
     "multiview": frozenset(
         {
             "enabled",
@@ -127,20 +127,26 @@ def check_keys(raw: Mapping[str, Any], families: Mapping[str, type]) -> None:
     for name, proto in protocols.items():
         _check_table(proto, f"attack.protocols.{name}", PROTOCOL_KEYS | set(families))
         _check_attack_options(proto, f"attack.protocols.{name}", families)
+    if "retry" in attack:
+        _check_table(attack["retry"], "attack.retry", families)
+        _check_attack_options(attack["retry"], "attack.retry", families)
 
 
 def check_attack_values(attack: Mapping[str, Any], families: Mapping[str, type]) -> None:
     """Build every attack the sweep will build, so bad option values (``steps = "10"``) fail at load.
 
     Args:
-        attack: the ``[attack]`` table after defaults (``perturbations``, one options table per perturbation and
-            ``protocols``).
+        attack: the ``[attack]`` table after defaults (``perturbations``, one options table per perturbation,
+            ``protocols`` and ``retry``).
         families: perturbation name -> attack class.
 
     Raises:
         ValueError: the attack class refused an option; the message names the table.
     """
     tables = [("attack", attack)] + [(f"attack.protocols.{n}", p) for n, p in attack.get("protocols", {}).items()]
+    # a retry runs with its options over the main setting's
+    retry = {p: {**dict(attack.get(p, {})), **dict(o)} for p, o in attack.get("retry", {}).items()}
+    tables.append(("attack.retry", retry))
     for path, table in tables:
         for perturbation in attack.get("perturbations", []):
             options = {k: v for k, v in dict(table.get(perturbation, {})).items() if k not in JOB_ATTACK_OPTIONS}

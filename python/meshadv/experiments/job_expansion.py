@@ -69,13 +69,18 @@ def job_part(job: Dict[str, Any]) -> str:
     return str(job.get("protocol", "main"))
 
 
-def select_parts(jobs: Sequence[Dict[str, Any]], parts: Sequence[str]) -> List[Dict[str, Any]]:
+def select_parts(jobs: Sequence[Dict[str, Any]], parts: Sequence[str], *,
+                 also_known: Sequence[str] = ()) -> List[Dict[str, Any]]:
     """The jobs of ``jobs`` in the named parts (:func:`job_part`), in their order.
+
+    Args:
+        jobs: job specs. parts: the parts to keep.
+        also_known: parts of the sweep that may have no job yet (``"retry"``: retries exist once attacks fail).
 
     Raises:
         ValueError: naming ``parts`` when one is not a part of this sweep (the message lists those that are).
     """
-    known = list(dict.fromkeys(job_part(j) for j in jobs))
+    known = list(dict.fromkeys([*(job_part(j) for j in jobs), *also_known]))
     unknown = [p for p in parts if p not in known]
     if unknown:
         raise ValueError(f"parts {unknown} are not in this sweep; its parts are {known}")

@@ -22,6 +22,8 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
     [attack.protocols.<name>]   extra attack settings on a subset: configurations = 2 (first configurations per
                   class), victims = [...] (default all), shape = {...}, texture = {...}; their jobs carry
                   ``"protocol": "<name>"`` and the tables report them as separate rows
+    [attack.retry]  shape = {steps = 1000}, texture = {...}: each main-setting attack of these types that fails runs
+                  again from its benign mesh with these options over its own (:mod:`meshadv.experiments.retries`)
     [multiview]   enabled = false, view_counts = [5, 10, 15], azimuth_ranges = [[45, 60], [35, 70], [15, 75]],
                   grid = false (true: every view count with every range, the paper's 3 x 3 Table 2; false: pairs),
                   eval_views = 20, perturbations = ["shape", "texture"] (or ``types``), classes = [...],
@@ -43,6 +45,7 @@ from typing import Any, Dict, List, Sequence, Tuple, Union
 
 from meshadv.data import PASCAL3D_CLASSES
 from meshadv.experiments.config_keys import check_attack_values, check_keys
+from meshadv.experiments.retries import RETRY_PART
 
 __all__ = ["DEFAULT_JOB", "PASCAL3D_CLASSES", "SweepConfig", "load_config", "parse_config"]
 
@@ -231,10 +234,13 @@ def _attack_section(raw: Dict[str, Any]) -> Dict[str, Any]:
 
     attack_raw, attack_key = _perturbations_key(dict(raw.get("attack", {})), "attack")
     attack = {"perturbations": perturbations(), "targets": "others", "benign_correct_only": True, "shape": {},
-              "texture": {}, "protocols": {}, **attack_raw}
+              "texture": {}, "protocols": {}, "retry": {}, **attack_raw}
     for pname, proto in attack["protocols"].items():
         if not isinstance(proto, dict) or int(proto.get("configurations", 1)) < 1:
             raise ValueError(f"attack.protocols.{pname} must be a table with configurations >= 1, got {proto!r}")
+        if pname == RETRY_PART:
+            raise ValueError(f"attack.protocols.{pname}: the name {RETRY_PART!r} is the retry pass's "
+                             "([attack.retry]); name the protocol otherwise")
     bad = [t for t in attack["perturbations"] if t not in PERTURBATIONS]
     if bad or not attack["perturbations"]:
         raise ValueError(f"{attack_key} must be a non-empty subset of {perturbations()}, "

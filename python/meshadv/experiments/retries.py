@@ -1,0 +1,90 @@
+"""The retry pass: a main-setting attack that failed runs again with a larger budget (``[attack.retry]``).
+
+An attack with a fixed budget (ddn's 300 shape / 100 texture steps) misses some targets that the same attack reaches
+with more steps, because its step size anneals over the budget it is given. Running every attack with the larger
+budget would multiply the sweep's cost; running it again only where the first run failed costs a few percent, as an
+ensemble of attacks does (AutoAttack runs each attack only on the inputs the previous ones did not break).
+
+A retry job is its parent's spec with the retry options over the parent's attack options, ``"protocol": "retry"``
+(so the tables, Table 3 and ``meshadv sweep --only retry`` treat the retries as one more part of the sweep) and
+``"retry_of": <parent job id>``. It starts from the benign mesh, not from the failed result, and its seed is the
+parent's. :func:`with_retries` combines each main attack with its retry: the retry's outcome where the parent
+failed, the parent's otherwise; the tables report that as the victim's ``[+retry]`` row beside the plain one.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Dict, Iterable, List, Mapping, Sequence
+
+__all__ = ["COMBINED_PART", "RETRY_PART", "is_retry", "place_retries", "retry_jobs", "retry_spec", "with_retries"]
+
+#: The part (``job_part``) and protocol name of the retry jobs.
+RETRY_PART = "retry"
+#: The protocol name the tables give a main attack combined with its retry (:func:`with_retries`).
+COMBINED_PART = "+retry"
+
+
+def is_retry(spec: Mapping[str, Any]) -> bool:
+    """Whether ``spec`` is a retry job."""
+    return "retry_of" in spec
+
+
+def _is_main_single(spec: Mapping[str, Any]) -> bool:
+    return spec.get("kind", "single") == "single" and not spec.get("protocol")
+
+
+def retry_spec(spec: Mapping[str, Any], parent_id: str, options: Mapping[str, Any]) -> Dict[str, Any]:
+    """The retry job of the main-setting job ``parent_id`` (spec ``spec``): its attack options with ``options``
+    over them, ``"protocol": "retry"`` and ``"retry_of": parent_id``; everything else is the parent's."""
+    child = dict(spec)
+    child["attack"] = {**dict(spec.get("attack", {})), **dict(options)}
+    child["protocol"] = RETRY_PART
+    child["retry_of"] = parent_id
+    return child
+
+
+def retry_jobs(retry: Mapping[str, Mapping[str, Any]], rows: Iterable[Any]) -> List[Dict[str, Any]]:
+    """The retry jobs due: one per finished main-setting single-view job (a ``JobRow``) whose attack failed, was not
+    skipped, and whose perturbation type ``retry`` (the config's ``[attack.retry]``: type -> options) names; in the
+    order of ``rows``."""
+    out = []
+    for row in rows:
+        spec, record = row.spec, row.record
+        if row.state != "done" or record is None or not _is_main_single(spec):
+            continue
+        options = retry.get(spec["perturbation"])
+        if options is None or record.get("skipped") or record.get("success"):
+            continue
+        out.append(retry_spec(spec, row.job_id, options))
+    return out
+
+
+def place_retries(jobs: Sequence[Dict[str, Any]], retries: Sequence[Dict[str, Any]]) -> List[Dict[str, Any]]:
+    """``jobs`` (a sweep's expansion, in its order) with ``retries`` right after the last main-setting job, so that
+    they run before the extra protocols and Table 2."""
+    last_main = max((i for i, j in enumerate(jobs) if _is_main_single(j)), default=-1)
+    return [*jobs[:last_main + 1], *retries, *jobs[last_main + 1:]]
+
+
+def with_retries(jobs: Iterable[Any]) -> List[Dict[str, Any]]:
+    """Each finished main-setting single-view attack combined with its finished retry, as ``{"spec", "record"}``
+    dicts for :func:`meshadv.experiments.tables.attack_rows`: the retry's record where the parent failed and a retry
+    finished, else the parent's; the spec is the parent's with ``"protocol": "+retry"``. Only the (victim, type)
+    groups with at least one finished retry are returned (none when the sweep has no retries).
+
+    Args:
+        jobs: ``JobRow`` objects (finished or not).
+    """
+    rows = [j for j in jobs if j.state == "done" and j.record is not None]
+    retried = {j.spec["retry_of"]: j.record for j in rows if is_retry(j.spec)}
+    groups = {(j.spec["victim"], j.spec["perturbation"]) for j in rows if is_retry(j.spec)}
+    out = []
+    for job in rows:
+        spec = job.spec
+        if not _is_main_single(spec) or (spec["victim"], spec["perturbation"]) not in groups:
+            continue
+        record = job.record
+        if not record.get("success") and job.job_id in retried:
+            record = retried[job.job_id]
+        out.append({"spec": dict(spec, protocol=COMBINED_PART), "record": record})
+    return out

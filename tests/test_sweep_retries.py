@@ -1,0 +1,126 @@
+"""The retry pass (``[attack.retry]``, :mod:`meshadv.experiments.retries`): failed main attacks run again with a
+larger budget, resumably, and the tables combine each attack with its retry."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Dict, Optional
+
+import pytest
+from typer.testing import CliRunner
+
+from meshadv.experiments.config import parse_config
+from meshadv.experiments.job_expansion import job_part, select_parts
+from meshadv.experiments.retries import place_retries, retry_jobs, retry_spec, with_retries
+from meshadv.experiments.store import JobRow, ResultStore
+from meshadv.experiments.tables import attack_rows, table1
+from sweep_fixtures import job_states, sweep_cli, two_job_config
+
+# a job that reaches its target with 50 steps or more, and from the sofa always
+RETRY_JOB = '''
+def job(spec, out_dir):
+    steps = int(spec["attack"].get("steps", 0))
+    won = steps >= 50 or spec["source_class"] == "sofa"
+    return {"success": won, "distance": 1.0 / steps if steps else 1.0, "steps": steps}
+'''
+
+
+def _config(extra: str) -> Dict[str, Any]:
+    import tomllib
+
+    return tomllib.loads(two_job_config("retry", "m:job") + extra)
+
+
+def _row(job_id: str, spec: Dict[str, Any], record: Optional[Dict[str, Any]], state: str = "done") -> JobRow:
+    return JobRow(job_id=job_id, spec=spec, state=state, attempts=1, error=None, record=record, out_dir=None,
+                  started=None, finished=None)
+
+
+def _spec(source: str, target: str, perturbation: str = "shape", **extra: Any) -> Dict[str, Any]:
+    return {"kind": "single", "mesh": {"name": source}, "source_class": source, "target": target,
+            "victim": "v", "perturbation": perturbation, "attack": {"steps": 10, "lr": 0.1}, "seed": 0,
+            "config_index": 0, **extra}
+
+
+def test_the_retry_table_is_checked_at_load() -> None:
+    cfg = parse_config(_config("\n[attack.retry]\nshape = { steps = 60 }\n"))
+    assert cfg.attack["retry"] == {"shape": {"steps": 60}}
+    assert parse_config(_config("")).attack["retry"] == {}
+    with pytest.raises(ValueError, match="'attack.retry.shape.stepz'; did you mean 'attack.retry.shape.steps'"):
+        parse_config(_config("\n[attack.retry]\nshape = { stepz = 60 }\n"))
+    with pytest.raises(ValueError, match="'attack.retry.colour'"):
+        parse_config(_config("\n[attack.retry]\ncolour = { steps = 60 }\n"))
+    with pytest.raises(ValueError, match=r"\[attack.retry.shape\]"):
+        parse_config(_config("\n[attack.retry]\nshape = { steps = -3 }\n"))
+    with pytest.raises(ValueError, match="attack.protocols.retry: the name 'retry' is the retry pass's"):
+        parse_config(_config("\n[attack.protocols.retry]\nshape = { steps = 60 }\n"))
+
+
+def test_retry_jobs_are_due_for_failed_main_attacks_only() -> None:
+    rows = [
+        _row("a", _spec("chair", "sofa"), {"success": False}),
+        _row("b", _spec("sofa", "chair"), {"success": True}),
+        _row("c", _spec("boat", "chair"), {"success": False, "skipped": True}),
+        _row("d", _spec("boat", "sofa"), None, state="pending"),
+        _row("e", _spec("chair", "boat", protocol="paper"), {"success": False}),
+        _row("f", _spec("chair", "boat", "texture"), {"success": False}),
+        _row("g", dict(_spec("chair", "boat"), kind="multiview"), {"success": False}),
+    ]
+    due = retry_jobs({"shape": {"steps": 60}}, rows)
+    assert due == [retry_spec(rows[0].spec, "a", {"steps": 60})]
+    child = due[0]
+    assert child["attack"] == {"steps": 60, "lr": 0.1} and child["retry_of"] == "a"
+    assert job_part(child) == "retry" and rows[0].spec["attack"] == {"steps": 10, "lr": 0.1}  # parent untouched
+    main, paper = _spec("chair", "sofa"), _spec("chair", "sofa", protocol="paper")
+    assert place_retries([main, paper], due) == [main, child, paper]
+    assert place_retries([paper], due) == [child, paper]
+
+
+def test_with_retries_combines_each_attack_with_its_retry() -> None:
+    parent, other = _spec("chair", "sofa"), _spec("chair", "boat")
+    child = retry_spec(parent, "a", {"steps": 60})
+    rows = [_row("a", parent, {"success": False, "distance": 5.0}),
+            _row("b", other, {"success": True, "distance": 1.0}),
+            _row("c", child, {"success": True, "distance": 2.0})]
+    combined = with_retries(rows)
+    assert [(c["spec"]["protocol"], c["record"]["distance"]) for c in combined] == [("+retry", 2.0),
+                                                                                   ("+retry", 1.0)]
+    t1 = {r.victim: r for r in table1(attack_rows([*rows, *combined])) if r.distance_name == "laplacian_pair_mean"}
+    assert t1["v"].average.success_rate == 0.5 and t1["v [+retry]"].average.success_rate == 1.0
+    assert t1["v [retry]"].average.success_rate == 1.0
+    assert with_retries(rows[:2]) == []  # no retry finished: no combined rows
+
+
+def test_sweep_runs_the_retries_of_its_failures_and_resumes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "m.py").write_text(RETRY_JOB)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    retry = "\n[attack.retry]\nshape = { steps = 60 }\n"
+    (tmp_path / "sweep.toml").write_text(two_job_config("retry", "m:job") + retry)
+    db = tmp_path / "results.db"
+    args = ["sweep", str(tmp_path / "sweep.toml"), "--db", str(db), "--output", str(tmp_path / "out"),
+            "--backend", "serial", "--no-progress"]
+    res = CliRunner().invoke(sweep_cli(), args + ["--only", "retry"])  # no failure yet: nothing to retry
+    assert res.exit_code == 0, res.output
+    assert job_states(db) == {}
+    res = CliRunner().invoke(sweep_cli(), args + ["--stop-starting-after", "0"])
+    assert res.exit_code == 0 and "2 job(s) wait for the next run" in res.output, res.output
+    res = CliRunner().invoke(sweep_cli(), args)
+    assert res.exit_code == 0, res.output
+    assert "3/3 done (2 successful)" in res.output and "ran 3" in res.output
+    with ResultStore(db) as store:
+        rows = store.rows()
+    (child,) = [r for r in rows if r.spec.get("retry_of")]
+    parent = next(r for r in rows if r.job_id == child.spec["retry_of"])
+    assert parent.spec["source_class"] == "chair" and parent.record["success"] is False
+    assert child.record["success"] is True and child.spec["attack"]["steps"] == 60
+    res = CliRunner().invoke(sweep_cli(), args)  # resumed: nothing left, no retry of a retry
+    assert res.exit_code == 0 and "3/3 done" in res.output and "ran 0" in res.output, res.output
+    res = CliRunner().invoke(sweep_cli(), args + ["--only", "paper"])
+    assert res.exit_code == 2 and "'retry'" in res.output
+
+
+def test_select_parts_knows_parts_without_jobs_yet() -> None:
+    jobs = [_spec("chair", "sofa")]
+    assert select_parts(jobs, ["retry"], also_known=["retry"]) == []
+    with pytest.raises(ValueError, match="parts \\['retry'\\] are not in this sweep"):
+        select_parts(jobs, ["retry"])
