@@ -11,7 +11,13 @@ from typer.testing import CliRunner
 
 from meshadv.experiments.config import parse_config
 from meshadv.experiments.job_expansion import job_part, select_parts
-from meshadv.experiments.retries import place_retries, retry_jobs, retry_spec, with_retries
+from meshadv.experiments.retries import (
+    place_retries,
+    retry_jobs,
+    retry_spec,
+    with_retried_transfers,
+    with_retries,
+)
 from meshadv.experiments.store import JobRow, ResultStore
 from meshadv.experiments.tables import attack_rows, table1
 from sweep_fixtures import job_states, sweep_cli, two_job_config
@@ -89,6 +95,17 @@ def test_with_retries_combines_each_attack_with_its_retry() -> None:
     assert t1["v"].average.success_rate == 0.5 and t1["v [+retry]"].average.success_rate == 1.0
     assert t1["v [retry]"].average.success_rate == 1.0
     assert with_retries(rows[:2]) == []  # no retry finished: no combined rows
+
+
+def test_table3_rows_of_the_combined_attacks() -> None:
+    parent, other = _spec("chair", "sofa"), _spec("chair", "boat")
+    specs = {"a": parent, "b": other, "c": retry_spec(parent, "a", {"steps": 60}),
+             "d": _spec("chair", "boat", protocol="paper"), "x": dict(_spec("sofa", "boat"), victim="w")}
+    rows = [{"case_id": k, "victim": specs[k]["victim"], "untargeted_mitsuba": True} for k in ("b", "c", "d", "x")]
+    rows.append({"case_id": "blackbox-1", "victim": "v"})  # not a job of this sweep
+    combined = with_retried_transfers(rows, specs)
+    assert [(r["case_id"], r["victim"]) for r in combined] == [("b", "v [+retry]"), ("c", "v [+retry]")]
+    assert with_retried_transfers([rows[0], rows[2]], specs) == []  # no retry transferred
 
 
 def test_sweep_runs_the_retries_of_its_failures_and_resumes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

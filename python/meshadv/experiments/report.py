@@ -36,7 +36,7 @@ from meshadv.experiments.artifact_source import ArtifactSource
 from meshadv.experiments.compare import paper_comparison
 from meshadv.experiments.protocols import protocol_section
 from meshadv.experiments.provenance import environment_versions
-from meshadv.experiments.retries import is_retry, with_retries
+from meshadv.experiments.retries import is_retry, with_retried_transfers, with_retries
 from meshadv.experiments.figures import render_grid
 from meshadv.experiments.report_figures import (
     PAPER_FLOW_EXAMPLE,
@@ -183,7 +183,8 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
     if pairs:
         out.tables.append(write_text_atomic(out.out_dir / "table1_pairs.md", pair_success_markdown(pairs)))
         out.tables.append(write_text_atomic(out.out_dir / "table1_pairs.csv", to_csv(pairs)))
-    transfer_rows = labelled_by_protocol(transfer_rows, {r.job_id: r.spec for r in done})
+    specs = {r.job_id: r.spec for r in done}
+    transfer_rows = [*labelled_by_protocol(transfer_rows, specs), *with_retried_transfers(transfer_rows, specs)]
     transfer = transfer_section(transfer_rows) if transfer_section and transfer_rows else ""
     comparison = paper_comparison(t1_correct if mixed else t1, t2, transfer_rows)
     out.tables.append(write_text_atomic(out.out_dir / "paper_comparison.md", comparison))

@@ -16,7 +16,8 @@ from __future__ import annotations
 
 from typing import Any, Dict, Iterable, List, Mapping, Sequence
 
-__all__ = ["COMBINED_PART", "RETRY_PART", "is_retry", "place_retries", "retry_jobs", "retry_spec", "with_retries"]
+__all__ = ["COMBINED_PART", "RETRY_PART", "is_retry", "place_retries", "retry_jobs", "retry_spec", "with_retries",
+           "with_retried_transfers"]
 
 #: The part (``job_part``) and protocol name of the retry jobs.
 RETRY_PART = "retry"
@@ -87,4 +88,22 @@ def with_retries(jobs: Iterable[Any]) -> List[Dict[str, Any]]:
         if not record.get("success") and job.job_id in retried:
             record = retried[job.job_id]
         out.append({"spec": dict(spec, protocol=COMBINED_PART), "record": record})
+    return out
+
+
+def with_retried_transfers(rows: Sequence[Dict[str, Any]], specs: Mapping[str, Mapping[str, Any]]
+                           ) -> List[Dict[str, Any]]:
+    """Table 3's rows of the combined attacks (:func:`with_retries`): the transfer rows (keyed by ``case_id``, a job
+    id of ``specs``) of the main attacks and of the retries once more, with ``victim`` named ``"<victim> [+retry]"``.
+    Only successful attacks are transferred, so a main attack that failed has no row and its retry's rows stand for
+    it. Only victims with a transferred retry get them (none without retries)."""
+    def spec_of(row: Dict[str, Any]) -> Mapping[str, Any]:
+        return specs.get(row.get("case_id"), {})
+
+    retried = {spec_of(r)["victim"] for r in rows if is_retry(spec_of(r))}
+    out = []
+    for row in rows:
+        spec = spec_of(row)
+        if spec.get("victim") in retried and (is_retry(spec) or _is_main_single(spec)):
+            out.append(dict(row, victim=f"{spec['victim']} [{COMBINED_PART}]"))
     return out
