@@ -12,7 +12,8 @@
    (one forward pass each) are negligible. Groups without a measurement borrow the nearest one with the same update
    rule (same type and kind with another victim, else the same victim and type, else the same type) and say so.
    ``--db`` takes several databases (e.g. a sweep's own database for its ``ddn`` jobs and an Adam measurement for
-   the paper's protocol).
+   the paper's protocol). With ``[attack.retry]`` each main attack may run once more (its retry): expected at the
+   group's measured failure rate of main attacks, at most once per main attack, labelled ``[retry]``.
 
     python benchmarks/paper_cost.py --measure --config configs/paper_medium.toml --out out/cost
     python benchmarks/paper_cost.py --db out/cost/results.db --config configs/paper_medium.toml configs/paper_full.toml
@@ -72,14 +73,19 @@ def measured(dbs: Sequence[Path]) -> Dict[Group, Dict[str, float]]:
         with ResultStore(db, read_only=True) as store:
             rows += [r for r in store.rows("done") if not r.record.get("skipped") and r.record.get("steps")]
     acc: Dict[Group, List[Tuple[float, float]]] = defaultdict(list)
+    outcomes: Dict[Group, List[bool]] = defaultdict(list)  # main attacks' successes: the retries' expected share
     for r in rows:
+        if not r.spec.get("protocol"):
+            outcomes[_group(r.spec)].append(bool(r.record.get("success")))
         steps, rounds = _budget(r.spec)
         views = len(r.spec["views"])
         seconds = r.record.get("cpu_time") or r.record["time"]  # CPU time when recorded: robust to a loaded machine
         per_step_image = seconds / (r.record["steps"] * views)
         acc[_group(r.spec)].append((per_step_image, r.record["steps"] / rounds))
     return {g: {"per_step_image": statistics.median(v[0] for v in vals),
-                "steps": statistics.mean(v[1] for v in vals), "n": len(vals)} for g, vals in acc.items()}
+                "steps": statistics.mean(v[1] for v in vals), "n": len(vals),
+                "failure_rate": 1.0 - statistics.mean(outcomes[g]) if outcomes[g] else 1.0}
+            for g, vals in acc.items()}
 
 
 def project(config: Path, costs: Dict[Group, Dict[str, float]]) -> Dict[str, Any]:
@@ -89,7 +95,9 @@ def project(config: Path, costs: Dict[Group, Dict[str, float]]) -> Dict[str, Any
     per_group: Dict[str, List[float]] = defaultdict(lambda: [0.0, 0.0])
     borrowed = set()
     missing: Dict[Group, int] = defaultdict(int)
-    jobs = expand_jobs(load_config(config))
+    cfg = load_config(config)
+    retry = cfg.attack["retry"]
+    jobs = expand_jobs(cfg)
     for job in jobs:
         g = _group(job)
         cost = costs.get(g)
@@ -113,6 +121,16 @@ def project(config: Path, costs: Dict[Group, Dict[str, float]]) -> Dict[str, Any
         label = f"{g[0]} {g[1]} {g[2]} {g[3]}" + (f" [{job['protocol']}]" if job.get("protocol") else "")
         per_group[label][0] += seconds
         per_group[label][1] += most
+        options = retry.get(job["perturbation"]) if not job.get("protocol") and job["kind"] == "single" else None
+        if options is not None:  # its retry: at the measured failure rate, at most every time
+            attack = {**job.get("attack", {}), **options}
+            r_steps, r_rounds = int(attack.get("steps", 100)), int(attack.get("binary_search_steps", 1))
+            r_most = cost["per_step_image"] * len(job["views"]) * r_rounds * r_steps
+            r_label = f"{g[0]} {g[1]} {g[2]} {g[3]} [retry]"
+            per_group[r_label][0] += cost["failure_rate"] * r_most
+            per_group[r_label][1] += r_most
+            total += cost["failure_rate"] * r_most
+            upper += r_most
     return {"config": str(config), "jobs": len(jobs), "cpu_hours": total / 3600.0, "upper_cpu_hours": upper / 3600.0,
             "groups": {k: (v[0] / 3600.0, v[1] / 3600.0) for k, v in sorted(per_group.items())},
             "borrowed": sorted(borrowed - set(missing)), "missing": dict(sorted(missing.items()))}
