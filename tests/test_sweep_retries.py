@@ -10,6 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from meshadv.experiments.config import parse_config
+from meshadv.experiments.report import write_report
 from meshadv.experiments.job_expansion import job_part, select_parts
 from meshadv.experiments.retries import (
     place_retries,
@@ -20,7 +21,7 @@ from meshadv.experiments.retries import (
 )
 from meshadv.experiments.store import JobRow, ResultStore
 from meshadv.experiments.tables import attack_rows, table1
-from sweep_fixtures import job_states, sweep_cli, two_job_config
+from sweep_fixtures import job_states, probe_jobs, run_probe_sweep, sweep_cli, two_job_config
 
 # a job that reaches its target with 50 steps or more, and from the sofa always
 RETRY_JOB = '''
@@ -141,3 +142,20 @@ def test_select_parts_knows_parts_without_jobs_yet() -> None:
     assert select_parts(jobs, ["retry"], also_known=["retry"]) == []
     with pytest.raises(ValueError, match="parts \\['retry'\\] are not in this sweep"):
         select_parts(jobs, ["retry"])
+
+
+def test_report_has_the_retry_rows_and_draws_no_retry(tmp_path: Path) -> None:
+    jobs = probe_jobs(["chair", "sofa"])  # chair -> sofa and sofa -> chair, shape, victim "v"
+    jobs[0]["success"] = False  # the synthetic job's outcome
+    db = run_probe_sweep(tmp_path / "results.db", jobs, tmp_path / "run")
+    with ResultStore(db) as store:
+        rows = store.rows()
+    retry = {**retry_jobs({"shape": {"steps": 60}}, rows)[0], "success": True}
+    run_probe_sweep(db, [retry], tmp_path / "run")
+    out = write_report(db, tmp_path / "report", figures=True)
+    table = (tmp_path / "report" / "table1.md").read_text()
+    assert "| v [+retry] | shape | laplacian_pair_mean | yes |" in table and "| v [retry] | shape |" in table
+    plain = next(line for line in table.splitlines() if line.startswith("| v | shape | laplacian_pair_mean"))
+    combined = next(line for line in table.splitlines() if line.startswith("| v [+retry] | shape | laplacian_pair"))
+    assert "50.0%" in plain and "100.0%" in combined
+    assert not any("retry" in path.name for path in out.figures)  # grids and flow figures leave retries out
