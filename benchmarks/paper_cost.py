@@ -33,6 +33,7 @@ from typing import Any, Dict, List, Sequence, Tuple
 
 from meshadv.experiments import ResultStore, SerialBackend, run_sweep
 from meshadv.experiments.config import expand_jobs, load_config
+from meshadv.experiments.retries import retry_options, retry_spec
 
 Group = Tuple[str, str, str, str]  # victim, perturbation, kind, update rule
 
@@ -50,6 +51,19 @@ def _stops_early(spec: Dict[str, Any]) -> bool:
 def _budget(spec: Dict[str, Any]) -> Tuple[int, int]:
     attack = spec.get("attack", {})
     return int(attack.get("steps", 100)), int(attack.get("binary_search_steps", 1))
+
+
+def _seconds(spec: Dict[str, Any], cost: Dict[str, float]) -> Tuple[float, float]:
+    """Expected and largest CPU seconds of the job ``spec`` at its group's measured ``cost`` (module docstring)."""
+    steps, rounds = _budget(spec)
+    step_cost = cost["per_step_image"] * len(spec["views"]) * rounds
+    most = step_cost * steps
+    return (step_cost * min(steps, cost["steps"]) if _stops_early(spec) else most), most
+
+
+def _label(spec: Dict[str, Any]) -> str:
+    """The projection's group label of a job: its group, and ``[protocol]`` for an extra protocol's or a retry."""
+    return " ".join(_group(spec)) + (f" [{spec['protocol']}]" if spec.get("protocol") else "")
 
 
 def sample_jobs(config: Path, per_group: int) -> List[Dict[str, Any]]:
@@ -112,25 +126,17 @@ def project(config: Path, costs: Dict[Group, Dict[str, float]]) -> Dict[str, Any
         if cost is None:
             missing[g] += 1
             continue
-        steps, rounds = _budget(job)
-        step_cost = cost["per_step_image"] * len(job["views"]) * rounds
-        most = step_cost * steps
-        seconds = step_cost * min(steps, cost["steps"]) if _stops_early(job) else most
-        total += seconds
-        upper += most
-        label = f"{g[0]} {g[1]} {g[2]} {g[3]}" + (f" [{job['protocol']}]" if job.get("protocol") else "")
-        per_group[label][0] += seconds
-        per_group[label][1] += most
-        options = retry.get(job["perturbation"]) if not job.get("protocol") and job["kind"] == "single" else None
+        parts = [(job, *_seconds(job, cost))]
+        options = retry_options(retry, job)
         if options is not None:  # its retry: at the measured failure rate, at most every time
-            attack = {**job.get("attack", {}), **options}
-            r_steps, r_rounds = int(attack.get("steps", 100)), int(attack.get("binary_search_steps", 1))
-            r_most = cost["per_step_image"] * len(job["views"]) * r_rounds * r_steps
-            r_label = f"{g[0]} {g[1]} {g[2]} {g[3]} [retry]"
-            per_group[r_label][0] += cost["failure_rate"] * r_most
-            per_group[r_label][1] += r_most
-            total += cost["failure_rate"] * r_most
-            upper += r_most
+            child = retry_spec(job, "", options)
+            most = _seconds(child, cost)[1]
+            parts.append((child, cost["failure_rate"] * most, most))
+        for spec, seconds, most in parts:
+            total += seconds
+            upper += most
+            per_group[_label(spec)][0] += seconds
+            per_group[_label(spec)][1] += most
     return {"config": str(config), "jobs": len(jobs), "cpu_hours": total / 3600.0, "upper_cpu_hours": upper / 3600.0,
             "groups": {k: (v[0] / 3600.0, v[1] / 3600.0) for k, v in sorted(per_group.items())},
             "borrowed": sorted(borrowed - set(missing)), "missing": dict(sorted(missing.items()))}

@@ -14,10 +14,10 @@ failed, the parent's otherwise; the tables report that as the victim's ``[+retry
 
 from __future__ import annotations
 
-from typing import Any, Dict, Iterable, List, Mapping, Sequence
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence
 
-__all__ = ["COMBINED_PART", "RETRY_PART", "is_retry", "place_retries", "retry_jobs", "retry_spec", "with_retries",
-           "with_retried_transfers"]
+__all__ = ["COMBINED_PART", "RETRY_PART", "is_retry", "place_retries", "retry_jobs", "retry_options", "retry_spec",
+           "with_retries", "with_retried_transfers"]
 
 #: The part (``job_part``) and protocol name of the retry jobs.
 RETRY_PART = "retry"
@@ -32,6 +32,12 @@ def is_retry(spec: Mapping[str, Any]) -> bool:
 
 def _is_main_single(spec: Mapping[str, Any]) -> bool:
     return spec.get("kind", "single") == "single" and not spec.get("protocol")
+
+
+def retry_options(retry: Mapping[str, Mapping[str, Any]], spec: Mapping[str, Any]) -> Optional[Mapping[str, Any]]:
+    """The options a failure of the job ``spec`` is retried with: ``retry`` (the config's ``[attack.retry]``: type ->
+    options) for its perturbation type when it is a main-setting single-view job, else ``None`` (not retried)."""
+    return retry.get(spec["perturbation"]) if _is_main_single(spec) else None
 
 
 def retry_spec(spec: Mapping[str, Any], parent_id: str, options: Mapping[str, Any]) -> Dict[str, Any]:
@@ -51,10 +57,10 @@ def retry_jobs(retry: Mapping[str, Mapping[str, Any]], rows: Iterable[Any]) -> L
     out = []
     for row in rows:
         spec, record = row.spec, row.record
-        if row.state != "done" or record is None or not _is_main_single(spec):
+        if row.state != "done" or record is None or record.get("skipped") or record.get("success"):
             continue
-        options = retry.get(spec["perturbation"])
-        if options is None or record.get("skipped") or record.get("success"):
+        options = retry_options(retry, spec)
+        if options is None:
             continue
         out.append(retry_spec(spec, row.job_id, options))
     return out
