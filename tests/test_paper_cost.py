@@ -52,3 +52,20 @@ def test_projection_steps_and_borrowing(tmp_path: Path) -> None:
     texture = 2 * 0.2 * 50
     assert p["cpu_hours"] * 3600 == pytest.approx(2 * 0.5 * 20 + texture)
     assert p["upper_cpu_hours"] * 3600 == pytest.approx(2 * 0.5 * 100 + texture)
+
+
+def test_projection_counts_each_retry_at_the_measured_failure_rate(tmp_path: Path) -> None:
+    pc = _paper_cost()
+    config = tmp_path / "c.toml"
+    config.write_text(CONFIG + "[attack.retry]\ntexture = { steps = 200 }\n")
+    costs = {("efficientnet_lite0", "shape", "single", "adam"): {"per_step_image": 0.5, "steps": 20.0, "n": 1,
+                                                                 "failure_rate": 0.0},
+             ("efficientnet_lite0", "texture", "single", "ddn"): {"per_step_image": 0.2, "steps": 50.0, "n": 1,
+                                                                  "failure_rate": 0.25}}
+    p = pc.project(config, costs)
+    retry = p["groups"]["efficientnet_lite0 texture single ddn [retry]"]
+    # 2 texture attacks, each retried with 200 steps: a quarter of them expected, every one at most
+    assert retry[0] * 3600 == pytest.approx(0.25 * 2 * 0.2 * 200)
+    assert retry[1] * 3600 == pytest.approx(2 * 0.2 * 200)
+    assert p["upper_cpu_hours"] * 3600 == pytest.approx(2 * 0.5 * 100 + 2 * 0.2 * 50 + 2 * 0.2 * 200)
+    assert not any("shape" in label and "retry" in label for label in p["groups"])  # shape is not retried
