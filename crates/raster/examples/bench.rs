@@ -9,7 +9,7 @@
 //! `cargo run --release -p meshadv-raster --example bench [threads] [fwd|bwd] [sphere|pascal]` (a mode runs only that
 //! pass of one case, `sphere` by default, for `perf stat` or `valgrind --tool=callgrind`). `BENCH_ISA=portable` runs
 //! the backward without the AVX2 path; `BENCH_REPS=n` runs `n` repetitions instead of 20. `bwd` prints a fingerprint
-//! of the vertex gradient's bits (to compare builds and instruction sets).
+//! of the vertex gradient's bits (to compare builds and instruction sets), `fwd` one of the face index, depth and image.
 
 use std::time::Instant;
 
@@ -261,17 +261,29 @@ fn run_only(c: &Case, mode: &str, isa: Isa, reps: usize) -> Result<(), RasterErr
             last = Some(std::hint::black_box(backward(c, &mesh, &out, isa)?));
         }
     }
-    if let Some(g) = last {
-        // A fingerprint of the vertex gradient's bits, to compare builds.
-        let hash = g
-            .grad_verts_screen
-            .iter()
-            .fold(0xcbf2_9ce4_8422_2325u64, |h, x| {
-                (h ^ x.to_bits() as u64).wrapping_mul(0x100_0000_01b3)
-            });
-        println!("grad_verts_screen fingerprint {hash:016x}");
+    match last {
+        Some(g) => println!(
+            "grad_verts_screen fingerprint {:016x}",
+            fingerprint(g.grad_verts_screen.iter().map(|x| x.to_bits()))
+        ),
+        None => println!(
+            "forward fingerprint {:016x}",
+            fingerprint(
+                out.face_index
+                    .iter()
+                    .map(|&f| f as u32)
+                    .chain(out.depth.iter().chain(&out.image).map(|x| x.to_bits()))
+            )
+        ),
     }
     Ok(())
+}
+
+/// A hash of a sequence of 32-bit words (FNV-1a), to compare outputs of builds bit for bit.
+fn fingerprint(words: impl Iterator<Item = u32>) -> u64 {
+    words.fold(0xcbf2_9ce4_8422_2325u64, |h, x| {
+        (h ^ x as u64).wrapping_mul(0x100_0000_01b3)
+    })
 }
 
 /// Times forward and backward of a case and prints the medians.

@@ -33,6 +33,10 @@ pub struct RasterOutput {
     pub depth: Vec<f32>,
 }
 
+/// Boxes at least this many columns wide scan each row's [`FaceSetup::row_span`] instead of the whole box (for
+/// narrower ones, finding the span costs more than the columns it skips).
+const SPAN_MIN_WIDTH: i32 = 8;
+
 /// Face lists per band of rows, faces in increasing order.
 fn bin_faces(setups: &[FaceSetup], height: usize) -> Vec<Vec<u32>> {
     let bands = height.div_ceil(BAND_ROWS);
@@ -70,7 +74,12 @@ fn raster_band(
         for row in r0..=r1 {
             let vc = row as f64;
             let line = (row as usize - row_start) * w;
-            for col in s.col0..=s.col1 {
+            let (first, last) = if s.col1 - s.col0 < SPAN_MIN_WIDTH {
+                (s.col0, s.col1)
+            } else {
+                s.row_span(row)
+            };
+            for col in first..=last {
                 let uc = col as f64;
                 let e0 = s.edges[0].eval(uc, vc);
                 let e1 = s.edges[1].eval(uc, vc);

@@ -199,6 +199,43 @@ impl FaceSetup {
         self.depth_from_weights(self.barycentric(col as f64, row as f64))
     }
 
+    /// Columns of row `row` that may pass the forward's inside test, a conservative cut of `col0..=col1`: every
+    /// column outside the returned range has some edge value that [`Edge::inside`] rejects (empty when
+    /// `first > last`). Each edge bounds the columns by where it crosses the row, widened by its rounding error
+    /// and a pixel; an edge whose bound is not finite does not cut.
+    #[inline]
+    pub fn row_span(&self, row: i32) -> (i32, i32) {
+        let v = row as f64;
+        let (mut lo, mut hi) = (self.col0, self.col1);
+        for e in &self.edges {
+            let r = e.du * (v - e.av);
+            if e.dv == 0.0 {
+                if !e.inside(e.sign * r) {
+                    return (1, 0);
+                }
+                continue;
+            }
+            let q = r / e.dv;
+            let cross = e.au + q;
+            // `Edge::eval` at a column `u` of the box is within a few ulp-sized errors of `|r| + |dv (u - au)|` of
+            // its exact value; divided by |dv| that is a few ulps of `|q| + |u - au|` in columns, and `cross`
+            // rounds by a few ulps of `|q| + |au|`. Twice that, and a pixel for the truncation below.
+            let reach = (self.col0 as f64 - e.au).abs().max((self.col1 as f64 - e.au).abs());
+            let margin = 1.0 + 8.0 * f64::EPSILON * (q.abs() + reach + e.au.abs() + 1.0);
+            if !(cross.is_finite() && margin.is_finite()) {
+                continue;
+            }
+            // `as` truncates toward zero (and saturates): less than a column from the bound, which the pixel in
+            // `margin` covers.
+            if e.sign * e.dv > 0.0 {
+                hi = hi.min((cross + margin) as i32);
+            } else {
+                lo = lo.max((cross - margin) as i32);
+            }
+        }
+        (lo, hi)
+    }
+
     /// [`FaceSetup::depth_at`] along row `row`: the terms of the edge functions that depend only on the row are
     /// computed once (the same operations on the same values, so [`RowDepth::at`] gives the same bits).
     #[inline(always)]
@@ -243,6 +280,58 @@ pub fn setup_faces(mesh: &ScreenMesh<'_>, b: usize, params: &RasterParams) -> Ve
 mod tests {
     use super::*;
     use crate::test_rng::Rng;
+
+    /// A random NDC coordinate: usually inside the image, sometimes on a pixel centre, sometimes far outside.
+    fn coordinate(rng: &mut Rng, size: usize) -> f32 {
+        match rng.below(8) {
+            0 => {
+                // a pixel centre (or half-way between two), so that edges pass exactly through centres
+                let px = (rng.below(2 * size + 4) as f64 - 2.0) / 2.0;
+                ((2.0 * px - size as f64 + 1.0) / size as f64) as f32
+            }
+            1 => ((rng.next() - 0.5) * 10f64.powi(rng.below(30) as i32)) as f32,
+            _ => (rng.next() * 2.6 - 1.3) as f32,
+        }
+    }
+
+    #[test]
+    fn row_spans_keep_every_pixel_the_inside_test_accepts() {
+        // Random triangles (thin, nearly parallel to the rows, through pixel centres, far outside the image): every
+        // pixel of the box that passes all three edge tests lies in its row's span, and the spans cut the box.
+        let mut rng = Rng(29);
+        let (mut inside, mut in_spans, mut in_boxes) = (0usize, 0usize, 0usize);
+        for case in 0..4000 {
+            let (h, w) = (37, 41);
+            let mut verts: Vec<f32> = (0..9)
+                .map(|k| match k % 3 {
+                    0 => coordinate(&mut rng, w),
+                    1 => coordinate(&mut rng, h),
+                    _ => (0.5 + rng.next() * 4.0) as f32,
+                })
+                .collect();
+            if case % 5 == 0 {
+                // an edge almost parallel to the rows
+                verts[4] = verts[1] + (rng.next() * 1e-5) as f32;
+            }
+            let mesh = ScreenMesh::new(&verts, &[0, 1, 2], 1, 3).expect("valid mesh");
+            let s = FaceSetup::new(&mesh, 0, 0, &RasterParams::new(h, w, 0.1, 100.0));
+            for row in s.row0..=s.row1 {
+                let (first, last) = s.row_span(row);
+                assert!(first > last || (s.col0 <= first && last <= s.col1), "case {case} row {row}");
+                in_spans += (last - first + 1).max(0) as usize;
+                in_boxes += (s.col1 - s.col0 + 1) as usize;
+                for col in s.col0..=s.col1 {
+                    let (u, v) = (col as f64, row as f64);
+                    if s.edges.iter().all(|e| e.inside(e.eval(u, v))) {
+                        inside += 1;
+                        assert!((first..=last).contains(&col), "case {case}: ({row}, {col}) outside {first}..={last}");
+                    }
+                }
+            }
+        }
+        assert!(inside > 100_000, "{inside} pixels inside");
+        assert!(in_spans < in_boxes * 3 / 4, "spans {in_spans} of {in_boxes} box pixels");
+    }
 
     #[test]
     fn the_row_depth_gives_the_bits_of_depth_at() {
