@@ -92,6 +92,32 @@ impl<'a> ScreenMesh<'a> {
         ]
     }
 
+    /// The `(N, 3)` vertices of batch element `b`, flat.
+    #[inline]
+    pub fn verts_of(&self, b: usize) -> &'a [f32] {
+        let n = self.num_verts * 3;
+        &self.verts_screen[b * n..(b + 1) * n]
+    }
+
+    /// For each batch element, the first element with the same vertices bit for bit (itself when none before it
+    /// has them): elements that share their geometry share their fragments.
+    pub fn first_with_same_verts(&self) -> Vec<usize> {
+        let same = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+        let mut firsts: Vec<usize> = Vec::new();
+        (0..self.batch)
+            .map(|b| {
+                let v = self.verts_of(b);
+                match firsts.iter().find(|&&f| same(self.verts_of(f), v)) {
+                    Some(&f) => f,
+                    None => {
+                        firsts.push(b);
+                        b
+                    }
+                }
+            })
+            .collect()
+    }
+
     /// Checks: non-empty, finite vertices, face indices in range, and that each batch element has a vertex
     /// in front of the camera (`z > 0`).
     pub fn validate(&self) -> Result<()> {

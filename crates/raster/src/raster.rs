@@ -128,7 +128,8 @@ pub fn rasterize_fragments_one(
         });
 }
 
-/// Rasterizes all batch elements: face index and depth maps only.
+/// Rasterizes all batch elements: face index and depth maps only. Elements whose vertices equal an earlier
+/// element's bit for bit (e.g. one mesh under several colourings) are rasterized once and copied.
 pub fn rasterize_fragments(mesh: &ScreenMesh<'_>, params: &RasterParams) -> Result<Fragments> {
     mesh.validate()?;
     params.validate()?;
@@ -136,14 +137,20 @@ pub fn rasterize_fragments(mesh: &ScreenMesh<'_>, params: &RasterParams) -> Resu
     let len = mesh.batch.saturating_mul(hw);
     let mut face_index = try_filled_vec(len, -1i32, "face_index")?;
     let mut depth = try_filled_vec(len, 0f32, "depth")?;
+    let first = mesh.first_with_same_verts();
     face_index
         .par_chunks_mut(hw)
         .zip(depth.par_chunks_mut(hw))
         .enumerate()
+        .filter(|(b, _)| first[*b] == *b)
         .for_each(|(b, (fi, dp))| {
             let setups = setup_faces(mesh, b, params);
             rasterize_fragments_one(&setups, params, fi, dp);
         });
+    for (b, &f) in first.iter().enumerate().filter(|(b, f)| *b != **f) {
+        face_index.copy_within(f * hw..(f + 1) * hw, b * hw);
+        depth.copy_within(f * hw..(f + 1) * hw, b * hw);
+    }
     Ok(Fragments { face_index, depth })
 }
 

@@ -220,7 +220,9 @@ impl FaceSetup {
             // `Edge::eval` at a column `u` of the box is within a few ulp-sized errors of `|r| + |dv (u - au)|` of
             // its exact value; divided by |dv| that is a few ulps of `|q| + |u - au|` in columns, and `cross`
             // rounds by a few ulps of `|q| + |au|`. Twice that, and a pixel for the truncation below.
-            let reach = (self.col0 as f64 - e.au).abs().max((self.col1 as f64 - e.au).abs());
+            let reach = (self.col0 as f64 - e.au)
+                .abs()
+                .max((self.col1 as f64 - e.au).abs());
             let margin = 1.0 + 8.0 * f64::EPSILON * (q.abs() + reach + e.au.abs() + 1.0);
             if !(cross.is_finite() && margin.is_finite()) {
                 continue;
@@ -317,20 +319,29 @@ mod tests {
             let s = FaceSetup::new(&mesh, 0, 0, &RasterParams::new(h, w, 0.1, 100.0));
             for row in s.row0..=s.row1 {
                 let (first, last) = s.row_span(row);
-                assert!(first > last || (s.col0 <= first && last <= s.col1), "case {case} row {row}");
+                assert!(
+                    first > last || (s.col0 <= first && last <= s.col1),
+                    "case {case} row {row}"
+                );
                 in_spans += (last - first + 1).max(0) as usize;
                 in_boxes += (s.col1 - s.col0 + 1) as usize;
                 for col in s.col0..=s.col1 {
                     let (u, v) = (col as f64, row as f64);
                     if s.edges.iter().all(|e| e.inside(e.eval(u, v))) {
                         inside += 1;
-                        assert!((first..=last).contains(&col), "case {case}: ({row}, {col}) outside {first}..={last}");
+                        assert!(
+                            (first..=last).contains(&col),
+                            "case {case}: ({row}, {col}) outside {first}..={last}"
+                        );
                     }
                 }
             }
         }
         assert!(inside > 100_000, "{inside} pixels inside");
-        assert!(in_spans < in_boxes * 3 / 4, "spans {in_spans} of {in_boxes} box pixels");
+        assert!(
+            in_spans < in_boxes * 3 / 4,
+            "spans {in_spans} of {in_boxes} box pixels"
+        );
     }
 
     #[test]
