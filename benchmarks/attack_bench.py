@@ -194,6 +194,14 @@ def victim_images_per_s(victim: Any, batch: int, image_size: int, repeats: int =
     return batch / statistics.median(times)
 
 
+def _diverged(rows: torch.Tensor) -> torch.Tensor:
+    """``rows`` (one per target) moved apart by a small random flow (1e-3 per coordinate, seeded): a shape attack's
+    targets have meshes of their own after its first step, and the rasterizer draws a batch element whose vertices
+    repeat an earlier one's only once, so identical rows would time a step no shape attack takes."""
+    g = torch.Generator().manual_seed(0)
+    return rows + 1e-3 * torch.randn(rows.shape, generator=g, dtype=rows.dtype)
+
+
 def step_split(mesh_name: str, perturb: str, args: argparse.Namespace,
                victims: Dict[str, Any]) -> List[Dict[str, Any]]:
     """Times the parts of one attack step (render forward, victim forward + input gradient, render backward) with
@@ -204,6 +212,8 @@ def step_split(mesh_name: str, perturb: str, args: argparse.Namespace,
     setup = RenderSetup(image_size=args.image_size, antialias=args.antialias)
     t = args.targets
     verts = mesh.vertices.unsqueeze(0).repeat(t, 1, 1)
+    if perturb == "shape":
+        verts = _diverged(verts)
     colors = mesh.face_colors.unsqueeze(0).repeat(t, 1, 1)
     param = verts if perturb == "shape" else colors
     param.requires_grad_(True)
@@ -306,7 +316,10 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
     call = _Call(mesh, views.detach(), victim, setup, vertex_edges(mesh.faces).long())
     crits = [TargetedMisclassification(c).bind(victim) for c in range(1, t + 1)]
     rule = make_update_rule("adam", attack=attack, num_targets=t)
-    params = attack._init_params(mesh, t).detach().clone().requires_grad_(True)
+    params = attack._init_params(mesh, t).detach().clone()
+    if perturb == "shape":
+        params = _diverged(params)
+    params.requires_grad_(True)
     rule.start_round(params)
     idx = torch.arange(t)
     variants = _variants(args)

@@ -154,6 +154,31 @@ pub fn rasterize_fragments(mesh: &ScreenMesh<'_>, params: &RasterParams) -> Resu
     Ok(Fragments { face_index, depth })
 }
 
+/// Writes one image line: each pixel the attributes of the face drawn there (of batch element `b`), or the
+/// background; `C` channels (`C = 0`: `attrs.channels`, copied slice by slice).
+#[inline(always)]
+fn fill_line<const C: usize>(
+    px: &mut [f32],
+    fi: &[i32],
+    attrs: &FaceAttrs<'_>,
+    b: usize,
+    m: usize,
+) {
+    let c = if C == 0 { attrs.channels } else { C };
+    for (dst, &f) in px.chunks_exact_mut(c).zip(fi) {
+        let src = if f < 0 {
+            attrs.background
+        } else {
+            attrs.face(b, m, f as usize)
+        };
+        if C == 0 {
+            dst.copy_from_slice(src);
+        } else {
+            dst[..C].copy_from_slice(&src[..C]);
+        }
+    }
+}
+
 /// Full forward rasterization: face index, depth and the per-face attribute image.
 ///
 /// ```
@@ -184,12 +209,12 @@ pub fn rasterize(
         .for_each(|(line, px)| {
             let b = line / params.height;
             let fi = &face_index[line * params.width..(line + 1) * params.width];
-            for (dst, &f) in px.chunks_exact_mut(c).zip(fi) {
-                if f < 0 {
-                    dst.copy_from_slice(attrs.background);
-                } else {
-                    dst.copy_from_slice(attrs.face(b, m, f as usize));
-                }
+            match c {
+                1 => fill_line::<1>(px, fi, attrs, b, m),
+                2 => fill_line::<2>(px, fi, attrs, b, m),
+                3 => fill_line::<3>(px, fi, attrs, b, m),
+                4 => fill_line::<4>(px, fi, attrs, b, m),
+                _ => fill_line::<0>(px, fi, attrs, b, m),
             }
         });
     Ok(RasterOutput {
