@@ -77,6 +77,23 @@ def test_batch_of_meshes_with_one_camera() -> None:
     assert out.alpha[1].sum() > out.alpha[0].sum()
 
 
+def test_one_mesh_in_several_colourings_renders_each_as_alone() -> None:
+    # A texture attack's batch: one geometry, a colouring per target (the rasterizer draws the geometry once).
+    verts, faces = icosphere(2)
+    colors = torch.rand(3, faces.shape[0], 3, generator=torch.Generator().manual_seed(4)).requires_grad_(True)
+    cam = Camera.spherical(3.0, 30.0, 20.0)
+    cot = torch.randn(3, 3, 20, 20, generator=torch.Generator().manual_seed(5))
+    out = render(verts.expand(3, -1, -1) * 0.8, faces, colors, cam, Lights.default(), 20, antialias=2)
+    (out.image * cot).sum().backward()
+    assert not torch.equal(out.image[0], out.image[1])
+    for i in range(3):
+        c = colors[i].detach().clone().requires_grad_(True)
+        single = render(verts * 0.8, faces, c, cam, Lights.default(), 20, antialias=2)
+        (single.image * cot[i]).sum().backward()
+        assert torch.equal(out.image[i], single.image[0]) and torch.equal(out.face_index[i], single.face_index[0])
+        assert torch.equal(colors.grad[i], c.grad)
+
+
 def test_antialias_averages_supersamples() -> None:
     verts, faces = icosphere(1)
     cam = Camera.spherical(3.0, 0.0, 0.0)
