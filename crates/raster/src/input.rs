@@ -102,15 +102,25 @@ impl<'a> ScreenMesh<'a> {
     /// For each batch element, the first element with the same vertices bit for bit (itself when none before it
     /// has them): elements that share their geometry share their fragments.
     pub fn first_with_same_verts(&self) -> Vec<usize> {
+        // A hash of each element's bits (FNV-1a), so that only elements with equal hashes are compared in full.
+        let hash = |v: &[f32]| {
+            v.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, x| {
+                (h ^ u64::from(x.to_bits())).wrapping_mul(0x100_0000_01b3)
+            })
+        };
         let same = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
-        let mut firsts: Vec<usize> = Vec::new();
+        let mut firsts: Vec<(u64, usize)> = Vec::new();
         (0..self.batch)
             .map(|b| {
                 let v = self.verts_of(b);
-                match firsts.iter().find(|&&f| same(self.verts_of(f), v)) {
-                    Some(&f) => f,
+                let h = hash(v);
+                match firsts
+                    .iter()
+                    .find(|&&(fh, f)| fh == h && same(self.verts_of(f), v))
+                {
+                    Some(&(_, f)) => f,
                     None => {
-                        firsts.push(b);
+                        firsts.push((h, b));
                         b
                     }
                 }
@@ -330,5 +340,18 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn elements_with_the_same_vertex_bits_point_to_the_first_of_them() {
+        let a = [0.1f32, 0.2, 1.0, 0.5, 0.1, 1.5, -0.3, 0.4, 2.0];
+        let mut b = a;
+        b[8] = 2.5; // differs in the last value only
+        let (mut pos_zero, mut neg_zero) = (a, a);
+        pos_zero[0] = 0.0;
+        neg_zero[0] = -0.0; // equal to +0 as a number, not in its bits
+        let batch: Vec<f32> = [a, b, a, neg_zero, pos_zero, b, pos_zero].concat();
+        let mesh = ScreenMesh::new(&batch, &[0, 1, 2], 7, 3).expect("valid");
+        assert_eq!(mesh.first_with_same_verts(), vec![0, 1, 0, 3, 4, 1, 4]);
     }
 }
