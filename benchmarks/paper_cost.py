@@ -135,8 +135,9 @@ def project(config: Path, costs: Dict[Group, Dict[str, float]]) -> Dict[str, Any
         for spec, seconds, most in parts:
             total += seconds
             upper += most
-            per_group[_label(spec)][0] += seconds
-            per_group[_label(spec)][1] += most
+            label = _label(spec)
+            per_group[label][0] += seconds
+            per_group[label][1] += most
     return {"config": str(config), "jobs": len(jobs), "cpu_hours": total / 3600.0, "upper_cpu_hours": upper / 3600.0,
             "groups": {k: (v[0] / 3600.0, v[1] / 3600.0) for k, v in sorted(per_group.items())},
             "borrowed": sorted(borrowed - set(missing)), "missing": dict(sorted(missing.items()))}

@@ -16,8 +16,8 @@ use std::time::Instant;
 use meshadv_raster::backward::{rasterize_backward_on, Isa};
 use meshadv_raster::camera::{project, world_to_view, SphericalCamera};
 use meshadv_raster::{
-    rasterize, with_threads, BackwardInputs, FaceAttrs, Gradients, RasterError, RasterParams,
-    ScreenMesh,
+    bits_hash, rasterize, with_threads, BackwardInputs, FaceAttrs, Gradients, RasterError,
+    RasterParams, ScreenMesh,
 };
 
 /// UV sphere with `rings * segs * 2` faces (minus the pole duplicates).
@@ -264,11 +264,11 @@ fn run_only(c: &Case, mode: &str, isa: Isa, reps: usize) -> Result<(), RasterErr
     match last {
         Some(g) => println!(
             "grad_verts_screen fingerprint {:016x}",
-            fingerprint(g.grad_verts_screen.iter().map(|x| x.to_bits()))
+            bits_hash(g.grad_verts_screen.iter().map(|x| x.to_bits()))
         ),
         None => println!(
             "forward fingerprint {:016x}",
-            fingerprint(
+            bits_hash(
                 out.face_index
                     .iter()
                     .map(|&f| f as u32)
@@ -277,13 +277,6 @@ fn run_only(c: &Case, mode: &str, isa: Isa, reps: usize) -> Result<(), RasterErr
         ),
     }
     Ok(())
-}
-
-/// A hash of a sequence of 32-bit words (FNV-1a), to compare outputs of builds bit for bit.
-fn fingerprint(words: impl Iterator<Item = u32>) -> u64 {
-    words.fold(0xcbf2_9ce4_8422_2325u64, |h, x| {
-        (h ^ x as u64).wrapping_mul(0x100_0000_01b3)
-    })
 }
 
 /// Times forward and backward of a case and prints the medians.

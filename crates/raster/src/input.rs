@@ -102,12 +102,8 @@ impl<'a> ScreenMesh<'a> {
     /// For each batch element, the first element with the same vertices bit for bit (itself when none before it
     /// has them): elements that share their geometry share their fragments.
     pub fn first_with_same_verts(&self) -> Vec<usize> {
-        // A hash of each element's bits (FNV-1a), so that only elements with equal hashes are compared in full.
-        let hash = |v: &[f32]| {
-            v.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, x| {
-                (h ^ u64::from(x.to_bits())).wrapping_mul(0x100_0000_01b3)
-            })
-        };
+        // Only elements with equal hashes of their bits are compared in full.
+        let hash = |v: &[f32]| bits_hash(v.iter().map(|x| x.to_bits()));
         let same = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
         let mut firsts: Vec<(u64, usize)> = Vec::new();
         (0..self.batch)
@@ -149,6 +145,14 @@ impl<'a> ScreenMesh<'a> {
         }
         Ok(())
     }
+}
+
+/// A hash (FNV-1a) of a sequence of 32-bit words, e.g. the bits of an array of `f32`: equal bits give equal hashes,
+/// to find repeated inputs or to compare outputs of two builds bit for bit.
+pub fn bits_hash(words: impl IntoIterator<Item = u32>) -> u64 {
+    words.into_iter().fold(0xcbf2_9ce4_8422_2325u64, |h, x| {
+        (h ^ u64::from(x)).wrapping_mul(0x100_0000_01b3)
+    })
 }
 
 /// Checks that `faces` (flat `(M, 3)`) is non-empty and refers to existing vertices.

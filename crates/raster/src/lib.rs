@@ -24,6 +24,6 @@ mod test_rng;
 
 pub use backward::{rasterize_backward, BackwardInputs, Gradients};
 pub use error::{try_filled_vec, ErrorKind, RasterError, Result};
-pub use input::{FaceAttrs, Projection, RasterParams, ScreenMesh, MAX_IMAGE_SIZE};
+pub use input::{bits_hash, FaceAttrs, Projection, RasterParams, ScreenMesh, MAX_IMAGE_SIZE};
 pub use parallel::{with_threads, MAX_CACHED_POOLS};
 pub use raster::{rasterize, rasterize_fragments, Fragments, RasterOutput};
