@@ -298,21 +298,9 @@ impl Ctx<'_> {
             #[allow(unsafe_code)]
             // SAFETY: `rasterize_backward_on` only passes `Isa::Avx2` when the CPU supports AVX2.
             Isa::Avx2 => unsafe {
-                match self.channels {
-                    1 => face_grad_avx2::<1>(self, f, scratch),
-                    2 => face_grad_avx2::<2>(self, f, scratch),
-                    3 => face_grad_avx2::<3>(self, f, scratch),
-                    4 => face_grad_avx2::<4>(self, f, scratch),
-                    _ => face_grad_avx2::<0>(self, f, scratch),
-                }
+                with_channels!(self.channels, C => face_grad_avx2::<C>(self, f, scratch))
             },
-            _ => match self.channels {
-                1 => self.face_grad::<1>(f, scratch, Isa::Portable),
-                2 => self.face_grad::<2>(f, scratch, Isa::Portable),
-                3 => self.face_grad::<3>(f, scratch, Isa::Portable),
-                4 => self.face_grad::<4>(f, scratch, Isa::Portable),
-                _ => self.face_grad::<0>(f, scratch, Isa::Portable),
-            },
+            _ => with_channels!(self.channels, C => self.face_grad::<C>(f, scratch, Isa::Portable)),
         }
     }
 
@@ -651,13 +639,7 @@ fn element_grads(
     try_refill(acc, m * c, 0.0, "backward attribute accumulator")?;
     try_refill(drawn, m, Drawn::EMPTY, "backward face boxes")?;
     let w = params.width;
-    match c {
-        1 => attr_grad::<1>(face_index, grad, w, c, acc, drawn),
-        2 => attr_grad::<2>(face_index, grad, w, c, acc, drawn),
-        3 => attr_grad::<3>(face_index, grad, w, c, acc, drawn),
-        4 => attr_grad::<4>(face_index, grad, w, c, acc, drawn),
-        _ => attr_grad::<0>(face_index, grad, w, c, acc, drawn),
-    }
+    with_channels!(c, C => attr_grad::<C>(face_index, grad, w, c, acc, drawn));
     let drawn = &*drawn;
     let visible = |f: usize| !drawn[f].is_empty();
     for (dst, &src) in ga.iter_mut().zip(acc.iter()) {
@@ -749,13 +731,7 @@ mod tests {
                 .collect();
             let start: Vec<f64> = (0..6 * c).map(|_| rng.next() * 1e-7).collect();
             let (mut acc, mut drawn) = (start.clone(), vec![Drawn::EMPTY; 6]);
-            match c {
-                1 => attr_grad::<1>(&face_index, &grad, w, c, &mut acc, &mut drawn),
-                2 => attr_grad::<2>(&face_index, &grad, w, c, &mut acc, &mut drawn),
-                3 => attr_grad::<3>(&face_index, &grad, w, c, &mut acc, &mut drawn),
-                4 => attr_grad::<4>(&face_index, &grad, w, c, &mut acc, &mut drawn),
-                _ => attr_grad::<0>(&face_index, &grad, w, c, &mut acc, &mut drawn),
-            }
+            with_channels!(c, C => attr_grad::<C>(&face_index, &grad, w, c, &mut acc, &mut drawn));
             let (mut want, mut want_drawn) = (start, vec![Drawn::EMPTY; 6]);
             for (p, &f) in face_index.iter().enumerate() {
                 if f >= 0 {

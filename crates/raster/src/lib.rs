@@ -9,6 +9,36 @@
 //! Conventions are those of `docs/ARCHITECTURE.md` (Neural Mesh Renderer's). Every function validates its input and
 //! returns a [`RasterError`] rather than panicking; results are bit-identical for any thread count.
 
+/// Evaluates `$body` with the constant `$C` set to the channel count `$channels` for 1 to 4 channels (so that
+/// per-channel loops are unrolled), and to 0 ("any count", read at run time) otherwise:
+/// `with_channels!(c, C => fill_line::<C>(...))`.
+macro_rules! with_channels {
+    ($channels:expr, $C:ident => $body:expr) => {
+        match $channels {
+            1 => {
+                const $C: usize = 1;
+                $body
+            }
+            2 => {
+                const $C: usize = 2;
+                $body
+            }
+            3 => {
+                const $C: usize = 3;
+                $body
+            }
+            4 => {
+                const $C: usize = 4;
+                $body
+            }
+            _ => {
+                const $C: usize = 0;
+                $body
+            }
+        }
+    };
+}
+
 pub mod backward;
 pub mod camera;
 pub mod error;

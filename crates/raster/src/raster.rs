@@ -209,13 +209,7 @@ pub fn rasterize(
         .for_each(|(line, px)| {
             let b = line / params.height;
             let fi = &face_index[line * params.width..(line + 1) * params.width];
-            match c {
-                1 => fill_line::<1>(px, fi, attrs, b, m),
-                2 => fill_line::<2>(px, fi, attrs, b, m),
-                3 => fill_line::<3>(px, fi, attrs, b, m),
-                4 => fill_line::<4>(px, fi, attrs, b, m),
-                _ => fill_line::<0>(px, fi, attrs, b, m),
-            }
+            with_channels!(c, C => fill_line::<C>(px, fi, attrs, b, m))
         });
     Ok(RasterOutput {
         image,

@@ -90,13 +90,7 @@ impl Lines {
                     &grad[i * w * c..(i + 1) * w * c],
                     &image[i * w * c..(i + 1) * w * c],
                 );
-                match c {
-                    1 => channels::<1>(g, im, w, gi, planes),
-                    2 => channels::<2>(g, im, w, gi, planes),
-                    3 => channels::<3>(g, im, w, gi, planes),
-                    4 => channels::<4>(g, im, w, gi, planes),
-                    _ => channels::<0>(g, im, w, gi, planes),
-                }
+                with_channels!(c, C => channels::<C>(g, im, w, gi, planes))
             });
         // SAFETY: the row passes above wrote every slot: each row chunk writes its `w` face, key and gi values and
         // its `w * c` plane values.
