@@ -169,3 +169,40 @@ def test_sweep_only_names_the_option_on_a_bad_part(tmp_path: Path) -> None:
                                       "--dry-run"])
     assert result.exit_code == 2 and "--only" in result.output and "table2" in result.output
     assert not (tmp_path / "r.db").exists()
+
+
+def test_select_where_keeps_the_jobs_matching_every_condition() -> None:
+    """``--where`` conditions pick jobs by spec entries (dotted for nested ones, numbers by their text,
+    ``protocol=main`` for the main setting) in the sweep's order; a key no job has is refused, naming it."""
+    from meshadv.experiments.config import load_config, parse_where, select_parts, select_where
+
+    jobs = expand_jobs(load_config(Path(__file__).parents[1] / "configs" / "paper_medium.toml"))
+    picked = select_where(jobs, parse_where(["source_class=sofa", "target=bicycle", "protocol=paper",
+                                             "config_index=0"]))
+    assert [(j["perturbation"], j["mesh"]["class"]) for j in picked] == [("shape", "sofa"), ("texture", "sofa")]
+    assert picked == [j for j in select_parts(jobs, ["paper"]) if j["source_class"] == "sofa"
+                      and j["target"] == "bicycle" and j["config_index"] == 0]
+    main_chairs = select_where(jobs, parse_where(["protocol=main", "mesh.class=chair", " perturbation = shape"]))
+    assert len(main_chairs) == 16 * 6 and {j.get("protocol") for j in main_chairs} == {None}
+    assert select_where(jobs, parse_where(["target=unicorn"])) == []
+    with pytest.raises(ValueError, match="no job of this sweep has 'colour'"):
+        select_where(jobs, parse_where(["colour=red"]))
+    with pytest.raises(ValueError, match="expected KEY=VALUE"):
+        parse_where(["sofa"])
+
+
+def test_sweep_where_runs_only_the_matching_jobs_and_names_the_option(tmp_path: Path) -> None:
+    """``meshadv sweep --where`` counts only the matching jobs, and a bad condition is a usage error naming
+    --where before any database is made."""
+    from meshadv.cli import app
+    from typer.testing import CliRunner
+
+    config = Path(__file__).parents[1] / "configs" / "paper_medium.toml"
+    base = ["sweep", str(config), "--db", str(tmp_path / "r.db"), "--dry-run"]
+    result = CliRunner().invoke(app, [*base, "--only", "paper", "--where", "target=bicycle", "--where",
+                                      "perturbation=shape"])
+    assert result.exit_code == 0 and result.output.startswith("12 jobs (12 single-view, 0 multi-view)")
+    for bad in ("sofa", "colour=red"):
+        result = CliRunner().invoke(app, [*base, "--where", bad])
+        assert result.exit_code == 2 and "--where" in result.output
+    assert not (tmp_path / "r.db").exists()

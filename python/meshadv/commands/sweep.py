@@ -88,6 +88,10 @@ def sweep(
                                              "a protocol's name (e.g. 'paper') or 'multiview' (Table 2). The "
                                              "database keeps every part's finished jobs; the other parts wait "
                                              "for a run without --only."),
+    where: Optional[List[str]] = typer.Option(None, help="Run only the jobs whose spec has KEY=VALUE (repeatable; "
+                                              "all must hold): e.g. --where source_class=sofa --where "
+                                              "target=bicycle, config_index=0, perturbation=shape, mesh.class="
+                                              "chair. The other jobs wait for a run without --where."),
     stop_starting_after: Optional[str] = typer.Option(
         None, "--stop-starting-after", help="Start no job after this long (90m, 2h, 1h30m; a bare number is "
         "seconds): the running jobs finish and are recorded, the rest wait for the next run. SIGUSR1 to this "
@@ -98,7 +102,14 @@ def sweep(
     from meshadv.commands._common_options import interrupted_exit
     from meshadv.commands._job_index import warn_damaged_results, write_job_index
     from meshadv.experiments import ResultStore, make_backend, run_sweep
-    from meshadv.experiments.config import DEFAULT_JOB, expand_jobs, load_config, select_parts
+    from meshadv.experiments.config import (
+        DEFAULT_JOB,
+        expand_jobs,
+        load_config,
+        parse_where,
+        select_parts,
+        select_where,
+    )
     from meshadv.experiments.jobs import planned_steps
     from meshadv.experiments.retries import RETRY_PART, place_retries, retry_jobs
     from meshadv.experiments.report import environment_versions
@@ -110,13 +121,23 @@ def sweep(
     expanded = expand_jobs(cfg)
     retry_parts = [RETRY_PART] if cfg.attack["retry"] else []
 
+    try:
+        conditions = parse_where(where or [])
+    except ValueError as err:
+        raise typer.BadParameter(str(err), param_hint="--where") from err
+
     def selected(specs: List[Dict[str, Any]]) -> List[Dict[str, Any]]:
-        return select_parts(specs, only, also_known=retry_parts) if only else specs
+        parts = select_parts(specs, only, also_known=retry_parts) if only else specs
+        return select_where(parts, conditions) if conditions else parts
 
     try:
-        jobs = selected(expanded)
+        jobs = select_parts(expanded, only, also_known=retry_parts) if only else expanded
     except ValueError as err:
         raise typer.BadParameter(str(err), param_hint="--only") from err
+    try:
+        jobs = select_where(jobs, conditions) if conditions else jobs
+    except ValueError as err:
+        raise typer.BadParameter(str(err), param_hint="--where") from err
     try:
         after_s = None if stop_starting_after is None else parse_duration(stop_starting_after,
                                                                            "--stop-starting-after")

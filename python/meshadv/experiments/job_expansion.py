@@ -27,7 +27,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 from meshadv.experiments.sweep_file import PASCAL3D_CLASSES, SweepConfig
 from meshadv.experiments.sweep_views import multiview_views, rendering_configurations
 
-__all__ = ["expand_jobs", "job_part", "rendering_set_instances", "select_parts"]
+__all__ = ["expand_jobs", "job_part", "parse_where", "rendering_set_instances", "select_parts", "select_where"]
 
 #: A configuration a sweep attacks: ``(mesh entry, configuration index, view record)``.
 Instance = Tuple[Dict[str, Any], int, Dict[str, Any]]
@@ -85,6 +85,57 @@ def select_parts(jobs: Sequence[Dict[str, Any]], parts: Sequence[str], *,
     if unknown:
         raise ValueError(f"parts {unknown} are not in this sweep; its parts are {known}")
     return [j for j in jobs if job_part(j) in parts]
+
+
+def parse_where(conditions: Sequence[str]) -> List[Tuple[str, str]]:
+    """``KEY=VALUE`` conditions on job specs as ``(key, value)`` pairs (see :func:`select_where`).
+
+    Raises:
+        ValueError: a condition without ``=`` or with an empty key.
+    """
+    pairs = []
+    for text in conditions:
+        key, sep, value = text.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"expected KEY=VALUE (e.g. source_class=sofa, target=bicycle), got {text!r}")
+        pairs.append((key.strip(), value.strip()))
+    return pairs
+
+
+def _spec_value(job: Dict[str, Any], key: str) -> Any:
+    """The value of a dotted ``key`` (``mesh.class``) in ``job``, or ``None`` when it has no such entry."""
+    value: Any = job
+    for part in key.split("."):
+        if not isinstance(value, dict) or part not in value:
+            return None
+        value = value[part]
+    return value
+
+
+def select_where(jobs: Sequence[Dict[str, Any]], conditions: Sequence[Tuple[str, str]]) -> List[Dict[str, Any]]:
+    """The jobs of ``jobs`` whose spec has every ``(key, value)`` of ``conditions``, in their order.
+
+    A key is a spec entry, dotted for nested ones (``source_class``, ``target``, ``perturbation``, ``config_index``,
+    ``victim``, ``mesh.class``, ``attack.method``); a value matches the entry's text (``config_index=0``), and
+    ``protocol=main`` matches the jobs of the main setting, which have no protocol entry. A job is kept when it
+    matches all conditions.
+
+    Raises:
+        ValueError: naming a key that no job of ``jobs`` has (the message lists the top-level keys).
+    """
+
+    def text(job: Dict[str, Any], key: str) -> Optional[str]:
+        value = _spec_value(job, key)
+        if value is None and key == "protocol":
+            return "main" if job["kind"] == "single" else None
+        return None if value is None else str(value)
+
+    for key, _ in conditions:
+        if jobs and all(text(j, key) is None for j in jobs):
+            known = sorted({k for j in jobs for k in j})
+            raise ValueError(f"no job of this sweep has {key!r}; its jobs' keys are {known} (dotted for nested "
+                             "ones, e.g. mesh.class)")
+    return [j for j in jobs if all(text(j, key) == value for key, value in conditions)]
 
 
 def rendering_set_instances(config: SweepConfig) -> List[Instance]:
