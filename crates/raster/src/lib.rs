@@ -15,28 +15,17 @@
 macro_rules! with_channels {
     ($channels:expr, $C:ident => $body:expr) => {
         match $channels {
-            1 => {
-                const $C: usize = 1;
-                $body
-            }
-            2 => {
-                const $C: usize = 2;
-                $body
-            }
-            3 => {
-                const $C: usize = 3;
-                $body
-            }
-            4 => {
-                const $C: usize = 4;
-                $body
-            }
-            _ => {
-                const $C: usize = 0;
-                $body
-            }
+            1 => with_channels!(@as 1, $C => $body),
+            2 => with_channels!(@as 2, $C => $body),
+            3 => with_channels!(@as 3, $C => $body),
+            4 => with_channels!(@as 4, $C => $body),
+            _ => with_channels!(@as 0, $C => $body),
         }
     };
+    (@as $n:literal, $C:ident => $body:expr) => {{
+        const $C: usize = $n;
+        $body
+    }};
 }
 
 pub mod backward;
