@@ -118,6 +118,8 @@ def test_sigusr1_to_the_process_group_lets_the_running_job_finish(tmp_path: Path
             _wait_for((out / "started").exists, proc)
         os.killpg(proc.pid, signal.SIGUSR1)  # as a batch scheduler signals a job's processes
         time.sleep(0.5)
+        # the worker may still be starting (importing torch) and not have made the output folder yet
+        out.mkdir(parents=True, exist_ok=True)
         (out / "release").write_text("1")
         output, _ = proc.communicate(timeout=120)
     finally:
