@@ -183,3 +183,28 @@ def test_a_store_dropped_without_close_leaves_a_database_that_reopens(tmp_path: 
         assert conn.execute("SELECT value FROM meta WHERE key = 'open'").fetchone() == ("0",)
     finally:
         conn.close()
+
+
+def test_the_lost_wal_message_says_how_to_clear_the_mark_when_another_program_folded_the_log(tmp_path: Path) -> None:
+    """A sweep killed mid-run leaves its open mark; another SQLite program that then opens the original file moves
+    the log into it and deletes it. The refusal names the statement that clears the mark, and after it the file
+    opens with every job."""
+    path = tmp_path / "results.db"
+    store = ResultStore(path)
+    store.add_jobs([{"a": 1}, {"a": 2}])
+    store._closed = True  # the sweep is killed: no clean close, its mark stays
+    other = sqlite3.connect(path)  # e.g. the sqlite3 shell, opened after the crash
+    other.execute("SELECT count(*) FROM jobs").fetchone()
+    other.close()
+    store._conn.close()  # the last connection closes: SQLite moves the log into the file and deletes it
+    assert not (tmp_path / "results.db-wal").exists()
+    with pytest.raises(ValueError, match="another SQLite program") as refused:
+        ResultStore(path)
+    statement = str(refused.value).split('"')[1]
+    assert statement == "UPDATE meta SET value = '0' WHERE key = 'open'"
+    conn = sqlite3.connect(path)
+    conn.execute(statement)
+    conn.commit()
+    conn.close()
+    with ResultStore(path) as reopened:
+        assert reopened.counts()["pending"] == 2

@@ -127,17 +127,18 @@ def sweep(
         raise typer.BadParameter(str(err), param_hint="--where") from err
 
     def selected(specs: List[Dict[str, Any]]) -> List[Dict[str, Any]]:
-        parts = select_parts(specs, only, also_known=retry_parts) if only else specs
-        return select_where(parts, conditions) if conditions else parts
+        """The jobs of ``specs`` that --only and --where pick (all of them without either); a part or a key the
+        sweep lacks is a usage error naming its option."""
+        try:
+            parts = select_parts(specs, only, also_known=retry_parts) if only else specs
+        except ValueError as err:
+            raise typer.BadParameter(str(err), param_hint="--only") from err
+        try:
+            return select_where(parts, conditions)
+        except ValueError as err:
+            raise typer.BadParameter(str(err), param_hint="--where") from err
 
-    try:
-        jobs = select_parts(expanded, only, also_known=retry_parts) if only else expanded
-    except ValueError as err:
-        raise typer.BadParameter(str(err), param_hint="--only") from err
-    try:
-        jobs = select_where(jobs, conditions) if conditions else jobs
-    except ValueError as err:
-        raise typer.BadParameter(str(err), param_hint="--where") from err
+    jobs = selected(expanded)
     try:
         after_s = None if stop_starting_after is None else parse_duration(stop_starting_after,
                                                                            "--stop-starting-after")

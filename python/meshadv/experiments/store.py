@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shlex
 import socket
 import sqlite3
 import time
@@ -187,7 +188,11 @@ class ResultStore:
             if row is not None and row[0] == "1":
                 raise ValueError(
                     f"path {self.path!r} was not closed cleanly and its write-ahead log {wal.name} is missing: "
-                    f"results recorded since the last checkpoint are not in this file; {advice}"
+                    f"results recorded since the last checkpoint are not in this file; {advice}. If this is the "
+                    "original file and another SQLite program (e.g. the sqlite3 shell) opened it after the sweep was "
+                    "killed, that program moved the log into it and deleted it: nothing is lost, and "
+                    f"`sqlite3 {shlex.quote(str(self.path))} \"UPDATE meta SET value = '0' WHERE key = 'open'\"` "
+                    "clears the mark"
                 )
 
     def close(self) -> None:
