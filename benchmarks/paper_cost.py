@@ -13,7 +13,10 @@
    rule (same type and kind with another victim, else the same victim and type, else the same type) and say so.
    ``--db`` takes several databases (e.g. a sweep's own database for its ``ddn`` jobs and an Adam measurement for
    the paper's protocol). With ``[attack.retry]`` each main attack may run once more (its retry): expected at the
-   group's measured failure rate of main attacks, at most once per main attack, labelled ``[retry]``.
+   group's measured failure rate of main attacks, at most once per main attack, labelled ``[retry]``; with several
+   stages (``[[attack.retry]]``) each stage's retry is expected at the product of the measured failure rates of the
+   stages before it (the main attacks' and each earlier stage's retries'; 1 where a stage has no finished retry yet),
+   at its own update rule's cost, labelled ``[retry k]``.
 
     python benchmarks/paper_cost.py --measure --config configs/paper_medium.toml --out out/cost
     python benchmarks/paper_cost.py --db out/cost/results.db --config configs/paper_medium.toml configs/paper_full.toml
@@ -29,11 +32,11 @@ import statistics
 import sys
 from collections import defaultdict
 from pathlib import Path
-from typing import Any, Dict, List, Sequence, Tuple
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 from meshadv.experiments import ResultStore, SerialBackend, run_sweep
 from meshadv.experiments.config import expand_jobs, load_config
-from meshadv.experiments.retries import retry_options, retry_spec
+from meshadv.experiments.retries import protocol_label, retry_options, retry_spec, retry_stage
 
 Group = Tuple[str, str, str, str]  # victim, perturbation, kind, update rule
 
@@ -63,7 +66,8 @@ def _seconds(spec: Dict[str, Any], cost: Dict[str, float]) -> Tuple[float, float
 
 def _label(spec: Dict[str, Any]) -> str:
     """The projection's group label of a job: its group, and ``[protocol]`` for an extra protocol's or a retry."""
-    return " ".join(_group(spec)) + (f" [{spec['protocol']}]" if spec.get("protocol") else "")
+    protocol = protocol_label(spec)
+    return " ".join(_group(spec)) + (f" [{protocol}]" if protocol else "")
 
 
 def sample_jobs(config: Path, per_group: int) -> List[Dict[str, Any]]:
@@ -87,19 +91,48 @@ def measured(dbs: Sequence[Path]) -> Dict[Group, Dict[str, float]]:
         with ResultStore(db, read_only=True) as store:
             rows += [r for r in store.rows("done") if not r.record.get("skipped") and r.record.get("steps")]
     acc: Dict[Group, List[Tuple[float, float]]] = defaultdict(list)
-    outcomes: Dict[Group, List[bool]] = defaultdict(list)  # main attacks' successes: the retries' expected share
+    # successes of the main attacks (stage 0) and of each retry stage's, by the main attack's group: the expected
+    # share of the next stage's retries
+    outcomes: Dict[Tuple[str, str, str, int], List[bool]] = defaultdict(list)
     for r in rows:
-        if not r.spec.get("protocol"):
-            outcomes[_group(r.spec)].append(bool(r.record.get("success")))
+        stage = retry_stage(r.spec)
+        if stage or not r.spec.get("protocol"):  # keyed without the update rule: a retry stage may change it
+            outcomes[(*_group(r.spec)[:3], stage)].append(bool(r.record.get("success")))
         steps, rounds = _budget(r.spec)
         views = len(r.spec["views"])
         seconds = r.record.get("cpu_time") or r.record["time"]  # CPU time when recorded: robust to a loaded machine
         per_step_image = seconds / (r.record["steps"] * views)
         acc[_group(r.spec)].append((per_step_image, r.record["steps"] / rounds))
+    def failure_rate(key: Tuple[str, str, str, int]) -> float:
+        return 1.0 - statistics.mean(outcomes[key]) if outcomes.get(key) else 1.0
+
+    stages = sorted({k[3] for k in outcomes if k[3] > 0})
     return {g: {"per_step_image": statistics.median(v[0] for v in vals),
                 "steps": statistics.mean(v[1] for v in vals), "n": len(vals),
-                "failure_rate": 1.0 - statistics.mean(outcomes[g]) if outcomes[g] else 1.0}
+                "failure_rate": failure_rate((*g[:3], 0)),
+                "retry_failure_rates": {k: failure_rate((*g[:3], k)) for k in stages if (*g[:3], k) in outcomes}}
             for g, vals in acc.items()}
+
+
+def _cost_of(g: Group, costs: Dict[Group, Dict[str, float]]) -> Optional[Dict[str, float]]:
+    """The measured cost of group ``g``, else one borrowed with the same update rule: same type and kind (another
+    victim), else same victim and type, else same type; ``None`` when there is none."""
+    if g in costs:
+        return costs[g]
+    for same in (lambda k: k[1:] == g[1:], lambda k: k[:2] == g[:2] and k[3] == g[3],
+                 lambda k: k[1] == g[1] and k[3] == g[3]):
+        cost = next((c for k, c in sorted(costs.items()) if same(k)), None)
+        if cost is not None:
+            return cost
+    return None
+
+
+def _failure_rate(cost: Dict[str, Any], stage: int) -> float:
+    """The measured failure rate of the main attacks (``stage`` 0) or of a retry stage's retries, from the main
+    attack's group cost; 1 (every one fails) when not measured."""
+    if stage == 0:
+        return float(cost.get("failure_rate", 1.0))
+    return float(cost.get("retry_failure_rates", {}).get(stage, 1.0))
 
 
 def project(config: Path, costs: Dict[Group, Dict[str, float]]) -> Dict[str, Any]:
@@ -110,28 +143,34 @@ def project(config: Path, costs: Dict[Group, Dict[str, float]]) -> Dict[str, Any
     borrowed = set()
     missing: Dict[Group, int] = defaultdict(int)
     cfg = load_config(config)
-    retry = cfg.attack["retry"]
+    stages = cfg.attack["retry"]
     jobs = expand_jobs(cfg)
-    for job in jobs:
-        g = _group(job)
-        cost = costs.get(g)
-        if cost is None:  # borrow, same update rule: same type and kind (another victim), else same victim and
-            # type, else same type
-            for same in (lambda k: k[1:] == g[1:], lambda k: k[:2] == g[:2] and k[3] == g[3],
-                         lambda k: k[1] == g[1] and k[3] == g[3]):
-                cost = next((c for k, c in sorted(costs.items()) if same(k)), None)
-                if cost is not None:
-                    break
+
+    def cost_of(spec: Dict[str, Any]) -> Optional[Dict[str, float]]:
+        g = _group(spec)
+        if g not in costs:
             borrowed.add(g)
+        cost = _cost_of(g, costs)
         if cost is None:
             missing[g] += 1
+        return cost
+
+    for job in jobs:
+        cost = cost_of(job)
+        if cost is None:
             continue
         parts = [(job, *_seconds(job, cost))]
-        options = retry_options(retry, job)
-        if options is not None:  # its retry: at the measured failure rate, at most every time
-            child = retry_spec(job, "", options)
-            most = _seconds(child, cost)[1]
-            parts.append((child, cost["failure_rate"] * most, most))
+        share, parent = 1.0, job
+        while (options := retry_options(stages, parent)) is not None:
+            # the next stage's retry: at the measured failure rates of the stages before it, at most every time
+            share *= _failure_rate(cost, retry_stage(parent))
+            child = retry_spec(parent, "", options)
+            child_cost = cost_of(child)
+            if child_cost is None:
+                break
+            most = _seconds(child, child_cost)[1]
+            parts.append((child, share * most, most))
+            parent = child
         for spec, seconds, most in parts:
             total += seconds
             upper += most

@@ -69,3 +69,22 @@ def test_projection_counts_each_retry_at_the_measured_failure_rate(tmp_path: Pat
     assert retry[1] * 3600 == pytest.approx(2 * 0.2 * 200)
     assert p["upper_cpu_hours"] * 3600 == pytest.approx(2 * 0.5 * 100 + 2 * 0.2 * 50 + 2 * 0.2 * 200)
     assert not any("shape" in label and "retry" in label for label in p["groups"])  # shape is not retried
+
+
+def test_projection_counts_each_retry_stage_at_the_failure_rates_before_it(tmp_path: Path) -> None:
+    pc = _paper_cost()
+    config = tmp_path / "c.toml"
+    config.write_text(CONFIG + "[[attack.retry]]\ntexture = { steps = 200 }\n"
+                      "[[attack.retry]]\ntexture = { method = \"adam\", steps = 100, binary_search_steps = 2 }\n")
+    costs = {("efficientnet_lite0", "shape", "single", "adam"): {"per_step_image": 0.5, "steps": 20.0, "n": 1},
+             ("efficientnet_lite0", "texture", "single", "ddn"): {"per_step_image": 0.2, "steps": 50.0, "n": 1,
+                                                                  "failure_rate": 0.25,
+                                                                  "retry_failure_rates": {1: 0.5}},
+             ("efficientnet_lite0", "texture", "single", "adam"): {"per_step_image": 9.0, "steps": 1.0, "n": 1}}
+    p = pc.project(config, costs)
+    first = p["groups"]["efficientnet_lite0 texture single ddn [retry]"]
+    second = p["groups"]["efficientnet_lite0 texture single adam [retry 2]"]
+    assert first[0] * 3600 == pytest.approx(0.25 * 2 * 0.2 * 200)
+    # stage 2: Adam's own cost, 2 rounds x 100 steps, for the quarter of the attacks whose retry failed half the time
+    assert second[0] * 3600 == pytest.approx(0.25 * 0.5 * 2 * 9.0 * 100 * 2)
+    assert second[1] * 3600 == pytest.approx(2 * 9.0 * 100 * 2)

@@ -14,8 +14,11 @@ from meshadv.experiments.report import write_report
 from meshadv.experiments.job_expansion import job_part, select_parts
 from meshadv.experiments.retries import (
     place_retries,
+    protocol_label,
     retry_jobs,
+    retry_options,
     retry_spec,
+    retry_stage,
     with_retried_transfers,
     with_retries,
 )
@@ -51,8 +54,8 @@ def _spec(source: str, target: str, perturbation: str = "shape", **extra: Any) -
 
 def test_the_retry_table_is_checked_at_load() -> None:
     cfg = parse_config(_config("\n[attack.retry]\nshape = { steps = 60 }\n"))
-    assert cfg.attack["retry"] == {"shape": {"steps": 60}}
-    assert parse_config(_config("")).attack["retry"] == {}
+    assert cfg.attack["retry"] == [{"shape": {"steps": 60}}]  # one stage
+    assert parse_config(_config("")).attack["retry"] == []
     with pytest.raises(ValueError, match="'attack.retry.shape.stepz'; did you mean 'attack.retry.shape.steps'"):
         parse_config(_config("\n[attack.retry]\nshape = { stepz = 60 }\n"))
     with pytest.raises(ValueError, match="'attack.retry.colour'"):
@@ -73,11 +76,13 @@ def test_retry_jobs_are_due_for_failed_main_attacks_only() -> None:
         _row("f", _spec("chair", "boat", "texture"), {"success": False}),
         _row("g", dict(_spec("chair", "boat"), kind="multiview"), {"success": False}),
     ]
-    due = retry_jobs({"shape": {"steps": 60}}, rows)
+    due = retry_jobs([{"shape": {"steps": 60}}], rows)
     assert due == [retry_spec(rows[0].spec, "a", {"steps": 60})]
     child = due[0]
     assert child["attack"] == {"steps": 60, "lr": 0.1} and child["retry_of"] == "a"
     assert job_part(child) == "retry" and rows[0].spec["attack"] == {"steps": 10, "lr": 0.1}  # parent untouched
+    assert "retry_stage" not in child and retry_stage(child) == 1  # a one-stage sweep's job ids
+    assert retry_jobs([{"shape": {"steps": 60}}], [_row("r", child, {"success": False})]) == []  # no second stage
     main, paper = _spec("chair", "sofa"), _spec("chair", "sofa", protocol="paper")
     assert place_retries([main, paper], due) == [main, child, paper]
     assert place_retries([paper], due) == [child, paper]
@@ -150,7 +155,7 @@ def test_report_has_the_retry_rows_and_draws_no_retry(tmp_path: Path) -> None:
     db = run_probe_sweep(tmp_path / "results.db", jobs, tmp_path / "run")
     with ResultStore(db) as store:
         rows = store.rows()
-    retry = {**retry_jobs({"shape": {"steps": 60}}, rows)[0], "success": True}
+    retry = {**retry_jobs([{"shape": {"steps": 60}}], rows)[0], "success": True}
     run_probe_sweep(db, [retry], tmp_path / "run")
     out = write_report(db, tmp_path / "report", figures=True)
     table = (tmp_path / "report" / "table1.md").read_text()
@@ -159,3 +164,79 @@ def test_report_has_the_retry_rows_and_draws_no_retry(tmp_path: Path) -> None:
     combined = next(line for line in table.splitlines() if line.startswith("| v [+retry] | shape | laplacian_pair"))
     assert "50.0%" in plain and "100.0%" in combined
     assert not any("retry" in path.name for path in out.figures)  # grids and flow figures leave retries out
+
+
+STAGES = [{"shape": {"steps": 60}}, {"shape": {"method": "adam", "lr": 1.0}, "texture": {"steps": 5}}]
+
+
+def test_retry_stages_are_checked_at_load() -> None:
+    stages = "\n[[attack.retry]]\nshape = { steps = 60 }\n[[attack.retry]]\nshape = { lr = 1.0 }\n"
+    assert parse_config(_config(stages)).attack["retry"] == [{"shape": {"steps": 60}}, {"shape": {"lr": 1.0}}]
+    assert parse_config(_config("\n[[attack.retry]]\nshape = { steps = 60 }\n")).attack["retry"] == [
+        {"shape": {"steps": 60}}]
+    with pytest.raises(ValueError, match=r"'attack.retry\[1\].shape.stepz'; did you mean '.*\[1\].shape.steps'"):
+        parse_config(_config(stages.replace("lr = 1.0", "stepz = 3")))
+    with pytest.raises(ValueError, match=r"\[attack.retry\[1\].shape\]: steps must be"):
+        parse_config(_config(stages.replace("lr = 1.0", "steps = -3")))
+    raw = _config("")
+    raw["attack"]["retry"] = [{"shape": {"steps": 60}}, "shape"]
+    with pytest.raises(ValueError, match=r"section \[attack.retry\[1\]\] must be a table, got str"):
+        parse_config(raw)
+
+
+def test_a_failed_retry_is_retried_by_the_next_stage_with_its_options_over_its_own() -> None:
+    parent = _spec("chair", "sofa")
+    first = retry_spec(parent, "a", STAGES[0]["shape"])
+    rows = [_row("a", parent, {"success": False}), _row("r1", first, {"success": False})]
+    due = retry_jobs(STAGES, rows)
+    assert due[0] == first  # the main attack's retry (already done here: the sweep skips it by its job id)
+    second = due[1]
+    assert second["retry_of"] == "r1" and second["retry_stage"] == 2 and retry_stage(second) == 2
+    assert second["attack"] == {"steps": 60, "lr": 1.0, "method": "adam"}  # main, then stage 1, then stage 2
+    assert job_part(second) == "retry" and protocol_label(second) == "retry 2" and protocol_label(first) == "retry"
+    assert retry_options(STAGES, second) is None  # the last stage
+    assert retry_jobs(STAGES, [_row("r2", second, {"success": False})]) == []
+    assert retry_jobs(STAGES, [_row("r1", first, {"success": True})]) == []  # a retry that succeeded: no stage 2
+    texture = _spec("chair", "sofa", "texture")  # stage 1 does not retry texture: its chain ends there
+    assert retry_jobs(STAGES, [_row("t", texture, {"success": False})]) == []
+
+
+def test_with_retries_follows_the_chain_to_the_first_success() -> None:
+    parent, other = _spec("chair", "sofa"), _spec("chair", "boat")
+    first = retry_spec(parent, "a", STAGES[0]["shape"])
+    second = retry_spec(first, "r1", STAGES[1]["shape"])
+    rows = [_row("a", parent, {"success": False, "distance": 5.0}),
+            _row("b", other, {"success": False, "distance": 1.0}),
+            _row("r1", first, {"success": False, "distance": 4.0}),
+            _row("r2", second, {"success": True, "distance": 3.0}),
+            _row("s1", retry_spec(other, "b", STAGES[0]["shape"]), {"success": True, "distance": 2.0})]
+    combined = with_retries(rows)
+    assert [c["record"]["distance"] for c in combined] == [3.0, 2.0]
+    t1 = {r.victim: r for r in table1(attack_rows([*rows, *combined])) if r.distance_name == "laplacian_pair_mean"}
+    assert t1["v"].average.success_rate == 0.0 and t1["v [+retry]"].average.success_rate == 1.0
+    assert t1["v [retry]"].average.success_rate == 0.5 and t1["v [retry 2]"].average.success_rate == 1.0
+    unfinished = [*rows[:3], _row("r2", second, None, state="running"), rows[4]]
+    assert [c["record"]["distance"] for c in with_retries(unfinished)] == [4.0, 2.0]  # the last that finished
+
+
+def test_sweep_runs_each_retry_stage_after_the_one_before(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # reaches its target with lr >= 1 (stage 2), and from the sofa always (a module name of its own: "m" is cached)
+    (tmp_path / "staged.py").write_text(RETRY_JOB.replace("steps >= 50", "float(spec['attack'].get('lr', 0)) >= 1"))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    stages = "\n[[attack.retry]]\nshape = { steps = 60 }\n[[attack.retry]]\nshape = { lr = 1.0 }\n"
+    (tmp_path / "sweep.toml").write_text(two_job_config("retry", "staged:job") + stages)
+    db = tmp_path / "results.db"
+    args = ["sweep", str(tmp_path / "sweep.toml"), "--db", str(db), "--output", str(tmp_path / "out"),
+            "--backend", "serial", "--no-progress"]
+    res = CliRunner().invoke(sweep_cli(), args)
+    assert res.exit_code == 0, res.output
+    assert "4/4 done (2 successful)" in res.output and "ran 4" in res.output
+    with ResultStore(db) as store:
+        by_id = {r.job_id: r for r in store.rows()}
+    (second,) = [r for r in by_id.values() if r.spec.get("retry_stage") == 2]
+    first = by_id[second.spec["retry_of"]]
+    assert retry_stage(first.spec) == 1 and first.record["success"] is False
+    assert by_id[first.spec["retry_of"]].spec["source_class"] == "chair" and second.record["success"] is True
+    assert second.spec["attack"]["steps"] == 60 and second.spec["attack"]["lr"] == 1.0
+    res = CliRunner().invoke(sweep_cli(), args)  # resumed: nothing left
+    assert res.exit_code == 0 and "4/4 done" in res.output and "ran 0" in res.output, res.output

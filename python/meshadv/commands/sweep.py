@@ -14,6 +14,7 @@ report their steps to this process) and per finished job with Ray.
 With ``[attack.retry]`` in the config, every main-setting attack that fails is run again with a larger budget
 (:mod:`meshadv.experiments.retries`): the retries of earlier runs' failures come right after the main setting's
 jobs, and the failures of this run are retried before the command ends (``--only retry`` runs the retries alone).
+With several stages (``[[attack.retry]]``), a retry that fails is retried by the next stage in the same way.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ read from their signatures, so they follow the attacks without a second list.
 from __future__ import annotations
 
 import inspect
-from typing import Any, Dict, Iterable, List, Mapping
+from typing import Any, Dict, Iterable, List, Mapping, Tuple
 
 from meshadv._validate import suggest
 from meshadv.render.setup import SETUP_OPTIONS
@@ -127,9 +127,19 @@ def check_keys(raw: Mapping[str, Any], families: Mapping[str, type]) -> None:
     for name, proto in protocols.items():
         _check_table(proto, f"attack.protocols.{name}", PROTOCOL_KEYS | set(families))
         _check_attack_options(proto, f"attack.protocols.{name}", families)
-    if "retry" in attack:
-        _check_table(attack["retry"], "attack.retry", families)
-        _check_attack_options(attack["retry"], "attack.retry", families)
+    for path, stage in _retry_stages(attack):
+        _check_table(stage, path, families)
+        _check_attack_options(stage, path, families)
+
+
+def _retry_stages(attack: Mapping[str, Any]) -> List[Tuple[str, Any]]:
+    """``(path, table)`` of each retry stage: ``[attack.retry]`` is one, ``[[attack.retry]]`` a list of them."""
+    retry = attack.get("retry", {})
+    if isinstance(retry, list):
+        if len(retry) == 1:
+            return [("attack.retry", retry[0])]
+        return [(f"attack.retry[{i}]", stage) for i, stage in enumerate(retry)]
+    return [("attack.retry", retry)] if retry else []
 
 
 def check_attack_values(attack: Mapping[str, Any], families: Mapping[str, type]) -> None:
@@ -144,9 +154,11 @@ def check_attack_values(attack: Mapping[str, Any], families: Mapping[str, type])
         ValueError: the attack class refused an option; the message names the table.
     """
     tables = [("attack", attack)] + [(f"attack.protocols.{n}", p) for n, p in attack.get("protocols", {}).items()]
-    # a retry runs with its options over the main setting's
-    retry = {p: {**dict(attack.get(p, {})), **dict(o)} for p, o in attack.get("retry", {}).items()}
-    tables.append(("attack.retry", retry))
+    # a retry runs with its stage's options over its parent's: the main setting's and the earlier stages'
+    options = {p: dict(attack.get(p, {})) for p in families}
+    for path, stage in _retry_stages(attack):
+        options = {p: {**o, **dict(stage.get(p, {}))} for p, o in options.items()}
+        tables.append((path, {p: options[p] for p in stage}))
     for path, table in tables:
         for perturbation in attack.get("perturbations", []):
             options = {k: v for k, v in dict(table.get(perturbation, {})).items() if k not in JOB_ATTACK_OPTIONS}

@@ -20,6 +20,7 @@ from statistics import median
 from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 
 from meshadv.attacks.distances import PAPER_COMPARABLE, read_distance
+from meshadv.experiments.retries import protocol_label
 from meshadv.experiments.tables import format_cell, instance_key, single_view_results, to_csv
 from meshadv.util.atomic import write_text_atomic
 
@@ -142,7 +143,7 @@ def protocol_pairs(jobs: Iterable[Any]) -> List[ProtocolPair]:
             continue
         mesh, config, _ = instance_key(spec)
         pairs.append(ProtocolPair(victim=spec["victim"], perturbation=spec["perturbation"],
-                                  protocol=str(spec["protocol"]), instance=f"{mesh}#{config}",
+                                  protocol=str(protocol_label(spec)), instance=f"{mesh}#{config}",
                                   source=spec["source_class"], target=spec["target"], main=counterpart,
                                   extra=outcome))
     return sorted(pairs, key=lambda p: (p.victim, p.perturbation, p.protocol, p.source, p.instance, p.target))

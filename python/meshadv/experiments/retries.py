@@ -1,4 +1,5 @@
-"""The retry pass: a main-setting attack that failed runs again with a larger budget (``[attack.retry]``).
+"""The retry pass: a main-setting attack that failed runs again with a larger budget (``[attack.retry]``), and a
+retry that failed again with the next stage's options (``[[attack.retry]]``, stages in order).
 
 An attack with a fixed budget (ddn's 300 shape / 100 texture steps) misses some targets that the same attack reaches
 with more steps, because its step size anneals over the budget it is given. Running every attack with the larger
@@ -16,8 +17,11 @@ from __future__ import annotations
 
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence
 
-__all__ = ["COMBINED_PART", "RETRY_PART", "is_retry", "place_retries", "retry_jobs", "retry_options", "retry_spec",
-           "with_retries", "with_retried_transfers"]
+__all__ = ["COMBINED_PART", "RETRY_PART", "RetryStages", "is_retry", "place_retries", "protocol_label",
+           "retry_jobs", "retry_options", "retry_spec", "retry_stage", "with_retries", "with_retried_transfers"]
+
+#: The retry stages of a sweep (the config's ``[attack.retry]`` as a list): per stage, perturbation type -> options.
+RetryStages = Sequence[Mapping[str, Mapping[str, Any]]]
 
 #: The part (``job_part``) and protocol name of the retry jobs.
 RETRY_PART = "retry"
@@ -34,32 +38,53 @@ def _is_main_single(spec: Mapping[str, Any]) -> bool:
     return spec.get("kind", "single") == "single" and not spec.get("protocol")
 
 
-def retry_options(retry: Mapping[str, Mapping[str, Any]], spec: Mapping[str, Any]) -> Optional[Mapping[str, Any]]:
-    """The options a failure of the job ``spec`` is retried with: ``retry`` (the config's ``[attack.retry]``: type ->
-    options) for its perturbation type when it is a main-setting single-view job, else ``None`` (not retried)."""
-    return retry.get(spec["perturbation"]) if _is_main_single(spec) else None
+def retry_stage(spec: Mapping[str, Any]) -> int:
+    """The retry stage of the job ``spec``: 0 for a job that is not a retry, 1 for a retry of a main attack, ``k``
+    for a retry of a stage ``k - 1`` retry."""
+    return int(spec.get("retry_stage", 1)) if is_retry(spec) else 0
+
+
+def protocol_label(spec: Mapping[str, Any]) -> Optional[str]:
+    """The protocol name the tables give the job ``spec``: its ``protocol`` entry (``None`` for the main setting),
+    with the stage for a retry past the first (``"retry 2"``)."""
+    protocol = spec.get("protocol")
+    stage = retry_stage(spec)
+    return f"{protocol} {stage}" if protocol and stage > 1 else protocol
+
+
+def retry_options(stages: RetryStages, spec: Mapping[str, Any]) -> Optional[Mapping[str, Any]]:
+    """The options a failure of the job ``spec`` is retried with: those of the next retry stage of ``stages`` (the
+    config's ``[attack.retry]``: per stage, type -> options) for its perturbation type, when ``spec`` is a
+    main-setting single-view job (stage 1) or a retry with a stage after its own; else ``None`` (not retried)."""
+    stage = retry_stage(spec)
+    if (stage == 0 and not _is_main_single(spec)) or stage >= len(stages):
+        return None
+    return stages[stage].get(spec["perturbation"])
 
 
 def retry_spec(spec: Mapping[str, Any], parent_id: str, options: Mapping[str, Any]) -> Dict[str, Any]:
-    """The retry job of the main-setting job ``parent_id`` (spec ``spec``): its attack options with ``options``
-    over them, ``"protocol": "retry"`` and ``"retry_of": parent_id``; everything else is the parent's."""
+    """The retry job of the job ``parent_id`` (spec ``spec``: a main-setting job or a retry): its attack options with
+    ``options`` over them, ``"protocol": "retry"``, ``"retry_of": parent_id`` and, past the first stage,
+    ``"retry_stage"``; everything else is the parent's."""
     child = dict(spec)
     child["attack"] = {**dict(spec.get("attack", {})), **dict(options)}
     child["protocol"] = RETRY_PART
     child["retry_of"] = parent_id
+    stage = retry_stage(spec) + 1
+    if stage > 1:
+        child["retry_stage"] = stage
     return child
 
 
-def retry_jobs(retry: Mapping[str, Mapping[str, Any]], rows: Iterable[Any]) -> List[Dict[str, Any]]:
-    """The retry jobs due: one per finished main-setting single-view job (a ``JobRow``) whose attack failed, was not
-    skipped, and whose perturbation type ``retry`` (the config's ``[attack.retry]``: type -> options) names; in the
-    order of ``rows``."""
+def retry_jobs(stages: RetryStages, rows: Iterable[Any]) -> List[Dict[str, Any]]:
+    """The retry jobs due: one per finished main-setting single-view job or retry (a ``JobRow``) whose attack failed,
+    was not skipped, and has a next stage in ``stages`` (:func:`retry_options`); in the order of ``rows``."""
     out = []
     for row in rows:
         spec, record = row.spec, row.record
         if row.state != "done" or record is None or record.get("skipped") or record.get("success"):
             continue
-        options = retry_options(retry, spec)
+        options = retry_options(stages, spec)
         if options is None:
             continue
         out.append(retry_spec(spec, row.job_id, options))
@@ -74,26 +99,27 @@ def place_retries(jobs: Sequence[Dict[str, Any]], retries: Sequence[Dict[str, An
 
 
 def with_retries(jobs: Iterable[Any]) -> List[Dict[str, Any]]:
-    """Each finished main-setting single-view attack combined with its finished retry, as ``{"spec", "record"}``
-    dicts for :func:`meshadv.experiments.tables.attack_rows`: the retry's record where the parent failed and a retry
-    finished, else the parent's; the spec is the parent's with ``"protocol": "+retry"``. Only the (victim, type)
-    groups with at least one finished retry are returned (none when the sweep has no retries).
+    """Each finished main-setting single-view attack combined with its finished retries, as ``{"spec", "record"}``
+    dicts for :func:`meshadv.experiments.tables.attack_rows`: the record of the first success along the chain of the
+    attack and its retries (stage by stage), else of the last of them that finished; the spec is the parent's with
+    ``"protocol": "+retry"``. Only the (victim, type) groups with at least one finished retry are returned (none when
+    the sweep has no retries).
 
     Args:
         jobs: ``JobRow`` objects (finished or not).
     """
     rows = [j for j in jobs if j.state == "done" and j.record is not None]
-    retried = {j.spec["retry_of"]: j.record for j in rows if is_retry(j.spec)}
+    retried = {j.spec["retry_of"]: j for j in rows if is_retry(j.spec)}
     groups = {(j.spec["victim"], j.spec["perturbation"]) for j in rows if is_retry(j.spec)}
     out = []
     for job in rows:
         spec = job.spec
         if not _is_main_single(spec) or (spec["victim"], spec["perturbation"]) not in groups:
             continue
-        record = job.record
-        if not record.get("success") and job.job_id in retried:
-            record = retried[job.job_id]
-        out.append({"spec": dict(spec, protocol=COMBINED_PART), "record": record})
+        link = job
+        while not link.record.get("success") and link.job_id in retried:
+            link = retried[link.job_id]
+        out.append({"spec": dict(spec, protocol=COMBINED_PART), "record": link.record})
     return out
 
 

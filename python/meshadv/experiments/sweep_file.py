@@ -23,7 +23,9 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
                   class), victims = [...] (default all), shape = {...}, texture = {...}; their jobs carry
                   ``"protocol": "<name>"`` and the tables report them as separate rows
     [attack.retry]  shape = {steps = 1000}, texture = {...}: each main-setting attack of these types that fails runs
-                  again from its benign mesh with these options over its own (:mod:`meshadv.experiments.retries`)
+                  again from its benign mesh with these options over its own (:mod:`meshadv.experiments.retries`);
+                  ``[[attack.retry]]`` tables are stages: a retry that fails runs again with the next stage's options
+                  over its own (``attack["retry"]`` is the list of stages either way)
     [multiview]   enabled = false, view_counts = [5, 10, 15], azimuth_ranges = [[45, 60], [35, 70], [15, 75]],
                   grid = false (true: every view count with every range, the paper's 3 x 3 Table 2; false: pairs),
                   eval_views = 20, perturbations = ["shape", "texture"] (or ``types``), classes = [...],
@@ -241,6 +243,8 @@ def _attack_section(raw: Dict[str, Any]) -> Dict[str, Any]:
         if pname == RETRY_PART:
             raise ValueError(f"attack.protocols.{pname}: the name {RETRY_PART!r} is the retry pass's "
                              "([attack.retry]); name the protocol otherwise")
+    if isinstance(attack["retry"], dict):  # [attack.retry]: one stage; [[attack.retry]]: stages, in order
+        attack["retry"] = [attack["retry"]] if attack["retry"] else []
     bad = [t for t in attack["perturbations"] if t not in PERTURBATIONS]
     if bad or not attack["perturbations"]:
         raise ValueError(f"{attack_key} must be a non-empty subset of {perturbations()}, "

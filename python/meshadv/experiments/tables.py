@@ -48,6 +48,7 @@ import numpy as np
 
 from meshadv.attacks.distances import PAPER_COMPARABLE, read_distance
 from meshadv.experiments import paper
+from meshadv.experiments.retries import protocol_label
 
 __all__ = [
     "AttackRow",
@@ -201,8 +202,10 @@ def _mean(values: Sequence[float]) -> float:
 
 
 def victim_label(spec: Dict[str, Any]) -> str:
-    """The victim column of a job: its victim, with ``[protocol]`` for jobs of an extra attack protocol."""
-    return spec["victim"] + (f" [{spec['protocol']}]" if spec.get("protocol") else "")
+    """The victim column of a job: its victim, with ``[protocol]`` for jobs of an extra attack protocol (``[retry 2]``
+    for a second-stage retry: :func:`meshadv.experiments.retries.protocol_label`)."""
+    protocol = protocol_label(spec)
+    return spec["victim"] + (f" [{protocol}]" if protocol else "")
 
 
 def labelled_by_protocol(rows: Sequence[Dict[str, Any]], specs: Dict[str, Dict[str, Any]]) -> List[Dict[str, Any]]:
