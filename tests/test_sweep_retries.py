@@ -240,3 +240,5 @@ def test_sweep_runs_each_retry_stage_after_the_one_before(tmp_path: Path, monkey
     assert second.spec["attack"]["steps"] == 60 and second.spec["attack"]["lr"] == 1.0
     res = CliRunner().invoke(sweep_cli(), args)  # resumed: nothing left
     assert res.exit_code == 0 and "4/4 done" in res.output and "ran 0" in res.output, res.output
+    res = CliRunner().invoke(sweep_cli(), args + ["--only", "retry", "--dry-run"])  # the retries the database holds
+    assert res.exit_code == 0 and "2 jobs (2 single-view, 0 multi-view), 2 finished;" in res.output, res.output

@@ -82,7 +82,8 @@ def sweep(
     max_attempts: Optional[int] = typer.Option(None, help="Attempts per job (default: the config's)."),
     timeout: Optional[float] = typer.Option(None, help="Per-job timeout in seconds, local backend (0 = none)."),
     dry_run: bool = typer.Option(False, "--dry-run", help="Only expand and check the jobs (victim names, mesh "
-                                 "files, target classes) and print how many there are."),
+                                 "files, target classes) and print how many there are (with a database: the "
+                                 "retries due and how many jobs are finished)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the progress bars (jobs; attack "
                                   "steps, per step with the local and serial backends, per job with Ray)."),
     only: Optional[List[str]] = typer.Option(None, help="Run only these parts of the sweep (repeatable): 'main', "
@@ -150,8 +151,22 @@ def sweep(
     if dry_run:
         from meshadv.commands._sweep_check import check_jobs
 
+        from meshadv.experiments.spec import job_id
+
+        finished = ""
+        if Path(db_path).exists():  # the retries due so far, and how many jobs are finished already
+            try:
+                with ResultStore(db_path, read_only=True) as store:
+                    rows = store.rows()
+            except ValueError as err:
+                typer.echo(f"meshadv sweep: error: {err}", err=True)
+                raise typer.Exit(1) from None
+            if retry_parts:
+                jobs = selected(place_retries(expanded, retry_jobs(cfg.attack["retry"], rows)))
+            done = {r.job_id for r in rows if r.state == "done"}
+            finished = f", {sum(job_id(j) in done for j in jobs)} finished"
         kinds = {k: sum(j["kind"] == k for j in jobs) for k in ("single", "multiview")}
-        typer.echo(f"{len(jobs)} jobs ({kinds['single']} single-view, {kinds['multiview']} multi-view); "
+        typer.echo(f"{len(jobs)} jobs ({kinds['single']} single-view, {kinds['multiview']} multi-view){finished}; "
                    f"database {db_path}; artefacts {out_root}")
         # the names mean something to the built-in attack job; a custom [runner] job reads its specs its own way
         problems = check_jobs(jobs) if cfg.runner["job"] == DEFAULT_JOB else []
