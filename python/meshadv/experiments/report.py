@@ -87,8 +87,9 @@ distance, and the share of successful attacks above the paper's largest worst-ca
 laplacian_pair_mean {shape:.2g}, texture color_rmse {texture:.2g}; a mean over the paper's instances, so some of the
 paper's own attacks lie above it too). A mean or median alone hides a tail of visibly broken meshes.
 Rows "victim [name]" are an extra protocol's attacks; "victim [retry]" the retries alone (each a main attack that
-failed, run again from its benign mesh with the sweep's [attack.retry] budget) and "victim [+retry]" every main
-attack, counted by its retry where it failed (meshadv.experiments.retries).""".format(
+failed, run again from its benign mesh with the sweep's [attack.retry] budget), "victim [retry k]" those of a later
+retry stage (a stage k-1 retry that failed, run again with stage k's options) and "victim [+retry]" every main
+attack, counted by the first of its retries that succeeded where it failed (meshadv.experiments.retries).""".format(
     shape=PAPER_WORST["shape"], texture=PAPER_WORST["texture"])
 
 
