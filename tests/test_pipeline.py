@@ -21,10 +21,12 @@ def _views(num: int) -> Any:
 
 
 class _SumRule:
-    """A rule whose objective uses every term, so that the perceptual and distance terms must backprop too."""
+    """A rule whose objective uses every term, so that the perceptual and distance terms must backprop too; its
+    renders weight NMR's rasterization gradient by ``edge_gradient``."""
 
-    def __init__(self, weights: torch.Tensor) -> None:
+    def __init__(self, weights: torch.Tensor, edge_gradient: float = 1.0) -> None:
         self.weights = weights
+        self.edge_gradient = edge_gradient
 
     def objective(self, adv: torch.Tensor, perc: torch.Tensor, dist: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
         return (adv + self.weights[idx] * perc + 0.5 * self.weights[idx] * dist).sum()
@@ -39,8 +41,8 @@ def _call(attack: Any, mesh: Any, views: Any, victim: Any, size: int = 48) -> An
 
 
 def _step_grads(attack: Any, call: Any, criteria: List[Any], workers: Any, params: torch.Tensor,
-                idx: torch.Tensor) -> Any:
-    rule = _SumRule(torch.tensor([0.3, 2.0, 0.7, 1.5]))
+                idx: torch.Tensor, edge_gradient: float = 1.0) -> Any:
+    rule = _SumRule(torch.tensor([0.3, 2.0, 0.7, 1.5]), edge_gradient)
     p = params.detach().clone().requires_grad_(True)
     bound = [c.bind(call.victim) for c in criteria]
     if workers is None:
@@ -84,6 +86,31 @@ def test_pipelined_step_gradients_match_the_serial_step(family: str, num_workers
 
 
 @needs_native
+def test_the_rules_edge_gradient_weights_the_rasterization_part_of_every_step() -> None:
+    """A rule's ``edge_gradient`` reaches the renders of the serial and the pipelined step: the shape gradient is
+    the shading part plus ``w`` times the rasterization part (linear in ``w``), the same in both steps."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import ShapeAttack, TargetedMisclassification
+    from meshadv.attacks.pipeline import StepWorkers
+    from meshadv.mesh import builtin_mesh
+
+    mesh = builtin_mesh("chair")
+    attack = ShapeAttack()
+    call = _call(attack, mesh, _views(2), PooledLinearClassifier())
+    params = 0.02 * torch.randn(attack._init_params(mesh, 2).shape, generator=torch.Generator().manual_seed(2))
+    idx = torch.tensor([0, 1])
+    criteria = [TargetedMisclassification(c) for c in (728, 247)]
+    serial = {w: _step_grads(attack, call, criteria, None, params, idx, w)[0] for w in (0.0, 0.25, 1.0)}
+    assert float((serial[1.0] - serial[0.0]).abs().max()) > 0.1 * float(serial[1.0].abs().max())
+    torch.testing.assert_close(serial[0.25], 0.75 * serial[0.0] + 0.25 * serial[1.0],
+                               rtol=1e-4, atol=1e-5 * float(serial[1.0].abs().max()))
+    with StepWorkers(2, 1) as workers:
+        piped = _step_grads(attack, call, criteria, workers, params, idx, 0.25)[0]
+    torch.testing.assert_close(piped, serial[0.25], rtol=1e-5, atol=1e-6 * float(serial[0.25].abs().max()))
+
+
+@needs_native
 def test_pipelined_step_gradients_reach_the_perceptual_image_term() -> None:
     """Texture's perceptual term is a function of the images: without the victim's term its gradient must still come
     through the render (a zero-weight adversarial term isolates it)."""
@@ -94,6 +121,8 @@ def test_pipelined_step_gradients_reach_the_perceptual_image_term() -> None:
     from meshadv.mesh import builtin_mesh
 
     class PercOnly:
+        edge_gradient = 1.0
+
         def objective(self, adv: torch.Tensor, perc: torch.Tensor, dist: torch.Tensor,
                       idx: torch.Tensor) -> torch.Tensor:
             return 0.0 * adv.sum() + perc.sum()

@@ -217,3 +217,74 @@ def test_camera_and_vertex_gradients_have_the_finite_difference_sign() -> None:
     assert torch.sign(shift.grad[1]) == torch.sign(fd_y) and fd_y.abs() > 0
     # No magnitude check: NMR's per-pixel term delta / distance is heavy-tailed (a pixel centre just beyond an edge
     # gives up to delta / eps), so only the direction is comparable with finite differences of a hard image.
+
+
+def _edge_gradient_scene() -> tuple:
+    verts, faces = icosphere(2)
+    gen = torch.Generator().manual_seed(4)
+    verts = verts * (0.6 + 0.05 * torch.rand(verts.shape[0], 1, generator=gen))  # a bumpy sphere: varied normals
+    colors = torch.rand(faces.shape[0], 3, generator=gen)
+    cam = Camera.spherical(3.0, 30.0, 20.0)
+    cot = torch.randn(1, 3, 40, 40, generator=gen)
+    return verts, faces, colors, cam, Lights.default(cam), cot
+
+
+def _grads(edge_gradient: float) -> tuple:
+    verts, faces, colors, cam, lights, cot = _edge_gradient_scene()
+    v, c = verts.clone().requires_grad_(True), colors.clone().requires_grad_(True)
+    out = render(v, faces, c, cam, lights, 40, edge_gradient=edge_gradient)
+    (out.image * cot).sum().backward()
+    return out.image.detach(), v.grad, c.grad
+
+
+def test_edge_gradient_weights_only_the_rasterization_part_of_the_vertex_gradient() -> None:
+    """The image and the colour gradient do not depend on ``edge_gradient``; the vertex gradient is the shading part
+    plus ``w`` times NMR's rasterization part, linear in ``w``; 1 is the default render."""
+    runs = {w: _grads(w) for w in (0.0, 0.4, 1.0)}
+    for w in (0.0, 0.4):
+        assert torch.equal(runs[w][0], runs[1.0][0])
+        torch.testing.assert_close(runs[w][2], runs[1.0][2], rtol=1e-6, atol=1e-9)
+    shading, full = runs[0.0][1], runs[1.0][1]
+    assert float((full - shading).abs().max()) > 0.1 * float(full.abs().max()) > 0
+    assert float(shading.abs().max()) > 0
+    torch.testing.assert_close(runs[0.4][1], 0.6 * shading + 0.4 * full, rtol=1e-4, atol=1e-6 * float(full.abs().max()))
+    verts, faces, colors, cam, lights, cot = _edge_gradient_scene()
+    v = verts.clone().requires_grad_(True)
+    (render(v, faces, colors, cam, lights, 40).image * cot).sum().backward()
+    assert torch.equal(v.grad, full)
+
+
+def test_edge_gradient_zero_is_the_derivative_with_the_fragments_held() -> None:
+    """With ``edge_gradient=0`` the vertex gradient is the exact derivative of the image with every pixel's face
+    held: central differences of a loss over the pixels whose face does not change under the nudge (the core
+    shades in float32, so the step is 1e-3 and the tolerance 1e-3). NMR's full gradient is far from it there: it
+    also credits the pixels each edge could cover."""
+    verts, faces, colors, cam, lights, cot = _edge_gradient_scene()
+    verts, colors, cot = verts.double(), colors.double(), cot.double()
+    gen = torch.Generator().manual_seed(5)
+    eps = 1e-3
+    base = render(verts, faces, colors, cam, lights, 40)
+    for _ in range(3):
+        direction = torch.randn(verts.shape, generator=gen, dtype=F64)
+        plus = render(verts + eps * direction, faces, colors, cam, lights, 40)
+        minus = render(verts - eps * direction, faces, colors, cam, lights, 40)
+        held = ((plus.face_index == base.face_index) & (minus.face_index == base.face_index)).unsqueeze(1)
+        assert float(held.double().mean()) > 0.95
+        weights = cot * held
+        numeric = float(((plus.image - minus.image) * weights).sum()) / (2 * eps)
+        analytic = {}
+        for w in (0.0, 1.0):
+            v = verts.clone().requires_grad_(True)
+            (render(v, faces, colors, cam, lights, 40, edge_gradient=w).image * weights).sum().backward()
+            analytic[w] = float((v.grad * direction).sum())
+        assert abs(numeric) > 1.0
+        assert analytic[0.0] == pytest.approx(numeric, rel=1e-3)
+        assert abs(analytic[1.0] - numeric) > abs(numeric)
+
+
+@pytest.mark.parametrize("value, error", [(-0.5, ValueError), (float("nan"), ValueError), (float("inf"), ValueError),
+                                          ("1", TypeError), (True, TypeError)])
+def test_bad_edge_gradient_is_refused_by_name(value: object, error: type) -> None:
+    verts, faces, colors, cam, lights, _ = _edge_gradient_scene()
+    with pytest.raises(error, match="edge_gradient"):
+        render(verts, faces, colors, cam, lights, 16, edge_gradient=value)  # type: ignore[arg-type]

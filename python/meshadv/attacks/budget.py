@@ -99,13 +99,13 @@ __all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS
 DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {
     "shape": {"init_budget": 1e-3, "gamma": 0.05, "step_size": 1e-3, "final_step_size": 1e-4, "min_budget": 1e-7,
               "smoothness": 0.1, "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5,
-              "reach": "budget"},
+              "reach": "budget", "edge_gradient": 1.0},
     "texture": {"init_budget": 5e-3, "gamma": 0.1, "step_size": 5e-3, "final_step_size": 5e-4, "min_budget": 1e-6,
                 "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5, "reach": "budget"},
 }
 
 #: Options of :class:`DDNRule` that are not :class:`BudgetState`'s.
-_RULE_OPTIONS = ("smoothness", "momentum", "stall_steps", "stall_factor", "reach")
+_RULE_OPTIONS = ("smoothness", "momentum", "stall_steps", "stall_factor", "reach", "edge_gradient")
 
 #: Values of the ``reach`` option: the step direction of a target that has not held yet (see the module docstring).
 REACH_MODES = ("budget", "adam")
@@ -264,6 +264,8 @@ class DDNRule(UpdateRule):
         smoothness: shape only, ``s`` of the preconditioner ``(L + I/s)^-1`` (``None``: the Laplacian alone).
         momentum, stall_steps, stall_factor: the step's momentum and stall restarts (see the module docstring).
         reach: ``"budget"`` or ``"adam"``, the direction of a target that has not held yet (module docstring).
+        edge_gradient: shape only, the weight of NMR's rasterization gradient in the vertex gradient (module
+            docstring); 1 is NMR's definition.
 
     Attributes:
         restarts: int64 ``(T,)``, stall restarts per target in the current round.
@@ -317,6 +319,11 @@ class DDNRule(UpdateRule):
         if not isinstance(reach, str) or reach not in REACH_MODES:
             raise ValueError(f"reach must be one of {REACH_MODES}, got {reach!r}")
         self.reach = reach
+        if "edge_gradient" in self.options:  # shape only: a texture attack moves no vertex
+            weight = self.options["edge_gradient"]
+            if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not 0 <= weight < float("inf"):
+                raise ValueError(f"edge_gradient must be a finite number >= 0, got {weight!r}")
+            self.edge_gradient = float(weight)
 
     def _reset_round_state(self, delta: Optional[Tensor]) -> None:
         """The per-round step state: the perturbation ``delta`` (``None`` before the first round), the step modifiers

@@ -8,6 +8,7 @@ from typing import Any
 
 import torch
 
+from .._validate import finite_float
 from ._checks import as_float_tensor, check_faces, require_instance
 from .camera import Camera
 from .lighting import Lights, shade
@@ -87,6 +88,14 @@ def _project_checked(verts: torch.Tensor, camera: Camera, b: int) -> torch.Tenso
         views = torch.nonzero(beyond).flatten().tolist()
         raise ValueError(f"camera: all geometry is beyond the camera's far plane in view(s) {views}")
     return verts_screen
+
+
+def _scale_gradient(x: torch.Tensor, weight: float) -> torch.Tensor:
+    """``x`` in the forward pass; its gradient multiplied by ``weight`` in the backward pass (``x`` itself at 1)."""
+    if weight == 1.0:
+        return x
+    frozen = x.detach()
+    return frozen + weight * (x - frozen)
 
 
 def _raster_groups(camera: Camera, b: int) -> list[tuple[list[int], float, float]]:
@@ -211,6 +220,7 @@ def render(
     fill_back: bool = True,
     antialias: int = 1,
     num_threads: int = 0,
+    edge_gradient: float = 1.0,
 ) -> RenderOutput:
     """Render a flat-shaded (per-face Lambert) mesh; differentiable in vertices, colours, lights and camera.
 
@@ -231,6 +241,11 @@ def render(
         antialias: render at ``antialias`` times the size and average-pool (``depth`` and ``face_index`` are then
             taken from one sample per output pixel, the one nearest its centre).
         num_threads: threads for the native rasterizer (0 = all).
+        edge_gradient: weight ``w >= 0`` of NMR's rasterization gradient (the edges' sweep, docs/NMR_GRADIENT.md)
+            on the screen-space vertex positions, hence on vertices and camera; the shading gradient (normals,
+            colours, lights) is exact whatever ``w``. 1 (default) is NMR's definition; 0 leaves only shading. The
+            image does not depend on it. Attacks use ``w < 1`` as a gradient estimator
+            (:mod:`meshadv.attacks.budget`'s ``edge_gradient``).
 
     Returns:
         :class:`RenderOutput` (image (B,3,H,W), alpha (B,1,H,W), depth (B,H,W), face_index (B,H,W) int64).
@@ -269,8 +284,9 @@ def render(
     height, width = parse_image_size(image_size)
     k = _check_antialias(antialias)
     parse_image_size((height * k, width * k), "image_size * antialias")
+    edge_weight = finite_float("edge_gradient", edge_gradient, low=0.0)
 
-    verts_screen = _project_checked(verts, camera, b)
+    verts_screen = _scale_gradient(_project_checked(verts, camera, b), edge_weight)
     shaded = _expand(shade(verts, faces, colors, lights, camera, two_sided=bool(fill_back)), b)
     attrs = torch.cat([shaded, torch.ones_like(shaded[..., :1])], dim=-1)
     bg = torch.cat([_background(background, torch.float32), torch.zeros(1)])

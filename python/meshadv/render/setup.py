@@ -149,7 +149,8 @@ class RenderSetup:
             "crop_rows": None if self.crop_rows is None else list(self.crop_rows),
         }
 
-    def render(self, vertices: Tensor, faces: Tensor, face_colors: Tensor, views: Any) -> Tuple[Tensor, Tensor]:
+    def render(self, vertices: Tensor, faces: Tensor, face_colors: Tensor, views: Any,
+               edge_gradient: float = 1.0) -> Tuple[Tensor, Tensor]:
         """Render ``K`` versions of the attacked mesh (one topology) from each of ``V`` views in one batched call.
 
         The batch is mesh-major: image ``k * V + v`` is mesh ``k`` seen from view ``v``. Static objects are drawn in
@@ -160,6 +161,8 @@ class RenderSetup:
             faces: int ``(M, 3)``.
             face_colors: ``(M, 3)`` shared, or ``(K, M, 3)``.
             views: a ``ViewSet`` of ``V`` views.
+            edge_gradient: weight of NMR's rasterization gradient on the vertices (:func:`meshadv.render.render`;
+                the update rule's choice, not the setup's: 1 = NMR's definition).
 
         Returns:
             ``(images (K*V, 3, H, W), alpha (K*V, 1, H, W))`` with ``(H, W) = output_size``.
@@ -180,7 +183,7 @@ class RenderSetup:
             verts, faces, colors = self._with_static(verts, faces, colors)
         bg = (0.0, 0.0, 0.0) if self.has_photo else self.background
         out = render(verts, faces, colors, batched.camera, batched.lights, image_size=self.image_size,
-                     background=bg, antialias=self.antialias)
+                     background=bg, antialias=self.antialias, edge_gradient=edge_gradient)
         image, alpha = out.image, out.alpha
         if self.crop_rows is not None:
             rows = slice(*self.crop_rows)
