@@ -81,7 +81,7 @@ Example:
 from __future__ import annotations
 
 import math
-from typing import Any, Dict, Optional, Tuple
+from typing import Any, Dict, Mapping, Optional, Tuple
 
 import torch
 from torch import Tensor
@@ -93,7 +93,8 @@ from meshadv.attacks.texture import COLOR_EPS, TextureAttack
 from meshadv.attacks.update import UpdateRule, register_update_rule
 
 #: ``LaplacianNorm`` and ``ColorNorm`` live in :mod:`meshadv.attacks.norms` and are re-exported here.
-__all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS", "ANNEAL_MODES", "REACH_MODES"]
+__all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS", "DDN_ADDED_OPTIONS", "ANNEAL_MODES",
+           "REACH_MODES", "recorded_options"]
 
 #: Default options of ``method="ddn"`` per perturbation (norm units, see the module docstring).
 DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {
@@ -103,6 +104,20 @@ DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {
     "texture": {"init_budget": 5e-3, "gamma": 0.1, "step_size": 5e-3, "final_step_size": 5e-4, "min_budget": 1e-6,
                 "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5, "reach": "budget"},
 }
+
+#: Options the rule gained after its first recorded runs, per perturbation, each at the value the rule behaved with
+#: before it existed: a recorded (complete) options dict without one of them ran with that value
+#: (:func:`recorded_options`).
+DDN_ADDED_OPTIONS: Dict[str, Dict[str, Any]] = {"shape": {"edge_gradient": 1.0}, "texture": {}}
+
+
+def recorded_options(kind: str, options: Mapping[str, Any]) -> Dict[str, Any]:
+    """The effective ddn options of a run recorded with the complete ``options`` of its day (a record's
+    ``attack_config``, a sweep's pinned defaults) for perturbation ``kind``: each option added since
+    (:data:`DDN_ADDED_OPTIONS`) that they lack, at the value the rule had before it existed, so that today's default
+    of a new option never changes how an old run is resumed or regenerated."""
+    return {**DDN_ADDED_OPTIONS.get(kind, {}), **options}
+
 
 #: Options of :class:`DDNRule` that are not :class:`BudgetState`'s.
 _RULE_OPTIONS = ("smoothness", "momentum", "stall_steps", "stall_factor", "reach", "edge_gradient")

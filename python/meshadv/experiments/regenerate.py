@@ -99,11 +99,18 @@ def _same(a: Any, b: Any) -> bool:
     return a == b
 
 
-def _merge_attack(pinned: Mapping[str, Any], spec_attack: Mapping[str, Any]) -> Dict[str, Any]:
-    """``pinned`` attack options under the spec's own (the spec wins; ``method_options`` merged key by key)."""
+def _merge_attack(pinned: Mapping[str, Any], spec_attack: Mapping[str, Any], perturbation: Any) -> Dict[str, Any]:
+    """``pinned`` attack options (complete, as recorded or pinned) under the spec's own (the spec wins;
+    ``method_options`` merged key by key); pinned ddn options lacking an option added since get the value the rule
+    ran with before it (:func:`meshadv.attacks.budget.recorded_options`)."""
     merged = {**pinned, **spec_attack}
     if "method_options" in pinned or "method_options" in spec_attack:
-        merged["method_options"] = {**(pinned.get("method_options") or {}), **(spec_attack.get("method_options") or {})}
+        recorded = dict(pinned.get("method_options") or {})
+        if pinned.get("method") == "ddn" and "method_options" in pinned:
+            from meshadv.attacks.budget import recorded_options
+
+            recorded = recorded_options(str(perturbation), recorded)
+        merged["method_options"] = {**recorded, **(spec_attack.get("method_options") or {})}
     return merged
 
 
@@ -146,7 +153,8 @@ def pinned_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
     attack = dict(out.get("attack") or {})
     config = record.get("attack_config")
     if isinstance(config, Mapping):
-        out["attack"] = _merge_attack({k: v for k, v in config.items() if k != "perturbation"}, attack)
+        out["attack"] = _merge_attack({k: v for k, v in config.items() if k != "perturbation"}, attack,
+                                      out.get("perturbation"))
     else:
         pins = assume.get("attack") or {}
         assumed = pins.get(attack_pin_key(out.get("perturbation"), attack.get("method")))
@@ -155,7 +163,7 @@ def pinned_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
             if isinstance(assumed, Mapping) and assumed.get("method") != attack.get("method"):
                 assumed = None
         if isinstance(assumed, Mapping):
-            out["attack"] = _merge_attack(assumed, attack)
+            out["attack"] = _merge_attack(assumed, attack, out.get("perturbation"))
         else:  # nothing assumed for this type, or for another update rule (e.g. the paper's protocol beside ddn)
             notes.append("attack options: the record has no attack_config; options the spec does not name "
                          "(e.g. the update rule's method_options) took today's defaults")
