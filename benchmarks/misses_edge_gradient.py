@@ -19,27 +19,24 @@ import copy
 import json
 import tempfile
 from pathlib import Path
-from typing import Any, Dict, List
+from typing import Any, Dict, List, Tuple
 
 from meshadv.experiments.regenerate import pinned_spec, stored_job_ref
-from meshadv.experiments.retries import is_retry
+from meshadv.experiments.retries import is_main_single
 from meshadv.experiments.store import ResultStore
 from meshadv.experiments.worker import execute
 
 
-def missed_main_shape_jobs(db: Path, victim: str) -> List[Any]:
-    """The finished main-setting single-view shape jobs of ``victim`` in ``db`` whose attack failed, in job order."""
+def missed_main_shape_jobs(db: Path, victim: str) -> Tuple[List[Any], str]:
+    """The finished main-setting single-view shape jobs of ``victim`` in ``db`` whose attack failed (in job order),
+    and the database's job function."""
     with ResultStore(db, read_only=True) as store:
         rows = store.rows()
         ref = stored_job_ref(store)
-    out = []
-    for row in rows:
-        spec, record = row.spec, row.record
-        if (row.state == "done" and record is not None and not record.get("success") and not record.get("skipped")
-                and spec.get("kind", "single") == "single" and spec.get("perturbation") == "shape"
-                and spec.get("victim") == victim and not spec.get("protocol") and not is_retry(spec)):
-            out.append((row, ref))
-    return out
+    missed = [row for row in rows if row.state == "done" and row.record is not None
+              and not row.record.get("success") and not row.record.get("skipped") and is_main_single(row.spec)
+              and row.spec.get("perturbation") == "shape" and row.spec.get("victim") == victim]
+    return missed, ref
 
 
 def rerun(row: Any, ref: str, edge_gradient: float) -> Dict[str, Any]:
@@ -71,7 +68,8 @@ def main() -> None:
     done = {}
     if args.out.is_file():
         done = {r["job_id"]: r for r in map(json.loads, args.out.read_text().splitlines()) if r}
-    for row, ref in missed_main_shape_jobs(args.db, args.victim):
+    missed, ref = missed_main_shape_jobs(args.db, args.victim)
+    for row in missed:
         if row.job_id in done:
             continue
         result = rerun(row, ref, args.edge_gradient)

@@ -17,8 +17,9 @@ from __future__ import annotations
 
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence
 
-__all__ = ["COMBINED_PART", "RETRY_PART", "RetryStages", "is_retry", "place_retries", "protocol_label",
-           "retry_jobs", "retry_options", "retry_spec", "retry_stage", "with_retries", "with_retried_transfers"]
+__all__ = ["COMBINED_PART", "RETRY_PART", "RetryStages", "is_main_single", "is_retry", "place_retries",
+           "protocol_label", "retry_jobs", "retry_options", "retry_spec", "retry_stage", "with_retries",
+           "with_retried_transfers"]
 
 #: The retry stages of a sweep (the config's ``[attack.retry]`` as a list): per stage, perturbation type -> options.
 RetryStages = Sequence[Mapping[str, Mapping[str, Any]]]
@@ -34,7 +35,8 @@ def is_retry(spec: Mapping[str, Any]) -> bool:
     return "retry_of" in spec
 
 
-def _is_main_single(spec: Mapping[str, Any]) -> bool:
+def is_main_single(spec: Mapping[str, Any]) -> bool:
+    """True for a job of the main setting's single-view attacks: no extra protocol, no retry, not multi-view."""
     return spec.get("kind", "single") == "single" and not spec.get("protocol")
 
 
@@ -57,7 +59,7 @@ def retry_options(stages: RetryStages, spec: Mapping[str, Any]) -> Optional[Mapp
     config's ``[attack.retry]``: per stage, type -> options) for its perturbation type, when ``spec`` is a
     main-setting single-view job (stage 1) or a retry with a stage after its own; else ``None`` (not retried)."""
     stage = retry_stage(spec)
-    if (stage == 0 and not _is_main_single(spec)) or stage >= len(stages):
+    if (stage == 0 and not is_main_single(spec)) or stage >= len(stages):
         return None
     return stages[stage].get(spec["perturbation"])
 
@@ -94,7 +96,7 @@ def retry_jobs(stages: RetryStages, rows: Iterable[Any]) -> List[Dict[str, Any]]
 def place_retries(jobs: Sequence[Dict[str, Any]], retries: Sequence[Dict[str, Any]]) -> List[Dict[str, Any]]:
     """``jobs`` (a sweep's expansion, in its order) with ``retries`` right after the last main-setting job, so that
     they run before the extra protocols and Table 2."""
-    last_main = max((i for i, j in enumerate(jobs) if _is_main_single(j)), default=-1)
+    last_main = max((i for i, j in enumerate(jobs) if is_main_single(j)), default=-1)
     return [*jobs[:last_main + 1], *retries, *jobs[last_main + 1:]]
 
 
@@ -114,7 +116,7 @@ def with_retries(jobs: Iterable[Any]) -> List[Dict[str, Any]]:
     out = []
     for job in rows:
         spec = job.spec
-        if not _is_main_single(spec) or (spec["victim"], spec["perturbation"]) not in groups:
+        if not is_main_single(spec) or (spec["victim"], spec["perturbation"]) not in groups:
             continue
         link = job
         while not link.record.get("success") and link.job_id in retried:
@@ -136,6 +138,6 @@ def with_retried_transfers(rows: Sequence[Dict[str, Any]], specs: Mapping[str, M
     out = []
     for row in rows:
         spec = spec_of(row)
-        if spec.get("victim") in retried and (is_retry(spec) or _is_main_single(spec)):
+        if spec.get("victim") in retried and (is_retry(spec) or is_main_single(spec)):
             out.append(dict(row, victim=f"{spec['victim']} [{COMBINED_PART}]"))
     return out
