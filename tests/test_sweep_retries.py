@@ -19,9 +19,11 @@ from meshadv.experiments.retries import (
     retry_options,
     retry_spec,
     retry_stage,
+    superseded_retries,
     with_retried_transfers,
     with_retries,
 )
+from meshadv.experiments.spec import job_id
 from meshadv.experiments.store import JobRow, ResultStore
 from meshadv.experiments.tables import attack_rows, table1
 from sweep_fixtures import job_states, probe_jobs, run_probe_sweep, sweep_cli, two_job_config
@@ -187,16 +189,19 @@ def test_retry_stages_are_checked_at_load() -> None:
 def test_a_failed_retry_is_retried_by_the_next_stage_with_its_options_over_its_own() -> None:
     parent = _spec("chair", "sofa")
     first = retry_spec(parent, "a", STAGES[0]["shape"])
-    rows = [_row("a", parent, {"success": False}), _row("r1", first, {"success": False})]
+    rows = [_row("a", parent, {"success": False}), _row(job_id(first), first, {"success": False})]
+    assert retry_jobs(STAGES, rows[:1]) == [first]  # stage 2 waits for stage 1 to finish
     due = retry_jobs(STAGES, rows)
     assert due[0] == first  # the main attack's retry (already done here: the sweep skips it by its job id)
     second = due[1]
-    assert second["retry_of"] == "r1" and second["retry_stage"] == 2 and retry_stage(second) == 2
+    assert second["retry_of"] == job_id(first) and second["retry_stage"] == 2 and retry_stage(second) == 2
     assert second["attack"] == {"steps": 60, "lr": 1.0, "method": "adam"}  # main, then stage 1, then stage 2
     assert job_part(second) == "retry" and protocol_label(second) == "retry 2" and protocol_label(first) == "retry"
     assert retry_options(STAGES, second) is None  # the last stage
-    assert retry_jobs(STAGES, [_row("r2", second, {"success": False})]) == []
-    assert retry_jobs(STAGES, [_row("r1", first, {"success": True})]) == []  # a retry that succeeded: no stage 2
+    assert retry_jobs(STAGES, [*rows, _row(job_id(second), second, {"success": False})]) == [first, second]
+    won = [rows[0], _row(job_id(first), first, {"success": True})]
+    assert retry_jobs(STAGES, won) == [first]  # a retry that succeeded: no stage 2
+    assert retry_jobs(STAGES, [rows[1]]) == []  # a retry without its parent in the rows: no chain reaches it
     texture = _spec("chair", "sofa", "texture")  # stage 1 does not retry texture: its chain ends there
     assert retry_jobs(STAGES, [_row("t", texture, {"success": False})]) == []
 
@@ -242,3 +247,45 @@ def test_sweep_runs_each_retry_stage_after_the_one_before(tmp_path: Path, monkey
     assert res.exit_code == 0 and "4/4 done" in res.output and "ran 0" in res.output, res.output
     res = CliRunner().invoke(sweep_cli(), args + ["--only", "retry", "--dry-run"])  # the retries the database holds
     assert res.exit_code == 0 and "2 jobs (2 single-view, 0 multi-view), 2 finished;" in res.output, res.output
+
+
+def test_retries_of_stages_the_config_no_longer_has_are_superseded() -> None:
+    parent, other = _spec("chair", "sofa"), _spec("chair", "boat")
+    old = retry_spec(parent, "a", {"steps": 30})  # stage 1 before the config changed, and its stage-2 retry
+    old_second = retry_spec(old, job_id(old), STAGES[1]["shape"])
+    first = retry_spec(parent, "a", STAGES[0]["shape"])
+    rows = [_row("a", parent, {"success": False}), _row("b", other, {"success": True}),
+            _row(job_id(old), old, {"success": False}), _row(job_id(old_second), old_second, {"success": True}),
+            _row(job_id(first), first, {"success": False})]
+    assert superseded_retries(STAGES, rows) == {job_id(old), job_id(old_second)}
+    assert retry_jobs(STAGES, rows) == [first, retry_spec(first, job_id(first), STAGES[1]["shape"])]
+    assert superseded_retries([{"shape": {"steps": 30}}], rows) == {job_id(first), job_id(old_second)}
+    assert superseded_retries(None, rows) == set()  # stages not known: none
+    assert superseded_retries([], rows) == {job_id(old), job_id(old_second), job_id(first)}  # retries switched off
+
+
+def test_changed_retry_stages_run_the_new_retries_and_the_report_leaves_the_old_out(tmp_path: Path, monkeypatch:
+                                                                                    pytest.MonkeyPatch) -> None:
+    (tmp_path / "changed.py").write_text(RETRY_JOB)  # reaches its target with 50 steps or more
+    monkeypatch.syspath_prepend(str(tmp_path))
+    db = tmp_path / "results.db"
+    args = ["sweep", str(tmp_path / "sweep.toml"), "--db", str(db), "--output", str(tmp_path / "out"),
+            "--backend", "serial", "--no-progress"]
+    # a retry stage that misses, then the config changed to one that reaches the target: only the new retry runs
+    for steps, ran in ((30, "3/3 done (1 successful), 0 failed; ran 3"),
+                       (60, "3/3 done (2 successful), 0 failed; ran 1")):
+        (tmp_path / "sweep.toml").write_text(two_job_config("retry", "changed:job")
+                                             + f"\n[attack.retry]\nshape = {{ steps = {steps} }}\n")
+        res = CliRunner().invoke(sweep_cli(), args)
+        assert res.exit_code == 0 and ran in res.output, res.output
+    with ResultStore(db) as store:
+        retries = sorted((r.spec["attack"]["steps"], r.record["success"]) for r in store.rows() if "retry_of" in r.spec)
+    assert retries == [(30, False), (60, True)]  # the old retry is kept in the database
+    out = write_report(db, tmp_path / "report", figures=False)
+    assert len(out.superseded) == 1
+    table = (tmp_path / "report" / "table1.md").read_text()
+    retry_line = next(line for line in table.splitlines()
+                      if line.startswith("| efficientnet_lite0 [retry] | shape | laplacian_pair"))
+    assert "100.0%" in retry_line and "| 1 |" in retry_line  # the new retry alone: one instance, reached
+    assert "1 finished retries ran with retry stages the config no longer has" in (
+        tmp_path / "report" / "README.md").read_text()

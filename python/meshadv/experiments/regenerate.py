@@ -75,21 +75,15 @@ class Regenerated:
 def stored_job_ref(store: ResultStore) -> str:
     """The job function the sweep ran (``[runner] job`` of the config text stored in the database, else the default)."""
     from meshadv.experiments.config import DEFAULT_JOB
+    from meshadv.experiments.sweep_file import raw_from_text
 
     text = store.get_meta("config_text")
     if not text:
         return DEFAULT_JOB
     try:
-        import tomllib
-
-        raw = tomllib.loads(text)
-    except Exception:  # noqa: BLE001 - a YAML config or an old database: fall back to YAML, then the default
-        try:
-            import yaml
-
-            raw = yaml.safe_load(text) or {}
-        except Exception:  # noqa: BLE001
-            return DEFAULT_JOB
+        raw = raw_from_text(text)
+    except ValueError:  # an old database's text: the default
+        return DEFAULT_JOB
     return str((raw.get("runner") or {}).get("job", DEFAULT_JOB))
 
 

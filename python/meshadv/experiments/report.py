@@ -36,7 +36,7 @@ from meshadv.experiments.artifact_source import ArtifactSource
 from meshadv.experiments.compare import paper_comparison
 from meshadv.experiments.protocols import protocol_section
 from meshadv.experiments.provenance import environment_versions
-from meshadv.experiments.retries import is_retry, with_retried_transfers, with_retries
+from meshadv.experiments.retries import is_retry, superseded_retries, with_retried_transfers, with_retries
 from meshadv.experiments.figures import render_grid
 from meshadv.experiments.report_figures import (
     PAPER_FLOW_EXAMPLE,
@@ -49,6 +49,7 @@ from meshadv.experiments.report_figures import (
     slug_of,
 )
 from meshadv.experiments.store import JobRow, ResultStore
+from meshadv.experiments.sweep_file import stored_retry_stages
 from meshadv.util.atomic import write_text_atomic
 from meshadv.util.png import add_png_text
 from meshadv.experiments.tables import (
@@ -103,6 +104,8 @@ class ReportOutput:
         counts: job counts per state.
         regenerations: per job whose artefacts the figures took from a regeneration, its check against the stored
             record (:class:`ArtifactSource`).
+        superseded: ids of the retries left out because the config's retry stages changed since they ran
+            (:func:`meshadv.experiments.retries.superseded_retries`).
     """
 
     out_dir: Path
@@ -111,6 +114,7 @@ class ReportOutput:
     correlations: Dict[str, Dict[str, float]] = field(default_factory=dict)
     counts: Dict[str, int] = field(default_factory=dict)
     regenerations: Dict[str, Dict[str, Any]] = field(default_factory=dict)
+    superseded: List[str] = field(default_factory=list)
 
 
 #: A section a caller adds to the report: ``section(done_rows, out_dir) -> (markdown, files written)``; the
@@ -167,7 +171,10 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         rows = store.rows()
         meta = store.meta()
         out.counts = store.counts()
-    done = [r for r in rows if r.state == "done" and r.record is not None]
+    # retries of stages the config no longer has are left out, so that a parent has one retry per stage
+    superseded = superseded_retries(stored_retry_stages(meta.get("config_text")), rows)
+    out.superseded = sorted(superseded)
+    done = [r for r in rows if r.state == "done" and r.record is not None and r.job_id not in superseded]
     combined = [*done, *with_retries(done)]  # + each main attack with its retry: the victims' [+retry] rows
     attacks, attacks_correct = attack_rows(combined), attack_rows(combined, benign_correct_only=True)
     t1, t1_correct = table1(attacks), table1(attacks_correct)
@@ -185,6 +192,7 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         out.tables.append(write_text_atomic(out.out_dir / "table1_pairs.md", pair_success_markdown(pairs)))
         out.tables.append(write_text_atomic(out.out_dir / "table1_pairs.csv", to_csv(pairs)))
     specs = {r.job_id: r.spec for r in done}
+    transfer_rows = [r for r in transfer_rows if r.get("case_id") not in superseded]
     transfer_rows = [*labelled_by_protocol(transfer_rows, specs), *with_retried_transfers(transfer_rows, specs)]
     transfer = transfer_section(transfer_rows) if transfer_section and transfer_rows else ""
     comparison = paper_comparison(t1_correct if mixed else t1, t2, transfer_rows)
@@ -212,7 +220,7 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         if text:
             extra.append(text)
     settings = {"database": str(db.resolve()), "meta": meta, "report_versions": environment_versions(),
-                "counts": out.counts, "correlations": out.correlations}
+                "counts": out.counts, "correlations": out.correlations, "superseded_retries": out.superseded}
     if out.regenerations:
         settings["regenerated_with"] = {"threads": threads, "assume": assume or {}}
     write_text_atomic(out.out_dir / "settings.json", json.dumps(settings, indent=2, sort_keys=True))
@@ -390,6 +398,9 @@ def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[An
     lines = [f"# Results: {meta.get('name', 'sweep')}", "",
              f"Jobs: {c.get('total', 0)} total, {c.get('done', 0)} done ({c.get('successes', 0)} successful), "
              f"{c.get('failed', 0)} failed, {c.get('pending', 0) + c.get('running', 0)} not finished.", ""]
+    if out.superseded:
+        lines += [f"{len(out.superseded)} finished retries ran with retry stages the config no longer has and are "
+                  "left out of every table (settings.json lists them).", ""]
     if meta.get("command"):
         lines += ["Command: `" + meta["command"] + "`", ""]
     lines += stats + [""] if stats else []

@@ -15,11 +15,11 @@ failed, the parent's otherwise; the tables report that as the victim's ``[+retry
 
 from __future__ import annotations
 
-from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Set
 
 __all__ = ["COMBINED_PART", "RETRY_PART", "RetryStages", "is_main_single", "is_retry", "place_retries",
-           "protocol_label", "retry_jobs", "retry_options", "retry_spec", "retry_stage", "with_retries",
-           "with_retried_transfers"]
+           "protocol_label", "retry_jobs", "retry_options", "retry_spec", "retry_stage", "superseded_retries",
+           "with_retries", "with_retried_transfers"]
 
 #: The retry stages of a sweep (the config's ``[attack.retry]`` as a list): per stage, perturbation type -> options.
 RetryStages = Sequence[Mapping[str, Mapping[str, Any]]]
@@ -79,18 +79,52 @@ def retry_spec(spec: Mapping[str, Any], parent_id: str, options: Mapping[str, An
 
 
 def retry_jobs(stages: RetryStages, rows: Iterable[Any]) -> List[Dict[str, Any]]:
-    """The retry jobs due: one per finished main-setting single-view job or retry (a ``JobRow``) whose attack failed,
-    was not skipped, and has a next stage in ``stages`` (:func:`retry_options`); in the order of ``rows``."""
+    """The retries of ``stages`` along each finished main-setting single-view job (a ``JobRow``) whose attack failed
+    and was not skipped: its stage-1 retry (:func:`retry_spec` with :func:`retry_options`), and while that retry has
+    finished and failed too, the next stage's retry of it, until a stage is not finished, succeeds or is the last.
+    Finished ones are included, so that the list is the retry part of the sweep; in the order of ``rows``.
+
+    A retry in ``rows`` that this walk does not reach was made by other stages (the config's ``[attack.retry]``
+    changed since): :func:`superseded_retries`.
+    """
+    rows = list(rows)
+    by_id = {row.job_id: row for row in rows}
     out = []
     for row in rows:
-        spec, record = row.spec, row.record
-        if row.state != "done" or record is None or record.get("skipped") or record.get("success"):
-            continue
-        options = retry_options(stages, spec)
-        if options is None:
-            continue
-        out.append(retry_spec(spec, row.job_id, options))
+        if retry_stage(row.spec) == 0:
+            out.extend(_chain(stages, row, by_id))
     return out
+
+
+def _chain(stages: RetryStages, row: Any, by_id: Mapping[str, Any]) -> List[Dict[str, Any]]:
+    """The retries of ``stages`` along the main-setting job ``row`` (:func:`retry_jobs`)."""
+    from meshadv.experiments.spec import job_id
+
+    chain: List[Dict[str, Any]] = []
+    link = row
+    while link is not None and link.state == "done" and link.record is not None \
+            and not link.record.get("skipped") and not link.record.get("success"):
+        options = retry_options(stages, link.spec)
+        if options is None:
+            break
+        child = retry_spec(link.spec, link.job_id, options)
+        chain.append(child)
+        link = by_id.get(job_id(child))
+    return chain
+
+
+def superseded_retries(stages: Optional[RetryStages], rows: Iterable[Any]) -> Set[str]:
+    """The ids of the retries in ``rows`` that the retry stages ``stages`` do not make (:func:`retry_jobs`): those of
+    stages the config had before its ``[attack.retry]`` changed, and their own retries. The tables, Table 3 and the
+    Mitsuba pass leave them out, so that a parent has at most one retry per stage; the database keeps them. ``None``
+    (the stages are not known, e.g. a database without its config text) supersedes none."""
+    from meshadv.experiments.spec import job_id
+
+    rows = list(rows)
+    if stages is None:
+        return set()
+    current = {job_id(spec) for spec in retry_jobs(stages, rows)}
+    return {row.job_id for row in rows if is_retry(row.spec) and row.job_id not in current}
 
 
 def place_retries(jobs: Sequence[Dict[str, Any]], retries: Sequence[Dict[str, Any]]) -> List[Dict[str, Any]]:

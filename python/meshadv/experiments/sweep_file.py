@@ -43,13 +43,14 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Sequence, Tuple, Union
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 from meshadv.data import PASCAL3D_CLASSES
 from meshadv.experiments.config_keys import check_attack_values, check_keys
 from meshadv.experiments.retries import RETRY_PART
 
-__all__ = ["DEFAULT_JOB", "PASCAL3D_CLASSES", "SweepConfig", "load_config", "parse_config"]
+__all__ = ["DEFAULT_JOB", "PASCAL3D_CLASSES", "SweepConfig", "load_config", "parse_config", "raw_from_text",
+           "stored_retry_stages"]
 
 
 #: The attack job function used unless ``[runner] job`` says otherwise.
@@ -243,8 +244,7 @@ def _attack_section(raw: Dict[str, Any]) -> Dict[str, Any]:
         if pname == RETRY_PART:
             raise ValueError(f"attack.protocols.{pname}: the name {RETRY_PART!r} is the retry pass's "
                              "([attack.retry]); name the protocol otherwise")
-    if isinstance(attack["retry"], dict):  # [attack.retry]: one stage; [[attack.retry]]: stages, in order
-        attack["retry"] = [attack["retry"]] if attack["retry"] else []
+    attack["retry"] = _retry_stages(attack["retry"])
     bad = [t for t in attack["perturbations"] if t not in PERTURBATIONS]
     if bad or not attack["perturbations"]:
         raise ValueError(f"{attack_key} must be a non-empty subset of {perturbations()}, "
@@ -253,6 +253,47 @@ def _attack_section(raw: Dict[str, Any]) -> Dict[str, Any]:
         raise ValueError(f"attack.targets must be 'others' or a list of classes, got {attack['targets']!r}")
     check_attack_values(attack, PERTURBATIONS)
     return attack
+
+
+def _retry_stages(retry: Any) -> List[Dict[str, Any]]:
+    """``attack.retry`` as the list of stages: ``[attack.retry]`` is one stage, ``[[attack.retry]]`` stages in order."""
+    if isinstance(retry, dict):
+        return [retry] if retry else []
+    return list(retry or [])
+
+
+def raw_from_text(text: str) -> Dict[str, Any]:
+    """The tables of a sweep file's text: TOML, else YAML (a stored config text does not say which).
+
+    Raises:
+        ValueError: ``text`` is neither, or not a mapping.
+    """
+    import tomllib
+
+    import yaml
+
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError:
+        try:
+            raw = yaml.safe_load(text)
+        except yaml.YAMLError as err:
+            raise ValueError(f"config text is neither TOML nor YAML: {err}") from err
+    if not isinstance(raw, dict):
+        raise ValueError(f"a sweep config must be a mapping, got {type(raw).__name__}")
+    return raw
+
+
+def stored_retry_stages(text: Optional[str]) -> Optional[List[Dict[str, Any]]]:
+    """The retry stages (``attack["retry"]``) of the config text a sweep stored in its database (meta
+    ``config_text``: the text of its latest run); ``None`` when there is none or it does not parse."""
+    if not text:
+        return None
+    try:
+        attack = raw_from_text(text).get("attack") or {}
+        return _retry_stages(attack.get("retry") if isinstance(attack, dict) else None)
+    except (ValueError, TypeError):
+        return None
 
 
 def _multiview_section(raw: Dict[str, Any]) -> Dict[str, Any]:

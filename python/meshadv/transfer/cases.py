@@ -94,7 +94,8 @@ def cases_from_store(
         db_path: the sweep's ``results.db``.
         limit: at most this many cases.
         only_successful: keep only attacks that succeeded in meshadv (as the paper does).
-        skip: job ids to leave out (e.g. those already transferred).
+        skip: job ids to leave out (e.g. those already transferred). Retries of stages the sweep's config no longer
+            has are left out too (:func:`meshadv.experiments.retries.superseded_retries`).
         artifact_root: root of regenerated artefact folders (default: the database's folder).
         regenerate: regenerate missing artefacts (else such jobs are left out).
 
@@ -107,6 +108,8 @@ def cases_from_store(
         ValueError: ``limit < 1``.
     """
     from meshadv.experiments import ResultStore
+    from meshadv.experiments.retries import superseded_retries
+    from meshadv.experiments.sweep_file import stored_retry_stages
 
     if not Path(db_path).is_file():
         raise FileNotFoundError(f"db_path {db_path} does not exist")
@@ -116,7 +119,10 @@ def cases_from_store(
         raise TypeError("skip must be a collection of job ids, got a single string")
     cases: list[TransferCase] = []
     with ResultStore(db_path, read_only=True) as store:  # only read: a kill leaves no "open" mark behind
-        rows = store.rows("done")
+        rows = store.rows()
+        stages = stored_retry_stages(store.get_meta("config_text"))
+    skip = {*skip, *superseded_retries(stages, rows)}  # retries of stages the config no longer has
+    rows = [row for row in rows if row.state == "done"]
     for row in rows:
         if not _wanted(row, skip, only_successful):
             continue
