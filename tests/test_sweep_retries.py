@@ -25,6 +25,7 @@ from meshadv.experiments.retries import (
 )
 from meshadv.experiments.spec import job_id
 from meshadv.experiments.store import JobRow, ResultStore
+from meshadv.experiments.sweep_file import stored_retry_stages
 from meshadv.experiments.tables import attack_rows, table1
 from sweep_fixtures import job_states, probe_jobs, run_probe_sweep, sweep_cli, two_job_config
 
@@ -289,3 +290,14 @@ def test_changed_retry_stages_run_the_new_retries_and_the_report_leaves_the_old_
     assert "100.0%" in retry_line and "| 1 |" in retry_line  # the new retry alone: one instance, reached
     assert "1 finished retries ran with retry stages the config no longer has" in (
         tmp_path / "report" / "README.md").read_text()
+
+
+def test_stored_retry_stages_read_the_config_text_a_sweep_stored() -> None:
+    toml = "[attack.retry]\nshape = { steps = 60 }\n"
+    assert stored_retry_stages(toml) == [{"shape": {"steps": 60}}]
+    assert stored_retry_stages("[[attack.retry]]\nshape = { steps = 60 }\n[[attack.retry]]\nshape = { lr = 1 }\n") == [
+        {"shape": {"steps": 60}}, {"shape": {"lr": 1}}]
+    assert stored_retry_stages("attack:\n  retry:\n    shape: {steps: 60}\n") == [{"shape": {"steps": 60}}]  # YAML
+    assert stored_retry_stages("[victims]\nnames = ['v']\n") == []  # a config without retries
+    assert stored_retry_stages(None) is None and stored_retry_stages("") is None  # not known
+    assert stored_retry_stages("- a list\n") is None and stored_retry_stages("[attack\n: :") is None  # unreadable

@@ -169,6 +169,34 @@ def test_cases_from_store_reads_finished_attacks(tmp_path: Path) -> None:
         cases_from_store(tmp_path / "nope.db")
 
 
+def store_rows(db: Path) -> list:
+    """The rows of the sweep database ``db``."""
+    from meshadv.experiments import ResultStore
+
+    with ResultStore(db, read_only=True) as store:
+        return store.rows()
+
+
+def test_cases_from_store_leaves_out_retries_of_stages_the_config_no_longer_has(tmp_path: Path) -> None:
+    from meshadv.experiments import ResultStore
+    from meshadv.experiments.retries import retry_spec
+    from meshadv.transfer.controlled import cases_from_store
+
+    db, _ = _fake_sweep(tmp_path)
+    with ResultStore(db) as store:
+        failed = next(r for r in store.rows() if r.spec["seed"] == 1)
+        store.add_jobs([retry_spec(failed.spec, failed.job_id, {"steps": 60})])
+        retry = store.rows()[-1]
+        store.mark_running(retry.job_id)
+        store.mark_done(retry.job_id, {"success": True, "benign_correct": True}, failed.out_dir)
+        store.set_meta("config_text", "[attack.retry]\ntexture = { steps = 60 }\n")
+    assert retry.job_id in [c.case_id for c in cases_from_store(db)] and len(cases_from_store(db)) == 2
+    with ResultStore(db) as store:
+        store.set_meta("config_text", "[attack.retry]\ntexture = { steps = 90 }\n")  # the stage changed since
+    main_success = next(r for r in store_rows(db) if r.spec["seed"] == 0)
+    assert [c.case_id for c in cases_from_store(db)] == [main_success.job_id]
+
+
 @needs_native
 def test_blackbox_classifier_tiny_run(victim: Victim) -> None:
     pytest.importorskip("mitsuba")
