@@ -484,3 +484,11 @@ def test_adam_reach_attacks_with_several_views_jitter_and_batched_targets(family
     result = attack(mesh, views, victim, targets, setup=RenderSetup(image_size=64))
     assert attack.config()["method_options"]["reach"] == "adam"
     assert all(step is not None for step in result.steps_to_success)
+
+
+def test_adam_takes_no_method_options_and_says_so() -> None:
+    """Adam's rule takes no options: ddn's, carried over (e.g. by a retry stage), are a ValueError, not a TypeError."""
+    with pytest.raises(ValueError, match=r"^method_options has unknown keys \['edge_gradient'\] for method='adam'; "
+                                         r"it takes none$"):
+        ShapeAttack(method="adam", method_options={"edge_gradient": 0.1}).config()
+    assert "method_options" in ShapeAttack(method="adam", method_options={}).config()

@@ -181,6 +181,13 @@ def test_retry_stages_are_checked_at_load() -> None:
         parse_config(_config(stages.replace("lr = 1.0", "stepz = 3")))
     with pytest.raises(ValueError, match=r"\[attack.retry\[1\].shape\]: steps must be"):
         parse_config(_config(stages.replace("lr = 1.0", "steps = -3")))
+    ddn_then_adam = ("\n[attack.shape]\nmethod = 'ddn'\n[[attack.retry]]\nshape = { method_options = { edge_gradient = "
+                     "0.1 } }\n[[attack.retry]]\nshape = { method = 'adam'%s }\n")
+    with pytest.raises(ValueError, match=r"\[attack.retry\[1\].shape\]: method_options has unknown keys "
+                                         r"\['edge_gradient'\] for method='adam'"):
+        parse_config(_config(ddn_then_adam % ""))  # stage 1's ddn options reach stage 2's Adam
+    assert parse_config(_config(ddn_then_adam % ", method_options = {}")).attack["retry"][1]["shape"] == {
+        "method": "adam", "method_options": {}}
     raw = _config("")
     raw["attack"]["retry"] = [{"shape": {"steps": 60}}, "shape"]
     with pytest.raises(ValueError, match=r"section \[attack.retry\[1\]\] must be a table, got str"):

@@ -42,6 +42,7 @@ Example:
 
 from __future__ import annotations
 
+import inspect
 from abc import ABC, abstractmethod
 from typing import Any, Callable, Dict, List, Sequence
 
@@ -174,11 +175,19 @@ def make_update_rule(method: str, *, attack: Any, num_targets: int, **options: A
     """The rule ``method`` for one attack call.
 
     Raises:
-        ValueError: unknown ``method``.
+        ValueError: unknown ``method``, or ``options`` (the attack's ``method_options``) the rule does not take.
     """
     if method not in _RULES:
         raise ValueError(f"method must be one of {update_rules()}, got {method!r}")
-    return _RULES[method](attack=attack, num_targets=num_targets, **options)
+    factory = _RULES[method]
+    params = inspect.signature(factory).parameters
+    if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        takes = set(params) - {"attack", "num_targets"}
+        unknown = sorted(set(options) - takes)
+        if unknown:
+            raise ValueError(f"method_options has unknown keys {unknown} for method={method!r}; it takes "
+                             f"{sorted(takes) if takes else 'none'}")
+    return factory(attack=attack, num_targets=num_targets, **options)
 
 
 def _adam(*, attack: Any, num_targets: int) -> UpdateRule:

@@ -163,6 +163,6 @@ def check_attack_values(attack: Mapping[str, Any], families: Mapping[str, type])
         for perturbation in attack.get("perturbations", []):
             options = {k: v for k, v in dict(table.get(perturbation, {})).items() if k not in JOB_ATTACK_OPTIONS}
             try:
-                families[perturbation](**options)
+                families[perturbation](**options).config()  # config() builds the update rule: method_options
             except (TypeError, ValueError) as exc:
                 raise ValueError(f"[{path}.{perturbation}]: {exc}") from None
