@@ -329,35 +329,43 @@ def run(args: argparse.Namespace) -> None:
     con.close()
 
 
-def import_sweep(sweep_db: Path, db: Path) -> int:
-    """Store the finished single-view jobs of a ``configs/paper_small.toml`` sweep as ``small`` rows.
+#: What ``--import-sweep`` takes from a sweep, per method: the jobs' ``protocol`` (``None``: the main setting) and
+#: the victim, so that a sweep of several victims and protocols gives each method the jobs it ran.
+IMPORTED_JOBS = {"small": (None, "efficientnet_lite0"), "paper": ("paper", "efficientnet_lite0")}
 
-    That sweep attacks the same instances with the ``small`` settings, one target per job; its records hold each
-    target's first successful step and the distances of the kept (least distorted) success, which give the success
-    curve exactly and the distance curve from the first success on (with early stopping after 3 held steps, the kept
-    success is one of the first 3). Instances whose benign render the sweep skipped, or with unfinished jobs, are
-    left out. Returns the number of rows written.
+
+def import_sweep(sweep_db: Path, db: Path, method: str = "small") -> int:
+    """Store a sweep's finished single-view jobs of ``method`` as its rows: ``small`` the main setting of a
+    ``configs/paper_small.toml`` sweep, ``paper`` the paper's protocol of ``configs/paper_medium.toml``
+    (``[attack.protocols.paper]``, on the benchmark's instances: its first 2 configurations per class).
+
+    Those sweeps attack the same instances, one target per job; their records hold each target's first successful
+    step (counted over all rounds of a lambda search) and the distances of the kept (least distorted) success, which
+    give the success curve exactly and the distance curve from the first success on. Instances whose benign render
+    the sweep skipped, or with unfinished jobs, are left out, and so is an instance this database already holds a
+    row of the method for that the benchmark measured itself (its curves are complete). Returns the number of rows
+    written.
     """
-    from meshadv.experiments.config import load_config
-
-    settings = _small_settings()
-    con = sqlite3.connect(str(sweep_db), timeout=60.0)
+    protocol, victim = IMPORTED_JOBS[method]
+    con = sqlite3.connect(f"file:{sweep_db}?mode=ro", uri=True, timeout=60.0)
     jobs = [(json.loads(spec), json.loads(rec)) for spec, rec in
             con.execute("SELECT spec, record FROM jobs WHERE state = 'done' AND record IS NOT NULL")]
     con.close()
-    sweep_steps = {p: int(load_config(ROOT / "configs" / "paper_small.toml").attack[p]["steps"]) for p in STEP_TARGETS}
     groups: Dict[Tuple[str, str, int], Dict[str, Any]] = {}
     for spec, rec in jobs:
-        if spec.get("kind") != "single":
+        if spec.get("kind") != "single" or spec.get("protocol") != protocol or spec.get("victim") != victim:
             continue
         key = (spec["perturbation"], spec["source_class"], int(spec["config_index"]))
         groups.setdefault(key, {"spec": spec, "targets": {}})["targets"][spec["target"]] = rec
     out = _connect(db)
+    measured = {key for key, row in out.execute("SELECT key, row FROM runs")
+                if not str(json.loads(row).get("source") or "").startswith("imported")}
     written = 0
     for (perturbation, cls, index), group in sorted(groups.items()):
         targets = [c for c in CLASSES if c != cls]
         recs = group["targets"]
-        if set(recs) != set(targets) or any(r.get("skipped") for r in recs.values()):
+        key = _key(method, perturbation, cls, index)
+        if set(recs) != set(targets) or any(r.get("skipped") for r in recs.values()) or key in measured:
             continue
         curves, final, dists = [], [], []
         for t in targets:
@@ -370,18 +378,19 @@ def import_sweep(sweep_db: Path, db: Path) -> int:
             final.append(bool(r["success"]))
             dists.append(d)
         first_rec = recs[targets[0]]
+        attack = {k: v for k, v in group["spec"]["attack"].items() if k != "antialias"}
         row = {
-            "method": "small", "perturbation": perturbation, "class": cls, "index": index,
+            "method": method, "perturbation": perturbation, "class": cls, "index": index,
             "mesh": group["spec"]["mesh"]["path"], "candidate": None, "targets": targets,
             "num_vertices": first_rec["num_vertices"], "num_faces": first_rec["num_faces"],
             "num_edges": int(dists[0]["num_edges"]), "steps": sum(int(recs[t]["steps"]) for t in targets),
-            "history_len": sweep_steps[perturbation], "wall_time": sum(float(recs[t]["time"]) for t in targets),
-            "config": settings[perturbation], "curves": curves, "final_success": final, "final_distances": dists,
-            "threads": None, "source": f"imported from the sweep {sweep_db.name} (one job per target)",
+            "history_len": int(attack["steps"]) * int(attack.get("binary_search_steps", 1)),
+            "wall_time": sum(float(recs[t]["time"]) for t in targets),
+            "config": attack, "curves": curves, "final_success": final, "final_distances": dists,
+            "threads": None, "source": f"imported from the sweep {sweep_db} (one job per target)",
         }
         with out:
-            out.execute("INSERT OR REPLACE INTO runs VALUES (?, ?, ?)",
-                        (_key("small", perturbation, cls, index), json.dumps(row), _now()))
+            out.execute("INSERT OR REPLACE INTO runs VALUES (?, ?, ?)", (key, json.dumps(row), _now()))
         written += 1
     out.close()
     return written
@@ -778,7 +787,9 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     parser.add_argument("--report", action="store_true", help="print the summary and write the plots; run nothing")
     parser.add_argument("--plots", type=Path, default=None)
     parser.add_argument("--import-sweep", type=Path, default=None, metavar="RESULTS_DB",
-                        help="store a paper_small sweep's finished jobs as 'small' rows; run nothing")
+                        help="store a sweep's finished jobs as rows of --import-method; run nothing")
+    parser.add_argument("--import-method", choices=sorted(IMPORTED_JOBS), default="small",
+                        help="small: a paper_small sweep's main setting; paper: paper_medium's paper protocol")
     parser.add_argument("--step-cost", type=_positive, default=None, metavar="STEPS",
                         help="print the CPU seconds per step of adam and ddn (1 target, STEPS steps, 3 repeats); "
                              "run nothing else")
@@ -790,7 +801,7 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
                   f"(runs: {', '.join(f'{v:.4f}' for v in values)})")
         return
     if args.import_sweep is not None:
-        print(f"{import_sweep(args.import_sweep, args.db)} rows imported")
+        print(f"{import_sweep(args.import_sweep, args.db, args.import_method)} rows imported")
         return
     if args.report:
         rows = load_rows(args.db)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import json
+import sqlite3
 from pathlib import Path
 from types import ModuleType
 from typing import Optional
@@ -102,3 +104,49 @@ def test_summary_reports_the_distortion_tail() -> None:
     texture = cb.summarize([_row("C", [0.01, 0.02, 0.04, 0.05], "texture")], "ddn", "texture", 10)
     assert texture["tail"].above_n == 2 and texture["tail"].threshold == pytest.approx(0.032)
     assert texture["displacement"].n == 0
+
+
+def _sweep_db(path: Path, jobs: list) -> Path:
+    """A sweep results database holding the finished jobs ``(spec, record)`` (only the columns the import reads)."""
+    con = sqlite3.connect(str(path))
+    con.execute("CREATE TABLE jobs (job_id TEXT, spec TEXT, state TEXT, record TEXT)")
+    con.executemany("INSERT INTO jobs VALUES (?, ?, 'done', ?)",
+                    [(str(i), json.dumps(s), json.dumps(r)) for i, (s, r) in enumerate(jobs)])
+    con.commit()
+    con.close()
+    return path
+
+
+def test_import_sweep_takes_each_methods_complete_instances(tmp_path: Path) -> None:
+    cb = _bench()
+
+    def job(target: str, protocol: Optional[str], cls: str = "chair", victim: str = "efficientnet_lite0") -> tuple:
+        attack = {"steps": 1000, "binary_search_steps": 5, "antialias": 2} if protocol else {"steps": 100}
+        spec = {"kind": "single", "perturbation": "shape", "source_class": cls, "config_index": 0, "target": target,
+                "victim": victim, "mesh": {"path": f"pascal3d/{cls}/01.ply"}, "attack": attack,
+                **({"protocol": protocol} if protocol else {})}
+        first = 40 if target != "sofa" else None
+        record = {"success": first is not None, "steps_to_success": first, "steps": 5000 if protocol else 100,
+                  "time": 2.0, "num_vertices": 10, "num_faces": 16,
+                  "distances": {"laplacian_sum": 0.5, "laplacian_pair_mean": 1e-5, "num_edges": 24}}
+        return spec, record
+
+    others = [c for c in cb.CLASSES if c != "chair"]
+    sweep = _sweep_db(tmp_path / "results.db", [
+        *(job(t, "paper") for t in others),  # complete: imported
+        *(job(t, None) for t in others),  # the main setting: a 'small' row, not a 'paper' one
+        *(job(t, "paper", cls="sofa") for t in others[:3]),  # incomplete: left out
+        *(job(t, "paper", victim="efficientnet_lite2") for t in others)])  # another victim: left out
+    db = tmp_path / "bench.sqlite"
+    assert cb.import_sweep(sweep, db, "paper") == 1
+    (row,) = cb.load_rows(db)
+    assert (row["method"], row["class"], row["index"], row["history_len"]) == ("paper", "chair", 0, 5000)
+    assert row["config"] == {"steps": 1000, "binary_search_steps": 5} and row["final_success"].count(False) == 1
+    assert [c["first"] for c in row["curves"]].count(40) == 5 and row["steps"] == 6 * 5000
+    assert cb.import_sweep(sweep, db, "small") == 1 and len(cb.load_rows(db)) == 2
+    con = sqlite3.connect(str(db))
+    measured = dict(row, source=None)  # a row the benchmark measured itself is kept
+    con.execute("UPDATE runs SET row = ? WHERE key = 'paper/shape/chair/0'", (json.dumps(measured),))
+    con.commit()
+    con.close()
+    assert cb.import_sweep(sweep, db, "paper") == 0
