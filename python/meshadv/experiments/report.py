@@ -104,8 +104,8 @@ class ReportOutput:
         counts: job counts per state.
         regenerations: per job whose artefacts the figures took from a regeneration, its check against the stored
             record (:class:`ArtifactSource`).
-        superseded: ids of the retries left out because the config's retry stages changed since they ran
-            (:func:`meshadv.experiments.retries.superseded_retries`).
+        superseded: job id -> state of the retries left out because the config's retry stages changed since
+            they were made (:func:`meshadv.experiments.retries.superseded_retries`).
     """
 
     out_dir: Path
@@ -114,7 +114,7 @@ class ReportOutput:
     correlations: Dict[str, Dict[str, float]] = field(default_factory=dict)
     counts: Dict[str, int] = field(default_factory=dict)
     regenerations: Dict[str, Dict[str, Any]] = field(default_factory=dict)
-    superseded: List[str] = field(default_factory=list)
+    superseded: Dict[str, str] = field(default_factory=dict)
 
 
 #: A section a caller adds to the report: ``section(done_rows, out_dir) -> (markdown, files written)``; the
@@ -173,7 +173,7 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         out.counts = store.counts()
     # retries of stages the config no longer has are left out, so that a parent has one retry per stage
     superseded = superseded_retries(stored_retry_stages(meta.get("config_text")), rows)
-    out.superseded = sorted(superseded)
+    out.superseded = {r.job_id: r.state for r in rows if r.job_id in superseded}
     done = [r for r in rows if r.state == "done" and r.record is not None and r.job_id not in superseded]
     combined = [*done, *with_retries(done)]  # + each main attack with its retry: the victims' [+retry] rows
     attacks, attacks_correct = attack_rows(combined), attack_rows(combined, benign_correct_only=True)
@@ -399,8 +399,10 @@ def _write_readme(out: ReportOutput, t1: List[Any], t1_correct: Optional[List[An
              f"Jobs: {c.get('total', 0)} total, {c.get('done', 0)} done ({c.get('successes', 0)} successful), "
              f"{c.get('failed', 0)} failed, {c.get('pending', 0) + c.get('running', 0)} not finished.", ""]
     if out.superseded:
-        lines += [f"{len(out.superseded)} finished retries ran with retry stages the config no longer has and are "
-                  "left out of every table (settings.json lists them).", ""]
+        finished = sum(state == "done" for state in out.superseded.values())
+        lines += [f"{len(out.superseded)} retries were made by retry stages the config no longer has ({finished} of "
+                  "them finished, the others will not run) and are left out of every table (settings.json lists "
+                  "them).", ""]
     if meta.get("command"):
         lines += ["Command: `" + meta["command"] + "`", ""]
     lines += stats + [""] if stats else []
