@@ -7,8 +7,8 @@
 //!   skipped with a message when absent.
 //!
 //! `cargo run --release -p meshadv-raster --example bench [threads] [fwd|bwd] [sphere|pascal]` (a mode runs only that
-//! pass of one case, `sphere` by default, for `perf stat` or `valgrind --tool=callgrind`). `BENCH_ISA=portable` runs
-//! the backward without the AVX2 path; `BENCH_REPS=n` runs `n` repetitions instead of 20. `bwd` prints a fingerprint
+//! pass of one case, `sphere` by default, for `perf stat` or `valgrind --tool=callgrind`). `BENCH_ISA=portable` (or `avx2`)
+//! runs the backward on that instruction set instead of the fastest one the CPU has; `BENCH_REPS=n` runs `n` repetitions instead of 20. `bwd` prints a fingerprint
 //! of the vertex gradient's bits (to compare builds and instruction sets), `fwd` one of the face index, depth and image.
 
 use std::time::Instant;
@@ -201,6 +201,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let which = std::env::args().nth(3).unwrap_or_else(|| "sphere".into());
     let isa = match std::env::var("BENCH_ISA").as_deref() {
         Ok("portable") => Isa::Portable,
+        Ok("avx2") => Isa::Avx2,
         _ => Isa::detect(),
     };
     let reps: usize = std::env::var("BENCH_REPS")

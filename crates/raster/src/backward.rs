@@ -37,10 +37,11 @@
 //!   line buffers (see `sweep`).
 //! * The buffers of a batch element (line buffers, setups, accumulators; about 10 MB at 299 x 299) are kept between
 //!   calls and refilled in place (`workspace`), so that a call does not page-fault fresh memory in.
-//! * The per-face work is compiled twice, for the portable baseline (SSE2 vectors on x86-64, plain code the compiler
-//!   vectorises elsewhere) and for AVX2 (x86-64), and the instruction set is picked at run time (`Isa`), so one
-//!   portable wheel still uses 256-bit vectors. Every path gives the same bits (tested against each other), and
-//!   the channel count is a constant of the per-face code for 1 to 4 channels.
+//! * The per-face work is compiled three times, for the portable baseline (SSE2 vectors on x86-64, plain code the
+//!   compiler vectorises elsewhere), for AVX2 and for AVX-512 (x86-64; its OUT sweeps take two 4-pixel blocks per
+//!   8-lane vector and add the halves to the block sums one after the other), and the instruction set is picked at
+//!   run time (`Isa`), so one portable wheel still uses 256- and 512-bit vectors. Every path gives the same bits
+//!   (tested against each other), and the channel count is a constant of the per-face code for 1 to 4 channels.
 //!
 //! The exact, step-by-step definition (the same text as `docs/NMR_GRADIENT.md`) follows.
 //!
@@ -135,27 +136,44 @@ impl BackwardInputs<'_> {
 
 /// Instruction set the vertex-gradient sweeps run on. Every choice gives the same bits (see `sweep`'s docs); only
 /// the speed differs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Isa {
     /// The target's baseline (SSE2 on x86-64, NEON on arm64).
     Portable,
     /// AVX2 (x86-64 only; [`Isa::detect`] picks it when the CPU has it).
     Avx2,
+    /// AVX-512 (F, DQ and VL, with AVX2; x86-64 only): the OUT sweeps take two blocks of pixels
+    /// per 8-lane vector and add them to the block accumulators one after the other, so the same bits as AVX2.
+    Avx512,
 }
 
 impl Isa {
     /// The fastest instruction set this CPU supports.
     pub fn detect() -> Isa {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            return Isa::Avx2;
+        {
+            use std::arch::is_x86_feature_detected as has;
+            if has!("avx2") && has!("avx512f") && has!("avx512dq") && has!("avx512vl") {
+                return Isa::Avx512;
+            }
+            if has!("avx2") {
+                return Isa::Avx2;
+            }
         }
         Isa::Portable
     }
 
-    /// Whether this CPU can run `self`.
+    /// Whether this CPU can run `self` (each instruction set includes the ones before it).
     pub fn available(self) -> bool {
-        self == Isa::Portable || Isa::detect() == Isa::Avx2
+        self <= Isa::detect()
+    }
+
+    /// Every instruction set this CPU can run, from the baseline up.
+    pub fn all_available() -> Vec<Isa> {
+        [Isa::Portable, Isa::Avx2, Isa::Avx512]
+            .into_iter()
+            .filter(|isa| isa.available())
+            .collect()
     }
 }
 
@@ -289,6 +307,21 @@ unsafe fn face_grad_avx2<const C: usize>(
     ctx.face_grad::<C>(f, scratch, Isa::Avx2)
 }
 
+/// [`Ctx::face_grad`] compiled for AVX-512 (`C` channels, or 0: any count).
+///
+/// # Safety
+/// The CPU must support AVX2, AVX-512F, -DQ and -VL.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avx512f,avx512dq,avx512vl")]
+#[allow(unsafe_code)]
+unsafe fn face_grad_avx512<const C: usize>(
+    ctx: &Ctx<'_>,
+    f: usize,
+    scratch: &mut Scratch,
+) -> [[f64; 2]; 3] {
+    ctx.face_grad::<C>(f, scratch, Isa::Avx512)
+}
+
 impl Ctx<'_> {
     /// [`Ctx::face_grad`] on the instruction set `isa` (which the caller has checked is available).
     /// The channel count is made a constant for 1 to 4 channels.
@@ -299,6 +332,12 @@ impl Ctx<'_> {
             // SAFETY: `rasterize_backward_on` only passes `Isa::Avx2` when the CPU supports AVX2.
             Isa::Avx2 => unsafe {
                 with_channels!(self.channels, C => face_grad_avx2::<C>(self, f, scratch))
+            },
+            #[cfg(target_arch = "x86_64")]
+            #[allow(unsafe_code)]
+            // SAFETY: `rasterize_backward_on` only passes `Isa::Avx512` when the CPU supports it.
+            Isa::Avx512 => unsafe {
+                with_channels!(self.channels, C => face_grad_avx512::<C>(self, f, scratch))
             },
             _ => with_channels!(self.channels, C => self.face_grad::<C>(f, scratch, Isa::Portable)),
         }

@@ -54,7 +54,7 @@ impl<'a> ScreenMesh<'a> {
                 format!("{} values", verts_screen.len()),
             ));
         }
-        if faces.len() % 3 != 0 {
+        if !faces.len().is_multiple_of(3) {
             return Err(RasterError::shape(
                 "faces",
                 "(M, 3)",
@@ -160,7 +160,7 @@ pub fn validate_mesh_indices(arg: &'static str, faces: &[i32], num_verts: usize)
     if faces.is_empty() || num_verts < 3 {
         return Err(RasterError::EmptyMesh { arg });
     }
-    if faces.len() % 3 != 0 {
+    if !faces.len().is_multiple_of(3) {
         return Err(RasterError::shape(
             arg,
             "(M, 3)",

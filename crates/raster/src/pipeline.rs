@@ -109,7 +109,7 @@ pub fn render(
     settings: &RenderSettings,
 ) -> Result<RenderOutput> {
     camera.validate()?;
-    if verts_world.len() % 3 != 0 {
+    if !verts_world.len().is_multiple_of(3) {
         return Err(RasterError::shape(
             "verts_world",
             "(N, 3)",

@@ -256,13 +256,13 @@ impl<'a, const C: usize> LinesOf<'a, C> {
 /// with AVX2, two in SSE2 lanes (x86-64 baseline), plain pairs elsewhere.
 #[inline(always)]
 fn row_keys_on(isa: Isa, s: &FaceSetup, row: i32, j0: usize, key: &mut [MaybeUninit<f64>]) {
-    // SAFETY: `rasterize_backward_on` only passes `Isa::Avx2` when the CPU supports AVX2; SSE2 is part of the
-    // x86-64 baseline.
+    // SAFETY: `rasterize_backward_on` only passes `Isa::Avx2` or `Isa::Avx512` (which includes AVX2) when the CPU
+    // supports it; SSE2 is part of the x86-64 baseline.
     #[allow(unsafe_code)]
     unsafe {
         match isa {
             #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => row_keys_avx2(s, row, j0, key),
+            Isa::Avx2 | Isa::Avx512 => row_keys_avx2(s, row, j0, key),
             #[cfg(target_arch = "x86_64")]
             _ => row_keys::<std::arch::x86_64::__m128d>(s, row, j0, key),
             #[cfg(not(target_arch = "x86_64"))]
@@ -602,11 +602,7 @@ mod tests {
             for row in 0..19 {
                 let j0 = (next() * 20.0) as usize;
                 let n = 1 + (next() * 7.0) as usize;
-                let mut paths = vec![Isa::Portable];
-                if Isa::detect() == Isa::Avx2 {
-                    paths.push(Isa::Avx2);
-                }
-                for isa in paths {
+                for isa in Isa::all_available() {
                     let mut got = vec![MaybeUninit::new(0.0); n];
                     row_keys_on(isa, &s, row, j0, &mut got);
                     for (jj, g) in got.iter().enumerate() {

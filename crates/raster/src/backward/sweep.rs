@@ -197,17 +197,19 @@ pub(super) fn run_lines<const C: usize>(
     scratch: &mut [f64],
     isa: Isa,
 ) {
-    // SAFETY: `Isa::Avx2` is only passed when the CPU supports AVX2 (see `rasterize_backward_on`); SSE2 is part
-    // of the x86-64 baseline.
+    // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only passed when the CPU supports them (see
+    // `rasterize_backward_on`); SSE2 is part of the x86-64 baseline.
     #[allow(unsafe_code)]
     unsafe {
         match isa {
             #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => lines_avx512::<C>(face, jobs, scratch),
+            #[cfg(target_arch = "x86_64")]
             Isa::Avx2 => lines_avx2::<C>(face, jobs, scratch),
             #[cfg(target_arch = "x86_64")]
-            _ => lines_on::<std::arch::x86_64::__m128d, C>(face, jobs, scratch),
+            _ => lines_on::<Blocks<std::arch::x86_64::__m128d>, C>(face, jobs, scratch),
             #[cfg(not(target_arch = "x86_64"))]
-            _ => lines_on::<[f64; 2], C>(face, jobs, scratch),
+            _ => lines_on::<Blocks<[f64; 2]>, C>(face, jobs, scratch),
         }
     }
 }
@@ -225,16 +227,53 @@ unsafe fn lines_avx2<const C: usize>(
     jobs: &mut [LineJob],
     scratch: &mut [f64],
 ) {
-    lines_on::<std::arch::x86_64::__m256d, C>(face, jobs, scratch)
+    lines_on::<Blocks<std::arch::x86_64::__m256d>, C>(face, jobs, scratch)
 }
 
-/// [`run_lines`] on vectors `V`, job by job: its OUT sweep, then its IN sweep.
+/// [`lines_on`] on AVX-512 (two blocks per vector, see [`x86::Pairs`]).
 ///
 /// # Safety
-/// `V`'s instructions must be supported by the CPU.
+/// The CPU must support AVX2, AVX-512F, -DQ and -VL.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avx512f,avx512dq,avx512vl")]
+#[allow(unsafe_code)]
+#[inline]
+unsafe fn lines_avx512<const C: usize>(
+    face: &FaceLines<'_>,
+    jobs: &mut [LineJob],
+    scratch: &mut [f64],
+) {
+    lines_on::<x86::Pairs, C>(face, jobs, scratch)
+}
+
+/// How the lane sums of a sweep are taken on some instruction set.
+trait Sweeps {
+    /// The lane sums of the sweep `k` (see [`lanes`]: every implementation gives its bits).
+    ///
+    /// # Safety
+    /// The instructions must be supported by the CPU, and `k`'s slices padded as [`lanes`] requires.
+    #[allow(unsafe_code)]
+    unsafe fn lanes<K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]);
+}
+
+/// Blocks of [`LANES`] pixels on vectors `V` of at most [`LANES`] lanes ([`lanes`]).
+struct Blocks<V>(PhantomData<V>);
+
+impl<V: F64s> Sweeps for Blocks<V> {
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn lanes<K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
+        lanes::<V, K>(k)
+    }
+}
+
+/// [`run_lines`] on the sweeps `S`, job by job: its OUT sweep, then its IN sweep.
+///
+/// # Safety
+/// `S`'s instructions must be supported by the CPU.
 #[allow(unsafe_code)]
 #[inline(always)]
-unsafe fn lines_on<V: F64s, const C: usize>(
+unsafe fn lines_on<S: Sweeps, const C: usize>(
     face: &FaceLines<'_>,
     jobs: &mut [LineJob],
     scratch: &mut [f64],
@@ -274,7 +313,7 @@ unsafe fn lines_on<V: F64s, const C: usize>(
             };
             // SAFETY: the pointers come from `Lines::at`, `Positions::at` and `Dot::new`, readable for the padded
             // block count; the caller vouches for `V`.
-            let (sa, sc) = lanes::<V, _>(&k);
+            let (sa, sc) = S::lanes(&k);
             job.sums[0] = lane_sum(&sa);
             job.sums[1] = lane_sum(&sc);
         }
@@ -306,7 +345,7 @@ unsafe fn lines_on<V: F64s, const C: usize>(
             }
             .with(Dot::new(&at, &w, pre, r.len()));
             // SAFETY: as for the OUT sweeps.
-            let (sa, sc) = lanes::<V, _>(&k);
+            let (sa, sc) = S::lanes(&k);
             job.sums[2] = lane_sum(&sa);
             job.sums[3] = lane_sum(&sc);
         }
@@ -872,13 +911,66 @@ fn bits2(a: bool, b: bool) -> [f64; 2] {
     [m(a), m(b)]
 }
 
-/// SSE2 (every x86-64 CPU) and AVX2 vectors.
+/// SSE2 (every x86-64 CPU), AVX2 and AVX-512 vectors, and the AVX-512 sweeps.
 #[cfg(target_arch = "x86_64")]
 #[allow(unsafe_code)]
 mod x86 {
     use std::arch::x86_64::*;
 
-    use super::F64s;
+    use super::{blocks, lanes, store_lanes, F64s, Kernel, Sweeps, LANES};
+
+    const _: () = assert!(
+        LANES == 4,
+        "Pairs adds the halves of an 8-lane vector to 4-lane block sums"
+    );
+
+    /// The sweeps on AVX-512: two blocks of [`LANES`] pixels per 8-lane vector, whose halves are added to the
+    /// 4-lane block sums one after the other, so every lane sums the same pixels in the same order as [`lanes`]
+    /// (the same bits). A segment's odd last block, the sweep's partial last block and the short IN sweeps run
+    /// on 4 lanes.
+    pub(super) struct Pairs;
+
+    impl Sweeps for Pairs {
+        #[inline(always)]
+        #[allow(unused_assignments)] // the last segment's `i`
+        unsafe fn lanes<K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
+            if K::SHORT {
+                return lanes::<__m256d, K>(k);
+            }
+            let (c8, c4) = (k.consts::<__m512d>(), k.consts::<__m256d>());
+            let (mut sa, mut sc) = ([_mm256_setzero_pd(); LANES], [_mm256_setzero_pd(); LANES]);
+            let n = k.len();
+            let [own_lo, own_hi, full] = blocks(n, k.own());
+            let mut i = 0;
+            macro_rules! blocks {
+                ($to:expr, $own:expr) => {
+                    while i + 2 * LANES <= $to {
+                        let (x, y) = k.vec::<__m512d, false, { $own }>(&c8, i);
+                        let lo = |v: __m512d| _mm512_castpd512_pd256(v);
+                        let hi = |v: __m512d| _mm512_extractf64x4_pd::<1>(v);
+                        sa[0] = _mm256_add_pd(_mm256_add_pd(sa[0], lo(x)), hi(x));
+                        sc[0] = _mm256_add_pd(_mm256_add_pd(sc[0], lo(y)), hi(y));
+                        i += 2 * LANES;
+                    }
+                    if i < $to {
+                        let (x, y) = k.vec::<__m256d, false, { $own }>(&c4, i);
+                        sa[0] = _mm256_add_pd(sa[0], x);
+                        sc[0] = _mm256_add_pd(sc[0], y);
+                        i += LANES;
+                    }
+                };
+            }
+            blocks!(own_lo, false);
+            blocks!(own_hi, true);
+            blocks!(full, false);
+            if full < n {
+                let (x, y) = k.vec::<__m256d, true, true>(&c4, full);
+                sa[0] = _mm256_add_pd(sa[0], x);
+                sc[0] = _mm256_add_pd(sc[0], y);
+            }
+            store_lanes::<__m256d>(&sa, &sc)
+        }
+    }
 
     // SAFETY: SSE2 is part of the x86-64 baseline.
     unsafe impl F64s for __m128d {
@@ -1034,6 +1126,96 @@ mod x86 {
             _mm256_blendv_pd(gt, ge, wins_ties)
         }
     }
+
+    // SAFETY: callers check AVX-512F, -DQ and -VL at run time (`Isa::Avx512`). Comparisons give AVX-512 masks,
+    // widened to lanes of all ones or zeros (the compiler folds them back into masked operations).
+    unsafe impl F64s for __m512d {
+        const N: usize = 8;
+        #[inline(always)]
+        unsafe fn load(p: *const f64) -> Self {
+            _mm512_loadu_pd(p)
+        }
+        #[inline(always)]
+        unsafe fn load_f32(p: *const f32) -> Self {
+            _mm512_cvtps_pd(_mm256_loadu_ps(p))
+        }
+        #[inline(always)]
+        unsafe fn load_i32(p: *const i32) -> Self {
+            _mm512_cvtepi32_pd(_mm256_loadu_si256(p.cast()))
+        }
+        #[inline(always)]
+        unsafe fn store(self, p: *mut f64) {
+            _mm512_storeu_pd(p, self)
+        }
+        #[inline(always)]
+        unsafe fn splat(x: f64) -> Self {
+            _mm512_set1_pd(x)
+        }
+        #[inline(always)]
+        unsafe fn add(self, o: Self) -> Self {
+            _mm512_add_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn sub(self, o: Self) -> Self {
+            _mm512_sub_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn mul(self, o: Self) -> Self {
+            _mm512_mul_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn div(self, o: Self) -> Self {
+            _mm512_div_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn gt(self, o: Self) -> Self {
+            lanes_of(_mm512_cmp_pd_mask::<_CMP_GT_OQ>(self, o))
+        }
+        #[inline(always)]
+        unsafe fn lt(self, o: Self) -> Self {
+            lanes_of(_mm512_cmp_pd_mask::<_CMP_LT_OQ>(self, o))
+        }
+        #[inline(always)]
+        unsafe fn eq(self, o: Self) -> Self {
+            lanes_of(_mm512_cmp_pd_mask::<_CMP_EQ_OQ>(self, o))
+        }
+        #[inline(always)]
+        unsafe fn ne(self, o: Self) -> Self {
+            lanes_of(_mm512_cmp_pd_mask::<_CMP_NEQ_UQ>(self, o))
+        }
+        #[inline(always)]
+        unsafe fn and(self, o: Self) -> Self {
+            _mm512_and_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn or(self, o: Self) -> Self {
+            _mm512_or_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn andnot(self, o: Self) -> Self {
+            _mm512_andnot_pd(self, o)
+        }
+        #[inline(always)]
+        unsafe fn min(self, o: Self) -> Self {
+            _mm512_min_pd(self, o)
+        }
+    }
+
+    /// [`Pairs`]'s lane sums, compiled for AVX-512 (for the tests, which compare every path).
+    ///
+    /// # Safety
+    /// The CPU must support AVX2, AVX-512F, -DQ and -VL, and `k`'s slices be padded as [`lanes`] requires.
+    #[cfg(test)]
+    #[target_feature(enable = "avx2,avx512f,avx512dq,avx512vl")]
+    pub(super) unsafe fn pairs_lanes<K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
+        Pairs::lanes(k)
+    }
+
+    /// An AVX-512 mask as lanes of all ones (set) or all zeros.
+    #[inline(always)]
+    unsafe fn lanes_of(m: __mmask8) -> __m512d {
+        _mm512_castsi512_pd(_mm512_movm_epi64(m))
+    }
 }
 
 #[cfg(test)]
@@ -1043,17 +1225,21 @@ mod tests {
     use crate::test_rng::Rng;
 
     /// The lane sums of one OUT kernel on every code path this CPU has: generic on `[f64; 2]`, SSE2 and AVX2
-    /// vectors; all must give the same bits.
+    /// vectors, and AVX-512's pairs of blocks; all must give the same bits.
     #[allow(unsafe_code)]
     fn all_paths(k: &OutKernel<'_, 4>) -> Vec<([f64; LANES], [f64; LANES])> {
-        // SAFETY: the kernel's buffers are padded (built by the caller); SSE2 is baseline, AVX2 is checked.
+        // SAFETY: the kernel's buffers are padded (built by the caller); SSE2 is baseline, AVX2 and AVX-512 are
+        // checked.
         unsafe {
             let mut out = vec![lanes::<[f64; 2], _>(k)];
             #[cfg(target_arch = "x86_64")]
             {
                 out.push(lanes::<std::arch::x86_64::__m128d, _>(k));
-                if Isa::detect() == Isa::Avx2 {
+                if Isa::Avx2.available() {
                     out.push(lanes::<std::arch::x86_64::__m256d, _>(k));
+                }
+                if Isa::Avx512.available() {
+                    out.push(x86::pairs_lanes(k));
                 }
             }
             out
@@ -1148,6 +1334,9 @@ mod tests {
                 key_step,
             };
             let sums = all_paths(&k);
+            // The generic pairs, then one path per instruction set (SSE2 on x86-64's baseline).
+            #[cfg(target_arch = "x86_64")]
+            assert_eq!(sums.len(), 1 + Isa::all_available().len());
             let bits =
                 |s: &([f64; LANES], [f64; LANES])| (s.0.map(f64::to_bits), s.1.map(f64::to_bits));
             for s in &sums[1..] {
@@ -1235,14 +1424,17 @@ mod tests {
                 _data: PhantomData,
             });
             #[allow(unsafe_code)]
-            // SAFETY: padded buffers; SSE2 is baseline, AVX2 is checked.
+            // SAFETY: padded buffers; SSE2 is baseline, AVX2 and AVX-512 are checked.
             let sums = unsafe {
                 let mut out = vec![lanes::<[f64; 2], _>(&k)];
                 #[cfg(target_arch = "x86_64")]
                 {
                     out.push(lanes::<std::arch::x86_64::__m128d, _>(&k));
-                    if Isa::detect() == Isa::Avx2 {
+                    if Isa::Avx2.available() {
                         out.push(lanes::<std::arch::x86_64::__m256d, _>(&k));
+                    }
+                    if Isa::Avx512.available() {
+                        out.push(x86::pairs_lanes(&k));
                     }
                 }
                 out
