@@ -11,6 +11,9 @@ for these variants of the same network:
   ``fused_cl`` is what ``load_victim(name)`` (``optimize=True``, the default) builds;
 * ``fused_jit``: ``torch.jit.freeze`` of a ``torch.jit.trace`` of the fused network (``optimize_for_inference`` is not
   measured: its output carries no gradient);
+* ``eager_bf16`` / ``fused_cl_bf16``: ``eager`` / ``fused_cl`` with the forward under ``torch.autocast("cpu",
+  dtype=torch.bfloat16)`` (oneDNN's bfloat16 kernels: AVX-512-BF16 / AMX where the CPU has them), logits returned as
+  float32; not an exact rewrite (see the accuracy columns);
 * ``compile_<mode>``: ``torch.compile`` (inductor, compiled in this process:
   ``TORCHINDUCTOR_COMPILE_THREADS=1``) of the default (``fused_cl``) network, per ``--compile-modes``.
 
@@ -48,14 +51,27 @@ from typing import Any
 import torch
 from torch import Tensor
 
-VARIANTS = ("eager", "fused", "eager_cl", "fused_cl", "fused_jit")
+VARIANTS = ("eager", "fused", "eager_cl", "fused_cl", "fused_jit", "eager_bf16", "fused_cl_bf16")
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune-no-cudagraphs")
+
+
+class Bfloat16Autocast:
+    """A victim whose forward runs under CPU autocast to bfloat16, returning float32 logits."""
+
+    def __init__(self, victim: Any) -> None:
+        self.victim = victim
+
+    def __call__(self, images: Tensor) -> Tensor:
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            return self.victim(images).float()
 
 
 def build_variant(variant: str, eager: Any, example: Tensor) -> Any:
     """A copy of the unoptimised victim ``eager`` with its network in ``variant``'s form (see the module docstring)."""
     if variant == "eager":
         return eager
+    if variant.endswith("_bf16"):
+        return Bfloat16Autocast(build_variant(variant[: -len("_bf16")], eager, example))
     victim = copy.deepcopy(eager)
     if variant.startswith(("fused", "compile_")):
         victim.net.fuse_batchnorm()
