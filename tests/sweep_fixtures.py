@@ -102,17 +102,18 @@ def job_states(db: Path) -> Dict[str, int]:
         conn.close()
 
 
-def start_sweep_process(tmp_path: Path, name: str, job_module: str, job_source: str,
+def start_sweep_process(tmp_path: Path, name: str, job_module: str, job_source: str, *, args: Sequence[str] = (),
                         **popen: Any) -> Tuple[subprocess.Popen, Path, Path]:
-    """Start ``meshadv sweep`` (one worker, no progress bars, output piped as text) in a subprocess on
-    :func:`two_job_config`'s two jobs, run by ``job_module.py`` (written into ``tmp_path`` from ``job_source``, which
-    defines ``job``); ``popen``: more ``subprocess.Popen`` arguments. Returns ``(process, database, output folder)``."""
+    """Start ``meshadv sweep`` (one worker, no progress bars, output piped as text, then ``args``) in a subprocess
+    on :func:`two_job_config`'s two jobs, run by ``job_module.py`` (written into ``tmp_path`` from ``job_source``,
+    which defines ``job``); ``popen``: more ``subprocess.Popen`` arguments. Returns ``(process, database, output
+    folder)``."""
     (tmp_path / "sweep.toml").write_text(two_job_config(name, f"{job_module}:job"))
     (tmp_path / f"{job_module}.py").write_text(job_source)
     db, out = tmp_path / "results.db", tmp_path / "out"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]),
            "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "meshadv.cli", "sweep", str(tmp_path / "sweep.toml"), "--db",
-                             str(db), "--output", str(out), "--workers", "1", "--no-progress"],
+                             str(db), "--output", str(out), "--workers", "1", "--no-progress", *args],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, **popen)
     return proc, db, out

@@ -1,5 +1,5 @@
 """``kill -TERM`` of a running ``meshadv sweep`` takes Ctrl-C's path: finished jobs kept, running ones put back to
-pending, the database closed cleanly (not left marked open)."""
+pending, the database closed cleanly (not left marked open), and a ``--snapshot`` copy written once more."""
 
 from __future__ import annotations
 
@@ -25,7 +25,9 @@ def job(spec, out_dir):
 
 
 def test_sigterm_requeues_running_jobs_and_closes_the_database(tmp_path: Path) -> None:
-    proc, db, _ = start_sweep_process(tmp_path, "terminate", "slow_probe", JOB)
+    copy = tmp_path / "durable" / "results.db"
+    proc, db, _ = start_sweep_process(tmp_path, "terminate", "slow_probe", JOB,
+                                      args=["--snapshot", str(copy), "--snapshot-every", "1h"])
 
     def one_done_one_running() -> bool:
         states = job_states(db)
@@ -35,8 +37,16 @@ def test_sigterm_requeues_running_jobs_and_closes_the_database(tmp_path: Path) -
     assert proc.returncode == 130, output
     assert "interrupted" in output and "put back to pending" in output
     assert job_states(db) == {"done": 1, "pending": 1}  # chair -> sofa and sofa -> chair
-    conn = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    try:
-        assert conn.execute("SELECT value FROM meta WHERE key = 'open'").fetchone() == ("0",)
+    assert job_states(copy) == {"done": 1, "pending": 1}
+    conn = sqlite3.connect(f"file:{copy}?mode=ro", uri=True)
+    try:  # copied again after the running job was put back (the copy after the first outcome has it never started)
+        assert conn.execute("SELECT COUNT(*) FROM jobs WHERE state = 'pending' AND started IS NOT NULL").fetchone() \
+            == (1,)
     finally:
         conn.close()
+    for path in (db, copy):
+        conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            assert conn.execute("SELECT value FROM meta WHERE key = 'open'").fetchone() == ("0",)
+        finally:
+            conn.close()

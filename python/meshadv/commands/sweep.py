@@ -5,7 +5,9 @@ again after a kill to resume: finished jobs are skipped, interrupted ones re-run
 ``max_attempts``. Ctrl-C and SIGTERM (``kill``, a batch scheduler's stop) end a run the same way: the workers are
 stopped, running jobs go back to pending and the database is closed cleanly. To end without losing the running jobs'
 work, ``--stop-starting-after DURATION`` or SIGUSR1 to the driver stop starting jobs: the running ones finish and are
-recorded, then the command exits (a batch slot's time limit; e.g. Slurm's ``--signal=USR1@900``).
+recorded, then the command exits (a batch slot's time limit; e.g. Slurm's ``--signal=USR1@900``). When the output
+folder is scratch space that may vanish with its machine, ``--snapshot PATH`` keeps a resumable copy of the database
+somewhere durable, rewritten atomically as results arrive and once more at the end.
 
 Progress: one bar counts the jobs (successes, failures, ETA), a second one the attack steps out of the most the
 planned jobs can run, moving at every step of every running job with the local and serial backends (the workers
@@ -31,7 +33,7 @@ from typing import Any, Dict, Iterator, List, Optional
 
 import typer
 
-__all__ = ["StopStarting", "register", "sweep"]
+__all__ = ["DatabaseSnapshots", "StopStarting", "register", "sweep"]
 
 
 class StopStarting:
@@ -66,6 +68,33 @@ class StopStarting:
             signal.signal(signal.SIGUSR1, previous)
 
 
+class DatabaseSnapshots:
+    """Resumable copies of a sweep's database at ``path`` (``meshadv sweep --snapshot``): after a recorded outcome
+    once ``every_s`` seconds have passed since the last copy, and whenever :meth:`write` is called (the run's end).
+
+    Args:
+        store: the sweep's results database.
+        path: where the copy goes (:meth:`meshadv.experiments.ResultStore.snapshot`).
+        every_s: the least time between two copies made after outcomes, >= 0.
+    """
+
+    def __init__(self, store: Any, path: Path, every_s: float) -> None:
+        self.store = store
+        self.path = Path(path)
+        self.every_s = float(every_s)
+        self.last: Optional[float] = None
+
+    def after_outcome(self, job_id: str, ok: bool) -> None:
+        """``run_sweep``'s ``on_outcome``: copy the database when the last copy is old enough."""
+        if self.last is None or time.monotonic() - self.last >= self.every_s:
+            self.write()
+
+    def write(self) -> None:
+        """Copy the database now."""
+        self.store.snapshot(self.path)
+        self.last = time.monotonic()
+
+
 def sweep(
     config: Path = typer.Argument(..., help="Sweep file (.toml, .yaml or .yml)."),
     backend: str = typer.Option("local", help="local (process pool, default), ray or serial."),
@@ -98,6 +127,11 @@ def sweep(
         None, "--stop-starting-after", help="Start no job after this long (90m, 2h, 1h30m; a bare number is "
         "seconds): the running jobs finish and are recorded, the rest wait for the next run. SIGUSR1 to this "
         "process does the same at once (e.g. Slurm's --signal=USR1@900)."),
+    snapshot: Optional[Path] = typer.Option(None, help="Keep a resumable copy of the results database at this path "
+                                            "(e.g. on durable storage while the output folder is scratch space), "
+                                            "rewritten atomically after results arrive and at the end."),
+    snapshot_every: str = typer.Option("1m", "--snapshot-every", help="With --snapshot: the least time between two "
+                                       "copies made as results arrive (90s, 10m; 0: after every result)."),
 ) -> None:
     """Run (or resume) the attack sweep described by CONFIG."""
     from meshadv.commands._common import parse_duration
@@ -146,8 +180,15 @@ def sweep(
                                                                            "--stop-starting-after")
     except ValueError as err:
         raise typer.BadParameter(str(err), param_hint="--stop-starting-after") from err
+    try:
+        snapshot_every_s = parse_duration(snapshot_every, "--snapshot-every")
+    except ValueError as err:
+        raise typer.BadParameter(str(err), param_hint="--snapshot-every") from err
     db_path = db or cfg.db
     out_root = output or cfg.output
+    if snapshot is not None and Path(snapshot).resolve() == Path(db_path).resolve():
+        raise typer.BadParameter(f"{snapshot} is the results database itself; give another file for its copy",
+                                 param_hint="--snapshot")
     if dry_run:
         from meshadv.commands._sweep_check import check_jobs
 
@@ -204,6 +245,7 @@ def sweep(
         store.set_meta("command", "meshadv sweep " + " ".join(shlex.quote(a) for a in sys.argv[2:]))
         store.set_meta("sweep_versions", environment_versions())
         stop = StopStarting(after_s)
+        snapshots = None if snapshot is None else DatabaseSnapshots(store, snapshot, snapshot_every_s)
 
         def with_due_retries() -> List[Dict[str, Any]]:
             """The sweep's jobs with the retries of the main attacks that have failed so far."""
@@ -217,7 +259,8 @@ def sweep(
                     summary = run_sweep(store, jobs, runner["job"], out_root=out_root, backend=be,
                                         max_attempts=attempts, progress=progress,
                                         planned_steps=planned_steps if runner["job"] == DEFAULT_JOB else None,
-                                        stop_starting=stop)
+                                        stop_starting=stop,
+                                        on_outcome=None if snapshots is None else snapshots.after_outcome)
                     ran += summary.ran
                     if summary.not_started:
                         break
@@ -230,12 +273,16 @@ def sweep(
         except KeyboardInterrupt:
             be.close()
             requeued = store.requeue_running()
+            if snapshots is not None:
+                snapshots.write()
             counts = store.counts()
             raise interrupted_exit(f"interrupted: {counts.get('done', 0)} finished job(s) are kept in {db_path}; "
                                    f"{requeued} running job(s) were put back to pending; run the same command again "
                                    "to resume") from None
         finally:
             be.close()
+        if snapshots is not None:
+            snapshots.write()
     typer.echo(f"{summary.done}/{summary.total} done ({summary.successes} successful), {summary.failed} failed; "
                f"ran {summary.ran}, skipped {summary.skipped} finished, re-queued {summary.requeued} interrupted; "
                f"results in {db_path}")

@@ -225,6 +225,46 @@ class ResultStore:
             with contextlib.suppress(sqlite3.OperationalError):
                 self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
 
+    def snapshot(self, path: Union[str, Path]) -> Path:
+        """Write a consistent copy of the database to ``path`` atomically (a temporary file beside it, then a rename).
+
+        The copy is a cleanly closed database that a sweep can resume from: a durable copy of the results so far
+        (a home folder, a mounted bucket, a git checkout) while the sweep runs on scratch space that may vanish with
+        its machine. Jobs running at the time are ``running`` in the copy and run again when a sweep resumes from it.
+
+        Returns:
+            ``path`` as a :class:`~pathlib.Path`.
+
+        Raises:
+            ValueError: this database is in memory, or ``path`` is the database itself or its write-ahead log.
+        """
+        if self.path == ":memory:":
+            raise ValueError("snapshot needs a database file; this one is ':memory:'")
+        target = Path(path)
+        own = Path(self.path).resolve()
+        if target.resolve() in (own, Path(str(own) + "-wal"), Path(str(own) + "-shm")):
+            raise ValueError(f"path {str(target)!r} is the database itself; give another file for its copy")
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+        leftovers = [tmp, Path(f"{tmp}-wal"), Path(f"{tmp}-shm")]
+        for stale in leftovers:
+            stale.unlink(missing_ok=True)
+        try:
+            copy = sqlite3.connect(tmp, isolation_level=None)
+            try:
+                self._conn.backup(copy)
+                copy.execute("UPDATE meta SET value = '0' WHERE key = 'open'")  # closed cleanly, as far as it knows
+                copy.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+            finally:
+                copy.close()
+            with open(tmp, "rb+") as handle:
+                os.fsync(handle.fileno())
+            os.replace(tmp, target)
+        finally:
+            for stale in leftovers:
+                stale.unlink(missing_ok=True)
+        return target
+
     def __enter__(self) -> "ResultStore":
         return self
 
