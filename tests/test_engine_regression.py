@@ -21,10 +21,13 @@ scenarios were chosen so that no recorded margin is within 1e-3 of zero (scores 
 CPUs: torch picks its CPU kernels by instruction set (``torch.backends.cpu.get_cpu_capability()``), and another
 kernel rounds otherwise, which the attacks amplify: on an Intel AVX-512 machine the AVX2 reference's margins moved
 by up to 48% (pascal_shape's 0.18 became 0.095) and its distances by up to 0.8%, every flag and step count
-unchanged. So each capability has its own reference: ``engine_reference.json`` was recorded on AVX2 (AMD EPYC),
-``engine_reference_AVX512.json`` with the unified engine on AVX-512 (Intel Xeon; regenerate with the same command
-there). A capability without a reference is compared with the AVX2 one at :data:`CROSS_CPU_RTOL`, flags and step
-counts still exactly.
+unchanged. The vendor matters too: on an AMD EPYC with AVX-512 (Zen 4 class) the Intel AVX-512 reference's margins
+moved by up to 13% and its distances by up to 0.8%, flags and step counts again unchanged (oneDNN picks its kernels
+and their blocking per CPU, not only per instruction set). So each capability and vendor has its own reference:
+``engine_reference.json`` was recorded on AVX2 (AMD EPYC), ``engine_reference_AVX512_GenuineIntel.json`` with the
+unified engine on an Intel Xeon, ``engine_reference_AVX512_AuthenticAMD.json`` on an AMD EPYC (regenerate with the
+same command there). A CPU without its own reference is compared with the AVX2 one at :data:`CROSS_CPU_RTOL`, flags
+and step counts still exactly.
 
 Threads: the reference was recorded with one torch thread. torch's CPU kernels reduce in another order with another
 thread count (logits differ by ~1e-6, input gradients by ~1e-2 relative, measured), which the shape attacks amplify,
@@ -44,11 +47,27 @@ import torch
 
 from meshadv.render import RenderSetup, native_available
 
-#: The reference of torch's CPU capability: the AVX2 one (the first recorded) for a capability without its own.
+
+
+def cpu_vendor() -> str:
+    """The CPU's vendor id (``GenuineIntel``, ``AuthenticAMD``, ...) from ``/proc/cpuinfo``; ``unknown`` elsewhere."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "vendor_id" and value.strip():
+                return value.strip()
+    except OSError:
+        pass
+    return "unknown"
+
+
+#: The reference of torch's CPU capability on this CPU vendor: the AVX2 one (the first recorded, on AMD) for a CPU
+#: without its own.
 CAPABILITY = torch.backends.cpu.get_cpu_capability()
+CPU_KEY = f"{CAPABILITY}_{cpu_vendor()}"
 DEFAULT_REFERENCE = Path(__file__).parent / "data" / "engine_reference.json"
-OWN_REFERENCE = Path(__file__).parent / "data" / f"engine_reference_{CAPABILITY}.json"
-REFERENCE = DEFAULT_REFERENCE if CAPABILITY == "AVX2" else OWN_REFERENCE
+REFERENCE = DEFAULT_REFERENCE if CPU_KEY == "AVX2_AuthenticAMD" else \
+    Path(__file__).parent / "data" / f"engine_reference_{CPU_KEY}.json"
 RTOL = 1e-3
 #: Relative tolerance against another capability's reference (measured AVX2 -> AVX-512: distances 0.8%, margins 48%
 #: at most); flags and step counts are still compared exactly.
@@ -288,7 +307,8 @@ def _compare(name: str, got: Any, want: Any, path: str = "") -> None:
 
 
 def _reference() -> Dict[str, Any]:
-    """The reference of this machine's CPU capability, else the AVX2 one (compared at :data:`CROSS_CPU_RTOL`)."""
+    """The reference of this machine's CPU capability and vendor, else the AVX2 one (compared at
+    :data:`CROSS_CPU_RTOL`)."""
     return json.loads((REFERENCE if REFERENCE.is_file() else DEFAULT_REFERENCE).read_text())
 
 
