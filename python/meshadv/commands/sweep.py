@@ -29,9 +29,12 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any, Dict, Iterator, List, Optional
+from typing import TYPE_CHECKING, Any, Dict, Iterator, List, Optional
 
 import typer
+
+if TYPE_CHECKING:
+    from meshadv.experiments import ResultStore
 
 __all__ = ["DatabaseSnapshots", "StopStarting", "register", "sweep"]
 
@@ -78,7 +81,7 @@ class DatabaseSnapshots:
         every_s: the least time between two copies made after outcomes, >= 0.
     """
 
-    def __init__(self, store: Any, path: Path, every_s: float) -> None:
+    def __init__(self, store: "ResultStore", path: Path, every_s: float) -> None:
         self.store = store
         self.path = Path(path)
         self.every_s = float(every_s)
@@ -149,6 +152,7 @@ def sweep(
     from meshadv.experiments.jobs import planned_steps
     from meshadv.experiments.retries import RETRY_PART, place_retries, retry_jobs
     from meshadv.experiments.report import environment_versions
+    from meshadv.experiments.store import check_snapshot_target
 
     try:
         cfg = load_config(config)
@@ -186,9 +190,11 @@ def sweep(
         raise typer.BadParameter(str(err), param_hint="--snapshot-every") from err
     db_path = db or cfg.db
     out_root = output or cfg.output
-    if snapshot is not None and Path(snapshot).resolve() == Path(db_path).resolve():
-        raise typer.BadParameter(f"{snapshot} is the results database itself; give another file for its copy",
-                                 param_hint="--snapshot")
+    if snapshot is not None:  # refused now, not after the first result
+        try:
+            check_snapshot_target(db_path, snapshot)
+        except ValueError as err:
+            raise typer.BadParameter(str(err), param_hint="--snapshot") from err
     if dry_run:
         from meshadv.commands._sweep_check import check_jobs
 

@@ -34,7 +34,7 @@ from typing import Any, Collection, Dict, Iterable, Iterator, List, Optional, Tu
 
 from meshadv.experiments.spec import canonical, canonical_json, job_id
 
-__all__ = ["JobRow", "ResultStore", "driver_lock", "STATES"]
+__all__ = ["JobRow", "ResultStore", "check_snapshot_target", "driver_lock", "STATES"]
 
 #: The states a job row can be in.
 STATES = ("pending", "running", "done", "failed")
@@ -240,10 +240,8 @@ class ResultStore:
         """
         if self.path == ":memory:":
             raise ValueError("snapshot needs a database file; this one is ':memory:'")
+        check_snapshot_target(self.path, path)
         target = Path(path)
-        own = Path(self.path).resolve()
-        if target.resolve() in (own, Path(str(own) + "-wal"), Path(str(own) + "-shm")):
-            raise ValueError(f"path {str(target)!r} is the database itself; give another file for its copy")
         target.parent.mkdir(parents=True, exist_ok=True)
         tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
         leftovers = [tmp, Path(f"{tmp}-wal"), Path(f"{tmp}-shm")]
@@ -494,6 +492,18 @@ class ResultStore:
                 )
             )
         return out
+
+
+def check_snapshot_target(db_path: Union[str, Path], target: Union[str, Path]) -> None:
+    """Refuse ``target`` as the place of :meth:`ResultStore.snapshot`'s copy of the database ``db_path`` when it is
+    that database itself (or its write-ahead log or shared-memory file).
+
+    Raises:
+        ValueError: naming ``target``.
+    """
+    own = Path(db_path).resolve()
+    if Path(target).resolve() in (own, Path(f"{own}-wal"), Path(f"{own}-shm")):
+        raise ValueError(f"path {str(target)!r} is the database itself; give another file for its copy")
 
 
 @contextlib.contextmanager
