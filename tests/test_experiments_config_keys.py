@@ -76,3 +76,25 @@ def test_the_base_config_and_job_options_load() -> None:
 def test_bad_attack_option_values_fail_at_load() -> None:
     with pytest.raises(ValueError, match=r"^\[attack\.shape\]: "):
         parse_config(_with("attack.shape.lr", -1.0))
+
+
+def test_a_table_without_a_method_runs_the_recommended_one_unless_it_sets_adam_options() -> None:
+    from meshadv.attacks.update import RECOMMENDED_METHOD
+    from meshadv.experiments.config import expand_jobs
+
+    def methods(raw: dict[str, Any]) -> set:
+        return {j["attack"].get("method") for j in expand_jobs(parse_config(raw))}
+
+    assert RECOMMENDED_METHOD == "ddn"
+    assert methods(BASE) == {"ddn"}  # {"steps": 2}: the recommended rule, written into the jobs
+    assert methods(_with("attack.shape.method", "adam")) == {"adam"}
+    # a table with one of Adam's own options is the paper's rule (the attacks' default), its jobs unchanged
+    for key, value in (("lr", 0.01), ("lambda_perceptual", 0.1), ("binary_search_steps", 5), ("smoothing", 0)):
+        assert methods(_with(f"attack.shape.{key}", value)) == {None}, key
+    raw = _with("attack.protocols", {"p": {"configurations": 1, "shape": {"steps": 3},
+                                           "texture": {"lr": 0.05}}})
+    raw["attack"]["perturbations"] = ["shape", "texture"]
+    by_protocol = {(j.get("protocol"), j["perturbation"]): j["attack"].get("method")
+                   for j in expand_jobs(parse_config(raw))}
+    assert by_protocol == {(None, "shape"): "ddn", (None, "texture"): "ddn", ("p", "shape"): "ddn",
+                           ("p", "texture"): None}

@@ -65,7 +65,7 @@ def test_expansion_counts_and_determinism(tmp_path: Path) -> None:
     assert all(j["target"] != j["source_class"] for j in jobs)
     assert {len(j["views"]) for j in multi} == {2, 3} and {len(j["eval_views"]) for j in multi} == {4}
     assert all(10 <= j["views"][0]["elevation"] <= 20 for j in single)
-    assert single[0]["attack"] == {"steps": 5} and single[0]["mesh"]["path"] == "pascal3d/boat/01.ply"
+    assert single[0]["attack"] == {"method": "ddn", "steps": 5} and single[0]["mesh"]["path"] == "pascal3d/boat/01.ply"
     ids = [job_id(j) for j in jobs]
     assert len(set(ids)) == len(ids)
     assert ids == [job_id(j) for j in expand_jobs(load_config(tmp_path / "a.toml"))]

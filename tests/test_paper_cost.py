@@ -19,6 +19,7 @@ names = ["efficientnet_lite0"]
 [attack]
 perturbations = ["shape", "texture"]
 [attack.shape]
+method = "adam"
 steps = 100
 early_stop = 3
 [attack.texture]

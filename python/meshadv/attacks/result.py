@@ -162,6 +162,7 @@ class AttackResult:
             status = "SUCCESS" if bool(self.succeeded[t]) else "failed"
             line = (f"  {crit.get('label', '?')}: {status} on {int(self.success[t].sum())}/{self.success.shape[1]} "
                     f"views; laplacian_pair_mean={d.get('laplacian_pair_mean', float('nan')):.4g} "
+                    f"laplacian_sum={d.get('laplacian_sum', float('nan')):.4g} "
                     f"rmse={d['color_rmse']:.4g} max_disp={d['max_displacement']:.4g}")
             if self.eval_success is not None:
                 line += f"; held-out {int(self.eval_success[t].sum())}/{self.eval_success.shape[1]}"

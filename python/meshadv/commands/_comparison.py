@@ -58,12 +58,14 @@ def distortion_line(distances: dict, perturbation: str) -> str:
         rmse = pick("color_rmse")
         return "texture change: colour RMSE " + ("-" if rmse is None else f"{rmse:.4f}")
     parts = []
-    lap = pick("laplacian_pair_mean", "laplacian_sum")
-    if lap is not None:
-        parts.append(f"Laplacian {lap:.3g}")
     disp = pick("max_displacement")
     if disp is not None:
         parts.append(f"largest vertex move {100 * disp:.2g}% of the bounding-box diagonal")
+    pair_mean, eq4_sum = pick("laplacian_pair_mean"), pick("laplacian_sum")
+    if pair_mean is not None:
+        parts.append(f"Laplacian pair mean {pair_mean:.3g} (the paper's measure)")
+    if eq4_sum is not None:
+        parts.append(f"Eq. 4 sum {eq4_sum:.3g}")
     return "shape change: " + (", ".join(parts) if parts else "-")
 
 
@@ -97,7 +99,8 @@ def comparison_image(before: Any, after: Any, before_captions: Sequence[str], af
     line = 26
     header = line * (2 if title else 1)
     width = 2 * cell_w + 3 * _PAD
-    height = header + views * (cell_h + line + _PAD) + line + _PAD
+    footer_lines = _wrapped(footer, small, width - 2 * _PAD)
+    height = header + views * (cell_h + line + _PAD) + line * len(footer_lines) + _PAD
     canvas = Image.new("RGB", (width, height), "white")
     draw = ImageDraw.Draw(canvas)
     if title:
@@ -111,8 +114,22 @@ def comparison_image(before: Any, after: Any, before_captions: Sequence[str], af
             canvas.paste(img, (x, y))
             draw.text((x, y + cell_h + 2), f"top-1: {caption}", fill=(150, 0, 0) if col else "black", font=small)
         y += cell_h + line + _PAD
-    draw.text((_PAD, y), footer, fill="black", font=small)
+    for text in footer_lines:
+        draw.text((_PAD, y), text, fill="black", font=small)
+        y += line
     return canvas
+
+
+def _wrapped(text: str, font: Any, width: int) -> List[str]:
+    """``text`` broken at spaces into lines no wider than ``width`` pixels in ``font`` (a word longer than that
+    gets a line of its own)."""
+    lines: List[str] = []
+    for word in text.split(" "):
+        if lines and font.getlength(f"{lines[-1]} {word}") <= width:
+            lines[-1] = f"{lines[-1]} {word}"
+        else:
+            lines.append(word)
+    return lines or [""]
 
 
 def save_comparison(image: Any, path: Union[str, Path]) -> Path:

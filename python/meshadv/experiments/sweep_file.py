@@ -18,7 +18,10 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
                   configurations = {efficientnet_lite2 = 4} (per-victim cap on render.configurations)
     [attack]      perturbations = ["shape", "texture"] (the old key ``types`` is read too), targets = "others" | [...],
                   benign_correct_only = true
-    [attack.shape] / [attack.texture]   keyword arguments of ShapeAttack / TextureAttack (steps, lr, ...)
+    [attack.shape] / [attack.texture]   keyword arguments of ShapeAttack / TextureAttack (steps, lr, ...); a table
+                  that names no ``method`` runs ``RECOMMENDED_METHOD`` ("ddn", written into its jobs), unless it sets
+                  one of Adam's own options (``ADAM_ONLY_OPTIONS``: lr, lambda_perceptual, binary_search_steps,
+                  smoothing), which keeps the paper's Adam as before ddn was the default (its jobs unchanged)
     [attack.protocols.<name>]   extra attack settings on a subset: configurations = 2 (first configurations per
                   class), victims = [...] (default all), shape = {...}, texture = {...}; their jobs carry
                   ``"protocol": "<name>"`` and the tables report them as separate rows
@@ -49,9 +52,13 @@ from meshadv.data import PASCAL3D_CLASSES
 from meshadv.experiments.config_keys import check_attack_values, check_keys
 from meshadv.experiments.retries import RETRY_PART
 
-__all__ = ["DEFAULT_JOB", "PASCAL3D_CLASSES", "SweepConfig", "load_config", "parse_config", "raw_from_text",
+__all__ = ["ADAM_ONLY_OPTIONS", "DEFAULT_JOB", "PASCAL3D_CLASSES", "SweepConfig", "load_config", "parse_config", "raw_from_text",
            "stored_retry_stages"]
 
+
+#: Options of an attack table that only the paper's update rule (``method="adam"``) has: a table that sets one and
+#: names no method keeps Adam (:func:`_with_method`).
+ADAM_ONLY_OPTIONS = frozenset({"lr", "lambda_perceptual", "binary_search_steps", "smoothing"})
 
 #: The attack job function used unless ``[runner] job`` says otherwise.
 DEFAULT_JOB = "meshadv.experiments.jobs:run_attack_job"
@@ -245,6 +252,9 @@ def _attack_section(raw: Dict[str, Any]) -> Dict[str, Any]:
             raise ValueError(f"attack.protocols.{pname}: the name {RETRY_PART!r} is the retry pass's "
                              "([attack.retry]); name the protocol otherwise")
     attack["retry"] = _retry_stages(attack["retry"])
+    for table in [attack, *attack["protocols"].values()]:
+        for perturbation in PERTURBATIONS:
+            table[perturbation] = _with_method(table.get(perturbation, {}))
     bad = [t for t in attack["perturbations"] if t not in PERTURBATIONS]
     if bad or not attack["perturbations"]:
         raise ValueError(f"{attack_key} must be a non-empty subset of {perturbations()}, "
@@ -253,6 +263,18 @@ def _attack_section(raw: Dict[str, Any]) -> Dict[str, Any]:
         raise ValueError(f"attack.targets must be 'others' or a list of classes, got {attack['targets']!r}")
     check_attack_values(attack, PERTURBATIONS)
     return attack
+
+
+def _with_method(options: Any) -> Any:
+    """A perturbation's attack table with ``method`` set to :data:`~meshadv.attacks.update.RECOMMENDED_METHOD` where
+    it names none and sets none of :data:`ADAM_ONLY_OPTIONS` (such a table is the paper's Adam, the attacks' own
+    default, and is returned unchanged so that its jobs keep their ids); a table that is not a mapping is returned
+    as it is, for :func:`check_attack_values` to refuse."""
+    from meshadv.attacks.update import RECOMMENDED_METHOD
+
+    if not isinstance(options, dict) or "method" in options or ADAM_ONLY_OPTIONS & set(options):
+        return options
+    return {"method": RECOMMENDED_METHOD, **options}
 
 
 def _retry_stages(retry: Any) -> List[Dict[str, Any]]:
