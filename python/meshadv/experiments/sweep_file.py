@@ -52,8 +52,8 @@ from meshadv.data import PASCAL3D_CLASSES
 from meshadv.experiments.config_keys import check_attack_values, check_keys
 from meshadv.experiments.retries import RETRY_PART
 
-__all__ = ["ADAM_ONLY_OPTIONS", "DEFAULT_JOB", "PASCAL3D_CLASSES", "SweepConfig", "load_config", "parse_config", "raw_from_text",
-           "stored_retry_stages"]
+__all__ = ["ADAM_ONLY_OPTIONS", "DEFAULT_JOB", "PASCAL3D_CLASSES", "SweepConfig", "load_config", "parse_config",
+           "raw_from_text", "stored_retry_stages"]
 
 
 #: Options of an attack table that only the paper's update rule (``method="adam"``) has: a table that sets one and
