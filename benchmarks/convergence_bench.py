@@ -557,7 +557,10 @@ SUMMARY_HEADER = [
     "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
 #: What the tail columns mean (printed under the table).
-TAIL_NOTE = (f"Tail columns: the 90th percentile (linear interpolation) and the largest of the same distances as the "
+TAIL_NOTE = (f"Distances: for shape the per-pair-mean Laplacian (`laplacian_pair_mean`, Eq. 4's sum / 2E), the "
+             f"convention comparable to the paper's Laplacian numbers (the Eq. 4 sum has its own column); for "
+             f"texture the paper's colour RMSE. "
+             f"Tail columns: the 90th percentile (linear interpolation) and the largest of the same distances as the "
              f"median (per-pair-mean Laplacian for shape, colour RMSE for texture), and the share of successes above "
              f"the paper's largest worst-case distance (shape {PAPER_WORST['shape']:.2g}, texture "
              f"{PAPER_WORST['texture']:.2g}; the paper's worst case is a mean over its instances, and the paper "
