@@ -154,6 +154,8 @@ def test_attack_scene_command_writes_images_mesh_and_record(shared_data: Path, t
             "dining table",
             "--perturb",
             "texture",
+            "--method",  # Adam's first step lowers the table's score; ddn's (RMSE 5e-3 on the 69k-face bunny, the
+            "adam",  # default) raises it to 0.34, so its 2-step result is the pristine bunny (ddn: the stand-in test)
             "--steps",
             "2",
             "--threshold",
@@ -180,3 +182,73 @@ def test_attack_scene_command_writes_images_mesh_and_record(shared_data: Path, t
 
     with Image.open(tmp_path / "before.png") as before_png, Image.open(tmp_path / "after.png") as after_png:
         assert before_png.size == after_png.size and before_png.size[0] == 160
+
+
+def _stand_in_scene_command(monkeypatch: pytest.MonkeyPatch, args: list, out: Path) -> tuple:
+    """Run ``meshadv attack-scene`` on a light-grey chair in front of a white background against the stand-in
+    dark-blob detector (the scene and the victim replaced, so no shared data or weights); returns the CLI result and
+    the record (``None`` when none was written)."""
+    import json
+
+    from stand_in_victims import DarkBlobDetector
+    from typer.testing import CliRunner
+
+    import meshadv.scenes.setups as setups
+    import meshadv.victims as victims
+    from meshadv.cli import app
+    from meshadv.mesh import builtin_mesh
+    from meshadv.scenes.attack import SceneSetup
+
+    pytest.importorskip("meshadv._raster")
+    chair = builtin_mesh("chair")
+    chair = chair.with_face_colors(torch.full((chair.num_faces, 3), 0.7))
+    lights = Lights(directions=torch.tensor([[[0.3, 0.5, 1.0]]]), colors=torch.tensor([[[0.5, 0.5, 0.5]]]),
+                    ambient=torch.tensor([[0.5, 0.5, 0.5]]))
+    setup = SceneSetup(scene=Scene((SceneObject("chair", chair),)), object_name="chair",
+                       camera=SceneCamera(eye=(2.0, 1.0, 3.0), at=(0.0, 0.0, 0.0), fov=40.0, width=48, height=48),
+                       lights=lights, background=(1.0, 1.0, 1.0))  # the darkest cell scores 0.69
+    monkeypatch.setattr(setups, "build_setup", lambda *a, **k: setup)
+    monkeypatch.setattr(victims, "load_victim", lambda *a, **k: DarkBlobDetector())
+    result = CliRunner().invoke(app, ["attack-scene", "stand-in", "--hide", "blob", "--object", "chair",
+                                      "--threshold", "0.5", "-o", str(out), *args])
+    record = json.loads((out / "result.json").read_text()) if (out / "result.json").is_file() else None
+    return result, record
+
+
+@pytest.mark.parametrize("perturbation", ["shape", "texture"])
+def test_attack_scene_method_option(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, perturbation: str) -> None:
+    """``--method``: ddn by default (recorded with its options, every step run: no early stop), adam on request
+    (with its early stop, its lr and, for shape, the smoothed flow); Adam's own options are refused with ddn."""
+    from meshadv.attacks.budget import DDN_DEFAULTS
+    from meshadv.commands.attack_scene import DDN_REFERENCE_DIAGONAL
+    from meshadv.mesh import builtin_mesh
+
+    result, record = _stand_in_scene_command(monkeypatch, ["--perturbation", perturbation, "--steps", "3"],
+                                             tmp_path / "ddn")
+    assert result.exit_code == 0, result.output
+    attack = record["attack"]
+    assert attack["method"] == "ddn" and attack["early_stop"] is None and record["steps"] == 3
+    assert len(record["loss_history"]) == 3
+    unit = float(builtin_mesh("chair").bbox_diagonal()) / DDN_REFERENCE_DIAGONAL if perturbation == "shape" else 1.0
+    for name in ("init_budget", "step_size", "final_step_size", "min_budget"):  # shape: lengths scaled to the object
+        assert attack["method_options"][name] == pytest.approx(DDN_DEFAULTS[perturbation][name] * unit), name
+    result, record = _stand_in_scene_command(
+        monkeypatch, ["--perturbation", perturbation, "--steps", "2", "--method", "adam", "--lr", "0.01"],
+        tmp_path / "adam")
+    assert result.exit_code == 0, result.output
+    attack = record["attack"]
+    assert attack["method"] == "adam" and attack["early_stop"] == 5 and attack["method_options"] == {}
+    diagonal = float(builtin_mesh("chair").bbox_diagonal()) if perturbation == "shape" else 1.0  # shape: bbox units
+    assert attack["lr"] == pytest.approx(0.01 * diagonal)
+    assert perturbation == "texture" or attack["smoothing"] == 8
+    adam_only = [["--lr", "0.01"], ["--lambda", "1"]] + ([["--smoothing", "2"]] if perturbation == "shape" else [])
+    for bad in adam_only:
+        result, record = _stand_in_scene_command(monkeypatch, ["--perturbation", perturbation, *bad],
+                                                 tmp_path / "refused")
+        assert result.exit_code == 2 and "--method adam" in result.output and record is None, bad
+    result, _ = _stand_in_scene_command(monkeypatch, ["--method", "bogus"], tmp_path / "bogus")
+    assert result.exit_code == 2 and "bogus" in result.output
+    if perturbation == "texture":
+        result, _ = _stand_in_scene_command(monkeypatch, ["--perturbation", "texture", "--method", "adam",
+                                                          "--smoothing", "2"], tmp_path / "smooth")
+        assert result.exit_code == 2 and "--perturbation shape only" in result.output

@@ -120,6 +120,40 @@ def test_attack_with_margin_keeps_a_step_that_holds_the_margin() -> None:
     assert strong >= 3.0
 
 
+@needs_native
+def test_blackbox_attack_step_with_ddn_holds_the_required_margin() -> None:
+    """The black-box pipelines' attack step (:func:`~meshadv.transfer._attack_run.attack_estimated`: EOT samples,
+    jitter, pixel noise, the required margin) with ``method="ddn"``: the least distorted success sits on the
+    boundary of the noisy jittered samples, so without a margin the clean re-render is barely adversarial, and the
+    required margin is what it keeps (at a larger distortion)."""
+    from meshadv.mesh import builtin_mesh
+    from meshadv.render import RenderSetup, ViewSet, render_views
+    from meshadv.transfer._attack_run import attack_estimated
+    from meshadv.transfer.robust import Robustness
+
+    mesh = builtin_mesh("sphere", color=(0.5, 0.5, 0.5))
+    views = ViewSet.orbit([30.0], elevation=10.0, distance=3.0)
+    victim = RedClassifier()
+    setup = RenderSetup(image_size=32)
+    base = Misclassification(0).bind(victim)
+    attack = TextureAttack(method="ddn", steps=60, jitter={"azimuth": 5.0, "light_intensity": 0.2})
+
+    def run(margin: float) -> tuple:
+        robustness = Robustness(eot=2, margin=margin, pixel_noise=0.02, seed=0)
+        result = attack_estimated(attack, mesh, views, victim, Misclassification(0), robustness, setup)
+        assert result.config["method"] == "ddn" and result.steps_to_success[0] is not None
+        adv = result.mesh
+        with torch.no_grad():
+            images, _ = render_views(adv.vertices[None], adv.faces, adv.face_colors[None], views, setup)
+        return float(base.margin(victim(images))[0]), result.distances[0]["color_rmse"]
+
+    plain, plain_rmse = run(0.0)
+    strong, strong_rmse = run(3.0)
+    assert 0.0 < plain < 1.0  # the clean re-render of the least distorted success: barely adversarial
+    assert strong >= 2.5  # the margin held on noisy jittered samples carries over to the clean view
+    assert 0 < plain_rmse < strong_rmse
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # EOT views, pixel noise, Robustness
 # ----------------------------------------------------------------------------------------------------------------

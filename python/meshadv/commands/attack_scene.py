@@ -3,14 +3,37 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import Any, Dict, Optional
 
 import typer
 
-#: Default Adam learning rates: for shape in units of the object's bounding-box diagonal per step (small: NMR
-#: gradients are heavy-tailed and Adam moves every parameter that receives any gradient by about lr per step), for
-#: texture in logit units per step.
+#: Default Adam learning rates (``--method adam``): for shape in units of the object's bounding-box diagonal per step
+#: (small: NMR gradients are heavy-tailed and Adam moves every parameter that receives any gradient by about lr per
+#: step), for texture in logit units per step.
 DEFAULT_LR = {"shape": 5e-4, "texture": 0.05}
+#: Default rounds of neighbour averaging of the shape flow with ``--method adam`` (the dense bunny roughens without).
+DEFAULT_SMOOTHING = 8
+#: Default perceptual weight with ``--method adam`` (texture: per pixel).
+DEFAULT_LAMBDA = 1.0
+#: ``--method ddn``, shape: the rule's lengths (budgets and steps, :data:`~meshadv.attacks.budget.DDN_DEFAULTS`)
+#: were tuned on PASCAL3D+ meshes normalised to ``[-1, 1]`` (bounding-box diagonals 2.2-2.8); a scene object gets
+#: them times its own diagonal over this one, as Adam's ``--lr`` is in units of the diagonal. Measured on the indoor
+#: scene (the 35k-vertex bunny, diagonal 0.41; dining table, threshold 0.2, width 160, 60 steps): the unscaled
+#: lengths hid the table at a Laplacian sum of 0.15 (max displacement 8.4% of the diagonal), Adam (lr 5e-4,
+#: smoothing 8) at 1.8e-3 (0.63%), ddn with the lengths times 0.41 / 2.5 (this rule) at 1.2e-4 (0.51%), times 0.1
+#: at 2.2e-5 (0.21%), times 0.03 at 2.4e-6 (0.06%); all of them hid it.
+DDN_REFERENCE_DIAGONAL = 2.5
+#: The ddn shape options that are lengths in the rule's norm (scaled by :data:`DDN_REFERENCE_DIAGONAL`).
+DDN_LENGTH_OPTIONS = ("init_budget", "step_size", "final_step_size", "min_budget")
+
+
+def ddn_shape_options(mesh: Any) -> Dict[str, float]:
+    """``method_options`` of a ddn shape attack on a scene object ``mesh``: the rule's default lengths
+    (:data:`DDN_LENGTH_OPTIONS`) times its bounding-box diagonal over :data:`DDN_REFERENCE_DIAGONAL`."""
+    from meshadv.attacks.budget import DDN_DEFAULTS
+
+    scale = float(mesh.bbox_diagonal()) / DDN_REFERENCE_DIAGONAL
+    return {k: DDN_DEFAULTS["shape"][k] * scale for k in DDN_LENGTH_OPTIONS}
 
 SCENE_HELP = (
     "'indoor' (the shared desk scene), a Mitsuba scene XML file, or a photograph (.jpg/.png) to insert --object into"
@@ -30,11 +53,21 @@ def attack_scene(
         "bunny", "--object", help="object to perturb (scene object name, or a mesh file for photos)"
     ),
     place: str = typer.Option("0.5,0.75,0.3", help="photo only: u,v,height_fraction of the inserted object"),
-    steps: int = typer.Option(300, help="maximum Adam steps"),
-    lr: Optional[float] = typer.Option(None, help="Adam learning rate (default: 5e-4 for shape, in units of the "
-                                                   "object's bounding-box diagonal; 0.05 for texture, logit units)"),
-    smoothing: int = typer.Option(8, help="shape only: neighbour-averaging iterations of the flow parameters"),
-    lambda_perceptual: float = typer.Option(1.0, "--lambda", help="perceptual loss weight (texture: per pixel)"),
+    method: Optional[str] = typer.Option(
+        None, help="update rule: ddn (least distortion: a per-target budget that shrinks while the class stays hidden, "
+                   "no lambda, runs every step; shape: its lengths scaled to the object's bounding-box diagonal; the "
+                   "default) or adam (Adam + lambda, stops once the class stayed hidden 0.05 below --threshold for 5 "
+                   "steps; --lr, --lambda, --smoothing)"),
+    steps: int = typer.Option(300, help="maximum steps"),
+    lr: Optional[float] = typer.Option(None, help="--method adam: Adam learning rate (default: 5e-4 for shape, in "
+                                                   "units of the object's bounding-box diagonal; 0.05 for texture, "
+                                                   "logit units)"),
+    smoothing: Optional[int] = typer.Option(
+        None, min=0, help=f"--method adam, shape only: neighbour-averaging iterations of the flow parameters (default: "
+                          f"{DEFAULT_SMOOTHING})"),
+    lambda_perceptual: Optional[float] = typer.Option(
+        None, "--lambda", help=f"--method adam: perceptual loss weight (default: {DEFAULT_LAMBDA:g}; texture: per "
+                               f"pixel)"),
     threshold: float = typer.Option(0.5, help="detection score threshold"),
     width: Optional[int] = typer.Option(None, help="render width (default: the scene's / photo's own)"),
     seed: int = typer.Option(0, help="random seed"),
@@ -44,6 +77,7 @@ def attack_scene(
     detections drawn, the adversarial object mesh and a JSON record."""
     from meshadv.attacks import Disappearance, make_attack
     from meshadv.attacks.families import check_perturbation
+    from meshadv.attacks.update import RECOMMENDED_METHOD
     from meshadv.mesh import save_mesh
     from meshadv.scenes.attack import attack_scene
     from meshadv.scenes.draw import draw_detections
@@ -52,24 +86,21 @@ def attack_scene(
     from meshadv.scenes.setups import build_setup
     from meshadv.victims import load_victim
 
+    method = RECOMMENDED_METHOD if method is None else method
     try:
         check_perturbation(perturbation, "--perturbation")
+        if smoothing is not None and perturbation != "shape":
+            raise ValueError("--smoothing applies to --perturbation shape only")
+        if method == "ddn" and (lr is not None or lambda_perceptual is not None or smoothing):
+            raise ValueError("--lr, --lambda and --smoothing apply to --method adam only")
+        make_attack(perturbation, method=method)  # an unknown --method fails here, before the scene is loaded
         setup = build_setup(scene, obj, place, width)
     except (ValueError, FileNotFoundError) as exc:
         raise typer.BadParameter(str(exc)) from exc
     detector = load_victim(victim, weights=weights, cfg=cfg)
     criterion = Disappearance(hide, threshold=threshold)
     _require_something_to_hide(setup, detector, criterion, hide, threshold)
-    if lr is None:
-        lr = DEFAULT_LR[perturbation]
-    # the same attacks as everywhere: stop once the hidden score stayed 0.05 below the threshold for 5 steps
-    common = dict(steps=steps, early_stop=5, early_stop_margin=0.05, seed=seed)
-    if perturbation == "shape":  # lr in units of the object's bounding-box diagonal
-        attack = make_attack("shape", lr=lr * float(setup.mesh.bbox_diagonal()), smoothing=smoothing,
-                             lambda_perceptual=lambda_perceptual, **common)
-    else:  # the image smoothness loss sums over pixels: --lambda is per pixel
-        pixels = setup.camera.width * setup.camera.height
-        attack = make_attack("texture", lr=lr, lambda_perceptual=lambda_perceptual / pixels, **common)
+    attack = _scene_attack(setup, perturbation, method, steps, seed, lr, smoothing, lambda_perceptual)
 
     def progress(info: object) -> None:
         step = info.total_step  # type: ignore[attr-defined]
@@ -97,6 +128,32 @@ def attack_scene(
         f"{'success' if result.success else 'failure'}: hidden score {result.score_before:.3f} -> "
         f"{result.score_after:.3f} in {result.steps} steps; wrote {output}"
     )
+
+
+def _scene_attack(setup: Any, perturbation: str, method: str, steps: int, seed: int, lr: Optional[float],
+                  smoothing: Optional[int], lambda_perceptual: Optional[float]) -> Any:
+    """The attack of ``meshadv attack-scene``. ``method="adam"``: the paper's Adam with a perceptual weight, stopped
+    once the hidden score stayed 0.05 below the threshold for 5 steps (``lr`` of a shape attack in units of the
+    object's bounding-box diagonal, ``lambda_perceptual`` of a texture attack per pixel; defaults
+    :data:`DEFAULT_LR`, :data:`DEFAULT_SMOOTHING`, :data:`DEFAULT_LAMBDA`). ``method="ddn"``: the distortion-budget
+    rule with its default options, a shape attack's lengths scaled to the object (:func:`ddn_shape_options`),
+    run for every step (it keeps lowering the distortion after the first success and returns the least distorted
+    success)."""
+    from meshadv.attacks import make_attack
+
+    if method == "ddn":
+        options = ddn_shape_options(setup.mesh) if perturbation == "shape" else {}
+        return make_attack(perturbation, method=method, method_options=options, steps=steps, seed=seed)
+    common = dict(method=method, steps=steps, early_stop=5, early_stop_margin=0.05, seed=seed)
+    lr = DEFAULT_LR[perturbation] if lr is None else lr
+    lambda_perceptual = DEFAULT_LAMBDA if lambda_perceptual is None else lambda_perceptual
+    if perturbation == "shape":  # lr in units of the object's bounding-box diagonal
+        return make_attack("shape", lr=lr * float(setup.mesh.bbox_diagonal()),
+                           smoothing=DEFAULT_SMOOTHING if smoothing is None else smoothing,
+                           lambda_perceptual=lambda_perceptual, **common)
+    # the image smoothness loss sums over pixels: --lambda is per pixel
+    pixels = setup.camera.width * setup.camera.height
+    return make_attack("texture", lr=lr, lambda_perceptual=lambda_perceptual / pixels, **common)
 
 
 def _require_something_to_hide(setup: object, detector: object, criterion: object, hide: str,

@@ -199,8 +199,47 @@ def controlled_cmd(
     typer.echo(transfer_report(load_transfer_rows(results, experiment=experiment, kind="controlled")))
 
 
+def _method(method: Optional[str], lr: Optional[float], lambda_perceptual: Optional[float],
+            texture_smoothing: Optional[int]) -> str:
+    """The update rule of a black-box command: ``method``, by default ``"adam"`` (every recorded black-box run
+    used it; ddn is not measured on the Mitsuba pipelines, see ``--method``).
+
+    Raises:
+        typer.BadParameter: an unknown rule, or Adam's own options (--lr, --lambda-perceptual) or
+            --texture-smoothing (a parametrisation ddn cannot step) with ddn.
+    """
+    from meshadv.attacks.update import update_rules
+
+    method = "adam" if method is None else method
+    if method not in update_rules():
+        raise typer.BadParameter(f"method must be one of {sorted(update_rules())}, got {method!r}",
+                                 param_hint="--method")
+    if method == "ddn" and (lr is not None or lambda_perceptual is not None or texture_smoothing is not None):
+        raise typer.BadParameter("--lr, --lambda-perceptual and --texture-smoothing apply to --method adam only",
+                                 param_hint="--method")
+    return method
+
+
+def _ddn_scaled(method: str, perturbation: str, mesh: Any) -> dict:
+    """``{"method_options": ...}`` of a ddn shape attack on ``mesh``, its lengths scaled to the object's size as
+    ``meshadv attack-scene`` scales them (:func:`~meshadv.commands.attack_scene.ddn_shape_options`); ``{}``
+    otherwise (texture: colour units need no scale)."""
+    if method != "ddn" or perturbation != "shape":
+        return {}
+    from meshadv.commands.attack_scene import ddn_shape_options
+
+    return {"method_options": ddn_shape_options(mesh)}
+
+
 def _attack_kwargs(steps: int, lr: Optional[float], lambda_perceptual: Optional[float], antialias: int = 1,
-                   loss: str = "ce", kappa: float = 0.0, early_stop: Optional[int] = None, seed: int = 0) -> dict:
+                   loss: str = "ce", kappa: float = 0.0, early_stop: Optional[int] = None, seed: int = 0,
+                   method: str = "adam") -> dict:
+    """The attack's keyword arguments from a black-box command's options (``lr`` / ``lambda_perceptual`` only when
+    given: the attack's defaults otherwise).
+
+    Raises:
+        typer.BadParameter: an option out of range.
+    """
     if steps < 1:
         raise typer.BadParameter("steps must be >= 1", param_hint="--steps")
     if antialias < 1:
@@ -212,7 +251,7 @@ def _attack_kwargs(steps: int, lr: Optional[float], lambda_perceptual: Optional[
     if early_stop is not None and early_stop < 1:
         raise typer.BadParameter("early-stop must be >= 1", param_hint="--early-stop")
     kwargs: dict = {"steps": steps, "antialias": antialias, "loss": loss, "kappa": kappa, "early_stop": early_stop,
-                    "seed": seed}
+                    "seed": seed, "method": method}
     if lr is not None:
         if not lr > 0:
             raise typer.BadParameter("lr must be > 0", param_hint="--lr")
@@ -269,14 +308,18 @@ def _check_blackbox_render(perturbation: str, size: int, spp: int, texture_smoot
 
 def _settings_suffix(jitter: float, eot: int, margin: float, pixel_noise: float, antialias: int, steps: int,
                      defaults_steps: int, light_jitter: Optional[float] = None, seed: int = 0,
-                     texture_smoothing: Optional[int] = None, spp: int = 64) -> str:
-    """The non-default settings of a black-box run, for its default case id (e.g. ``_eot8_margin10_aa3_seed1``)."""
+                     texture_smoothing: Optional[int] = None, spp: int = 64, method: str = "adam") -> str:
+    """The non-default settings of a black-box run, for its default case id (e.g. ``_eot8_margin10_aa3_seed1``).
+
+    The update rule is named unless it is ``"adam"`` (e.g. ``_ddn``): every row recorded before ``--method``
+    existed ran Adam, so its id stays that of ``--method adam`` and ``--resume`` never takes it for a ddn run."""
     parts = [f"_jitter{jitter:g}" if jitter != 1.0 else "",
              f"_lightjitter{light_jitter:g}" if light_jitter is not None else ""]
     parts += [f"_eot{eot}" if eot != 1 else "", f"_margin{margin:g}" if margin else "",
               f"_noise{pixel_noise:g}" if pixel_noise else "", f"_aa{antialias}" if antialias != 1 else "",
               f"_steps{steps}" if steps != defaults_steps else "", f"_seed{seed}" if seed != 0 else ""]
     parts += [f"_smooth{texture_smoothing}" if texture_smoothing is not None else "", f"_spp{spp}" if spp != 64 else ""]
+    parts += [f"_{method}" if method != "adam" else ""]
     return "".join(parts)
 
 
@@ -358,6 +401,12 @@ _NOISE_HELP = ("Std of Gaussian noise added to the rendered object's pixels of w
 _AA_HELP = "Supersampling of meshadv's renders in the attack (Mitsuba's pixels are area averages)."
 _SMOOTH_HELP = ("Texture as a smoothed per-vertex colour field with this many rounds of neighbour averaging "
                 "(for meshes with many faces per pixel); default: the paper's per-face colours.")
+_METHOD_HELP = ("Update rule: adam (Adam + lambda; --lr, --lambda-perceptual, --texture-smoothing; the default: every "
+                "recorded black-box run used it) or ddn (least distortion: a per-target budget that shrinks while the "
+                "criterion holds, no lambda; shape: its lengths scaled to the object's bounding-box diagonal as in "
+                "`meshadv attack-scene`; not yet measured through Mitsuba: it settles on the decision boundary of the "
+                "attack's renders, so give a --margin for a result that transfers). A ddn run's default case id ends "
+                "in _ddn.")
 _VERIFY_HELP = ("Fresh views around the estimate (the default jitter, whatever --jitter) to re-test the adversarial "
                 "mesh on in meshadv (0 = skip).")
 
@@ -370,16 +419,18 @@ def blackbox_classifier_cmd(
     victim: str = typer.Option("efficientnet_lite0", help="Classifier victim."),
     perturbation: str = typer.Option("texture", "--perturbation", "--perturb",
                                      help="shape or texture (--perturb is the old name)."),
+    method: Optional[str] = typer.Option(None, help=_METHOD_HELP),
     steps: int = typer.Option(100, help="Attack steps."),
-    lr: Optional[float] = typer.Option(None, help="Attack learning rate (default: the attack's)."),
-    lambda_perceptual: Optional[float] = typer.Option(None, help="Perceptual loss weight (default: the attack's)."),
+    lr: Optional[float] = typer.Option(None, help="--method adam: attack learning rate (default: the attack's)."),
+    lambda_perceptual: Optional[float] = typer.Option(None, help="--method adam: perceptual loss weight (default: "
+                                                                 "the attack's)."),
     jitter: float = typer.Option(1.0, help="Scale of the per-step jitter of the estimates (0 = none)."),
     light_jitter: Optional[float] = typer.Option(None, help=_LIGHT_JITTER_HELP),
     eot: int = typer.Option(1, help=_EOT_HELP),
     margin: float = typer.Option(0.0, help=_MARGIN_HELP),
     pixel_noise: float = typer.Option(0.0, help=_NOISE_HELP),
     antialias: int = typer.Option(1, help=_AA_HELP),
-    texture_smoothing: Optional[int] = typer.Option(None, help=_SMOOTH_HELP),
+    texture_smoothing: Optional[int] = typer.Option(None, help=_SMOOTH_HELP + " --method adam only."),
     loss: str = typer.Option("ce", help="Classifier loss: ce or cw (C&W margin with --kappa)."),
     kappa: float = typer.Option(0.0, help="C&W confidence (--loss cw)."),
     early_stop: Optional[int] = typer.Option(None, help="Stop once the margin has held this many steps in a row."),
@@ -401,17 +452,19 @@ def blackbox_classifier_cmd(
     from meshadv.victims import load_victim
 
     _check_blackbox_render(perturbation, size, spp, texture_smoothing)
-    kwargs = _attack_kwargs(steps, lr, lambda_perceptual, antialias, loss, kappa, early_stop, seed)
+    method = _method(method, lr, lambda_perceptual, texture_smoothing)
+    kwargs = _attack_kwargs(steps, lr, lambda_perceptual, antialias, loss, kappa, early_stop, seed, method)
     robustness = _robustness(eot, margin, pixel_noise, verify, seed)
     callback = _progress(progress)
     jitter_dict = _jitter(jitter, light_jitter)
     if case_id is None:
         case_id = (f"outdoor_{Path(mesh).stem}_{perturbation}_{target or 'untargeted'}"
                    + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed,
-                                      texture_smoothing, spp))
+                                      texture_smoothing, spp, method))
     if _skip_finished(resume, db, experiment, case_id):
         return
     mesh_obj = default_aeroplane() if mesh == "aeroplane" else load_mesh_arg(mesh)[0]
+    kwargs.update(_ddn_scaled(method, perturbation, mesh_obj))
     hidden = outdoor_classifier_setup(mesh_obj, image_size=size, spp=spp)
     row = blackbox_classifier(mesh_obj, hidden, victim=load_victim(victim), true_class=true_class, target=target,
                               perturbation=perturbation, attack_kwargs=kwargs, jitter=jitter_dict,
@@ -430,16 +483,18 @@ def blackbox_detector_cmd(
                                 "render: desk, chair and bunny are rendered by meshadv over the empty room."),
     light_fit: str = typer.Option("object", help="object: fit the lights on the bunny's pixels (the light where it "
                                   "stands); known: on desk, chair and bunny together."),
+    method: Optional[str] = typer.Option(None, help=_METHOD_HELP),
     steps: int = typer.Option(100, help="Attack steps."),
-    lr: Optional[float] = typer.Option(None, help="Attack learning rate (default: the attack's)."),
-    lambda_perceptual: Optional[float] = typer.Option(None, help="Perceptual loss weight (default: the attack's)."),
+    lr: Optional[float] = typer.Option(None, help="--method adam: attack learning rate (default: the attack's)."),
+    lambda_perceptual: Optional[float] = typer.Option(None, help="--method adam: perceptual loss weight (default: "
+                                                                 "the attack's)."),
     jitter: float = typer.Option(1.0, help="Scale of the per-step jitter of the estimates (0 = none)."),
     light_jitter: Optional[float] = typer.Option(None, help=_LIGHT_JITTER_HELP),
     eot: int = typer.Option(1, help=_EOT_HELP),
     margin: float = typer.Option(0.0, help=_MARGIN_HELP),
     pixel_noise: float = typer.Option(0.0, help=_NOISE_HELP),
     antialias: int = typer.Option(1, help=_AA_HELP),
-    texture_smoothing: Optional[int] = typer.Option(None, help=_SMOOTH_HELP),
+    texture_smoothing: Optional[int] = typer.Option(None, help=_SMOOTH_HELP + " --method adam only."),
     early_stop: Optional[int] = typer.Option(None, help="Stop once the margin has held this many steps in a row."),
     verify: int = typer.Option(16, help=_VERIFY_HELP),
     seed: int = typer.Option(0, help="Seed of the jitter, the pixel noise and the verification views."),
@@ -468,7 +523,8 @@ def blackbox_detector_cmd(
         raise typer.BadParameter("score-threshold must be in (0, 1]", param_hint="--score-threshold")
     if not object_scale > 0:
         raise typer.BadParameter("object-scale must be > 0", param_hint="--object-scale")
-    kwargs = _attack_kwargs(steps, lr, lambda_perceptual, antialias, early_stop=early_stop, seed=seed)
+    method = _method(method, lr, lambda_perceptual, texture_smoothing)
+    kwargs = _attack_kwargs(steps, lr, lambda_perceptual, antialias, early_stop=early_stop, seed=seed, method=method)
     robustness = _robustness(eot, margin, pixel_noise, verify, seed)
     callback = _progress(progress)
     jitter_dict = _jitter(jitter, light_jitter)
@@ -479,10 +535,11 @@ def blackbox_detector_cmd(
                    + ("_lightsknown" if light_fit != "object" else "")
                    + (f"_scale{object_scale:g}" if object_scale != 1.0 else "")
                    + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed,
-                                      texture_smoothing, spp))
+                                      texture_smoothing, spp, method))
     if _skip_finished(resume, db, experiment, case_id):
         return
     setup = indoor_detector_setup(image_size=size, spp=spp, object_scale=object_scale)
+    kwargs.update(_ddn_scaled(method, perturbation, setup.objects[setup.object_index]))
     row = blackbox_detector(setup.objects, setup.object_index, setup.hidden, victim=load_victim(victim),
                             hide_class=hide, perturbation=perturbation, context=context, light_fit=light_fit,
                             background_exclude=setup.background_exclude,

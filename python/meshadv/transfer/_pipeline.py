@@ -154,9 +154,15 @@ def measure(run: BlackBoxRun, seen: Any, adversarial: Any, victim: Any, bound: A
 
 
 def _attack_record(attack: Any, setup: RenderSetup, result: Any) -> dict[str, Any]:
-    """Hyper-parameters and cost of the attack (and the setup's supersampling), as result-row entries."""
+    """Hyper-parameters and cost of the attack (and the setup's supersampling), as result-row entries.
+
+    The update rule is ``method`` (with its ``method_options``); ``lr`` and ``lambda_perceptual`` are ``None`` for a
+    rule that uses neither (ddn: a distortion budget, no Adam, no perceptual weight)."""
     config = attack.config()
     record = {k: config[k] for k in ("steps", "lr", "lambda_perceptual", "loss", "kappa", "early_stop")}
+    record["method"] = config.get("method", "adam")
+    if record["method"] != "adam":
+        record.update(lr=None, lambda_perceptual=None, method_options=config.get("method_options"))
     record["antialias"] = setup.antialias
     record.update(steps_run=int(result.steps), steps_to_success=result.steps_to_success[0],
                   attack_time=float(result.wall_time), interrupted=bool(getattr(result, "interrupted", False)))

@@ -152,8 +152,8 @@ BLACKBOX_MARGIN_COLUMNS = ("case_id", "margin_meshadv", "margin_mitsuba_estimate
 BLACKBOX_SCORE_COLUMNS = ("case_id", "hide_score_meshadv", "hide_score_mitsuba_estimated",
                           "hide_score_adversarial_mitsuba", "hide_score_benign_mitsuba", "score_threshold")
 BLACKBOX_SETTINGS_COLUMNS = ("case_id", "eot", "required_margin", "pixel_noise", "pixel_noise_on", "antialias",
-                             "texture_smoothing", "object_scale", "steps", "steps_run", "steps_to_success", "lr",
-                             "lambda_perceptual", "color_rmse", "laplacian_pair_mean", "spp", "attack_time")
+                             "texture_smoothing", "object_scale", "method", "steps", "steps_run", "steps_to_success",
+                             "lr", "lambda_perceptual", "color_rmse", "laplacian_pair_mean", "spp", "attack_time")
 BLACKBOX_ESTIMATION_COLUMNS = ("case_id", "azimuth_error", "elevation_error", "distance_error", "mask_iou",
                                "light_fit", "light_fit_pixels", "light_rmse", "direction_error")
 
