@@ -219,6 +219,9 @@ def test_attack_job_records_what_it_ran_with(tmp_path: Path) -> None:
     assert record["attack_config"]["method_options"]["gamma"] == 0.1
     assert "smoothness" in record["attack_config"]["method_options"]  # a default the spec does not name
     assert record["victim_optimize"] is True
+    from meshadv.experiments.provenance import compute_environment
+
+    assert record["compute"] == compute_environment()  # the CPU and kernels its float rounding depends on
     (tmp_path / "b").mkdir()
     assert run_attack_job({**spec, "victim_optimize": False}, tmp_path / "b")["victim_optimize"] is False
     with pytest.raises(ValueError, match="victim_optimize"):
@@ -290,3 +293,30 @@ def test_a_resumed_sweep_keeps_the_defaults_of_its_first_run(tmp_path: Path) -> 
         run_sweep(store, [first], job, out_root=tmp_path / "s", backend=SerialBackend(), progress=False)
         (record,) = [r.record for r in store.rows("done")]
     assert record["victim_optimize"] is False and record["attack_config"]["lr"] == 0.5
+
+
+def test_a_record_keeps_its_compute_and_a_mismatch_says_what_rounding_depends_on(moved_db: Path,
+                                                                                  tmp_path: Path) -> None:
+    """A rerun that does not reproduce its record (here: a first successful step it cannot match) says so and names
+    what float rounding depends on, as recorded (an attack record's ``compute``) and here."""
+    from typer.testing import CliRunner
+
+    from meshadv.cli import app
+    from meshadv.experiments.provenance import compute_environment
+    from meshadv.experiments.regenerate import regenerate_job
+
+    _set_job_ref(moved_db)
+    with ResultStore(moved_db, read_only=True) as store:
+        row = next(r for r in store.rows() if r.spec["config_index"] == 0 and r.spec["source_class"] == "boat")
+    here = compute_environment()
+    assert set(here) == {"cpu", "torch_cpu_capability", "torch_threads"}
+    assert regenerate_job(moved_db, row.job_id, tmp_path / "first").matches
+    stored = {**row.record, "steps_to_success": 1000,
+              "compute": {"cpu": "Some Other CPU", "torch_cpu_capability": "AVX2", "torch_threads": "7"}}
+    with sqlite3.connect(moved_db) as con:
+        con.execute("UPDATE jobs SET record = ? WHERE job_id = ?", (json.dumps(stored), row.job_id))
+    result = CliRunner().invoke(app, ["regenerate", str(moved_db), row.job_id, "-o", str(tmp_path / "second")])
+    assert result.exit_code == 1, result.output
+    text = " ".join(result.output.split())
+    assert "steps_to_success: 1000 ->" in text and "Some Other CPU, torch kernels AVX2, 7 thread(s)" in text
+    assert f"this run: {here['cpu']}, torch kernels {here['torch_cpu_capability']}" in text

@@ -21,7 +21,7 @@ def regenerate(
                                "(meshadv.experiments.regenerate.pinned_spec)."),
 ) -> None:
     """Re-run one job of RESULTS into a folder (meshes, renders, result.json) and check it reproduces its record."""
-    from meshadv.experiments.regenerate import load_assumed, regenerate_job
+    from meshadv.experiments.regenerate import compute_note, load_assumed, regenerate_job
 
     if not results.is_file():
         raise typer.BadParameter(f"{results} does not exist", param_hint="RESULTS")
@@ -39,9 +39,11 @@ def regenerate(
     if done.stored is None:
         typer.echo("the database holds no finished record of this job to compare with")
     elif done.matches:
-        typer.echo("the regenerated record matches the stored one (success, steps, distance)")
+        typer.echo("the regenerated record matches the stored one (success, steps, distance, first successful "
+                   "step)")
     else:
         typer.echo("the regenerated record differs from the stored one: " + "; ".join(done.differences), err=True)
+        typer.echo(compute_note(done.stored), err=True)
         raise typer.Exit(code=1)
 
 

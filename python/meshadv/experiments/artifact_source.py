@@ -97,8 +97,8 @@ class ArtifactSource:
         done = regenerate_job(self.db_path, row.job_id, target, threads=self.threads, assume=self.assume)
         check = {"job_id": row.job_id, "matches": done.matches, "differences": list(done.differences),
                  "notes": list(done.notes), "cpu_s": round(time.process_time() - cpu, 2),
-                 "stored": {k: (done.stored or {}).get(k) for k in ("success", "steps", "distance")},
-                 "regenerated": {k: done.record.get(k) for k in ("success", "steps", "distance")}}
+                 "stored": {k: (done.stored or {}).get(k) for k in ("success", "steps", "distance", "compute")},
+                 "regenerated": {k: done.record.get(k) for k in ("success", "steps", "distance", "compute")}}
         write_text_atomic(target / "regeneration.json", json.dumps(check, indent=2, sort_keys=True))
         self.checks[row.job_id] = check
         return target

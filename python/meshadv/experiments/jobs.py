@@ -286,6 +286,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
 
     from meshadv.attacks import Criterion, TargetedMisclassification, WithMargin
     from meshadv.attacks.families import check_perturbation
+    from meshadv.experiments.provenance import compute_environment
     from meshadv.experiments.worker import attack_step_callback
     from meshadv.util.png import save_png
     from meshadv.mesh import save_mesh
@@ -303,6 +304,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         save_png(benign.images[j], out / f"benign_v{j}.png")
         benign_pngs.append(f"benign_v{j}.png")
     record: Dict[str, Any] = {
+        "compute": compute_environment(),  # what the float rounding depends on (regeneration compares it)
         "benign_correct": benign.correct,
         "benign_top1": benign.top1,
         "victim_optimize": context.victim_optimize,

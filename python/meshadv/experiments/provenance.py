@@ -1,4 +1,5 @@
-"""What ran: the versions of Python, the platform and the main packages, and the git state of the checkout."""
+"""What ran: the versions of Python, the platform and the main packages, the git state of the checkout, and the CPU
+and kernels that decide an attack's float rounding."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Dict
 
-__all__ = ["environment_versions"]
+__all__ = ["compute_environment", "environment_versions"]
 
 
 def _git_state(folder: Path) -> Dict[str, str]:
@@ -40,5 +41,32 @@ def environment_versions() -> Dict[str, str]:
 
         out.update(_git_state(Path(meshadv.__file__).resolve().parent))
     except Exception:  # noqa: BLE001 - versions are informative, never fatal
+        pass
+    return out
+
+
+def _cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo`` on Linux, else :func:`platform.processor`)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace").splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def compute_environment() -> Dict[str, str]:
+    """What an attack's float rounding depends on besides its code and inputs: the CPU model, the instruction set
+    torch's CPU kernels use (``torch.backends.cpu.get_cpu_capability()``: AVX2, AVX512, ...; ``ATEN_CPU_CAPABILITY``
+    lowers it) and torch's thread count. An attack is a chaotic trajectory, so a job reruns bit for bit only where
+    these match (benchmarks/RESULTS.md, "Regenerating paper_medium's artefacts"); each job record keeps them."""
+    out = {"cpu": _cpu_model()}
+    try:
+        import torch
+
+        out["torch_cpu_capability"] = str(torch.backends.cpu.get_cpu_capability())
+        out["torch_threads"] = str(torch.get_num_threads())
+    except Exception:  # noqa: BLE001 - informative, never fatal
         pass
     return out

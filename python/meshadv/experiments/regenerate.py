@@ -29,7 +29,7 @@ from meshadv.experiments.store import ResultStore
 from meshadv.experiments.worker import execute
 
 __all__ = ["Regenerated", "regenerate_job", "ensure_artifacts", "stored_job_ref", "pinned_spec", "load_assumed",
-           "COMPARED_KEYS", "Assumed", "attack_pin_key"]
+           "COMPARED_KEYS", "Assumed", "attack_pin_key", "compute_note"]
 
 #: What the sweep's code used where neither its specs nor its records say: ``{"victim_optimize": bool, "attack":
 #: {"shape": {option: value, "method_options": {...}}, "texture": {...}}}`` (every key optional); an attack entry
@@ -45,7 +45,27 @@ def attack_pin_key(perturbation: Any, method: Any) -> str:
 _ATTACK_JOB = "meshadv.experiments.jobs:run_attack_job"
 
 #: Record keys compared between the stored and the regenerated record (floats to a relative 1e-3).
-COMPARED_KEYS = ("success", "skipped", "steps", "distance")
+COMPARED_KEYS = ("success", "skipped", "steps", "distance", "steps_to_success")
+
+
+def compute_note(stored: Optional[Mapping[str, Any]]) -> str:
+    """Why a rerun may differ from ``stored`` although nothing in its spec changed: what the stored record ran on
+    (its ``compute``, :func:`~meshadv.experiments.provenance.compute_environment`; absent from records made before
+    it was recorded) beside this machine's."""
+    from meshadv.experiments.provenance import compute_environment
+
+    here = compute_environment()
+    then = dict((stored or {}).get("compute") or {})
+
+    def describe(env: Mapping[str, Any]) -> str:
+        return (f"{env.get('cpu', '?')}, torch kernels {env.get('torch_cpu_capability', '?')}, "
+                f"{env.get('torch_threads', '?')} thread(s)")
+
+    recorded = describe(then) if then else "not recorded (a record older than the 'compute' entry)"
+    return (f"an attack is a chaotic trajectory: it reruns bit for bit only on the instruction set torch's kernels "
+            f"used for it and the same thread count (ATEN_CPU_CAPABILITY=avx2 selects AVX2 kernels on an AVX-512 "
+            f"CPU; a CPU of another vendor may still differ). Stored record: {recorded}; this run: "
+            f"{describe(here)}")
 
 
 @dataclass(frozen=True)

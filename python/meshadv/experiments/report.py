@@ -288,12 +288,18 @@ def _write_regenerations(out_dir: Path, checks: Dict[str, Dict[str, Any]], done:
 
     lines = ["## Regenerated artefacts", "",
              f"The figures' artefacts of {n} job(s) were regenerated from the database (stored spec and seed, "
-             f"`meshadv regenerate`): success equal in {same_success}/{n}, success, steps and distance equal "
-             f"(distance to 1e-3 relative) in {matches}/{n}"
+             f"`meshadv regenerate`): success equal in {same_success}/{n}, success, steps, distance and first "
+             f"successful step equal (distance to 1e-3 relative) in {matches}/{n}"
              + (f"; relative distance difference median {rels[len(rels) // 2]:.2g}, largest {rels[-1]:.2g}"
                 if rels else "") + ".", ""]
     if notes:
         lines += ["Not pinned by the database (today's defaults used):", ""] + [f"- {t}" for t in notes] + [""]
+    if matches < n:
+        from meshadv.experiments.regenerate import compute_note
+
+        first = next(c for c in checks.values() if not c.get("matches"))
+        lines += ["Where a record is not reproduced: " + compute_note(first.get("stored")) + " (of the first such "
+                  "job).", ""]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in table]
     md = write_text_atomic(out_dir / "regeneration.md", "\n".join(lines) + "\n")
