@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, Dict, List
 
 from meshadv.experiments import RayBackend, ResultStore, job_id, run_sweep
-from meshadv.experiments.ray_local import WORKER_RESOURCE, LocalRayCluster, write_token
+from meshadv.experiments.ray_local import WORKER_RESOURCE, LocalRayCluster, can_hide_folders, write_token
 
 
 def _connect(address: str, workers: int, timeout: float = 120.0) -> None:
@@ -101,13 +101,19 @@ def lost_node(root: Path, jobs: int, sleep: float) -> Dict[str, Any]:
 
     import threading
 
+    folder = root / "driver_kill"
+    folder.mkdir(parents=True)
+    sentinel = folder / "driver_only.txt"  # in the driver's folder: a job that can see the folder sees this file
+    sentinel.write_text("written by the driver before the workers start\n")
+    # where the machine permits it, the workers run in mount namespaces of their own in which the driver's folder
+    # is an empty tmpfs: they cannot see it at all, as on a cluster without a shared file system
+    hidden = [folder] if can_hide_folders() else []
     with LocalRayCluster(root / "cluster_kill") as cluster:
-        w1, w2 = cluster.add_worker(), cluster.add_worker()
+        w1, w2 = cluster.add_worker(hidden=hidden), cluster.add_worker(hidden=hidden)
         scratch = [cluster.scratch(w1), cluster.scratch(w2)]
         _connect(cluster.address, 2)
-        specs = [{"probe": "mesh", "seed": i, "sleep": sleep, "source_class": "chair", "target": "sofa"}
-                 for i in range(jobs)]
-        folder = root / "driver_kill"
+        specs = [{"probe": "mesh", "seed": i, "sleep": sleep, "source_class": "chair", "target": "sofa",
+                  "look_for": str(sentinel)} for i in range(jobs)]
         killed: Dict[str, Any] = {}
 
         def kill() -> None:
@@ -129,7 +135,14 @@ def lost_node(root: Path, jobs: int, sleep: float) -> Dict[str, Any]:
     assert {r.job_id for r in rows} == {job_id(s) for s in specs}
     errors = [r.error.splitlines()[-1][:200] for r in retried if r.error]
     where = _check_no_shared_folder(done, folder, scratch)
-    return {**res, "killed": killed, "retried_jobs": len(retried), "retry_errors": errors, "jobs_by_node": where}
+    saw = sum(bool(r.record.get("saw")) for r in done)
+    if hidden:
+        assert saw == 0, f"{saw} job(s) saw the driver's folder from a worker that should not see it"
+    isolation = {"driver_folder_hidden_from_workers": bool(hidden), "jobs_that_saw_it": saw,
+                 "how": "mount namespace per worker node, the driver's folder an empty tmpfs" if hidden else
+                 "none: this machine does not permit unshare --mount; the folder was visible, unused"}
+    return {**res, "killed": killed, "retried_jobs": len(retried), "retry_errors": errors, "jobs_by_node": where,
+            "isolation": isolation}
 
 
 def main(argv: List[str]) -> int:
@@ -164,6 +177,7 @@ def main(argv: List[str]) -> int:
           f"{lost['summary']['failed']} failed, "
           f"{lost['retried_jobs']} job(s) retried on the surviving node; jobs by node {lost['jobs_by_node']}; "
           f"{lost['seconds']:.1f} s")
+    print(f"isolation: {lost['isolation']}")
     for err in lost["retry_errors"]:
         print(f"  lost attempt: {err}")
     print(f"total {result['total_seconds']:.0f} s")

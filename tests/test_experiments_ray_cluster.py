@@ -2,7 +2,8 @@
 
 Runs ``benchmarks/ray_cluster_bench.py --skip-throughput`` in a child process (Ray reads its authentication mode
 when first imported, so the driver needs a fresh interpreter): a head and two worker nodes started with ``ray start``,
-each with its own temp dir and scratch folder, jobs pinned to the workers by a custom resource; one worker node is
+each with its own temp dir and scratch folder and (where ``unshare --mount`` is permitted) its own mount namespace
+in which the driver's folder is an empty tmpfs, jobs pinned to the workers by a custom resource; one worker node is
 killed half-way through a job. The script itself asserts that every job is done once, that every artefact folder is
 complete in the driver's folder, and that every job ran in a worker's scratch folder, never in the driver's folder.
 About a minute on 2 cores.
@@ -39,3 +40,7 @@ def test_lost_worker_node_is_retried_and_nothing_is_lost() -> None:
     assert lost["killed"]["processes"] >= 1
     assert lost["retried_jobs"] >= 1  # the killed node's job ran again elsewhere
     assert set(lost["jobs_by_node"]) <= {"w1_scratch", "w2_scratch"} and lost["jobs_by_node"].get("w2_scratch")
+    from meshadv.experiments.ray_local import can_hide_folders
+
+    if can_hide_folders():  # the workers could not see the driver's folder at all, and no job saw it
+        assert lost["isolation"]["driver_folder_hidden_from_workers"] and lost["isolation"]["jobs_that_saw_it"] == 0

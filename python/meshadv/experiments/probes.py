@@ -85,8 +85,9 @@ def mesh_probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     It moves the vertices of an icosphere by a smooth, seeded displacement field (amplitude ``spec["amplitude"]``,
     default 0.02), writes ``benign.ply`` / ``adversarial.ply`` and flat-coloured ``benign_v0.png`` / ``after_v0.png``
     and reports ``success`` from ``spec["success"]`` (default: ``True``) and distances computed from the field (after
-    ``spec["sleep"]`` seconds; ``job_dir`` in the record is the folder it wrote). Use it to check reports, figures and
-    clusters without rendering.
+    ``spec["sleep"]`` seconds; ``job_dir`` in the record is the folder it wrote). With ``spec["look_for"]`` (a path)
+    the record's ``saw`` says whether that path existed where the job ran (a cluster test's check that a worker
+    cannot see the driver's folder). Use it to check reports, figures and clusters without rendering.
 
     Args:
         spec: a job spec as made by ``expand_jobs`` (``source_class``, ``target``, ``perturbation``, ``seed``...).
@@ -136,6 +137,7 @@ def mesh_probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         "time": time.perf_counter() - start,
         "eval_success_rate": 0.5 if spec.get("kind") == "multiview" else None,
         "job_dir": str(out_dir),
+        **({"saw": os.path.exists(str(spec["look_for"]))} if spec.get("look_for") else {}),
         "artifacts": {"benign_mesh": "benign.ply", "benign_images": ["benign_v0.png"],
                       "adversarial_mesh": "adversarial.ply", "adversarial_images": ["after_v0.png"]},
     }

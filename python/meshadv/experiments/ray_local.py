@@ -5,7 +5,10 @@ separate set of processes with its own ``--temp-dir`` and its own scratch folder
 their artefacts before sending them back), and offers each worker a custom resource (default ``meshadv_worker``) so
 that jobs can be pinned to worker nodes (``RayBackend(resources={"meshadv_worker": 1})``). A worker node can be
 killed (every process of its temp dir, SIGKILL: what a lost machine looks like to the cluster) to check that the
-sweep retries and loses nothing.
+sweep retries and loses nothing. ``add_worker(hidden=[folder])`` starts a worker node in a mount namespace of its own
+in which each of those folders is an empty, read-only tmpfs: a worker that cannot see the driver's output folder, as
+on a cluster without a shared file system (Linux, where ``unshare --mount`` is permitted:
+:func:`can_hide_folders`).
 
 Example:
     >>> with LocalRayCluster(root="/tmp/cluster") as cluster:                 # doctest: +SKIP
@@ -17,14 +20,38 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
+import tempfile
 import time
 from pathlib import Path
-from typing import Dict, List, Optional, Union
+from typing import Dict, List, Optional, Sequence, Union
 
-__all__ = ["LocalRayCluster", "WORKER_RESOURCE", "write_token"]
+__all__ = ["LocalRayCluster", "WORKER_RESOURCE", "can_hide_folders", "write_token"]
+
+#: Runs its arguments as a command after mounting an empty read-only tmpfs on each folder named in ``$HIDE``
+#: (newline-separated), inside the private mount namespace ``unshare --mount --propagation private`` gives it.
+_HIDING_SHELL = ('printf "%s\n" "$HIDE" | while IFS= read -r d; do [ -z "$d" ] || '
+                 'mount -t tmpfs -o size=64k,mode=0555,ro meshadv-hidden "$d" || exit 90; done && exec "$@"')
+
+
+def can_hide_folders() -> bool:
+    """Whether this machine lets a process mount over a folder in a private mount namespace (``unshare --mount``,
+    Linux; root or a user namespace), which :meth:`LocalRayCluster.add_worker` needs for ``hidden``."""
+    if shutil.which("unshare") is None:
+        return False
+    with tempfile.TemporaryDirectory() as folder:
+        marker = Path(folder) / "visible"
+        marker.write_text("x")
+        try:
+            proc = subprocess.run(["unshare", "--mount", "--propagation", "private", "sh", "-c",
+                                   _HIDING_SHELL + ' && test ! -e "$0"', str(marker)],
+                                  env={**os.environ, "HIDE": folder}, capture_output=True, timeout=30)
+        except (OSError, subprocess.SubprocessError):
+            return False
+        return proc.returncode == 0 and marker.exists()
 
 #: The custom resource worker nodes offer (one unit per CPU).
 WORKER_RESOURCE = "meshadv_worker"
@@ -109,23 +136,45 @@ class LocalRayCluster:
                 return text.rsplit(":", 1)[0]
         return socket.gethostbyname(socket.gethostname())
 
-    def _run(self, args: List[str], temp_dir: Path, env: Dict[str, str]) -> None:
+    def _run(self, args: List[str], temp_dir: Path, env: Dict[str, str], prefix: Sequence[str] = ()) -> None:
         temp_dir.mkdir(parents=True, exist_ok=True)
-        proc = subprocess.run(["ray", "start", "--disable-usage-stats", *args], env=env, capture_output=True,
-                              text=True, timeout=300)
+        proc = subprocess.run([*prefix, "ray", "start", "--disable-usage-stats", *args], env=env,
+                              capture_output=True, text=True, timeout=300)
         (temp_dir.parent / f"{temp_dir.name}.start.log").write_text(proc.stdout + proc.stderr)
         if proc.returncode != 0:
             raise RuntimeError(f"ray start {' '.join(args)} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
 
-    def add_worker(self, name: Optional[str] = None, *, cpus: int = 1) -> str:
-        """Start a worker node with ``cpus`` CPUs and as many units of :data:`WORKER_RESOURCE`; return its name."""
+    def add_worker(self, name: Optional[str] = None, *, cpus: int = 1, hidden: Sequence[Union[str, Path]] = ()) -> str:
+        """Start a worker node with ``cpus`` CPUs and as many units of :data:`WORKER_RESOURCE`; return its name.
+
+        Args:
+            name: the node's name (default ``w1``, ``w2``, ...).
+            cpus: its CPUs.
+            hidden: existing folders the node's processes must not see (each becomes an empty read-only tmpfs in
+                the node's own mount namespace; the rest of the file system is shared).
+
+        Raises:
+            ValueError: a ``hidden`` entry is not an existing folder, or this machine cannot hide folders
+                (:func:`can_hide_folders`).
+        """
         name = name or f"w{len(self.workers) + 1}"
         temp_dir = self.root / name
         scratch = self.root / f"{name}_scratch"
         scratch.mkdir(parents=True, exist_ok=True)
         env = {**self.env, "TMPDIR": str(scratch)}
+        prefix: List[str] = []
+        if hidden:
+            folders = [Path(h).resolve() for h in hidden]
+            missing = [str(f) for f in folders if not f.is_dir()]
+            if missing:
+                raise ValueError(f"hidden must name existing folders, got {missing}")
+            if not can_hide_folders():
+                raise ValueError("hidden: this machine does not permit `unshare --mount` (a private mount "
+                                 "namespace), so a worker cannot be kept from seeing a folder")
+            env["HIDE"] = "\n".join(str(f) for f in folders)
+            prefix = ["unshare", "--mount", "--propagation", "private", "sh", "-c", _HIDING_SHELL, "hide"]
         self._run(["--address", self.address, "--num-cpus", str(cpus), "--temp-dir", str(temp_dir),
-                   "--resources", json.dumps({WORKER_RESOURCE: cpus})], temp_dir, env)
+                   "--resources", json.dumps({WORKER_RESOURCE: cpus})], temp_dir, env, prefix)
         self.workers[name] = temp_dir
         return name
 
