@@ -219,8 +219,7 @@ def _stand_in_scene_command(monkeypatch: pytest.MonkeyPatch, args: list, out: Pa
 def test_attack_scene_method_option(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, perturbation: str) -> None:
     """``--method``: ddn by default (recorded with its options, every step run: no early stop), adam on request
     (with its early stop, its lr and, for shape, the smoothed flow); Adam's own options are refused with ddn."""
-    from meshadv.attacks.budget import DDN_DEFAULTS
-    from meshadv.commands.attack_scene import DDN_REFERENCE_DIAGONAL
+    from meshadv.attacks.budget import DDN_DEFAULTS, DDN_REFERENCE_DIAGONAL
     from meshadv.mesh import builtin_mesh
 
     result, record = _stand_in_scene_command(monkeypatch, ["--perturbation", perturbation, "--steps", "3"],

@@ -108,8 +108,7 @@ def test_blackbox_ddn_shape_lengths_follow_the_object(monkeypatch: pytest.Monkey
                                                       attacked: str) -> None:
     """A ddn shape attack's lengths are scaled to the attacked object's bounding-box diagonal (as in
     ``meshadv attack-scene``); a ddn texture attack and an Adam shape attack get no ``method_options``."""
-    from meshadv.attacks.budget import DDN_DEFAULTS
-    from meshadv.commands.attack_scene import DDN_REFERENCE_DIAGONAL
+    from meshadv.attacks.budget import DDN_DEFAULTS, DDN_REFERENCE_DIAGONAL
     from meshadv.mesh import builtin_mesh
 
     result, seen = _invoke(monkeypatch, command, ["--perturbation", "shape", "--method", "ddn"])

@@ -107,7 +107,7 @@ from meshadv.attacks.update import UpdateRule, register_update_rule
 
 #: ``LaplacianNorm`` and ``ColorNorm`` live in :mod:`meshadv.attacks.norms` and are re-exported here.
 __all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS", "DDN_ADDED_OPTIONS", "ANNEAL_MODES",
-           "REACH_MODES", "recorded_options"]
+           "REACH_MODES", "DDN_REFERENCE_DIAGONAL", "DDN_LENGTH_OPTIONS", "recorded_options", "shape_options_for"]
 
 #: Default options of ``method="ddn"`` per perturbation (norm units, see the module docstring).
 DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {
@@ -122,6 +122,25 @@ DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {
 #: before it existed: a recorded (complete) options dict without one of them ran with that value
 #: (:func:`recorded_options`).
 DDN_ADDED_OPTIONS: Dict[str, Dict[str, Any]] = {"shape": {"edge_gradient": 1.0}, "texture": {}}
+
+
+#: The shape lengths of :data:`DDN_DEFAULTS` (budgets and steps, in the Laplacian norm) were tuned on PASCAL3D+ meshes
+#: normalised to ``[-1, 1]`` (bounding-box diagonals 2.2-2.8); an object of another size gets them times its own
+#: diagonal over this one (:func:`shape_options_for`), as Adam's learning rate is given in units of the diagonal.
+#: Measured on the indoor scene (the 35k-vertex bunny, diagonal 0.41; dining table, threshold 0.2, width 160, 60
+#: steps; benchmarks/RESULTS.md, "Scene attacks on ddn"): the unscaled lengths hid the table at a Laplacian sum of
+#: 0.15 (max displacement 8.4% of the diagonal), Adam (lr 5e-4, smoothing 8) at 1.8e-3 (0.62%), the scaled ones at
+#: 1.2e-4 (0.50%).
+DDN_REFERENCE_DIAGONAL = 2.5
+#: The ddn shape options that are lengths in the rule's norm (scaled by :func:`shape_options_for`).
+DDN_LENGTH_OPTIONS = ("init_budget", "step_size", "final_step_size", "min_budget")
+
+
+def shape_options_for(mesh: Any) -> Dict[str, float]:
+    """``method_options`` of a ddn shape attack on ``mesh`` of any size: the rule's default lengths
+    (:data:`DDN_LENGTH_OPTIONS`) times its bounding-box diagonal over :data:`DDN_REFERENCE_DIAGONAL`."""
+    scale = float(mesh.bbox_diagonal()) / DDN_REFERENCE_DIAGONAL
+    return {k: DDN_DEFAULTS["shape"][k] * scale for k in DDN_LENGTH_OPTIONS}
 
 
 def recorded_options(kind: str, options: Mapping[str, Any]) -> Dict[str, Any]:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, List, Optional, Sequence, Tuple
+from typing import Any, List, Mapping, Optional, Sequence, Tuple
 
 __all__ = [
     "VICTIMS",
@@ -22,6 +22,7 @@ __all__ = [
     "load_mesh_arg",
     "make_views",
     "parse_color",
+    "resolve_method",
     "topk_labels",
 ]
 
@@ -197,3 +198,25 @@ def topk_labels(logits: Any, names: Sequence[str], k: int = 5) -> List[List[Tupl
     values, idx = probs.topk(min(k, probs.shape[1]), dim=1)
     return [[(names[int(i)] if int(i) < len(names) else str(int(i)), float(v)) for v, i in zip(vr, ir)]
             for vr, ir in zip(values.tolist(), idx.tolist())]
+
+
+def resolve_method(method: Optional[str], default: str, adam_only: Mapping[str, bool]) -> str:
+    """The update rule a command runs: ``--method``, else ``default``.
+
+    Args:
+        method: the ``--method`` option (``None``: not given).
+        default: the command's default rule.
+        adam_only: each option that only the paper's Adam has (flag name -> whether the user gave it).
+
+    Raises:
+        ValueError: an unknown rule, or one of ``adam_only`` given with another rule.
+    """
+    from meshadv.attacks.update import update_rules
+
+    method = default if method is None else method
+    if method not in update_rules():
+        raise ValueError(f"--method must be one of {sorted(update_rules())}, got {method!r}")
+    given = [flag for flag, is_given in adam_only.items() if is_given]
+    if method != "adam" and given:
+        raise ValueError(f"{', '.join(given)} apply to --method adam only")
+    return method

@@ -20,6 +20,7 @@ from meshadv.commands._common import (
     make_views,
     parse_azimuth_range,
     parse_color,
+    resolve_method,
 )
 
 __all__ = ["attack", "build_attack", "build_criteria", "run_with_progress"]
@@ -185,12 +186,12 @@ def attack(
     from meshadv.victims import load_victim
 
     torch.manual_seed(seed)
-    method = RECOMMENDED_METHOD if method is None else method
     try:
         if smoothing is not None and perturbation != "shape":
             raise ValueError("--smoothing applies to --perturbation shape only")
-        if method == "ddn" and (lr is not None or lambda_ is not None or binary_search != 1 or smoothing):
-            raise ValueError("--lr, --lambda, --binary-search and --smoothing apply to --method adam only")
+        method = resolve_method(method, RECOMMENDED_METHOD, {
+            "--lr": lr is not None, "--lambda": lambda_ is not None, "--binary-search": binary_search != 1,
+            "--smoothing": bool(smoothing)})
         if early_stop is None:
             early_stop = 0 if method == "ddn" else 10
         loaded = load_mesh_input(mesh, z_up=z_up)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Dict, Optional
+from typing import Any, Optional
 
 import typer
 
@@ -15,25 +15,6 @@ DEFAULT_LR = {"shape": 5e-4, "texture": 0.05}
 DEFAULT_SMOOTHING = 8
 #: Default perceptual weight with ``--method adam`` (texture: per pixel).
 DEFAULT_LAMBDA = 1.0
-#: ``--method ddn``, shape: the rule's lengths (budgets and steps, :data:`~meshadv.attacks.budget.DDN_DEFAULTS`)
-#: were tuned on PASCAL3D+ meshes normalised to ``[-1, 1]`` (bounding-box diagonals 2.2-2.8); a scene object gets
-#: them times its own diagonal over this one, as Adam's ``--lr`` is in units of the diagonal. Measured on the indoor
-#: scene (the 35k-vertex bunny, diagonal 0.41; dining table, threshold 0.2, width 160, 60 steps): the unscaled
-#: lengths hid the table at a Laplacian sum of 0.15 (max displacement 8.4% of the diagonal), Adam (lr 5e-4,
-#: smoothing 8) at 1.8e-3 (0.63%), ddn with the lengths times 0.41 / 2.5 (this rule) at 1.2e-4 (0.51%), times 0.1
-#: at 2.2e-5 (0.21%), times 0.03 at 2.4e-6 (0.06%); all of them hid it.
-DDN_REFERENCE_DIAGONAL = 2.5
-#: The ddn shape options that are lengths in the rule's norm (scaled by :data:`DDN_REFERENCE_DIAGONAL`).
-DDN_LENGTH_OPTIONS = ("init_budget", "step_size", "final_step_size", "min_budget")
-
-
-def ddn_shape_options(mesh: Any) -> Dict[str, float]:
-    """``method_options`` of a ddn shape attack on a scene object ``mesh``: the rule's default lengths
-    (:data:`DDN_LENGTH_OPTIONS`) times its bounding-box diagonal over :data:`DDN_REFERENCE_DIAGONAL`."""
-    from meshadv.attacks.budget import DDN_DEFAULTS
-
-    scale = float(mesh.bbox_diagonal()) / DDN_REFERENCE_DIAGONAL
-    return {k: DDN_DEFAULTS["shape"][k] * scale for k in DDN_LENGTH_OPTIONS}
 
 SCENE_HELP = (
     "'indoor' (the shared desk scene), a Mitsuba scene XML file, or a photograph (.jpg/.png) to insert --object into"
@@ -75,9 +56,10 @@ def attack_scene(
 ) -> None:
     """Hide CLASS (or everything) from a detector by perturbing only one object; writes before/after images with
     detections drawn, the adversarial object mesh and a JSON record."""
-    from meshadv.attacks import Disappearance, make_attack
+    from meshadv.attacks import Disappearance
     from meshadv.attacks.families import check_perturbation
     from meshadv.attacks.update import RECOMMENDED_METHOD
+    from meshadv.commands._common import resolve_method
     from meshadv.mesh import save_mesh
     from meshadv.scenes.attack import attack_scene
     from meshadv.scenes.draw import draw_detections
@@ -86,14 +68,12 @@ def attack_scene(
     from meshadv.scenes.setups import build_setup
     from meshadv.victims import load_victim
 
-    method = RECOMMENDED_METHOD if method is None else method
     try:
         check_perturbation(perturbation, "--perturbation")
         if smoothing is not None and perturbation != "shape":
             raise ValueError("--smoothing applies to --perturbation shape only")
-        if method == "ddn" and (lr is not None or lambda_perceptual is not None or smoothing):
-            raise ValueError("--lr, --lambda and --smoothing apply to --method adam only")
-        make_attack(perturbation, method=method)  # an unknown --method fails here, before the scene is loaded
+        method = resolve_method(method, RECOMMENDED_METHOD, {
+            "--lr": lr is not None, "--lambda": lambda_perceptual is not None, "--smoothing": bool(smoothing)})
         setup = build_setup(scene, obj, place, width)
     except (ValueError, FileNotFoundError) as exc:
         raise typer.BadParameter(str(exc)) from exc
@@ -136,13 +116,15 @@ def _scene_attack(setup: Any, perturbation: str, method: str, steps: int, seed: 
     once the hidden score stayed 0.05 below the threshold for 5 steps (``lr`` of a shape attack in units of the
     object's bounding-box diagonal, ``lambda_perceptual`` of a texture attack per pixel; defaults
     :data:`DEFAULT_LR`, :data:`DEFAULT_SMOOTHING`, :data:`DEFAULT_LAMBDA`). ``method="ddn"``: the distortion-budget
-    rule with its default options, a shape attack's lengths scaled to the object (:func:`ddn_shape_options`),
+    rule with its default options, a shape attack's lengths scaled to the object
+    (:func:`~meshadv.attacks.budget.shape_options_for`),
     run for every step (it keeps lowering the distortion after the first success and returns the least distorted
     success)."""
     from meshadv.attacks import make_attack
+    from meshadv.attacks.budget import shape_options_for
 
     if method == "ddn":
-        options = ddn_shape_options(setup.mesh) if perturbation == "shape" else {}
+        options = shape_options_for(setup.mesh) if perturbation == "shape" else {}
         return make_attack(perturbation, method=method, method_options=options, steps=steps, seed=seed)
     common = dict(method=method, steps=steps, early_stop=5, early_stop_margin=0.05, seed=seed)
     lr = DEFAULT_LR[perturbation] if lr is None else lr

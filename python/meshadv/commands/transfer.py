@@ -208,27 +208,25 @@ def _method(method: Optional[str], lr: Optional[float], lambda_perceptual: Optio
         typer.BadParameter: an unknown rule, or Adam's own options (--lr, --lambda-perceptual) or
             --texture-smoothing (a parametrisation ddn cannot step) with ddn.
     """
-    from meshadv.attacks.update import update_rules
+    from meshadv.commands._common import resolve_method
 
-    method = "adam" if method is None else method
-    if method not in update_rules():
-        raise typer.BadParameter(f"method must be one of {sorted(update_rules())}, got {method!r}",
-                                 param_hint="--method")
-    if method == "ddn" and (lr is not None or lambda_perceptual is not None or texture_smoothing is not None):
-        raise typer.BadParameter("--lr, --lambda-perceptual and --texture-smoothing apply to --method adam only",
-                                 param_hint="--method")
-    return method
+    adam_only = {"--lr": lr is not None, "--lambda-perceptual": lambda_perceptual is not None,
+                 "--texture-smoothing": texture_smoothing is not None}
+    try:
+        return resolve_method(method, "adam", adam_only)
+    except ValueError as err:
+        raise typer.BadParameter(str(err), param_hint="--method") from err
 
 
 def _ddn_scaled(method: str, perturbation: str, mesh: Any) -> dict:
-    """``{"method_options": ...}`` of a ddn shape attack on ``mesh``, its lengths scaled to the object's size as
-    ``meshadv attack-scene`` scales them (:func:`~meshadv.commands.attack_scene.ddn_shape_options`); ``{}``
-    otherwise (texture: colour units need no scale)."""
+    """``{"method_options": ...}`` of a ddn shape attack on ``mesh``, its lengths scaled to the object's size
+    (:func:`~meshadv.attacks.budget.shape_options_for`, as ``meshadv attack-scene``); ``{}`` otherwise (texture:
+    colour units need no scale)."""
     if method != "ddn" or perturbation != "shape":
         return {}
-    from meshadv.commands.attack_scene import ddn_shape_options
+    from meshadv.attacks.budget import shape_options_for
 
-    return {"method_options": ddn_shape_options(mesh)}
+    return {"method_options": shape_options_for(mesh)}
 
 
 def _attack_kwargs(steps: int, lr: Optional[float], lambda_perceptual: Optional[float], antialias: int = 1,

@@ -18,6 +18,7 @@ Example:
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import shutil
@@ -37,9 +38,11 @@ _HIDING_SHELL = ('printf "%s\n" "$HIDE" | while IFS= read -r d; do [ -z "$d" ] |
                  'mount -t tmpfs -o size=64k,mode=0555,ro meshadv-hidden "$d" || exit 90; done && exec "$@"')
 
 
+@functools.lru_cache(maxsize=None)
 def can_hide_folders() -> bool:
     """Whether this machine lets a process mount over a folder in a private mount namespace (``unshare --mount``,
-    Linux; root or a user namespace), which :meth:`LocalRayCluster.add_worker` needs for ``hidden``."""
+    Linux; root or a user namespace), which :meth:`LocalRayCluster.add_worker` needs for ``hidden`` (tried once
+    per process: a property of the machine)."""
     if shutil.which("unshare") is None:
         return False
     with tempfile.TemporaryDirectory() as folder:
