@@ -1,8 +1,10 @@
-"""Benchmark of meshadv's differentiable renderer against a pure-PyTorch rasterizer and Mitsuba 3.
+"""Benchmark of meshadv's differentiable renderer against a pure-PyTorch rasterizer, PyTorch3D and Mitsuba 3.
 
 Times ``meshadv.render.render`` (PyTorch camera + shading, Rust rasterizer), the same pipeline with the vectorised
-pure-PyTorch rasterizer of ``benchmarks/torch_reference_rasterizer.py`` and, when available, Mitsuba 3's
-``llvm_ad_rgb`` variant rendering the same mesh (probed and run in subprocesses so it can never crash the bench).
+pure-PyTorch rasterizer of ``benchmarks/torch_reference_rasterizer.py``, with PyTorch3D's CPU rasterizer when
+``pytorch3d`` is importable (it has no wheel on PyPI: build it from source outside this repository and put it on
+``PYTHONPATH``; never vendored) and, when available, Mitsuba 3's ``llvm_ad_rgb`` variant rendering the same mesh
+(probed and run in subprocesses so it can never crash the bench).
 Forward and forward+backward (gradients of a random linear loss of the image w.r.t. vertices and colours), for a UV
 sphere of about 1k, 10k and 100k faces, at 224, 299 and 512 px, batch 1 and 8, with 1 and 2 threads. Median times.
 
@@ -10,6 +12,12 @@ Usage:
     python benchmarks/render_bench.py                # full grid, writes the render section of benchmarks/RESULTS.md
     python benchmarks/render_bench.py --quick        # small grid
     python benchmarks/render_bench.py --no-mitsuba --out /tmp/results.md
+    PYTHONPATH=/path/to/pytorch3d python benchmarks/render_bench.py   # with the PyTorch3D columns
+
+PyTorch3D (0.7.9 was timed) builds CPU-only from its source when no CUDA toolkit is found, outside this checkout:
+    git clone https://github.com/facebookresearch/pytorch3d /path/to/pytorch3d && cd /path/to/pytorch3d
+    sed -i 's/-std=c++17/-std=c++20/' setup.py        # the headers of torch 2.15 require C++20
+    pip install ninja && MAX_JOBS=2 python setup.py build_ext --inplace   # about 12 minutes on 2 cores
 """
 
 from __future__ import annotations
@@ -42,13 +50,12 @@ MARK_START = "<!-- render-bench:start -->"
 MARK_END = "<!-- render-bench:end -->"
 DISTANCE, FOV = 2.732, 30.0
 READING_NOTE = (
-    "Reading the table: meshadv's forward is 1.6-16x faster than the PyTorch rasterizer at one thread. "
-    "Its fwd+bwd is dominated by the Rust NMR vertex-gradient sweep (`rasterize_backward`, ~75% of a "
-    "10k-face 224 px fwd+bwd in a profile), which, as NMR defines it, walks each edge's pixel lines from "
-    "the edge to the image border; the PyTorch baseline's straight-through gradient touches only covered "
-    "pixels, so it costs about the same per call while not being NMR's gradient. When only colours need "
-    "gradients (texture attacks) the vertex sweep is skipped. The PyTorch 2-thread columns are dominated "
-    "by OpenMP contention on the overloaded machine, not by the algorithm."
+    "meshadv's fwd+bwd is dominated by the Rust NMR vertex-gradient sweep (`rasterize_backward`), which, as NMR "
+    "defines it, walks each edge's pixel lines from the edge to the image border; the PyTorch baseline's "
+    "straight-through gradient touches only covered pixels and PyTorch3D's soft rasterizer only pixels within its "
+    "blur radius of a face, and neither is NMR's gradient. When only colours need gradients (texture attacks) the "
+    "vertex sweep is skipped. PyTorch3D on the CPU tests every face at every pixel (it bins faces only on CUDA), so "
+    "its cost grows with faces x pixels."
 )
 
 
@@ -88,7 +95,7 @@ def uv_sphere(target_faces: int) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 # ----------------------------------------------------------------------------- timing
-def median_time(fn: Callable[[], None], repeats: int, budget_s: float) -> tuple[float, int]:
+def median_time(fn: Callable[[], object], repeats: int, budget_s: float) -> tuple[float, int]:
     """Median wall time (s) of ``fn`` after one warm-up call; fewer repeats when a call is slow."""
     t0 = time.perf_counter()
     fn()
@@ -143,6 +150,72 @@ def torch_step(inp: dict, size: int, backward: bool, cot: torch.Tensor | None) -
             (image.permute(0, 3, 1, 2) * cot).sum().backward()
 
     return run
+
+
+# ----------------------------------------------------------------------------- PyTorch3D (optional)
+# SoftRas blending as PyTorch3D's soft shaders use it: BlendParams' default sigma and gamma, the blur radius that
+# keeps faces whose sigmoid weight is above 1e-4 (PyTorch3D's documented recipe), a few faces per pixel.
+P3D_SIGMA, P3D_GAMMA, P3D_FACES_PER_PIXEL = 1e-4, 1e-4, 4
+P3D_BLUR_RADIUS = math.log(1.0 / 1e-4 - 1.0) * P3D_SIGMA
+
+
+def probe_pytorch3d() -> tuple[str | None, str]:
+    """Return (version, message); version None when PyTorch3D's rasterizer cannot be imported."""
+    try:
+        import pytorch3d
+        from pytorch3d.renderer.mesh.rasterize_meshes import rasterize_meshes  # noqa: F401
+    except ImportError as exc:
+        return None, f"not importable ({exc}); build it from source outside the repository and add it to PYTHONPATH"
+    return str(pytorch3d.__version__), "ok"
+
+
+def pytorch3d_step(inp: dict, size: int, backward: bool, cot: torch.Tensor | None) -> Callable[[], torch.Tensor]:
+    """The same camera + shading with PyTorch3D's CPU rasterizer (naive: PyTorch3D has no binned CPU path).
+
+    Forward: hard rasterization (1 face per pixel, no blur), each pixel the shaded colour of its face. Forward +
+    backward: PyTorch3D's soft rasterizer and SoftRas blending (its route to vertex gradients; not NMR's gradient).
+    Returns the RGBA image (B, H, W, 4), for the silhouette check against meshadv.
+    """
+    from pytorch3d.renderer.blending import BlendParams, softmax_rgb_blend
+    from pytorch3d.renderer.mesh.rasterize_meshes import rasterize_meshes
+    from pytorch3d.structures import Meshes
+
+    background = (1.0, 1.0, 1.0)
+    blend = BlendParams(sigma=P3D_SIGMA, gamma=P3D_GAMMA, background_color=background)
+    flip_x = torch.tensor([-1.0, 1.0, 1.0])  # PyTorch3D's NDC has +x to the left, +y up
+
+    def run() -> torch.Tensor:
+        v = inp["verts"].clone().requires_grad_(backward)
+        c = inp["colors"].clone().requires_grad_(backward)
+        cam, lights, faces = inp["camera"], inp["lights"], inp["faces"]
+        screen = cam.project(v) * flip_x
+        batch = screen.shape[0]
+        shaded = shade(v, faces, c, lights, cam).expand(batch, -1, -1)
+        meshes = Meshes(verts=list(screen), faces=[faces] * batch)
+        blur, per_pixel = (P3D_BLUR_RADIUS, P3D_FACES_PER_PIXEL) if backward else (0.0, 1)
+        pix_to_face, zbuf, _, dists = rasterize_meshes(
+            meshes, image_size=size, blur_radius=blur, faces_per_pixel=per_pixel, bin_size=0
+        )
+        colors = shaded.reshape(-1, 3)[pix_to_face.clamp(min=0)]  # (B, H, W, K, 3), packed face indices
+        if backward:
+            fragments = argparse.Namespace(pix_to_face=pix_to_face, zbuf=zbuf, dists=dists)
+            image = softmax_rgb_blend(colors, fragments, blend, znear=0.1, zfar=100.0)
+            (image.permute(0, 3, 1, 2) * cot).sum().backward()
+            return image.detach()
+        covered = pix_to_face[..., :1] >= 0
+        rgb = torch.where(covered, colors[..., 0, :], torch.tensor(background))
+        return torch.cat([rgb, covered.float()], -1)
+
+    return run
+
+
+def silhouette_agreement(inp: dict, size: int) -> float:
+    """Fraction of pixels where meshadv and PyTorch3D (hard) agree on coverage, batch element 0: a check that both
+    render the same picture."""
+    torch.set_num_threads(1)
+    ours = render(inp["verts"], inp["faces"], inp["colors"], inp["camera"], inp["lights"], size).alpha[0, 0] > 0.5
+    theirs = pytorch3d_step(inp, size, False, None)()[0, ..., 3] > 0.5
+    return float((ours == theirs).float().mean())
 
 
 # ----------------------------------------------------------------------------- mitsuba (subprocess)
@@ -319,6 +392,46 @@ def ratio(a: float | None, b: float | None) -> str:
     return "–" if a is None or b is None else f"{b / a:.1f}×"
 
 
+def speedup_range(rows: list[dict], ours: str, theirs: str) -> str | None:
+    """``"a-bx"``: the smallest and largest ratio ``theirs / ours`` over the one-thread rows that have both."""
+    ratios = [r[theirs] / r[ours] for r in rows if r["threads"] == 1 and ours in r and theirs in r]
+    if not ratios:
+        return None
+    return f"{min(ratios):.1f}-{max(ratios):.1f}x"
+
+
+def reading(rows: list[dict]) -> str:
+    """What the table says at one thread, computed from its rows, then why (``READING_NOTE``)."""
+    said = []
+    for mode, label in (("fwd", "forward"), ("bwd", "fwd+bwd")):
+        parts = [
+            f"{span} over {name}"
+            for other, name in (
+                ("torch", "the PyTorch rasterizer"),
+                ("p3d", "PyTorch3D"),
+                ("mitsuba", "Mitsuba's `direct`"),
+            )
+            if (span := speedup_range(rows, f"meshadv_{mode}", f"{other}_{mode}")) is not None
+        ]
+        if parts:
+            said.append(f"{label} " + ", ".join(parts))
+    text = (
+        "Reading the table: meshadv's speed-up at one thread (their time / meshadv's; below 1x meshadv is slower), "
+        + "; ".join(said)
+        + "."
+        if said
+        else ""
+    )
+    sphere = [r for r in rows if r["threads"] == 1 and r["batch"] == 1 and r["size"] == 299 and 5_000 < r["faces"]]
+    if sphere and "meshadv_bwd" in sphere[0]:
+        r = sphere[0]
+        text += (
+            f" At 299 px / {r['faces']:,} faces / batch 1: forward {fmt(r['meshadv_fwd'])} ms, forward + backward "
+            f"{fmt(r['meshadv_bwd'])} ms through the Python API."
+        )
+    return (text + " " + READING_NOTE).strip()
+
+
 def write_section(path: Path, text: str) -> None:
     """Replace the render section (between markers) of ``path``, keeping everything else."""
     block = f"{MARK_START}\n{text.rstrip()}\n{MARK_END}\n"
@@ -342,6 +455,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--torch-max-work", type=int, default=100_000, help="skip the PyTorch baseline when faces x batch exceeds this"
     )
+    parser.add_argument("--no-pytorch3d", action="store_true", help="skip PyTorch3D even when it is importable")
+    parser.add_argument(
+        "--pytorch3d-max-work",
+        type=float,
+        default=1e9,
+        help="skip PyTorch3D when faces x pixels x batch exceeds this (its CPU rasterizer tests every face per pixel)",
+    )
     parser.add_argument("--max-minutes", type=float, default=45.0, help="stop starting new cells after this long")
     parser.add_argument("--mitsuba-max-batch", type=int, default=8, help="skip Mitsuba for larger batches")
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "RESULTS.md")
@@ -354,6 +474,9 @@ def main(argv: list[str] | None = None) -> int:
 
     mi_version, mi_msg = (None, "skipped (--no-mitsuba)") if args.no_mitsuba else probe_mitsuba()
     print(f"mitsuba: {mi_version or mi_msg}", flush=True)
+    p3d_version, p3d_msg = (None, "skipped (--no-pytorch3d)") if args.no_pytorch3d else probe_pytorch3d()
+    print(f"pytorch3d: {p3d_version or p3d_msg}", flush=True)
+    agreement = {}
     rows = []
     tmp = Path(tempfile.mkdtemp(prefix="render_bench_"))
     started, skipped = time.monotonic(), 0
@@ -383,6 +506,13 @@ def main(argv: list[str] | None = None) -> int:
                             row[f"torch_{mode}"], _ = median_time(
                                 torch_step(inp, size, bw, cot), args.repeats, args.budget
                             )
+                        if p3d_version and nf * size * size * batch <= args.pytorch3d_max_work:
+                            torch.set_num_threads(threads)
+                            row[f"p3d_{mode}"], _ = median_time(
+                                pytorch3d_step(inp, size, bw, cot), args.repeats, args.budget
+                            )
+                    if p3d_version and (row["faces"], size) not in agreement and "p3d_fwd" in row:
+                        agreement[row["faces"], size] = silhouette_agreement(inp, size)
                     if mi_version and batch <= args.mitsuba_max_batch:
                         res = run_mitsuba(inp, size, batch, threads, max(1, min(args.repeats, 3)), tmp)
                         if isinstance(res, dict):
@@ -404,6 +534,7 @@ def main(argv: list[str] | None = None) -> int:
         f"Python {info['python']}, PyTorch {info['torch']}, commit {info['commit']}, "
         f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.  ",
         f"Mitsuba 3 llvm_ad_rgb: {mi_version or mi_msg}.  ",
+        f"PyTorch3D: {p3d_version or p3d_msg}.  ",
         f"1-minute load average {load_start:.1f} at the start and {load_end:.1f} at the end: the 2 cores were shared "
         "with other jobs, so timings (especially the 2-thread ones) are noisy upper bounds.",
         "",
@@ -419,21 +550,37 @@ def main(argv: list[str] | None = None) -> int:
         "`dr.set_thread_count(threads)`. A physically based renderer (ray traced, emitter sampling), shown for scale, "
         "not the same image model; `direct` ignores visibility discontinuities in the gradient "
         "(the visibility-aware `direct_projective` is timed once, below).",
+        "* **p3d**: PyTorch3D's CPU rasterizer (`rasterize_meshes`, naive: PyTorch3D has no binned CPU path, so it "
+        "tests every face at every pixel) after the same camera + shading, `torch.set_num_threads(threads)`; "
+        "forward = hard rasterization (1 face per pixel, each pixel its face's shaded colour); fwd+bwd = its soft "
+        f"rasterizer ({P3D_FACES_PER_PIXEL} faces per pixel, blur radius {P3D_BLUR_RADIUS:.2e}) and SoftRas blending "
+        f"(`softmax_rgb_blend`, sigma = gamma = {P3D_SIGMA:g}), its route to vertex gradients: not NMR's gradient. "
+        f"Cells above {args.pytorch3d_max_work:.0e} faces x pixels x batch are skipped (–).",
         "* fwd+bwd: forward then backward of a random linear loss of RGB and alpha w.r.t. vertices and colours.",
         "",
-        READING_NOTE,
+        reading(rows),
         "",
-        "| faces | px | batch | thr | meshadv fwd | torch fwd | speed-up | mitsuba fwd | meshadv fwd+bwd | "
-        "torch fwd+bwd | speed-up | mitsuba fwd+bwd |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| faces | px | batch | thr | meshadv fwd | torch fwd | speed-up | p3d fwd | speed-up | mitsuba fwd | "
+        "meshadv fwd+bwd | torch fwd+bwd | speed-up | p3d fwd+bwd | speed-up | mitsuba fwd+bwd |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         lines.append(
             f"| {r['faces']} | {r['size']} | {r['batch']} | {r['threads']} | {fmt(r.get('meshadv_fwd'))} | "
             f"{fmt(r.get('torch_fwd'))} | {ratio(r.get('meshadv_fwd'), r.get('torch_fwd'))} | "
+            f"{fmt(r.get('p3d_fwd'))} | {ratio(r.get('meshadv_fwd'), r.get('p3d_fwd'))} | "
             f"{fmt(r.get('mitsuba_fwd'))} | {fmt(r.get('meshadv_bwd'))} | {fmt(r.get('torch_bwd'))} | "
-            f"{ratio(r.get('meshadv_bwd'), r.get('torch_bwd'))} | {fmt(r.get('mitsuba_bwd'))} |"
+            f"{ratio(r.get('meshadv_bwd'), r.get('torch_bwd'))} | {fmt(r.get('p3d_bwd'))} | "
+            f"{ratio(r.get('meshadv_bwd'), r.get('p3d_bwd'))} | {fmt(r.get('mitsuba_bwd'))} |"
         )
+    if agreement:
+        lines += [
+            "",
+            "PyTorch3D's hard silhouette against meshadv's (fraction of pixels where both agree on coverage, first "
+            "view): "
+            + ", ".join(f"{nf} faces / {px} px {share:.4f}" for (nf, px), share in sorted(agreement.items()))
+            + ".",
+        ]
     if isinstance(projective, dict):
         lines += [
             "",
