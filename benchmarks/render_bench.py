@@ -388,13 +388,20 @@ def fmt(t: float | None) -> str:
     return "–" if t is None else f"{t * 1e3:.1f}"
 
 
-def ratio(a: float | None, b: float | None) -> str:
-    return "–" if a is None or b is None else f"{b / a:.1f}×"
+def speedup(ours: float | None, theirs: float | None) -> float | None:
+    """meshadv's speed-up over another renderer: their time / meshadv's (None when either is missing)."""
+    return None if ours is None or theirs is None else theirs / ours
+
+
+def ratio(ours: float | None, theirs: float | None) -> str:
+    """A table cell of :func:`speedup`."""
+    s = speedup(ours, theirs)
+    return "–" if s is None else f"{s:.1f}×"
 
 
 def speedup_range(rows: list[dict], ours: str, theirs: str) -> str | None:
-    """``"a-bx"``: the smallest and largest ratio ``theirs / ours`` over the one-thread rows that have both."""
-    ratios = [r[theirs] / r[ours] for r in rows if r["threads"] == 1 and ours in r and theirs in r]
+    """``"a-bx"``: the smallest and largest :func:`speedup` over the one-thread rows that have both columns."""
+    ratios = [s for r in rows if r["threads"] == 1 and (s := speedup(r.get(ours), r.get(theirs))) is not None]
     if not ratios:
         return None
     return f"{min(ratios):.1f}-{max(ratios):.1f}x"
@@ -415,16 +422,14 @@ def reading(rows: list[dict]) -> str:
         ]
         if parts:
             said.append(f"{label} " + ", ".join(parts))
-    text = (
-        "Reading the table: meshadv's speed-up at one thread (their time / meshadv's; below 1x meshadv is slower), "
-        + "; ".join(said)
-        + "."
-        if said
-        else ""
-    )
-    sphere = [r for r in rows if r["threads"] == 1 and r["batch"] == 1 and r["size"] == 299 and 5_000 < r["faces"]]
-    if sphere and "meshadv_bwd" in sphere[0]:
-        r = sphere[0]
+    text = ""
+    if said:
+        text = "Reading the table: meshadv's speed-up at one thread (their time / meshadv's; below 1x meshadv is "
+        text += "slower), " + "; ".join(said) + "."
+    # The Rust bench's case (crates/raster/examples/bench.rs: ~10k faces, 299 px, one thread), through Python.
+    at_299 = [r for r in rows if (r["threads"], r["batch"], r["size"]) == (1, 1, 299) and "meshadv_bwd" in r]
+    if at_299:
+        r = min(at_299, key=lambda r: abs(r["faces"] - 10_000))
         text += (
             f" At 299 px / {r['faces']:,} faces / batch 1: forward {fmt(r['meshadv_fwd'])} ms, forward + backward "
             f"{fmt(r['meshadv_bwd'])} ms through the Python API."
