@@ -56,6 +56,7 @@ use rayon::prelude::*;
 use crate::error::{try_clear_for, try_refill, RasterError, Result};
 use crate::input::{check_finite, FaceAttrs, RasterParams, ScreenMesh};
 use crate::setup::FaceSetup;
+pub use crate::simd::Isa;
 use sweep::{index_f64, run_lines, Clip, FaceLines, LineJob, Positions};
 
 /// NMR's `eps` added to the signed displacement (NDC units) before dividing.
@@ -131,49 +132,6 @@ impl BackwardInputs<'_> {
             });
         }
         Ok(())
-    }
-}
-
-/// Instruction set the vertex-gradient sweeps run on. Every choice gives the same bits (see `sweep`'s docs); only
-/// the speed differs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-pub enum Isa {
-    /// The target's baseline (SSE2 on x86-64, NEON on arm64).
-    Portable,
-    /// AVX2 (x86-64 only; [`Isa::detect`] picks it when the CPU has it).
-    Avx2,
-    /// AVX-512 (F, DQ and VL, with AVX2; x86-64 only): the OUT sweeps take two blocks of pixels
-    /// per 8-lane vector and add them to the block accumulators one after the other, so the same bits as AVX2.
-    Avx512,
-}
-
-impl Isa {
-    /// The fastest instruction set this CPU supports.
-    pub fn detect() -> Isa {
-        #[cfg(target_arch = "x86_64")]
-        {
-            use std::arch::is_x86_feature_detected as has;
-            if has!("avx2") && has!("avx512f") && has!("avx512dq") && has!("avx512vl") {
-                return Isa::Avx512;
-            }
-            if has!("avx2") {
-                return Isa::Avx2;
-            }
-        }
-        Isa::Portable
-    }
-
-    /// Whether this CPU can run `self` (each instruction set includes the ones before it).
-    pub fn available(self) -> bool {
-        self <= Isa::detect()
-    }
-
-    /// Every instruction set this CPU can run, from the baseline up.
-    pub fn all_available() -> Vec<Isa> {
-        [Isa::Portable, Isa::Avx2, Isa::Avx512]
-            .into_iter()
-            .filter(|isa| isa.available())
-            .collect()
     }
 }
 

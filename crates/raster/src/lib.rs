@@ -38,6 +38,7 @@ pub mod raster;
 pub mod raycast;
 pub mod setup;
 pub mod shading;
+mod simd;
 #[cfg(test)]
 mod test_rng;
 

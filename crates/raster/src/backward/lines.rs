@@ -9,8 +9,9 @@ use crate::error::{try_clear_for, try_refill, Result};
 use crate::input::RasterParams;
 use crate::setup::FaceSetup;
 
-use super::sweep::{F64s, LANES};
+use super::sweep::LANES;
 use super::Isa;
+use crate::simd::F64s;
 
 /// The per-pixel inputs of the sweeps of one batch element, one line after another: image rows for the row sweeps
 /// (axis V) or image columns for the column sweeps (axis U), so that the inner loops read memory contiguously.
