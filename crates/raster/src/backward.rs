@@ -55,7 +55,7 @@ use rayon::prelude::*;
 
 use crate::error::{try_clear_for, try_refill, RasterError, Result};
 use crate::input::{check_finite, FaceAttrs, RasterParams, ScreenMesh};
-use crate::setup::FaceSetup;
+use crate::setup::{ceil, floor, FaceSetup};
 pub use crate::simd::Isa;
 use sweep::{index_f64, run_lines, Clip, FaceLines, LineJob, Positions};
 
@@ -528,28 +528,6 @@ fn in_range(d_in: i64, cross2: f64, dir: i64, lb: i64, ub: i64) -> (i64, i64) {
     (d_in.min(limit).max(lb), d_in.max(limit).min(ub))
 }
 
-/// `x.floor()` without a library call (the baseline x86-64 target has no rounding instruction).
-#[inline(always)]
-fn floor(x: f64) -> f64 {
-    // Beyond 2^52 (and for infinities and NaN) `x` is its own floor.
-    if x.abs() < 4503599627370496.0 {
-        let t = x as i64 as f64;
-        if t > x {
-            t - 1.0
-        } else {
-            t
-        }
-    } else {
-        x
-    }
-}
-
-/// `x.ceil()` without a library call, see [`floor`].
-#[inline(always)]
-fn ceil(x: f64) -> f64 {
-    -floor(-x)
-}
-
 /// Backward pass: exact attribute gradient and NMR's approximate vertex gradient (see the module docs), on the
 /// fastest instruction set of this CPU.
 ///
@@ -788,33 +766,6 @@ mod tests {
             }
         }
         assert!(cases > 5000);
-    }
-
-    #[test]
-    fn floor_and_ceil_match_the_library() {
-        let mut rng = Rng(1);
-        let mut xs = vec![
-            0.0,
-            -0.0,
-            0.5,
-            -0.5,
-            1.0,
-            -1.0,
-            2.5e15,
-            -2.5e15,
-            4503599627370495.5,
-            -4503599627370495.5,
-            1e300,
-            -1e300,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-        ];
-        xs.extend((0..1000).map(|_| (rng.next() - 0.5) * 1000.0));
-        for x in xs {
-            assert_eq!(floor(x), x.floor(), "floor({x})");
-            assert_eq!(ceil(x), x.ceil(), "ceil({x})");
-        }
-        assert!(floor(f64::NAN).is_nan() && ceil(f64::NAN).is_nan());
     }
 
     #[test]

@@ -151,10 +151,10 @@ impl FaceSetup {
         let umax = s.u[0].max(s.u[1]).max(s.u[2]);
         let vmin = s.v[0].min(s.v[1]).min(s.v[2]);
         let vmax = s.v[0].max(s.v[1]).max(s.v[2]);
-        s.col0 = umin.ceil().clamp(0.0, w) as i32;
-        s.col1 = umax.floor().clamp(-1.0, w - 1.0) as i32;
-        s.row0 = vmin.ceil().clamp(0.0, h) as i32;
-        s.row1 = vmax.floor().clamp(-1.0, h - 1.0) as i32;
+        s.col0 = ceil(umin).clamp(0.0, w) as i32;
+        s.col1 = floor(umax).clamp(-1.0, w - 1.0) as i32;
+        s.row0 = ceil(vmin).clamp(0.0, h) as i32;
+        s.row1 = floor(vmax).clamp(-1.0, h - 1.0) as i32;
         if !s.active || s.col0 > s.col1 || s.row0 > s.row1 {
             s.col0 = 1;
             s.col1 = 0;
@@ -271,6 +271,28 @@ impl RowDepth<'_> {
     }
 }
 
+/// `x.floor()` without a library call (the baseline x86-64 target has no rounding instruction).
+#[inline(always)]
+pub(crate) fn floor(x: f64) -> f64 {
+    // Beyond 2^52 (and for infinities and NaN) `x` is its own floor.
+    if x.abs() < 4503599627370496.0 {
+        let t = x as i64 as f64;
+        if t > x {
+            t - 1.0
+        } else {
+            t
+        }
+    } else {
+        x
+    }
+}
+
+/// `x.ceil()` without a library call, see [`floor`].
+#[inline(always)]
+pub(crate) fn ceil(x: f64) -> f64 {
+    -floor(-x)
+}
+
 /// Sets up every face of batch element `b`.
 pub fn setup_faces(mesh: &ScreenMesh<'_>, b: usize, params: &RasterParams) -> Vec<FaceSetup> {
     (0..mesh.num_faces())
@@ -380,5 +402,32 @@ mod tests {
             }
         }
         assert!(checked > 10000);
+    }
+
+    #[test]
+    fn floor_and_ceil_match_the_library() {
+        let mut rng = Rng(1);
+        let mut xs = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            2.5e15,
+            -2.5e15,
+            4503599627370495.5,
+            -4503599627370495.5,
+            1e300,
+            -1e300,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        xs.extend((0..1000).map(|_| (rng.next() - 0.5) * 1000.0));
+        for x in xs {
+            assert_eq!(floor(x), x.floor(), "floor({x})");
+            assert_eq!(ceil(x), x.ceil(), "ceil({x})");
+        }
+        assert!(floor(f64::NAN).is_nan() && ceil(f64::NAN).is_nan());
     }
 }
