@@ -249,7 +249,7 @@ def step_split(mesh_name: str, perturb: str, args: argparse.Namespace,
     return records
 
 
-def _old_downsample(t: torch.Tensor, k: int) -> torch.Tensor:
+def _old_downsample(t: torch.Tensor, k: int, num_threads: int = 0) -> torch.Tensor:
     """The antialias pooling as it was before the box filter: ``F.avg_pool2d`` on the channels-last view."""
     import torch.nn.functional as F
 

@@ -1,8 +1,9 @@
-"""The antialias box filter of the renderer (render/renderer.py ``_BoxDownsample``): torch's ``avg_pool2d`` bit for
-bit, its gradient numerically, and renders unchanged."""
+"""The antialias box filter of the renderer (render/renderer.py ``_downsample``: the native kernels for float32,
+``avg_pool2d`` otherwise): torch's ``avg_pool2d`` bit for bit forward and backward, and renders unchanged."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
@@ -11,11 +12,16 @@ from meshadv.render import native_available
 from meshadv.render.renderer import _BoxDownsample, _downsample
 
 
-@pytest.mark.parametrize("k", [2, 3, 4])
-@pytest.mark.parametrize("channels", [1, 4])
+needs_native = pytest.mark.skipif(not native_available(), reason="native module meshadv._raster not built")
+
+
+@needs_native
+@pytest.mark.parametrize("k", [2, 3, 4, 5])
+@pytest.mark.parametrize("channels", [1, 3, 4])
 def test_box_filter_equals_avg_pool2d_forward_and_backward(k: int, channels: int) -> None:
     gen = torch.Generator().manual_seed(k)
-    image = torch.rand(3, 5 * k, 7 * k, channels, generator=gen)
+    # Values of many magnitudes, so that the order of the additions shows in the bits.
+    image = torch.rand(3, 5 * k, 7 * k, channels, generator=gen) * 10.0 ** torch.randint(-6, 7, (1,), generator=gen)
     a = image.clone().requires_grad_(True)
     b = image.clone().requires_grad_(True)
     ref = F.avg_pool2d(a.permute(0, 3, 1, 2), k, k)
@@ -30,11 +36,42 @@ def test_box_filter_equals_avg_pool2d_forward_and_backward(k: int, channels: int
     assert torch.equal(b.grad, a.grad)
 
 
-def test_box_filter_gradcheck() -> None:
+@needs_native
+def test_the_native_spread_is_the_adjoint_of_the_filter_for_any_thread_count() -> None:
+    # <filter(x), g> == <x, spread(g)> in float64 arithmetic, and the thread count does not change a bit.
+    gen = torch.Generator().manual_seed(7)
+    x = torch.rand(2, 12, 9, 4, generator=gen)
+    g = torch.randn(2, 4, 4, 3, generator=gen)
+    y = _BoxDownsample.apply(x, 3, 1)
+    xr = x.clone().requires_grad_(True)
+    _BoxDownsample.apply(xr, 3, 2).backward(g)
+    assert torch.equal(_BoxDownsample.apply(x, 3, 2), y)
+    lhs = float((y.double() * g.double()).sum())
+    rhs = float((x.double() * xr.grad.double()).sum())
+    assert abs(lhs - rhs) <= 1e-6 * (1.0 + abs(lhs))
+
+
+def test_float64_images_go_through_avg_pool2d_with_its_gradient() -> None:
     image = torch.rand(2, 6, 4, 3, dtype=torch.float64, requires_grad=True)
-    assert torch.autograd.gradcheck(lambda t: _BoxDownsample.apply(t, 2), (image,))
-    assert torch.autograd.gradcheck(lambda t: _BoxDownsample.apply(t, 3), (torch.rand(1, 6, 9, 2, dtype=torch.float64,
-                                                                                        requires_grad=True),))
+    assert torch.equal(_downsample(image, 2), F.avg_pool2d(image.permute(0, 3, 1, 2), 2, 2))
+    assert torch.autograd.gradcheck(lambda t: _downsample(t, 2), (image,))
+
+
+@needs_native
+@pytest.mark.parametrize(
+    ("shape", "k", "arg"),
+    [((1, 5, 4, 1), 2, "image"), ((1, 4, 4, 1), 0, "k"), ((1, 4, 4, 1), 65, "k"), ((1, 4, 4, 1), -2, "k")],
+)
+def test_bad_box_filter_input_names_the_argument(shape: tuple[int, ...], k: int, arg: str) -> None:
+    from meshadv.render.rasterize import _native
+
+    with pytest.raises(ValueError, match=f"^{arg}:"):
+        _native().box_downsample(np.zeros(shape, dtype=np.float32), k)
+    if arg == "k":
+        with pytest.raises(ValueError, match="^k:"):
+            _native().box_spread(np.zeros(shape, dtype=np.float32), k)
+    with pytest.raises(ValueError, match="^grad:"):
+        _native().box_spread(np.zeros((1, 4, 4), dtype=np.float32), 2)
 
 
 def test_box_filter_identity_at_k1() -> None:
@@ -56,7 +93,9 @@ def test_antialiased_render_equals_avg_pool_of_the_supersampled_raster() -> None
         verts = mesh.vertices.clone().requires_grad_(True)
         original = module._downsample
         if pool == "avg_pool2d":
-            module._downsample = lambda t, k: F.avg_pool2d(t.permute(0, 3, 1, 2), k, k)  # type: ignore[assignment]
+            module._downsample = lambda t, k, num_threads=0: F.avg_pool2d(  # type: ignore[assignment]
+                t.permute(0, 3, 1, 2), k, k
+            )
         try:
             out = render(verts, mesh.faces, mesh.face_colors, views.camera, views.lights, 40, antialias=2)
         finally:

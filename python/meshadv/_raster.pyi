@@ -70,6 +70,20 @@ def rasterize_backward(
         rasterization gradient defined in docs/NMR_GRADIENT.md; the attribute gradient is exact.
     """
 
+def box_downsample(image: npt.NDArray[np.float32], k: int, num_threads: int = 0) -> npt.NDArray[np.float32]:
+    """The ``k x k`` block averages of a supersampled image: (B,kH,kW,C) -> (B,H,W,C), the bits of
+    ``F.avg_pool2d(x, k, k)`` on the channels-first view (samples added row by row, then divided by ``k*k``).
+
+    Raises ``ValueError`` naming ``k`` (not in [1, 64]) or ``image`` (a side not divisible by ``k``).
+    """
+
+def box_spread(grad: npt.NDArray[np.float32], k: int, num_threads: int = 0) -> npt.NDArray[np.float32]:
+    """The adjoint of :func:`box_downsample`: (B,H,W,C) -> (B,kH,kW,C), each value divided by ``k*k`` and given to
+    every sample of its block (the bits of ``avg_pool2d``'s backward).
+
+    Raises ``ValueError`` naming ``k`` (not in [1, 64]).
+    """
+
 def raycast(
     verts_view: npt.NDArray[np.float32],
     faces: npt.NDArray[np.int32],

@@ -6,6 +6,7 @@
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
+use meshadv_raster::boxfilter;
 use meshadv_raster::camera::SphericalCamera;
 use meshadv_raster::pipeline::{render, Lights, RenderSettings};
 use meshadv_raster::raycast::{raycast as core_raycast, RayCamera};
@@ -331,6 +332,76 @@ fn rasterize_backward<'py>(
     ))
 }
 
+/// The `k x k` block averages of a supersampled image `f32[B, kH, kW, C]`: `f32[B, H, W, C]`, the bits of torch's
+/// `avg_pool2d(x, k, k)` (see `meshadv_raster::boxfilter`).
+#[pyfunction]
+#[pyo3(signature = (image, k, num_threads = 0))]
+fn box_downsample<'py>(
+    py: Python<'py>,
+    image: &Bound<'py, PyAny>,
+    k: i64,
+    num_threads: i64,
+) -> PyResult<PyArr<'py, f32>> {
+    let nt = threads(num_threads)?;
+    let image = array::<f32>("image", "float32", image)?;
+    let (dims, data) = view("image", &image, 4)?;
+    let shape = box_shape("image", &dims, k)?;
+    let out = run(py, nt, || boxfilter::box_downsample(data, &shape))?;
+    output(
+        py,
+        out,
+        &[shape.batch, shape.height, shape.width, shape.channels],
+    )
+}
+
+/// The adjoint of `box_downsample`: the cotangent `f32[B, H, W, C]` of the filtered image, each value divided by
+/// `k * k` and given to every sample of its block: `f32[B, kH, kW, C]` (the bits of `avg_pool2d`'s backward).
+#[pyfunction]
+#[pyo3(signature = (grad, k, num_threads = 0))]
+fn box_spread<'py>(
+    py: Python<'py>,
+    grad: &Bound<'py, PyAny>,
+    k: i64,
+    num_threads: i64,
+) -> PyResult<PyArr<'py, f32>> {
+    let nt = threads(num_threads)?;
+    let grad = array::<f32>("grad", "float32", grad)?;
+    let (dims, data) = view("grad", &grad, 4)?;
+    let full: Vec<usize> = match usize::try_from(k) {
+        Ok(k) => vec![
+            dims[0],
+            dims[1].saturating_mul(k),
+            dims[2].saturating_mul(k),
+            dims[3],
+        ],
+        Err(_) => dims.clone(),
+    };
+    let shape = box_shape("grad", &full, k)?;
+    let out = run(py, nt, || boxfilter::box_spread(data, &shape))?;
+    output(
+        py,
+        out,
+        &[
+            shape.batch,
+            shape.height * shape.k,
+            shape.width * shape.k,
+            shape.channels,
+        ],
+    )
+}
+
+/// The box filter's shape for a supersampled `(B, kH, kW, C)` array `arg` and block side `k`.
+fn box_shape(arg: &'static str, dims: &[usize], k: i64) -> PyResult<boxfilter::BoxShape> {
+    let k = usize::try_from(k).map_err(|_| {
+        PyValueError::new_err(format!(
+            "k: the block side must be in [1, {}], got {k}",
+            boxfilter::MAX_BLOCK
+        ))
+    })?;
+    let dims = [dims[0], dims[1], dims[2], dims[3]];
+    Ok(boxfilter::BoxShape::of_full(arg, dims, k).map_err(PyRasterError)?)
+}
+
 /// Exact BVH ray cast of view-space triangles: one primary ray through each pixel centre.
 ///
 /// Returns `(face_index i32[B,H,W], depth f32[B,H,W])`, equal to the rasterizer's output for the same camera except
@@ -513,6 +584,8 @@ fn render_full<'py>(
 fn _raster(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(rasterize_forward, m)?)?;
     m.add_function(wrap_pyfunction!(rasterize_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(box_downsample, m)?)?;
+    m.add_function(wrap_pyfunction!(box_spread, m)?)?;
     m.add_function(wrap_pyfunction!(raycast, m)?)?;
     m.add_function(wrap_pyfunction!(render_full, m)?)?;
     m.add("MAX_IMAGE_SIZE", meshadv_raster::MAX_IMAGE_SIZE)?;

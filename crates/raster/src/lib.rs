@@ -3,6 +3,7 @@
 //! * [`setup`]: per-face setup (edge functions, area, bounding box, cull and degenerate flags).
 //! * [`raster`]: forward rasterization of screen-space triangles with per-face attributes.
 //! * [`backward`]: exact attribute gradients and the Neural Mesh Renderer's approximate vertex gradients.
+//! * [`boxfilter`]: the box filter of an antialiased (supersampled) render and its adjoint.
 //! * [`camera`], [`shading`], [`pipeline`]: NMR camera conventions, Lambert shading and the full forward render.
 //! * [`raycast`]: BVH ray cast (obvhs), the rasterizer's oracle and an alternative for very large meshes.
 //!
@@ -29,6 +30,7 @@ macro_rules! with_channels {
 }
 
 pub mod backward;
+pub mod boxfilter;
 pub mod camera;
 pub mod error;
 pub mod input;

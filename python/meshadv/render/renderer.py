@@ -7,12 +7,13 @@ from dataclasses import dataclass
 from typing import Any
 
 import torch
+import torch.nn.functional as F
 
 from .._validate import finite_float
 from ._checks import as_float_tensor, check_faces, require_instance
 from .camera import Camera
 from .lighting import Lights, shade
-from .rasterize import RasterOutput, parse_image_size, rasterize
+from .rasterize import RasterOutput, _native, parse_image_size, rasterize
 
 __all__ = ["RenderOutput", "render", "render_silhouette"]
 
@@ -169,44 +170,35 @@ def _background(background: Any, dtype: torch.dtype) -> torch.Tensor:
 
 
 class _BoxDownsample(torch.autograd.Function):
-    """``k x k`` box filter of a channels-innermost image, (B,kH,kW,C) -> (B,C,H,W) (a channels-last view).
+    """``k x k`` box filter of a float32 CPU image, channels innermost, (B,kH,kW,C) -> (B,C,H,W) (a channels-last
+    view), by the native kernels ``meshadv._raster.box_downsample`` / ``box_spread``.
 
-    The same values, bit for bit, as ``F.avg_pool2d(image.permute(0, 3, 1, 2), k, k)``: the ``k*k`` samples are
-    added in its order (row by row, left to right) and the sum divided by ``k*k``; its backward spreads
-    ``grad / (k*k)`` over each block with one row-wise copy straight into the (B,kH,kW,C) layout the rasterizer's
-    backward reads, instead of torch's pooling backward (benchmarks/RESULTS.md, "Pipelined attack step": batch 6
-    at 448 -> 224 px, one thread, 5.8 ms forward and 10.3 ms backward against avg_pool2d's 8.8 and 19.0 ms).
+    The same values, bit for bit, as ``F.avg_pool2d(image.permute(0, 3, 1, 2), k, k)`` and its backward (the ``k*k``
+    samples added in its order, row by row, and the sum divided by ``k*k``); the backward writes the cotangent
+    straight into the (B,kH,kW,C) layout the rasterizer's backward reads (benchmarks/RESULTS.md, "Native box
+    filter": batch 6 at 448 -> 224 px, one thread).
     """
 
     @staticmethod
-    def forward(ctx: Any, image: torch.Tensor, k: int) -> torch.Tensor:
-        b, hk, wk, c = image.shape
-        v = image.contiguous().view(b, hk // k, k, wk // k, k, c)
-        out = v[:, :, 0, :, 0] + v[:, :, 0, :, 1] if k > 1 else v[:, :, 0, :, 0].clone()
-        for i in range(k):
-            for j in range(k):
-                if i > 0 or j > 1:
-                    out += v[:, :, i, :, j]
-        out.div_(k * k)
-        ctx.k, ctx.shape = k, tuple(image.shape)
-        return out.permute(0, 3, 1, 2)
+    def forward(ctx: Any, image: torch.Tensor, k: int, num_threads: int) -> torch.Tensor:
+        ctx.k, ctx.num_threads = k, num_threads
+        out = _native().box_downsample(image.detach().contiguous().numpy(), k, num_threads)
+        return torch.from_numpy(out).permute(0, 3, 1, 2)
 
     @staticmethod
-    def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor, None]:
-        k, (b, hk, wk, c) = ctx.k, ctx.shape
-        h, w = hk // k, wk // k
-        scaled = grad.permute(0, 2, 3, 1) / (k * k)  # (B,H,W,C)
-        row = scaled.unsqueeze(3).expand(b, h, w, k, c).reshape(b, h, 1, wk * c)  # each block row, once
-        out = torch.empty(b, h, k, wk * c, dtype=grad.dtype, device=grad.device)
-        out.copy_(row.expand(b, h, k, wk * c))
-        return out.view(b, hk, wk, c), None
+    def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor, None, None]:
+        cotangent = grad.permute(0, 2, 3, 1).contiguous().numpy()  # (B,H,W,C)
+        return torch.from_numpy(_native().box_spread(cotangent, ctx.k, ctx.num_threads)), None, None
 
 
-def _downsample(t: torch.Tensor, k: int) -> torch.Tensor:
-    """Average-pool a channels-innermost (B,kH,kW,C) image to (B,C,H,W) (a channels-last view of (B,H,W,C))."""
+def _downsample(t: torch.Tensor, k: int, num_threads: int = 0) -> torch.Tensor:
+    """Average-pool a channels-innermost (B,kH,kW,C) image to (B,C,H,W) (a channels-last view of (B,H,W,C)):
+    natively for float32 on the CPU (every render), through ``F.avg_pool2d`` otherwise (e.g. float64 attributes)."""
     if k == 1:
         return t.permute(0, 3, 1, 2)
-    return _BoxDownsample.apply(t, k)
+    if t.dtype == torch.float32 and t.device.type == "cpu":
+        return _BoxDownsample.apply(t, k, num_threads)
+    return F.avg_pool2d(t.permute(0, 3, 1, 2), k, k)
 
 
 def render(
@@ -291,7 +283,7 @@ def render(
     attrs = torch.cat([shaded, torch.ones_like(shaded[..., :1])], dim=-1)
     bg = torch.cat([_background(background, torch.float32), torch.zeros(1)])
     out = _rasterize_views(verts_screen, faces, attrs, (height * k, width * k), bg, camera, not fill_back, num_threads)
-    img = _downsample(out.image, k)
+    img = _downsample(out.image, k, num_threads)
     sub = slice(k // 2, None, k)
     return RenderOutput(
         image=img[:, :3],
@@ -345,4 +337,4 @@ def render_silhouette(
         not fill_back,
         num_threads,
     )
-    return _downsample(out.image, k)
+    return _downsample(out.image, k, num_threads)
