@@ -32,7 +32,8 @@ pub struct BoxShape {
 
 impl BoxShape {
     /// The shape of the box filter of a `(batch, full_height, full_width, channels)` image by `k`; an error naming
-    /// `arg` unless `k` is in `[1, MAX_BLOCK]` and divides both sides.
+    /// `k` unless it is in `[1, MAX_BLOCK]`, or `arg` unless the image has a row, a column and a channel and `k`
+    /// divides both sides (an empty batch is allowed).
     pub fn of_full(arg: &'static str, dims: [usize; 4], k: usize) -> Result<BoxShape> {
         let [batch, full_height, full_width, channels] = dims;
         if !(1..=MAX_BLOCK).contains(&k) {
@@ -40,6 +41,13 @@ impl BoxShape {
                 arg: "k",
                 message: format!("the block side must be in [1, {MAX_BLOCK}], got {k}"),
             });
+        }
+        if full_height == 0 || full_width == 0 || channels == 0 {
+            return Err(RasterError::shape(
+                arg,
+                "at least one row, one column and one channel",
+                format!("({batch}, {full_height}, {full_width}, {channels})"),
+            ));
         }
         if full_height % k != 0 || full_width % k != 0 {
             return Err(RasterError::shape(
@@ -272,6 +280,13 @@ mod tests {
         assert!(err.to_string().starts_with("image:"), "{err}");
         let err = BoxShape::of_full("image", [1, 4, 4, 1], 0).expect_err("a block side of 0");
         assert!(err.to_string().starts_with("k:"), "{err}");
+        for empty in [[1, 0, 4, 1], [1, 4, 0, 1], [1, 4, 4, 0]] {
+            let err = BoxShape::of_full("image", empty, 2).expect_err("an empty image");
+            assert!(err.to_string().starts_with("image:"), "{err}");
+        }
+        let none = BoxShape::of_full("image", [0, 4, 4, 1], 2).expect("an empty batch");
+        assert!(box_downsample(&[], &none).expect("no images").is_empty());
+        assert!(box_spread(&[], &none).expect("no images").is_empty());
         let shape = BoxShape::of_full("image", [1, 4, 4, 1], 2).expect("valid shape");
         let err = box_downsample(&[0.0; 15], &shape).expect_err("15 values for 16");
         assert!(err.to_string().starts_with("image:"), "{err}");
