@@ -165,7 +165,11 @@ unsafe fn band_on<V: F64s>(
     let (near, far) = (V::splat(params.near), V::splat(params.far));
     let all = V::splat(f64::from_bits(u64::MAX));
     let offsets = V::load(LANE_OFFSETS.as_ptr());
-    let (face_buf, depth_buf) = (buf.face.as_mut_ptr(), buf.depth.as_mut_ptr());
+    let (face_buf, depth_buf, buf_len) = (
+        buf.face.as_mut_ptr(),
+        buf.depth.as_mut_ptr(),
+        buf.depth.len(),
+    );
     for &f in bin {
         let s = &setups[f as usize];
         let r0 = s.row0.max(row_start as i32);
@@ -212,6 +216,11 @@ unsafe fn band_on<V: F64s>(
                     (one.div(wsum), wsum.gt(zero).and(wsum.lt(inf)))
                 };
                 let p = line + col as usize;
+                // SAFETY (the loads and stores at `p`): the face's box and spans lie within the image and the band
+                // (`0 <= col0 <= first`, `last <= col1 <= w - 1`, `row_start <= row <= row_end`), so `p + V::N <=
+                // (rows - 1) * w + (w - 1) + MAX_LANES`, within the buffers' `rows * w + MAX_LANES` values; lanes
+                // past `last` write back the values they read.
+                debug_assert!(p + V::N <= buf_len);
                 let old = V::load(depth_buf.add(p));
                 // In the clip range (`defined` excludes NaN) and nearer than what is there.
                 let wins = z
