@@ -11,8 +11,8 @@ pub enum Isa {
     Portable,
     /// AVX2 (x86-64 only; [`Isa::detect`] picks it when the CPU has it).
     Avx2,
-    /// AVX-512 (F, DQ and VL, with AVX2; x86-64 only): the OUT sweeps take two blocks of pixels
-    /// per 8-lane vector and add them to the block accumulators one after the other, so the same bits as AVX2.
+    /// AVX-512 (F, DQ and VL, with AVX2; x86-64 only): 8 lanes; the OUT sweeps take two blocks of 4 pixels per
+    /// vector and add them to the block accumulators one after the other, so the same bits as AVX2.
     Avx512,
 }
 
