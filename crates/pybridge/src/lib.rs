@@ -6,7 +6,7 @@
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
-use meshadv_raster::boxfilter;
+use meshadv_raster::boxfilter::{self, BoxShape};
 use meshadv_raster::camera::SphericalCamera;
 use meshadv_raster::pipeline::{render, Lights, RenderSettings};
 use meshadv_raster::raycast::{raycast as core_raycast, RayCamera};
@@ -345,13 +345,9 @@ fn box_downsample<'py>(
     let nt = threads(num_threads)?;
     let image = array::<f32>("image", "float32", image)?;
     let (dims, data) = view("image", &image, 4)?;
-    let shape = box_shape("image", &dims, k)?;
+    let shape = BoxShape::of_full("image", dims4(&dims), block_side(k)?).map_err(PyRasterError)?;
     let out = run(py, nt, || boxfilter::box_downsample(data, &shape))?;
-    output(
-        py,
-        out,
-        &[shape.batch, shape.height, shape.width, shape.channels],
-    )
+    output(py, out, &shape.filtered_dims())
 }
 
 /// The adjoint of `box_downsample`: the cotangent `f32[B, H, W, C]` of the filtered image, each value divided by
@@ -367,39 +363,25 @@ fn box_spread<'py>(
     let nt = threads(num_threads)?;
     let grad = array::<f32>("grad", "float32", grad)?;
     let (dims, data) = view("grad", &grad, 4)?;
-    let full: Vec<usize> = match usize::try_from(k) {
-        Ok(k) => vec![
-            dims[0],
-            dims[1].saturating_mul(k),
-            dims[2].saturating_mul(k),
-            dims[3],
-        ],
-        Err(_) => dims.clone(),
-    };
-    let shape = box_shape("grad", &full, k)?;
+    let shape =
+        BoxShape::of_filtered("grad", dims4(&dims), block_side(k)?).map_err(PyRasterError)?;
     let out = run(py, nt, || boxfilter::box_spread(data, &shape))?;
-    output(
-        py,
-        out,
-        &[
-            shape.batch,
-            shape.height * shape.k,
-            shape.width * shape.k,
-            shape.channels,
-        ],
-    )
+    output(py, out, &shape.full_dims())
 }
 
-/// The box filter's shape for a supersampled `(B, kH, kW, C)` array `arg` and block side `k`.
-fn box_shape(arg: &'static str, dims: &[usize], k: i64) -> PyResult<boxfilter::BoxShape> {
-    let k = usize::try_from(k).map_err(|_| {
+/// The box filter's block side `k` as a count (a negative one is the same error the core gives out of range).
+fn block_side(k: i64) -> PyResult<usize> {
+    usize::try_from(k).map_err(|_| {
         PyValueError::new_err(format!(
             "k: the block side must be in [1, {}], got {k}",
             boxfilter::MAX_BLOCK
         ))
-    })?;
-    let dims = [dims[0], dims[1], dims[2], dims[3]];
-    Ok(boxfilter::BoxShape::of_full(arg, dims, k).map_err(PyRasterError)?)
+    })
+}
+
+/// The shape of a 4-dimensional array (checked by `view`) as an array.
+fn dims4(dims: &[usize]) -> [usize; 4] {
+    [dims[0], dims[1], dims[2], dims[3]]
 }
 
 /// Exact BVH ray cast of view-space triangles: one primary ray through each pixel centre.

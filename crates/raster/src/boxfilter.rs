@@ -36,19 +36,7 @@ impl BoxShape {
     /// divides both sides (an empty batch is allowed).
     pub fn of_full(arg: &'static str, dims: [usize; 4], k: usize) -> Result<BoxShape> {
         let [batch, full_height, full_width, channels] = dims;
-        if !(1..=MAX_BLOCK).contains(&k) {
-            return Err(RasterError::Parameter {
-                arg: "k",
-                message: format!("the block side must be in [1, {MAX_BLOCK}], got {k}"),
-            });
-        }
-        if full_height == 0 || full_width == 0 || channels == 0 {
-            return Err(RasterError::shape(
-                arg,
-                "at least one row, one column and one channel",
-                format!("({batch}, {full_height}, {full_width}, {channels})"),
-            ));
-        }
+        check_block(arg, dims, k)?;
         if full_height % k != 0 || full_width % k != 0 {
             return Err(RasterError::shape(
                 arg,
@@ -65,9 +53,38 @@ impl BoxShape {
         })
     }
 
+    /// The shape of the box filter by `k` whose filtered image (or cotangent) is `(batch, height, width,
+    /// channels)`; errors as [`BoxShape::of_full`] (every side is a multiple of `k` here).
+    pub fn of_filtered(arg: &'static str, dims: [usize; 4], k: usize) -> Result<BoxShape> {
+        check_block(arg, dims, k)?;
+        let [batch, height, width, channels] = dims;
+        Ok(BoxShape {
+            batch,
+            height,
+            width,
+            channels,
+            k,
+        })
+    }
+
+    /// `(B, H, W, C)` of the filtered image (or of its cotangent).
+    pub fn filtered_dims(&self) -> [usize; 4] {
+        [self.batch, self.height, self.width, self.channels]
+    }
+
+    /// `(B, kH, kW, C)` of the supersampled image (or of its cotangent).
+    pub fn full_dims(&self) -> [usize; 4] {
+        [
+            self.batch,
+            self.height * self.k,
+            self.width * self.k,
+            self.channels,
+        ]
+    }
+
     /// Values of the filtered image (or of its cotangent).
     pub fn filtered_len(&self) -> usize {
-        self.batch * self.height * self.width * self.channels
+        self.filtered_dims().iter().product()
     }
 
     /// Values of the supersampled image (or of its cotangent).
@@ -75,25 +92,43 @@ impl BoxShape {
         self.filtered_len() * self.k * self.k
     }
 
-    /// Checks that `data` (argument `arg`) holds `want` values.
-    fn check_len(&self, arg: &'static str, data: &[f32], want: usize, full: bool) -> Result<()> {
+    /// Checks that `data` (argument `arg`) holds the values of the supersampled (`full`) or the filtered shape.
+    fn check_len(&self, arg: &'static str, data: &[f32], full: bool) -> Result<()> {
+        let (dims, want) = if full {
+            (self.full_dims(), self.full_len())
+        } else {
+            (self.filtered_dims(), self.filtered_len())
+        };
         if data.len() == want {
             return Ok(());
         }
-        let (h, w) = if full {
-            (self.height * self.k, self.width * self.k)
-        } else {
-            (self.height, self.width)
-        };
+        let [b, h, w, c] = dims;
         Err(RasterError::shape(
             arg,
-            format!(
-                "({}, {h}, {w}, {}) = {want} values",
-                self.batch, self.channels
-            ),
+            format!("({b}, {h}, {w}, {c}) = {want} values"),
             format!("{} values", data.len()),
         ))
     }
+}
+
+/// An error naming `k` unless it is in `[1, MAX_BLOCK]`, or `arg` unless the image `dims` (`(B, H, W, C)`) has a
+/// row, a column and a channel.
+fn check_block(arg: &'static str, dims: [usize; 4], k: usize) -> Result<()> {
+    if !(1..=MAX_BLOCK).contains(&k) {
+        return Err(RasterError::Parameter {
+            arg: "k",
+            message: format!("the block side must be in [1, {MAX_BLOCK}], got {k}"),
+        });
+    }
+    let [batch, height, width, channels] = dims;
+    if height == 0 || width == 0 || channels == 0 {
+        return Err(RasterError::shape(
+            arg,
+            "at least one row, one column and one channel",
+            format!("({batch}, {height}, {width}, {channels})"),
+        ));
+    }
+    Ok(())
 }
 
 /// The `k x k` block averages of the supersampled `image` (`(B, kH, kW, C)`, row-major): `(B, H, W, C)`.
@@ -105,7 +140,7 @@ impl BoxShape {
 /// assert_eq!(box_downsample(&[1.0, 2.0, 3.0, 6.0], &shape).unwrap(), vec![3.0]);
 /// ```
 pub fn box_downsample(image: &[f32], shape: &BoxShape) -> Result<Vec<f32>> {
-    shape.check_len("image", image, shape.full_len(), true)?;
+    shape.check_len("image", image, true)?;
     let row = shape.width * shape.channels;
     written(shape.filtered_len(), "image", |out| {
         out.par_chunks_mut(row)
@@ -172,7 +207,7 @@ fn filter_row<const C: usize>(shape: &BoxShape, block_rows: &[f32], sum: &mut [f
 /// assert_eq!(box_spread(&[4.0], &shape).unwrap(), vec![1.0; 4]);
 /// ```
 pub fn box_spread(grad: &[f32], shape: &BoxShape) -> Result<Vec<f32>> {
-    shape.check_len("grad", grad, shape.filtered_len(), false)?;
+    shape.check_len("grad", grad, false)?;
     let BoxShape {
         width,
         channels: c,
@@ -284,6 +319,16 @@ mod tests {
             let err = BoxShape::of_full("image", empty, 2).expect_err("an empty image");
             assert!(err.to_string().starts_with("image:"), "{err}");
         }
+        let err = BoxShape::of_filtered("grad", [1, 2, 2, 0], 2).expect_err("no channel");
+        assert!(err.to_string().starts_with("grad:"), "{err}");
+        let err = BoxShape::of_filtered("grad", [1, 2, 2, 1], 65).expect_err("a block side of 65");
+        assert!(err.to_string().starts_with("k:"), "{err}");
+        let spread = BoxShape::of_filtered("grad", [2, 3, 5, 4], 2).expect("valid shape");
+        assert_eq!(
+            spread,
+            BoxShape::of_full("image", [2, 6, 10, 4], 2).expect("valid shape")
+        );
+        assert_eq!(spread.full_dims(), [2, 6, 10, 4]);
         let none = BoxShape::of_full("image", [0, 4, 4, 1], 2).expect("an empty batch");
         assert!(box_downsample(&[], &none).expect("no images").is_empty());
         assert!(box_spread(&[], &none).expect("no images").is_empty());
