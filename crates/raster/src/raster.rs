@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use crate::error::{try_filled_vec, Result};
 use crate::input::{FaceAttrs, RasterParams, ScreenMesh};
 use crate::setup::{setup_faces, FaceSetup};
-use crate::simd::{F64s, Isa};
+use crate::simd::{F64s, Isa, MAX_LANES};
 
 /// Rows per parallel band.
 pub const BAND_ROWS: usize = 8;
@@ -39,12 +39,6 @@ pub struct RasterOutput {
 /// Boxes at least this many columns wide scan each row's [`FaceSetup::row_span`] instead of the whole box (for
 /// narrower ones, finding the span costs more than the vectors it skips).
 const SPAN_MIN_WIDTH: i32 = 16;
-
-/// Lanes of the widest vector ([`F64s::N`] of AVX-512): the band buffers' padding.
-const MAX_LANES: usize = 8;
-
-/// Column offsets of a vector's lanes.
-const LANE_OFFSETS: [f64; MAX_LANES] = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
 
 /// Face lists per band of rows, faces in increasing order.
 fn bin_faces(setups: &[FaceSetup], height: usize) -> Vec<Vec<u32>> {
@@ -164,7 +158,6 @@ unsafe fn band_on<V: F64s>(
     let (zero, one, inf) = (V::splat(0.0), V::splat(1.0), V::splat(f64::INFINITY));
     let (near, far) = (V::splat(params.near), V::splat(params.far));
     let all = V::splat(f64::from_bits(u64::MAX));
-    let offsets = V::load(LANE_OFFSETS.as_ptr());
     let (face_buf, depth_buf, buf_len) = (
         buf.face.as_mut_ptr(),
         buf.depth.as_mut_ptr(),
@@ -197,7 +190,7 @@ unsafe fn band_on<V: F64s>(
             let last_v = V::splat(last as f64);
             let mut col = first;
             while col <= last {
-                let u = V::splat(col as f64).add(offsets);
+                let u = V::counting_from(col as f64);
                 // Edge::eval: sign * (du * (v - av) - dv * (u - au)); Edge::inside: e > 0, or e == 0 where owned.
                 let mut outside = u.gt(last_v);
                 let mut wsum = zero;

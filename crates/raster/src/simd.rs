@@ -46,6 +46,12 @@ impl Isa {
     }
 }
 
+/// Lanes of the widest vector (AVX-512's 8): the padding a buffer needs for a vector read at its last value.
+pub(crate) const MAX_LANES: usize = 8;
+
+/// `0, 1, ..., MAX_LANES - 1`, for [`F64s::counting_from`].
+const LANE_OFFSETS: [f64; MAX_LANES] = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
+
 /// A vector of f64 lanes with the operations of the rasterizer's and the sweeps' loops. Comparisons give lanes of
 /// all ones (true) or all zeros (false), which `and` applies as masks.
 ///
@@ -102,6 +108,11 @@ pub(crate) unsafe trait F64s: Copy {
     unsafe fn andnot(self, o: Self) -> Self;
     /// Lane-wise `if self < o { self } else { o }` (x86's `min`: `o` when either is NaN or both are zeros).
     unsafe fn min(self, o: Self) -> Self;
+    /// Lanes `x, x + 1, ..., x + N - 1` (pixel positions: sums of small integers, exact).
+    #[inline(always)]
+    unsafe fn counting_from(x: f64) -> Self {
+        Self::splat(x).add(Self::load(LANE_OFFSETS.as_ptr()))
+    }
     /// The depth test with ties: lane-wise `self > o`, or `self >= o` where `wins_ties` (a mask) is set.
     #[inline(always)]
     unsafe fn nearer(self, o: Self, wins_ties: Self) -> Self {

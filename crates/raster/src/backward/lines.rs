@@ -310,8 +310,7 @@ unsafe fn row_keys<V: F64s>(s: &FaceSetup, row: i32, j0: usize, key: &mut [Maybe
     let m = [sp(m[0]), sp(m[1]), sp(m[2])];
     let (zero, one, inf, neg_inf) = (sp(0.0), sp(1.0), sp(f64::INFINITY), sp(f64::NEG_INFINITY));
     let (neg_one, step) = (sp(-1.0), sp(V::N as f64));
-    let j = j0 as f64;
-    let mut u = V::load([j, j + 1.0, j + 2.0, j + 3.0].as_ptr());
+    let mut u = V::counting_from(j0 as f64);
     for out in key.chunks_mut(V::N) {
         // Barycentric weights as `RowDepth::at`: sign * (row term - dv * (u - au)) * inv_area.
         let w: [V; 3] =
