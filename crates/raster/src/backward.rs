@@ -149,9 +149,11 @@ struct Ctx<'a> {
     drawn: &'a [Drawn],
     rows: &'a lines::Lines,
     cols: &'a lines::Lines,
-    /// `(M, C)` face attributes as f64.
-    attrs: &'a [f64],
-    /// `(H, W, C)` image (row-major, as given).
+    /// `(M + 1, C)` colours as f64: the face attributes, then the background (row `M`). The forward drew
+    /// `I[P] = colors[F[P]]` (background where `F[P] = -1`), so the IN sweeps read the colour beyond an edge here, by
+    /// the face index of the line buffers, rather than from the image (a cache and TLB miss per column line).
+    colors: &'a [f64],
+    /// `(H, W, C)` image (row-major, as given; debug builds check the colours read against it).
     image: &'a [f32],
     /// Pixel positions along a line.
     pos: &'a Positions,
@@ -324,7 +326,8 @@ impl Ctx<'_> {
         let sgn = if s.ortho { -1.0 } else { 1.0 };
         let c = if C == 0 { self.channels } else { C };
         let fi = f as f64;
-        let attrs_f = &self.attrs[f * c..(f + 1) * c];
+        let attrs_f = &self.colors[f * c..(f + 1) * c];
+        let background = self.colors.len() / c - 1;
         let jobs = &mut scratch.jobs;
         let mut g = [[0.0f64; 2]; 3];
         for e in 0..3 {
@@ -458,11 +461,19 @@ impl Ctx<'_> {
                     let (from, to) = in_range(d_in, cross2, dir, along[0] as i64, along[1] as i64);
                     if from <= to {
                         job.inside = (from as usize, to as usize + 1);
-                        let out_px = match axis {
-                            Axis::U => d_out as usize * w as usize + line,
-                            Axis::V => line * w as usize + d_out as usize,
-                        };
-                        job.out_color = out_px * c;
+                        let beyond = ln.face_at(line, d_out as usize);
+                        let row = usize::try_from(beyond).unwrap_or(background);
+                        job.out_color = row * c;
+                        if cfg!(debug_assertions) {
+                            let out_px = match axis {
+                                Axis::U => d_out as usize * w as usize + line,
+                                Axis::V => line * w as usize + d_out as usize,
+                            };
+                            assert!(
+                                self.image_shows(out_px, row),
+                                "the image is not the forward's"
+                            );
+                        }
                     }
                     if job.out.0 < job.out.1 || from <= to {
                         jobs.push(job);
@@ -475,7 +486,7 @@ impl Ctx<'_> {
                     key_step,
                     attrs: attrs_f,
                     own: (along[0], along[1]),
-                    image: self.image,
+                    colors: self.colors,
                 };
                 run_lines::<C>(&face, jobs, &mut scratch.ga, isa);
                 for job in jobs.iter() {
@@ -498,6 +509,16 @@ impl Ctx<'_> {
             }
         }
         g
+    }
+}
+
+impl Ctx<'_> {
+    /// Whether the image holds colour row `row` at pixel `px`, as the forward drew it (checked in debug builds).
+    fn image_shows(&self, px: usize, row: usize) -> bool {
+        let c = self.channels;
+        let drawn = &self.image[px * c..(px + 1) * c];
+        let color = &self.colors[row * c..(row + 1) * c];
+        drawn.iter().zip(color).all(|(&i, &a)| i as f64 == a)
     }
 }
 
@@ -602,7 +623,7 @@ fn element_grads(
         setups,
         drawn,
         acc,
-        attrs: attrs_b,
+        colors,
         partials,
         accv,
     } = ws;
@@ -635,10 +656,11 @@ fn element_grads(
     }));
     rows.fill_rows(isa, setups, face_index, image, grad, c, params)?;
     cols.fill_columns(rows)?;
-    try_clear_for(attrs_b, m * c, "backward face attributes")?;
-    attrs_b.extend(
+    try_clear_for(colors, (m + 1) * c, "backward colours")?;
+    colors.extend(
         attrs.values[b * m * c..(b + 1) * m * c]
             .iter()
+            .chain(attrs.background)
             .map(|&x| x as f64),
     );
     let longest = params.height.max(params.width);
@@ -648,7 +670,7 @@ fn element_grads(
         drawn,
         rows,
         cols,
-        attrs: attrs_b,
+        colors,
         image,
         pos: &pos,
         channels: c,

@@ -163,7 +163,7 @@ pub(super) struct LineJob {
     pub key0: f64,
     /// The IN sweep's pixels.
     pub inside: (usize, usize),
-    /// Offset of `I[pix(d_out)]` (the colour beyond the edge) in the image.
+    /// Offset of `I[pix(d_out)]` (the colour beyond the edge) in [`FaceLines::colors`].
     pub out_color: usize,
     /// Sums for endpoints a and c of the OUT sweep, then of the IN sweep.
     pub sums: [f64; 4],
@@ -184,8 +184,8 @@ pub(super) struct FaceLines<'a> {
     /// The face's drawn pixels along a line lie in `own.0..=own.1` (from its drawn box): only there does an OUT
     /// sweep's pixel need the test `F[P] != f`.
     pub own: (usize, usize),
-    /// The image (row-major, as given).
-    pub image: &'a [f32],
+    /// The colours the forward draws, `(M + 1, C)`: every face's attributes, then the background.
+    pub colors: &'a [f64],
 }
 
 /// Runs the OUT and IN sweeps of `jobs` (see [`LineJob`]) on the instruction set `isa`, for `C` channels (0: any
@@ -321,14 +321,14 @@ unsafe fn lines_on<S: Sweeps, const C: usize>(
         let (start, end) = job.inside;
         if start < end {
             let r = start..end;
-            let out_color = &face.image[job.out_color..job.out_color + c];
+            let out_color = &face.colors[job.out_color..job.out_color + c];
             let mut w = [0f64; 4];
             for (w, &o) in w.iter_mut().zip(out_color) {
-                *w = o as f64;
+                *w = o;
             }
             let at = lines.at(job.line, start, end);
             let pre = if C == 0 {
-                dot_into(ln, job.line, &r, |k| out_color[k] as f64, c, scratch)
+                dot_into(ln, job.line, &r, |k| out_color[k], c, scratch)
             } else {
                 &[]
             };

@@ -30,8 +30,8 @@ pub(super) struct Workspace {
     pub drawn: Vec<Drawn>,
     /// `(M, C)` attribute gradient accumulator.
     pub acc: Vec<f64>,
-    /// `(M, C)` face attributes as f64.
-    pub attrs: Vec<f64>,
+    /// `(M + 1, C)` colours as f64: the face attributes, then the background.
+    pub colors: Vec<f64>,
     /// Per-face vertex-gradient partials.
     pub partials: Vec<[[f64; 2]; 3]>,
     /// `(N, 2)` vertex gradient accumulator.
@@ -49,7 +49,7 @@ impl Workspace {
             + held(&self.setups)
             + held(&self.drawn)
             + held(&self.acc)
-            + held(&self.attrs)
+            + held(&self.colors)
             + held(&self.partials)
             + held(&self.accv)
     }
