@@ -138,6 +138,8 @@ class _Rasterize(torch.autograd.Function):
         ctx.save_for_backward(verts_screen, face_attrs, faces, background, image_t, index_t)
         ctx.params = (height, width, near, far, cull_backfaces, num_threads, orthographic)
         ctx.mark_non_differentiable(index_t, depth_t)
+        # The index and depth never have a cotangent: no zero-filled (B,H,W) maps for them in every backward.
+        ctx.set_materialize_grads(False)
         return image_t, index_t, depth_t
 
     @staticmethod
@@ -220,6 +222,26 @@ def rasterize(
         >>> out.image.shape
         torch.Size([1, 8, 8, 1])
     """
+    out = _rasterize_int32(
+        verts_screen, faces, face_attrs, image_size, background, near, far, cull_backfaces, num_threads, orthographic
+    )
+    return RasterOutput(image=out.image, face_index=out.face_index.long(), depth=out.depth)
+
+
+def _rasterize_int32(
+    verts_screen: torch.Tensor,
+    faces: torch.Tensor,
+    face_attrs: torch.Tensor,
+    image_size: int | Sequence[int],
+    background: float | Sequence[float] | torch.Tensor | None,
+    near: float,
+    far: float,
+    cull_backfaces: bool,
+    num_threads: int,
+    orthographic: bool,
+) -> RasterOutput:
+    """:func:`rasterize` with the face index as the core's int32 (renderers that subsample it, or never read it,
+    convert only what they keep)."""
     verts_screen = _check_float_tensor(verts_screen, "verts_screen", (2, 3), "(B,N,3) or (N,3)")
     if verts_screen.dim() == 2:
         verts_screen = verts_screen.unsqueeze(0)
@@ -282,4 +304,4 @@ def rasterize(
         int(num_threads),
         bool(orthographic),
     )
-    return RasterOutput(image=image.to(face_attrs.dtype), face_index=face_index.long(), depth=depth)
+    return RasterOutput(image=image.to(face_attrs.dtype), face_index=face_index, depth=depth)

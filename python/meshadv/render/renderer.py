@@ -13,7 +13,7 @@ from .._validate import finite_float
 from ._checks import as_float_tensor, check_faces, require_instance
 from .camera import Camera
 from .lighting import Lights, shade
-from .rasterize import RasterOutput, _native, parse_image_size, rasterize
+from .rasterize import RasterOutput, _native, _rasterize_int32, parse_image_size
 
 __all__ = ["RenderOutput", "render", "render_silhouette"]
 
@@ -119,19 +119,19 @@ def _rasterize_views(
     cull: bool,
     num_threads: int,
 ) -> RasterOutput:
-    """Rasterize, one call per distinct clip range (one call in the usual case)."""
+    """Rasterize, one call per distinct clip range (one call in the usual case); the face index stays int32."""
     b = verts_screen.shape[0]
     groups = _raster_groups(camera, b)
     if len(groups) == 1:
         _, near, far = groups[0]
-        return rasterize(
+        return _rasterize_int32(
             verts_screen, faces, attrs, size, background, near, far, cull, num_threads, camera.orthographic
         )
     parts, order = [], []
     for idx, near, far in groups:
         sel = torch.as_tensor(idx, device=verts_screen.device)
         parts.append(
-            rasterize(
+            _rasterize_int32(
                 verts_screen[sel],
                 faces,
                 attrs[sel],
@@ -253,6 +253,35 @@ def render(
         >>> out.image.shape, out.alpha.shape
         (torch.Size([1, 3, 32, 32]), torch.Size([1, 1, 32, 32]))
     """
+    rgba, out, k = _render_rgba(
+        vertices, faces, face_colors, camera, lights, image_size, background, fill_back, antialias, num_threads,
+        edge_gradient,
+    )
+    sub = slice(k // 2, None, k)
+    return RenderOutput(
+        image=rgba[:, :3],
+        alpha=rgba[:, 3:4],
+        depth=out.depth[:, sub, sub].contiguous(),
+        face_index=out.face_index[:, sub, sub].to(torch.long, memory_format=torch.contiguous_format),
+    )
+
+
+def _render_rgba(
+    vertices: torch.Tensor,
+    faces: torch.Tensor,
+    face_colors: torch.Tensor,
+    camera: Camera,
+    lights: Lights,
+    image_size: int | Sequence[int],
+    background: float | Sequence[float] | torch.Tensor,
+    fill_back: bool,
+    antialias: int,
+    num_threads: int,
+    edge_gradient: float,
+) -> tuple[torch.Tensor, RasterOutput, int]:
+    """:func:`render`'s work (arguments as there, checked): the (B,4,H,W) RGB + coverage image (a channels-last
+    view), the supersampled raster it was averaged from (face index int32) and the supersampling factor. Callers
+    that only need the image (attacks, every step) skip the depth and face-index maps."""
     verts, faces = _check_mesh(vertices, faces)
     require_instance(lights, Lights, "lights")
     if not isinstance(face_colors, torch.Tensor) or not face_colors.is_floating_point():
@@ -283,14 +312,7 @@ def render(
     attrs = torch.cat([shaded, torch.ones_like(shaded[..., :1])], dim=-1)
     bg = torch.cat([_background(background, torch.float32), torch.zeros(1)])
     out = _rasterize_views(verts_screen, faces, attrs, (height * k, width * k), bg, camera, not fill_back, num_threads)
-    img = _downsample(out.image, k, num_threads)
-    sub = slice(k // 2, None, k)
-    return RenderOutput(
-        image=img[:, :3],
-        alpha=img[:, 3:4],
-        depth=out.depth[:, sub, sub].contiguous(),
-        face_index=out.face_index[:, sub, sub].contiguous(),
-    )
+    return _downsample(out.image, k, num_threads), out, k
 
 
 def render_silhouette(

@@ -167,7 +167,8 @@ class RenderSetup:
         Returns:
             ``(images (K*V, 3, H, W), alpha (K*V, 1, H, W))`` with ``(H, W) = output_size``.
         """
-        from meshadv.render import ViewSet, render
+        from meshadv.render import ViewSet
+        from meshadv.render.renderer import _render_rgba
 
         k, v = vertices.shape[0], len(views)
         batched = ViewSet.cat([views] * k) if k > 1 else views
@@ -182,9 +183,10 @@ class RenderSetup:
         if self.static:
             verts, faces, colors = self._with_static(verts, faces, colors)
         bg = (0.0, 0.0, 0.0) if self.has_photo else self.background
-        out = render(verts, faces, colors, batched.camera, batched.lights, image_size=self.image_size,
-                     background=bg, antialias=self.antialias, edge_gradient=edge_gradient)
-        image, alpha = out.image, out.alpha
+        # The image alone: an attack step never reads the depth or face-index maps.
+        rgba, _, _ = _render_rgba(verts, faces, colors, batched.camera, batched.lights, self.image_size, bg,
+                                  True, self.antialias, 0, edge_gradient)
+        image, alpha = rgba[:, :3], rgba[:, 3:4]
         if self.crop_rows is not None:
             rows = slice(*self.crop_rows)
             image, alpha = image[:, :, rows, :], alpha[:, :, rows, :]
