@@ -103,6 +103,9 @@ def test_antialias_averages_supersamples() -> None:
     torch.testing.assert_close(aa.alpha, torch.nn.functional.avg_pool2d(hi.alpha, 3))
     assert ((aa.alpha > 0) & (aa.alpha < 1)).any()
     assert torch.equal(aa.face_index, hi.face_index[:, 1::3, 1::3])
+    # the subsampled maps are their own int64 / float tensors, not views into the supersampled raster
+    assert aa.face_index.dtype == torch.int64 and aa.face_index.is_contiguous()
+    assert aa.depth.is_contiguous() and torch.equal(aa.depth, hi.depth[:, 1::3, 1::3])
 
 
 def test_bad_input_raises_value_error() -> None:
@@ -288,3 +291,30 @@ def test_bad_edge_gradient_is_refused_by_name(value: object, error: type) -> Non
     verts, faces, colors, cam, lights, _ = _edge_gradient_scene()
     with pytest.raises(error, match="edge_gradient"):
         render(verts, faces, colors, cam, lights, 16, edge_gradient=value)  # type: ignore[arg-type]
+
+
+def test_render_setup_gives_renders_image_and_gradients() -> None:
+    """``RenderSetup.render`` (every attack step) skips the depth and face-index maps but draws what ``render`` draws,
+    with the same vertex gradient."""
+    from meshadv.render import RenderSetup
+
+    verts, faces = icosphere(1)
+    colors = torch.rand(faces.shape[0], 3, generator=torch.Generator().manual_seed(1))
+    views = ViewSet.orbit([0.0, 70.0], elevation=15.0, distance=3.0)
+    cotangent = torch.randn(2, 3, 20, 20, generator=torch.Generator().manual_seed(2))
+    results = []
+    for use_setup in (True, False):
+        v = (verts * 0.7).unsqueeze(0).requires_grad_(True)
+        if use_setup:
+            image, alpha = RenderSetup(image_size=20, antialias=2, background=(0.1, 0.2, 0.3)).render(
+                v, faces, colors, views
+            )
+        else:
+            out = render(v.expand(2, -1, -1), faces, colors, views.camera, views.lights, 20,
+                         background=(0.1, 0.2, 0.3), antialias=2)
+            image, alpha = out.image, out.alpha
+        (image * cotangent).sum().backward()
+        results.append((image.detach(), alpha.detach(), v.grad))
+    for a, b in zip(*results):
+        assert torch.equal(a, b)
+    assert results[0][2].abs().sum() > 0
