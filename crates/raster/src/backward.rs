@@ -655,7 +655,7 @@ fn element_grads(
         }
     }));
     rows.fill_rows(isa, setups, face_index, image, grad, c, params)?;
-    cols.fill_columns(rows)?;
+    cols.fill_columns(isa, rows)?;
     try_clear_for(colors, (m + 1) * c, "backward colours")?;
     colors.extend(
         attrs.values[b * m * c..(b + 1) * m * c]

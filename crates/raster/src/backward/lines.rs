@@ -106,8 +106,9 @@ impl Lines {
     }
 
     /// Becomes the column lines: the transpose of `rows`, in groups of [`GROUP`] columns (so that each row is read
-    /// in runs). Every value is rewritten; only the buffers' memory is reused.
-    pub fn fill_columns(&mut self, rows: &Lines) -> Result<()> {
+    /// in runs), with the tiles of the instruction set `isa` (which the caller has checked is available). Every
+    /// value is rewritten; only the buffers' memory is reused.
+    pub fn fill_columns(&mut self, isa: Isa, rows: &Lines) -> Result<()> {
         let (w, h, c) = (rows.len, rows.lines(), rows.channels);
         let n = h * w;
         let (mut face, mut key, mut gi, mut planes) = self.fills(n, c)?;
@@ -121,13 +122,13 @@ impl Lines {
                 let j0 = group * GROUP;
                 // Columns `j0..j0 + cols` (the last group may be narrower), one buffer at a time.
                 let cols = face.len() / h.max(1);
-                transpose(&rows.face[j0..], w, cols, h, face, h);
-                transpose(&rows.key[j0..], w, cols, h, key, h);
-                transpose(&rows.gi[j0..], w, cols, h, gi, h);
+                transpose_on(isa, &rows.face[j0..], w, cols, h, face, h);
+                transpose_on(isa, &rows.key[j0..], w, cols, h, key, h);
+                transpose_on(isa, &rows.gi[j0..], w, cols, h, gi, h);
                 // Row i's channel k is rows.grad[(i * c + k) * w..][..w]; column j's is planes[(j * c + k) * h..].
                 for k in 0..c {
                     let plane = &mut planes[k * h..];
-                    transpose(&rows.grad[k * w + j0..], c * w, cols, h, plane, c * h);
+                    transpose_on(isa, &rows.grad[k * w + j0..], c * w, cols, h, plane, c * h);
                 }
             });
         // SAFETY: every group of `cols` columns wrote its `cols * h` face, key and gi values and `cols * c * h` plane
@@ -377,11 +378,56 @@ const GROUP: usize = 8;
 /// each of its reads was a TLB miss).
 const ROWS: usize = 32;
 
-/// A transpose of `cols` columns and `h` rows: `out[jj * out_stride + i] = src[i * stride + jj]` for `jj < cols`
-/// and `i < h`, in blocks of [`ROWS`] rows; within a block, tiles of [`Tile::K`] x [`Tile::K`] values are moved by
-/// vector loads, shuffles and stores (the values' bits are copied, never computed), the rest one value at a time.
+/// [`transpose`] with the widest tiles of the instruction set `isa` (which the caller has checked is available):
+/// 8 x 8 (32-bit values) or 4 x 4 (f64) with AVX2, 4 x 4 or 2 x 2 with SSE2 (x86-64 baseline), single values
+/// elsewhere. Every choice moves the same bits.
 #[inline(always)]
-fn transpose<T: Tile>(
+fn transpose_on<T: Copy>(
+    isa: Isa,
+    src: &[T],
+    stride: usize,
+    cols: usize,
+    h: usize,
+    out: &mut [MaybeUninit<T>],
+    out_stride: usize,
+) where
+    Sse: Tiles<T>,
+    Avx: Tiles<T>,
+{
+    match isa {
+        // SAFETY: `Isa::Avx2` and `Isa::Avx512` (which includes AVX2) are only passed when the CPU supports them.
+        #[cfg(target_arch = "x86_64")]
+        #[allow(unsafe_code)]
+        Isa::Avx2 | Isa::Avx512 => unsafe { transpose_avx(src, stride, cols, h, out, out_stride) },
+        _ => transpose::<T, Sse>(src, stride, cols, h, out, out_stride),
+    }
+}
+
+/// [`transpose`] with [`Avx`] tiles.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(unsafe_code)]
+unsafe fn transpose_avx<T: Copy>(
+    src: &[T],
+    stride: usize,
+    cols: usize,
+    h: usize,
+    out: &mut [MaybeUninit<T>],
+    out_stride: usize,
+) where
+    Avx: Tiles<T>,
+{
+    transpose::<T, Avx>(src, stride, cols, h, out, out_stride)
+}
+
+/// A transpose of `cols` columns and `h` rows: `out[jj * out_stride + i] = src[i * stride + jj]` for `jj < cols`
+/// and `i < h`, in blocks of [`ROWS`] rows; within a block, tiles of `S::K` x `S::K` values are moved by vector
+/// loads, shuffles and stores (the values' bits are copied, never computed), the rest one value at a time.
+#[inline(always)]
+fn transpose<T: Copy, S: Tiles<T>>(
     src: &[T],
     stride: usize,
     cols: usize,
@@ -394,7 +440,7 @@ fn transpose<T: Tile>(
     }
     assert!(src.len() > (h - 1) * stride + cols - 1 && out.len() >= (cols - 1) * out_stride + h);
     let (sp, op) = (src.as_ptr(), out.as_mut_ptr().cast::<T>());
-    let k = T::K;
+    let k = S::K;
     // Columns that whole tiles cover.
     let cv = cols - cols % k;
     for i0 in (0..h).step_by(ROWS) {
@@ -403,12 +449,12 @@ fn transpose<T: Tile>(
         let iv = i1 - (i1 - i0) % k;
         // SAFETY: every tile reads rows `i..i + K <= iv <= h` at columns `jj..jj + K <= cv <= cols` and writes
         // columns `jj..jj + K` at rows `i..i + K`, all within the lengths asserted above; the single moves stay
-        // within `i < h`, `jj < cols` likewise.
+        // within `i < h`, `jj < cols` likewise. The caller vouches for `S`'s instructions.
         #[allow(unsafe_code)]
         unsafe {
             for jj in (0..cv).step_by(k) {
                 for i in (i0..iv).step_by(k) {
-                    T::tile(
+                    S::tile(
                         sp.add(i * stride + jj),
                         stride,
                         op.add(jj * out_stride + i),
@@ -429,22 +475,29 @@ fn transpose<T: Tile>(
     }
 }
 
-/// A value [`transpose`] moves in square tiles.
-trait Tile: Copy {
+/// How [`transpose`] moves square tiles of values `T` on some instruction set.
+trait Tiles<T> {
     /// Tile side.
     const K: usize;
     /// Transposes the `K x K` tile at `src` (rows `stride` apart) to `out` (columns `out_stride` apart).
     ///
     /// # Safety
-    /// `src + r * stride + c` must be readable and `out + c * out_stride + r` writable for `r, c < K`.
+    /// The instructions must be supported by the CPU; `src + r * stride + c` must be readable and
+    /// `out + c * out_stride + r` writable for `r, c < K`.
     #[allow(unsafe_code)]
-    unsafe fn tile(src: *const Self, stride: usize, out: *mut Self, out_stride: usize);
+    unsafe fn tile(src: *const T, stride: usize, out: *mut T, out_stride: usize);
 }
+
+/// Tiles of the x86-64 baseline (SSE2): 4 x 4 32-bit values, 2 x 2 f64 (single values on other targets).
+struct Sse;
+
+/// Tiles of AVX2: 8 x 8 32-bit values, 4 x 4 f64 (x86-64 only; see [`transpose_on`]).
+struct Avx;
 
 /// A 4 x 4 tile of 32-bit values with SSE2 (part of the x86-64 baseline): 4 loads, 8 shuffles, 4 stores.
 ///
 /// # Safety
-/// As [`Tile::tile`], for 4-byte values.
+/// As [`Tiles::tile`], for 4-byte values.
 #[cfg(target_arch = "x86_64")]
 #[allow(unsafe_code)]
 #[inline(always)]
@@ -460,10 +513,80 @@ unsafe fn tile4x32(src: *const f32, stride: usize, out: *mut f32, out_stride: us
     _mm_storeu_ps(out.add(3 * out_stride), _mm_movehl_ps(t3, t2));
 }
 
-macro_rules! tile_32 {
+/// An 8 x 8 tile of 32-bit values with AVX: 8 loads, 24 shuffles, 8 stores.
+///
+/// # Safety
+/// As [`Tiles::tile`], for 4-byte values, on a CPU with AVX.
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)]
+#[inline(always)]
+unsafe fn tile8x32(src: *const f32, stride: usize, out: *mut f32, out_stride: usize) {
+    use std::arch::x86_64::*;
+    let r: [__m256; 8] = std::array::from_fn(|i| _mm256_loadu_ps(src.add(i * stride)));
+    // Pairs of rows interleaved: t[2p] = (r[2p][0], r[2p+1][0], r[2p][1], r[2p+1][1] | the same of 4, 5).
+    let t: [__m256; 8] = std::array::from_fn(|i| {
+        let (a, b) = (r[i / 2 * 2], r[i / 2 * 2 + 1]);
+        if i % 2 == 0 {
+            _mm256_unpacklo_ps(a, b)
+        } else {
+            _mm256_unpackhi_ps(a, b)
+        }
+    });
+    // Quads: q[j] (j < 4) holds columns j and j + 4 of rows 0-3, q[j + 4] of rows 4-7.
+    let quad = |lo: __m256, hi: __m256, upper: bool| {
+        if upper {
+            _mm256_shuffle_ps::<0xEE>(lo, hi)
+        } else {
+            _mm256_shuffle_ps::<0x44>(lo, hi)
+        }
+    };
+    let q: [__m256; 8] = std::array::from_fn(|j| {
+        let base = if j < 4 { 0 } else { 4 };
+        let (jj, pair) = (j % 4, j % 4 / 2);
+        quad(t[base + pair], t[base + 2 + pair], jj % 2 == 1)
+    });
+    for j in 0..4 {
+        _mm256_storeu_ps(
+            out.add(j * out_stride),
+            _mm256_permute2f128_ps::<0x20>(q[j], q[j + 4]),
+        );
+        _mm256_storeu_ps(
+            out.add((j + 4) * out_stride),
+            _mm256_permute2f128_ps::<0x31>(q[j], q[j + 4]),
+        );
+    }
+}
+
+/// A 4 x 4 tile of f64 with AVX: 4 loads, 8 shuffles, 4 stores.
+///
+/// # Safety
+/// As [`Tiles::tile`], on a CPU with AVX.
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)]
+#[inline(always)]
+unsafe fn tile4x64(src: *const f64, stride: usize, out: *mut f64, out_stride: usize) {
+    use std::arch::x86_64::*;
+    let r = |i: usize| _mm256_loadu_pd(src.add(i * stride));
+    let (r0, r1, r2, r3) = (r(0), r(1), r(2), r(3));
+    // (r0[0], r1[0], r0[2], r1[2]), (r0[1], r1[1], r0[3], r1[3]), and the same of rows 2 and 3.
+    let (t0, t1) = (_mm256_unpacklo_pd(r0, r1), _mm256_unpackhi_pd(r0, r1));
+    let (t2, t3) = (_mm256_unpacklo_pd(r2, r3), _mm256_unpackhi_pd(r2, r3));
+    _mm256_storeu_pd(out, _mm256_permute2f128_pd::<0x20>(t0, t2));
+    _mm256_storeu_pd(out.add(out_stride), _mm256_permute2f128_pd::<0x20>(t1, t3));
+    _mm256_storeu_pd(
+        out.add(2 * out_stride),
+        _mm256_permute2f128_pd::<0x31>(t0, t2),
+    );
+    _mm256_storeu_pd(
+        out.add(3 * out_stride),
+        _mm256_permute2f128_pd::<0x31>(t1, t3),
+    );
+}
+
+macro_rules! tiles_32 {
     ($($t:ty),*) => {$(
         #[allow(unsafe_code)]
-        impl Tile for $t {
+        impl Tiles<$t> for Sse {
             const K: usize = if cfg!(target_arch = "x86_64") { 4 } else { 1 };
             #[inline(always)]
             unsafe fn tile(src: *const $t, stride: usize, out: *mut $t, out_stride: usize) {
@@ -476,12 +599,27 @@ macro_rules! tile_32 {
                 }
             }
         }
+
+        #[allow(unsafe_code)]
+        impl Tiles<$t> for Avx {
+            const K: usize = if cfg!(target_arch = "x86_64") { 8 } else { 1 };
+            #[inline(always)]
+            unsafe fn tile(src: *const $t, stride: usize, out: *mut $t, out_stride: usize) {
+                #[cfg(target_arch = "x86_64")]
+                tile8x32(src.cast(), stride, out.cast(), out_stride);
+                #[cfg(not(target_arch = "x86_64"))]
+                {
+                    let _ = (stride, out_stride);
+                    *out = *src;
+                }
+            }
+        }
     )*};
 }
-tile_32!(f32, i32, u32);
+tiles_32!(f32, i32, u32);
 
 #[allow(unsafe_code)]
-impl Tile for f64 {
+impl Tiles<f64> for Sse {
     const K: usize = if cfg!(target_arch = "x86_64") { 2 } else { 1 };
     /// A 2 x 2 tile with SSE2: 2 loads, 2 shuffles, 2 stores.
     #[inline(always)]
@@ -493,6 +631,21 @@ impl Tile for f64 {
             _mm_storeu_pd(out, _mm_unpacklo_pd(r0, r1));
             _mm_storeu_pd(out.add(out_stride), _mm_unpackhi_pd(r0, r1));
         }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = (stride, out_stride);
+            *out = *src;
+        }
+    }
+}
+
+#[allow(unsafe_code)]
+impl Tiles<f64> for Avx {
+    const K: usize = if cfg!(target_arch = "x86_64") { 4 } else { 1 };
+    #[inline(always)]
+    unsafe fn tile(src: *const f64, stride: usize, out: *mut f64, out_stride: usize) {
+        #[cfg(target_arch = "x86_64")]
+        tile4x64(src, stride, out, out_stride);
         #[cfg(not(target_arch = "x86_64"))]
         {
             let _ = (stride, out_stride);
@@ -570,7 +723,7 @@ pub(super) struct LineAt<'a, const C: usize> {
 mod tests {
     use std::mem::MaybeUninit;
 
-    use super::{row_keys_on, transpose, Tile, ROWS};
+    use super::{row_keys_on, transpose_on, Avx, Sse, Tiles, ROWS};
     use crate::backward::Isa;
     use crate::input::{Projection, RasterParams, ScreenMesh};
     use crate::setup::FaceSetup;
@@ -629,31 +782,36 @@ mod tests {
     }
 
     /// Checks [`transpose`] on values `value(x)` (bits compared through `bits`), untouched slots holding `fill`.
-    fn check<T: Tile + std::fmt::Debug>(
+    fn check<T: Copy + std::fmt::Debug>(
         value: impl Fn(usize) -> T,
         fill: T,
         bits: impl Fn(T) -> u64,
-    ) {
+    ) where
+        Sse: Tiles<T>,
+        Avx: Tiles<T>,
+    {
         // Heights below, at and past a block of rows and tile sides; widths below, at and past a tile and at a
         // group; strides with gaps.
         for h in [1, 2, 3, 5, ROWS - 1, ROWS, ROWS + 1, 2 * ROWS + 5] {
-            for cols in [1, 2, 3, 5, 8] {
+            for cols in [1, 2, 3, 5, 8, 9, 12, 17] {
                 for (stride, out_stride) in [(cols, h), (cols + 5, h + 2)] {
-                    let src: Vec<T> = (0..(h - 1) * stride + cols).map(&value).collect();
-                    let n = (cols - 1) * out_stride + h;
-                    let mut out = vec![MaybeUninit::new(fill); n];
-                    transpose(&src, stride, cols, h, &mut out, out_stride);
-                    // SAFETY: every slot was initialised above.
-                    #[allow(unsafe_code)]
-                    let out: Vec<T> = out.iter().map(|x| unsafe { x.assume_init() }).collect();
-                    for (k, &x) in out.iter().enumerate() {
-                        let (jj, i) = (k / out_stride, k % out_stride);
-                        let want = if i < h { src[i * stride + jj] } else { fill };
-                        assert_eq!(
-                            bits(x),
-                            bits(want),
-                            "h {h} cols {cols} stride {stride}: slot {k}"
-                        );
+                    for isa in Isa::all_available() {
+                        let src: Vec<T> = (0..(h - 1) * stride + cols).map(&value).collect();
+                        let n = (cols - 1) * out_stride + h;
+                        let mut out = vec![MaybeUninit::new(fill); n];
+                        transpose_on(isa, &src, stride, cols, h, &mut out, out_stride);
+                        // SAFETY: every slot was initialised above.
+                        #[allow(unsafe_code)]
+                        let out: Vec<T> = out.iter().map(|x| unsafe { x.assume_init() }).collect();
+                        for (k, &x) in out.iter().enumerate() {
+                            let (jj, i) = (k / out_stride, k % out_stride);
+                            let want = if i < h { src[i * stride + jj] } else { fill };
+                            assert_eq!(
+                                bits(x),
+                                bits(want),
+                                "{isa:?} h {h} cols {cols} stride {stride}: slot {k}"
+                            );
+                        }
                     }
                 }
             }
