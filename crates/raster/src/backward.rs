@@ -76,7 +76,8 @@ pub struct Gradients {
 pub struct BackwardInputs<'a> {
     /// `(B, H, W)` face index map from the forward pass.
     pub face_index: &'a [i32],
-    /// `(B, H, W, C)` image from the forward pass.
+    /// `(B, H, W, C)` image from the forward pass (the forward's own: where the vertex gradient needs the colour of a
+    /// pixel beyond an edge it takes the attributes of the face drawn there, which debug builds check against it).
     pub image: &'a [f32],
     /// `(B, H, W, C)` cotangent of the image.
     pub grad_image: &'a [f32],
