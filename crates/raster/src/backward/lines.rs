@@ -583,30 +583,31 @@ unsafe fn tile4x64(src: *const f64, stride: usize, out: *mut f64, out_stride: us
     );
 }
 
-macro_rules! tiles_32 {
-    ($($t:ty),*) => {$(
-        #[allow(unsafe_code)]
-        impl Tiles<$t> for Sse {
-            const K: usize = if cfg!(target_arch = "x86_64") { 4 } else { 1 };
-            #[inline(always)]
-            unsafe fn tile(src: *const $t, stride: usize, out: *mut $t, out_stride: usize) {
-                #[cfg(target_arch = "x86_64")]
-                tile4x32(src.cast(), stride, out.cast(), out_stride);
-                #[cfg(not(target_arch = "x86_64"))]
-                {
-                    let _ = (stride, out_stride);
-                    *out = *src;
-                }
-            }
-        }
+/// A 2 x 2 tile of f64 with SSE2 (part of the x86-64 baseline): 2 loads, 2 shuffles, 2 stores.
+///
+/// # Safety
+/// As [`Tiles::tile`].
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)]
+#[inline(always)]
+unsafe fn tile2x64(src: *const f64, stride: usize, out: *mut f64, out_stride: usize) {
+    use std::arch::x86_64::*;
+    let (r0, r1) = (_mm_loadu_pd(src), _mm_loadu_pd(src.add(stride)));
+    _mm_storeu_pd(out, _mm_unpacklo_pd(r0, r1));
+    _mm_storeu_pd(out.add(out_stride), _mm_unpackhi_pd(r0, r1));
+}
 
+/// `Tiles<T>` for the instruction set `$set`, each `T` of the list moved as `$via` values by the tile function
+/// `$tile` of side `$k` on x86-64, one value at a time elsewhere.
+macro_rules! tiles {
+    ($set:ty, $k:literal, $tile:ident as $via:ty: $($t:ty),*) => {$(
         #[allow(unsafe_code)]
-        impl Tiles<$t> for Avx {
-            const K: usize = if cfg!(target_arch = "x86_64") { 8 } else { 1 };
+        impl Tiles<$t> for $set {
+            const K: usize = if cfg!(target_arch = "x86_64") { $k } else { 1 };
             #[inline(always)]
             unsafe fn tile(src: *const $t, stride: usize, out: *mut $t, out_stride: usize) {
                 #[cfg(target_arch = "x86_64")]
-                tile8x32(src.cast(), stride, out.cast(), out_stride);
+                $tile(src.cast::<$via>(), stride, out.cast::<$via>(), out_stride);
                 #[cfg(not(target_arch = "x86_64"))]
                 {
                     let _ = (stride, out_stride);
@@ -616,43 +617,10 @@ macro_rules! tiles_32 {
         }
     )*};
 }
-tiles_32!(f32, i32, u32);
-
-#[allow(unsafe_code)]
-impl Tiles<f64> for Sse {
-    const K: usize = if cfg!(target_arch = "x86_64") { 2 } else { 1 };
-    /// A 2 x 2 tile with SSE2: 2 loads, 2 shuffles, 2 stores.
-    #[inline(always)]
-    unsafe fn tile(src: *const f64, stride: usize, out: *mut f64, out_stride: usize) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            use std::arch::x86_64::*;
-            let (r0, r1) = (_mm_loadu_pd(src), _mm_loadu_pd(src.add(stride)));
-            _mm_storeu_pd(out, _mm_unpacklo_pd(r0, r1));
-            _mm_storeu_pd(out.add(out_stride), _mm_unpackhi_pd(r0, r1));
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        {
-            let _ = (stride, out_stride);
-            *out = *src;
-        }
-    }
-}
-
-#[allow(unsafe_code)]
-impl Tiles<f64> for Avx {
-    const K: usize = if cfg!(target_arch = "x86_64") { 4 } else { 1 };
-    #[inline(always)]
-    unsafe fn tile(src: *const f64, stride: usize, out: *mut f64, out_stride: usize) {
-        #[cfg(target_arch = "x86_64")]
-        tile4x64(src, stride, out, out_stride);
-        #[cfg(not(target_arch = "x86_64"))]
-        {
-            let _ = (stride, out_stride);
-            *out = *src;
-        }
-    }
-}
+tiles!(Sse, 4, tile4x32 as f32: f32, i32, u32);
+tiles!(Avx, 8, tile8x32 as f32: f32, i32, u32);
+tiles!(Sse, 2, tile2x64 as f64: f64);
+tiles!(Avx, 4, tile4x64 as f64: f64);
 
 impl Lines {
     /// The four buffers of `n` pixels (`c` channels for the cotangent planes), each to be written once: face
