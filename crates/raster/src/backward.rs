@@ -511,9 +511,7 @@ impl Ctx<'_> {
         }
         g
     }
-}
 
-impl Ctx<'_> {
     /// Whether the image holds colour row `row` at pixel `px`, as the forward drew it (checked in debug builds).
     fn image_shows(&self, px: usize, row: usize) -> bool {
         let c = self.channels;
