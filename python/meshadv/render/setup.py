@@ -185,7 +185,8 @@ class RenderSetup:
         bg = (0.0, 0.0, 0.0) if self.has_photo else self.background
         # The image alone: an attack step never reads the depth or face-index maps.
         rgba, _, _ = _render_rgba(verts, faces, colors, batched.camera, batched.lights, self.image_size, bg,
-                                  True, self.antialias, 0, edge_gradient)
+                                  fill_back=True, antialias=self.antialias, num_threads=0,
+                                  edge_gradient=edge_gradient)
         image, alpha = rgba[:, :3], rgba[:, 3:4]
         if self.crop_rows is not None:
             rows = slice(*self.crop_rows)
