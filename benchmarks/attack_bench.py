@@ -15,6 +15,9 @@ batched (``targets x views`` images, ``--antialias`` supersampling; wall time, o
 victim-alone ceiling (the victim's forward + input gradient on random images of the same batch and memory layout as
 the renders: what a step would cost with a free renderer). Run it once per build (old and new extension) to compare
 them side by side.
+``--device cuda`` runs the victim on a GPU while meshes and rendering stay on the CPU (the attacks' GPU-victim path:
+each batch of renders and its cotangent cross once per step); times are wall times, with the GPU synchronised before
+each clock reading. ``benchmarks/gpu_victim_kit.py`` runs it on a lent GPU machine in one call.
 ``--victim-optimize both`` times the victim as its weights describe it (``load_victim(..., optimize=False)``) and
 optimised (the default) in the same run, their steps interleaved, one table row each.
 
@@ -189,9 +192,17 @@ def victim_images_per_s(victim: Any, batch: int, image_size: int, repeats: int =
         out = victim(x)
         logits = out if isinstance(out, torch.Tensor) else out[0]
         logits.float().sum().backward()
+        _synchronize(victim)
         if i > 0:  # the first call warms up
             times.append(clock() - t0)
     return batch / statistics.median(times)
+
+
+def _synchronize(victim: Any) -> None:
+    """Waits for the victim's GPU work (if it runs on one), so that a wall-clock reading after it includes it."""
+    device = getattr(victim, "device", torch.device("cpu"))
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
 
 
 def _diverged(rows: torch.Tensor) -> torch.Tensor:
@@ -229,6 +240,7 @@ def step_split(mesh_name: str, perturb: str, args: argparse.Namespace,
             out = victim(x)
             logits = out if isinstance(out, torch.Tensor) else out[0]
             (logits[:, 1].sum() - logits[:, 0].sum()).backward()
+            _synchronize(victim)
             t2 = clock()
             images.backward(x.grad)
             t3 = clock()
@@ -242,6 +254,7 @@ def step_split(mesh_name: str, perturb: str, args: argparse.Namespace,
         step_s = sum(med.values())
         ceiling = victim_images_per_s(victim, t * args.views, args.image_size, clock=clock, like=images) / args.views
         records.append({"mesh": mesh_name, "faces": mesh.num_faces, "perturb": perturb, "victim": label,
+                        "device": _device_name(victim.device),
                         "views": args.views, "image_size": args.image_size, "antialias": args.antialias,
                         "targets": t, "cpu_time": args.cpu_time, **{f"{k}_s": v for k, v in med.items()},
                         "step_s": step_s, "render_share": (med["render_fwd"] + med["render_bwd"]) / step_s,
@@ -332,6 +345,7 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
         x = torch.empty_strided((rows, *like.shape[1:]), like.stride()).uniform_().requires_grad_(True)
         out = victim(x)
         (out[:, 1].sum() - out[:, 0].sum()).backward()
+        _synchronize(victim)
 
     for step in range(args.steps + 1):
         for v in variants:
@@ -363,6 +377,7 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
     med_cpu = {k: float(statistics.median(x)) for k, x in cpu.items()}
     med_ceil = {k: float(statistics.median(x)) for k, x in ceil.items()}
     record: Dict[str, Any] = {"mesh": mesh_name, "faces": mesh.num_faces, "perturb": perturb, "views": num_v,
+                              "device": _device_name(victim.device),
                               "image_size": args.image_size, "antialias": args.antialias, "targets": t,
                               "step_s": med, "step_cpu_s": med_cpu, "victim_alone_s": med_ceil}
     if args.attack_steps:
@@ -493,12 +508,21 @@ def bench_case(mesh_name: str, perturb: str, args: argparse.Namespace, victim: A
     return record
 
 
+def _device_name(device: torch.device) -> str:
+    """``cpu``, or a CUDA device with the GPU's name."""
+    if device.type == "cuda":
+        return f"{device} ({torch.cuda.get_device_name(device)})"
+    return str(device)
+
+
 def main(argv: List[str]) -> int:
     """Run the benchmark (see the module docstring for the options)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--meshes", nargs="+", default=["chair/01", "sofa/01"], help="PASCAL3D+ class/model")
     parser.add_argument("--perturb", nargs="+", default=["shape", "texture"], choices=["shape", "texture"])
     parser.add_argument("--victim", default="efficientnet_lite0")
+    parser.add_argument("--device", default="cpu",
+                        help="the victim's device (cuda: a GPU victim fed by the CPU renderer; wall times only)")
     parser.add_argument("--views", type=int, default=5)
     parser.add_argument("--image-size", type=int, default=160)
     parser.add_argument("--targets", type=int, default=4)
@@ -541,11 +565,19 @@ def main(argv: List[str]) -> int:
     torch.manual_seed(0)
     if args.victim_optimize == "both" and not args.split:
         parser.error("--victim-optimize both needs --split")
+    try:
+        device_type = torch.device(args.device).type
+    except RuntimeError as exc:
+        parser.error(f"--device {args.device!r} is not a torch device ({exc})")
+    if args.cpu_time and device_type != "cpu":
+        parser.error(f"--cpu-time counts this process's CPU time, not the GPU's: drop it with --device {args.device}")
     optimize = {"on": [True], "off": [False], "both": [False, True]}[args.victim_optimize]
-    victims = {("optimized" if o else "plain"): load_victim(args.victim, optimize=o) for o in optimize}
+    victims = {("optimized" if o else "plain"): load_victim(args.victim, optimize=o, device=args.device)
+               for o in optimize}
     victim = next(iter(victims.values()))
     command = "python benchmarks/attack_bench.py " + " ".join(argv)
-    machine = f"machine: {platform.processor() or platform.machine()}, torch threads {torch.get_num_threads()}"
+    machine = (f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch threads "
+               f"{torch.get_num_threads()}, victim on {_device_name(victim.device)}")
     if args.pool_bench:
         record = pool_bench(args)
         print(f"command: {command}")
