@@ -126,10 +126,11 @@ def test_batched_targets_equal_separate_runs(mesh: Any, victim: Any) -> None:
         alone = attack(mesh, views, victim, crit, setup=SETUP)
         moved = (alone.mesh.vertices - mesh.vertices).abs()
         diff = (batched.adversarial[t].vertices - alone.mesh.vertices).abs()
-        # equal up to float rounding of the batched victim (Adam's first steps amplify the sign of tiny gradients)
+        # equal up to float rounding of the batched victim (Adam's first steps amplify the sign of tiny gradients;
+        # how much depends on torch's kernels: 1.4e-5 relative in the loss with torch 2.15, 1.7e-4 with 2.11)
         assert float(diff.mean()) < 1e-3 * float(moved.mean())
         assert float((diff > 1e-5).float().mean()) < 0.01
-        assert batched.loss_history[-1]["loss"][t] == pytest.approx(alone.loss_history[-1]["loss"][0], rel=1e-4)
+        assert batched.loss_history[-1]["loss"][t] == pytest.approx(alone.loss_history[-1]["loss"][0], rel=1e-3)
     # the two targets really were optimised differently
     assert not torch.allclose(batched.adversarial[0].vertices, batched.adversarial[1].vertices)
 
