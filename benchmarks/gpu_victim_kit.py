@@ -111,10 +111,14 @@ def prepare(kit: Path, data: Optional[Path], python_version: str) -> None:
     native = REPO / NATIVE
     if not native.is_file():
         raise SystemExit(f"{NATIVE} is missing: run `bash scripts/install.sh` first")
+    kit = kit.resolve()
+    if REPO not in kit.parents:
+        raise SystemExit(f"--kit {kit} must be a folder inside the repository {REPO} (only that travels)")
     if data is not None:
         os.environ["MESHADV_DATA"] = str(data)
     wheels = kit / "wheels"
-    shutil.rmtree(kit, ignore_errors=True)
+    for sub in (wheels, kit / "data"):  # only what an earlier prepare wrote
+        shutil.rmtree(sub, ignore_errors=True)
     wheels.mkdir(parents=True)
     pins = pinned_versions(REPO / "requirements.txt", CARRIED)
     subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--only-binary=:all:",
@@ -125,12 +129,14 @@ def prepare(kit: Path, data: Optional[Path], python_version: str) -> None:
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(require_shared_data(mesh), target)
     size = travelling_bytes(REPO, [kit, native])
-    print(f"{kit.relative_to(REPO)}: {len(list(wheels.glob('*.whl')))} wheels, {len(MESHES)} mesh file(s); "
+    print(f"{kit.relative_to(REPO)}/: {len(list(wheels.glob('*.whl')))} wheels, {len(MESHES)} mesh file(s); "
           f"{size / 2**20:.1f} MiB travel (limit {TRAVEL_LIMIT_BYTES / 2**20:.0f} MiB)")
     if size > TRAVEL_LIMIT_BYTES:
         raise SystemExit("too much would travel: ignore or remove untracked files first")
-    print('device call: command "python3 benchmarks/gpu_victim_kit.py run", '
-          f'carry [".devkit", "{NATIVE}"], timeout_s 540')
+    rel = kit.relative_to(REPO)
+    kit_arg = "" if kit == KIT else f" --kit {rel}"
+    print(f'device call: command "python3 benchmarks/gpu_victim_kit.py run{kit_arg}", '
+          f'carry ["{rel}", "{NATIVE}"], timeout_s 540')
 
 
 def _install_wheels(kit: Path, site: Path) -> None:
@@ -146,6 +152,8 @@ def _missing_modules(env: Dict[str, str]) -> List[str]:
     code = ("import importlib, sys\nbad = []\nfor m in sys.argv[1:]:\n    try:\n        importlib.import_module(m)\n"
             "    except Exception as e:\n        bad.append(f'{m} ({type(e).__name__}: {e})')\nprint('\\n'.join(bad))")
     out = subprocess.run([sys.executable, "-c", code, *NEEDED_MODULES], env=env, capture_output=True, text=True)
+    if out.returncode != 0:  # an import that crashed the interpreter (a native module built for another machine)
+        return [f"the import check itself failed (exit {out.returncode}): {out.stderr.strip()[-2000:]}"]
     return [line for line in out.stdout.splitlines() if line]
 
 
@@ -180,12 +188,12 @@ def _arguments(template: Sequence[str], device: str, threads: int, quick: bool) 
 def run(kit: Path, out: Path, device: str, quick: bool) -> int:
     """Runs :data:`RUNS` (see the module docstring); returns 0 when every run finished, else 1."""
     out.mkdir(parents=True, exist_ok=True)
-    log = (out / "log.txt").open("a")
+    log = out / "log.txt"
 
     def say(text: str) -> None:
         print(text, flush=True)
-        log.write(text + "\n")
-        log.flush()
+        with log.open("a") as f:
+            f.write(text + "\n")
 
     site = Path(tempfile.mkdtemp(prefix="meshadv_site_"))
     _install_wheels(kit, site)
@@ -217,7 +225,6 @@ def run(kit: Path, out: Path, device: str, quick: bool) -> int:
             failed += 1
             say(f"{name} stopped after its {timeout} s timeout:\n{(exc.stdout or b'')[-2000:]!r}")
         say(f"({name}: {time.perf_counter() - t0:.0f} s)")
-    log.close()
     return 1 if failed else 0
 
 
