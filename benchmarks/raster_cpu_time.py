@@ -63,7 +63,7 @@ def main() -> None:
     """Runs the rounds and prints the medians and ratios."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("mode", choices=["fwd", "bwd"], help="the pass to time")
-    parser.add_argument("case", choices=["sphere", "pascal"], help="bench.rs's case")
+    parser.add_argument("case", choices=["sphere", "pascal", "pascal-rgb"], help="bench.rs's case")
     parser.add_argument("variants", nargs="+", type=parse_variant, help="LABEL=BINARY[:ISA], the first is the base")
     parser.add_argument("--rounds", type=int, default=9, help="alternating rounds (default 9)")
     parser.add_argument("--reps", type=int, default=41, help="calls per timed run, >= 2 (default 41)")

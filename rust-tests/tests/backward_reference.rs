@@ -180,3 +180,87 @@ fn coplanar_and_tied_faces_match_the_reference() {
         check("grid ortho", &mesh, c, &ortho_params(70, 61), &mut rng);
     }
 }
+
+/// `values` (`c` channels, interleaved) restricted to the channels `keep`.
+fn channels_of(values: &[f32], c: usize, keep: &[usize]) -> Vec<f32> {
+    values
+        .chunks_exact(c)
+        .flat_map(|row| keep.iter().map(move |&k| row[k]))
+        .collect()
+}
+
+#[test]
+fn zero_cotangent_channels_are_left_out_with_the_same_bits() {
+    // A channel whose cotangent is zero everywhere (the coverage channel of an RGB victim's render) is left out of
+    // the sweeps: the vertex gradient must have the bits of the same render without that channel (which sweeps every
+    // channel it has), on every instruction set, and agree with the reference; its attribute gradient is zero.
+    let mut rng = Rng::new(14);
+    let cases: [(usize, &[usize]); 6] = [
+        (4, &[3]),       // the last (alpha): the kept channels are a prefix
+        (4, &[1]),       // one in the middle: a list of channels
+        (5, &[0, 2, 4]), // more than four channels, several zero
+        (2, &[0]),
+        (3, &[0, 1, 2]), // all zero: no vertex gradient at all
+        (1, &[0]),
+    ];
+    for (case, &(c, zero)) in cases.iter().enumerate() {
+        let count = 40 + rng.below(200);
+        let mesh = random_soup(&mut rng, count, 1.0, 5.0);
+        let p = params(40 + rng.below(40), 40 + rng.below(40));
+        let attrs = random_attrs(&mut rng, mesh.num_faces() * c);
+        let mut grad: Vec<f32> = (0..p.pixels() * c)
+            .map(|_| rng.uniform(-1.0, 1.0))
+            .collect();
+        for px in grad.chunks_exact_mut(c) {
+            for &k in zero {
+                px[k] = if k % 2 == 0 { 0.0 } else { -0.0 };
+            }
+        }
+        let keep: Vec<usize> = (0..c).filter(|k| !zero.contains(k)).collect();
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let want = grads(&mesh, &attrs, c, &p, &grad, None);
+        for isa in Isa::all_available() {
+            let got = grads(&mesh, &attrs, c, &p, &grad, Some(isa));
+            assert_eq!(
+                got.grad_face_attrs, want.grad_face_attrs,
+                "case {case}, {isa:?}"
+            );
+            if keep.is_empty() {
+                assert!(
+                    got.grad_verts_screen.iter().all(|x| x.to_bits() == 0),
+                    "case {case}, {isa:?}: a zero cotangent has a vertex gradient"
+                );
+                assert!(
+                    want.grad_verts_screen.iter().all(|&x| x == 0.0),
+                    "case {case}"
+                );
+                continue;
+            }
+            let without = grads(
+                &mesh,
+                &channels_of(&attrs, c, &keep),
+                keep.len(),
+                &p,
+                &channels_of(&grad, c, &keep),
+                Some(isa),
+            );
+            assert_eq!(
+                bits(&got.grad_verts_screen),
+                bits(&without.grad_verts_screen),
+                "case {case}, {isa:?}: not the bits of the render without the zero channels"
+            );
+            let scale = want
+                .grad_verts_screen
+                .iter()
+                .fold(0f64, |m, &x| m.max((x as f64).abs()));
+            assert!(scale > 0.0, "case {case}: the scene has no vertex gradient");
+            for (&x, &y) in got.grad_verts_screen.iter().zip(&want.grad_verts_screen) {
+                let err = (x as f64 - y as f64).abs();
+                assert!(
+                    err <= 1e-5 * (y as f64).abs().max(1e-2 * scale),
+                    "case {case}, {isa:?}: {x} vs reference {y}"
+                );
+            }
+        }
+    }
+}

@@ -5,8 +5,10 @@
 //!   scaled to [-1, 1], 6 views (azimuths 0-300 by 60, elevation 30, distance 2.732) in one batch at 448 x 448 (a
 //!   224 px image with 2x antialias), RGB + alpha, random cotangent. Read from `$MESHADV_DATA` or `../shared/data`;
 //!   skipped with a message when absent.
+//! * `pascal-rgb`: the same render with the coverage (alpha) channel's cotangent zero, as in an attack whose victim
+//!   sees only RGB (the backward leaves such a channel out of its sweeps).
 //!
-//! `cargo run --release -p meshadv-raster --example bench [threads] [fwd|bwd] [sphere|pascal]` (a mode runs only that
+//! `cargo run --release -p meshadv-raster --example bench [threads] [fwd|bwd] [sphere|pascal|pascal-rgb]` (a mode runs only that
 //! pass of one case, `sphere` by default, for `perf stat` or `valgrind --tool=callgrind`). `BENCH_ISA=portable` (or `avx2`)
 //! runs the backward on that instruction set instead of the fastest one the CPU has; `BENCH_REPS=n` runs `n` repetitions instead of 20. `bwd` prints a fingerprint
 //! of the vertex gradient's bits (to compare builds and instruction sets), `fwd` one of the face index, depth and image.
@@ -165,6 +167,15 @@ fn pascal_case() -> Result<Option<Case>, Box<dyn std::error::Error>> {
     )))
 }
 
+/// The PASCAL3D+ case with its last (alpha) channel's cotangent zero; `None` when the shared data is absent.
+fn pascal_rgb_case() -> Result<Option<Case>, Box<dyn std::error::Error>> {
+    Ok(pascal_case()?.map(|mut c| {
+        c.name = format!("{}, alpha cotangent 0", c.name);
+        c.grad.chunks_exact_mut(4).for_each(|g| g[3] = 0.0);
+        c
+    }))
+}
+
 /// A case with deterministic attributes and cotangent, 4 channels, `size x size`.
 fn case(name: String, screen: Vec<f32>, faces: Vec<i32>, batch: usize, size: usize) -> Case {
     let (m, c) = (faces.len() / 3, 4);
@@ -211,12 +222,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if !mode.is_empty() {
         let c = match which.as_str() {
             "pascal" => pascal_case()?.ok_or("no PASCAL3D+ data")?,
+            "pascal-rgb" => pascal_rgb_case()?.ok_or("no PASCAL3D+ data")?,
             _ => sphere_case()?,
         };
         return with_threads(threads, || run_only(&c, &mode, isa, reps))?.map_err(Into::into);
     }
     let mut cases = vec![sphere_case()?];
     cases.extend(pascal_case()?);
+    cases.extend(pascal_rgb_case()?);
     println!("backward on {isa:?}");
     for c in &cases {
         with_threads(threads, || time_case(c, threads, isa, reps))??;

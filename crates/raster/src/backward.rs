@@ -18,6 +18,9 @@
 //!   transposed copy for the column sweeps, so the inner loops read contiguous memory and vectorise.
 //!   The keys are computed along runs of one face in a row, 4 (AVX2) or 2 (SSE2) pixels at a time with the scalar
 //!   operations lane by lane (same bits).
+//! * Per batch element, the cotangent's channels that are zero at every pixel (the coverage channel of a render whose
+//!   victim sees only RGB) are left out of the line buffers and the sweeps: they add only zero terms, so the vertex
+//!   gradient has the bits of the same render without them (tested), from fewer bytes per pixel.
 //! * Per line, the range of pixels with a non-zero cotangent: an OUT sweep is cut to it (elsewhere `delta = 0`).
 //! * Per face, edge and axis, the lines' sweeps are first planned (scalar work: crossing, ranges, factors, one
 //!   `sweep::LineJob` per line), then run one after another with the face's constants and the buffers' bounds checked
@@ -156,8 +159,12 @@ struct Ctx<'a> {
     colors: &'a [f64],
     /// `(H, W, C)` image (row-major, as given; debug builds check the colours read against it).
     image: &'a [f32],
+    /// The channels of the image (and of `attrs`) whose cotangent is not all zero, ascending: the line buffers and
+    /// `colors` hold these (see [`nonzero_channels`]).
+    kept: &'a [usize],
     /// Pixel positions along a line.
     pos: &'a Positions,
+    /// Channels of the line buffers and `colors`: `kept.len()`.
     channels: usize,
     params: &'a RasterParams,
 }
@@ -514,10 +521,13 @@ impl Ctx<'_> {
 
     /// Whether the image holds colour row `row` at pixel `px`, as the forward drew it (checked in debug builds).
     fn image_shows(&self, px: usize, row: usize) -> bool {
-        let c = self.channels;
+        let (c, k) = (self.image.len() / self.params.pixels(), self.channels);
         let drawn = &self.image[px * c..(px + 1) * c];
-        let color = &self.colors[row * c..(row + 1) * c];
-        drawn.iter().zip(color).all(|(&i, &a)| i as f64 == a)
+        let color = &self.colors[row * k..(row + 1) * k];
+        self.kept
+            .iter()
+            .zip(color)
+            .all(|(&ch, &a)| drawn[ch] as f64 == a)
     }
 }
 
@@ -600,6 +610,46 @@ pub fn rasterize_backward_on(
     })
 }
 
+/// The channels (ascending) of the interleaved `(H, W, c)` cotangent `grad` that are not zero at every pixel.
+///
+/// A channel that is zero everywhere (e.g. the coverage channel of a render whose alpha feeds nothing) adds only zero
+/// terms to the vertex gradient's sums (`0 * a`, and `+-0` to a sum leaves it as it is, up to the sign of a zero,
+/// which `min(delta, -0)` removes), so the sweeps leave it out: the same bits with fewer bytes per pixel.
+fn nonzero_channels(grad: &[f32], c: usize) -> Vec<usize> {
+    // Each channel's bits OR-ed together with the sign dropped (-0 is zero), in blocks of `BLOCK` values that start
+    // at a pixel (so that value `i` of a block is channel `i % c`) and vectorise; the scan stops once every channel
+    // has a non-zero value, which in most cotangents is within the first pixels.
+    const BLOCK: usize = 48;
+    const BLOCKS_PER_CHECK: usize = 64;
+    let mut any = vec![0u32; c];
+    let bits = |x: f32| x.to_bits() << 1;
+    if !BLOCK.is_multiple_of(c) {
+        for (i, &x) in grad.iter().enumerate() {
+            any[i % c] |= bits(x);
+        }
+    } else {
+        for part in grad.chunks(BLOCK * BLOCKS_PER_CHECK) {
+            let mut lanes = [0u32; BLOCK];
+            let mut blocks = part.chunks_exact(BLOCK);
+            for block in &mut blocks {
+                for (l, &x) in lanes.iter_mut().zip(block) {
+                    *l |= bits(x);
+                }
+            }
+            for (i, &x) in lanes.iter().enumerate() {
+                any[i % c] |= x;
+            }
+            for (i, &x) in blocks.remainder().iter().enumerate() {
+                any[i % c] |= bits(x);
+            }
+            if any.iter().all(|&a| a != 0) {
+                break;
+            }
+        }
+    }
+    (0..c).filter(|&k| any[k] != 0).collect()
+}
+
 /// The gradients of batch element `b` (`gv`: its `(N, 3)` vertex gradient, `ga`: its `(M, C)` attribute gradient),
 /// in the buffers of `ws` (each refilled before it is read).
 #[allow(clippy::too_many_arguments)]
@@ -643,6 +693,11 @@ fn element_grads(
     if !inputs.vertex_grad {
         return Ok(());
     }
+    let kept = nonzero_channels(grad, c);
+    if kept.is_empty() {
+        // A zero cotangent: every delta is zero, and so is the vertex gradient (`gv` is all +0 already).
+        return Ok(());
+    }
     // NMR vertex gradient: per-face partials in parallel, reduced in face order.
     // Only the faces drawn somewhere take part (and only their depths are needed).
     try_clear_for(setups, m, "backward face setups")?;
@@ -653,14 +708,14 @@ fn element_grads(
             FaceSetup::default()
         }
     }));
-    rows.fill_rows(isa, setups, face_index, image, grad, c, params)?;
+    rows.fill_rows(isa, setups, face_index, image, grad, c, &kept, params)?;
     cols.fill_columns(isa, rows)?;
-    try_clear_for(colors, (m + 1) * c, "backward colours")?;
+    try_clear_for(colors, (m + 1) * kept.len(), "backward colours")?;
     colors.extend(
         attrs.values[b * m * c..(b + 1) * m * c]
-            .iter()
-            .chain(attrs.background)
-            .map(|&x| x as f64),
+            .chunks_exact(c)
+            .chain([attrs.background])
+            .flat_map(|row| kept.iter().map(|&ch| row[ch] as f64)),
     );
     let longest = params.height.max(params.width);
     let pos = Positions::new(longest);
@@ -671,14 +726,22 @@ fn element_grads(
         cols,
         colors,
         image,
+        kept: &kept,
         pos: &pos,
-        channels: c,
+        channels: kept.len(),
         params,
     };
     try_clear_for(partials, m, "backward face partials")?;
     partials.par_extend((0..m).into_par_iter().map_init(
         || Scratch {
-            ga: vec![0.0; if c > 4 { longest + sweep::LANES } else { 0 }],
+            ga: vec![
+                0.0;
+                if ctx.channels > 4 {
+                    longest + sweep::LANES
+                } else {
+                    0
+                }
+            ],
             jobs: Vec::with_capacity(longest),
         },
         |scratch, f| {
@@ -742,6 +805,38 @@ mod tests {
             assert_eq!(bits(&acc), bits(&want), "{c} channels");
             for (d, e) in drawn.iter().zip(&want_drawn) {
                 assert_eq!((d.rows, d.cols), (e.rows, e.cols), "{c} channels");
+            }
+        }
+    }
+
+    #[test]
+    fn nonzero_channels_finds_every_channel_with_a_nonzero_value() {
+        let mut rng = Rng(5);
+        // Channel counts that divide the scan's block and one that does not; pixel counts around its block sizes.
+        for c in [1, 2, 3, 4, 5] {
+            for pixels in [1, 15, 16, 17, 48 * 64 / c, 48 * 64 / c + 1, 5000] {
+                for trial in 0..4 {
+                    let mut grad = vec![0f32; pixels * c];
+                    for (i, x) in grad.iter_mut().enumerate() {
+                        if i % 3 == 0 {
+                            *x = -0.0; // a zero all the same
+                        }
+                    }
+                    // Each channel non-zero at one pixel (the last one for trial 0: past every early check), or not.
+                    let mut want = Vec::new();
+                    for k in 0..c {
+                        if rng.below(2) == 0 {
+                            let px = if trial == 0 {
+                                pixels - 1
+                            } else {
+                                rng.below(pixels)
+                            };
+                            grad[px * c + k] = if rng.below(2) == 0 { 1e-30 } else { -3.0 };
+                            want.push(k);
+                        }
+                    }
+                    assert_eq!(nonzero_channels(&grad, c), want, "c {c}, {pixels} pixels");
+                }
             }
         }
     }

@@ -47,7 +47,8 @@ impl Lines {
     /// Becomes the row lines of the row-major maps, with the depth-test keys of the drawn faces (`1/z` in
     /// perspective, `-z` in orthographic, larger = nearer; `z` recomputed from the positions exactly as the forward
     /// computes it; `-inf` on background; on the instruction set `isa`, which the caller has checked is available).
-    /// Every value is rewritten; only the buffers' memory is reused.
+    /// Every value is rewritten; only the buffers' memory is reused. The cotangent planes hold the channels
+    /// `kept` (ascending indices into the `c` channels of `image` and `grad`); `gI` sums over all `c`.
     #[allow(clippy::too_many_arguments)]
     pub fn fill_rows(
         &mut self,
@@ -57,17 +58,22 @@ impl Lines {
         image: &[f32],
         grad: &[f32],
         c: usize,
+        kept: &[usize],
         params: &RasterParams,
     ) -> Result<()> {
         let (h, w) = (params.height, params.width);
         let n = h * w;
-        let (mut face, mut key, mut gi, mut planes) = self.fills(n, c)?;
+        let k = kept.len();
+        // Kept channels `0..k` (all of them, or all but the coverage channel: the usual cases) are copied by
+        // the loop for `k` channels, any other choice by the one for a list of channels.
+        let prefix = kept.iter().enumerate().all(|(s, &ch)| s == ch);
+        let (mut face, mut key, mut gi, mut planes) = self.fills(n, k)?;
         // One pass per row.
         face.slots()
             .par_chunks_mut(w)
             .zip(key.slots().par_chunks_mut(w))
             .zip(gi.slots().par_chunks_mut(w))
-            .zip(planes.slots().par_chunks_mut(w * c))
+            .zip(planes.slots().par_chunks_mut(w * k))
             .enumerate()
             .for_each(|(i, (((face, key), gi), planes))| {
                 let faces = &face_index[i * w..(i + 1) * w];
@@ -91,10 +97,14 @@ impl Lines {
                     &grad[i * w * c..(i + 1) * w * c],
                     &image[i * w * c..(i + 1) * w * c],
                 );
-                with_channels!(c, C => channels::<C>(g, im, w, gi, planes))
+                if prefix {
+                    with_channels!(k, K => with_channels!(c, C => channels::<C, K>(g, im, w, kept, gi, planes)))
+                } else {
+                    with_channels!(c, C => channels::<C, 0>(g, im, w, kept, gi, planes))
+                }
             });
         // SAFETY: the row passes above wrote every slot: each row chunk writes its `w` face, key and gi values and
-        // its `w * c` plane values.
+        // its `w * k` plane values.
         #[allow(unsafe_code)]
         unsafe {
             face.done();
@@ -102,7 +112,7 @@ impl Lines {
             gi.done();
             planes.done();
         }
-        self.finish(h, w, c)
+        self.finish(h, w, k)
     }
 
     /// Becomes the column lines: the transpose of `rows`, in groups of [`GROUP`] columns (so that each row is read
@@ -344,13 +354,15 @@ unsafe fn row_keys<V: F64s>(s: &FaceSetup, row: i32, j0: usize, key: &mut [Maybe
     }
 }
 
-/// Writes one row's cotangent planes (`planes[k * w + j] = G[j, k]`) and `gi[j] = sum_c G[j, c] I[j, c]` (channels
-/// in order) from the interleaved row `g` and image row `im`, for `C` channels (`C = 0`: any count).
+/// Writes one row's cotangent planes of the channels `kept` (`planes[s * w + j] = G[j, kept[s]]`) and
+/// `gi[j] = sum_c G[j, c] I[j, c]` (all channels, in order) from the interleaved row `g` and image row `im`, for `C`
+/// channels (`C = 0`: any count); `K > 0`: the kept channels are `0..K`, `K = 0`: they are `kept`.
 #[inline(always)]
-fn channels<const C: usize>(
+fn channels<const C: usize, const K: usize>(
     g: &[f32],
     im: &[f32],
     w: usize,
+    kept: &[usize],
     gi: &mut [MaybeUninit<f64>],
     planes: &mut [MaybeUninit<f32>],
 ) {
@@ -362,9 +374,23 @@ fn channels<const C: usize>(
         .enumerate()
     {
         let mut sum = 0f64;
-        for k in 0..c {
-            sum += g[k] as f64 * im[k] as f64;
-            planes[k * w + j].write(g[k]);
+        for ch in 0..c {
+            sum += g[ch] as f64 * im[ch] as f64;
+            if K == C && K > 0 {
+                planes[ch * w + j].write(g[ch]);
+            }
+        }
+        if K == C && K > 0 {
+            // Every channel, written above.
+        } else if K > 0 {
+            // The first `K` channels (a constant: the loop over the row vectorises).
+            for s in 0..K {
+                planes[s * w + j].write(g[s]);
+            }
+        } else {
+            for (s, &ch) in kept.iter().enumerate() {
+                planes[s * w + j].write(g[ch]);
+            }
         }
         x.write(sum);
     }
