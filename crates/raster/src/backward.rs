@@ -711,12 +711,18 @@ fn element_grads(
     rows.fill_rows(isa, setups, face_index, image, grad, c, &kept, params)?;
     cols.fill_columns(isa, rows)?;
     try_clear_for(colors, (m + 1) * kept.len(), "backward colours")?;
-    colors.extend(
-        attrs.values[b * m * c..(b + 1) * m * c]
-            .chunks_exact(c)
-            .chain([attrs.background])
-            .flat_map(|row| kept.iter().map(|&ch| row[ch] as f64)),
-    );
+    let values = &attrs.values[b * m * c..(b + 1) * m * c];
+    if kept.len() == c {
+        // Every channel: one flat conversion (vectorised).
+        colors.extend(values.iter().chain(attrs.background).map(|&x| x as f64));
+    } else {
+        colors.extend(
+            values
+                .chunks_exact(c)
+                .chain([attrs.background])
+                .flat_map(|row| kept.iter().map(|&ch| row[ch] as f64)),
+        );
+    }
     let longest = params.height.max(params.width);
     let pos = Positions::new(longest);
     let ctx = Ctx {
