@@ -8,8 +8,8 @@
 //! * `pascal-rgb`: the same render with the coverage (alpha) channel's cotangent zero, as in an attack whose victim
 //!   sees only RGB (the backward leaves such a channel out of its sweeps).
 //!
-//! `cargo run --release -p meshadv-raster --example bench [threads] [fwd|bwd] [sphere|pascal|pascal-rgb]` (a mode runs only that
-//! pass of one case, `sphere` by default, for `perf stat` or `valgrind --tool=callgrind`). `BENCH_ISA=portable` (or `avx2`)
+//! `cargo run --release -p meshadv-raster --example bench [threads] [fwd|bwd] [sphere|pascal|pascal-rgb]` (a mode
+//! runs only that pass of one case, `sphere` by default, for `perf stat` or `valgrind --tool=callgrind`). `BENCH_ISA=portable` (or `avx2`)
 //! runs the backward on that instruction set instead of the fastest one the CPU has; `BENCH_REPS=n` runs `n` repetitions instead of 20. `bwd` prints a fingerprint
 //! of the vertex gradient's bits (to compare builds and instruction sets), `fwd` one of the face index, depth and image.
 

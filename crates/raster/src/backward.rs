@@ -738,16 +738,14 @@ fn element_grads(
         params,
     };
     try_clear_for(partials, m, "backward face partials")?;
+    let ga_len = if ctx.channels > 4 {
+        longest + sweep::LANES
+    } else {
+        0
+    };
     partials.par_extend((0..m).into_par_iter().map_init(
         || Scratch {
-            ga: vec![
-                0.0;
-                if ctx.channels > 4 {
-                    longest + sweep::LANES
-                } else {
-                    0
-                }
-            ],
+            ga: vec![0.0; ga_len],
             jobs: Vec::with_capacity(longest),
         },
         |scratch, f| {

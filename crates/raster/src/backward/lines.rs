@@ -376,13 +376,8 @@ fn channels<const C: usize, const K: usize>(
         let mut sum = 0f64;
         for ch in 0..c {
             sum += g[ch] as f64 * im[ch] as f64;
-            if K == C && K > 0 {
-                planes[ch * w + j].write(g[ch]);
-            }
         }
-        if K == C && K > 0 {
-            // Every channel, written above.
-        } else if K > 0 {
+        if K > 0 {
             // The first `K` channels (a constant: the loop over the row vectorises).
             for s in 0..K {
                 planes[s * w + j].write(g[s]);
