@@ -160,12 +160,10 @@ struct Ctx<'a> {
     /// `(H, W, C)` image (row-major, as given; debug builds check the colours read against it).
     image: &'a [f32],
     /// The channels of the image (and of `attrs`) whose cotangent is not all zero, ascending: the line buffers and
-    /// `colors` hold these (see [`nonzero_channels`]).
+    /// `colors` hold these, `kept.len()` channels (see [`nonzero_channels`]).
     kept: &'a [usize],
     /// Pixel positions along a line.
     pos: &'a Positions,
-    /// Channels of the line buffers and `colors`: `kept.len()`.
-    channels: usize,
     params: &'a RasterParams,
 }
 
@@ -299,20 +297,22 @@ impl Ctx<'_> {
             #[allow(unsafe_code)]
             // SAFETY: `rasterize_backward_on` only passes `Isa::Avx2` when the CPU supports AVX2.
             Isa::Avx2 => unsafe {
-                with_channels!(self.channels, C => face_grad_avx2::<C>(self, f, scratch))
+                with_channels!(self.kept.len(), C => face_grad_avx2::<C>(self, f, scratch))
             },
             #[cfg(target_arch = "x86_64")]
             #[allow(unsafe_code)]
             // SAFETY: `rasterize_backward_on` only passes `Isa::Avx512` when the CPU supports it.
             Isa::Avx512 => unsafe {
-                with_channels!(self.channels, C => face_grad_avx512::<C>(self, f, scratch))
+                with_channels!(self.kept.len(), C => face_grad_avx512::<C>(self, f, scratch))
             },
-            _ => with_channels!(self.channels, C => self.face_grad::<C>(f, scratch, Isa::Portable)),
+            _ => {
+                with_channels!(self.kept.len(), C => self.face_grad::<C>(f, scratch, Isa::Portable))
+            }
         }
     }
 
     /// NMR gradient partial of face `f`: `[corner][x or y]`, for `C` channels (`C = 0`: any count; otherwise
-    /// `C` must be [`Ctx::channels`]).
+    /// `C` must be the number of [`Ctx::kept`] channels).
     #[inline(always)]
     fn face_grad<const C: usize>(
         &self,
@@ -332,7 +332,7 @@ impl Ctx<'_> {
         };
         // The key is `sgn * plane(u, v)`: the plane interpolates 1/z (perspective) or z (orthographic).
         let sgn = if s.ortho { -1.0 } else { 1.0 };
-        let c = if C == 0 { self.channels } else { C };
+        let c = if C == 0 { self.kept.len() } else { C };
         let fi = f as f64;
         let attrs_f = &self.colors[f * c..(f + 1) * c];
         let background = self.colors.len() / c - 1;
@@ -521,7 +521,7 @@ impl Ctx<'_> {
 
     /// Whether the image holds colour row `row` at pixel `px`, as the forward drew it (checked in debug builds).
     fn image_shows(&self, px: usize, row: usize) -> bool {
-        let (c, k) = (self.image.len() / self.params.pixels(), self.channels);
+        let (c, k) = (self.image.len() / self.params.pixels(), self.kept.len());
         let drawn = &self.image[px * c..(px + 1) * c];
         let color = &self.colors[row * k..(row + 1) * k];
         self.kept
@@ -734,11 +734,10 @@ fn element_grads(
         image,
         kept: &kept,
         pos: &pos,
-        channels: kept.len(),
         params,
     };
     try_clear_for(partials, m, "backward face partials")?;
-    let ga_len = if ctx.channels > 4 {
+    let ga_len = if kept.len() > 4 {
         longest + sweep::LANES
     } else {
         0

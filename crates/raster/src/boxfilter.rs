@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use std::mem::MaybeUninit;
 
-use crate::error::{try_clear_for, RasterError, Result};
+use crate::error::{Fill, RasterError, Result};
 
 /// The largest block side accepted.
 pub const MAX_BLOCK: usize = 64;
@@ -245,14 +245,13 @@ fn written(
     fill: impl FnOnce(&mut [MaybeUninit<f32>]),
 ) -> Result<Vec<f32>> {
     let mut v = Vec::new();
-    try_clear_for(&mut v, len, what)?;
-    fill(&mut v.spare_capacity_mut()[..len]);
-    // SAFETY: the capacity is at least `len` (`try_clear_for`), and both callers' `fill` write every slot: each
-    // output row of the filter (all `width * channels` values), each block row of the spread (its first row
-    // value by value, the others copied from it).
+    let mut slots = Fill::new(&mut v, len, 0, 0.0, what)?;
+    fill(slots.slots());
+    // SAFETY: both callers' `fill` write every slot: each output row of the filter (all `width * channels` values),
+    // each block row of the spread (its first row value by value, the others copied from it).
     #[allow(unsafe_code)]
     unsafe {
-        v.set_len(len)
+        slots.done()
     };
     Ok(v)
 }

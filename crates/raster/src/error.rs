@@ -169,6 +169,48 @@ pub fn try_refill<T: Clone>(
     Ok(())
 }
 
+/// A buffer being filled: `len` values to write, then `padding` copies of a value, in the buffer's memory (grown when
+/// too small) without being zeroed first. Until [`Fill::done`] the buffer is empty, so its old values are never read.
+pub(crate) struct Fill<'a, T> {
+    buf: &'a mut Vec<T>,
+    len: usize,
+    padding: usize,
+}
+
+impl<'a, T: Copy> Fill<'a, T> {
+    /// `buf` emptied to receive `len` values to write, followed by `padding` copies of `pad`; an error naming `what`
+    /// when it cannot grow to that size.
+    pub(crate) fn new(
+        buf: &'a mut Vec<T>,
+        len: usize,
+        padding: usize,
+        pad: T,
+        what: &'static str,
+    ) -> Result<Fill<'a, T>> {
+        try_clear_for(buf, len.saturating_add(padding), what)?;
+        for x in &mut buf.spare_capacity_mut()[len..len + padding] {
+            x.write(pad);
+        }
+        Ok(Fill { buf, len, padding })
+    }
+
+    /// The `len` values to write.
+    pub(crate) fn slots(&mut self) -> &mut [std::mem::MaybeUninit<T>] {
+        &mut self.buf.spare_capacity_mut()[..self.len]
+    }
+
+    /// Marks the buffer filled (`len` values and the padding).
+    ///
+    /// # Safety
+    /// Every element of [`Fill::slots`] must have been written.
+    #[allow(unsafe_code)]
+    pub(crate) unsafe fn done(self) {
+        // SAFETY: the first `len` values are written (the caller's promise), the padding by `new`; the capacity is
+        // at least `len + padding` (`new`).
+        unsafe { self.buf.set_len(self.len + self.padding) };
+    }
+}
+
 /// Result alias of the raster core.
 pub type Result<T> = std::result::Result<T, RasterError>;
 

@@ -5,7 +5,7 @@ use std::mem::MaybeUninit;
 
 use rayon::prelude::*;
 
-use crate::error::{try_clear_for, try_refill, Result};
+use crate::error::{try_refill, Fill, Result};
 use crate::input::RasterParams;
 use crate::setup::FaceSetup;
 
@@ -647,52 +647,18 @@ impl Lines {
     /// The four buffers of `n` pixels (`c` channels for the cotangent planes), each to be written once: face
     /// indices, depth keys, the image's cotangent dot product and the cotangent planes.
     fn fills(&mut self, n: usize, c: usize) -> Result<Fills<'_>> {
+        const WHAT: &str = "backward line buffers";
         Ok((
-            Fill::new(&mut self.face, n, -1)?,
-            Fill::new(&mut self.key, n, f64::NEG_INFINITY)?,
-            Fill::new(&mut self.gi, n, 0.0)?,
-            Fill::new(&mut self.grad, n.saturating_mul(c), 0.0)?,
+            Fill::new(&mut self.face, n, LANES, -1, WHAT)?,
+            Fill::new(&mut self.key, n, LANES, f64::NEG_INFINITY, WHAT)?,
+            Fill::new(&mut self.gi, n, LANES, 0.0, WHAT)?,
+            Fill::new(&mut self.grad, n.saturating_mul(c), LANES, 0.0, WHAT)?,
         ))
     }
 }
 
 /// The buffers [`Lines::fills`] returns, in its order.
 type Fills<'a> = (Fill<'a, i32>, Fill<'a, f64>, Fill<'a, f64>, Fill<'a, f32>);
-
-/// A buffer being filled: `len` values, then [`LANES`] of padding, in the buffer's memory (grown when too small)
-/// without being zeroed first. Until [`Fill::done`] the buffer is empty, so its old values are never read.
-struct Fill<'a, T> {
-    buf: &'a mut Vec<T>,
-    len: usize,
-}
-
-impl<'a, T: Copy> Fill<'a, T> {
-    /// `buf` emptied to receive `len` values to write, with its padding set to `pad`; an error when it cannot
-    /// grow to that size.
-    fn new(buf: &'a mut Vec<T>, len: usize, pad: T) -> Result<Fill<'a, T>> {
-        try_clear_for(buf, len.saturating_add(LANES), "backward line buffers")?;
-        for x in &mut buf.spare_capacity_mut()[len..len + LANES] {
-            x.write(pad);
-        }
-        Ok(Fill { buf, len })
-    }
-
-    /// The `len` values to write.
-    fn slots(&mut self) -> &mut [MaybeUninit<T>] {
-        &mut self.buf.spare_capacity_mut()[..self.len]
-    }
-
-    /// Marks the buffer filled (`len` values and the padding).
-    ///
-    /// # Safety
-    /// Every element of [`Fill::slots`] must have been written.
-    #[allow(unsafe_code)]
-    unsafe fn done(self) {
-        // SAFETY: the first `len` values are written (the caller's promise), the padding by `new`; the capacity is
-        // at least `len + LANES` (`new`).
-        unsafe { self.buf.set_len(self.len + LANES) };
-    }
-}
 
 /// Pointers to the per-pixel data of one line from a pixel on (see [`Lines::at`] for how far they may be read).
 #[derive(Clone, Copy)]
