@@ -660,7 +660,7 @@ impl Lines {
 /// The buffers [`Lines::fills`] returns, in its order.
 type Fills<'a> = (Fill<'a, i32>, Fill<'a, f64>, Fill<'a, f64>, Fill<'a, f32>);
 
-/// Pointers to the per-pixel data of one line from a pixel on (see [`Lines::at`] for how far they may be read).
+/// Pointers to the per-pixel data of one line from a pixel on (see [`LinesOf::at`] for how far they may be read).
 #[derive(Clone, Copy)]
 pub(super) struct LineAt<'a, const C: usize> {
     /// Face index.
