@@ -344,6 +344,43 @@ def test_pipelined_step_splits_the_targets_over_the_workers() -> None:
     assert all(name.startswith("meshadv-step") for _, name in seen)
 
 
+
+@needs_native
+@pytest.mark.parametrize("threads", [1, 2])
+def test_workers_render_on_thread_pools_of_their_own(threads: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each worker renders with its thread count (a pool of the calling thread's own in the native module), the
+    serial step on rayon's global pool (0); the images are the same bits whatever the count."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import ShapeAttack, TargetedMisclassification
+    from meshadv.attacks.pipeline import StepWorkers
+    from meshadv.mesh import builtin_mesh
+    from meshadv.render import renderer
+
+    calls: List[Any] = []
+    real = renderer._render_rgba
+
+    def recording(*args: Any, **kwargs: Any) -> Any:
+        calls.append((kwargs["num_threads"], threading.current_thread().name))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(renderer, "_render_rgba", recording)
+    mesh = builtin_mesh("chair")
+    attack = ShapeAttack()
+    call = _call(attack, mesh, _views(2), PooledLinearClassifier())
+    crits = [TargetedMisclassification(c) for c in (1, 2, 3)]
+    params, idx = attack._init_params(mesh, 4), torch.tensor([0, 1, 3])
+    _step_grads(attack, call, crits, None, params, idx)
+    assert calls == [(0, threading.current_thread().name)]
+    calls.clear()
+    with StepWorkers(2, threads) as workers:
+        _step_grads(attack, call, crits, workers, params, idx)
+    assert len(calls) == 2
+    assert all(n == threads and name.startswith("meshadv-step") for n, name in calls)
+    verts = mesh.vertices.unsqueeze(0).repeat(2, 1, 1)
+    one, _ = call.setup.render(verts, mesh.faces, mesh.face_colors, call.views, num_threads=threads)
+    pooled, _ = call.setup.render(verts, mesh.faces, mesh.face_colors, call.views)
+    assert torch.equal(one, pooled)
 @needs_native
 def test_detector_attack_with_step_workers_matches_one_worker() -> None:
     """The detector's output (boxes, no objectness, class probabilities) is cut and concatenated like logits."""

@@ -85,3 +85,38 @@ def test_distinct_thread_counts_do_not_accumulate_threads() -> None:
             break
         time.sleep(0.05)
     assert _threads_of_this_process() <= bound
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="counts threads through Linux /proc")
+def test_a_threads_explicit_pools_are_its_own_and_exit_with_it() -> None:
+    """Threads rendering with an explicit count at the same time each get a pool of their own (its threads come on
+    top of the callers'), and a pool's threads exit when the thread that made it exits."""
+    import threading
+
+    verts = torch.tensor([[[-0.9, -0.9, 1.0], [0.9, -0.9, 1.0], [0.0, 0.9, 1.0]]])
+    faces, attrs = torch.tensor([[0, 2, 1]]), torch.ones(1, 1, 1)
+    rasterize(verts, faces, attrs, 8)
+    before = _threads_of_this_process()
+    counts: list[int] = []
+    rendered, release = threading.Barrier(3), threading.Event()
+
+    def caller() -> None:
+        rasterize(verts, faces, attrs, 8, num_threads=3)
+        rendered.wait()
+        release.wait()
+
+    callers = [threading.Thread(target=caller) for _ in range(2)]
+    for t in callers:
+        t.start()
+    rendered.wait()  # both have rendered and are alive
+    counts.append(_threads_of_this_process())
+    release.set()
+    for t in callers:
+        t.join()
+    # two callers + a pool of 3 each (one shared pool would leave 2 + 3)
+    assert counts[0] >= before + 2 + 2 * 3
+    for _ in range(100):  # the pools' threads exit asynchronously once their caller has gone
+        if _threads_of_this_process() <= before:
+            break
+        time.sleep(0.05)
+    assert _threads_of_this_process() <= before

@@ -11,7 +11,8 @@ import numpy as np
 import numpy.typing as npt
 
 MAX_IMAGE_SIZE: int
-#: How many explicitly sized thread pools the native module keeps for reuse.
+#: How many explicitly sized thread pools the native module keeps for reuse, per calling thread (a thread's pools
+#: are its own, and their threads exit with it).
 MAX_CACHED_POOLS: int
 
 def rasterize_forward(

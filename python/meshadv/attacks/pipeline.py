@@ -21,8 +21,10 @@ at the images and at the victim's output:
 So the gradient is the unchunked step's except that the victim sees batches of ``T V / W`` images and runs on
 ``threads // W`` torch threads: its float rounding may differ in the last bits, as with another ``--threads``; a run
 is reproducible for the same ``step_workers`` and thread count (chunks are fixed by the active targets, never by
-timing). Each worker sets its own torch thread count (OpenMP's is per thread), the calling thread's is untouched;
-the renderer uses its pool as configured (``RAYON_NUM_THREADS``). An exception in a worker is re-raised in the
+timing). Each worker sets its own torch thread count (OpenMP's is per thread), the calling thread's is untouched,
+and renders on a pool of its own with as many threads (rather than all workers on rayon's global pool, where one
+worker's render waited for another's: 7-10% slower steps with 2 workers on 2 cores); the images do not depend on
+it. An exception in a worker is re-raised in the
 calling thread after every worker has finished its task; Ctrl-C (delivered to the calling thread) waits for the
 workers' current tasks and then propagates, so the attack stops between steps as without workers.
 """
@@ -137,16 +139,18 @@ class StepWorkers:
 
     Args:
         workers: number of threads, ``>= 1``.
-        torch_threads: torch intra-op threads of each worker (set in the worker, where OpenMP keeps it per thread).
+        threads: threads of each worker: its torch intra-op threads (set in the worker, where OpenMP keeps it per
+            thread) and its renderer threads (a rayon pool of the worker's own, so the workers' renders neither share
+            one pool nor queue behind each other: benchmarks/RESULTS.md, "Step workers render on pools of their own").
 
     Use as a context manager, or call :meth:`close`.
     """
 
-    def __init__(self, workers: int, torch_threads: int) -> None:
-        if workers < 1 or torch_threads < 1:
-            raise ValueError(f"workers and torch_threads must be >= 1, got {workers}, {torch_threads}")
+    def __init__(self, workers: int, threads: int) -> None:
+        if workers < 1 or threads < 1:
+            raise ValueError(f"workers and threads must be >= 1, got {workers}, {threads}")
         self.workers = int(workers)
-        self.torch_threads = int(torch_threads)
+        self.threads = int(threads)
         self._main_threads = torch.get_num_threads()
         self._lock = threading.Lock()
         self._pool: Optional[ThreadPoolExecutor] = ThreadPoolExecutor(
@@ -156,7 +160,7 @@ class StepWorkers:
         # torch.set_num_threads sets the calling thread's OpenMP count and the process-wide default that threads
         # starting later take; the calling thread's own count and the default are restored in close().
         with self._lock:
-            torch.set_num_threads(self.torch_threads)
+            torch.set_num_threads(self.threads)
 
     def map(self, fn: Callable[[_T], _R], items: Sequence[_T]) -> List[_R]:
         """``[fn(item) for item in items]`` run on the workers; returns in the order of ``items``.

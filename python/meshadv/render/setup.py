@@ -150,7 +150,7 @@ class RenderSetup:
         }
 
     def render(self, vertices: Tensor, faces: Tensor, face_colors: Tensor, views: Any,
-               edge_gradient: float = 1.0) -> Tuple[Tensor, Tensor]:
+               edge_gradient: float = 1.0, num_threads: int = 0) -> Tuple[Tensor, Tensor]:
         """Render ``K`` versions of the attacked mesh (one topology) from each of ``V`` views in one batched call.
 
         The batch is mesh-major: image ``k * V + v`` is mesh ``k`` seen from view ``v``. Static objects are drawn in
@@ -163,6 +163,9 @@ class RenderSetup:
             views: a ``ViewSet`` of ``V`` views.
             edge_gradient: weight of NMR's rasterization gradient on the vertices (:func:`meshadv.render.render`;
                 the update rule's choice, not the setup's: 1 = NMR's definition).
+            num_threads: the native renderer's threads (forward and backward): 0 = rayon's global pool; a count runs
+                on a pool of the calling thread's own, which threads rendering at the same time do not share (an
+                attack's step workers). The images do not depend on it.
 
         Returns:
             ``(images (K*V, 3, H, W), alpha (K*V, 1, H, W))`` with ``(H, W) = output_size``.
@@ -185,7 +188,7 @@ class RenderSetup:
         bg = (0.0, 0.0, 0.0) if self.has_photo else self.background
         # The image alone: an attack step never reads the depth or face-index maps.
         rgba, _, _ = _render_rgba(verts, faces, colors, batched.camera, batched.lights, self.image_size, bg,
-                                  fill_back=True, antialias=self.antialias, num_threads=0,
+                                  fill_back=True, antialias=self.antialias, num_threads=num_threads,
                                   edge_gradient=edge_gradient)
         image, alpha = rgba[:, :3], rgba[:, 3:4]
         if self.crop_rows is not None:
