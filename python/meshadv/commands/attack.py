@@ -166,9 +166,9 @@ def attack(
     z_up: Optional[bool] = typer.Option(None, "--z-up/--y-up", help="mesh file is Z-up (default: guess)"),
     seed: int = typer.Option(0, help="random seed"),
     step_workers: int = typer.Option(1, min=1, max=64, help="threads a step's images are split over, each rendering "
-                                                            "its part and running the victim on it (2 was 9-15% faster "
-                                                            "on a loaded 2-core machine, no faster for shape on a "
-                                                            "quiet one; float rounding differs from 1)"),
+                                                            "its part on threads of its own and running the victim on "
+                                                            "it (on 2 cores 2 took 3-19% less time per step than 1, "
+                                                            "shape and texture; float rounding differs from 1)"),
     quiet: bool = typer.Option(False, help="no progress bar"),
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
 ) -> None:
