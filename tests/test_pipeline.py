@@ -344,7 +344,6 @@ def test_pipelined_step_splits_the_targets_over_the_workers() -> None:
     assert all(name.startswith("meshadv-step") for _, name in seen)
 
 
-
 @needs_native
 @pytest.mark.parametrize("threads", [1, 2])
 def test_workers_render_on_thread_pools_of_their_own(threads: int, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -381,6 +380,8 @@ def test_workers_render_on_thread_pools_of_their_own(threads: int, monkeypatch: 
     one, _ = call.setup.render(verts, mesh.faces, mesh.face_colors, call.views, num_threads=threads)
     pooled, _ = call.setup.render(verts, mesh.faces, mesh.face_colors, call.views)
     assert torch.equal(one, pooled)
+
+
 @needs_native
 def test_detector_attack_with_step_workers_matches_one_worker() -> None:
     """The detector's output (boxes, no objectness, class probabilities) is cut and concatenated like logits."""

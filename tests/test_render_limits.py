@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 
 import pytest
@@ -63,6 +64,12 @@ def _threads_of_this_process() -> int:
     return len(os.listdir("/proc/self/task"))
 
 
+def _render_a_triangle(num_threads: int = 0) -> None:
+    """Rasterize one screen-space triangle at 8 px on ``num_threads`` threads (0: the global pool)."""
+    verts = torch.tensor([[[-0.9, -0.9, 1.0], [0.9, -0.9, 1.0], [0.0, 0.9, 1.0]]])
+    rasterize(verts, torch.tensor([[0, 2, 1]]), torch.ones(1, 1, 1), 8, num_threads=num_threads)
+
+
 @pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="counts threads through Linux /proc")
 def test_distinct_thread_counts_do_not_accumulate_threads() -> None:
     import meshadv._raster as native
@@ -71,12 +78,10 @@ def test_distinct_thread_counts_do_not_accumulate_threads() -> None:
     assert hasattr(native, "MAX_CACHED_POOLS"), "the native module predates the bounded pool cache"
     kept = native.MAX_CACHED_POOLS
     assert kept >= 1
-    verts = torch.tensor([[[-0.9, -0.9, 1.0], [0.9, -0.9, 1.0], [0.0, 0.9, 1.0]]])
-    faces, attrs = torch.tensor([[0, 2, 1]]), torch.ones(1, 1, 1)
-    rasterize(verts, faces, attrs, 8)
+    _render_a_triangle()
     before = _threads_of_this_process()
     for n in range(1, 65):
-        rasterize(verts, faces, attrs, 8, num_threads=n)
+        _render_a_triangle(n)
     # Only the `kept` most recently used pools survive (64 + 63 threads for 2); before the fix 64 values left 2,083
     # threads.
     bound = before + sum(range(65 - kept, 65)) + 4
@@ -91,17 +96,12 @@ def test_distinct_thread_counts_do_not_accumulate_threads() -> None:
 def test_a_threads_explicit_pools_are_its_own_and_exit_with_it() -> None:
     """Threads rendering with an explicit count at the same time each get a pool of their own (its threads come on
     top of the callers'), and a pool's threads exit when the thread that made it exits."""
-    import threading
-
-    verts = torch.tensor([[[-0.9, -0.9, 1.0], [0.9, -0.9, 1.0], [0.0, 0.9, 1.0]]])
-    faces, attrs = torch.tensor([[0, 2, 1]]), torch.ones(1, 1, 1)
-    rasterize(verts, faces, attrs, 8)
+    _render_a_triangle()
     before = _threads_of_this_process()
-    counts: list[int] = []
     rendered, release = threading.Barrier(3), threading.Event()
 
     def caller() -> None:
-        rasterize(verts, faces, attrs, 8, num_threads=3)
+        _render_a_triangle(3)
         rendered.wait()
         release.wait()
 
@@ -109,12 +109,12 @@ def test_a_threads_explicit_pools_are_its_own_and_exit_with_it() -> None:
     for t in callers:
         t.start()
     rendered.wait()  # both have rendered and are alive
-    counts.append(_threads_of_this_process())
+    during = _threads_of_this_process()
     release.set()
     for t in callers:
         t.join()
     # two callers + a pool of 3 each (one shared pool would leave 2 + 3)
-    assert counts[0] >= before + 2 + 2 * 3
+    assert during >= before + 2 + 2 * 3
     for _ in range(100):  # the pools' threads exit asynchronously once their caller has gone
         if _threads_of_this_process() <= before:
             break
