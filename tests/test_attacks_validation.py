@@ -113,3 +113,24 @@ def test_bad_call_and_helper_arguments_raise_naming_them() -> None:
         LambdaSearch(1.0, 1.5)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="factor"):
         LambdaSearch(1.0, factor=1.0)
+
+
+def test_views_and_victims_that_are_not_meshadv_objects_are_named() -> None:
+    """A list of azimuths for ``views``, a bare ``nn.Module`` for ``victim``: errors that say what to pass instead."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import TargetedMisclassification
+    from meshadv.mesh import builtin_mesh
+    from meshadv.render import RenderSetup, ViewSet
+
+    victim, mesh = PooledLinearClassifier(), builtin_mesh("cube")
+    views = ViewSet.orbit([40.0], elevation=20.0, distance=2.6)
+    attack, target = TextureAttack(steps=1), TargetedMisclassification(3)
+    with pytest.raises(TypeError, match=r"^views must be a meshadv.render.ViewSet .*got list"):
+        attack(mesh, [40.0], victim, target)
+    with pytest.raises(TypeError, match=r"^eval_views must be a meshadv.render.ViewSet .*got str"):
+        attack(mesh, views, victim, target, eval_views="front")
+    with pytest.raises(TypeError, match=r"^views must be a meshadv.render.ViewSet .*got tuple"):
+        RenderSetup(image_size=16).render(mesh.vertices[None], mesh.faces, mesh.face_colors, (views,))
+    with pytest.raises(ValueError, match=r"^victim must be a meshadv victim .*ClassifierVictim.*got Linear"):
+        attack(mesh, views, torch.nn.Linear(3, 1000), target)

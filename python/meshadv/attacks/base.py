@@ -28,6 +28,7 @@ from meshadv.attacks.targets import StopRule
 from meshadv.attacks.update import make_update_rule, update_rules
 from meshadv.mesh.adjacency import vertex_edges
 from meshadv.render.setup import RenderSetup
+from meshadv.render.views import ViewSet
 
 #: ``StepInfo`` (:mod:`meshadv.attacks.progress`), ``Evaluation``, ``evaluate`` (:mod:`meshadv.attacks.evaluation`)
 #: and ``slice_output`` (:mod:`meshadv.attacks.outputs`) are re-exported from their old home.
@@ -228,15 +229,15 @@ class MeshAttack(ABC):
             An :class:`~meshadv.attacks.result.AttackResult`.
 
         Raises:
-            ValueError: bad mesh, views or criterion, or a criterion that does not suit the victim.
+            ValueError: bad mesh or criterion, or a criterion that does not suit the victim.
+            TypeError: ``views`` or ``eval_views`` is not a ViewSet, or ``setup`` not a RenderSetup.
         """
         criteria = as_criteria(criterion)
         if not all(hasattr(mesh, name) for name in ("vertices", "faces", "face_colors")):
             raise ValueError(f"mesh must be a meshadv.mesh.Mesh, got {type(mesh).__name__}")
-        if not hasattr(views, "camera") or len(views) < 1:
-            raise ValueError("views must be a non-empty meshadv.render.ViewSet")
-        if eval_views is not None and (not hasattr(eval_views, "camera") or len(eval_views) < 1):
-            raise ValueError("eval_views must be None or a non-empty meshadv.render.ViewSet")
+        views = ViewSet.require(views)
+        if eval_views is not None:
+            eval_views = ViewSet.require(eval_views, "eval_views")
         if setup is None:
             setup = RenderSetup()
         elif not isinstance(setup, RenderSetup):

@@ -136,6 +136,9 @@ class Criterion(ABC):
     def check_victim(self, victim: Any) -> None:
         """Raise ``ValueError`` naming ``victim`` when its kind does not suit this criterion."""
         kind = getattr(victim, "kind", None)
+        if kind is None:
+            raise ValueError(f"victim must be a meshadv victim (meshadv.victims.load_victim(...), or your own model in "
+                             f"a ClassifierVictim / DetectorVictim subclass), got {type(victim).__name__}")
         if kind != self.victim_kind:
             raise ValueError(f"victim of kind {kind!r} cannot be attacked with {type(self).__name__}, "
                              f"which needs a {self.victim_kind}")

@@ -169,11 +169,14 @@ class RenderSetup:
 
         Returns:
             ``(images (K*V, 3, H, W), alpha (K*V, 1, H, W))`` with ``(H, W) = output_size``.
+
+        Raises:
+            TypeError: ``views`` is not a ViewSet (the other arguments are checked by :func:`meshadv.render.render`).
         """
         from meshadv.render import ViewSet
         from meshadv.render.renderer import _render_rgba
 
-        k, v = vertices.shape[0], len(views)
+        k, v = vertices.shape[0], len(ViewSet.require(views))
         batched = ViewSet.cat([views] * k) if k > 1 else views
         verts = vertices.repeat_interleave(v, dim=0) if v > 1 else vertices
         colors = face_colors

@@ -61,6 +61,19 @@ class ViewSet:
     def __len__(self) -> int:
         return len(self.camera)
 
+    @staticmethod
+    def require(views: Any, name: str = "views") -> ViewSet:
+        """``views`` itself when it is a :class:`ViewSet` (an argument's check, naming it ``name``; a ViewSet always
+        holds at least one view: its camera rejects an empty batch).
+
+        Raises:
+            TypeError: ``views`` is not a ViewSet.
+        """
+        if not isinstance(views, ViewSet):
+            raise TypeError(f"{name} must be a meshadv.render.ViewSet (e.g. ViewSet.orbit(...)), "
+                            f"got {type(views).__name__}")
+        return views
+
     def __getitem__(self, index: int | slice | torch.Tensor | Sequence[int]) -> ViewSet:
         """Select views; an integer gives a ViewSet of one view."""
         return ViewSet(self.camera[index], self.lights[index])

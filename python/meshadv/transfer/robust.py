@@ -57,15 +57,12 @@ def eot_views(views: ViewSet, samples: int) -> ViewSet:
 
     Raises:
         TypeError: ``samples`` is not an int, or ``views`` is not a ``ViewSet``.
-        ValueError: ``samples < 1``, or ``views`` is empty.
+        ValueError: ``samples < 1``.
     """
     from meshadv.render import ViewSet
 
     _validate.positive_int("samples", samples)
-    if not isinstance(views, ViewSet):
-        raise TypeError(f"views must be a meshadv.render.ViewSet, got {type(views).__name__}")
-    if len(views) < 1:
-        raise ValueError("views must be a non-empty meshadv.render.ViewSet")
+    ViewSet.require(views)
     return views if samples == 1 else ViewSet.cat([views] * samples)
 
 
