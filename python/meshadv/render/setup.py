@@ -176,7 +176,8 @@ class RenderSetup:
         from meshadv.render import ViewSet
         from meshadv.render.renderer import _render_rgba
 
-        k, v = vertices.shape[0], len(ViewSet.require(views))
+        views = ViewSet.require(views)
+        k, v = vertices.shape[0], len(views)
         batched = ViewSet.cat([views] * k) if k > 1 else views
         verts = vertices.repeat_interleave(v, dim=0) if v > 1 else vertices
         colors = face_colors
