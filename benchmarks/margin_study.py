@@ -111,7 +111,7 @@ def mitsuba_verdicts(spec: Dict[str, Any], job: str, out_dir: Path) -> Dict[str,
     """Mitsuba transfer of the attack whose artefacts are in ``out_dir`` (same camera and lights; views of a
     multi-view job are the attack views): per-view untargeted / targeted verdicts on both renderers and top-1
     labels, as ``meshadv transfer controlled`` records them."""
-    from meshadv.transfer.cases import _case_from_job
+    from meshadv.transfer.controlled import _case_from_job
     from meshadv.transfer.controlled import controlled_transfer
 
     case = _case_from_job(SimpleNamespace(job_id=job, spec=spec, record={}), out_dir)
@@ -135,7 +135,7 @@ def benign_rows(specs: Sequence[Dict[str, Any]]) -> List[Dict[str, Any]]:
     untargeted" for free where Mitsuba's benign render is already misclassified. One row per instance (mesh and
     views), ``margin`` null, ``kind`` ``"benign"``."""
     from meshadv.experiments.jobs import load_job_mesh
-    from meshadv.transfer.cases import TransferCase
+    from meshadv.transfer.controlled import TransferCase
     from meshadv.transfer.controlled import controlled_transfer
 
     seen, rows = set(), []
