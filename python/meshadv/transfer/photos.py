@@ -1,6 +1,9 @@
-"""Steps 1-2 of the black-box pipeline: Mitsuba's photo of the hidden world, and the camera and lights estimated
-from it (:func:`estimate_parameters`); the photo of the world without the attacker's objects
-(:func:`background_photo`)."""
+"""Mitsuba's photos of a black-box experiment: the photo of the hidden world with the camera and lights estimated from
+it (:func:`estimate_parameters`), the photo of the world without the attacker's objects (:func:`background_photo`),
+and what the attack optimised rendered by Mitsuba under the *estimated* camera and lights, composited over the
+background photo (:func:`estimated_view_spec`, :func:`composite`: the diagnostic of renderer vs parameter
+mismatch).
+"""
 
 from __future__ import annotations
 
@@ -10,16 +13,16 @@ from typing import TYPE_CHECKING, Any, Optional, Sequence
 import torch
 
 from meshadv import _validate
-from meshadv.transfer._inputs import as_geometry
-from meshadv.transfer.hidden import HiddenScene
-from meshadv.transfer.render import render_mask, render_scenes
-from meshadv.transfer.spec import MitsubaLights
+from meshadv.transfer.estimation import as_geometry
+from meshadv.transfer.mitsuba_process import MitsubaImage, render_mask, render_scenes
+from meshadv.transfer.mitsuba_spec import MitsubaLights, SceneSpec, scene_spec
+from meshadv.transfer.setups import HiddenScene
 
 if TYPE_CHECKING:
     from meshadv.render import Camera, Lights, ViewSet
-    from meshadv.transfer.camera_estimate import CameraEstimate
+    from meshadv.transfer.estimation import CameraEstimate
 
-__all__ = ["Estimation", "background_photo", "estimate_parameters"]
+__all__ = ["Estimation", "background_photo", "composite", "estimate_parameters", "estimated_view_spec"]
 
 
 @dataclass(frozen=True)
@@ -77,14 +80,13 @@ def estimate_parameters(
         ``errors["light_fit_pixels"]`` counts them.
 
     Raises:
-        TypeError: ``hidden`` is not a :class:`~meshadv.transfer.hidden.HiddenScene`; ``num_lights``,
+        TypeError: ``hidden`` is not a :class:`~meshadv.transfer.setups.HiddenScene`; ``num_lights``,
             ``camera_steps`` or ``light_steps`` is not an integer.
         ValueError: ``light_faces`` is not a non-empty range of ``known``'s faces, or selects no visible pixel;
             ``camera_size`` < 8; a negative ``num_lights``, ``camera_steps`` or ``light_steps``.
     """
     from meshadv.render import ViewSet
-    from meshadv.transfer.camera_estimate import estimate_camera
-    from meshadv.transfer.light_estimate import estimate_lights
+    from meshadv.transfer.estimation import estimate_camera, estimate_lights
 
     if not isinstance(hidden, HiddenScene):
         raise TypeError(f"hidden must be a HiddenScene, got {type(hidden).__name__}")
@@ -171,7 +173,7 @@ def _light_fit_errors(photo: torch.Tensor, light_mask: torch.Tensor, verts: torc
     """``light_rmse`` (meshadv's render under the estimates vs the photo, on the fitted pixels meshadv covers) and
     ``light_fit_pixels`` (their count)."""
     from meshadv.render import render
-    from meshadv.transfer.light_estimate import masked_rmse
+    from meshadv.transfer.estimation import masked_rmse
 
     with torch.no_grad():
         ours = render(verts, faces, colors, camera, lights, image_size, background=(0.0, 0.0, 0.0))
@@ -184,7 +186,7 @@ def _true_light_errors(estimated: Lights, true_lights: MitsubaLights, has_enviro
     """Errors of the estimated lights against the hidden world's directional lights (no ``ambient_error`` when
     ``has_environment``: the environment map is the true ambient, no single colour to compare with)."""
     from meshadv.render import Lights
-    from meshadv.transfer.light_estimate import light_errors
+    from meshadv.transfer.estimation import light_errors
 
     true = Lights(torch.from_numpy(true_lights.directions), torch.from_numpy(true_lights.colors),
                   torch.from_numpy(true_lights.ambient))
@@ -213,3 +215,47 @@ def background_photo(hidden: HiddenScene, exclude: Sequence[str] = (), *, varian
     """
     spec = hidden.background_spec(exclude)
     return torch.from_numpy(render_scenes([spec], variant=variant, timeout=timeout)[0].chw())
+
+
+def estimated_view_spec(mesh: Any, record: dict[str, Any], hidden: HiddenScene, *, seed: int = 0) -> SceneSpec:
+    """Mitsuba's scene of what the attack optimised: ``mesh`` under the *estimated* camera and lights.
+
+    Directional lights and a constant ambient (no environment map, no base scene), direct light only
+    (``max_depth = 2``), black background: composite the result over the background photo with its alpha
+    (:func:`composite`). Comparing this render with meshadv's separates the renderer mismatch (anti-aliasing,
+    Monte-Carlo noise, shadows, ambient occlusion) from the parameter mismatch (estimated vs true camera and lights).
+
+    Args:
+        mesh: the object (or the merged known objects) in world space.
+        record: the estimated view (``ViewSet.to_records()[0]``).
+        hidden: the hidden world (for the image size and samples per pixel).
+        seed: Mitsuba sampler seed.
+
+    Returns:
+        The scene spec.
+    """
+    return scene_spec(mesh, record, lights=record, image_size=hidden.image_size, spp=hidden.spp, max_depth=2,
+                      background=(0.0, 0.0, 0.0), seed=seed)
+
+
+def composite(image: MitsubaImage, background: torch.Tensor) -> torch.Tensor:
+    """A Mitsuba render made over black (premultiplied by its alpha) composited over a background.
+
+    Args:
+        image: the render (its ``alpha`` is the coverage).
+        background: ``(3, H, W)`` tensor in ``[0, 1]``.
+
+    Returns:
+        ``(3, H, W)`` float32 ``clamp(rgb + (1 - alpha) * background, 0, 1)``.
+
+    Raises:
+        TypeError: ``background`` is not a tensor.
+        ValueError: the background's shape does not match the image.
+    """
+    if not isinstance(background, torch.Tensor):
+        raise TypeError(f"background must be a (3, H, W) torch tensor, got {type(background).__name__}")
+    rgb = torch.from_numpy(image.chw())
+    if tuple(background.shape) != tuple(rgb.shape):
+        raise ValueError(f"background {tuple(background.shape)} must match the image {tuple(rgb.shape)}")
+    alpha = torch.from_numpy(image.alpha)[None]
+    return (rgb + (1.0 - alpha) * background.to(rgb.dtype)).clamp(0.0, 1.0)

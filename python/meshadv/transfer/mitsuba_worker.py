@@ -1,7 +1,8 @@
-"""Child-process entry point that renders pickled :class:`~meshadv.transfer.spec.SceneSpec` objects with Mitsuba.
+"""Child-process entry point that renders pickled :class:`~meshadv.transfer.mitsuba_spec.SceneSpec` objects with
+Mitsuba.
 
-Run as ``python -m meshadv.transfer._worker IN.pkl OUT.npz VARIANT``. It imports only numpy and mitsuba (never
-torch), so it starts quickly; if Mitsuba aborts, only this process dies. See :mod:`meshadv.transfer.render`.
+Run as ``python -m meshadv.transfer.mitsuba_worker IN.pkl OUT.npz VARIANT``. It imports only numpy and mitsuba (never
+torch), so it starts quickly; if Mitsuba aborts, only this process dies. See :mod:`meshadv.transfer.mitsuba_process`.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ def main(argv: list[str]) -> int:
         import drjit as dr
 
         dr.set_thread_count(int(threads))
-    from meshadv.transfer.scene import build_mitsuba_scene
+    from meshadv.transfer.mitsuba_scene import build_mitsuba_scene
 
     with open(in_path, "rb") as fh:
         specs = pickle.load(fh)
@@ -34,7 +35,7 @@ def main(argv: list[str]) -> int:
     for i, spec in enumerate(specs):
         scene = build_mitsuba_scene(mi, spec)
         rgba = np.array(mi.render(scene, seed=int(spec.seed)), dtype=np.float32)
-        rgba = rgba[:, ::-1]  # Mitsuba's camera is physical, NMR's image is its mirror (see scene.py)
+        rgba = rgba[:, ::-1]  # Mitsuba's camera is physical, NMR's image is its mirror (see mitsuba_scene)
         rgb, alpha = rgba[..., :3], np.clip(rgba[..., 3], 0.0, 1.0)
         if spec.background is not None and not spec.mask:
             rgb = rgb + (1.0 - alpha)[..., None] * np.asarray(spec.background, dtype=np.float32)

@@ -1,8 +1,5 @@
 """How the transfer pipelines read a victim: the classifier criteria of a case, Mitsuba images as one batch, top-1
-class names, a class's best score.
-
-Shared by the controlled transfer (:mod:`meshadv.transfer.controlled`) and the black-box pipeline
-(:mod:`meshadv.transfer.blackbox`).
+class names, a class's best detection score. Shared by the controlled and the black-box transfer.
 """
 
 from __future__ import annotations
@@ -12,7 +9,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 import torch
 
-from meshadv.transfer.render import MitsubaImage
+from meshadv.transfer.mitsuba_process import MitsubaImage
 
 __all__ = ["class_names", "classifier_criteria", "detection_scores", "images_tensor", "top1_names"]
 

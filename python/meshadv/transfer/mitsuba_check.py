@@ -1,4 +1,5 @@
-"""Check the scene conversion: Mitsuba's and meshadv's renders of the same mesh, camera and lights agree.
+"""Check the scene conversion (:func:`conversion_check`): Mitsuba's and meshadv's renders of the same mesh, camera
+and lights agree.
 
 With interreflection off (``max_depth = 2``: camera ray + one bounce toward the lights) and the lighting matched, the
 two images of a *convex* shape agree away from silhouette edges up to Monte-Carlo noise of the ambient term (which
@@ -20,8 +21,10 @@ from typing import Any, Optional
 import numpy as np
 import torch
 
-from meshadv.transfer.render import render_scenes
-from meshadv.transfer.spec import MeshObject, MitsubaCamera, mask_spec, scene_spec
+from meshadv.transfer.mitsuba_process import render_scenes
+from meshadv.transfer.mitsuba_spec import MeshObject, MitsubaCamera, mask_spec, scene_spec
+
+__all__ = ["ConversionCheck", "conversion_check", "head_light_record", "mask_iou"]
 
 
 @dataclass(frozen=True)
@@ -123,4 +126,13 @@ def conversion_check(
     )
 
 
-__all__ = ["ConversionCheck", "conversion_check", "mask_iou"]
+def head_light_record(distance: float, azimuth: float, elevation: float, light: float, ambient: float,
+                      viewing_angle: float = 30.0) -> dict[str, Any]:
+    """A one-view record (``ViewSet.to_records()``) of a spherical camera with a head light (toward the camera,
+    slightly offset) of intensity ``light`` and an ambient light ``ambient``."""
+    from meshadv.render import Camera, Lights, ViewSet
+
+    camera = Camera.spherical(distance, azimuth, elevation, viewing_angle=viewing_angle)
+    direction = (camera.eye() - camera.target()).detach()
+    lights = Lights(direction.unsqueeze(1) + 0.3, [[light] * 3], [ambient] * 3)
+    return ViewSet(camera, lights).to_records()[0]
