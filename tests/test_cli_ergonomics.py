@@ -1,4 +1,4 @@
-"""Command-line ergonomics (issue 18): one-line errors, ranges, victim lists, the input frame, comparison images."""
+"""Command-line ergonomics: one-line errors, ranges, victim lists, the input frame, comparison images."""
 
 from __future__ import annotations
 
