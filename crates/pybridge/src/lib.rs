@@ -6,6 +6,8 @@
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
+mod surface;
+
 use meshadv_raster::boxfilter::{self, BoxShape};
 use meshadv_raster::camera::SphericalCamera;
 use meshadv_raster::pipeline::{render, Lights, RenderSettings};
@@ -570,6 +572,13 @@ fn _raster(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(box_spread, m)?)?;
     m.add_function(wrap_pyfunction!(raycast, m)?)?;
     m.add_function(wrap_pyfunction!(render_full, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::pixel_weights, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::pixel_weights_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::interpolate, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::interpolate_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::sample_texture, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::sample_texture_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::image_vertex_backward, m)?)?;
     m.add("MAX_IMAGE_SIZE", meshadv_raster::MAX_IMAGE_SIZE)?;
     m.add("MAX_CACHED_POOLS", meshadv_raster::MAX_CACHED_POOLS)?;
     Ok(())
