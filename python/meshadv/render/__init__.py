@@ -1,7 +1,8 @@
 """meshadv.render: differentiable mesh rendering (PyTorch camera and shading, Rust rasterizer).
 
 Public API: :class:`Camera`, :class:`Lights`, :class:`ViewSet`, :func:`render`, :func:`render_silhouette`,
-:class:`RenderOutput`, :func:`rasterize`, :class:`RasterOutput`, :func:`face_normals`, :func:`shade`.
+:class:`RenderOutput`, :func:`rasterize`, :class:`RasterOutput`, :func:`face_normals`, :func:`shade`,
+:func:`render_surface` (textures, vertex colours, smooth shading; docs/TEXTURES.md), :func:`vertex_normals`.
 """
 
 from .camera import Camera
@@ -10,6 +11,7 @@ from .rasterize import RasterOutput, native_available, rasterize
 from .raycast import RayCastOutput, raycast
 from .renderer import RenderOutput, render, render_silhouette
 from .setup import RenderSetup, StaticObject, render_views
+from .surface import render_surface, vertex_normals
 from .views import ViewSet
 
 __all__ = [
@@ -28,6 +30,8 @@ __all__ = [
     "raycast",
     "render",
     "render_silhouette",
+    "render_surface",
     "render_views",
     "shade",
+    "vertex_normals",
 ]
