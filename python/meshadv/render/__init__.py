@@ -1,8 +1,9 @@
 """meshadv.render: differentiable mesh rendering (PyTorch camera and shading, Rust rasterizer).
 
 Public API: :class:`Camera`, :class:`Lights`, :class:`ViewSet`, :func:`render`, :func:`render_silhouette`,
-:class:`RenderOutput`, :func:`rasterize`, :class:`RasterOutput`, :func:`face_normals`, :func:`shade`,
-:func:`render_surface` (textures, vertex colours, smooth shading; docs/TEXTURES.md), :func:`vertex_normals`.
+:class:`RenderOutput`, :func:`rasterize`, :class:`RasterOutput`, :func:`face_normals`, :func:`shade`, the names of
+the vertex gradients (:data:`VISIBILITY_GRADIENTS`), and :func:`render_surface` (textures, vertex colours, smooth
+shading; docs/TEXTURES.md) with :func:`vertex_normals`.
 """
 
 from .camera import Camera
@@ -13,6 +14,7 @@ from .renderer import RenderOutput, render, render_silhouette
 from .setup import RenderSetup, StaticObject, render_views
 from .surface import render_surface, vertex_normals
 from .views import ViewSet
+from .visibility import VISIBILITY_GRADIENTS
 
 __all__ = [
     "Camera",
@@ -22,6 +24,7 @@ __all__ = [
     "RenderOutput",
     "RenderSetup",
     "StaticObject",
+    "VISIBILITY_GRADIENTS",
     "ViewSet",
     "face_normals",
     "native_available",
