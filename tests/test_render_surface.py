@@ -221,6 +221,35 @@ def test_per_face_vertex_colours_with_flat_shading_are_the_flat_render() -> None
     torch.testing.assert_close(b.grad, a.grad, atol=1e-3 * float(a.grad.abs().max()), rtol=0)
 
 
+def test_the_local_visibility_gradient_of_a_flat_image_is_the_flat_local_one() -> None:
+    verts, faces, _, _ = _bumpy_grid(4, seed=6)
+    soup = verts[faces].reshape(-1, 3).clone()
+    soup_faces = torch.arange(soup.shape[0]).reshape(-1, 3)
+    colors = torch.rand(faces.shape[0], 3, generator=torch.Generator().manual_seed(8))
+    camera, lights = Camera.spherical(3.0, azimuth=40.0, elevation=10.0), Lights.default()
+    grads = []
+    for surface in (False, True):
+        v = soup.clone().requires_grad_(True)
+        if surface:
+            out = render_surface(
+                v,
+                soup_faces,
+                camera,
+                lights,
+                40,
+                vertex_colors=colors.repeat_interleave(3, 0),
+                shading="flat",
+                visibility_gradient="local",
+                edge_gradient=0.5,
+            )
+        else:
+            out = render(v, soup_faces, colors, camera, lights, 40, visibility_gradient="local", edge_gradient=0.5)
+        out.image.sum().backward()
+        grads.append(v.grad)
+    assert grads[0].abs().max() > 0
+    torch.testing.assert_close(grads[1], grads[0], atol=1e-3 * float(grads[0].abs().max()), rtol=0)
+
+
 def test_the_texture_gradient_is_the_same_for_any_thread_count() -> None:
     s = _scene(seed=7)
     grads = []
@@ -254,6 +283,7 @@ def test_the_texture_gradient_is_the_same_for_any_thread_count() -> None:
         (dict(uv_faces=torch.zeros(5, 3, dtype=torch.long)), "uv_faces must have shape"),
         (dict(shading="phong"), "shading"),
         (dict(wrap="mirror"), "wrap"),
+        (dict(visibility_gradient="soft"), "visibility_gradient"),
         (dict(vertex_colors=torch.zeros(7, 3)), "vertex_colors must have one row per vertex"),
         (dict(normals=torch.zeros(3, 3), normal_faces=None), "normals must have one row per vertex"),
     ],

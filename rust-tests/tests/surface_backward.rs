@@ -2,10 +2,12 @@
 //! colours it is `rasterize_backward`'s vertex gradient bit for bit, in perspective and orthographic projection, for
 //! any thread count; on a textured image it differs from the flat one only through the colours it reads.
 
-use meshadv_raster::backward::image_vertex_backward;
+use meshadv_raster::backward::{image_vertex_backward, Visibility};
 use meshadv_raster::surface::{interpolate, pixel_weights, CornerAttrs};
 use meshadv_raster::texture::{sample, Texture, Wrap};
-use meshadv_raster::{rasterize_fragments, with_threads};
+use meshadv_raster::{
+    rasterize_backward, rasterize_fragments, with_threads, BackwardInputs, FaceAttrs,
+};
 use meshadv_raster_tests::{
     backward, forward, ortho_params, params, random_attrs, random_soup, Rng,
 };
@@ -30,7 +32,15 @@ fn per_pixel_colours_of_a_flat_image_give_the_flat_vertex_gradient_bit_for_bit()
         let flat = backward(&mesh, &attrs, c, &p, &out, &g);
         for threads in [1, 3] {
             let got = with_threads(threads, || {
-                image_vertex_backward(&mesh.view(), &p, &out.face_index, &out.image, &g, c)
+                image_vertex_backward(
+                    &mesh.view(),
+                    &p,
+                    &out.face_index,
+                    &out.image,
+                    &g,
+                    c,
+                    Visibility::Nmr,
+                )
             })
             .expect("pool")
             .expect("backward");
@@ -41,6 +51,29 @@ fn per_pixel_colours_of_a_flat_image_give_the_flat_vertex_gradient_bit_for_bit()
             );
         }
         assert!(flat.grad_verts_screen.iter().any(|&x| x != 0.0));
+        // The local (truncated) sweeps too.
+        let local = Visibility::Local { radius: 3 };
+        let inputs = BackwardInputs {
+            face_index: &out.face_index,
+            image: &out.image,
+            grad_image: &g,
+            vertex_grad: true,
+            visibility: local,
+        };
+        let face_attrs = FaceAttrs {
+            values: &attrs,
+            background: &vec![0.0; c],
+            channels: c,
+        };
+        let want = rasterize_backward(&mesh.view(), &face_attrs, &p, &inputs).expect("flat local");
+        let got =
+            image_vertex_backward(&mesh.view(), &p, &out.face_index, &out.image, &g, c, local)
+                .expect("local");
+        assert_eq!(
+            bits(&got),
+            bits(&want.grad_verts_screen),
+            "case {case}, local"
+        );
     }
 }
 
@@ -78,18 +111,26 @@ fn a_textured_image_gets_a_vertex_gradient_from_the_colours_at_its_edges() {
     let image = sample(&tex, &uv, &frags.face_index, 1).expect("sample");
     let g: Vec<f32> = (0..image.len()).map(|_| rng.uniform(-1.0, 1.0)).collect();
     let one = with_threads(1, || {
-        image_vertex_backward(&view, &p, &frags.face_index, &image, &g, 3)
+        image_vertex_backward(&view, &p, &frags.face_index, &image, &g, 3, Visibility::Nmr)
     })
     .expect("pool")
     .expect("1");
     let four = with_threads(4, || {
-        image_vertex_backward(&view, &p, &frags.face_index, &image, &g, 3)
+        image_vertex_backward(&view, &p, &frags.face_index, &image, &g, 3, Visibility::Nmr)
     })
     .expect("pool")
     .expect("4");
     assert_eq!(bits(&one), bits(&four));
     assert!(one.iter().all(|x| x.is_finite()) && one.iter().any(|&x| x != 0.0));
-    let e = image_vertex_backward(&view, &p, &frags.face_index, &image[1..], &g, 3)
-        .expect_err("short image");
+    let e = image_vertex_backward(
+        &view,
+        &p,
+        &frags.face_index,
+        &image[1..],
+        &g,
+        3,
+        Visibility::Nmr,
+    )
+    .expect_err("short image");
     assert!(e.to_string().starts_with("image"), "{e}");
 }

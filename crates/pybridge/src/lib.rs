@@ -252,6 +252,19 @@ impl<'py> OpArrays<'py> {
     }
 }
 
+/// The vertex gradient named by the bindings' `sweep_radius`: `None` NMR's, `r >= 1` the local one.
+fn visibility(sweep_radius: Option<i64>) -> PyResult<Visibility> {
+    match sweep_radius {
+        None => Ok(Visibility::Nmr),
+        Some(r) if r >= 1 => Ok(Visibility::Local {
+            radius: usize::try_from(r).unwrap_or(usize::MAX),
+        }),
+        Some(r) => Err(PyValueError::new_err(format!(
+            "sweep_radius: must be None (NMR's gradient) or an int >= 1, got {r}"
+        ))),
+    }
+}
+
 /// Rasterizes screen-space triangles with per-face attributes (see docs/ARCHITECTURE.md, "The native op").
 ///
 /// Returns `(image f32[B,H,W,C], face_index i32[B,H,W], depth f32[B,H,W])`.
@@ -316,17 +329,7 @@ fn rasterize_backward<'py>(
     sweep_radius: Option<i64>,
 ) -> PyResult<(PyArr<'py, f32>, PyArr<'py, f32>)> {
     let nt = threads(num_threads)?;
-    let visibility = match sweep_radius {
-        None => Visibility::Nmr,
-        Some(r) if r >= 1 => Visibility::Local {
-            radius: usize::try_from(r).unwrap_or(usize::MAX),
-        },
-        Some(r) => {
-            return Err(PyValueError::new_err(format!(
-                "sweep_radius: must be None (NMR's gradient) or an int >= 1, got {r}"
-            )))
-        }
-    };
+    let visibility = visibility(sweep_radius)?;
     let arrays = OpArrays::extract(verts_screen, faces, face_attrs, background)?;
     let face_index = array::<i32>("face_index", "int32", face_index)?;
     let image = array::<f32>("image", "float32", image)?;

@@ -295,10 +295,11 @@ pub(crate) fn sample_texture_backward<'py>(
 }
 
 /// NMR's vertex gradient `f32[B,N,3]` (z = 0) of an image with per-pixel colours `image f32[B,H,W,C]` drawn with
-/// the fragments `face_index`, for its cotangent `grad_image`.
+/// the fragments `face_index`, for its cotangent `grad_image`; `sweep_radius` as in `rasterize_backward` (`None`:
+/// NMR's sweeps, `r >= 1`: the local gradient).
 #[pyfunction]
 #[pyo3(signature = (verts_screen, faces, face_index, image, grad_image, near, far, cull_backfaces,
-                    orthographic = false, num_threads = 0))]
+                    orthographic = false, num_threads = 0, sweep_radius = None))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn image_vertex_backward<'py>(
     py: Python<'py>,
@@ -312,8 +313,10 @@ pub(crate) fn image_vertex_backward<'py>(
     cull_backfaces: bool,
     orthographic: bool,
     num_threads: i64,
+    sweep_radius: Option<i64>,
 ) -> PyResult<PyArr<'py, f32>> {
     let nt = threads(num_threads)?;
+    let visibility = super::visibility(sweep_radius)?;
     let arrays = Fragments::extract(verts_screen, faces, face_index)?;
     let image = array::<f32>("image", "float32", image)?;
     let grad_image = array::<f32>("grad_image", "float32", grad_image)?;
@@ -326,7 +329,15 @@ pub(crate) fn image_vertex_backward<'py>(
     let grad_image = view_exact("grad_image", &grad_image, &[b, h, w, c])?;
     let n = v.mesh.num_verts;
     let out = run(py, nt, || {
-        core_image_vertex_backward(&v.mesh, &v.params, v.face_index, image, grad_image, c)
+        core_image_vertex_backward(
+            &v.mesh,
+            &v.params,
+            v.face_index,
+            image,
+            grad_image,
+            c,
+            visibility,
+        )
     })?;
     output(py, out, &[b, n, 3])
 }

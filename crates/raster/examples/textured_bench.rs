@@ -12,7 +12,7 @@
 
 use std::time::Instant;
 
-use meshadv_raster::backward::image_vertex_backward;
+use meshadv_raster::backward::{image_vertex_backward, Visibility};
 use meshadv_raster::camera::{project, world_to_view, SphericalCamera};
 use meshadv_raster::surface::{
     interpolate, interpolate_backward, pixel_weights, pixel_weights_backward, CornerAttrs,
@@ -139,6 +139,7 @@ fn main() -> Result<(), RasterError> {
             image: &out.image,
             grad_image: &grad,
             vertex_grad: true,
+            visibility: Visibility::Nmr,
         };
         let g = rasterize_backward(&mesh, &attrs, &params, &inputs)?;
         Ok(g.grad_verts_screen[0] + g.grad_face_attrs[0])
@@ -156,7 +157,15 @@ fn main() -> Result<(), RasterError> {
                 false => background,
             })
             .collect();
-        let gv = image_vertex_backward(&mesh, &params, &frags.face_index, &image, &grad, 4)?;
+        let gv = image_vertex_backward(
+            &mesh,
+            &params,
+            &frags.face_index,
+            &image,
+            &grad,
+            4,
+            Visibility::Nmr,
+        )?;
         let gs = sample_backward(&texture, &uv, &frags.face_index, 1, &grad_rgb)?;
         let gi = interpolate_backward(
             &mesh,

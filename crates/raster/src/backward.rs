@@ -641,7 +641,7 @@ pub fn rasterize_backward_on(
 
 /// NMR's vertex gradient of an image whose colours vary within faces (textured or smooth-shaded): `(B, N, 3)`
 /// gradient with respect to `verts_screen` (z component 0), for the forward's face index `(B, H, W)`, its image
-/// `(B, H, W, C)` and the image's cotangent `(B, H, W, C)`.
+/// `(B, H, W, C)` and the image's cotangent `(B, H, W, C)`; `visibility` picks NMR's sweeps or their local truncation.
 ///
 /// The definition of [`rasterize_backward`] (docs/NMR_GRADIENT.md) with the colours read from the image, as NMR does
 /// for textured faces: the colour a face would give a pixel beyond its edge is the image at the face's last pixel on
@@ -656,6 +656,7 @@ pub fn image_vertex_backward(
     image: &[f32],
     grad_image: &[f32],
     channels: usize,
+    visibility: Visibility,
 ) -> Result<Vec<f32>> {
     let isa = Isa::detect();
     mesh.validate()?;
@@ -672,6 +673,7 @@ pub fn image_vertex_backward(
         image,
         grad_image,
         vertex_grad: true,
+        visibility,
     };
     let (m, c) = (mesh.num_faces(), channels);
     inputs.validate(mesh.batch, m, c, params)?;

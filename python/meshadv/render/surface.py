@@ -32,6 +32,7 @@ from .renderer import (
     _project_checked,
     _scale_gradient,
 )
+from .visibility import sweep_radius
 from .surface_ops import WRAP_MODES, fragments, interpolate, pixel_visibility, pixel_weights, sample_texture
 
 __all__ = ["SHADING_MODES", "render_surface", "vertex_normals"]
@@ -119,6 +120,7 @@ def render_surface(
     antialias: int = 1,
     num_threads: int = 0,
     edge_gradient: float = 1.0,
+    visibility_gradient: str = "nmr",
 ) -> RenderOutput:
     """Render a mesh whose reflectance is a UV texture and/or per-vertex colours, flat or smooth shaded.
 
@@ -148,6 +150,7 @@ def render_surface(
         num_threads: native threads (0 = all).
         edge_gradient: weight of NMR's visibility gradient on the screen-space vertices (as :func:`render`); the
             interior gradient (texture coordinates and normals moving with the vertices) is exact whatever it is.
+        visibility_gradient: ``"nmr"`` or ``"local"``, as :func:`render`.
 
     Returns:
         :class:`RenderOutput` (image (B,3,H,W), alpha (B,1,H,W), depth (B,H,W), face_index (B,H,W) int64).
@@ -209,6 +212,7 @@ def render_surface(
     k = _check_antialias(antialias)
     size = parse_image_size((height * k, width * k), "image_size * antialias")
     edge_weight = finite_float("edge_gradient", edge_gradient, low=0.0)
+    radius = sweep_radius(visibility_gradient, k)
 
     verts_screen = _project_checked(verts, camera, b)
     near = _expand(camera.near.detach().cpu(), b).tolist()
@@ -249,7 +253,9 @@ def render_surface(
     rgb = (reflectance * intensity).clamp(0.0, 1.0)
     bg = _background(background, rgb.dtype).to(rgb.device)
     rgba = torch.cat([torch.where(drawn, rgb, bg), drawn.to(rgb.dtype)], dim=-1)
-    rgba = pixel_visibility(_scale_gradient(verts_screen, edge_weight), rgba.contiguous(), faces, frags, num_threads)
+    rgba = pixel_visibility(
+        _scale_gradient(verts_screen, edge_weight), rgba.contiguous(), faces, frags, num_threads, radius
+    )
     out = _downsample(rgba, k, num_threads)
     sub = slice(k // 2, None, k)
     return RenderOutput(

@@ -232,9 +232,10 @@ class _PixelVisibility(torch.autograd.Function):
         faces: torch.Tensor,
         frags: Fragments,
         num_threads: int,
+        sweep_radius: int | None,
     ) -> torch.Tensor:
         ctx.save_for_backward(verts_screen, image)
-        ctx.faces, ctx.frags, ctx.num_threads = faces, frags, num_threads
+        ctx.faces, ctx.frags, ctx.num_threads, ctx.sweep_radius = faces, frags, num_threads, sweep_radius
         return image.clone()
 
     @staticmethod
@@ -259,15 +260,22 @@ class _PixelVisibility(torch.autograd.Function):
                     frags.cull_backfaces,
                     frags.orthographic,
                     ctx.num_threads,
+                    ctx.sweep_radius,
                 )
             grad_v = torch.from_numpy(out).to(device=verts_screen.device, dtype=verts_screen.dtype)
         grad_image = grad if ctx.needs_input_grad[1] else None
-        return grad_v, grad_image, None, None, None
+        return grad_v, grad_image, None, None, None, None
 
 
 def pixel_visibility(
-    verts_screen: torch.Tensor, image: torch.Tensor, faces: torch.Tensor, frags: Fragments, num_threads: int = 0
+    verts_screen: torch.Tensor,
+    image: torch.Tensor,
+    faces: torch.Tensor,
+    frags: Fragments,
+    num_threads: int = 0,
+    sweep_radius: int | None = None,
 ) -> torch.Tensor:
     """``image`` (B,H,W,C) itself, with NMR's visibility gradient of it added to ``verts_screen`` in the backward pass
-    (the colours a face would give the pixels beyond its edges are read from the image at the edge)."""
-    return _PixelVisibility.apply(verts_screen, image, faces, frags, num_threads)
+    (the colours a face would give the pixels beyond its edges are read from the image at the edge);
+    ``sweep_radius`` as :func:`meshadv.render.visibility.sweep_radius` returns it (``None``: NMR's sweeps)."""
+    return _PixelVisibility.apply(verts_screen, image, faces, frags, num_threads, sweep_radius)
