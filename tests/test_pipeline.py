@@ -22,11 +22,12 @@ def _views(num: int) -> Any:
 
 class _SumRule:
     """A rule whose objective uses every term, so that the perceptual and distance terms must backprop too; its
-    renders weight NMR's rasterization gradient by ``edge_gradient``."""
+    renders weight the rasterization gradient ``visibility_gradient`` by ``edge_gradient``."""
 
-    def __init__(self, weights: torch.Tensor, edge_gradient: float = 1.0) -> None:
+    def __init__(self, weights: torch.Tensor, edge_gradient: float = 1.0, visibility_gradient: str = "nmr") -> None:
         self.weights = weights
         self.edge_gradient = edge_gradient
+        self.visibility_gradient = visibility_gradient
 
     def objective(self, adv: torch.Tensor, perc: torch.Tensor, dist: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
         return (adv + self.weights[idx] * perc + 0.5 * self.weights[idx] * dist).sum()
@@ -41,8 +42,8 @@ def _call(attack: Any, mesh: Any, views: Any, victim: Any, size: int = 48) -> An
 
 
 def _step_grads(attack: Any, call: Any, criteria: List[Any], workers: Any, params: torch.Tensor,
-                idx: torch.Tensor, edge_gradient: float = 1.0) -> Any:
-    rule = _SumRule(torch.tensor([0.3, 2.0, 0.7, 1.5]), edge_gradient)
+                idx: torch.Tensor, edge_gradient: float = 1.0, visibility_gradient: str = "nmr") -> Any:
+    rule = _SumRule(torch.tensor([0.3, 2.0, 0.7, 1.5]), edge_gradient, visibility_gradient)
     p = params.detach().clone().requires_grad_(True)
     bound = [c.bind(call.victim) for c in criteria]
     if workers is None:
@@ -111,6 +112,30 @@ def test_the_rules_edge_gradient_weights_the_rasterization_part_of_every_step() 
 
 
 @needs_native
+def test_the_rules_visibility_gradient_reaches_the_renders_of_every_step() -> None:
+    """A rule's ``visibility_gradient`` reaches the renders of the serial and the pipelined step: the local one
+    changes the shape gradient, and both steps agree on it."""
+    from stand_in_victims import PooledLinearClassifier
+
+    from meshadv.attacks import ShapeAttack, TargetedMisclassification
+    from meshadv.attacks.pipeline import StepWorkers
+    from meshadv.mesh import builtin_mesh
+
+    mesh = builtin_mesh("chair")
+    attack = ShapeAttack()
+    call = _call(attack, mesh, _views(2), PooledLinearClassifier())
+    params = 0.02 * torch.randn(attack._init_params(mesh, 2).shape, generator=torch.Generator().manual_seed(2))
+    idx = torch.tensor([0, 1])
+    criteria = [TargetedMisclassification(c) for c in (728, 247)]
+    nmr = _step_grads(attack, call, criteria, None, params, idx)[0]
+    local = _step_grads(attack, call, criteria, None, params, idx, visibility_gradient="local")[0]
+    assert float((nmr - local).abs().max()) > 1e-3 * float(nmr.abs().max())
+    with StepWorkers(2, 1) as workers:
+        piped = _step_grads(attack, call, criteria, workers, params, idx, visibility_gradient="local")[0]
+    torch.testing.assert_close(piped, local, rtol=1e-5, atol=1e-6 * float(local.abs().max()))
+
+
+@needs_native
 def test_pipelined_step_gradients_reach_the_perceptual_image_term() -> None:
     """Texture's perceptual term is a function of the images: without the victim's term its gradient must still come
     through the render (a zero-weight adversarial term isolates it)."""
@@ -122,6 +147,7 @@ def test_pipelined_step_gradients_reach_the_perceptual_image_term() -> None:
 
     class PercOnly:
         edge_gradient = 1.0
+        visibility_gradient = "nmr"
 
         def objective(self, adv: torch.Tensor, perc: torch.Tensor, dist: torch.Tensor,
                       idx: torch.Tensor) -> torch.Tensor:

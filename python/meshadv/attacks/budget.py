@@ -54,6 +54,9 @@ The gradient a shape step follows (shape only):
   before; ``w = 0`` (shading alone) stalled far from it (benchmarks/RESULTS.md, "ddn: NMR's rasterization gradient
   down-weighted"). ``w = 1`` is NMR's definition, and the value of every ddn run recorded before the option
   existed (:data:`DDN_ADDED_OPTIONS`).
+* ``visibility_gradient`` ``"nmr"`` (default) or ``"local"``: which rasterization gradient that weight applies to,
+  NMR's (sweeps to the image border) or the local one (NMR's sweeps cut to 2 output pixels of each edge,
+  docs/LOCAL_GRADIENT.md; cheaper to compute; :func:`meshadv.render.render`'s ``visibility_gradient``).
 
 ``eps`` never goes below ``min_budget`` (> 0), so it is never negative. The engine keeps the least distorted step
 where the target held, so a run returns its best success, not its last step.
@@ -104,6 +107,7 @@ from meshadv.attacks.norms import TINY, ColorNorm, LaplacianNorm, per_row, posit
 from meshadv.attacks.shape import ShapeAttack
 from meshadv.attacks.texture import COLOR_EPS, TextureAttack
 from meshadv.attacks.update import UpdateRule, register_update_rule
+from meshadv.render.visibility import check_visibility_gradient
 
 #: ``LaplacianNorm`` and ``ColorNorm`` live in :mod:`meshadv.attacks.norms` and are re-exported here.
 __all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS", "DDN_ADDED_OPTIONS", "ANNEAL_MODES",
@@ -113,7 +117,7 @@ __all__ = ["LaplacianNorm", "ColorNorm", "BudgetState", "DDNRule", "DDN_DEFAULTS
 DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {
     "shape": {"init_budget": 1e-3, "gamma": 0.05, "step_size": 1e-3, "final_step_size": 1e-4, "min_budget": 1e-7,
               "smoothness": 0.1, "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5,
-              "reach": "budget", "edge_gradient": 0.1},
+              "reach": "budget", "edge_gradient": 0.1, "visibility_gradient": "nmr"},
     "texture": {"init_budget": 5e-3, "gamma": 0.1, "step_size": 5e-3, "final_step_size": 5e-4, "min_budget": 1e-6,
                 "anneal": "cosine", "momentum": 0.0, "stall_steps": 0, "stall_factor": 0.5, "reach": "budget"},
 }
@@ -121,7 +125,8 @@ DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {
 #: Options the rule gained after its first recorded runs, per perturbation, each at the value the rule behaved with
 #: before it existed: a recorded (complete) options dict without one of them ran with that value
 #: (:func:`recorded_options`).
-DDN_ADDED_OPTIONS: Dict[str, Dict[str, Any]] = {"shape": {"edge_gradient": 1.0}, "texture": {}}
+DDN_ADDED_OPTIONS: Dict[str, Dict[str, Any]] = {"shape": {"edge_gradient": 1.0, "visibility_gradient": "nmr"},
+                                                 "texture": {}}
 
 
 #: The shape lengths of :data:`DDN_DEFAULTS` (budgets and steps, in the Laplacian norm) were tuned on PASCAL3D+ meshes
@@ -152,7 +157,8 @@ def recorded_options(kind: str, options: Mapping[str, Any]) -> Dict[str, Any]:
 
 
 #: Options of :class:`DDNRule` that are not :class:`BudgetState`'s.
-_RULE_OPTIONS = ("smoothness", "momentum", "stall_steps", "stall_factor", "reach", "edge_gradient")
+_RULE_OPTIONS = ("smoothness", "momentum", "stall_steps", "stall_factor", "reach", "edge_gradient",
+                 "visibility_gradient")
 
 #: Values of the ``reach`` option: the step direction of a target that has not held yet (see the module docstring).
 REACH_MODES = ("budget", "adam")
@@ -313,6 +319,8 @@ class DDNRule(UpdateRule):
         reach: ``"budget"`` or ``"adam"``, the direction of a target that has not held yet (module docstring).
         edge_gradient: shape only, the weight of NMR's rasterization gradient in the vertex gradient (module
             docstring); 1 is NMR's definition.
+        visibility_gradient: shape only, ``"nmr"`` or ``"local"``: which rasterization gradient (module
+            docstring).
 
     Attributes:
         restarts: int64 ``(T,)``, stall restarts per target in the current round.
@@ -371,6 +379,8 @@ class DDNRule(UpdateRule):
             if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not 0 <= weight < float("inf"):
                 raise ValueError(f"edge_gradient must be a finite number >= 0, got {weight!r}")
             self.edge_gradient = float(weight)
+        if "visibility_gradient" in self.options:  # shape only, as edge_gradient
+            self.visibility_gradient = check_visibility_gradient(self.options["visibility_gradient"])
 
     def _reset_round_state(self, delta: Optional[Tensor]) -> None:
         """The per-round step state: the perturbation ``delta`` (``None`` before the first round), the step modifiers

@@ -91,7 +91,8 @@ def serial_step(attack: "MeshAttack", p: Tensor, idx: Tensor, criteria: List[Cri
         rule: the update rule, whose ``objective`` is differentiated.
     """
     verts, colors = attack._apply(p, call.mesh, call.edges)
-    images, alpha = call.setup.render(verts, call.mesh.faces, colors, views, rule.edge_gradient)
+    images, alpha = call.setup.render(verts, call.mesh.faces, colors, views, rule.edge_gradient,
+                                      visibility_gradient=rule.visibility_gradient)
     output = call.victim(images)
     adv, margins = adversarial_terms(attack, output, criteria, len(views))
     perc, dist = attack._terms(p, call.mesh, call.edges, images, alpha, len(views))
@@ -110,15 +111,18 @@ class _ChunkForward(NamedTuple):
 
 
 def _render_chunk(attack: "MeshAttack", leaf: Tensor, first: int, blocks: List[Tuple[int, int, int, int]],
-                  call: AttackCall, views: Any, edge_gradient: float, num_threads: int) -> Tuple[Tensor, Tensor]:
+                  call: AttackCall, views: Any, edge_gradient: float, num_threads: int,
+                  visibility_gradient: str = "nmr") -> Tuple[Tensor, Tensor]:
     """Render one chunk's blocks ``(k0, k1, v0, v1)`` (targets ``k0..k1-1`` of the step, the first being ``first``,
-    from views ``v0..v1-1``) for the chunk's parameters ``leaf`` (the rule's ``edge_gradient``) on the worker's own
-    ``num_threads`` renderer threads; images and alpha concatenated in block order."""
+    from views ``v0..v1-1``) for the chunk's parameters ``leaf`` (the rule's ``edge_gradient`` and
+    ``visibility_gradient``) on the worker's own ``num_threads`` renderer threads; images and alpha concatenated in
+    block order."""
     num_v = len(views)
     verts, colors = attack._apply(leaf, call.mesh, call.edges)
     parts = [call.setup.render(verts[k0 - first:k1 - first], call.mesh.faces,
                                colors if colors.dim() == 2 else colors[k0 - first:k1 - first],
-                               views if (v0, v1) == (0, num_v) else views[v0:v1], edge_gradient, num_threads)
+                               views if (v0, v1) == (0, num_v) else views[v0:v1], edge_gradient, num_threads,
+                               visibility_gradient)
              for k0, k1, v0, v1 in blocks]
     images = parts[0][0] if len(parts) == 1 else torch.cat([im for im, _ in parts])
     alpha = parts[0][1] if len(parts) == 1 else torch.cat([al for _, al in parts])
@@ -155,7 +159,7 @@ def pipelined_step(attack: "MeshAttack", params: Tensor, idx: Tensor, criteria: 
 
     def forward(c: int) -> _ChunkForward:
         images, alpha = _render_chunk(attack, leaves[c], rows[c][0], chunks[c], call, views,
-                                      rule.edge_gradient, workers.threads)
+                                      rule.edge_gradient, workers.threads, rule.visibility_gradient)
         x = images.detach().requires_grad_(True)
         return _ChunkForward(images, alpha, x, call.victim(x))
 
