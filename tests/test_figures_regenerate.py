@@ -129,7 +129,8 @@ def test_pinned_spec_pins_what_the_record_says_else_the_assumed_defaults(tmp_pat
               "attack": {"shape": {"method": "ddn", "method_options": {"gamma": 0.05, "smoothness": 1.0}}}}
     out, notes = pinned_spec(spec, {"success": True}, assume)
     assert notes == [] and out["victim_optimize"] is True
-    assert out["attack"]["method_options"] == {"gamma": 0.2, "smoothness": 1.0, "edge_gradient": 1.0}
+    assert out["attack"]["method_options"] == {"gamma": 0.2, "smoothness": 1.0, "edge_gradient": 1.0,
+                                               "visibility_gradient": "nmr"}
     own = {**spec, "attack": {**spec["attack"], "method_options": {"edge_gradient": 0.1}}}
     assert pinned_spec(own, record)[0]["attack"]["method_options"]["edge_gradient"] == 0.1  # the spec's own wins
     texture = {"perturbation": "texture", "attack": {"method": "ddn"}}
