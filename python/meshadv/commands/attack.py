@@ -168,10 +168,6 @@ def attack(
     threshold: float = typer.Option(0.5, help="detector score threshold (--disappear)"),
     z_up: Optional[bool] = typer.Option(None, "--z-up/--y-up", help="mesh file is Z-up (default: guess)"),
     seed: int = typer.Option(0, help="random seed"),
-    step_workers: int = typer.Option(1, min=1, max=64, help="threads a step's images are split over, each rendering "
-                                                            "its part on threads of its own and running the victim on "
-                                                            "it (on 2 cores 2 took 3-19% less time per step than 1, "
-                                                            "shape and texture; float rounding differs from 1)"),
     quiet: bool = typer.Option(False, help="no progress bar"),
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
 ) -> None:
@@ -217,8 +213,8 @@ def attack(
         attack_obj = build_attack(
             perturbation, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
-            max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, step_workers=step_workers,
-            method_options=method_options, **shape_only,
+            max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, method_options=method_options,
+            **shape_only,
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
         for crit in criteria:

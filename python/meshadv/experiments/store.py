@@ -34,7 +34,7 @@ from typing import Any, Collection, Dict, Iterable, Iterator, List, Optional, Tu
 
 from meshadv.experiments.spec import canonical, canonical_json, job_id
 
-__all__ = ["JobRow", "ResultStore", "check_snapshot_target", "driver_lock", "STATES"]
+__all__ = ["JobRow", "ResultStore", "check_snapshot_target", "driver_lock", "job_out_dir", "STATES"]
 
 #: The states a job row can be in.
 STATES = ("pending", "running", "done", "failed")
@@ -492,6 +492,11 @@ class ResultStore:
                 )
             )
         return out
+
+
+def job_out_dir(out_root: Union[str, Path], job_id: str) -> Path:
+    """Artefact folder of a job: ``<out_root>/jobs/<first 2 hex digits>/<job_id>``."""
+    return Path(out_root) / "jobs" / job_id[:2] / job_id
 
 
 def check_snapshot_target(db_path: Union[str, Path], target: Union[str, Path]) -> None:
