@@ -133,3 +133,24 @@ def test_a_perturbation_round_trips_and_refuses_another_mesh() -> None:
     assert np.abs(again.vertices.numpy() - moved.vertices.numpy()).max() < 1e-5
     with pytest.raises(ValueError, match="made on another mesh"):
         packed.apply(builtin_mesh("sphere"))
+
+
+def test_a_job_without_a_kept_perturbation_is_regenerated_and_says_so(sweep: Path, tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture) -> None:
+    from meshadv.experiments.rebuild import ensure_artifacts
+
+    copy = tmp_path / "results.db"
+    shutil.copyfile(sweep, copy)
+    with ResultStore(copy, read_only=True) as store:
+        row = next(r for r in store.rows("done") if r.spec["perturbation"] == "texture")
+    conn = sqlite3.connect(copy)
+    conn.execute("DELETE FROM perturbations WHERE job_id = ?", (row.job_id,))
+    conn.commit()
+    conn.close()
+    folder = ensure_artifacts(copy, row.job_id, tmp_path, row.out_dir)
+    said = capsys.readouterr().err
+    assert f"job {row.job_id}: the database keeps no perturbation of this job; regenerating it" in said
+    assert folder == tmp_path / "jobs" / row.job_id[:2] / row.job_id and (folder / "result.json").is_file()
+    assert "rebuilt_from" not in (folder / "result.json").read_text()  # an attack ran again
+    assert ensure_artifacts(copy, row.job_id, tmp_path, row.out_dir) == folder  # cached: nothing said the second time
+    assert capsys.readouterr().err == ""
