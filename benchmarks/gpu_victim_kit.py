@@ -1,9 +1,8 @@
-"""Issue 15's GPU-victim benchmark in one call of a lent GPU machine: ``prepare`` here, ``run`` there.
+"""The GPU-victim attack benchmark in one call of a GPU machine: ``prepare`` here, ``run`` there.
 
-A lent device machine (the workplace's ``device`` tool) gets a copy of the working tree and nothing else: no
-network, no ``../shared``, and its own Python (3.12 with torch and CUDA, numpy, scipy, tqdm, ...) without meshadv's
-other requirements. Device time is short (minutes per task, machine start included), so everything is gathered here
-first and the run is one command:
+The GPU machine is assumed to get a copy of the working tree and nothing else: no network, no ``../shared``, and its
+own Python (3.12 with torch and CUDA, numpy, scipy, tqdm, ...) without meshadv's other requirements. Its time is
+short (minutes, machine start included), so everything is gathered here first and the run is one command:
 
 * ``prepare`` (here) fills ``.devkit/`` (ignored by git): wheels of the pure-Python requirements the device image
   lacks (:data:`CARRIED`, pinned as in ``requirements.txt``, fetched for the device's Python), the mesh files the
@@ -56,7 +55,7 @@ DEVICE_PYTHON = "3.12"
 _SPLIT = ["--split", "--meshes", "aeroplane/03", "--image-size", "224", "--antialias", "2", "--targets", "6",
           "--perturb", "shape", "texture"]
 #: ``run``'s benchmark runs: (name, attack_bench arguments with ``{device}``, timeout in seconds). The first is the
-#: CPU split's setting (``benchmarks/RESULTS.md``) with the victim on the GPU.
+#: CPU split's setting (``benchmarks/RESULTS.md``, "Attack step split") with the victim on the GPU.
 RUNS: Tuple[Tuple[str, List[str], int], ...] = (
     ("split_1view", [*_SPLIT, "--views", "1", "--steps", "9", "--device", "{device}"], 120),
     ("split_6views", [*_SPLIT, "--views", "6", "--steps", "5", "--device", "{device}"], 120),

@@ -381,7 +381,7 @@ def test_ddn_texture_several_views_jitter_batched_targets_and_a_budget_cap() -> 
 def test_ddn_changes_only_the_masked_object_of_a_merged_scene(family: Any) -> None:
     """ddn with ``vertex_mask`` / ``face_mask`` (the black-box detector pipeline's "render" context: one object of
     a merged scene): the attack succeeds and the other object's vertices and colours stay exactly as they were."""
-    from meshadv.transfer.objects import merge_meshes
+    from meshadv.transfer.setups import merge_meshes
 
     chair, _, victim = _chair_case()
     cube = builtin_mesh("cube")

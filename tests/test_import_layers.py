@@ -1,4 +1,4 @@
-"""The subpackages of meshadv import each other without cycles, and the layering rules of issue 13 hold.
+"""The subpackages of meshadv import each other without cycles, and the layering rules hold.
 
 Read from the source (every ``import`` and ``from ... import``, also inside functions), so a lazy import that would
 close a cycle is caught too.

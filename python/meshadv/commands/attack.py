@@ -130,8 +130,7 @@ def attack(
                                               "several targets are attacked together as a batch)"),
     untargeted: Optional[str] = typer.Option(None, help="untargeted attack away from this true class"),
     disappear: Optional[str] = typer.Option(None, help="detector: class to hide, or 'all'"),
-    perturbation: str = typer.Option("shape", "--perturbation", "--perturb",
-                                     help="shape or texture (--perturb is the old name)"),
+    perturbation: str = typer.Option("shape", "--perturbation", help="shape or texture"),
     views: int = typer.Option(5, help="number of victim views"),
     azimuths: str = typer.Option("150:210", help="azimuth range LOW:HIGH or LOW-HIGH (degrees) of the victim views; "
                                                  "180 faces the front of a PASCAL3D+ model"),

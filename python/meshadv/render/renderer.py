@@ -175,8 +175,7 @@ class _BoxDownsample(torch.autograd.Function):
 
     The same values, bit for bit, as ``F.avg_pool2d(image.permute(0, 3, 1, 2), k, k)`` and its backward (the ``k*k``
     samples added in its order, row by row, and the sum divided by ``k*k``); the backward writes the cotangent
-    straight into the (B,kH,kW,C) layout the rasterizer's backward reads (benchmarks/RESULTS.md, "Native box
-    filter": batch 6 at 448 -> 224 px, one thread).
+    straight into the (B,kH,kW,C) layout the rasterizer's backward reads.
     """
 
     @staticmethod
