@@ -40,7 +40,7 @@ alone (same threads or workers) / step``. ``--attack-steps N`` adds whole attack
 ``TextureAttack`` of N steps, no early stop) per variant, alternating, and reports their target-steps/s.
 
 ``--pool-bench`` times only the antialias pooling, forward and backward, the renderer's box filter against
-``F.avg_pool2d`` as it was (batch ``--targets x --views``, ``--image-size`` times ``--antialias`` pixels, RGBA, one
+torch's ``F.avg_pool2d`` (batch ``--targets x --views``, ``--image-size`` times ``--antialias`` pixels, RGBA, one
 torch thread, wall time, median of ``--steps`` interleaved repetitions).
 
 Usage:
@@ -263,7 +263,7 @@ def step_split(mesh_name: str, perturb: str, args: argparse.Namespace,
 
 
 def _old_downsample(t: torch.Tensor, k: int, num_threads: int = 0) -> torch.Tensor:
-    """The antialias pooling as it was before the box filter: ``F.avg_pool2d`` on the channels-last view."""
+    """The antialias pooling done by torch instead of the box filter: ``F.avg_pool2d`` on the channels-last view."""
     import torch.nn.functional as F
 
     t = t.permute(0, 3, 1, 2)

@@ -1,5 +1,5 @@
 """meshadv.transfer: bad input fails early with a Python exception naming the argument (TypeError for a wrong type,
-ValueError for a bad value), before any Mitsuba render or optimisation; edge cases that used to crash.
+ValueError for a bad value), before any Mitsuba render or optimisation; edge cases behave as documented.
 
 Fast: no Mitsuba render runs here (a render would mean a check came too late, and a spy makes that a failure).
 """
@@ -113,7 +113,7 @@ def test_estimate_lights_names_a_bad_argument(kwargs: dict[str, Any], error: typ
 
 @needs_native
 def test_estimate_lights_with_no_directional_light_fits_the_ambient_only() -> None:
-    """``num_lights = 0`` is documented as allowed; it used to crash (an IndexError building zero directions)."""
+    """``num_lights = 0`` is documented as allowed: the fit has no directional light, only the ambient."""
     from meshadv.transfer.estimation import estimate_lights
 
     chair, camera, mask, image = _chair_case()
@@ -353,7 +353,7 @@ def test_controlled_transfer_names_a_bad_argument_before_any_render(no_render: l
 
 
 def test_cases_from_store_rejects_a_limit_below_one_and_a_string_skip(tmp_path: Any) -> None:
-    """``limit=0`` used to return one case (the limit was tested after the first case was added)."""
+    """``limit=0`` is refused instead of returning a case, and so is a string ``skip``."""
     from meshadv.experiments import ResultStore
     from meshadv.transfer.controlled import cases_from_store
 
@@ -484,7 +484,7 @@ def test_results_database_names_a_bad_kind_or_experiment(tmp_path: Any) -> None:
     with pytest.raises(ValueError, match="^experiment"):
         save_transfer_rows(db, [row], experiment="")
     with pytest.raises(ValueError, match="^kind"):
-        load_transfer_rows(db, kind="controled")  # it used to return [] silently
+        load_transfer_rows(db, kind="controled")  # a misspelt kind is refused, not an empty list
     with pytest.raises(TypeError, match="^experiment"):
         load_transfer_rows(db, experiment=1)  # type: ignore[arg-type]
     assert [r["case_id"] for r in load_transfer_rows(db, experiment="e", kind="controlled")] == ["a"]
@@ -492,8 +492,8 @@ def test_results_database_names_a_bad_kind_or_experiment(tmp_path: Any) -> None:
 
 @needs_native
 def test_coverage_mask_is_rendered_by_the_fallback_variant_too() -> None:
-    """``scalar_rgb`` (the fallback when the fast variant fails) used to return an all-zero mask: its path tracer
-    leaves the alpha empty at ``max_depth = 1``. The mask must match meshadv's coverage in either variant."""
+    """``scalar_rgb`` (the fallback when the fast variant fails) renders a true mask too, although its path tracer
+    leaves the alpha empty at ``max_depth = 1``: the mask must match meshadv's coverage in either variant."""
     pytest.importorskip("mitsuba")
     from meshadv.transfer.mitsuba_check import mask_iou
     from meshadv.transfer.mitsuba_process import render_mask

@@ -141,7 +141,7 @@ class StepWorkers:
         workers: number of threads, ``>= 1``.
         threads: threads of each worker: its torch intra-op threads (set in the worker, where OpenMP keeps it per
             thread) and its renderer threads (a rayon pool of the worker's own, so the workers' renders neither share
-            one pool nor queue behind each other: benchmarks/RESULTS.md, "Step workers render on pools of their own").
+            one pool nor queue behind each other: benchmarks/RESULTS.md, "Attack step split").
 
     Use as a context manager, or call :meth:`close`.
     """

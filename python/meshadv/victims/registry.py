@@ -116,8 +116,8 @@ def load_victim(
         device: torch device.
         optimize: rewrite the network into an equivalent cheaper one where meshadv knows how: the EfficientNet-Lite
             victims get their batch norms folded into the convolutions and run channels-last (same logits and input
-            gradients up to float rounding; forward + input gradient measured 1.45-1.96x cheaper on one CPU thread,
-            benchmarks/RESULTS.md "Victim options"). The other victims are built as they are either way. ``False``:
+            gradients up to float rounding, a cheaper forward + input gradient on the CPU: benchmarks/RESULTS.md,
+            "Victim options"). The other victims are built as they are either way. ``False``:
             the network exactly as its weights describe it.
 
     Returns:
