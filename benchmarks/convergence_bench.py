@@ -777,7 +777,7 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     parser.add_argument("--only", nargs="+", type=_instance, default=None, metavar="CLASS/INDEX",
                         help="run only these instances of the benchmark set (e.g. bottle/1 sofa/0)")
     parser.add_argument("--method-options", type=_json_object, default=None, metavar="JSON",
-                        help="ddn's method_options, e.g. '{\"momentum\": 0.9}' (use a separate --db per setting: "
+                        help="ddn's method_options, e.g. '{\"smoothness\": 1.0}' (use a separate --db per setting: "
                              "rows are keyed by method, perturbation and instance only)")
     parser.add_argument("--attack-options", type=_json_object, default=None, metavar="JSON",
                         help="extra attack keyword arguments, e.g. '{\"loss\": \"cw\"}' (a separate --db too)")

@@ -11,7 +11,7 @@ short (minutes, machine start included), so everything is gathered here first an
   It prints the device call to make.
 * ``run`` (there) installs the wheels into a temporary folder, checks that every module the benchmark needs
   imports, records the machine (``$OUT/machine.json``), then runs :data:`RUNS` (``benchmarks/attack_bench.py``'s
-  step split with the victim on the GPU, on all views, pipelined, and on the CPU for the same machine's comparison)
+  step split with the victim on the GPU, on all views, whole steps, and on the CPU for the same machine's comparison)
   one after another, each with its own timeout, writing each JSON record and the whole log to ``$OUT`` as it goes,
   so that a run cut short still returns what finished.
 
@@ -59,13 +59,13 @@ _SPLIT = ["--split", "--meshes", "aeroplane/03", "--image-size", "224", "--antia
 RUNS: Tuple[Tuple[str, List[str], int], ...] = (
     ("split_1view", [*_SPLIT, "--views", "1", "--steps", "9", "--device", "{device}"], 120),
     ("split_6views", [*_SPLIT, "--views", "6", "--steps", "5", "--device", "{device}"], 120),
-    ("pipelined", [*_SPLIT, "--views", "1", "--steps", "3", "--burst", "3", "--step-workers", "2", "4",
-                   "--torch-threads", "{threads}", "--device", "{device}"], 150),
+    ("whole_steps", [*_SPLIT, "--views", "1", "--steps", "3", "--burst", "3", "--whole-steps",
+                     "--torch-threads", "{threads}", "--device", "{device}"], 150),
     ("split_1view_cpu_victim", [*_SPLIT, "--views", "1", "--steps", "5", "--device", "cpu"], 90),
 )
 #: ``run --quick``: the same runs at a size any machine finishes in seconds (option -> its values).
 _QUICK = {"--image-size": ["64"], "--targets": ["2"], "--views": ["1"], "--steps": ["1"], "--burst": ["2"],
-          "--step-workers": ["2"], "--perturb": ["shape"]}
+          "--perturb": ["shape"]}
 
 
 def _normalized(name: str) -> str:

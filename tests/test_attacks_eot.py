@@ -242,3 +242,22 @@ def test_meshadv_attack_eot_runs_the_robust_attack(tmp_path: Any) -> None:
     refused = CliRunner().invoke(app, ["attack", "builtin:chair", "--target", "sofa", "--eot", "2", "--jitter",
                                        "--steps", "2", "-o", str(tmp_path / "both")])
     assert refused.exit_code != 0 and "jitter and eot" in refused.output
+
+
+def test_a_sweep_file_reaches_the_robust_attack() -> None:
+    from sweep_fixtures import tiny_builtin_config
+
+    from meshadv.experiments.config import expand_jobs, parse_config
+    from meshadv.experiments.jobs import _make_job_attack
+
+    config = tiny_builtin_config("robust", steps=2)
+    config["attack"]["shape"].update(eot=3, method="ddn", method_options={"smoothness": 10.0})
+    config["attack"]["texture"].update(eot={"samples": 2, "eval_views": 4}, gradient_smoothing=8)
+    jobs = expand_jobs(parse_config(config))
+    attacks = {job["perturbation"]: _make_job_attack(job, dict(job["attack"])) for job in jobs}
+    assert attacks["shape"].eot.samples == 3 and attacks["shape"].config()["method_options"]["smoothness"] == 10.0
+    assert attacks["texture"].eot == Transformations(samples=2, eval_views=4)
+    assert attacks["texture"].gradient_smoothing == 8
+    config["attack"]["shape"]["eot"] = {"zoom": 2}
+    with pytest.raises(ValueError, match="zoom"):
+        [_make_job_attack(job, dict(job["attack"])) for job in expand_jobs(parse_config(config))]

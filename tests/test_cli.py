@@ -117,23 +117,18 @@ def test_attack_method_option(tmp_path: Path) -> None:
     assert record["config"]["method"] == "ddn" and record["config"]["early_stop"] is None and record["steps"] == 3
 
 
-def test_attack_step_workers_option(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import meshadv.attacks as attacks
-
-    result = runner.invoke(app, ["attack", "builtin:cube", "--step-workers", "0", "--target", "1",
-                                 "-o", str(tmp_path / "w0")])
-    assert result.exit_code == 2 and "--step-workers" in result.output
+def test_attack_visibility_gradient_option(tmp_path: Path) -> None:
+    for bad in (["--visibility-gradient", "soft"], ["--visibility-gradient", "local", "--method", "adam"]):
+        result = runner.invoke(app, ["attack", "builtin:cube", "--target", "1", *bad, "-o", str(tmp_path / "v")])
+        assert result.exit_code == 2 and "--visibility-gradient" in unwrapped(result.output), result.output
     _require_renderer()
     _require_victim()
-    built = []  # the option must reach the attack that runs (it is not part of the recorded config)
-    real_make_attack = attacks.make_attack
-    monkeypatch.setattr(attacks, "make_attack", lambda *a, **k: built.append(real_make_attack(*a, **k)) or built[-1])
-    out = tmp_path / "w2"
-    result = runner.invoke(app, ["attack", "builtin:chair", "--target", "bicycle", "--views", "2", "--steps", "2",
-                                 "--step-workers", "2", "--image-size", "64", "--quiet", "-o", str(out)])
+    out = tmp_path / "local"
+    result = runner.invoke(app, ["attack", "builtin:chair", "--target", "bicycle", "--views", "1", "--steps", "2",
+                                 "--image-size", "64", "--visibility-gradient", "local", "--quiet", "-o", str(out)])
     assert result.exit_code == 0, result.output
-    assert json.loads((out / "result.json").read_text())["steps"] == 2
-    assert [attack.step_workers for attack in built] == [2]
+    record = json.loads((out / "result.json").read_text())
+    assert record["config"]["method_options"]["visibility_gradient"] == "local"
 
 
 def test_demo_runs_end_to_end(tmp_path: Path) -> None:

@@ -544,10 +544,10 @@ def test_smooth_texture_starts_at_the_original_colours_and_spreads_a_vertex_offs
     mesh = mesh.with_face_colors(0.2 + 0.6 * torch.rand(mesh.num_faces, 3, generator=gen))
     edges = vertex_edges(mesh.faces)
     sharp, smooth = SmoothTextureAttack(smoothing=0), SmoothTextureAttack(smoothing=16)
-    zero = smooth._init_params(mesh, 2)
+    zero = smooth.initial_params(mesh, 2)
     assert zero.shape == (2, mesh.num_vertices, 3)
     assert torch.allclose(smooth.colors(zero, mesh, edges), mesh.face_colors.expand(2, -1, -1), atol=1e-5)
-    assert float(smooth._distance(zero, mesh, edges).max()) < 1e-5
+    assert float(smooth.distance(zero, mesh, edges).max()) < 1e-5
     bump = zero[:1].clone()
     bump[0, 0] = 5.0  # one vertex
     changed_sharp = ((sharp.colors(bump, mesh, edges) - mesh.face_colors).abs().amax(-1) > 1e-4).sum()
@@ -568,7 +568,7 @@ def test_smooth_texture_starts_at_the_original_colours_and_spreads_a_vertex_offs
     with pytest.raises(ValueError, match="face_mask"):
         SmoothTextureAttack(face_mask=torch.ones(3))
     with pytest.raises(ValueError, match="face_mask has 3 entries"):
-        SmoothTextureAttack(face_mask=torch.ones(3, dtype=torch.bool))._check_mesh(mesh)
+        SmoothTextureAttack(face_mask=torch.ones(3, dtype=torch.bool)).check_mesh(mesh)
 
 
 @needs_native
@@ -594,7 +594,7 @@ def test_smooth_texture_attack_with_a_face_mask_changes_only_those_faces() -> No
     params[0, left.num_vertices:] = 1.0
     colors = attack.colors(params, merged, edges)[0]
     rmse = (colors[mask] - merged.face_colors[mask]).pow(2).sum(-1).mean().sqrt()
-    assert float(attack._distance(params, merged, edges)[0]) == pytest.approx(float(rmse), rel=1e-5)
+    assert float(attack.distance(params, merged, edges)[0]) == pytest.approx(float(rmse), rel=1e-5)
     assert float(rmse) > 0.1
 
 

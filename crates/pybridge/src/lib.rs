@@ -589,5 +589,8 @@ fn _raster(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render_full, m)?)?;
     m.add("MAX_IMAGE_SIZE", meshadv_raster::MAX_IMAGE_SIZE)?;
     m.add("MAX_CACHED_POOLS", meshadv_raster::MAX_CACHED_POOLS)?;
+    m.add("MAX_MESH_FILE_BYTES", meshadv_raster::MAX_MESH_FILE_BYTES)?;
+    m.add("MIN_VIEWING_ANGLE", meshadv_raster::MIN_VIEWING_ANGLE)?;
+    m.add("MIN_LIGHT_DIRECTION", meshadv_raster::MIN_LIGHT_DIRECTION)?;
     Ok(())
 }

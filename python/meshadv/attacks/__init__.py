@@ -14,7 +14,9 @@ fresh views (:mod:`meshadv.attacks.eot`, :mod:`meshadv.attacks.robust`).
 
 from __future__ import annotations
 
-from meshadv.attacks.base import Evaluation, MeshAttack, StepInfo, evaluate
+from meshadv.attacks.base import MeshAttack
+from meshadv.attacks.evaluation import Evaluation, evaluate
+from meshadv.attacks.history import StepInfo
 from meshadv.attacks.criteria import (
     Criterion,
     Disappearance,

@@ -13,7 +13,8 @@ explicitly. At every step :meth:`EOTSampler.draw_step` draws ``samples`` fresh v
 * render: a supersampling factor drawn from ``antialias`` and an image size scaled by ``U[image_scale]`` (a colour
   background only: a photo or a row crop keeps the setup's size; the victim resizes its input itself);
 * pixels: a Gaussian blur of standard deviation ``U[0, blur]`` pixels and Gaussian noise of standard deviation
-  ``U[0, noise]``, per image, clamped to ``[0, 1]`` (differentiable, :func:`transform_images`).
+  ``U[0, noise]``, per image, clamped to ``[0, 1]`` (differentiable, :func:`transform_images`), applied to what the
+  victim sees (:class:`TransformedVictim`), not to the renders the perceptual loss is computed on.
 
 Success is never judged on those images. :meth:`EOTSampler.draw_check` and :meth:`EOTSampler.draw_eval` draw fresh
 spherical views of the range (head lights, no shift, the setup's own render, no blur or noise: a plain camera at an
@@ -38,20 +39,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, replace
-from typing import Any, Dict, Optional, Tuple, Union
+from typing import Any, Dict, Optional, Sequence, Tuple, Union
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
 from meshadv import _validate
+from meshadv.attacks.outputs import slice_output
 from meshadv.render.camera import Camera
 from meshadv.render.lighting import Lights
 from meshadv.render.setup import RenderSetup
 from meshadv.render.views import ViewSet
 
-__all__ = ["Transformations", "ViewRange", "StepDraw", "EOTSampler", "as_transformations", "transform_images",
-           "stream_seed", "STEP_STREAM", "CHECK_STREAM", "EVAL_STREAM"]
+__all__ = ["Transformations", "ViewRange", "StepDraw", "EOTSampler", "TransformedVictim", "as_transformations",
+           "check_margins", "transform_images", "stream_seed", "STEP_STREAM", "CHECK_STREAM", "EVAL_STREAM"]
 
 #: Streams of :func:`stream_seed`: the step draws, the check draws and the evaluation draw.
 STEP_STREAM, CHECK_STREAM, EVAL_STREAM = 0, 1, 2
@@ -242,6 +244,10 @@ class StepDraw:
     noise: Tensor
     noise_seed: int
 
+    def victim(self, victim: Any) -> "TransformedVictim":
+        """``victim`` seen through this step's blur and noise (:class:`TransformedVictim`)."""
+        return TransformedVictim(victim, self)
+
     def transform(self, images: Tensor) -> Tensor:
         """The step's blur and noise applied to its renders ``(K * V, 3, H, W)`` (mesh-major: image ``k V + v`` gets
         view ``v``'s); differentiable."""
@@ -249,6 +255,35 @@ class StepDraw:
         k = images.shape[0] // v
         generator = torch.Generator().manual_seed(self.noise_seed)
         return transform_images(images, self.blur.repeat(k), self.noise.repeat(k), generator)
+
+
+class TransformedVictim:
+    """A victim that sees a step's renders after the step's blur and noise (:meth:`StepDraw.transform`); every other
+    attribute (``kind``, ``name``, ``class_names``, ...) is the wrapped victim's, so the attack step treats it as the
+    victim while its perceptual term still sees the clean renders."""
+
+    def __init__(self, victim: Any, draw: StepDraw) -> None:
+        self.__dict__["_victim"], self.__dict__["_draw"] = victim, draw
+
+    def __call__(self, images: Tensor) -> Any:
+        """The wrapped victim's output on the transformed ``images``."""
+        return self._victim(self._draw.transform(images))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.__dict__["_victim"], name)
+
+
+def check_margins(attack: Any, p: Tensor, criteria: Sequence[Any], mesh: Any, edges: Tensor, victim: Any,
+                  setup: RenderSetup, views: ViewSet) -> Tensor:
+    """Criterion margins ``(K, V)`` of parameters ``p (K, ...)`` of ``attack`` rendered from ``views`` with
+    ``setup`` (no gradient, no blur or noise): target ``k`` against the bound ``criteria[k]``."""
+    num_v = len(views)
+    with torch.no_grad():
+        verts, colors = attack.apply(p.detach(), mesh, edges)
+        images, _ = setup.render(verts, mesh.faces, colors, views)
+        output = victim(images)
+        return torch.stack([c.margin(slice_output(output, a * num_v, (a + 1) * num_v)).detach()
+                            for a, c in enumerate(criteria)])
 
 
 def _uniform(generator: torch.Generator, count: int, bounds: Range) -> Tensor:

@@ -5,54 +5,159 @@ targets are a batch dimension, so one step renders ``T x V`` images (``V`` victi
 once. Because the paper's Adam is element-wise and the total loss is a sum of per-target terms, the targets are
 optimised exactly as if they ran one at a time. A target stops being rendered once it is finished (early stopping or
 budget). How losses become updates is the attack's update rule (``method=``, :mod:`meshadv.attacks.update`); this
-loop serves every rule.
+loop serves every rule. What is optimised is the attack family's (:class:`AttackFamily`, the public family methods of
+:class:`~meshadv.attacks.base.MeshAttack`).
 
 Per round (``rule.rounds`` of them: for ``method="adam"`` the ``binary_search_steps`` rounds of the per-target
 ``lambda`` search, :class:`~meshadv.attacks.search.LambdaSearch`) the parameters restart from the pristine mesh and
-the jitter generator from the attack's seed. Per step, the active targets are rendered and differentiated
-(:mod:`meshadv.attacks.step`), the update rule steps the parameters, and each target records the per-view margins and
-the distortion of the parameters *before* the update (:class:`~meshadv.attacks.targets.TargetState`): a target whose
-views are adversarial (at least ``success_fraction`` of them) within the distortion budget keeps those parameters when
-their distortion is the least seen so far. The step's loss-history row is kept and the callback, if any, gets a
-:class:`~meshadv.attacks.progress.StepInfo`.
+the jitter generator from the attack's seed. Per step (:func:`attack_step`), the active targets' ``K x V`` images are
+rendered (mesh-major), the victim runs once, and per target the adversarial loss (the criterion's loss, mean over the
+views), the perceptual loss and the distortion are computed; the update rule's ``objective`` of those is
+back-propagated into the parameters' ``.grad`` and the rule steps the parameters. Each target records the per-view
+margins and the distortion of the parameters *before* the update (:class:`~meshadv.attacks.targets.TargetState`): a
+target whose views are adversarial (at least ``success_fraction`` of them) within the distortion budget keeps those
+parameters when their distortion is the least seen so far. The step's loss-history row is kept and the callback, if
+any, gets a :class:`~meshadv.attacks.history.StepInfo`.
 
 The result's success and scores are measured on the final meshes re-rendered from scratch (without jitter,
-:func:`~meshadv.attacks.evaluation.evaluate`), never on the optimiser's last images.
-
-With ``eot`` (:mod:`meshadv.attacks.eot`) every step renders a fresh draw of views, setup, blur and noise
-(:func:`~meshadv.attacks.eot_step.eot_step`); a target observes a step (success, best result, early stopping) only
-at the success checks, every ``check_every`` steps and after a round's last step, with the margins of fresh check
-views (:func:`~meshadv.attacks.eot_step.check_margins`), and leaves at any step once it exceeds the distortion
-budget; the result is measured on a fresh evaluation draw. Ctrl-C (``KeyboardInterrupt``)
+:func:`~meshadv.attacks.evaluation.evaluate`), never on the optimiser's last images. Ctrl-C (``KeyboardInterrupt``)
 in a step, in the callback or between steps ends the loop; the result is then the best so far, with
 ``interrupted=True``.
+
+With ``eot`` (:mod:`meshadv.attacks.eot`) every step renders a fresh draw of views and render setup, and the victim
+sees the renders through the draw's blur and noise; a target observes a step (success, best result, early stopping)
+only at the success checks, every ``check_every`` steps and after a round's last step, with the margins of fresh
+check views (:func:`~meshadv.attacks.eot.check_margins`), and leaves at any step once it exceeds the distortion
+budget; the result is measured on a fresh evaluation draw.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Callable, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, NamedTuple, Optional, Protocol, Tuple
 
 import torch
 from torch import Tensor
 
 from meshadv.attacks.criteria import Criterion
 from meshadv.attacks.distances import mesh_distances
-from meshadv.attacks.eot import CHECK_STREAM, EVAL_STREAM, STEP_STREAM, EOTSampler, stream_seed
-from meshadv.attacks.eot_step import check_margins, eot_step
+from meshadv.attacks.eot import (CHECK_STREAM, EVAL_STREAM, STEP_STREAM, EOTSampler, Transformations, check_margins,
+                                 stream_seed)
 from meshadv.attacks.evaluation import evaluate
-from meshadv.attacks.pipeline import StepWorkers
-from meshadv.attacks.progress import StepInfo, first_view_top1, history_row, step_info
+from meshadv.attacks.history import StepInfo, first_view_top1, history_row, step_info
+from meshadv.attacks.outputs import slice_output
 from meshadv.attacks.result import AttackResult, enough_views
-from meshadv.attacks.step import AttackCall, StepTerms, pipelined_step, serial_step
-from meshadv.attacks.targets import TargetState
-from meshadv.attacks.update import make_update_rule
+from meshadv.attacks.targets import StopRule, TargetState
+from meshadv.attacks.update import UpdateRule, make_update_rule
+from meshadv.render.setup import RenderSetup
 
-if TYPE_CHECKING:
-    from meshadv.attacks.base import MeshAttack
+__all__ = ["AttackCall", "AttackFamily", "StepTerms", "adversarial_terms", "attack_step", "run_attack"]
 
-__all__ = ["run_attack"]
+
+class AttackFamily(Protocol):
+    """What the loop asks of an attack (:class:`~meshadv.attacks.base.MeshAttack` and its families): hyper-parameters
+    and the family's parametrisation."""
+
+    perturbation: str
+    steps: int
+    seed: int
+    jitter: Optional[Dict[str, float]]
+    eot: Optional[Transformations]
+    method: str
+    method_options: Dict[str, Any]
+    success_fraction: float
+    loss: str
+    kappa: float
+
+    def config(self) -> Dict[str, Any]:
+        """The hyper-parameters as a JSON-able dict."""
+
+    def initial_params(self, mesh: Any, num_targets: int) -> Tensor:
+        """Initial parameters ``(T, ...)`` (the pristine mesh)."""
+
+    def apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
+        """``(vertices, face_colors)`` of parameters ``(K, ...)``."""
+
+    def terms(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
+              num_views: int) -> Tuple[Tensor, Tensor]:
+        """``(perceptual, distance)`` per target, each ``(K,)``."""
+
+    def stop_rule(self) -> StopRule:
+        """The thresholds of a target's success and stop."""
+
+
+@dataclass(frozen=True)
+class AttackCall:
+    """What one attack call works on: the mesh, the views, the victim, the render setup and the mesh's edges.
+
+    Attributes:
+        mesh: the pristine ``Mesh``.
+        views: the ``ViewSet`` of the ``V`` victim views (detached).
+        victim: the victim.
+        setup: how the mesh is rendered.
+        edges: int64 ``(E, 2)`` unique undirected edges of the mesh.
+    """
+
+    mesh: Any
+    views: Any
+    victim: Any
+    setup: RenderSetup
+    edges: Tensor
+
+
+class StepTerms(NamedTuple):
+    """What a step measured, per active target (``K`` of them), on the images the gradient was taken from.
+
+    Attributes:
+        adv: ``(K,)`` adversarial loss (differentiable).
+        perceptual: ``(K,)`` perceptual loss (differentiable).
+        distance: ``(K,)`` distortion (differentiable).
+        output: the victim's output for the ``K x V`` images.
+        margins: ``(K, V)`` criterion margins (detached).
+    """
+
+    adv: Tensor
+    perceptual: Tensor
+    distance: Tensor
+    output: Any
+    margins: Tensor
+
+
+def adversarial_terms(attack: AttackFamily, output: Any, criteria: List[Criterion],
+                      num_views: int) -> Tuple[Tensor, Tensor]:
+    """Per-target adversarial loss ``(K,)`` (differentiable; the attack's ``loss`` and ``kappa``) and per-view margins
+    ``(K, V)`` (detached) of a victim output of ``K x V`` images (mesh-major)."""
+    parts = [slice_output(output, a * num_views, (a + 1) * num_views) for a in range(len(criteria))]
+    adv = torch.stack([c.loss(o, loss=attack.loss, kappa=attack.kappa).mean() for c, o in zip(criteria, parts)])
+    with torch.no_grad():
+        margins = torch.stack([c.margin(o).detach() for c, o in zip(criteria, parts)])
+    return adv, margins
+
+
+def attack_step(attack: AttackFamily, p: Tensor, idx: Tensor, criteria: List[Criterion], call: AttackCall,
+                views: Any, rule: UpdateRule) -> StepTerms:
+    """One step: forward, objective, ``backward()`` into the parameters' ``.grad``.
+
+    Args:
+        attack: the attack (its parametrisation, perceptual term and loss settings).
+        p: ``(K, ...)`` the active targets' rows of the parameters (``params[idx]``, still in their graph).
+        idx: int64 ``(K,)`` the active targets.
+        criteria: the ``K`` bound criteria.
+        call: the attack call.
+        views: the step's (possibly jittered) views.
+        rule: the update rule, whose ``objective`` is differentiated.
+    """
+    verts, colors = attack.apply(p, call.mesh, call.edges)
+    images, alpha = call.setup.render(verts, call.mesh.faces, colors, views, rule.edge_gradient,
+                                      visibility_gradient=rule.visibility_gradient)
+    output = call.victim(images)
+    adv, margins = adversarial_terms(attack, output, criteria, len(views))
+    perc, dist = attack.terms(p, call.mesh, call.edges, images, alpha, len(views))
+    rule.objective(adv, perc, dist, idx).backward()
+    return StepTerms(adv, perc, dist, output, margins)
+
+
 
 
 @dataclass(frozen=True)
@@ -66,7 +171,7 @@ class _RunInfo:
     config: Dict[str, Any]
 
 
-def run_attack(attack: "MeshAttack", call: AttackCall, criteria: List[Criterion], eval_views: Any,
+def run_attack(attack: AttackFamily, call: AttackCall, criteria: List[Criterion], eval_views: Any,
                callback: Optional[Callable[[StepInfo], None]]) -> AttackResult:
     """Run ``attack`` on ``call`` towards the bound ``criteria`` (one per target) and return its result.
 
@@ -82,15 +187,13 @@ def run_attack(attack: "MeshAttack", call: AttackCall, criteria: List[Criterion]
         loop.run_rounds()
     except KeyboardInterrupt:  # Ctrl-C between steps: keep what we have
         loop.interrupted = True
-    finally:
-        loop.close()
     return loop.finish(eval_views)
 
 
 class _Loop:
     """The state of one attack call's loop: the update rule, the targets, the loss history and the step count."""
 
-    def __init__(self, attack: "MeshAttack", call: AttackCall, criteria: List[Criterion],
+    def __init__(self, attack: AttackFamily, call: AttackCall, criteria: List[Criterion],
                  callback: Optional[Callable[[StepInfo], None]]) -> None:
         self.t_start = time.perf_counter()
         self.attack, self.call, self.callback = attack, call, callback
@@ -100,7 +203,7 @@ class _Loop:
                                      **attack.method_options)
         self.rule.prepare(call.mesh, call.edges)
         self.targets = [TargetState(c) for c in criteria]
-        self.stop = attack._stop_rule()
+        self.stop = attack.stop_rule()
         self.history: List[Dict[str, Any]] = []
         self.total_steps = 0
         self.interrupted = False
@@ -109,8 +212,6 @@ class _Loop:
         self.check_generator = torch.Generator()
         if self.sampler is not None:
             self.num_views = self.sampler.eot.samples
-        most = attack.workers_for(self.num_targets * self.num_views) if self.sampler is None else 1
-        self.workers = StepWorkers(most, max(1, torch.get_num_threads() // most)) if most > 1 else None
 
     def run_rounds(self) -> None:
         """Every round, until the rule's rounds are done or the attack is interrupted."""
@@ -126,7 +227,7 @@ class _Loop:
         generator = torch.Generator().manual_seed(attack.seed if self.sampler is None
                                                   else stream_seed(attack.seed, STEP_STREAM))
         self.check_generator.manual_seed(stream_seed(attack.seed, CHECK_STREAM))
-        params = attack._init_params(self.call.mesh, self.num_targets).detach().clone().requires_grad_(True)
+        params = attack.initial_params(self.call.mesh, self.num_targets).detach().clone().requires_grad_(True)
         self.rule.start_round(params)
         lambdas = self.rule.lambdas
         for target in self.targets:
@@ -155,18 +256,12 @@ class _Loop:
         p = params[idx]
         crits = [self.targets[t].criterion for t in active]
         if self.sampler is not None:
-            terms = eot_step(attack, p, idx, crits, call, self.sampler.draw_step(generator), self.rule)
-            return self._update(params, idx, p, terms)
-        step_views = call.views.jitter(generator, **attack.jitter) if attack.jitter else call.views
-        if self.workers is not None and attack.workers_for(len(active) * self.num_views) > 1:
-            terms = pipelined_step(attack, params, idx, crits, call, step_views, self.rule, self.workers)
+            draw = self.sampler.draw_step(generator)
+            step_call = replace(call, setup=draw.setup, victim=draw.victim(call.victim))
+            terms = attack_step(attack, p, idx, crits, step_call, draw.views, self.rule)
         else:
-            terms = serial_step(attack, p, idx, crits, call, step_views, self.rule)
-        return self._update(params, idx, p, terms)
-
-    def _update(self, params: Tensor, idx: Tensor, p: Tensor, terms: StepTerms) -> Tuple[Tensor, StepTerms, Tensor]:
-        """The rule's update after a step's backward, told which targets held on the step's images."""
-        attack = self.attack
+            step_views = call.views.jitter(generator, **attack.jitter) if attack.jitter else call.views
+            terms = attack_step(attack, p, idx, crits, call, step_views, self.rule)
         with torch.no_grad():
             fractions = (terms.margins > 0).float().mean(dim=1)
             is_adv = enough_views(fractions, attack.success_fraction)
@@ -185,8 +280,10 @@ class _Loop:
         if self.sampler is None:
             self._observe(active, p, dist, fractions, terms.margins, lambdas)
         elif (step + 1) % self.sampler.eot.check_every == 0 or step == self.attack.steps - 1:
+            call = self.call
             crits = [self.targets[t].criterion for t in active]
-            margins = check_margins(self.attack, p, crits, self.call, self.sampler.draw_check(self.check_generator))
+            margins = check_margins(self.attack, p, crits, call.mesh, call.edges, call.victim, call.setup,
+                                    self.sampler.draw_check(self.check_generator))
             self._observe(active, p, dist, (margins > 0).float().mean(dim=1), margins, lambdas)
         elif self.stop.max_distortion is not None:
             for a, t in enumerate(active):
@@ -215,14 +312,9 @@ class _Loop:
             return False
         return True
 
-    def close(self) -> None:
-        """Stop the step workers, if any."""
-        if self.workers is not None:
-            self.workers.close()
-
     def finish(self, eval_views: Any) -> AttackResult:
         """Every target's chosen parameters as its adversarial mesh, measured from scratch."""
-        pristine = self.attack._init_params(self.call.mesh, 1)[0].detach()
+        pristine = self.attack.initial_params(self.call.mesh, 1)[0].detach()
         chosen = torch.stack([tg.chosen(pristine) for tg in self.targets])
         run = _RunInfo(history=tuple(self.history), steps=self.total_steps,
                        wall_time=time.perf_counter() - self.t_start, interrupted=self.interrupted, config=self.config)
@@ -233,14 +325,14 @@ class _Loop:
         return _final_result(self.attack, call, self.targets, eval_views, chosen, run)
 
 
-def _adversarial_meshes(attack: "MeshAttack", call: AttackCall, params: Tensor) -> Tuple[Any, ...]:
+def _adversarial_meshes(attack: AttackFamily, call: AttackCall, params: Tensor) -> Tuple[Any, ...]:
     """The ``T`` adversarial meshes of parameters ``(T, ...)`` (float32, contiguous, detached copies)."""
     from meshadv.mesh import Mesh
 
     mesh = call.mesh
     num_t = params.shape[0]
     with torch.no_grad():
-        verts, colors = attack._apply(params, mesh, call.edges)
+        verts, colors = attack.apply(params, mesh, call.edges)
         if colors.dim() == 2:
             colors = colors.unsqueeze(0).expand(num_t, -1, -1)
     return tuple(
@@ -250,7 +342,7 @@ def _adversarial_meshes(attack: "MeshAttack", call: AttackCall, params: Tensor) 
     )
 
 
-def _final_result(attack: "MeshAttack", call: AttackCall, targets: List[TargetState], eval_views: Any,
+def _final_result(attack: AttackFamily, call: AttackCall, targets: List[TargetState], eval_views: Any,
                   params: Tensor, run: _RunInfo) -> AttackResult:
     """The result of a run: the chosen parameters' meshes scored on the views (and ``eval_views``) from scratch."""
     mesh, views, victim = call.mesh, call.views, call.victim

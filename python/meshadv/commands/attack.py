@@ -148,6 +148,10 @@ def attack(
         None, help="shape only: rounds of neighbour averaging of the optimised vertex flow (default: the attack's; "
                    "0 = the paper's exact per-vertex flow)"),
     binary_search: int = typer.Option(1, help="--method adam: binary-search rounds over lambda (paper: 5)"),
+    visibility_gradient: Optional[str] = typer.Option(
+        None, help="--method ddn, shape only: the rasterization gradient of the vertices, nmr (the Neural Mesh "
+                   "Renderer's, docs/NMR_GRADIENT.md) or local (its sweeps cut to 2 pixels of each edge, "
+                   "docs/LOCAL_GRADIENT.md; cheaper); default: the rule's"),
     loss: str = typer.Option("ce", help="classifier loss: ce or cw"),
     kappa: float = typer.Option(0.0, help="C&W confidence"),
     early_stop: Optional[int] = typer.Option(
@@ -170,10 +174,6 @@ def attack(
     threshold: float = typer.Option(0.5, help="detector score threshold (--disappear)"),
     z_up: Optional[bool] = typer.Option(None, "--z-up/--y-up", help="mesh file is Z-up (default: guess)"),
     seed: int = typer.Option(0, help="random seed"),
-    step_workers: int = typer.Option(1, min=1, max=64, help="threads a step's images are split over, each rendering "
-                                                            "its part on threads of its own and running the victim on "
-                                                            "it (on 2 cores 2 took 3-19% less time per step than 1, "
-                                                            "shape and texture; float rounding differs from 1)"),
     quiet: bool = typer.Option(False, help="no progress bar"),
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
 ) -> None:
@@ -189,6 +189,7 @@ def attack(
     from meshadv.attacks.update import RECOMMENDED_METHOD
     from meshadv.commands._comparison import write_attack_outputs
     from meshadv.render import RenderSetup
+    from meshadv.render.visibility import check_visibility_gradient
     from meshadv.victims import load_victim
 
     torch.manual_seed(seed)
@@ -200,6 +201,10 @@ def attack(
             "--smoothing": bool(smoothing)})
         if early_stop is None:
             early_stop = 0 if method == "ddn" else 10
+        if visibility_gradient is not None and (method != "ddn" or perturbation != "shape"):
+            raise ValueError("--visibility-gradient applies to --method ddn --perturbation shape only")
+        method_options = None if visibility_gradient is None else {
+            "visibility_gradient": check_visibility_gradient(visibility_gradient, "--visibility-gradient")}
         loaded = load_mesh_input(mesh, z_up=z_up)
         mesh_obj, label = loaded.mesh, loaded.label
         az = parse_azimuth_range(azimuths)
@@ -210,17 +215,18 @@ def attack(
         victim_obj = load_victim(victim, weights=weights, cfg=cfg)
         if early_stop_margin is None:
             early_stop_margin = 0.05 if victim_obj.kind == "detector" else 0.5
-        shape_only = {"smoothing": smoothing} if perturbation == "shape" else {}
+        shape_only = {"smoothing": smoothing} if perturbation == "shape" and smoothing is not None else {}
         robust = robust_options(perturbation, method, eot) if eot > 0 else {}
         robust_lr = robust.pop("lr", None)
         if lr is None and smoothing is None:
             lr = robust_lr
+        method_options = {**robust.pop("method_options", {}), **(method_options or {})} or None
         setup = RenderSetup(image_size=image_size, background=parse_color(background))
         attack_obj = build_attack(
             perturbation, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
-            max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, step_workers=step_workers,
-            **{**robust, **{k: v for k, v in shape_only.items() if v is not None}},
+            max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, method_options=method_options,
+            **{**robust, **shape_only},
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
         for crit in criteria:
