@@ -76,7 +76,7 @@ def test_valid_values_are_kept_with_python_types() -> None:
 
 
 def test_perturbation_registry() -> None:
-    assert perturbations() == ["shape", "texture"]
+    assert perturbations() == ["shape", "texture", "texture-map"]
     assert isinstance(make_attack("shape", steps=3), ShapeAttack)
     with pytest.raises(ValueError, match="perturbation"):
         make_attack("colour")

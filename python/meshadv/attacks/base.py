@@ -15,9 +15,11 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
 
+import torch
 from torch import Tensor
 
 from meshadv import _validate
+from meshadv.attacks.distances import mesh_distances
 from meshadv.attacks.criteria import CLASSIFIER_LOSSES, Criterion, as_criteria
 from meshadv.attacks.eot import TransformationsLike, as_transformations
 from meshadv.attacks.history import StepInfo
@@ -156,6 +158,24 @@ class MeshAttack(ABC):
         """``(perceptual, distance)`` per target, each ``(K,)``; a family whose two terms share work overrides it."""
         return (self.perceptual(params, mesh, edges, images, alpha, num_views),
                 self.distance(params, mesh, edges))
+
+    def result_meshes(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Any, ...]:
+        """The ``T`` adversarial meshes of parameters ``(T, ...)`` (float32, contiguous, detached copies of
+        :meth:`apply`'s vertices and face colours); a family whose meshes carry more (a texture) overrides it."""
+        from meshadv.mesh import Mesh
+
+        num_t = params.shape[0]
+        with torch.no_grad():
+            verts, colors = self.apply(params, mesh, edges)
+            if colors.dim() == 2:
+                colors = colors.unsqueeze(0).expand(num_t, -1, -1)
+        return tuple(Mesh(verts[t].detach().clone().float().contiguous(), mesh.faces,
+                          colors[t].detach().clone().float().contiguous()) for t in range(num_t))
+
+    def result_distances(self, mesh: Any, adversarial: Any, edges: Tensor) -> Dict[str, float]:
+        """Every distance between ``mesh`` and one adversarial mesh of :meth:`result_meshes`
+        (:func:`~meshadv.attacks.distances.mesh_distances`); a family with its own measures adds them."""
+        return mesh_distances(mesh.vertices, mesh.face_colors, adversarial.vertices, adversarial.face_colors, edges)
 
     def stop_rule(self) -> StopRule:
         """The thresholds of a target's success and stop (:mod:`meshadv.attacks.targets`)."""

@@ -21,6 +21,7 @@ from torch import Tensor
 from meshadv.attacks.criteria import Criterion, as_criteria
 from meshadv.attacks.outputs import slice_output
 from meshadv.render.setup import RenderSetup
+from meshadv.render.surface_reflectance import stacked_reflectance
 
 __all__ = ["Evaluation", "evaluate"]
 
@@ -77,7 +78,7 @@ def evaluate(meshes: Union[Any, Sequence[Any]], views: Any, victim: Any,
     setup = setup or RenderSetup()
     num_v = len(views)
     verts = torch.stack([m.vertices for m in meshes])
-    colors = torch.stack([m.face_colors for m in meshes])
+    colors = stacked_reflectance(meshes)
     with torch.no_grad():
         images, _ = setup.render(verts, meshes[0].faces, colors, views)
         output = victim(images)

@@ -1,14 +1,15 @@
 """The registry of attack families: one name per kind of perturbation, used by the CLI, sweeps and transfer.
 
-The concept is called the *perturbation* everywhere (the paper's word): ``"shape"`` (vertex flow) or ``"texture"``
-(face colours). Code that must build an attack for a perturbation named in a config, a command-line option or a
-database row asks this registry instead of writing ``if perturbation == "shape"`` chains.
+The concept is called the *perturbation* everywhere (the paper's word): ``"shape"`` (vertex flow), ``"texture"``
+(face colours) or ``"texture-map"`` (the texels of a UV texture image). Code that must build an attack for a
+perturbation named in a config, a command-line option or a database row asks this registry instead of writing
+``if perturbation == "shape"`` chains.
 
 Example:
     >>> make_attack("texture", steps=10).perturbation
     'texture'
     >>> perturbations()
-    ['shape', 'texture']
+    ['shape', 'texture', 'texture-map']
 """
 
 from __future__ import annotations
@@ -18,11 +19,15 @@ from typing import Any, Dict, List, Type
 from meshadv.attacks.base import MeshAttack
 from meshadv.attacks.shape import ShapeAttack
 from meshadv.attacks.texture import TextureAttack
+from meshadv.attacks.texture_map import TextureMapAttack
 
-__all__ = ["PERTURBATIONS", "perturbations", "attack_class", "make_attack", "check_perturbation"]
+__all__ = ["PERTURBATIONS", "MESH_PERTURBATIONS", "perturbations", "attack_class", "make_attack", "check_perturbation"]
 
 #: Attack class per perturbation name.
-PERTURBATIONS: Dict[str, Type[MeshAttack]] = {"shape": ShapeAttack, "texture": TextureAttack}
+PERTURBATIONS: Dict[str, Type[MeshAttack]] = {"shape": ShapeAttack, "texture": TextureAttack,
+                                               "texture-map": TextureMapAttack}
+#: The perturbations every mesh takes (``texture-map`` needs a UV texture image): what a sweep runs by default.
+MESH_PERTURBATIONS: List[str] = ["shape", "texture"]
 
 
 def perturbations() -> List[str]:

@@ -41,7 +41,6 @@ import torch
 from torch import Tensor
 
 from meshadv.attacks.criteria import Criterion
-from meshadv.attacks.distances import mesh_distances
 from meshadv.attacks.eot import (CHECK_STREAM, EVAL_STREAM, STEP_STREAM, EOTSampler, Transformations, check_margins,
                                  stream_seed)
 from meshadv.attacks.evaluation import evaluate
@@ -85,6 +84,12 @@ class AttackFamily(Protocol):
 
     def stop_rule(self) -> StopRule:
         """The thresholds of a target's success and stop."""
+
+    def result_meshes(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Any, ...]:
+        """The ``T`` adversarial meshes of parameters ``(T, ...)``."""
+
+    def result_distances(self, mesh: Any, adversarial: Any, edges: Tensor) -> Dict[str, float]:
+        """Every distance between the pristine mesh and one adversarial mesh."""
 
 
 @dataclass(frozen=True)
@@ -325,28 +330,11 @@ class _Loop:
         return _final_result(self.attack, call, self.targets, eval_views, chosen, run)
 
 
-def _adversarial_meshes(attack: AttackFamily, call: AttackCall, params: Tensor) -> Tuple[Any, ...]:
-    """The ``T`` adversarial meshes of parameters ``(T, ...)`` (float32, contiguous, detached copies)."""
-    from meshadv.mesh import Mesh
-
-    mesh = call.mesh
-    num_t = params.shape[0]
-    with torch.no_grad():
-        verts, colors = attack.apply(params, mesh, call.edges)
-        if colors.dim() == 2:
-            colors = colors.unsqueeze(0).expand(num_t, -1, -1)
-    return tuple(
-        Mesh(verts[t].detach().clone().float().contiguous(), mesh.faces,
-             colors[t].detach().clone().float().contiguous())
-        for t in range(num_t)
-    )
-
-
 def _final_result(attack: AttackFamily, call: AttackCall, targets: List[TargetState], eval_views: Any,
                   params: Tensor, run: _RunInfo) -> AttackResult:
     """The result of a run: the chosen parameters' meshes scored on the views (and ``eval_views``) from scratch."""
     mesh, views, victim = call.mesh, call.views, call.victim
-    adversarial = _adversarial_meshes(attack, call, params)
+    adversarial = attack.result_meshes(params, mesh, call.edges)
     criteria = [tg.criterion for tg in targets]
     after = evaluate(adversarial, views, victim, criteria, setup=call.setup)
     before = evaluate([mesh], views, victim, criteria, setup=call.setup)
@@ -354,9 +342,7 @@ def _final_result(attack: AttackFamily, call: AttackCall, targets: List[TargetSt
     if eval_views is not None:
         held_out = evaluate(adversarial, eval_views.detach(), victim, criteria, setup=call.setup)
         eval_success, eval_scores = held_out.success, held_out.scores
-    distances = tuple(
-        mesh_distances(mesh.vertices, mesh.face_colors, m.vertices, m.face_colors, call.edges) for m in adversarial
-    )
+    distances = tuple(attack.result_distances(mesh, m, call.edges) for m in adversarial)
     return AttackResult(
         original=mesh,
         adversarial=adversarial,

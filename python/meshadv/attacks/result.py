@@ -164,6 +164,8 @@ class AttackResult:
                     f"views; laplacian_pair_mean={d.get('laplacian_pair_mean', float('nan')):.4g} "
                     f"laplacian_sum={d.get('laplacian_sum', float('nan')):.4g} "
                     f"rmse={d['color_rmse']:.4g} max_disp={d['max_displacement']:.4g}")
+            if "texel_rmse" in d:
+                line += f" texel_rmse={d['texel_rmse']:.4g} texture_tv={d['texture_tv']:.4g}"
             if self.eval_success is not None:
                 line += f"; held-out {int(self.eval_success[t].sum())}/{self.eval_success.shape[1]}"
             lines.append(line)
@@ -217,12 +219,21 @@ class AttackResult:
         }
 
     def _write_meshes(self, folder: Path) -> None:
-        """Every target's adversarial mesh as PLY and OBJ (:meth:`mesh_filenames`) into ``folder``."""
+        """Every target's adversarial mesh as PLY and OBJ (:meth:`mesh_filenames`) into ``folder``; a textured one
+        (a SurfaceMesh) also as GLB, its OBJ with an MTL and the texture PNG."""
         from meshadv.mesh import save_mesh
+        from meshadv.mesh.surface_mesh import save_surface_mesh
 
         for t, mesh in enumerate(self.adversarial):
-            for name in self.mesh_filenames(t):
-                save_mesh(mesh.detach(), folder / name)
+            ply, obj = self.mesh_filenames(t)
+            if getattr(mesh, "texture", None) is None:
+                save_mesh(mesh.detach(), folder / ply)
+                save_mesh(mesh.detach(), folder / obj)
+                continue
+            # a textured mesh: OBJ + MTL + the texture PNG at the file's resolution, GLB, and a per-face PLY
+            save_surface_mesh(mesh, folder / obj)
+            save_surface_mesh(mesh, folder / Path(obj).with_suffix(".glb").name)
+            save_mesh(mesh.mesh.detach(), folder / ply)
 
     def _write_images(self, folder: Path) -> None:
         """The pristine and adversarial renders of every view as PNG into ``folder``."""

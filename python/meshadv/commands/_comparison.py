@@ -54,6 +54,10 @@ def distortion_line(distances: dict, perturbation: str) -> str:
                 return float(distances[key])
         return None
 
+    if perturbation == "texture-map":
+        rmse, tv = pick("texel_rmse"), pick("texture_tv")
+        return ("texture image change: texel RMSE " + ("-" if rmse is None else f"{rmse:.4f}") + ", UV total "
+                "variation " + ("-" if tv is None else f"{tv:.4f}"))
     if perturbation == "texture":
         rmse = pick("color_rmse")
         return "texture change: colour RMSE " + ("-" if rmse is None else f"{rmse:.4f}")
@@ -175,6 +179,7 @@ def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, ti
     import json
 
     from meshadv.mesh import save_mesh
+    from meshadv.mesh.surface_mesh import save_surface_mesh
     from meshadv.util.atomic import write_json_atomic
 
     before, _ = captions_for(victim, result.original_images)
@@ -189,9 +194,13 @@ def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, ti
     if loaded.transform is not None:
         for t, mesh in enumerate(result.adversarial):
             stem = "adversarial" if len(result.adversarial) == 1 else f"adversarial_t{t}"
-            name = f"{stem}_input_frame.ply"
-            detached = mesh.detach()
-            save_mesh(detached.with_vertices(loaded.transform.to_original(detached.vertices)), output / name)
+            if getattr(mesh, "texture", None) is not None:  # textured: OBJ + MTL + texture PNG
+                name = f"{stem}_input_frame.obj"
+                save_surface_mesh(mesh.with_vertices(loaded.transform.to_original(mesh.vertices)), output / name)
+            else:
+                name = f"{stem}_input_frame.ply"
+                detached = mesh.detach()
+                save_mesh(detached.with_vertices(loaded.transform.to_original(detached.vertices)), output / name)
             entry["input_frame_meshes"].append(name)
     record["input"] = entry
     write_json_atomic(record, output / "result.json")

@@ -7,7 +7,7 @@ from typing import Any, Optional
 
 import torch
 
-__all__ = ["SURFACE_SUFFIXES", "render_file_surface"]
+__all__ = ["SURFACE_SUFFIXES", "render_file_surface", "textured_input"]
 
 #: Files whose texture, vertex colours or normals the commands render as they are.
 SURFACE_SUFFIXES = (".obj", ".glb", ".gltf", ".ply")
@@ -47,3 +47,29 @@ def render_file_surface(
             shading=shading or surface.shading, background=background,
         )
     return out.image
+
+
+def textured_input(loaded: Any) -> Any:
+    """The ``MeshInput`` of a textured file as the texture-map attack takes it: its mesh the file's
+    :class:`~meshadv.mesh.surface_mesh.SurfaceMesh` (texture and UVs as in the file), normalised as the commands
+    normalise meshes (the file's normals are dropped: smooth shading uses those of the normalised vertices).
+
+    Raises:
+        ValueError: a built-in mesh, or a file without a UV texture image.
+        MeshLoadError: the file's texture or attributes are unusable (the message names the file and field).
+    """
+    from dataclasses import replace
+
+    from meshadv.mesh import normalize_mesh
+    from meshadv.mesh.surface_mesh import load_surface_mesh
+
+    path = loaded.path
+    if path is None or path.suffix.lower() not in SURFACE_SUFFIXES:
+        raise ValueError(f"--perturbation texture-map needs a textured mesh file (OBJ with map_Kd, GLB/glTF), got "
+                         f"{loaded.label}")
+    surface = load_surface_mesh(path)
+    if surface.texture is None:
+        raise ValueError(f"--perturbation texture-map needs a UV texture image: {path} has none (an OBJ needs a "
+                         f"map_Kd in its MTL, a GLB a base-colour texture)")
+    mesh, transform = normalize_mesh(surface.mesh, z_up=loaded.z_up)
+    return replace(loaded, mesh=surface.with_mesh(mesh), transform=transform)

@@ -88,8 +88,9 @@ def run_with_progress(
     names = list(getattr(victim, "class_names", ()) or ())
     total = attack_obj.steps * attack_obj.binary_search_steps
     # the attack's own distance: the Eq. 4 Laplacian sum for shape (the paper's tables use its pair mean), the
-    # colour RMSE for texture
-    dist_name = {"shape": "lap-sum", "texture": "rmse"}.get(getattr(attack_obj, "perturbation", ""), "dist")
+    # colour RMSE for texture, the texel RMSE for texture-map
+    dist_name = {"shape": "lap-sum", "texture": "rmse", "texture-map": "texel-rmse"}.get(
+        getattr(attack_obj, "perturbation", ""), "dist")
 
     def fmt(v: Optional[float]) -> str:
         return "-" if v is None else f"{v:.4g}"
@@ -130,7 +131,9 @@ def attack(
                                               "several targets are attacked together as a batch)"),
     untargeted: Optional[str] = typer.Option(None, help="untargeted attack away from this true class"),
     disappear: Optional[str] = typer.Option(None, help="detector: class to hide, or 'all'"),
-    perturbation: str = typer.Option("shape", "--perturbation", help="shape or texture"),
+    perturbation: str = typer.Option("shape", "--perturbation",
+                                      help="shape, texture (face colours) or texture-map (the texels of the "
+                                           "file's UV texture image; an OBJ with map_Kd or a GLB)"),
     views: int = typer.Option(5, help="number of victim views"),
     azimuths: str = typer.Option("150:210", help="azimuth range LOW:HIGH or LOW-HIGH (degrees) of the victim views; "
                                                  "180 faces the front of a PASCAL3D+ model"),
@@ -161,7 +164,8 @@ def attack(
         None, help="margin the target must hold with for early stopping (default: 0.5 logits for classifiers, "
                    "0.05 below the threshold for detectors)"),
     budget: Optional[float] = typer.Option(None, help="distortion ceiling (shape: the Eq. 4 Laplacian sum of the "
-                                                "flow, i.e. pair mean x 2E; texture: colour RMSE)"),
+                                                "flow, i.e. pair mean x 2E; texture: colour RMSE; "
+                                                "texture-map: texel RMSE)"),
     jitter: bool = typer.Option(False, help="random camera/light jitter at every step (robustness)"),
     eot: int = typer.Option(0, min=0, max=4096, help="robust attack: draw this many fresh views from the whole "
                                                      "azimuth range (+-10 degrees), elevation (+-5) and distance "
@@ -188,6 +192,7 @@ def attack(
     from meshadv.attacks.robust import robust_options
     from meshadv.attacks.update import RECOMMENDED_METHOD
     from meshadv.commands._comparison import write_attack_outputs
+    from meshadv.commands._surface_views import textured_input
     from meshadv.render import RenderSetup
     from meshadv.render.visibility import check_visibility_gradient
     from meshadv.victims import load_victim
@@ -206,6 +211,8 @@ def attack(
         method_options = None if visibility_gradient is None else {
             "visibility_gradient": check_visibility_gradient(visibility_gradient, "--visibility-gradient")}
         loaded = load_mesh_input(mesh, z_up=z_up)
+        if perturbation == "texture-map":
+            loaded = textured_input(loaded)
         mesh_obj, label = loaded.mesh, loaded.label
         az = parse_azimuth_range(azimuths)
         view_set = make_views(views, az, elevation, distance)

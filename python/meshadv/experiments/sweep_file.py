@@ -244,10 +244,10 @@ def _victims_section(raw: Dict[str, Any], base: Path) -> Tuple[List[str], Dict[s
 
 def _attack_section(raw: Dict[str, Any]) -> Dict[str, Any]:
     """``[attack]`` with its defaults, its protocols and its per-family options checked."""
-    from meshadv.attacks.families import PERTURBATIONS, perturbations
+    from meshadv.attacks.families import MESH_PERTURBATIONS, PERTURBATIONS, perturbations
 
     attack_raw, attack_key = _perturbations_key(dict(raw.get("attack", {})), "attack")
-    attack = {"perturbations": perturbations(), "targets": "others", "benign_correct_only": True, "shape": {},
+    attack = {"perturbations": list(MESH_PERTURBATIONS), "targets": "others", "benign_correct_only": True, "shape": {},
               "texture": {}, "protocols": {}, "retry": {}, **attack_raw}
     for pname, proto in attack["protocols"].items():
         if not isinstance(proto, dict) or int(proto.get("configurations", 1)) < 1:
@@ -324,11 +324,11 @@ def stored_retry_stages(text: Optional[str]) -> Optional[List[Dict[str, Any]]]:
 
 def _multiview_section(raw: Dict[str, Any]) -> Dict[str, Any]:
     """``[multiview]`` with its defaults (Table 2's view counts and azimuth ranges)."""
-    from meshadv.attacks.families import perturbations
+    from meshadv.attacks.families import MESH_PERTURBATIONS
 
     multiview_raw, _ = _perturbations_key(dict(raw.get("multiview", {})), "multiview")
     multiview = {"enabled": False, "view_counts": [5, 10, 15], "azimuth_ranges": [[45, 60], [35, 70], [15, 75]],
-                 "grid": False, "eval_views": 20, "perturbations": perturbations(), "classes": None,
+                 "grid": False, "eval_views": 20, "perturbations": list(MESH_PERTURBATIONS), "classes": None,
                  "targets": None, "victims": None, "elevation": 20.0, "distance": 4.0, **multiview_raw}
     if not multiview["grid"] and len(multiview["view_counts"]) != len(multiview["azimuth_ranges"]):
         raise ValueError("multiview.view_counts and multiview.azimuth_ranges must have the same length")

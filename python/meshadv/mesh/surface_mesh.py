@@ -100,8 +100,54 @@ class SurfaceMesh:
         return replace(self, mesh=mesh, normals=None, normal_faces=None)
 
     def with_texture(self, texture: torch.Tensor) -> SurfaceMesh:
-        """The same mesh with another (Ht,Wt,3) texture (clamped to [0,1])."""
-        return replace(self, texture=texture.detach().to(torch.float32).clamp(0.0, 1.0))
+        """The same mesh with another (Ht,Wt,3) texture (clamped to [0,1]); the per-face colours of ``mesh`` become
+        the new texture's (as :func:`load_surface_mesh` computes them)."""
+        texture = texture.detach().to(torch.float32).clamp(0.0, 1.0)
+        if self.uvs is None:
+            return replace(self, texture=texture)
+        as_np = lambda t: None if t is None else t.detach().cpu().numpy()  # noqa: E731
+        colors = _mean_face_colors(as_np(self.mesh.vertices), as_np(self.mesh.faces), as_np(self.uvs),
+                                   as_np(self.uv_faces), as_np(texture), as_np(self.vertex_colors))
+        mesh = Mesh(self.mesh.vertices, self.mesh.faces, torch.as_tensor(colors, dtype=torch.float32))
+        return replace(self, mesh=mesh, texture=texture)
+
+    def with_mesh(self, mesh: Mesh) -> SurfaceMesh:
+        """The surface on another geometry of the same faces (e.g. the normalised mesh): texture, UVs and colours
+        are kept, normals from the file are dropped (they do not follow a moved or rotated mesh).
+
+        Raises:
+            ValueError: ``mesh`` has another number of faces or vertices.
+        """
+        if mesh.num_faces != self.mesh.num_faces or mesh.num_vertices != self.mesh.num_vertices:
+            raise ValueError(f"mesh must have {self.mesh.num_vertices} vertices and {self.mesh.num_faces} faces, got "
+                             f"{mesh.num_vertices} and {mesh.num_faces}")
+        return replace(self, mesh=mesh, normals=None, normal_faces=None)
+
+    # The geometry, so that a SurfaceMesh stands where a Mesh does (an attack, an evaluation).
+    @property
+    def vertices(self) -> torch.Tensor:
+        """(N,3) vertex positions of ``mesh``."""
+        return self.mesh.vertices
+
+    @property
+    def faces(self) -> torch.Tensor:
+        """(M,3) faces of ``mesh``."""
+        return self.mesh.faces
+
+    @property
+    def face_colors(self) -> torch.Tensor:
+        """(M,3) per-face colours of ``mesh`` (the texture's mean per face)."""
+        return self.mesh.face_colors
+
+    @property
+    def num_vertices(self) -> int:
+        """Number of vertices."""
+        return self.mesh.num_vertices
+
+    @property
+    def num_faces(self) -> int:
+        """Number of faces."""
+        return self.mesh.num_faces
 
 
 def _weld(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

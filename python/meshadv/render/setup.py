@@ -24,6 +24,8 @@ from typing import Any, Dict, Optional, Sequence, Tuple, Union
 import torch
 from torch import Tensor
 
+from meshadv.render.surface_reflectance import SurfaceReflectance
+
 __all__ = ["RenderSetup", "StaticObject", "render_views", "SETUP_OPTIONS", "split_setup_options", "static_objects"]
 
 #: Option names (in configs and ``attack_kwargs``) that describe the render setup, not the attack.
@@ -160,7 +162,7 @@ class RenderSetup:
             "crop_rows": None if self.crop_rows is None else list(self.crop_rows),
         }
 
-    def render(self, vertices: Tensor, faces: Tensor, face_colors: Tensor, views: Any,
+    def render(self, vertices: Tensor, faces: Tensor, face_colors: Union[Tensor, SurfaceReflectance], views: Any,
                edge_gradient: float = 1.0, num_threads: int = 0,
                visibility_gradient: str = "nmr") -> Tuple[Tensor, Tensor]:
         """Render ``K`` versions of the attacked mesh (one topology) from each of ``V`` views in one batched call.
@@ -171,7 +173,9 @@ class RenderSetup:
         Args:
             vertices: ``(K, N, 3)`` model-space vertices of the attacked mesh.
             faces: int ``(M, 3)``.
-            face_colors: ``(M, 3)`` shared, or ``(K, M, 3)``.
+            face_colors: ``(M, 3)`` shared, or ``(K, M, 3)``; or a
+                :class:`~meshadv.render.surface_reflectance.SurfaceReflectance` of ``K`` textures (drawn by
+                :func:`~meshadv.render.render_surface`; no static objects then).
             views: a ``ViewSet`` of ``V`` views.
             edge_gradient: weight of NMR's rasterization gradient on the vertices (:func:`meshadv.render.render`;
                 the update rule's choice, not the setup's: 1 = NMR's definition).
@@ -195,26 +199,52 @@ class RenderSetup:
         batched = ViewSet.cat([views] * k) if k > 1 else views
         verts = vertices.repeat_interleave(v, dim=0) if v > 1 else vertices
         colors = face_colors
-        if face_colors.dim() == 3:
+        if isinstance(face_colors, SurfaceReflectance):
+            colors = face_colors.repeat_views(v)
+        elif face_colors.dim() == 3:
             colors = face_colors.repeat_interleave(v, dim=0) if v > 1 else face_colors
         if self.transform is not None:
             matrix = self.transform.to(verts.dtype)
             verts = verts @ matrix[:3, :3].T + matrix[:3, 3]
         faces = faces.long()
-        if self.static:
-            verts, faces, colors = self._with_static(verts, faces, colors)
         bg = (0.0, 0.0, 0.0) if self.has_photo else self.background
-        # The image alone: an attack step never reads the depth or face-index maps.
-        rgba, _, _ = _render_rgba(verts, faces, colors, batched.camera, batched.lights, self.image_size, bg,
-                                  fill_back=True, antialias=self.antialias, num_threads=num_threads,
-                                  edge_gradient=edge_gradient, visibility_gradient=visibility_gradient)
-        image, alpha = rgba[:, :3], rgba[:, 3:4]
+        if isinstance(colors, SurfaceReflectance):
+            image, alpha = self._render_surface(verts, faces, colors, batched, bg, edge_gradient, num_threads,
+                                                visibility_gradient)
+        else:
+            if self.static:
+                verts, faces, colors = self._with_static(verts, faces, colors)
+            # The image alone: an attack step never reads the depth or face-index maps.
+            rgba, _, _ = _render_rgba(verts, faces, colors, batched.camera, batched.lights, self.image_size, bg,
+                                      fill_back=True, antialias=self.antialias, num_threads=num_threads,
+                                      edge_gradient=edge_gradient, visibility_gradient=visibility_gradient)
+            image, alpha = rgba[:, :3], rgba[:, 3:4]
         if self.crop_rows is not None:
             rows = slice(*self.crop_rows)
             image, alpha = image[:, :, rows, :], alpha[:, :, rows, :]
         if self.has_photo:
             image = image + (1.0 - alpha) * self.background.to(image.dtype).unsqueeze(0)  # type: ignore[union-attr]
         return image, alpha
+
+    def _render_surface(self, verts: Tensor, faces: Tensor, reflectance: SurfaceReflectance, views: Any,
+                        background: Any, edge_gradient: float, num_threads: int,
+                        visibility_gradient: str) -> Tuple[Tensor, Tensor]:
+        """``(image, alpha)`` of a textured batch through :func:`~meshadv.render.render_surface`.
+
+        Raises:
+            ValueError: the setup has static scene objects (they carry per-face colours, not a texture).
+        """
+        from meshadv.render.surface import render_surface
+
+        if self.static:
+            raise ValueError("a textured mesh is rendered alone: this RenderSetup has static scene objects")
+        out = render_surface(verts, faces, views.camera, views.lights, self.image_size,
+                             texture=reflectance.texture, uvs=reflectance.uvs, uv_faces=reflectance.uv_faces,
+                             vertex_colors=reflectance.vertex_colors, shading=reflectance.shading,
+                             wrap=reflectance.wrap, background=background, antialias=self.antialias,
+                             num_threads=num_threads, edge_gradient=edge_gradient,
+                             visibility_gradient=visibility_gradient)
+        return out.image, out.alpha
 
     def _with_static(self, verts: Tensor, faces: Tensor, colors: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
         """Append the static objects to a batch of attacked meshes (the attacked mesh's faces come first)."""
