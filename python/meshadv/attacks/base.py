@@ -29,6 +29,7 @@ from meshadv.attacks.targets import StopRule
 from meshadv.attacks.update import make_update_rule, update_rules
 from meshadv.mesh.adjacency import vertex_edges
 from meshadv.render.setup import RenderSetup
+from meshadv.render.surface_reflectance import SurfaceReflectance
 from meshadv.render.views import ViewSet
 
 __all__ = ["MeshAttack"]
@@ -161,12 +162,15 @@ class MeshAttack(ABC):
 
     def result_meshes(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Any, ...]:
         """The ``T`` adversarial meshes of parameters ``(T, ...)`` (float32, contiguous, detached copies of
-        :meth:`apply`'s vertices and face colours); a family whose meshes carry more (a texture) overrides it."""
+        :meth:`apply`'s vertices and face colours; a ``mesh`` rendered with its texture keeps it on the new vertices); a
+        family whose meshes carry more overrides it."""
         from meshadv.mesh import Mesh
 
         num_t = params.shape[0]
         with torch.no_grad():
             verts, colors = self.apply(params, mesh, edges)
+            if isinstance(colors, SurfaceReflectance):
+                return tuple(mesh.with_vertices(verts[t].clone().contiguous()) for t in range(num_t))
             if colors.dim() == 2:
                 colors = colors.unsqueeze(0).expand(num_t, -1, -1)
         return tuple(Mesh(verts[t].detach().clone().float().contiguous(), mesh.faces,

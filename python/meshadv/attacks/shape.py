@@ -36,6 +36,7 @@ from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import laplacian_flow_loss
 from meshadv.attacks.masks import check_mask, check_mask_fits, mask_config
 from meshadv.attacks.norms import FlowSpace
+from meshadv.render.surface_reflectance import reflectance_of
 
 __all__ = ["ShapeAttack", "DEFAULT_SMOOTHING", "DEFAULT_SHAPE_LR"]
 
@@ -111,8 +112,9 @@ class ShapeAttack(MeshAttack):
         return mesh.vertices.new_zeros((num_targets, *mesh.vertices.shape))
 
     def apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
-        """The displaced vertices ``(K, N, 3)`` and the unchanged face colours."""
-        return mesh.vertices.unsqueeze(0) + self.displacement(params, edges), mesh.face_colors
+        """The displaced vertices ``(K, N, 3)`` and the unchanged reflectance (face colours, or the texture of a
+        textured mesh)."""
+        return mesh.vertices.unsqueeze(0) + self.displacement(params, edges), reflectance_of(mesh)
 
     def _laplacian(self, params: Tensor, edges: Tensor) -> Tensor:
         """The Eq. 4 Laplacian of the applied displacement per target ``(K,)``: the perceptual loss and the

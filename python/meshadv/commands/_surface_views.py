@@ -49,13 +49,18 @@ def render_file_surface(
     return out.image
 
 
-def textured_input(loaded: Any) -> Any:
-    """The ``MeshInput`` of a textured file as the texture-map attack takes it: its mesh the file's
+def textured_input(loaded: Any, *, required: bool = True) -> Any:
+    """The ``MeshInput`` of a textured file as the attacks take it: its mesh the file's
     :class:`~meshadv.mesh.surface_mesh.SurfaceMesh` (texture and UVs as in the file), normalised as the commands
     normalise meshes (the file's normals are dropped: smooth shading uses those of the normalised vertices).
 
+    Args:
+        loaded: the command line's ``MeshInput``.
+        required: a file without a UV texture is an error (the texture-map attack); ``False`` returns ``loaded``
+            unchanged then (a shape attack keeps a texture when there is one).
+
     Raises:
-        ValueError: a built-in mesh, or a file without a UV texture image.
+        ValueError: ``required`` and a built-in mesh or a file without a UV texture image.
         MeshLoadError: the file's texture or attributes are unusable (the message names the file and field).
     """
     from dataclasses import replace
@@ -65,10 +70,14 @@ def textured_input(loaded: Any) -> Any:
 
     path = loaded.path
     if path is None or path.suffix.lower() not in SURFACE_SUFFIXES:
+        if not required:
+            return loaded
         raise ValueError(f"--perturbation texture-map needs a textured mesh file (OBJ with map_Kd, GLB/glTF), got "
                          f"{loaded.label}")
     surface = load_surface_mesh(path)
     if surface.texture is None:
+        if not required:
+            return loaded
         raise ValueError(f"--perturbation texture-map needs a UV texture image: {path} has none (an OBJ needs a "
                          f"map_Kd in its MTL, a GLB a base-colour texture)")
     mesh, transform = normalize_mesh(surface.mesh, z_up=loaded.z_up)

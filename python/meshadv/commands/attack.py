@@ -211,8 +211,8 @@ def attack(
         method_options = None if visibility_gradient is None else {
             "visibility_gradient": check_visibility_gradient(visibility_gradient, "--visibility-gradient")}
         loaded = load_mesh_input(mesh, z_up=z_up)
-        if perturbation == "texture-map":
-            loaded = textured_input(loaded)
+        if perturbation in ("texture-map", "shape"):  # a shape attack on a textured file keeps its texture
+            loaded = textured_input(loaded, required=perturbation == "texture-map")
         mesh_obj, label = loaded.mesh, loaded.label
         az = parse_azimuth_range(azimuths)
         view_set = make_views(views, az, elevation, distance)

@@ -200,7 +200,7 @@ class RenderSetup:
         verts = vertices.repeat_interleave(v, dim=0) if v > 1 else vertices
         colors = face_colors
         if isinstance(face_colors, SurfaceReflectance):
-            colors = face_colors.repeat_views(v)
+            colors = face_colors.repeat_views(v, k)
         elif face_colors.dim() == 3:
             colors = face_colors.repeat_interleave(v, dim=0) if v > 1 else face_colors
         if self.transform is not None:

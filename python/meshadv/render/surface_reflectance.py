@@ -3,7 +3,8 @@
 :class:`SurfaceReflectance` stands where the per-face colours stand in a batched render: ``K`` texture images on one
 UV layout (and optional vertex colours), drawn through :func:`~meshadv.render.render_surface` with exact gradients to
 the texels. :func:`stacked_reflectance` builds the reflectance of a list of meshes sharing one topology: their stacked
-face colours, or a :class:`SurfaceReflectance` of their textures when they carry one.
+face colours, or a :class:`SurfaceReflectance` of their textures when they carry one; :func:`reflectance_of` that of
+one mesh (a shape perturbation of a textured mesh renders its texture).
 
 Example:
     >>> refl = SurfaceReflectance(torch.rand(2, 8, 8, 3), uvs, uv_faces)         # doctest: +SKIP
@@ -18,7 +19,7 @@ from typing import Any, Optional, Sequence, Union
 import torch
 from torch import Tensor
 
-__all__ = ["SurfaceReflectance", "stacked_reflectance"]
+__all__ = ["SurfaceReflectance", "reflectance_of", "stacked_reflectance"]
 
 
 @dataclass(frozen=True)
@@ -48,10 +49,28 @@ class SurfaceReflectance:
     def __len__(self) -> int:
         return int(self.texture.shape[0])
 
-    def repeat_views(self, num_views: int) -> SurfaceReflectance:
-        """The reflectance of a mesh-major batch of ``K * num_views`` renders (texture ``k`` repeated per view)."""
-        texture = self.texture.repeat_interleave(num_views, dim=0) if num_views > 1 else self.texture
+    def repeat_views(self, num_views: int, num_meshes: int = 1) -> SurfaceReflectance:
+        """The reflectance of a mesh-major batch of ``num_meshes * num_views`` renders: texture ``k`` repeated per
+        view, or one shared texture (``K = 1``) for every mesh.
+
+        Raises:
+            ValueError: ``K`` is neither 1 nor ``num_meshes``.
+        """
+        if len(self) == 1:
+            texture = self.texture.expand(num_meshes * num_views, -1, -1, -1)
+        elif len(self) == num_meshes:
+            texture = self.texture.repeat_interleave(num_views, dim=0) if num_views > 1 else self.texture
+        else:
+            raise ValueError(f"texture holds {len(self)} images for {num_meshes} meshes (give 1 or {num_meshes})")
         return SurfaceReflectance(texture, self.uvs, self.uv_faces, self.vertex_colors, self.shading, self.wrap)
+
+
+def reflectance_of(mesh: Any) -> Union[Tensor, SurfaceReflectance]:
+    """What a render of ``mesh`` draws: its UV texture as a one-image :class:`SurfaceReflectance` when it carries one
+    (a :class:`~meshadv.mesh.surface_mesh.SurfaceMesh`), else its ``(M, 3)`` face colours."""
+    if getattr(mesh, "texture", None) is None:
+        return mesh.face_colors
+    return SurfaceReflectance(mesh.texture.unsqueeze(0), mesh.uvs, mesh.uv_faces, mesh.vertex_colors, mesh.shading)
 
 
 def stacked_reflectance(meshes: Sequence[Any]) -> Union[Tensor, SurfaceReflectance]:
