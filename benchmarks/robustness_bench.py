@@ -353,6 +353,7 @@ def plot_frontier(rows: Sequence[Dict[str, Any]], path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     measures = [("heldout targeted", lambda t: t["success_heldout"]),
                 ("held-out untargeted (benign-ctrl)", lambda t: t["untargeted_heldout"]),
@@ -372,7 +373,8 @@ def plot_frontier(rows: Sequence[Dict[str, Any]], path: Path) -> None:
                        for t in r["targets"] if t.get(key) and get(t) is not None]
                 if pts:
                     ax.scatter([x for x, _ in pts], [y for _, y in pts], s=18, alpha=0.75, color=colors[m], label=m)
-            ax.set_xscale("log")
+            ax.xaxis.set_major_locator(MaxNLocator(4))
+            ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 2))
             ax.set_ylim(-0.05, 1.05)
             ax.set_xlabel(xlabel, fontsize=8)
             ax.set_title(f"{pert}: {name}", fontsize=9)
