@@ -27,6 +27,7 @@ from meshadv.attacks.step import AttackCall, StepTerms, pipelined_step, serial_s
 from meshadv.attacks.targets import StopRule
 from meshadv.attacks.update import make_update_rule, update_rules
 from meshadv.mesh.adjacency import vertex_edges
+from meshadv.perceptibility.cap import as_cap
 from meshadv.render.setup import RenderSetup
 from meshadv.render.views import ViewSet
 
@@ -96,6 +97,11 @@ class MeshAttack(ABC):
             machine"). It runs each chunk's victim on fewer torch threads, so its float rounding differs from a
             serial run's. An execution setting like
             ``--threads``: not part of :meth:`config`.
+        perceptibility_cap: ceilings on what a person sees (:class:`meshadv.perceptibility.PerceptibilityCap`, a
+            dict of its ceilings, or a string such as ``"default"`` or ``"max_displacement=0.02"``); ``None`` (the
+            paper's protocol): none. A step counts as a success only inside the cap, a target that never succeeds
+            inside it keeps its closest step inside it (or the pristine mesh), and a final mesh outside it is
+            reported as failed. :func:`meshadv.perceptibility.recommended_cap` gives the cap of the command line.
 
     Raises:
         TypeError: a hyper-parameter of the wrong type (``lr="0.1"``, ``steps=1.9``, ``steps=None``, ``jitter=[]``),
@@ -124,6 +130,7 @@ class MeshAttack(ABC):
         method: str = "adam",
         method_options: Optional[Dict[str, Any]] = None,
         step_workers: int = 1,
+        perceptibility_cap: Any = None,
     ) -> None:
         self.steps = _validate.positive_int("steps", steps)
         self.lr = _validate.positive_float("lr", lr)
@@ -144,6 +151,7 @@ class MeshAttack(ABC):
             raise TypeError(f"method_options must be a dict or None, got {type(method_options).__name__}")
         self.method_options = dict(method_options or {})
         self.step_workers = _validate.positive_int("step_workers", step_workers, high=_MAX_STEP_WORKERS)
+        self.perceptibility_cap = as_cap(perceptibility_cap)
 
     # ------------------------------------------------------------------ family hooks
     @abstractmethod
@@ -172,7 +180,8 @@ class MeshAttack(ABC):
     def _stop_rule(self) -> StopRule:
         """The thresholds of a target's success and stop (:mod:`meshadv.attacks.targets`)."""
         return StopRule(success_fraction=self.success_fraction, max_distortion=self.max_distortion,
-                        early_stop=self.early_stop, early_stop_margin=self.early_stop_margin)
+                        early_stop=self.early_stop, early_stop_margin=self.early_stop_margin,
+                        cap=self.perceptibility_cap)
 
     def workers_for(self, num_images: int) -> int:
         """The step workers used for a step of ``num_images`` images (active targets x views): ``step_workers``, never
@@ -195,6 +204,7 @@ class MeshAttack(ABC):
             "early_stop_margin": self.early_stop_margin, "max_distortion": self.max_distortion,
             "success_fraction": self.success_fraction, "jitter": self.jitter, "seed": self.seed, "method": self.method,
             "method_options": {**self.method_options, **rule.config()},
+            "perceptibility_cap": None if self.perceptibility_cap is None else self.perceptibility_cap.to_record(),
         }
 
     def __repr__(self) -> str:

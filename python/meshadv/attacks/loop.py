@@ -40,6 +40,8 @@ from meshadv.attacks.result import AttackResult, enough_views
 from meshadv.attacks.step import AttackCall, StepTerms, pipelined_step, serial_step
 from meshadv.attacks.targets import TargetState
 from meshadv.attacks.update import make_update_rule
+from meshadv.perceptibility.cap import step_measures
+from meshadv.perceptibility.measures import perceptibility_measures
 
 if TYPE_CHECKING:
     from meshadv.attacks.base import MeshAttack
@@ -160,12 +162,29 @@ class _Loop:
             total = adv + lambdas[idx] * perc
             top = (terms.output.detach().argmax(dim=1).view(len(active), self.num_views)[:, 0] if self.classifier
                    else None)
+        inside = self._inside_cap(p)
         for a, t in enumerate(active):
             self.targets[t].observe(p[a], float(dist[a]), float(fractions[a]), terms.margins[a], float(lambdas[t]),
-                                    self.stop, self.total_steps, time.perf_counter() - self.t_start)
+                                    self.stop, self.total_steps, time.perf_counter() - self.t_start,
+                                    inside_cap=inside[a])
         row = history_row(rnd, step, self.num_targets, active, total, adv, perc, dist, terms.margins, lambdas)
         self.history.append(row)
         return row, first_view_top1(top, self.num_targets, active)
+
+    def _inside_cap(self, params: Tensor) -> List[bool]:
+        """Per row of the rendered parameters ``params`` ``(K, ...)``, whether its mesh is inside the attack's
+        perceptibility cap (all ``True`` without one)."""
+        cap = self.stop.cap
+        if cap is None:
+            return [True] * params.shape[0]
+        mesh = self.call.mesh
+        with torch.no_grad():
+            verts, colors = self.attack._apply(params.detach(), mesh, self.call.edges)
+            measures = step_measures(cap, verts, colors, mesh.vertices, mesh.face_colors, mesh.faces)
+        inside = cap.admits(measures)
+        if not isinstance(inside, Tensor):
+            return [bool(inside)] * params.shape[0]
+        return [bool(x) for x in inside.reshape(-1).tolist()]
 
     def _report(self, callback: Callable[[StepInfo], None], row: Dict[str, Any], top1: List[Optional[int]]) -> bool:
         """Call ``callback`` with the step's :class:`StepInfo`; ``False`` when it raised ``KeyboardInterrupt`` (the
@@ -222,8 +241,10 @@ def _final_result(attack: "MeshAttack", call: AttackCall, targets: List[TargetSt
     if eval_views is not None:
         held_out = evaluate(adversarial, eval_views.detach(), victim, criteria, setup=call.setup)
         eval_success, eval_scores = held_out.success, held_out.scores
+    perceptible = perceptibility_measures(mesh, adversarial, views, call.setup)
     distances = tuple(
-        mesh_distances(mesh.vertices, mesh.face_colors, m.vertices, m.face_colors, call.edges) for m in adversarial
+        {**seen, **mesh_distances(mesh.vertices, mesh.face_colors, m.vertices, m.face_colors, call.edges)}
+        for m, seen in zip(adversarial, perceptible)
     )
     return AttackResult(
         original=mesh,
@@ -247,6 +268,7 @@ def _final_result(attack: "MeshAttack", call: AttackCall, targets: List[TargetSt
         wall_time=run.wall_time,
         interrupted=run.interrupted,
         success_fraction=attack.success_fraction,
+        perceptibility_cap=None if attack.perceptibility_cap is None else attack.perceptibility_cap.to_record(),
         original_images=before.images[0],
         images=after.images,
         view_records=tuple(views.to_records()),
