@@ -12,6 +12,7 @@ from typing import Any, Callable, List, Optional, Sequence
 
 import typer
 
+from meshadv.commands._cap_option import CAP_HELP, parse_cap
 from meshadv.commands._common import (
     DEFAULT_BACKGROUND,
     DEFAULT_DISTANCE,
@@ -129,6 +130,13 @@ def attack(
     target: List[str] = typer.Option([], help="target class: ImageNet name/index or PASCAL3D+ class (repeatable: "
                                               "several targets are attacked together as a batch)"),
     untargeted: Optional[str] = typer.Option(None, help="untargeted attack away from this true class"),
+    source: Optional[str] = typer.Option(
+        None, help="the class the benign mesh is, checked on every attack view before the attack (default: "
+                   "--untargeted's class, else the PASCAL3D+ class of a mesh under a pascal3d/CLASS/ folder, else "
+                   "not checked)"),
+    benign_wrong_ok: bool = typer.Option(
+        False, "--benign-wrong-ok", help="attack even when the benign render is not the source class on some views "
+                                         "(default: refuse)"),
     disappear: Optional[str] = typer.Option(None, help="detector: class to hide, or 'all'"),
     perturbation: str = typer.Option("shape", "--perturbation", "--perturb",
                                      help="shape or texture (--perturb is the old name)"),
@@ -159,6 +167,13 @@ def attack(
                    "0.05 below the threshold for detectors)"),
     budget: Optional[float] = typer.Option(None, help="distortion ceiling (shape: the Eq. 4 Laplacian sum of the "
                                                 "flow, i.e. pair mean x 2E; texture: colour RMSE)"),
+    cap: str = typer.Option(
+        "default", help="perceptibility cap: 'default' (" + CAP_HELP + "), 'none' (the paper's protocol), or "
+                        "NAME=VALUE,... of max_displacement (largest vertex move / bounding-box diagonal), "
+                        "normal_change_p95_deg (area-weighted 95th-percentile turn of the face normals, degrees), "
+                        "color_change_p95 (area-weighted 95th-percentile RGB change of the face colours); a step "
+                        "outside it never counts as a success, and a target that cannot succeed inside it fails with "
+                        "its closest result inside it"),
     jitter: bool = typer.Option(False, help="random camera/light jitter at every step (robustness)"),
     image_size: int = typer.Option(224, min=1, max=16384, help="rendered image size in pixels"),
     background: str = typer.Option(DEFAULT_BACKGROUND, help="background colour r,g,b in [0, 1]"),
@@ -181,6 +196,7 @@ def attack(
     import torch
 
     from meshadv.attacks.update import RECOMMENDED_METHOD
+    from meshadv.commands._benign_gate import benign_gate, source_class
     from meshadv.commands._comparison import write_attack_outputs
     from meshadv.render import RenderSetup
     from meshadv.victims import load_victim
@@ -210,7 +226,7 @@ def attack(
             perturbation, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
             max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, step_workers=step_workers,
-            **shape_only,
+            perceptibility_cap=parse_cap(cap), **shape_only,
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
         for crit in criteria:
@@ -219,6 +235,9 @@ def attack(
         raise typer.BadParameter(str(exc)) from exc
     typer.echo(f"mesh {label}: {mesh_obj.num_vertices} vertices, {mesh_obj.num_faces} faces; "
                f"{attack_obj!r}")
+    criteria = benign_gate(mesh_obj, view_set, victim_obj, criteria, setup=setup,
+                           source=source_class(source, untargeted, loaded.path),
+                           success_fraction=attack_obj.success_fraction, go_on=benign_wrong_ok)
     result = run_with_progress(attack_obj, mesh_obj, view_set, victim_obj, criteria, eval_views=held_out,
                                setup=setup, quiet=quiet)
     path = result.save(output)
