@@ -32,6 +32,8 @@ class TransferCase:
         antialias: meshadv's supersampling factor for the reference render (the attack's own, so that
             ``success_meshadv`` is the attack's success).
         name: file stem of the case's saved renders (``<name>_v<view>.png``); ``""``: the ``case_id``.
+        benign_mesh: the benign mesh the attack started from, rendered by Mitsuba too as the control of untargeted
+            transfer (:mod:`meshadv.transfer.benign_control`); ``None``: no control (the rows say so).
     """
 
     case_id: str
@@ -46,6 +48,7 @@ class TransferCase:
     benign_correct: Optional[bool] = None
     antialias: int = 1
     name: str = ""
+    benign_mesh: Any = None
 
     def __post_init__(self) -> None:
         if not self.views:
@@ -157,8 +160,8 @@ def _regenerated(db_path: Union[str, Path], row: Any, artifact_root: Optional[Un
 
 
 def _case_from_job(row: Any, out: Path) -> Optional[TransferCase]:
-    """The case of a done job from its folder ``out`` (``result.json`` and the adversarial mesh), or None when the
-    folder lacks them or the result has no views."""
+    """The case of a done job from its folder ``out`` (``result.json`` and the adversarial mesh; the benign mesh from
+    the job's spec), or None when the folder lacks them or the result has no views."""
     from meshadv.mesh import load_mesh
 
     result_path = out / "result.json"
@@ -186,4 +189,17 @@ def _case_from_job(row: Any, out: Path) -> Optional[TransferCase]:
         benign_correct=None if record.get("benign_correct") is None else bool(record["benign_correct"]),
         antialias=int(result.get("config", {}).get("antialias") or 1),
         name=case_name(spec, row.job_id),
+        benign_mesh=_benign_of_job(spec),
     )
+
+
+def _benign_of_job(spec: dict[str, Any]) -> Any:
+    """The benign mesh of a job (:func:`~meshadv.transfer.benign_control.benign_mesh_of_job`), or ``None`` when its
+    spec's mesh cannot be loaded here (e.g. the shared data is missing): its rows then carry no benign control and
+    the tables leave them out of the untargeted count."""
+    from meshadv.transfer.benign_control import benign_mesh_of_job
+
+    try:
+        return benign_mesh_of_job(spec)
+    except (ValueError, FileNotFoundError, KeyError):
+        return None

@@ -20,6 +20,7 @@ import torch
 
 from meshadv import _validate
 from meshadv.transfer._scoring import class_names, classifier_criteria, images_tensor, top1_names
+from meshadv.transfer.benign_control import benign_verdicts
 from meshadv.transfer.cases import TransferCase, case_name, cases_from_store
 from meshadv.transfer.images import INDEX_COLUMNS, save_images, write_image_index
 from meshadv.transfer.render import MitsubaImage, MitsubaRenderError, render_scenes
@@ -40,7 +41,8 @@ __all__ = [
 ]
 
 
-def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int = 8, seed: int = 0) -> list[SceneSpec]:
+def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int = 8, seed: int = 0,
+                           benign: bool = False) -> list[SceneSpec]:
     """One Mitsuba scene per view of ``case``: same camera, lights, image size and background.
 
     Args:
@@ -48,11 +50,17 @@ def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int 
         spp: samples per pixel.
         max_depth: path depth.
         seed: sampler seed of view 0 (view ``i`` gets ``seed + i``).
+        benign: the scenes of the case's benign mesh instead of its adversarial one.
 
     Returns:
         The scene specs, in view order.
+
+    Raises:
+        ValueError: ``benign`` for a case without a benign mesh.
     """
-    obj = MeshObject.from_mesh(case.mesh)
+    if benign and case.benign_mesh is None:
+        raise ValueError(f"case {case.case_id} has no benign_mesh to render")
+    obj = MeshObject.from_mesh(case.benign_mesh if benign else case.mesh)
     return [scene_spec(obj, rec, lights=rec, image_size=case.image_size, spp=spp, max_depth=max_depth,
                        background=case.background, seed=seed + i) for i, rec in enumerate(case.views)]
 
@@ -61,6 +69,7 @@ def evaluate_case(
     case: TransferCase,
     victim: Any,
     mitsuba_images: Sequence[MitsubaImage],
+    benign_images: Optional[Sequence[MitsubaImage]] = None,
 ) -> list[ControlledResult]:
     """Evaluate one case on its meshadv renders and its Mitsuba renders (classifier victims).
 
@@ -68,13 +77,21 @@ def evaluate_case(
         case: the case.
         victim: a classifier victim.
         mitsuba_images: the case's Mitsuba renders, one per view (:func:`mitsuba_specs_for_case`).
+        benign_images: Mitsuba's renders of the case's benign mesh, one per view (``benign=True``), or ``None``.
 
     Returns:
         One :class:`~meshadv.transfer.results.ControlledResult` per view: ``success_meshadv`` / ``success_mitsuba``
         (targeted when the case has a target, else untargeted), ``untargeted_meshadv`` / ``untargeted_mitsuba``, the
-        top-1 labels and the Mitsuba variant.
+        top-1 labels, the Mitsuba variant and, with ``benign_images``, ``benign_correct_mitsuba`` and
+        ``top1_benign_mitsuba`` (the benign control).
+
+    Raises:
+        ValueError: ``benign_images`` of another number of views.
     """
+    if benign_images is not None and len(benign_images) != len(case.views):
+        raise ValueError(f"benign_images has {len(benign_images)} renders for {len(case.views)} views")
     untargeted, targeted = classifier_criteria(victim, case.true_class, case.target)
+    control = None if benign_images is None else benign_verdicts(victim, benign_images, untargeted)
     ours, images_ours = _meshadv_verdicts(case, victim, untargeted, targeted)
     images_theirs = images_tensor(mitsuba_images)
     theirs = _victim_verdicts(victim, images_theirs, untargeted, targeted)
@@ -91,6 +108,8 @@ def evaluate_case(
             mean_abs_image_difference=float(diff[v]),
             variant=mitsuba_images[v].variant,
             benign_correct=case.benign_correct,
+            benign_correct_mitsuba=None if control is None else control.correct[v],
+            top1_benign_mitsuba=None if control is None else control.top1[v],
         )
         for v in range(len(case.views))
     ]
@@ -155,6 +174,10 @@ def controlled_transfer(
 ) -> list[ControlledResult]:
     """Re-render each case with Mitsuba under its own camera and lights and test the victims (Table 3 / Fig. 5).
 
+    A case with a ``benign_mesh`` (every case of :func:`cases_from_store` and of ``meshadv transfer attack``) has
+    its benign mesh rendered too, under the same views: the control of untargeted transfer
+    (:mod:`meshadv.transfer.benign_control`).
+
     Args:
         cases: the adversarial meshes (see :func:`cases_from_store`).
         spp: Mitsuba samples per pixel.
@@ -163,7 +186,7 @@ def controlled_transfer(
         timeout: seconds per case.
         victim_loader: ``name -> victim`` (default ``meshadv.victims.load_victim``); victims are loaded once.
         image_dir: when given, Mitsuba renders are saved there as ``<name>_v<view>.png`` (``TransferCase.name``,
-            else its ``case_id``).
+            else its ``case_id``), the benign control's as ``<name>_benign_v<view>.png``.
         on_error: ``"record"`` keeps going and records a result with an ``error`` for a failed render; ``"raise"``
             re-raises.
 
@@ -186,19 +209,26 @@ def controlled_transfer(
     victims: dict[str, Any] = {}
     rows: list[ControlledResult] = []
     for case in cases:
+        specs = mitsuba_specs_for_case(case, spp=spp, max_depth=max_depth)
+        if case.benign_mesh is not None:  # the benign control, in the same child process
+            specs += mitsuba_specs_for_case(case, spp=spp, max_depth=max_depth, benign=True)
         try:
-            images = render_scenes(mitsuba_specs_for_case(case, spp=spp, max_depth=max_depth), variant=variant,
-                                   timeout=timeout)
+            rendered = render_scenes(specs, variant=variant, timeout=timeout)
         except MitsubaRenderError as exc:
             if on_error == "raise":
                 raise
             rows.extend(_failed(case, exc))
             continue
+        views = len(case.views)
+        images, benign = rendered[:views], (rendered[views:] if case.benign_mesh is not None else None)
         if case.victim not in victims:
             victims[case.victim] = victim_loader(case.victim)
-        rows.extend(evaluate_case(case, victims[case.victim], images))
+        rows.extend(evaluate_case(case, victims[case.victim], images, benign))
         if image_dir is not None:
-            save_images(images, Path(image_dir), case.name or case.case_id)
+            stem = case.name or case.case_id
+            save_images(images, Path(image_dir), stem)
+            if benign is not None:
+                save_images(benign, Path(image_dir), f"{stem}_benign")
     return rows
 
 

@@ -77,6 +77,9 @@ class ControlledResult:
         mean_abs_image_difference: mean absolute difference of the two renders (linear values in [0, 1]).
         variant: the Mitsuba variant that rendered the view.
         benign_correct: whether the victim classified the benign render correctly (from the sweep), if known.
+        benign_correct_mitsuba: whether the victim classifies Mitsuba's render of the benign mesh on this view as
+            the true class (``None``: the case had no benign mesh); untargeted transfer counts only where it does.
+        top1_benign_mitsuba: the victim's top-1 class name on that render.
         error: why the Mitsuba render failed, ``None`` when it did not.
     """
 
@@ -95,13 +98,23 @@ class ControlledResult:
     mean_abs_image_difference: Optional[float] = None
     variant: Optional[str] = None
     benign_correct: Optional[bool] = None
+    benign_correct_mitsuba: Optional[bool] = None
+    top1_benign_mitsuba: Optional[str] = None
     error: Optional[str] = None
 
+    @property
+    def untargeted_counted(self) -> Optional[bool]:
+        """The untargeted transfer of this view as the tables count it: ``untargeted_mitsuba`` where the benign
+        Mitsuba render is right, ``None`` (not counted) where it is wrong or was not rendered."""
+        return self.untargeted_mitsuba if self.benign_correct_mitsuba else None
+
     def to_record(self) -> dict[str, Any]:
-        """The row as a JSON-able dict (the ``transfer`` table's record); ``error`` only when the render failed."""
+        """The row as a JSON-able dict (the ``transfer`` table's record); ``error`` only when the render failed, the
+        benign control's ``benign_correct_mitsuba`` / ``top1_benign_mitsuba`` only when it was rendered."""
         record = {f.name: getattr(self, f.name) for f in fields(self)}
-        if record["error"] is None:
-            del record["error"]
+        for optional in ("error", "benign_correct_mitsuba", "top1_benign_mitsuba"):
+            if record[optional] is None:
+                del record[optional]
         return record
 
 

@@ -34,13 +34,19 @@ def transfer_table(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """The paper's Table 3: success rates per victim and attack type, untargeted and targeted.
 
     A targeted row counts for the targeted rate (top-1 in the target group); every row also counts for the untargeted
-    rate through ``untargeted_meshadv`` / ``untargeted_mitsuba`` (top-1 not in the true group).
+    rate through ``untargeted_meshadv`` / ``untargeted_mitsuba`` (top-1 not in the true group). Untargeted transfer
+    to Mitsuba counts only on views whose benign mesh Mitsuba renders the victim classifies right
+    (``benign_correct_mitsuba``, the benign control): a benign object the victim already gets wrong there is no
+    transfer. Groups whose rows carry no control at all (older runs) fall back to every row, and say so with
+    ``n_benign_mitsuba_checked`` 0.
 
     Returns:
-        One dict per (victim, perturbation): ``n``, ``untargeted_meshadv``, ``untargeted_mitsuba``,
-        ``targeted_meshadv``, ``targeted_mitsuba`` (rates in [0, 1] or None), ``n_benign_correct`` (rows whose benign
-        render the victim classified correctly) and ``untargeted_mitsuba_benign_correct`` (the untargeted rate over
-        those rows only: a misclassified benign object makes untargeted success trivial).
+        One dict per (victim, perturbation): ``n``, ``untargeted_meshadv``, ``untargeted_mitsuba`` (controlled, see
+        above), ``targeted_meshadv``, ``targeted_mitsuba`` (rates in [0, 1] or None), ``n_benign_mitsuba_checked``
+        (rows with the control) and ``n_benign_mitsuba_correct`` (rows whose benign Mitsuba render is right),
+        ``untargeted_mitsuba_uncontrolled`` (the rate over every row, for comparison), ``n_benign_correct`` (rows
+        whose benign meshadv render the sweep found right) and ``untargeted_mitsuba_benign_correct`` (the
+        controlled rate over those rows only).
     """
     groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
     for row in rows:
@@ -48,18 +54,23 @@ def transfer_table(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     table = []
     for (victim, perturbation), items in sorted(groups.items()):
         targeted = [r for r in items if r.get("target")]
+        checked = [r for r in items if r.get("benign_correct_mitsuba") is not None]
+        counted = [r for r in items if r.get("benign_correct_mitsuba")] if checked else items
         table.append(
             {
                 "victim": victim,
                 "perturbation": perturbation,
                 "n": len(items),
                 "untargeted_meshadv": _rate([r.get("untargeted_meshadv") for r in items]),
-                "untargeted_mitsuba": _rate([r.get("untargeted_mitsuba") for r in items]),
+                "untargeted_mitsuba": _rate([r.get("untargeted_mitsuba") for r in counted]),
                 "targeted_meshadv": _rate([r.get("success_meshadv") for r in targeted]),
                 "targeted_mitsuba": _rate([r.get("success_mitsuba") for r in targeted]),
+                "n_benign_mitsuba_checked": len(checked),
+                "n_benign_mitsuba_correct": sum(1 for r in checked if r.get("benign_correct_mitsuba")),
+                "untargeted_mitsuba_uncontrolled": _rate([r.get("untargeted_mitsuba") for r in items]),
                 "n_benign_correct": sum(1 for r in items if r.get("benign_correct")),
                 "untargeted_mitsuba_benign_correct": _rate(
-                    [r.get("untargeted_mitsuba") for r in items if r.get("benign_correct")]
+                    [r.get("untargeted_mitsuba") for r in counted if r.get("benign_correct")]
                 ),
             }
         )
