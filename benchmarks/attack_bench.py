@@ -28,19 +28,17 @@ target is attacked alone for up to ``--max-steps`` steps, stopping at the first 
 reports successes within each of ``--budgets`` steps, the steps to success and the Laplacian / displacement of the
 applied flow at success.
 
-With ``--split --step-workers 1 2`` a whole step (render, victim, objective, render backward; the attack's own step
+With ``--split --whole-steps`` a whole step (render, victim, objective, render backward; the attack's own step
 code, Adam's objective, no update) is timed instead, wall time, for each variant in one run with the variants
-interleaved in bursts of ``--burst`` consecutive steps (the first of a burst not recorded): ``serial tN``
-(``step_workers=1``, torch and the renderer on N threads, for each N of ``--torch-threads``), ``workers W``
-(``step_workers=W``: W threads each rendering and running the victim on its chunk of targets, torch on threads/W
-threads each) and ``old serial tN`` (the serial step with the antialias pooling as it was, ``F.avg_pool2d``). The
-victim-alone ceilings are timed the same way: at each of ``--torch-threads`` and split
-over W workers. The renderer share is the part of the step's wall time not hidden behind the victim: ``1 - victim
-alone (same threads or workers) / step``. ``--attack-steps N`` adds whole attacks (``ShapeAttack`` /
+interleaved in bursts of ``--burst`` consecutive steps (the first of a burst not recorded): ``serial tN`` (torch and
+the renderer on N threads, for each N of ``--torch-threads``) and ``old serial tN`` (the step with the antialias
+pooling as it was, ``F.avg_pool2d``). The victim-alone ceilings are timed the same way, at each of
+``--torch-threads``. The renderer share is the part of the step's wall time not hidden behind the victim: ``1 -
+victim alone (same threads) / step``. ``--attack-steps N`` adds whole attacks (``ShapeAttack`` /
 ``TextureAttack`` of N steps, no early stop) per variant, alternating, and reports their target-steps/s.
 
 ``--pool-bench`` times only the antialias pooling, forward and backward, the renderer's box filter against
-``F.avg_pool2d`` as it was (batch ``--targets x --views``, ``--image-size`` times ``--antialias`` pixels, RGBA, one
+torch's ``F.avg_pool2d`` (batch ``--targets x --views``, ``--image-size`` times ``--antialias`` pixels, RGBA, one
 torch thread, wall time, median of ``--steps`` interleaved repetitions).
 
 Usage:
@@ -50,7 +48,7 @@ Usage:
         --targets 3 --max-steps 200 --budgets 60 200 --smoothing 0 8 --shape-lr 5e-3 2e-2
     python benchmarks/attack_bench.py --split --meshes aeroplane/03 --views 1 --image-size 224 --antialias 2 \\
         --targets 6 --steps 10
-    python benchmarks/attack_bench.py --split --step-workers 2 --torch-threads 1 2 --meshes aeroplane/03 --views 1 \\
+    python benchmarks/attack_bench.py --split --whole-steps --torch-threads 1 2 --meshes aeroplane/03 --views 1 \\
         --image-size 224 --antialias 2 --targets 6 --steps 10 --attack-steps 10
 
 Prints a Markdown table (paste it into benchmarks/RESULTS.md with the command line) and writes a JSON record.
@@ -263,7 +261,7 @@ def step_split(mesh_name: str, perturb: str, args: argparse.Namespace,
 
 
 def _old_downsample(t: torch.Tensor, k: int, num_threads: int = 0) -> torch.Tensor:
-    """The antialias pooling as it was before the box filter: ``F.avg_pool2d`` on the channels-last view."""
+    """The antialias pooling done by torch instead of the box filter: ``F.avg_pool2d`` on the channels-last view."""
     import torch.nn.functional as F
 
     t = t.permute(0, 3, 1, 2)
@@ -271,20 +269,10 @@ def _old_downsample(t: torch.Tensor, k: int, num_threads: int = 0) -> torch.Tens
 
 
 class _Variant:
-    """One way of running a step: serial at ``threads`` torch threads or split over ``workers``; ``old_pool``: the
-    antialias pooling as it was."""
+    """One way of running a step: at ``threads`` torch threads; ``old_pool``: the antialias pooling as it was."""
 
-    def __init__(self, label: str, threads: int, workers: int, old_pool: bool = False) -> None:
-        from meshadv.attacks.pipeline import StepWorkers
-
-        self.label, self.threads, self.workers, self.old_pool = label, threads, workers, old_pool
-        # kept for the whole run, as an attack keeps its workers for all its steps (fresh threads start cold:
-        # their own malloc arenas and oneDNN caches)
-        self.pool = StepWorkers(workers, max(1, threads // workers)) if workers > 1 else None
-
-    def close(self) -> None:
-        if self.pool is not None:
-            self.pool.close()
+    def __init__(self, label: str, threads: int, old_pool: bool = False) -> None:
+        self.label, self.threads, self.old_pool = label, threads, old_pool
 
     def __enter__(self) -> "_Variant":
         from meshadv.render import renderer
@@ -304,12 +292,8 @@ class _Variant:
 def _variants(args: argparse.Namespace) -> List[_Variant]:
     out = []
     for n in args.torch_threads:
-        out.append(_Variant(f"old serial t{n}", n, 1, old_pool=True))
-        out.append(_Variant(f"serial t{n}", n, 1))
-    most = max(args.torch_threads)
-    for w in args.step_workers:
-        if w > 1:
-            out.append(_Variant(f"workers {w}", most, w))
+        out.append(_Variant(f"old serial t{n}", n, old_pool=True))
+        out.append(_Variant(f"serial t{n}", n))
     return out
 
 
@@ -317,8 +301,7 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
     """Wall time of whole attack steps (the attack's own step code) per variant, steps interleaved, beside the
     victim-alone ceilings; optionally whole attacks' target-steps/s. Returns a JSON-able record."""
     from meshadv.attacks import TargetedMisclassification
-    from meshadv.attacks.base import _Call
-    from meshadv.attacks.pipeline import split_images
+    from meshadv.attacks.loop import AttackCall, attack_step
     from meshadv.attacks.update import make_update_rule
     from meshadv.mesh.adjacency import vertex_edges
 
@@ -326,10 +309,10 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
     setup = RenderSetup(image_size=args.image_size, antialias=args.antialias)
     t, num_v = args.targets, args.views
     attack = _make_attack(perturb, steps=1)
-    call = _Call(mesh, views.detach(), victim, setup, vertex_edges(mesh.faces).long())
+    call = AttackCall(mesh, views.detach(), victim, setup, vertex_edges(mesh.faces).long())
     crits = [TargetedMisclassification(c).bind(victim) for c in range(1, t + 1)]
     rule = make_update_rule("adam", attack=attack, num_targets=t)
-    params = attack._init_params(mesh, t).detach().clone()
+    params = attack.initial_params(mesh, t).detach().clone()
     if perturb == "shape":
         params = _diverged(params)
     params.requires_grad_(True)
@@ -352,10 +335,7 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
             with v:
                 for burst in range(args.burst):  # consecutive steps; the first after a switch is not recorded
                     t0, c0 = time.perf_counter(), time.process_time()
-                    if v.pool is None:
-                        attack._serial_step(params[idx], idx, crits, call, call.views, rule)
-                    else:
-                        attack._pipelined_step(params, idx, crits, call, call.views, rule, v.pool)
+                    attack_step(attack, params[idx], idx, crits, call, call.views, rule)
                     t1, c1 = time.perf_counter(), time.process_time()
                     params.grad = None
                     if step > 0 and (burst > 0 or args.burst == 1):
@@ -364,15 +344,9 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
                 key = f"victim alone {v.label.replace('serial ', '')}"
                 for burst in range(0 if v.old_pool else args.burst):
                     t2 = time.perf_counter()
-                    if v.pool is None:
-                        victim_alone(t * num_v)
-                    else:
-                        v.pool.map(victim_alone, [sum((k1 - k0) * (v1 - v0) for k0, k1, v0, v1 in blocks)
-                                                  for blocks in split_images(t, num_v, v.workers)])
+                    victim_alone(t * num_v)
                     if step > 0 and (burst > 0 or args.burst == 1):
                         ceil.setdefault(key, []).append(time.perf_counter() - t2)
-    for v in variants:
-        v.close()
     med = {k: float(statistics.median(x)) for k, x in steps.items()}
     med_cpu = {k: float(statistics.median(x)) for k, x in cpu.items()}
     med_ceil = {k: float(statistics.median(x)) for k, x in ceil.items()}
@@ -387,7 +361,7 @@ def pipeline_split(mesh_name: str, perturb: str, args: argparse.Namespace, victi
         for rep in range(args.attack_reps):
             for v in variants:
                 with v:
-                    attack_v = _make_attack(perturb, steps=args.attack_steps, step_workers=max(1, v.workers))
+                    attack_v = _make_attack(perturb, steps=args.attack_steps)
                     t0 = time.perf_counter()
                     result = attack_v(mesh, views, victim, [TM(c) for c in range(1, t + 1)], setup=setup)
                     runs.setdefault(v.label, []).append(result.steps * t / (time.perf_counter() - t0))
@@ -541,15 +515,14 @@ def main(argv: List[str]) -> int:
     parser.add_argument("--cpu-time", action="store_true",
                         help="--split: process CPU time instead of wall time (steadier on a busy machine; run with "
                              "OMP_NUM_THREADS=1 RAYON_NUM_THREADS=1 so that it is also the 1-thread wall time)")
-    parser.add_argument("--step-workers", type=int, nargs="+", default=None,
-                        help="--split: time whole steps, serial and split over these worker counts (see above)")
+    parser.add_argument("--whole-steps", action="store_true",
+                        help="--split: time whole steps at each of --torch-threads (see above)")
     parser.add_argument("--torch-threads", type=int, nargs="+", default=[1, 2],
-                        help="--split --step-workers: torch thread counts of the serial variants (the largest is "
-                             "shared by the workers)")
+                        help="--split --whole-steps: torch thread counts of the variants")
     parser.add_argument("--attack-steps", type=int, default=0,
-                        help="--split --step-workers: also run whole attacks of this many steps per variant")
+                        help="--split --whole-steps: also run whole attacks of this many steps per variant")
     parser.add_argument("--burst", type=int, default=3,
-                        help="--split --step-workers: consecutive steps per variant and round (the first of each "
+                        help="--split --whole-steps: consecutive steps per variant and round (the first of each "
                              "burst is not recorded when > 1)")
     parser.add_argument("--pool-bench", action="store_true",
                         help="only time the antialias pooling (box filter vs F.avg_pool2d)")
@@ -586,7 +559,7 @@ def main(argv: List[str]) -> int:
         for name, r in record.items():
             print(f"{name}: forward {1e3 * r['forward_s']:.1f} ms, backward {1e3 * r['backward_s']:.1f} ms")
         return 0
-    if args.split and args.step_workers:
+    if args.split and args.whole_steps:
         loads = [os.getloadavg()[0]]
         start = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
         records = [pipeline_split(m, p, args, victim) for m in args.meshes for p in args.perturb]

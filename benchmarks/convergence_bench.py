@@ -1,4 +1,4 @@
-"""Convergence benchmark (issue 14): success rate and distance at success against optimiser steps, per method.
+"""Convergence benchmark: success rate and distance at success against optimiser steps, per method.
 
 Benchmark set: the first ``--instances`` (default 2) configurations of each of the 7 classes of the packaged
 PASCAL3D+ rendering set (the instances of ``configs/paper_small.toml``), meshes resampled to about 4000 faces,
@@ -33,7 +33,7 @@ Usage:
     python benchmarks/convergence_bench.py --methods ddn small --perturbations texture shape
     python benchmarks/convergence_bench.py --report --plots benchmarks/convergence
     python benchmarks/convergence_bench.py --methods ddn --perturbations shape --only bottle/1 sofa/0 \
-        --method-options '{"momentum": 0.9}' --db benchmarks/convergence/h1/momentum.sqlite
+        --method-options '{"edge_gradient": 1.0}' --db /tmp/convergence_edge_gradient1.sqlite
     python benchmarks/convergence_bench.py --report --only bottle/1 sofa/0   # the default rows of those instances
 """
 
@@ -58,9 +58,9 @@ ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_DB = ROOT / "benchmarks" / "convergence" / "runs.sqlite"
 CLASSES = ("aeroplane", "bicycle", "boat", "bottle", "chair", "diningtable", "sofa")
 METHODS = ("paper", "small", "ddn")
-#: Step budgets of the issue's targets: shape <= 300, texture <= 100 steps per target.
+#: Step budgets the benchmark reports at: shape <= 300, texture <= 100 steps per target.
 STEP_TARGETS = {"shape": 300, "texture": 100}
-#: Steps of the ddn runs (the step budgets of the issue's targets).
+#: Steps of the ddn runs (the step budgets above).
 DDN_STEPS = STEP_TARGETS
 
 
@@ -451,7 +451,7 @@ def target_curves(row: Dict[str, Any], max_steps: int) -> Tuple[List[List[bool]]
 
 def summarize(rows: Sequence[Dict[str, Any]], method: str, perturbation: str,
               budget: Optional[int] = None) -> Optional[Dict[str, Any]]:
-    """The issue's measures for one method and perturbation within ``budget`` steps per target.
+    """The benchmark's measures for one method and perturbation within ``budget`` steps per target.
 
     A partial row (a run stopped early, ``row["partial"]``) counts only for budgets it reached.
 
@@ -777,7 +777,7 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     parser.add_argument("--only", nargs="+", type=_instance, default=None, metavar="CLASS/INDEX",
                         help="run only these instances of the benchmark set (e.g. bottle/1 sofa/0)")
     parser.add_argument("--method-options", type=_json_object, default=None, metavar="JSON",
-                        help="ddn's method_options, e.g. '{\"momentum\": 0.9}' (use a separate --db per setting: "
+                        help="ddn's method_options, e.g. '{\"smoothness\": 1.0}' (use a separate --db per setting: "
                              "rows are keyed by method, perturbation and instance only)")
     parser.add_argument("--attack-options", type=_json_object, default=None, metavar="JSON",
                         help="extra attack keyword arguments, e.g. '{\"loss\": \"cw\"}' (a separate --db too)")

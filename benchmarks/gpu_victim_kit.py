@@ -1,9 +1,8 @@
-"""Issue 15's GPU-victim benchmark in one call of a lent GPU machine: ``prepare`` here, ``run`` there.
+"""The GPU-victim attack benchmark in one call of a GPU machine: ``prepare`` here, ``run`` there.
 
-A lent device machine (the workplace's ``device`` tool) gets a copy of the working tree and nothing else: no
-network, no ``../shared``, and its own Python (3.12 with torch and CUDA, numpy, scipy, tqdm, ...) without meshadv's
-other requirements. Device time is short (minutes per task, machine start included), so everything is gathered here
-first and the run is one command:
+The GPU machine is assumed to get a copy of the working tree and nothing else: no network, no ``../shared``, and its
+own Python (3.12 with torch and CUDA, numpy, scipy, tqdm, ...) without meshadv's other requirements. Its time is
+short (minutes, machine start included), so everything is gathered here first and the run is one command:
 
 * ``prepare`` (here) fills ``.devkit/`` (ignored by git): wheels of the pure-Python requirements the device image
   lacks (:data:`CARRIED`, pinned as in ``requirements.txt``, fetched for the device's Python), the mesh files the
@@ -12,7 +11,7 @@ first and the run is one command:
   It prints the device call to make.
 * ``run`` (there) installs the wheels into a temporary folder, checks that every module the benchmark needs
   imports, records the machine (``$OUT/machine.json``), then runs :data:`RUNS` (``benchmarks/attack_bench.py``'s
-  step split with the victim on the GPU, on all views, pipelined, and on the CPU for the same machine's comparison)
+  step split with the victim on the GPU, on all views, whole steps, and on the CPU for the same machine's comparison)
   one after another, each with its own timeout, writing each JSON record and the whole log to ``$OUT`` as it goes,
   so that a run cut short still returns what finished.
 
@@ -56,17 +55,17 @@ DEVICE_PYTHON = "3.12"
 _SPLIT = ["--split", "--meshes", "aeroplane/03", "--image-size", "224", "--antialias", "2", "--targets", "6",
           "--perturb", "shape", "texture"]
 #: ``run``'s benchmark runs: (name, attack_bench arguments with ``{device}``, timeout in seconds). The first is the
-#: CPU split's setting (``benchmarks/RESULTS.md``) with the victim on the GPU.
+#: CPU split's setting (``benchmarks/RESULTS.md``, "Attack step split") with the victim on the GPU.
 RUNS: Tuple[Tuple[str, List[str], int], ...] = (
     ("split_1view", [*_SPLIT, "--views", "1", "--steps", "9", "--device", "{device}"], 120),
     ("split_6views", [*_SPLIT, "--views", "6", "--steps", "5", "--device", "{device}"], 120),
-    ("pipelined", [*_SPLIT, "--views", "1", "--steps", "3", "--burst", "3", "--step-workers", "2", "4",
-                   "--torch-threads", "{threads}", "--device", "{device}"], 150),
+    ("whole_steps", [*_SPLIT, "--views", "1", "--steps", "3", "--burst", "3", "--whole-steps",
+                     "--torch-threads", "{threads}", "--device", "{device}"], 150),
     ("split_1view_cpu_victim", [*_SPLIT, "--views", "1", "--steps", "5", "--device", "cpu"], 90),
 )
 #: ``run --quick``: the same runs at a size any machine finishes in seconds (option -> its values).
 _QUICK = {"--image-size": ["64"], "--targets": ["2"], "--views": ["1"], "--steps": ["1"], "--burst": ["2"],
-          "--step-workers": ["2"], "--perturb": ["shape"]}
+          "--perturb": ["shape"]}
 
 
 def _normalized(name: str) -> str:

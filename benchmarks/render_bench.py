@@ -532,7 +532,7 @@ def main(argv: list[str] | None = None) -> int:
     load_end = os.getloadavg()[0]
     cmd = "python benchmarks/render_bench.py" + (" " + " ".join(argv if argv is not None else sys.argv[1:])).rstrip()
     lines = [
-        "## Renderer (benchmarks/render_bench.py)",
+        "## Renderer (`benchmarks/render_bench.py`)",
         "",
         f"Command: `{cmd.strip()}`  ",
         f"Machine: {info['cpu']}, {info['cores']} cores visible (shared with other jobs), {info['platform']}; "

@@ -192,7 +192,7 @@ def test_blackbox_resume_needs_a_database(monkeypatch: pytest.MonkeyPatch) -> No
 
 
 def test_blackbox_rows_say_whether_the_attack_was_interrupted() -> None:
-    from meshadv.transfer._pipeline import _attack_record
+    from meshadv.transfer.blackbox import _attack_record
 
     attack = SimpleNamespace(config=lambda: {"steps": 100, "lr": 0.01, "lambda_perceptual": 0.0, "loss": "ce",
                                              "kappa": 0.0, "early_stop": None})

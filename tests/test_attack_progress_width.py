@@ -1,4 +1,4 @@
-"""The attack's progress bar keeps its step counter and ETA on an 80-column terminal (issue 18)."""
+"""The attack's progress bar keeps its step counter and ETA on an 80-column terminal."""
 
 from __future__ import annotations
 

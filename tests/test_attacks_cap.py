@@ -1,7 +1,7 @@
 """``max_distortion`` caps the ddn budget: a capped run never returns a success above the cap (stand-in victim).
 
 The cap is in the attack's own distance: the Eq. 4 *sum* (``laplacian_sum``) for shape, not the per-pair mean the
-paper's tables use, and the face-colour RMSE for texture (README, "Forbidding broken meshes").
+paper's tables use, and the face-colour RMSE for texture (docs/guide/attacks.md, "A ceiling on the distortion").
 """
 
 from __future__ import annotations

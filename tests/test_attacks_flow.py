@@ -107,9 +107,9 @@ def test_smoothing_zero_is_the_papers_parametrisation() -> None:
     params = torch.randn(3, 5, 3, generator=torch.Generator().manual_seed(3))
     attack = ShapeAttack(smoothing=0)
     assert attack.displacement(params, QUAD_EDGES) is params
-    verts, colors = attack._apply(params, mesh, QUAD_EDGES)
+    verts, colors = attack.apply(params, mesh, QUAD_EDGES)
     assert torch.equal(verts, mesh.vertices.unsqueeze(0) + params) and colors is mesh.face_colors
-    torch.testing.assert_close(attack._distance(params, mesh, QUAD_EDGES), laplacian_flow_loss(params, QUAD_EDGES))
+    torch.testing.assert_close(attack.distance(params, mesh, QUAD_EDGES), laplacian_flow_loss(params, QUAD_EDGES))
     # the old max_step behaviour: a clamp of dv = params
     bounded = ShapeAttack(smoothing=0, max_step=0.1).displacement(params, QUAD_EDGES)
     assert torch.equal(bounded, params.clamp(-0.1, 0.1))
@@ -119,15 +119,15 @@ def test_losses_and_distance_are_those_of_the_applied_displacement() -> None:
     mesh = _quad_mesh()
     params = torch.randn(2, 5, 3, generator=torch.Generator().manual_seed(4))
     attack = ShapeAttack(smoothing=3, max_step=0.3)
-    verts, _ = attack._apply(params, mesh, QUAD_EDGES)
+    verts, _ = attack.apply(params, mesh, QUAD_EDGES)
     applied = verts - mesh.vertices
     torch.testing.assert_close(applied, smooth_flow(params, QUAD_EDGES, 3).clamp(-0.3, 0.3))
     assert float(applied.abs().max()) <= 0.3 + 1e-6
     expected = laplacian_flow_loss(applied, QUAD_EDGES)
     assert not torch.allclose(expected, laplacian_flow_loss(params, QUAD_EDGES))  # the test can tell them apart
-    torch.testing.assert_close(attack._distance(params, mesh, QUAD_EDGES), expected)
+    torch.testing.assert_close(attack.distance(params, mesh, QUAD_EDGES), expected)
     empty = torch.empty(0)
-    torch.testing.assert_close(attack._perceptual(params, mesh, QUAD_EDGES, empty, empty, 1), expected)
+    torch.testing.assert_close(attack.perceptual(params, mesh, QUAD_EDGES, empty, empty, 1), expected)
     assert attack.config()["smoothing"] == 3 and "smoothing=3" in repr(attack)
 
 

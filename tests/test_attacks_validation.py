@@ -1,5 +1,5 @@
 """Attack hyper-parameters are checked at construction: wrong types raise TypeError, bad values ValueError, each
-naming the argument (issue 17's list); masks, the update rule and the perturbation registry likewise."""
+naming the argument; masks, the update rule and the perturbation registry likewise."""
 
 from __future__ import annotations
 

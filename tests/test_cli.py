@@ -51,7 +51,7 @@ def test_attack_rejects_bad_input(tmp_path: Path) -> None:
     assert "does not exist" in unwrapped(result.output)
     _require_renderer()
     _require_victim()
-    result = runner.invoke(app, ["attack", "builtin:cube", "--perturb", "colour", "--target", "1", "-o",
+    result = runner.invoke(app, ["attack", "builtin:cube", "--perturbation", "colour", "--target", "1", "-o",
                                  str(tmp_path / "out")])
     assert result.exit_code == 2 and "perturb" in unwrapped(result.output)
     result = runner.invoke(app, ["attack", "builtin:cube", "--target", "1", "--untargeted", "2", "-o",
@@ -77,7 +77,7 @@ def test_attack_command_writes_result(tmp_path: Path) -> None:
     _require_victim()
     out = tmp_path / "a"
     result = runner.invoke(app, ["attack", "builtin:chair", "--victim", "efficientnet_lite0", "--target", "bicycle",
-                                 "--target", "zebra", "--perturb", "texture", "--views", "2", "--steps", "3",
+                                 "--target", "zebra", "--perturbation", "texture", "--views", "2", "--steps", "3",
                                  "--image-size", "64", "--eval-views", "1", "--quiet", "-o", str(out)])
     assert result.exit_code == 0, result.output
     record = json.loads((out / "result.json").read_text())
@@ -90,8 +90,8 @@ def test_attack_command_writes_result(tmp_path: Path) -> None:
 
 
 def test_attack_smoothing_option(tmp_path: Path) -> None:
-    result = runner.invoke(app, ["attack", "builtin:cube", "--perturb", "texture", "--smoothing", "2", "--target", "1",
-                                 "-o", str(tmp_path / "t")])
+    result = runner.invoke(app, ["attack", "builtin:cube", "--perturbation", "texture", "--smoothing", "2", "--target",
+                                 "1", "-o", str(tmp_path / "t")])
     assert result.exit_code == 2 and "--smoothing" in result.output
     _require_renderer()
     _require_victim()
@@ -115,25 +115,6 @@ def test_attack_method_option(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     record = json.loads((out / "result.json").read_text())
     assert record["config"]["method"] == "ddn" and record["config"]["early_stop"] is None and record["steps"] == 3
-
-
-def test_attack_step_workers_option(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import meshadv.attacks as attacks
-
-    result = runner.invoke(app, ["attack", "builtin:cube", "--step-workers", "0", "--target", "1",
-                                 "-o", str(tmp_path / "w0")])
-    assert result.exit_code == 2 and "--step-workers" in result.output
-    _require_renderer()
-    _require_victim()
-    built = []  # the option must reach the attack that runs (it is not part of the recorded config)
-    real_make_attack = attacks.make_attack
-    monkeypatch.setattr(attacks, "make_attack", lambda *a, **k: built.append(real_make_attack(*a, **k)) or built[-1])
-    out = tmp_path / "w2"
-    result = runner.invoke(app, ["attack", "builtin:chair", "--target", "bicycle", "--views", "2", "--steps", "2",
-                                 "--step-workers", "2", "--image-size", "64", "--quiet", "-o", str(out)])
-    assert result.exit_code == 0, result.output
-    assert json.loads((out / "result.json").read_text())["steps"] == 2
-    assert [attack.step_workers for attack in built] == [2]
 
 
 def test_demo_runs_end_to_end(tmp_path: Path) -> None:

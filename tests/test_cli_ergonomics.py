@@ -1,4 +1,4 @@
-"""Command-line ergonomics (issue 18): one-line errors, ranges, victim lists, the input frame, comparison images."""
+"""Command-line ergonomics: one-line errors, ranges, victim lists, the input frame, comparison images."""
 
 from __future__ import annotations
 
@@ -119,7 +119,7 @@ def test_attack_saves_the_input_frame_and_a_comparison(tmp_path: Path, monkeypat
     assert (out / "comparison.png").stat().st_mode & 0o777 == 0o666 & ~_umask()
 
     pytest.importorskip("mitsuba", reason="Mitsuba 3 not installed (pip install 'meshadv[transfer]')")
-    from meshadv.commands._single_transfer import transfer_attack_folder
+    from meshadv.transfer.controlled import transfer_attack_folder
 
     rows = transfer_attack_folder(out, spp=4, max_depth=2, victim_loader=lambda name: PooledLinearClassifier())
     assert [r.view for r in rows] == [0, 1]

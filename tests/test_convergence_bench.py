@@ -19,25 +19,25 @@ def _bench() -> ModuleType:
 
 def test_method_and_attack_options_reach_the_attack() -> None:
     cb = _bench()
-    attack = cb.make_attack("ddn", "shape", {"momentum": 0.5, "smoothness": 0.3}, {"loss": "cw"})
+    attack = cb.make_attack("ddn", "shape", {"gamma": 0.5, "smoothness": 0.3}, {"loss": "cw"})
     config = attack.config()
     assert config["method"] == "ddn" and config["steps"] == 300 and config["loss"] == "cw"
-    assert config["method_options"]["momentum"] == 0.5 and config["method_options"]["smoothness"] == 0.3
-    assert cb.make_attack("ddn", "shape").config()["method_options"]["momentum"] == 0.0
+    assert config["method_options"]["gamma"] == 0.5 and config["method_options"]["smoothness"] == 0.3
+    assert cb.make_attack("ddn", "shape").config()["method_options"]["gamma"] == 0.05
     with pytest.raises(ValueError, match="method_options"):
-        cb.make_attack("small", "shape", {"momentum": 0.5})
-    with pytest.raises(ValueError, match="momentum"):
-        cb.make_attack("ddn", "shape", {"momentum": 2.0}).config()
+        cb.make_attack("small", "shape", {"gamma": 0.5})
+    with pytest.raises(ValueError, match="gamma"):
+        cb.make_attack("ddn", "shape", {"gamma": 2.0}).config()
 
 
 def test_command_line_parsers_reject_bad_values() -> None:
     cb = _bench()
     assert cb._instance("sofa/1") == ("sofa", 1)
-    assert cb._json_object('{"momentum": 0.9}') == {"momentum": 0.9}
+    assert cb._json_object('{"gamma": 0.9}') == {"gamma": 0.9}
     for bad in ("sofa", "car/0", "sofa/x"):
         with pytest.raises(argparse.ArgumentTypeError, match="CLASS/INDEX"):
             cb._instance(bad)
-    for bad, match in (("[1]", "must be a JSON object"), ("{momentum: 1}", "not valid JSON")):
+    for bad, match in (("[1]", "must be a JSON object"), ("{gamma: 1}", "not valid JSON")):
         with pytest.raises(argparse.ArgumentTypeError, match=match):
             cb._json_object(bad)
 
@@ -45,7 +45,7 @@ def test_command_line_parsers_reject_bad_values() -> None:
 def test_options_need_their_own_database(tmp_path: Path) -> None:
     cb = _bench()
     with pytest.raises(SystemExit, match="own --db"):
-        cb.main(["--methods", "ddn", "--method-options", '{"momentum": 0.9}'])
+        cb.main(["--methods", "ddn", "--method-options", '{"gamma": 0.9}'])
 
 
 def test_only_keeps_the_chosen_instances() -> None:

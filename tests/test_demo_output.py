@@ -1,5 +1,5 @@
 """``meshadv demo`` prints the largest vertex move as a percentage of the bounding-box diagonal, and on the shared
-chair that move is one has to look for (issue 18)."""
+chair that move is one has to look for."""
 
 from __future__ import annotations
 

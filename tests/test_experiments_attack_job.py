@@ -83,7 +83,7 @@ def test_attack_job_required_margin_wraps_the_criterion(tmp_path: Path) -> None:
 
 
 def test_job_context_benign_verdict_is_the_jobs_own_check(tmp_path: Path) -> None:
-    """``JobContext.benign_verdict`` (used by benchmarks/resampled_benign_check.py) gives the verdict the job
+    """``JobContext.benign_verdict`` gives the verdict the job
     records, and a job told to attack only right renders skips exactly when that verdict is wrong."""
     from meshadv.experiments.jobs import JobContext, load_job_mesh, run_attack_job
 

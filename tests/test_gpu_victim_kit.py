@@ -53,10 +53,8 @@ def test_quick_arguments_shrink_every_size_and_fill_the_placeholders() -> None:
         assert "{device}" not in " ".join(args) and "{threads}" not in " ".join(args)
         assert args[args.index("--image-size") + 1] == "64"
         assert args[args.index("--targets") + 1] == "2"
-        if "--step-workers" in args:
-            i = args.index("--step-workers")
-            assert args[i + 1 : i + 3] == ["2", "--torch-threads"]
-            assert args[i + 3] == "16"
+        if "--whole-steps" in args:
+            assert args[args.index("--torch-threads") + 1] == "16"
     full = kit._arguments(kit.RUNS[0][1], "cuda:1", 16, quick=False)
     assert full[full.index("--device") + 1] == "cuda:1" and full[full.index("--image-size") + 1] == "224"
 
@@ -81,14 +79,14 @@ def test_the_kit_runs_its_benchmarks_on_the_cpu(
     shared_data: Path, lite0_victim: object, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # The device path end to end on this machine (victim on the CPU, small sizes), with the kit's own data folder
-    # (the device machine has no shared data) and two of its runs: a step split and the pipelined steps.
+    # (the device machine has no shared data) and two of its runs: a step split and the whole steps.
     for mesh in kit.MESHES:
         source = shared_data / mesh
         if not source.is_file():
             pytest.skip(f"shared mesh {source} is missing")
         (tmp_path / "kit" / "data" / mesh).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(source, tmp_path / "kit" / "data" / mesh)
-    monkeypatch.setattr(kit, "RUNS", tuple(r for r in kit.RUNS if r[0] in ("split_1view", "pipelined")))
+    monkeypatch.setattr(kit, "RUNS", tuple(r for r in kit.RUNS if r[0] in ("split_1view", "whole_steps")))
     out = tmp_path / "out"
     assert kit.run(tmp_path / "kit", out, "cpu", quick=True) == 0
     machine = json.loads((out / "machine.json").read_text())
@@ -96,7 +94,8 @@ def test_the_kit_runs_its_benchmarks_on_the_cpu(
     split = json.loads((out / "split_1view.json").read_text())["records"]
     assert [r["perturb"] for r in split] == ["shape"] and split[0]["device"] == "cpu"
     assert split[0]["render_bwd_s"] > 0 and split[0]["victim_s"] > 0
-    pipelined = json.loads((out / "pipelined.json").read_text())["records"][0]
-    assert "workers 2" in pipelined["step_s"] and pipelined["device"] == "cpu"
+    whole = json.loads((out / "whole_steps.json").read_text())["records"][0]
+    assert any(k.startswith("serial t") for k in whole["step_s"])
+    assert whole["device"] == "cpu"
     log = (out / "log.txt").read_text()
-    assert "## split_1view" in log and "## pipelined" in log and "failed" not in log
+    assert "## split_1view" in log and "## whole_steps" in log and "failed" not in log

@@ -1,4 +1,5 @@
-"""The subpackages of meshadv import each other without cycles, and the layering rules of issue 13 hold.
+"""The subpackages of meshadv import each other without cycles, the modules inside each subpackage import each other
+without cycles, and the layering rules hold.
 
 Read from the source (every ``import`` and ``from ... import``, also inside functions), so a lazy import that would
 close a cycle is caught too.
@@ -69,6 +70,63 @@ def test_no_import_cycle_between_subpackages() -> None:
     for node in sorted(graph):
         if node not in state:
             visit(node, [node])
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = ["meshadv", *rel.parts]
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _find_cycle(graph: Dict[str, Set[str]]) -> list:
+    """One import cycle of ``graph`` (a list of nodes, the first repeated at the end), ``[]`` when there is none."""
+    state: Dict[str, int] = {}
+    for start in sorted(graph):
+        if start in state:
+            continue
+        stack = [(start, iter(sorted(graph.get(start, ()))))]
+        path = [start]
+        state[start] = 1
+        while stack:
+            node, children = stack[-1]
+            nxt = next(children, None)
+            if nxt is None:
+                state[node] = 2
+                stack.pop()
+                path.pop()
+            elif state.get(nxt) == 1:
+                return path[path.index(nxt):] + [nxt]
+            elif nxt not in state:
+                state[nxt] = 1
+                stack.append((nxt, iter(sorted(graph.get(nxt, ())))))
+                path.append(nxt)
+    return []
+
+
+def _module_graph(package: Path) -> Dict[str, Set[str]]:
+    """Imports between the modules of one subpackage (its ``__init__`` left out: it only gathers the public names),
+    read from the source, also inside functions and under ``TYPE_CHECKING``."""
+    modules = {_module_name(p): p for p in package.rglob("*.py") if p.name != "__init__.py"}
+    graph: Dict[str, Set[str]] = {m: set() for m in modules}
+    for name, path in modules.items():
+        for imported in _imports(path):
+            while imported and imported not in modules:
+                imported = imported.rpartition(".")[0]
+            if imported and imported != name:
+                graph[name].add(imported)
+    return graph
+
+
+def test_no_import_cycle_inside_any_subpackage() -> None:
+    packages = sorted(p.parent for p in ROOT.glob("*/__init__.py"))
+    assert len(packages) >= 8
+    cycles = {p.name: _find_cycle(_module_graph(p)) for p in packages}
+    assert {k: v for k, v in cycles.items() if v} == {}
+
+
+def test_the_cycle_finder_finds_a_cycle() -> None:
+    assert _find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == ["a", "b", "c", "a"]
+    assert _find_cycle({"a": {"b"}, "b": set(), "c": {"a", "b"}}) == []
 
 
 def test_layering_rules() -> None:

@@ -99,3 +99,12 @@ def test_cap_parsing_records_and_checks() -> None:
         PerceptibilityCap(max_displacement=-0.1)
     with pytest.raises(TypeError, match="perceptibility_cap"):
         ShapeAttack(perceptibility_cap=0.02)
+
+
+def test_sweeps_pin_the_recommended_cap_for_ddn_and_none_for_the_papers_adam() -> None:
+    from meshadv.experiments.jobs import default_attack_options
+
+    for perturbation in ("shape", "texture"):
+        assert default_attack_options(perturbation, "ddn")["perceptibility_cap"] == DEFAULT_CAP.to_record()
+        assert default_attack_options(perturbation, "adam")["perceptibility_cap"] is None
+        assert default_attack_options(perturbation, None)["perceptibility_cap"] is None  # the class default: Adam

@@ -1,6 +1,7 @@
-"""Every README snippet runs verbatim and does what it says.
+"""Every snippet of the README and the user guide runs verbatim and does what it says.
 
-The snippets are extracted from README.md's fenced ``bash`` and ``python`` blocks. In the default run a real victim
+The snippets are extracted from the fenced ``bash`` and ``python`` blocks of README.md and of each page of
+docs/guide/; a page's Python blocks run in order as one script. In the default run a real victim
 would make them slow, so the tests swap in a stand-in classifier (``tests/stand_in_victims.py``) and a short attack
 budget through monkeypatching, and check that each snippet runs and writes what it says. The ``slow`` test runs the
 Python snippets with the real EfficientNet-Lite0 and their own budgets and checks that the attack succeeds.
@@ -22,7 +23,10 @@ from typing import Any, Iterator, List, Tuple
 import pytest
 from typer.testing import CliRunner
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+#: The documents whose snippets are run: the README, then the user guide's pages.
+DOCUMENTS = [README, *sorted((ROOT / "docs" / "guide").glob("*.md"))]
 
 #: Command prefixes of README bash lines that are not run here, with the reason.
 NOT_RUN = {
@@ -30,12 +34,17 @@ NOT_RUN = {
     "bash scripts/test.sh": "runs this test suite",
     "maturin build": "builds the release wheel (minutes of compilation; the wheel tag is checked by hand)",
     "pip install": "installs software",
+    "meshadv transfer": "needs Mitsuba 3 path tracing or its verdicts (minutes; tests/test_transfer_*.py cover it)",
 }
 
 
-def snippets(language: str) -> List[Tuple[int, str]]:
-    """``(line number, code)`` of README's fenced blocks in ``language``."""
-    text = README.read_text(encoding="utf-8")
+def _name(doc: Path) -> str:
+    return str(doc.relative_to(ROOT))
+
+
+def snippets(language: str, doc: Path = README) -> List[Tuple[int, str]]:
+    """``(line number, code)`` of the fenced blocks in ``language`` of ``doc`` (README.md by default)."""
+    text = doc.read_text(encoding="utf-8")
     found = []
     for match in re.finditer(r"^```(\w+)\n(.*?)^```", text, flags=re.S | re.M):
         if match.group(1) == language:
@@ -43,13 +52,13 @@ def snippets(language: str) -> List[Tuple[int, str]]:
     return found
 
 
-def bash_commands() -> Iterator[Tuple[int, str]]:
-    """Each command of the bash blocks (``a && b`` split, comments dropped), with its block's line number.
+def bash_commands(doc: Path = README) -> Iterator[Tuple[int, str]]:
+    """Each command of ``doc``'s bash blocks (``a && b`` split, comments dropped), with its block's line number.
 
     A command that follows a ``meshadv sweep`` in the same block uses that sweep's products: it is yielded with
     the prefix ``"after-sweep: "`` so that it is skipped with the sweep.
     """
-    for line_no, code in snippets("bash"):
+    for line_no, code in snippets("bash", doc):
         after_sweep = False
         for line in code.splitlines():
             line = line.split("  #")[0].strip()
@@ -109,7 +118,7 @@ def _reason(command: str) -> str:
 
 @pytest.fixture
 def stand_in(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
-    """Run in ``tmp_path`` with a stand-in victim for every name and attacks capped at 3 steps."""
+    """Run in ``tmp_path`` with a stand-in victim for every name and shape and texture attacks capped at 3 steps."""
     from stand_in_victims import PooledLinearClassifier
 
     import meshadv.attacks as attacks
@@ -132,37 +141,94 @@ def stand_in(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
             kwargs["steps"] = min(int(kwargs.get("steps", 3)), 3)
             super().__init__(**kwargs)
 
+    real_texture = attacks.TextureAttack
+
+    class ShortTextureAttack(real_texture):  # type: ignore[misc, valid-type]
+        def __init__(self, **kwargs: Any) -> None:
+            kwargs["steps"] = min(int(kwargs.get("steps", 3)), 3)
+            super().__init__(**kwargs)
+
     monkeypatch.setattr(attacks, "ShapeAttack", ShortShapeAttack)
+    monkeypatch.setattr(attacks, "TextureAttack", ShortTextureAttack)
     real_build = demo.build_demo_attack
     monkeypatch.setattr(demo, "build_demo_attack", lambda steps, seed, *cap: real_build(min(steps, 3), seed, *cap))
     return tmp_path
 
 
-def _run_python_snippets(path: Path) -> dict:
-    """Write the README's Python blocks, in order, to ``path`` and run them as one script."""
-    code = "\n".join(f"# README.md line {n}\n{block}" for n, block in snippets("python"))
+def _run_python_snippets(path: Path, doc: Path = README) -> dict:
+    """Write ``doc``'s Python blocks, in order, to ``path`` and run them as one script."""
+    code = "\n".join(f"# {_name(doc)} line {n}\n{block}" for n, block in snippets("python", doc))
     path.write_text(code, encoding="utf-8")
     return runpy.run_path(str(path), run_name="__main__")
 
 
+def _all_commands() -> List[Tuple[str, int, str]]:
+    """``(document, line number, command)`` of every bash command of the README and the guide."""
+    return [(_name(doc), n, c) for doc in DOCUMENTS for n, c in bash_commands(doc)]
+
+
 def test_readme_has_snippets() -> None:
-    assert len(snippets("python")) >= 2 and len(list(bash_commands())) >= 3
-    leftovers = [c for _, c in bash_commands() if not c.startswith("meshadv") and not _skipped(c)]
-    assert leftovers == [], f"README bash commands neither run by this test nor listed in NOT_RUN: {leftovers}"
+    assert len(snippets("python")) >= 1, "the README has lost its Python example"
+    readme_commands = [c for _, c in bash_commands()]
+    for command in ("bash scripts/install.sh", "meshadv demo -o out/demo", "bash scripts/test.sh"):
+        assert command in readme_commands, f"the README has lost its command {command!r}"
+    assert sum(bool(snippets("python", d) or snippets("bash", d)) for d in DOCUMENTS[1:]) >= 5, \
+        "the user guide's pages show code, which this test runs"
+    leftovers = [(d, c) for d, _, c in _all_commands() if not c.startswith("meshadv") and not _skipped(c)]
+    assert leftovers == [], f"bash commands neither run by this test nor listed in NOT_RUN: {leftovers}"
 
 
 def test_python_snippets_run(stand_in: Path) -> None:
     pytest.importorskip("meshadv._raster")
     namespace = _run_python_snippets(stand_in / "readme_snippets.py")
-    assert "result" in namespace
+    assert "result" in namespace and bool(namespace["vertices"].grad.abs().sum() > 0)
     saved = stand_in / "out" / "chair-attack"
     assert (saved / "result.json").is_file() and (saved / "adversarial.ply").is_file()
 
 
-@pytest.mark.parametrize("line_no, command",
-                         [c for c in bash_commands() if c[1].startswith(("meshadv", AFTER_SWEEP))],
+def _check_install(ns: dict, root: Path) -> None:
+    import os
+
+    assert os.environ.get("OMP_WAIT_POLICY") == "PASSIVE"
+
+
+def _check_rendering(ns: dict, root: Path) -> None:
+    assert tuple(ns["out"].image.shape) == (2, 3, 224, 224) and bool(ns["vertices"].grad.abs().sum() > 0)
+    assert (root / "sofa.ply").is_file()
+
+
+def _check_attacks(ns: dict, root: Path) -> None:
+    assert "views" in ns["shape"].summary() and "views" in ns["texture"].summary()
+    assert (root / "out" / "sofa-shape" / "result.json").is_file()
+    assert ns["attack"].max_distortion == 3.0e-4 * ns["pairs"] and ns["pairs"] > 0
+
+
+def _check_victims(ns: dict, root: Path) -> None:
+    assert "views" in ns["own_result"].summary() and ns["mine"].name == "my_classifier"
+
+
+#: What each guide page's Python blocks must leave behind, checked after they ran.
+GUIDE_CHECKS = {"install.md": _check_install, "rendering.md": _check_rendering, "attacks.md": _check_attacks,
+                "victims.md": _check_victims}
+
+
+def test_every_guide_page_with_python_is_checked() -> None:
+    with_python = {d.name for d in DOCUMENTS[1:] if snippets("python", d)}
+    assert with_python == set(GUIDE_CHECKS), "a guide page's Python blocks need a check in GUIDE_CHECKS"
+
+
+@pytest.mark.parametrize("doc", [d for d in DOCUMENTS[1:] if snippets("python", d)], ids=_name)
+def test_guide_python_snippets_run(stand_in: Path, doc: Path) -> None:
+    pytest.importorskip("meshadv._raster")
+    namespace = _run_python_snippets(stand_in / "guide_snippets.py", doc)
+    GUIDE_CHECKS[doc.name](namespace, stand_in)
+
+
+@pytest.mark.parametrize("doc_name, line_no, command",
+                         [c for c in _all_commands() if c[2].startswith(("meshadv", AFTER_SWEEP))],
                          ids=lambda v: str(v)[:40])
-def test_cli_snippets_run(stand_in: Path, line_no: int, command: str) -> None:
+def test_cli_snippets_run(stand_in: Path, doc_name: str, line_no: int, command: str) -> None:
+    where = f"{doc_name} line {line_no}"
     sweep = command.removeprefix(AFTER_SWEEP)
     if sweep.startswith("meshadv sweep"):  # not run (hours), but its config must expand and pass --dry-run
         from meshadv.data import shared_data_dir
@@ -170,18 +236,17 @@ def test_cli_snippets_run(stand_in: Path, line_no: int, command: str) -> None:
 
         if shared_data_dir() is None:
             pytest.skip("the sweep configs read the shared PASCAL3D+ meshes")
-        root = Path(__file__).resolve().parents[1]
-        args = [str(root / a) if a.startswith("configs/") else a for a in shlex.split(sweep)[1:]]
+        args = [str(ROOT / a) if a.startswith("configs/") else a for a in shlex.split(sweep)[1:]]
         result = CliRunner().invoke(app, [*args, "--dry-run"])
-        assert result.exit_code == 0, f"README line {line_no}: {sweep} --dry-run\n{result.output}"
+        assert result.exit_code == 0, f"{where}: {sweep} --dry-run\n{result.output}"
         return
     if _skipped(command):
-        pytest.skip(f"README line {line_no}: {command!r} is not run: {_reason(command)}")
+        pytest.skip(f"{where}: {command!r} is not run: {_reason(command)}")
     pytest.importorskip("meshadv._raster")
     from meshadv.cli import app
 
     result = CliRunner().invoke(app, _study_stand_ins(shlex.split(command)[1:], stand_in))
-    assert result.exit_code == 0, f"README line {line_no}: {command}\n{result.output}"
+    assert result.exit_code == 0, f"{where}: {command}\n{result.output}"
     if command.startswith("meshadv study export"):
         assert "10 controls, 3 attention checks" in result.output and (stand_in / "out/study/index.html").is_file()
     if command.startswith("meshadv study analyze"):

@@ -82,8 +82,7 @@ def test_distinct_thread_counts_do_not_accumulate_threads() -> None:
     before = _threads_of_this_process()
     for n in range(1, 65):
         _render_a_triangle(n)
-    # Only the `kept` most recently used pools survive (64 + 63 threads for 2); before the fix 64 values left 2,083
-    # threads.
+    # Only the `kept` most recently used pools survive (64 + 63 threads for 2), not one pool per value asked for.
     bound = before + sum(range(65 - kept, 65)) + 4
     for _ in range(100):  # evicted pools' threads exit asynchronously
         if _threads_of_this_process() <= bound:

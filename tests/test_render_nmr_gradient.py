@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from meshadv.render import native_available, rasterize
+from meshadv.render.visibility import sweep_radius
 
 pytestmark = pytest.mark.skipif(not native_available(), reason="meshadv._raster is not built (maturin develop)")
 
@@ -106,8 +107,10 @@ def ref_backward(
     far: float,
     cull: bool = False,
     ortho: bool = False,
+    radius: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """docs/NMR_GRADIENT.md for one batch element: (grad_verts (N,3), grad_attrs (M,C))."""
+    """docs/NMR_GRADIENT.md for one batch element: (grad_verts (N,3), grad_attrs (M,C)); with ``radius`` the local
+    gradient of docs/LOCAL_GRADIENT.md (each sweep cut to the pixels within ``radius - 1`` of its first pixel)."""
     height, width = index.shape
     setups = [RefFace(verts, f, height, width, ortho) for f in faces]
     grad_attrs = np.zeros(attrs.shape, dtype=np.float64)
@@ -176,6 +179,8 @@ def ref_backward(
                     if index[pix(d0, d_in)] == f:
                         border = n_along - 1 if direction > 0 else 0
                         for d in range(d_out, border + direction, direction):
+                            if radius is not None and abs(d - d_out) >= radius:
+                                break
                             row, col = pix(d0, d)
                             if index[row, col] == f or not covers(f, row, col):
                                 continue
@@ -192,6 +197,8 @@ def ref_backward(
                     out_pixel = image[pix(d0, d_out)]
                     for d in range(max(min(d_in, limit), 0), min(max(d_in, limit), n_along - 1) + 1):
                         row, col = pix(d0, d)
+                        if radius is not None and abs(d - d_in) >= radius:
+                            continue
                         if index[row, col] != f:
                             continue
                         delta = float(grad_image[row, col] @ (out_pixel - image[row, col]))
@@ -242,11 +249,13 @@ def check_against_reference(
     cull: bool = False,
     seed: int = 0,
     ortho: bool = False,
+    visibility_gradient: str = "nmr",
 ) -> None:
+    """The rasterizer's outputs and gradients (``visibility_gradient``'s vertex gradient) against the references."""
     v = verts.clone().requires_grad_(True)
     a = attrs.clone().requires_grad_(True)
     bg = torch.rand(attrs.shape[-1], generator=torch.Generator().manual_seed(seed + 100))
-    out = rasterize(v, faces, a, size, bg, near, far, cull, orthographic=ortho)
+    out = rasterize(v, faces, a, size, bg, near, far, cull, orthographic=ortho, visibility_gradient=visibility_gradient)
     cot = torch.randn(out.image.shape, generator=torch.Generator().manual_seed(seed))
     (out.image * cot).sum().backward()
     for b in range(verts.shape[0]):
@@ -271,6 +280,7 @@ def check_against_reference(
             far,
             cull,
             ortho,
+            sweep_radius(visibility_gradient),
         )
         assert np.abs(gv).sum() > 0, "the scene should produce a non-zero vertex gradient"
         scale = np.abs(gv).max()

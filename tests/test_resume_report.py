@@ -92,7 +92,7 @@ def test_regeneration_and_transfer_cases_only_read_the_database(tmp_path: Path) 
     import hashlib
 
     from meshadv.experiments.regenerate import regenerate_job
-    from meshadv.transfer.cases import cases_from_store
+    from meshadv.transfer.controlled import cases_from_store
 
     db = _moved_db(tmp_path)
     with ResultStore(db, read_only=True) as store:

@@ -152,7 +152,7 @@ def test_attack_scene_command_writes_images_mesh_and_record(shared_data: Path, t
             "indoor",
             "--hide",
             "dining table",
-            "--perturb",
+            "--perturbation",
             "texture",
             "--method",  # Adam's first step lowers the table's score; ddn's (RMSE 5e-3 on the 69k-face bunny, the
             "adam",  # default) raises it to 0.34, so its 2-step result is the pristine bunny (ddn: the stand-in test)

@@ -15,8 +15,8 @@ from meshadv.mesh import builtin_mesh, save_mesh
 from meshadv.render import ViewSet, native_available
 from meshadv.transfer import controlled
 from meshadv.transfer.controlled import TransferCase, controlled_transfer, evaluate_case
-from meshadv.transfer.render import MitsubaImage
-from meshadv.transfer.tables import transfer_table
+from meshadv.transfer.mitsuba_process import MitsubaImage
+from meshadv.transfer.results import transfer_table
 
 needs_native = pytest.mark.skipif(not native_available(), reason="native module meshadv._raster not built")
 
@@ -29,7 +29,7 @@ def _fake(color: Tuple[float, float, float]) -> MitsubaImage:
 
 def _two_classes(victim: Any) -> Tuple[MitsubaImage, MitsubaImage, int, int]:
     """Two fake renders the stand-in victim puts in different classes, and those classes."""
-    from meshadv.transfer._scoring import images_tensor
+    from meshadv.transfer.scoring import images_tensor
 
     candidates = [_fake(c) for c in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))]
     with torch.no_grad():

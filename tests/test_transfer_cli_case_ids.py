@@ -83,8 +83,8 @@ def test_blackbox_method_option(monkeypatch: pytest.MonkeyPatch, command: str) -
     kwargs runs the rule asked for); Adam's
     own options and ``--texture-smoothing`` (a parametrisation ddn cannot step) are refused with ddn, in one line,
     before anything runs; an unknown rule is refused."""
-    from meshadv.transfer._pipeline import attack_options
-    from meshadv.transfer.object_attacks import object_attack
+    from meshadv.transfer.blackbox import attack_options
+    from meshadv.transfer.robust import object_attack
 
     for args, method in (([], "adam"), (["--method", "ddn"], "ddn"), (["--lr", "0.1"], "adam")):
         result, seen = _invoke(monkeypatch, command, args)
@@ -129,7 +129,7 @@ def test_blackbox_rows_record_the_method() -> None:
     from types import SimpleNamespace
 
     from meshadv.attacks import ShapeAttack, TextureAttack
-    from meshadv.transfer._pipeline import _attack_record
+    from meshadv.transfer.blackbox import _attack_record
 
     result = SimpleNamespace(steps=3, steps_to_success=[2], wall_time=1.0, distances=[{"color_rmse": 0.1}])
     setup = SimpleNamespace(antialias=1)

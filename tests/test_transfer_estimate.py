@@ -1,4 +1,4 @@
-"""meshadv.transfer.estimate: camera from a silhouette, lights from a masked image."""
+"""meshadv.transfer.estimation: camera from a silhouette, lights from a masked image."""
 
 from __future__ import annotations
 
@@ -11,13 +11,7 @@ import trimesh
 
 from meshadv.mesh import Mesh
 from meshadv.render import Camera, Lights, native_available, render, render_silhouette
-from meshadv.transfer.estimate import (
-    CameraEstimate,
-    estimate_camera,
-    estimate_lights,
-    light_errors,
-    masked_rmse,
-)
+from meshadv.transfer.estimation import CameraEstimate, estimate_camera, estimate_lights, light_errors, masked_rmse
 
 pytestmark = pytest.mark.skipif(not native_available(), reason="native module meshadv._raster not built")
 

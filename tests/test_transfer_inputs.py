@@ -1,5 +1,5 @@
 """meshadv.transfer: bad input fails early with a Python exception naming the argument (TypeError for a wrong type,
-ValueError for a bad value), before any Mitsuba render or optimisation; edge cases that used to crash.
+ValueError for a bad value), before any Mitsuba render or optimisation; edge cases behave as documented.
 
 Fast: no Mitsuba render runs here (a render would mean a check came too late, and a spy makes that a failure).
 """
@@ -21,7 +21,7 @@ needs_native = pytest.mark.skipif(not native_available(), reason="native module 
 @pytest.fixture()
 def no_render(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
     """Make every Mitsuba render a test failure (the checks must come first); returns the calls seen."""
-    from meshadv.transfer import render as render_module
+    from meshadv.transfer import mitsuba_process as render_module
 
     calls: list[Any] = []
 
@@ -70,7 +70,7 @@ def _chair_case() -> tuple[Any, Camera, torch.Tensor, torch.Tensor]:
     ],
 )
 def test_estimate_camera_names_a_bad_argument(kwargs: dict[str, Any], error: type, name: str) -> None:
-    from meshadv.transfer.camera_estimate import estimate_camera
+    from meshadv.transfer.estimation import estimate_camera
 
     chair, _, mask, _ = _chair_case()
     with pytest.raises(error, match=f"^{name}"):
@@ -79,8 +79,8 @@ def test_estimate_camera_names_a_bad_argument(kwargs: dict[str, Any], error: typ
 
 @needs_native
 def test_estimate_camera_and_lights_check_the_mesh_shape() -> None:
-    from meshadv.transfer.camera_estimate import estimate_camera
-    from meshadv.transfer.light_estimate import estimate_lights
+    from meshadv.transfer.estimation import estimate_camera
+    from meshadv.transfer.estimation import estimate_lights
 
     chair, camera, mask, image = _chair_case()
     with pytest.raises(ValueError, match="^vertices must have shape"):
@@ -102,7 +102,7 @@ def test_estimate_camera_and_lights_check_the_mesh_shape() -> None:
     ],
 )
 def test_estimate_lights_names_a_bad_argument(kwargs: dict[str, Any], error: type, name: str) -> None:
-    from meshadv.transfer.light_estimate import estimate_lights
+    from meshadv.transfer.estimation import estimate_lights
 
     chair, camera, mask, image = _chair_case()
     with pytest.raises(error, match=f"^{name}"):
@@ -113,8 +113,8 @@ def test_estimate_lights_names_a_bad_argument(kwargs: dict[str, Any], error: typ
 
 @needs_native
 def test_estimate_lights_with_no_directional_light_fits_the_ambient_only() -> None:
-    """``num_lights = 0`` is documented as allowed; it used to crash (an IndexError building zero directions)."""
-    from meshadv.transfer.light_estimate import estimate_lights
+    """``num_lights = 0`` is documented as allowed: the fit has no directional light, only the ambient."""
+    from meshadv.transfer.estimation import estimate_lights
 
     chair, camera, mask, image = _chair_case()
     est = estimate_lights(image, mask, chair.vertices, chair.faces, chair.face_colors, camera, num_lights=0, steps=5)
@@ -130,8 +130,8 @@ def test_estimate_lights_with_no_directional_light_fits_the_ambient_only() -> No
 
 
 def _hidden() -> Any:
-    from meshadv.transfer.hidden import HiddenScene
-    from meshadv.transfer.spec import MitsubaLights
+    from meshadv.transfer.setups import HiddenScene
+    from meshadv.transfer.mitsuba_spec import MitsubaLights
 
     lights = MitsubaLights([[0.3, 0.8, -0.5]], [[0.5, 0.5, 0.5]], [0.4, 0.4, 0.4])
     return HiddenScene(camera={"distance": 3.2, "azimuth": 50.0, "elevation": 20.0}, lights=lights, image_size=32,
@@ -148,7 +148,7 @@ def _hidden() -> Any:
 )
 def test_estimate_parameters_checks_the_step_counts_before_the_photo(no_render: list[Any], kwargs: dict[str, Any],
                                                                      error: type, name: str) -> None:
-    from meshadv.transfer.photo import estimate_parameters
+    from meshadv.transfer.photos import estimate_parameters
 
     with pytest.raises(error, match=f"^{name}"):
         estimate_parameters(builtin_mesh("chair"), _hidden(), **kwargs)
@@ -266,7 +266,7 @@ def _record() -> dict[str, Any]:
     ],
 )
 def test_scene_spec_names_a_bad_field(kwargs: dict[str, Any], error: type, match: str) -> None:
-    from meshadv.transfer.spec import MeshObject, MitsubaCamera, SceneSpec
+    from meshadv.transfer.mitsuba_spec import MeshObject, MitsubaCamera, SceneSpec
 
     fields: dict[str, Any] = {"objects": (MeshObject.from_mesh(builtin_mesh("cube")),),
                               "camera": MitsubaCamera.from_record(_record()), "image_size": 32, **kwargs}
@@ -277,7 +277,7 @@ def test_scene_spec_names_a_bad_field(kwargs: dict[str, Any], error: type, match
 def test_scene_spec_accepts_numpy_integers_and_keeps_the_size_square() -> None:
     import numpy as np
 
-    from meshadv.transfer.spec import MeshObject, MitsubaCamera, SceneSpec
+    from meshadv.transfer.mitsuba_spec import MeshObject, MitsubaCamera, SceneSpec
 
     spec = SceneSpec((MeshObject.from_mesh(builtin_mesh("cube")),), MitsubaCamera.from_record(_record()),
                      image_size=(np.int64(16), 16), spp=np.int32(4), max_depth=-1)
@@ -295,7 +295,7 @@ def test_scene_spec_accepts_numpy_integers_and_keeps_the_size_square() -> None:
     ],
 )
 def test_mitsuba_camera_names_a_bad_field(kwargs: dict[str, Any], error: type, match: str) -> None:
-    from meshadv.transfer.spec import MitsubaCamera
+    from meshadv.transfer.mitsuba_spec import MitsubaCamera
 
     with pytest.raises(error, match=match):
         MitsubaCamera(**{"eye": (0.0, 0.0, -3.0), **kwargs})
@@ -316,7 +316,7 @@ def test_mitsuba_camera_names_a_bad_field(kwargs: dict[str, Any], error: type, m
 )
 def test_hidden_scene_checks_its_settings_when_built(kwargs: dict[str, Any], error: type, match: str) -> None:
     """Not at the first render, minutes later, inside a pipeline."""
-    from meshadv.transfer.hidden import HiddenScene
+    from meshadv.transfer.setups import HiddenScene
 
     fields: dict[str, Any] = {"camera": {"distance": 3.0, "azimuth": 10.0, "elevation": 5.0}, **kwargs}
     with pytest.raises(error, match=match):
@@ -324,7 +324,7 @@ def test_hidden_scene_checks_its_settings_when_built(kwargs: dict[str, Any], err
 
 
 def _case() -> Any:
-    from meshadv.transfer.cases import TransferCase
+    from meshadv.transfer.controlled import TransferCase
 
     return TransferCase("c0", builtin_mesh("cube"), (_record(),), "stand-in", "bottle", image_size=16)
 
@@ -353,9 +353,9 @@ def test_controlled_transfer_names_a_bad_argument_before_any_render(no_render: l
 
 
 def test_cases_from_store_rejects_a_limit_below_one_and_a_string_skip(tmp_path: Any) -> None:
-    """``limit=0`` used to return one case (the limit was tested after the first case was added)."""
+    """``limit=0`` is refused instead of returning a case, and so is a string ``skip``."""
     from meshadv.experiments import ResultStore
-    from meshadv.transfer.cases import cases_from_store
+    from meshadv.transfer.controlled import cases_from_store
 
     db = tmp_path / "results.db"
     with ResultStore(db):
@@ -406,7 +406,7 @@ def test_robustness_keeps_json_able_ints_from_numpy_integers() -> None:
 
 def test_robust_tools_wrong_types_are_type_errors() -> None:
     from meshadv.render import ViewSet
-    from meshadv.transfer.object_attacks import check_smoothing
+    from meshadv.transfer.robust import check_smoothing
     from meshadv.transfer.robust import NoisyVictim, Occluded, eot_views
 
     victim = _classifier_victim()
@@ -438,8 +438,8 @@ def test_robust_tools_wrong_types_are_type_errors() -> None:
 
 
 def test_render_scenes_names_a_bad_argument_before_starting_mitsuba(no_render: list[Any]) -> None:
-    from meshadv.transfer.render import render_scenes
-    from meshadv.transfer.spec import scene_spec
+    from meshadv.transfer.mitsuba_process import render_scenes
+    from meshadv.transfer.mitsuba_spec import scene_spec
 
     spec = scene_spec(builtin_mesh("cube"), _record(), image_size=8, spp=1)
     with pytest.raises(TypeError, match="^specs\\[1\\] must be a SceneSpec"):
@@ -454,7 +454,7 @@ def test_render_scenes_names_a_bad_argument_before_starting_mitsuba(no_render: l
 
 
 def test_environment_and_setups_name_a_bad_argument() -> None:
-    from meshadv.transfer.environment import outdoor_environment
+    from meshadv.transfer.mitsuba_scene import outdoor_environment
     from meshadv.transfer.setups import indoor_detector_setup, scale_on_base
 
     with pytest.raises(TypeError, match="^height"):
@@ -471,7 +471,7 @@ def test_environment_and_setups_name_a_bad_argument() -> None:
 
 
 def test_results_database_names_a_bad_kind_or_experiment(tmp_path: Any) -> None:
-    from meshadv.transfer.database import load_transfer_rows, save_transfer_rows
+    from meshadv.transfer.results import load_transfer_rows, save_transfer_rows
 
     db = tmp_path / "results.db"
     row = {"case_id": "a", "victim": "v", "true_class": "chair", "target": "", "perturbation": "shape", "view": 0,
@@ -484,7 +484,7 @@ def test_results_database_names_a_bad_kind_or_experiment(tmp_path: Any) -> None:
     with pytest.raises(ValueError, match="^experiment"):
         save_transfer_rows(db, [row], experiment="")
     with pytest.raises(ValueError, match="^kind"):
-        load_transfer_rows(db, kind="controled")  # it used to return [] silently
+        load_transfer_rows(db, kind="controled")  # a misspelt kind is refused, not an empty list
     with pytest.raises(TypeError, match="^experiment"):
         load_transfer_rows(db, experiment=1)  # type: ignore[arg-type]
     assert [r["case_id"] for r in load_transfer_rows(db, experiment="e", kind="controlled")] == ["a"]
@@ -492,13 +492,13 @@ def test_results_database_names_a_bad_kind_or_experiment(tmp_path: Any) -> None:
 
 @needs_native
 def test_coverage_mask_is_rendered_by_the_fallback_variant_too() -> None:
-    """``scalar_rgb`` (the fallback when the fast variant fails) used to return an all-zero mask: its path tracer
-    leaves the alpha empty at ``max_depth = 1``. The mask must match meshadv's coverage in either variant."""
+    """``scalar_rgb`` (the fallback when the fast variant fails) renders a true mask too, although its path tracer
+    leaves the alpha empty at ``max_depth = 1``: the mask must match meshadv's coverage in either variant."""
     pytest.importorskip("mitsuba")
-    from meshadv.transfer.check import mask_iou
-    from meshadv.transfer.render import render_mask
-    from meshadv.transfer.spec import MitsubaCamera
-    from meshadv.transfer.variants import probe_variant
+    from meshadv.transfer.mitsuba_check import mask_iou
+    from meshadv.transfer.mitsuba_process import render_mask
+    from meshadv.transfer.mitsuba_spec import MitsubaCamera
+    from meshadv.transfer.mitsuba_process import probe_variant
 
     chair = builtin_mesh("chair")
     camera = Camera.spherical(3.2, 50.0, 20.0)

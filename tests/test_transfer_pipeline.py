@@ -111,7 +111,7 @@ def test_controlled_transfer_tiny_run_produces_its_table(tmp_path: Path, victim:
 def test_controlled_transfer_survives_a_crashed_render(monkeypatch: pytest.MonkeyPatch, victim: Victim) -> None:
     from meshadv.mesh import builtin_mesh
     from meshadv.transfer import controlled
-    from meshadv.transfer.render import MitsubaRenderError
+    from meshadv.transfer.mitsuba_process import MitsubaRenderError
 
     def crash(*args: object, **kwargs: object) -> NoReturn:
         raise MitsubaRenderError("Mitsuba (llvm_ad_rgb) was killed by signal 6")

@@ -10,7 +10,7 @@ import torch
 from meshadv.mesh import Mesh
 from meshadv.render import Camera, Lights, ViewSet, native_available, render_silhouette
 from meshadv.transfer import MitsubaCamera, SceneSpec, render_mask, render_scene, scene_spec
-from meshadv.transfer.check import conversion_check, mask_iou
+from meshadv.transfer.mitsuba_check import conversion_check, mask_iou
 
 pytest.importorskip("mitsuba", reason="mitsuba is not installed (pip install 'meshadv[transfer]')")
 pytestmark = pytest.mark.skipif(not native_available(), reason="native module meshadv._raster not built")

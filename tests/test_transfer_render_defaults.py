@@ -1,4 +1,4 @@
-"""``meshadv transfer render`` frames a mesh as ``meshadv attack`` does by default (issue 18)."""
+"""``meshadv transfer render`` frames a mesh as ``meshadv attack`` does by default."""
 
 from __future__ import annotations
 

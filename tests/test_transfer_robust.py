@@ -16,7 +16,8 @@ from stand_in_victims import DarkBlobDetector
 
 from meshadv.attacks import Criterion, Disappearance, Misclassification, TextureAttack
 from meshadv.render import native_available
-from meshadv.transfer.robust import NoisyVictim, WithMargin, eot_views
+from meshadv.transfer.robust import NoisyVictim, eot_views
+from meshadv.attacks.criteria import WithMargin
 from meshadv.victims.base import ClassifierVictim
 
 needs_native = pytest.mark.skipif(not native_available(), reason="native module meshadv._raster not built")
@@ -122,13 +123,13 @@ def test_attack_with_margin_keeps_a_step_that_holds_the_margin() -> None:
 
 @needs_native
 def test_blackbox_attack_step_with_ddn_holds_the_required_margin() -> None:
-    """The black-box pipelines' attack step (:func:`~meshadv.transfer._attack_run.attack_estimated`: EOT samples,
+    """The black-box pipelines' attack step (:func:`~meshadv.transfer.robust.attack_estimated`: EOT samples,
     jitter, pixel noise, the required margin) with ``method="ddn"``: the least distorted success sits on the
     boundary of the noisy jittered samples, so without a margin the clean re-render is barely adversarial, and the
     required margin is what it keeps (at a larger distortion)."""
     from meshadv.mesh import builtin_mesh
     from meshadv.render import RenderSetup, ViewSet, render_views
-    from meshadv.transfer._attack_run import attack_estimated
+    from meshadv.transfer.robust import attack_estimated
     from meshadv.transfer.robust import Robustness
 
     mesh = builtin_mesh("sphere", color=(0.5, 0.5, 0.5))
@@ -243,8 +244,8 @@ def test_robustness_validates_its_fields() -> None:
 def test_composite_puts_the_background_where_alpha_is_zero() -> None:
     import numpy as np
 
-    from meshadv.transfer.blackbox import composite
-    from meshadv.transfer.render import MitsubaImage
+    from meshadv.transfer.photos import composite
+    from meshadv.transfer.mitsuba_process import MitsubaImage
 
     image = np.zeros((4, 4, 3), np.float32)
     image[:2] = 0.6  # premultiplied: the top half is covered
@@ -263,7 +264,8 @@ def test_composite_puts_the_background_where_alpha_is_zero() -> None:
 def test_hidden_scene_and_estimate_parameters_name_a_bad_argument() -> None:
     """Bad input fails at once, naming the argument, before any Mitsuba render."""
     from meshadv.mesh import builtin_mesh
-    from meshadv.transfer.blackbox import HiddenScene, estimate_parameters
+    from meshadv.transfer.setups import HiddenScene
+    from meshadv.transfer.photos import estimate_parameters
 
     with pytest.raises(ValueError, match="camera.*missing \\['elevation'\\]"):
         HiddenScene(camera={"distance": 3.0, "azimuth": 10.0})
@@ -289,7 +291,8 @@ def test_estimated_view_spec_is_the_attack_view_with_direct_light_only() -> None
 
     from meshadv.mesh import builtin_mesh
     from meshadv.render import Camera, Lights, ViewSet
-    from meshadv.transfer.blackbox import HiddenScene, estimated_view_spec
+    from meshadv.transfer.setups import HiddenScene
+    from meshadv.transfer.photos import estimated_view_spec
 
     camera = Camera.spherical(3.0, 40.0, 10.0, viewing_angle=30.0)
     lights = Lights([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]], [[0.4] * 3, [0.2] * 3], [0.3] * 3)
@@ -306,7 +309,7 @@ def test_estimated_view_spec_is_the_attack_view_with_direct_light_only() -> None
 def _side_by_side(name: str, color: tuple, *, scale: float, half_gap: float) -> tuple:
     """Two copies of a builtin mesh, scaled and centred at x = -half_gap and +half_gap, and their merged mesh."""
     from meshadv.mesh import builtin_mesh
-    from meshadv.transfer.objects import merge_meshes
+    from meshadv.transfer.setups import merge_meshes
 
     left = builtin_mesh(name, color=color)
     left = left.with_vertices(left.vertices * scale + torch.tensor([-half_gap, 0.0, 0.0]))
@@ -357,9 +360,10 @@ def test_blackbox_detector_tiny_run(context: str, perturbation: str) -> None:
     """Two known objects (a dark cube 'table' and a sphere); the sphere is attacked so that 'blob' disappears."""
     pytest.importorskip("mitsuba")
     from meshadv.mesh import builtin_mesh
-    from meshadv.transfer.blackbox import HiddenScene, blackbox_detector
+    from meshadv.transfer.setups import HiddenScene
+    from meshadv.transfer.blackbox import blackbox_detector
     from meshadv.transfer.robust import Robustness
-    from meshadv.transfer.scene import MeshObject, MitsubaLights
+    from meshadv.transfer.mitsuba_spec import MeshObject, MitsubaLights
 
     cube = builtin_mesh("cube", color=(0.1, 0.1, 0.1))
     cube = cube.with_vertices(cube.vertices * 0.5 + torch.tensor([-0.4, 0.0, 0.0]))
@@ -469,11 +473,12 @@ def test_cli_blackbox_rejects_bad_options_before_any_work() -> None:
     assert result.exit_code == 2 and "--light-fit" in result.output
     result = runner.invoke(app, ["transfer", "blackbox-detector", "--context", "room"])
     assert result.exit_code == 2 and "--context" in result.output
-    result = runner.invoke(app, ["transfer", "blackbox-detector", "--perturb", "shape", "--texture-smoothing", "4"])
+    result = runner.invoke(app, ["transfer", "blackbox-detector", "--perturbation", "shape",
+                                 "--texture-smoothing", "4"])
     assert result.exit_code == 2 and "--texture-smoothing" in result.output
     result = runner.invoke(app, ["transfer", "blackbox-detector", "--progress", "-1"])
     assert result.exit_code == 2 and "--progress" in result.output
-    result = runner.invoke(app, ["transfer", "blackbox-detector", "--perturb", "paint"])
+    result = runner.invoke(app, ["transfer", "blackbox-detector", "--perturbation", "paint"])
     assert result.exit_code == 2 and "--perturb" in result.output
 
 
@@ -508,7 +513,7 @@ def test_occluded_puts_the_photo_back_where_the_mask_is_one() -> None:
 def test_occlusion_mask_marks_what_is_behind_another_object() -> None:
     from meshadv.mesh import builtin_mesh
     from meshadv.render import ViewSet
-    from meshadv.transfer.blackbox import occlusion_mask
+    from meshadv.transfer.setups import occlusion_mask
 
     back = builtin_mesh("sphere")
     back = back.with_vertices(back.vertices * 0.5)
@@ -539,10 +544,10 @@ def test_smooth_texture_starts_at_the_original_colours_and_spreads_a_vertex_offs
     mesh = mesh.with_face_colors(0.2 + 0.6 * torch.rand(mesh.num_faces, 3, generator=gen))
     edges = vertex_edges(mesh.faces)
     sharp, smooth = SmoothTextureAttack(smoothing=0), SmoothTextureAttack(smoothing=16)
-    zero = smooth._init_params(mesh, 2)
+    zero = smooth.initial_params(mesh, 2)
     assert zero.shape == (2, mesh.num_vertices, 3)
     assert torch.allclose(smooth.colors(zero, mesh, edges), mesh.face_colors.expand(2, -1, -1), atol=1e-5)
-    assert float(smooth._distance(zero, mesh, edges).max()) < 1e-5
+    assert float(smooth.distance(zero, mesh, edges).max()) < 1e-5
     bump = zero[:1].clone()
     bump[0, 0] = 5.0  # one vertex
     changed_sharp = ((sharp.colors(bump, mesh, edges) - mesh.face_colors).abs().amax(-1) > 1e-4).sum()
@@ -563,7 +568,7 @@ def test_smooth_texture_starts_at_the_original_colours_and_spreads_a_vertex_offs
     with pytest.raises(ValueError, match="face_mask"):
         SmoothTextureAttack(face_mask=torch.ones(3))
     with pytest.raises(ValueError, match="face_mask has 3 entries"):
-        SmoothTextureAttack(face_mask=torch.ones(3, dtype=torch.bool))._check_mesh(mesh)
+        SmoothTextureAttack(face_mask=torch.ones(3, dtype=torch.bool)).check_mesh(mesh)
 
 
 @needs_native
@@ -589,7 +594,7 @@ def test_smooth_texture_attack_with_a_face_mask_changes_only_those_faces() -> No
     params[0, left.num_vertices:] = 1.0
     colors = attack.colors(params, merged, edges)[0]
     rmse = (colors[mask] - merged.face_colors[mask]).pow(2).sum(-1).mean().sqrt()
-    assert float(attack._distance(params, merged, edges)[0]) == pytest.approx(float(rmse), rel=1e-5)
+    assert float(attack.distance(params, merged, edges)[0]) == pytest.approx(float(rmse), rel=1e-5)
     assert float(rmse) > 0.1
 
 
@@ -599,9 +604,10 @@ def test_estimate_parameters_can_fit_the_lights_on_one_object() -> None:
     pytest.importorskip("mitsuba")
     from meshadv.mesh import builtin_mesh
     from meshadv.render import render
-    from meshadv.transfer.blackbox import HiddenScene, estimate_parameters
-    from meshadv.transfer.objects import merge_meshes
-    from meshadv.transfer.scene import MeshObject, MitsubaLights
+    from meshadv.transfer.setups import HiddenScene
+    from meshadv.transfer.photos import estimate_parameters
+    from meshadv.transfer.setups import merge_meshes
+    from meshadv.transfer.mitsuba_spec import MeshObject, MitsubaLights
 
     cube = builtin_mesh("cube", color=(0.6, 0.6, 0.6))
     cube = cube.with_vertices(cube.vertices * 0.4 + torch.tensor([-0.5, 0.0, 0.0]))
@@ -630,8 +636,8 @@ def test_estimate_parameters_can_fit_the_lights_on_one_object() -> None:
 
 
 def test_cli_light_jitter_scales_only_the_light_entries() -> None:
-    from meshadv.commands.transfer import _jitter
     from meshadv.transfer.robust import DEFAULT_JITTER
+    from meshadv.transfer.robust import scaled_jitter as _jitter
 
     both = _jitter(2.0)
     assert both == {k: 2.0 * v for k, v in DEFAULT_JITTER.items()}
@@ -643,7 +649,7 @@ def test_cli_light_jitter_scales_only_the_light_entries() -> None:
 
 
 def test_blackbox_case_ids_name_every_non_default_setting_including_the_seed() -> None:
-    from meshadv.commands.transfer import _settings_suffix
+    from meshadv.transfer.blackbox import settings_suffix as _settings_suffix
 
     assert _settings_suffix(1.0, 1, 0.0, 0.0, 1, 100, 100) == ""
     assert _settings_suffix(1.0, 4, 0.29, 0.0, 2, 300, 100, None, 1) == "_eot4_margin0.29_aa2_steps300_seed1"

@@ -24,8 +24,8 @@ from meshadv.transfer import (
     render_scene,
     render_scenes,
 )
-from meshadv.transfer import render as render_module
-from meshadv.transfer.scene import _base_scene_xml
+from meshadv.transfer import mitsuba_process as render_module
+from meshadv.transfer.mitsuba_scene import _base_scene_xml
 
 mitsuba = pytest.importorskip("mitsuba", reason="mitsuba is not installed (pip install 'meshadv[transfer]')")
 

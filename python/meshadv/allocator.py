@@ -2,11 +2,11 @@
 
 An attack step allocates the same large buffers every step (the victim's activations, the renderer's images and
 cotangents, tens of MB each). glibc serves blocks above its mmap threshold with a fresh ``mmap`` and unmaps them on
-``free``, and trims the heap top back to the kernel, so every step faults the same memory in again: 70-100 ms of
-system time in a ~290 ms shape step (benchmarks/RESULTS.md, "Attack step split after the victim options").
-:func:`tune_allocator` raises the mmap threshold to glibc's maximum (32 MiB on 64-bit) and turns trimming off, the
-same as ``GLIBC_TUNABLES=glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=...``; measured ~9% more
-target-steps/s on 2 cores. The price is that the process keeps its peak heap until it exits.
+``free``, and trims the heap top back to the kernel, so every step may fault the same memory in again (system
+time; ``benchmarks/RESULTS.md``, "Attack step split"). :func:`tune_allocator` raises the mmap threshold to glibc's
+maximum (32 MiB on 64-bit) and turns trimming off, the same as
+``GLIBC_TUNABLES=glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=...``. The price is that the
+process keeps its peak heap until it exits.
 
 It is a process-wide policy, so the library never applies it on import: the ``meshadv`` command does, first thing,
 and a program of your own may call :func:`tune_allocator`. ``MESHADV_MALLOC_TUNING=0`` turns it off. On a C

@@ -54,7 +54,7 @@ def require_shared_data(subpath: str = "") -> Path:
     if root is None:
         raise FileNotFoundError(
             f"{subpath or 'this'} is part of meshadv's shared data, which the package does not ship: {DATA_WHAT}. "
-            f"Set {DATA_ENV_VAR} to a folder holding it (README, 'Shared data'), or use a built-in mesh "
+            f"Set {DATA_ENV_VAR} to a folder holding it (docs/guide/install.md, 'Shared data'), or use a built-in mesh "
             "(builtin:sofa, builtin:chair, ...) or your own files instead"
         )
     path = root / subpath

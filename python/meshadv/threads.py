@@ -3,7 +3,7 @@
 meshadv runs two thread pools one after the other in every attack step: the Rust renderer's rayon pool and torch's
 intra-op OpenMP pool (the victim). By default GNU OpenMP keeps its threads *spinning* after each parallel region;
 on a machine where other programs also want the cores, a spinning or descheduled thread stalls every barrier, and
-a victim call measured 0.14 s at 1 thread took 4.9 s at torch's default 2 (issue 18). This module:
+a victim call can take tens of times longer than on one thread. This module:
 
 - sets ``OMP_WAIT_POLICY=PASSIVE`` (GNU OpenMP) and ``KMP_BLOCKTIME=0`` (Intel OpenMP) so idle OpenMP threads sleep
   instead of spinning. These are read once, when torch loads its OpenMP runtime: they must be set **before

@@ -1,8 +1,10 @@
 //! Helpers shared by the integration tests of `meshadv-raster`: a tiny deterministic RNG, mesh generators and
-//! convenience wrappers around the core API, and the pre-SIMD backward pass as a reference ([`nmr_reference`]).
+//! convenience wrappers around the core API, and a plain implementation of the backward pass as a reference
+//! ([`nmr_reference`]).
 
 pub mod nmr_reference;
 
+use meshadv_raster::backward::Visibility;
 use meshadv_raster::camera::project;
 use meshadv_raster::{
     rasterize, rasterize_backward, BackwardInputs, FaceAttrs, Gradients, Projection, RasterOutput,
@@ -137,8 +139,21 @@ pub fn forward(
     rasterize(&mesh.view(), &a, params).expect("valid test input")
 }
 
-/// Backward of [`forward`] with cotangent `grad`.
+/// Backward (NMR's vertex gradient) of [`forward`] with cotangent `grad`.
 pub fn backward(
+    mesh: &OwnedMesh,
+    attrs: &[f32],
+    channels: usize,
+    params: &RasterParams,
+    out: &RasterOutput,
+    grad: &[f32],
+) -> Gradients {
+    backward_of(Visibility::Nmr, mesh, attrs, channels, params, out, grad)
+}
+
+/// [`backward`] with the vertex gradient `visibility`.
+pub fn backward_of(
+    visibility: Visibility,
     mesh: &OwnedMesh,
     attrs: &[f32],
     channels: usize,
@@ -157,6 +172,7 @@ pub fn backward(
         image: &out.image,
         grad_image: grad,
         vertex_grad: true,
+        visibility,
     };
     rasterize_backward(&mesh.view(), &a, params, &inputs).expect("valid test input")
 }

@@ -1,11 +1,11 @@
-//! The NMR backward pass as it was before the SIMD rewrite (commit 298813f, `crates/raster/src/backward.rs`), kept
-//! verbatim (minus input validation, which the callers' inputs pass) as the reference that the current backward is
-//! compared against on randomized and existing scenes (`tests/backward_reference.rs`).
+//! A plain (scalar, unplanned) implementation of the backward pass of `docs/NMR_GRADIENT.md`, with the local
+//! gradient's truncation of `docs/LOCAL_GRADIENT.md`, without input validation (the callers' inputs pass it): the
+//! reference the core's backward is compared against on randomized and existing scenes (`tests/backward_reference.rs`).
 #![allow(clippy::too_many_arguments)]
 
 use rayon::prelude::*;
 
-use meshadv_raster::backward::{BackwardInputs, Gradients};
+use meshadv_raster::backward::{BackwardInputs, Gradients, Visibility};
 use meshadv_raster::input::{FaceAttrs, RasterParams, ScreenMesh};
 use meshadv_raster::setup::{setup_faces, FaceSetup};
 use meshadv_raster::Result;
@@ -160,6 +160,8 @@ struct Ctx<'a> {
     pos: &'a [f64],
     channels: usize,
     params: &'a RasterParams,
+    /// The local gradient's sweep length in pixels (`None`: NMR's, unbounded).
+    radius: Option<usize>,
 }
 
 /// Sweep axis: lines are image columns (`U`, moves vertices in v, gives the y gradient) or rows (`V`, gives x).
@@ -240,6 +242,12 @@ impl Ctx<'_> {
                         } else {
                             (0, d_out as usize + 1)
                         };
+                        // The local gradient: only the `radius` pixels nearest the edge, `d_out` first.
+                        let (start, end) = match self.radius {
+                            Some(r) if dir > 0 => (start, end.min(d_out as usize + r)),
+                            Some(r) => (start.max((d_out + 1 - r as i64).max(0) as usize), end),
+                            None => (start, end),
+                        };
                         let [nz0, nz1] = ln.nonzero[line];
                         let (start, end) = (start.max(nz0), end.min(nz1));
                         if start < end {
@@ -282,6 +290,14 @@ impl Ctx<'_> {
                     let limit = if dir > 0 { ceil(cross2) } else { floor(cross2) };
                     let from = d_in_f.min(limit).max(0.0) as i64;
                     let to = d_in_f.max(limit).min((len - 1) as f64) as i64;
+                    // The local gradient: only the pixels within `radius - 1` of `d_in`.
+                    let (from, to) = match self.radius {
+                        Some(r) => (
+                            from.max(d_in - (r as i64 - 1)),
+                            to.min(d_in + (r as i64 - 1)),
+                        ),
+                        None => (from, to),
+                    };
                     let out_px = match axis {
                         Axis::U => d_out as usize * w as usize + line,
                         Axis::V => line * w as usize + d_out as usize,
@@ -629,6 +645,10 @@ pub fn reference_backward(
                 pos: &pos,
                 channels: c,
                 params,
+                radius: match inputs.visibility {
+                    Visibility::Nmr => None,
+                    Visibility::Local { radius } => Some(radius),
+                },
             };
             let partials: Vec<[[f64; 2]; 3]> = (0..m)
                 .into_par_iter()

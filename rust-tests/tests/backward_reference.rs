@@ -2,7 +2,7 @@
 //! within 1e-5 relative on randomized scenes and on the scenes of the other tests, and bit-identical on every
 //! instruction set this CPU offers.
 
-use meshadv_raster::backward::{rasterize_backward_on, Isa};
+use meshadv_raster::backward::{rasterize_backward_on, Isa, Visibility};
 use meshadv_raster::camera::{project, world_to_view, SphericalCamera};
 use meshadv_raster::{BackwardInputs, FaceAttrs, Gradients, RasterParams};
 use meshadv_raster_tests::nmr_reference::reference_backward;
@@ -11,8 +11,21 @@ use meshadv_raster_tests::{
     soup_faces, OwnedMesh, Rng,
 };
 
-/// Backward of `mesh` on `isa` (or the reference when `None`), with background 0.
+/// Backward (NMR's vertex gradient) of `mesh` on `isa` (or the reference when `None`), with background 0.
 fn grads(
+    mesh: &OwnedMesh,
+    attrs: &[f32],
+    c: usize,
+    p: &RasterParams,
+    grad: &[f32],
+    isa: Option<Isa>,
+) -> Gradients {
+    grads_of(Visibility::Nmr, mesh, attrs, c, p, grad, isa)
+}
+
+/// [`grads`] with the vertex gradient `visibility`.
+fn grads_of(
+    visibility: Visibility,
     mesh: &OwnedMesh,
     attrs: &[f32],
     c: usize,
@@ -32,6 +45,7 @@ fn grads(
         image: &out.image,
         grad_image: grad,
         vertex_grad: true,
+        visibility,
     };
     match isa {
         Some(isa) => rasterize_backward_on(isa, &mesh.view(), &a, p, &inputs),
@@ -40,15 +54,30 @@ fn grads(
     .expect("valid test input")
 }
 
-/// Compares the current backward with the reference; returns the largest relative error (to the largest gradient).
+/// Compares the backward (NMR's vertex gradient) with the reference; returns the largest relative error (to the
+/// largest gradient).
 fn check(name: &str, mesh: &OwnedMesh, c: usize, p: &RasterParams, rng: &mut Rng) -> f64 {
+    check_of(Visibility::Nmr, name, mesh, c, p, rng)
+}
+
+/// [`check`] for the vertex gradient `visibility`.
+fn check_of(
+    visibility: Visibility,
+    name: &str,
+    mesh: &OwnedMesh,
+    c: usize,
+    p: &RasterParams,
+    rng: &mut Rng,
+) -> f64 {
+    let grads =
+        |attrs: &[f32], grad: &[f32], isa| grads_of(visibility, mesh, attrs, c, p, grad, isa);
     let attrs = random_attrs(rng, mesh.batch * mesh.num_faces() * c);
     let n = mesh.batch * p.pixels() * c;
     let grad: Vec<f32> = (0..n).map(|_| rng.uniform(-1.0, 1.0)).collect();
-    let want = grads(mesh, &attrs, c, p, &grad, None);
-    let got = grads(mesh, &attrs, c, p, &grad, Some(Isa::Portable));
+    let want = grads(&attrs, &grad, None);
+    let got = grads(&attrs, &grad, Some(Isa::Portable));
     for isa in Isa::all_available().into_iter().skip(1) {
-        let fast = grads(mesh, &attrs, c, p, &grad, Some(isa));
+        let fast = grads(&attrs, &grad, Some(isa));
         let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(
             bits(&fast.grad_verts_screen),
@@ -102,6 +131,90 @@ fn random_soups_match_the_reference() {
             }
         };
         check(&format!("soup {case}"), &mesh, c, &p, &mut rng);
+    }
+}
+
+#[test]
+fn the_local_gradient_matches_the_reference() {
+    let mut rng = Rng::new(15);
+    for case in 0..18 {
+        let radius = [1, 2, 3, 7][case % 4];
+        let visibility = Visibility::Local { radius };
+        let count = 1 + rng.below(300);
+        let mesh = if case % 3 == 0 {
+            OwnedMesh::new(
+                project30(&random_view_soup(&mut rng, count)),
+                soup_faces(count),
+            )
+        } else {
+            random_soup(&mut rng, count, 1.0, 5.0)
+        };
+        let (h, w) = (8 + rng.below(70), 8 + rng.below(70));
+        let c = 1 + rng.below(6);
+        let p = match case % 5 {
+            1 => ortho_params(h, w),
+            2 => RasterParams {
+                cull_backfaces: true,
+                near: 2.0,
+                far: 4.0,
+                ..params(h, w)
+            },
+            _ => params(h, w),
+        };
+        check_of(
+            visibility,
+            &format!("local soup {case}, radius {radius}"),
+            &mesh,
+            c,
+            &p,
+            &mut rng,
+        );
+    }
+}
+
+#[test]
+fn the_local_gradient_is_nmr_s_with_a_radius_of_the_image_and_differs_below() {
+    let mut rng = Rng::new(16);
+    for case in 0..8 {
+        let count = 20 + rng.below(200);
+        let mesh = random_soup(&mut rng, count, 1.0, 5.0);
+        let (h, w) = (16 + rng.below(50), 16 + rng.below(50));
+        let p = params(h, w);
+        let c = 3;
+        let attrs = random_attrs(&mut rng, mesh.num_faces() * c);
+        let grad: Vec<f32> = (0..p.pixels() * c)
+            .map(|_| rng.uniform(-1.0, 1.0))
+            .collect();
+        let bits = |g: &Gradients| {
+            g.grad_verts_screen
+                .iter()
+                .map(|x| x.to_bits())
+                .collect::<Vec<_>>()
+        };
+        for isa in Isa::all_available() {
+            let nmr = grads(&mesh, &attrs, c, &p, &grad, Some(isa));
+            let whole = Visibility::Local { radius: h.max(w) };
+            let wide = grads_of(whole, &mesh, &attrs, c, &p, &grad, Some(isa));
+            assert_eq!(bits(&wide), bits(&nmr), "case {case}, {isa:?}");
+            let local = grads_of(
+                Visibility::Local { radius: 2 },
+                &mesh,
+                &attrs,
+                c,
+                &p,
+                &grad,
+                Some(isa),
+            );
+            assert_ne!(
+                bits(&local),
+                bits(&nmr),
+                "case {case}, {isa:?}: the truncation changed nothing"
+            );
+            assert_eq!(
+                local.grad_face_attrs, nmr.grad_face_attrs,
+                "case {case}, {isa:?}"
+            );
+        }
     }
 }
 

@@ -1,7 +1,10 @@
 //! Results are bit-identical for any thread count (forward and backward).
 
+use meshadv_raster::backward::Visibility;
 use meshadv_raster::with_threads;
-use meshadv_raster_tests::{backward, forward, params, random_attrs, random_soup, Rng};
+use meshadv_raster_tests::{
+    backward, backward_of, forward, params, random_attrs, random_soup, Rng,
+};
 
 fn bits(v: &[f32]) -> Vec<u32> {
     v.iter().map(|x| x.to_bits()).collect()
@@ -27,22 +30,27 @@ fn one_and_two_threads_give_identical_bits() {
         with_threads(threads, || {
             let out = forward(&mesh, &attrs, c, &p);
             let g = backward(&mesh, &attrs, c, &p, &out, &grad);
-            (out, g)
+            let local = Visibility::Local { radius: 3 };
+            let gl = backward_of(local, &mesh, &attrs, c, &p, &out, &grad);
+            (out, g, gl)
         })
         .expect("pool")
     };
-    let (o1, g1) = run(1);
-    let (o2, g2) = run(2);
-    let (o3, g3) = run(3);
+    let (o1, g1, l1) = run(1);
+    let (o2, g2, l2) = run(2);
+    let (o3, g3, l3) = run(3);
     assert!(o1.face_index.iter().filter(|&&f| f >= 0).count() > 1000);
-    for (o, g) in [(&o2, &g2), (&o3, &g3)] {
+    for (o, g, l) in [(&o2, &g2, &l2), (&o3, &g3, &l3)] {
         assert_eq!(o1.face_index, o.face_index);
         assert_eq!(bits(&o1.depth), bits(&o.depth));
         assert_eq!(bits(&o1.image), bits(&o.image));
         assert_eq!(bits(&g1.grad_verts_screen), bits(&g.grad_verts_screen));
         assert_eq!(bits(&g1.grad_face_attrs), bits(&g.grad_face_attrs));
+        assert_eq!(bits(&l1.grad_verts_screen), bits(&l.grad_verts_screen));
     }
     assert!(g1.grad_verts_screen.iter().any(|&x| x != 0.0));
+    assert!(l1.grad_verts_screen.iter().any(|&x| x != 0.0));
+    assert_ne!(bits(&l1.grad_verts_screen), bits(&g1.grad_verts_screen));
 }
 
 /// The backward keeps its buffers between calls and refills them: a call gives the same bits whatever calls ran

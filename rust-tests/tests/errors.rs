@@ -137,6 +137,7 @@ fn backward_rejects_inconsistent_forward_outputs() {
                 image,
                 grad_image: grad,
                 vertex_grad: true,
+                visibility: Default::default(),
             },
         )
         .map(|_| ())

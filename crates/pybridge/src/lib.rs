@@ -6,6 +6,7 @@
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
+use meshadv_raster::backward::Visibility;
 use meshadv_raster::boxfilter::{self, BoxShape};
 use meshadv_raster::camera::SphericalCamera;
 use meshadv_raster::pipeline::{render, Lights, RenderSettings};
@@ -284,11 +285,14 @@ fn rasterize_forward<'py>(
 
 /// Backward of `rasterize_forward`: `(grad_verts_screen f32[B,N,3] (z = 0), grad_face_attrs f32[B,M,C])`.
 ///
-/// The vertex gradient is NMR's approximate rasterization gradient, defined in docs/NMR_GRADIENT.md; with
-/// `vertex_grad=False` it is skipped (returned as zeros), which makes texture-only backward passes cheap.
+/// The vertex gradient is NMR's approximate rasterization gradient, defined in docs/NMR_GRADIENT.md, or with
+/// `sweep_radius=r` (an int >= 1) the local gradient of docs/LOCAL_GRADIENT.md, NMR's sweeps truncated to the `r`
+/// pixels nearest each edge; with `vertex_grad=False` it is skipped (returned as zeros), which makes texture-only
+/// backward passes cheap.
 #[pyfunction]
 #[pyo3(signature = (verts_screen, faces, face_attrs, background, height, width, near, far, cull_backfaces,
-                    face_index, image, grad_image, num_threads = 0, orthographic = false, vertex_grad = true))]
+                    face_index, image, grad_image, num_threads = 0, orthographic = false, vertex_grad = true,
+                    sweep_radius = None))]
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn rasterize_backward<'py>(
     py: Python<'py>,
@@ -307,8 +311,20 @@ fn rasterize_backward<'py>(
     num_threads: i64,
     orthographic: bool,
     vertex_grad: bool,
+    sweep_radius: Option<i64>,
 ) -> PyResult<(PyArr<'py, f32>, PyArr<'py, f32>)> {
     let nt = threads(num_threads)?;
+    let visibility = match sweep_radius {
+        None => Visibility::Nmr,
+        Some(r) if r >= 1 => Visibility::Local {
+            radius: usize::try_from(r).unwrap_or(usize::MAX),
+        },
+        Some(r) => {
+            return Err(PyValueError::new_err(format!(
+                "sweep_radius: must be None (NMR's gradient) or an int >= 1, got {r}"
+            )))
+        }
+    };
     let arrays = OpArrays::extract(verts_screen, faces, face_attrs, background)?;
     let face_index = array::<i32>("face_index", "int32", face_index)?;
     let image = array::<f32>("image", "float32", image)?;
@@ -320,6 +336,7 @@ fn rasterize_backward<'py>(
         image: view_exact("image", &image, &[b, h, w, c])?,
         grad_image: view_exact("grad_image", &grad_image, &[b, h, w, c])?,
         vertex_grad,
+        visibility,
     };
     let n = a.mesh.num_verts;
     let m = a.mesh.num_faces();
@@ -572,5 +589,8 @@ fn _raster(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render_full, m)?)?;
     m.add("MAX_IMAGE_SIZE", meshadv_raster::MAX_IMAGE_SIZE)?;
     m.add("MAX_CACHED_POOLS", meshadv_raster::MAX_CACHED_POOLS)?;
+    m.add("MAX_MESH_FILE_BYTES", meshadv_raster::MAX_MESH_FILE_BYTES)?;
+    m.add("MIN_VIEWING_ANGLE", meshadv_raster::MIN_VIEWING_ANGLE)?;
+    m.add("MIN_LIGHT_DIRECTION", meshadv_raster::MIN_LIGHT_DIRECTION)?;
     Ok(())
 }

@@ -9,13 +9,16 @@
 //!   sees only RGB (the backward leaves such a channel out of its sweeps).
 //!
 //! `cargo run --release -p meshadv-raster --example bench [threads] [fwd|bwd] [sphere|pascal|pascal-rgb]` (a mode
-//! runs only that pass of one case, `sphere` by default, for `perf stat` or `valgrind --tool=callgrind`). `BENCH_ISA=portable` (or `avx2`)
-//! runs the backward on that instruction set instead of the fastest one the CPU has; `BENCH_REPS=n` runs `n` repetitions instead of 20. `bwd` prints a fingerprint
-//! of the vertex gradient's bits (to compare builds and instruction sets), `fwd` one of the face index, depth and image.
+//! runs only that pass of one case, `sphere` by default, for `perf stat` or `valgrind --tool=callgrind`).
+//! `BENCH_ISA=portable` (or `avx2`) runs the backward on that instruction set instead of the fastest one the CPU
+//! has; `BENCH_REPS=n` runs `n` repetitions instead of 20. The timing runs alternate NMR's backward and the local
+//! gradient's (`BENCH_RADIUS=r` pixels, default 2); `bwd` runs NMR's unless `BENCH_VISIBILITY=local`. `bwd` prints a
+//! fingerprint of the vertex gradient's bits (to compare builds and instruction sets), `fwd` one of the face index,
+//! depth and image.
 
 use std::time::Instant;
 
-use meshadv_raster::backward::{rasterize_backward_on, Isa};
+use meshadv_raster::backward::{rasterize_backward_on, Isa, Visibility};
 use meshadv_raster::camera::{project, world_to_view, SphericalCamera};
 use meshadv_raster::{
     bits_hash, rasterize, with_threads, BackwardInputs, FaceAttrs, Gradients, RasterError,
@@ -215,6 +218,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Ok("avx2") => Isa::Avx2,
         _ => Isa::detect(),
     };
+    let radius: usize = std::env::var("BENCH_RADIUS")
+        .ok()
+        .and_then(|r| r.parse().ok())
+        .unwrap_or(2);
+    let visibility = match std::env::var("BENCH_VISIBILITY").as_deref() {
+        Ok("local") => Visibility::Local { radius },
+        _ => Visibility::Nmr,
+    };
     let reps: usize = std::env::var("BENCH_REPS")
         .ok()
         .and_then(|r| r.parse().ok())
@@ -225,14 +236,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "pascal-rgb" => pascal_rgb_case()?.ok_or("no PASCAL3D+ data")?,
             _ => sphere_case()?,
         };
-        return with_threads(threads, || run_only(&c, &mode, isa, reps))?.map_err(Into::into);
+        return with_threads(threads, || run_only(&c, &mode, isa, visibility, reps))?
+            .map_err(Into::into);
     }
     let mut cases = vec![sphere_case()?];
     cases.extend(pascal_case()?);
     cases.extend(pascal_rgb_case()?);
     println!("backward on {isa:?}");
     for c in &cases {
-        with_threads(threads, || time_case(c, threads, isa, reps))??;
+        with_threads(threads, || time_case(c, threads, isa, radius, reps))??;
     }
     Ok(())
 }
@@ -253,18 +265,26 @@ fn backward(
     mesh: &ScreenMesh<'_>,
     out: &meshadv_raster::RasterOutput,
     isa: Isa,
+    visibility: Visibility,
 ) -> Result<Gradients, RasterError> {
     let inputs = BackwardInputs {
         face_index: &out.face_index,
         image: &out.image,
         grad_image: &c.grad,
         vertex_grad: true,
+        visibility,
     };
     rasterize_backward_on(isa, mesh, &face_attrs(c), &c.params, &inputs)
 }
 
 /// Runs only the forward (`fwd`) or the backward `reps` times.
-fn run_only(c: &Case, mode: &str, isa: Isa, reps: usize) -> Result<(), RasterError> {
+fn run_only(
+    c: &Case,
+    mode: &str,
+    isa: Isa,
+    visibility: Visibility,
+    reps: usize,
+) -> Result<(), RasterError> {
     let mesh = ScreenMesh::new(&c.screen, &c.faces, c.batch, c.screen.len() / 3 / c.batch)?;
     let out = rasterize(&mesh, &face_attrs(c), &c.params)?;
     let mut last = None;
@@ -272,7 +292,9 @@ fn run_only(c: &Case, mode: &str, isa: Isa, reps: usize) -> Result<(), RasterErr
         if mode == "fwd" {
             std::hint::black_box(rasterize(&mesh, &face_attrs(c), &c.params)?);
         } else {
-            last = Some(std::hint::black_box(backward(c, &mesh, &out, isa)?));
+            last = Some(std::hint::black_box(backward(
+                c, &mesh, &out, isa, visibility,
+            )?));
         }
     }
     match last {
@@ -293,24 +315,41 @@ fn run_only(c: &Case, mode: &str, isa: Isa, reps: usize) -> Result<(), RasterErr
     Ok(())
 }
 
-/// Times forward and backward of a case and prints the medians.
-fn time_case(c: &Case, threads: usize, isa: Isa, reps: usize) -> Result<(), RasterError> {
+/// Times the forward and the backward of a case, NMR's and the local gradient's in alternating runs, and prints
+/// the medians and their ratio.
+fn time_case(
+    c: &Case,
+    threads: usize,
+    isa: Isa,
+    radius: usize,
+    reps: usize,
+) -> Result<(), RasterError> {
     let mesh = ScreenMesh::new(&c.screen, &c.faces, c.batch, c.screen.len() / 3 / c.batch)?;
-    let (mut tf, mut tb) = (Vec::new(), Vec::new());
+    let local = Visibility::Local { radius };
+    let (mut tf, mut tb, mut tl) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..reps {
         let t0 = Instant::now();
         let out = rasterize(&mesh, &face_attrs(c), &c.params)?;
         let t1 = Instant::now();
-        let g = backward(c, &mesh, &out, isa)?;
+        let g = backward(c, &mesh, &out, isa, Visibility::Nmr)?;
         let t2 = Instant::now();
+        std::hint::black_box(&g);
+        let g = backward(c, &mesh, &out, isa, local)?;
+        let t3 = Instant::now();
         std::hint::black_box(&g);
         tf.push(1e3 * (t1 - t0).as_secs_f64());
         tb.push(1e3 * (t2 - t1).as_secs_f64());
+        tl.push(1e3 * (t3 - t2).as_secs_f64());
     }
-    let (mf, mb) = (median(&mut tf), median(&mut tb));
+    let (mf, mb, ml) = (median(&mut tf), median(&mut tb), median(&mut tl));
     println!(
-        "{}, {threads} thread(s): forward {mf:.2} ms, backward {mb:.2} ms (median of {reps}; min {:.2} / {:.2} ms)",
-        c.name, tf[0], tb[0]
+        "{}, {threads} thread(s): forward {mf:.2} ms, backward NMR {mb:.2} ms, local (radius {radius}) {ml:.2} ms, \
+         NMR / local {:.2} (medians of {reps}; min {:.2} / {:.2} / {:.2} ms)",
+        c.name,
+        mb / ml,
+        tf[0],
+        tb[0],
+        tl[0]
     );
     Ok(())
 }

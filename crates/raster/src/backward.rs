@@ -52,6 +52,7 @@
 
 mod lines;
 mod sweep;
+mod visibility;
 mod workspace;
 
 use rayon::prelude::*;
@@ -61,6 +62,7 @@ use crate::input::{check_finite, FaceAttrs, RasterParams, ScreenMesh};
 use crate::setup::{ceil, floor, FaceSetup};
 pub use crate::simd::Isa;
 use sweep::{index_f64, run_lines, Clip, FaceLines, LineJob, Positions};
+pub use visibility::Visibility;
 
 /// NMR's `eps` added to the signed displacement (NDC units) before dividing.
 pub const EPS: f64 = 1e-4;
@@ -84,8 +86,10 @@ pub struct BackwardInputs<'a> {
     pub image: &'a [f32],
     /// `(B, H, W, C)` cotangent of the image.
     pub grad_image: &'a [f32],
-    /// Compute the (expensive) NMR vertex gradient; when false `grad_verts_screen` is all zeros.
+    /// Compute the vertex gradient; when false `grad_verts_screen` is all zeros.
     pub vertex_grad: bool,
+    /// Which vertex gradient: NMR's (the default) or its sweeps truncated to a few pixels of each edge.
+    pub visibility: Visibility,
 }
 
 impl BackwardInputs<'_> {
@@ -96,6 +100,7 @@ impl BackwardInputs<'_> {
         channels: usize,
         params: &RasterParams,
     ) -> Result<()> {
+        self.visibility.validate()?;
         let (h, w) = (params.height, params.width);
         let n = batch * h * w;
         if self.face_index.len() != n {
@@ -165,6 +170,8 @@ struct Ctx<'a> {
     /// Pixel positions along a line.
     pos: &'a Positions,
     params: &'a RasterParams,
+    /// How far the sweeps run.
+    visibility: Visibility,
 }
 
 /// The box of the pixels a face is drawn on (inclusive): no pixel outside it has `F[P] == f`, so a line outside it
@@ -430,11 +437,7 @@ impl Ctx<'_> {
                     };
                     // OUT: pixels beyond the edge that the face would cover (only where the cotangent is not zero).
                     if ln.face_at(line, d_in as usize) == f as i32 {
-                        let (start, end) = if dir > 0 {
-                            (d_out as usize, ln.len)
-                        } else {
-                            (0, d_out as usize + 1)
-                        };
+                        let (start, end) = self.visibility.out_range(d_out as usize, dir, ln.len);
                         let [nz0, nz1] = ln.nonzero[line];
                         let (start, end) = (start.max(nz0), end.min(nz1));
                         if start < end {
@@ -466,7 +469,10 @@ impl Ctx<'_> {
                         qo
                     };
                     // Cut to the drawn box (only the face's pixels contribute).
-                    let (from, to) = in_range(d_in, cross2, dir, along[0] as i64, along[1] as i64);
+                    let (lb, ub) = self
+                        .visibility
+                        .in_box(d_in, along[0] as i64, along[1] as i64);
+                    let (from, to) = in_range(d_in, cross2, dir, lb, ub);
                     if from <= to {
                         job.inside = (from as usize, to as usize + 1);
                         let beyond = ln.face_at(line, d_out as usize);
@@ -735,6 +741,7 @@ fn element_grads(
         kept: &kept,
         pos: &pos,
         params,
+        visibility: inputs.visibility,
     };
     try_clear_for(partials, m, "backward face partials")?;
     let ga_len = if kept.len() > 4 {

@@ -12,7 +12,9 @@ Several targets are attacked together as a batch by passing a list of criteria.
 
 from __future__ import annotations
 
-from meshadv.attacks.base import Evaluation, MeshAttack, StepInfo, evaluate
+from meshadv.attacks.base import MeshAttack
+from meshadv.attacks.evaluation import Evaluation, evaluate
+from meshadv.attacks.history import StepInfo
 from meshadv.attacks.criteria import (
     Criterion,
     Disappearance,

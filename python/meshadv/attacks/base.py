@@ -1,29 +1,27 @@
-"""The base class of the mesh attacks: hyper-parameters, the family hooks and the attack call.
+"""The base class of the mesh attacks: hyper-parameters, the family methods and the attack call.
 
 :class:`MeshAttack` holds only hyper-parameters (keyword-only, validated at construction); a family
 (:class:`~meshadv.attacks.ShapeAttack`, :class:`~meshadv.attacks.TextureAttack`, ...) says what is optimised through
-its hooks: the initial parameters, how parameters become vertices and colours, the perceptual loss and the distortion.
-Calling an attack validates the mesh, views, victim and criteria and runs the one optimisation loop
-(:mod:`meshadv.attacks.loop`); one step of it lives in :mod:`meshadv.attacks.step`, the per-target bookkeeping in
-:mod:`meshadv.attacks.targets`, the update rules (``method=``) in :mod:`meshadv.attacks.update`.
+its methods: the initial parameters (:meth:`~MeshAttack.initial_params`), how parameters become vertices and colours
+(:meth:`~MeshAttack.apply`), the perceptual loss and the distortion (:meth:`~MeshAttack.perceptual`,
+:meth:`~MeshAttack.distance`), and the space a budget rule steps in (:meth:`~MeshAttack.budget_space`). Calling an
+attack validates the mesh, views, victim and criteria and runs the one optimisation loop (:mod:`meshadv.attacks.loop`);
+the per-target bookkeeping lives in :mod:`meshadv.attacks.targets`, the update rules (``method=``) in
+:mod:`meshadv.attacks.update`.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
 
 from torch import Tensor
 
 from meshadv import _validate
 from meshadv.attacks.criteria import CLASSIFIER_LOSSES, Criterion, as_criteria
-from meshadv.attacks.evaluation import Evaluation, evaluate
-from meshadv.attacks.loop import run_attack
-from meshadv.attacks.outputs import slice_output
-from meshadv.attacks.pipeline import StepWorkers
-from meshadv.attacks.progress import StepInfo
+from meshadv.attacks.history import StepInfo
+from meshadv.attacks.loop import AttackCall, run_attack
 from meshadv.attacks.result import AttackResult
-from meshadv.attacks.step import AttackCall, StepTerms, pipelined_step, serial_step
 from meshadv.attacks.targets import StopRule
 from meshadv.attacks.update import make_update_rule, update_rules
 from meshadv.mesh.adjacency import vertex_edges
@@ -31,16 +29,7 @@ from meshadv.perceptibility.cap import as_cap
 from meshadv.render.setup import RenderSetup
 from meshadv.render.views import ViewSet
 
-#: ``StepInfo`` (:mod:`meshadv.attacks.progress`), ``Evaluation``, ``evaluate`` (:mod:`meshadv.attacks.evaluation`)
-#: and ``slice_output`` (:mod:`meshadv.attacks.outputs`) are re-exported from their old home.
-__all__ = ["MeshAttack", "StepInfo", "Evaluation", "evaluate", "slice_output"]
-
-#: The attack call's data under its old name (tests/test_pipeline.py and benchmarks/attack_bench.py build one).
-_Call = AttackCall
-
-#: Largest accepted ``step_workers``.
-_MAX_STEP_WORKERS = 64
-
+__all__ = ["MeshAttack"]
 
 _JITTER_KEYS = ("azimuth", "elevation", "distance", "tilt", "light_direction", "light_intensity")
 
@@ -87,16 +76,6 @@ class MeshAttack(ABC):
         method: the update rule (:mod:`meshadv.attacks.update`): ``"adam"`` (default) is the paper's Adam on
             ``L_adv + lambda * L_perceptual`` with the ``lambda`` binary search; others are registered there.
         method_options: extra keyword options of the update rule (JSON-able), ``None`` for none.
-        step_workers: threads a step's images are split over (:mod:`meshadv.attacks.pipeline`; ranges of targets,
-            or of one target's views): each renders its chunk and runs the victim on it, overlapping one chunk's
-            render with another's victim; the
-            gradient is the one-thread step's up to the victim's float rounding at another batch size and thread
-            count. ``1`` (default): one thread, the step as it always was. ``2`` was faster on a loaded 2-core
-            machine (+9-15% target-steps/s, benchmarks/RESULTS.md "Pipelined attack step"); since the cheaper NMR
-            backward it gains nothing for shape on a quiet one (same file, "Attack step split at HEAD on a quiet
-            machine"). It runs each chunk's victim on fewer torch threads, so its float rounding differs from a
-            serial run's. An execution setting like
-            ``--threads``: not part of :meth:`config`.
         perceptibility_cap: ceilings on what a person sees (:class:`meshadv.perceptibility.PerceptibilityCap`, a
             dict of its ceilings, or a string such as ``"default"`` or ``"max_displacement=0.02"``); ``None`` (the
             paper's protocol): none. A step counts as a success only inside the cap, a target that never succeeds
@@ -129,7 +108,6 @@ class MeshAttack(ABC):
         seed: int = 0,
         method: str = "adam",
         method_options: Optional[Dict[str, Any]] = None,
-        step_workers: int = 1,
         perceptibility_cap: Any = None,
     ) -> None:
         self.steps = _validate.positive_int("steps", steps)
@@ -150,43 +128,61 @@ class MeshAttack(ABC):
         if method_options is not None and not isinstance(method_options, dict):
             raise TypeError(f"method_options must be a dict or None, got {type(method_options).__name__}")
         self.method_options = dict(method_options or {})
-        self.step_workers = _validate.positive_int("step_workers", step_workers, high=_MAX_STEP_WORKERS)
         self.perceptibility_cap = as_cap(perceptibility_cap)
 
-    # ------------------------------------------------------------------ family hooks
+    # ------------------------------------------------------------------ the family's parametrisation
     @abstractmethod
-    def _init_params(self, mesh: Any, num_targets: int) -> Tensor:
+    def initial_params(self, mesh: Any, num_targets: int) -> Tensor:
         """Initial parameters ``(T, ...)`` (the pristine mesh)."""
 
     @abstractmethod
-    def _apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
+    def apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
         """``(vertices (K,N,3), face_colors (M,3) or (K,M,3))`` for parameters ``(K, ...)`` (``edges`` of ``mesh``)."""
 
     @abstractmethod
-    def _perceptual(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
-                    num_views: int) -> Tensor:
+    def perceptual(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
+                   num_views: int) -> Tensor:
         """Perceptual loss per target ``(K,)``."""
 
     @abstractmethod
-    def _distance(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
+    def distance(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
         """Distortion per target ``(K,)`` (the budget / best-result measure)."""
 
-    def _terms(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
-               num_views: int) -> Tuple[Tensor, Tensor]:
+    def terms(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
+              num_views: int) -> Tuple[Tensor, Tensor]:
         """``(perceptual, distance)`` per target, each ``(K,)``; a family whose two terms share work overrides it."""
-        return (self._perceptual(params, mesh, edges, images, alpha, num_views),
-                self._distance(params, mesh, edges))
+        return (self.perceptual(params, mesh, edges, images, alpha, num_views),
+                self.distance(params, mesh, edges))
 
-    def _stop_rule(self) -> StopRule:
+    def stop_rule(self) -> StopRule:
         """The thresholds of a target's success and stop (:mod:`meshadv.attacks.targets`)."""
         return StopRule(success_fraction=self.success_fraction, max_distortion=self.max_distortion,
                         early_stop=self.early_stop, early_stop_margin=self.early_stop_margin,
                         cap=self.perceptibility_cap)
 
-    def workers_for(self, num_images: int) -> int:
-        """The step workers used for a step of ``num_images`` images (active targets x views): ``step_workers``, never
-        more than there are images."""
-        return max(1, min(self.step_workers, num_images))
+    def check_mesh(self, mesh: Any) -> None:
+        """Raise ``ValueError`` when the attack's masks do not fit ``mesh`` (the default accepts every mesh)."""
+
+    def budget_space(self, **options: Any) -> Any:
+        """The space a distortion-budget rule (``method="ddn"``) steps this family's parameters in: a
+        :class:`~meshadv.attacks.norms.FlowSpace` or :class:`~meshadv.attacks.norms.ColorSpace` (built for a mesh by
+        its ``prepare(mesh, edges)``), made with ``options`` (the space's own options, see
+        :meth:`budget_defaults`).
+
+        Raises:
+            ValueError: the family's parametrisation cannot be stepped that way, or a bad option.
+        """
+        raise ValueError(f"method='ddn' cannot step the parametrisation of {type(self).__name__}")
+
+    @classmethod
+    def budget_defaults(cls) -> Dict[str, Any]:
+        """The default options of a distortion-budget rule on this family, in its space's norm units (budgets and
+        step lengths, and the space's own options).
+
+        Raises:
+            ValueError: the family has no budget space.
+        """
+        raise ValueError(f"method='ddn' supports the shape and texture attacks, not {cls.__name__}")
 
     # ------------------------------------------------------------------ public
     def config(self) -> Dict[str, Any]:
@@ -252,22 +248,7 @@ class MeshAttack(ABC):
             setup = RenderSetup()
         elif not isinstance(setup, RenderSetup):
             raise TypeError(f"setup must be a meshadv.render.RenderSetup or None, got {type(setup).__name__}")
-        self._check_mesh(mesh)
+        self.check_mesh(mesh)
         bound = [c.bind(victim) for c in criteria]
         call = AttackCall(mesh, views.detach(), victim, setup, vertex_edges(mesh.faces).long())
         return run_attack(self, call, bound, eval_views, callback)
-
-    def _check_mesh(self, mesh: Any) -> None:
-        """Family hook: raise ``ValueError`` when the attack's masks do not fit ``mesh``."""
-
-    # ------------------------------------------------------------------ the step (meshadv.attacks.step)
-    def _serial_step(self, p: Tensor, idx: Tensor, criteria: List[Criterion], call: AttackCall, views: Any,
-                     rule: Any) -> StepTerms:
-        """:func:`meshadv.attacks.step.serial_step` of this attack (kept as a method for the tests and
-        benchmarks/attack_bench.py, which time and compare the step)."""
-        return serial_step(self, p, idx, criteria, call, views, rule)
-
-    def _pipelined_step(self, params: Tensor, idx: Tensor, criteria: List[Criterion], call: AttackCall, views: Any,
-                        rule: Any, workers: StepWorkers) -> StepTerms:
-        """:func:`meshadv.attacks.step.pipelined_step` of this attack (see :meth:`_serial_step`)."""
-        return pipelined_step(self, params, idx, criteria, call, views, rule, workers)

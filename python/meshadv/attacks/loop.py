@@ -5,16 +5,19 @@ targets are a batch dimension, so one step renders ``T x V`` images (``V`` victi
 once. Because the paper's Adam is element-wise and the total loss is a sum of per-target terms, the targets are
 optimised exactly as if they ran one at a time. A target stops being rendered once it is finished (early stopping or
 budget). How losses become updates is the attack's update rule (``method=``, :mod:`meshadv.attacks.update`); this
-loop serves every rule.
+loop serves every rule. What is optimised is the attack family's (:class:`AttackFamily`, the public family methods of
+:class:`~meshadv.attacks.base.MeshAttack`).
 
 Per round (``rule.rounds`` of them: for ``method="adam"`` the ``binary_search_steps`` rounds of the per-target
 ``lambda`` search, :class:`~meshadv.attacks.search.LambdaSearch`) the parameters restart from the pristine mesh and
-the jitter generator from the attack's seed. Per step, the active targets are rendered and differentiated
-(:mod:`meshadv.attacks.step`), the update rule steps the parameters, and each target records the per-view margins and
-the distortion of the parameters *before* the update (:class:`~meshadv.attacks.targets.TargetState`): a target whose
-views are adversarial (at least ``success_fraction`` of them) within the distortion budget keeps those parameters when
-their distortion is the least seen so far. The step's loss-history row is kept and the callback, if any, gets a
-:class:`~meshadv.attacks.progress.StepInfo`.
+the jitter generator from the attack's seed. Per step (:func:`attack_step`), the active targets' ``K x V`` images are
+rendered (mesh-major), the victim runs once, and per target the adversarial loss (the criterion's loss, mean over the
+views), the perceptual loss and the distortion are computed; the update rule's ``objective`` of those is
+back-propagated into the parameters' ``.grad`` and the rule steps the parameters. Each target records the per-view
+margins and the distortion of the parameters *before* the update (:class:`~meshadv.attacks.targets.TargetState`): a
+target whose views are adversarial (at least ``success_fraction`` of them) within the distortion budget keeps those
+parameters when their distortion is the least seen so far. The step's loss-history row is kept and the callback, if
+any, gets a :class:`~meshadv.attacks.history.StepInfo`.
 
 The result's success and scores are measured on the final meshes re-rendered from scratch (without jitter,
 :func:`~meshadv.attacks.evaluation.evaluate`), never on the optimiser's last images. Ctrl-C (``KeyboardInterrupt``)
@@ -26,7 +29,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, NamedTuple, Optional, Protocol, Tuple
 
 import torch
 from torch import Tensor
@@ -34,19 +37,119 @@ from torch import Tensor
 from meshadv.attacks.criteria import Criterion
 from meshadv.attacks.distances import mesh_distances
 from meshadv.attacks.evaluation import evaluate
-from meshadv.attacks.pipeline import StepWorkers
-from meshadv.attacks.progress import StepInfo, first_view_top1, history_row, step_info
+from meshadv.attacks.history import StepInfo, first_view_top1, history_row, step_info
+from meshadv.attacks.outputs import slice_output
 from meshadv.attacks.result import AttackResult, enough_views
-from meshadv.attacks.step import AttackCall, StepTerms, pipelined_step, serial_step
-from meshadv.attacks.targets import TargetState
-from meshadv.attacks.update import make_update_rule
+from meshadv.attacks.targets import StopRule, TargetState
+from meshadv.attacks.update import UpdateRule, make_update_rule
 from meshadv.perceptibility.cap import step_measures
 from meshadv.perceptibility.measures import perceptibility_measures
+from meshadv.render.setup import RenderSetup
 
-if TYPE_CHECKING:
-    from meshadv.attacks.base import MeshAttack
+__all__ = ["AttackCall", "AttackFamily", "StepTerms", "adversarial_terms", "attack_step", "run_attack"]
 
-__all__ = ["run_attack"]
+
+class AttackFamily(Protocol):
+    """What the loop asks of an attack (:class:`~meshadv.attacks.base.MeshAttack` and its families): hyper-parameters
+    and the family's parametrisation."""
+
+    perturbation: str
+    steps: int
+    seed: int
+    jitter: Optional[Dict[str, float]]
+    method: str
+    method_options: Dict[str, Any]
+    success_fraction: float
+    loss: str
+    kappa: float
+
+    def config(self) -> Dict[str, Any]:
+        """The hyper-parameters as a JSON-able dict."""
+
+    def initial_params(self, mesh: Any, num_targets: int) -> Tensor:
+        """Initial parameters ``(T, ...)`` (the pristine mesh)."""
+
+    def apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
+        """``(vertices, face_colors)`` of parameters ``(K, ...)``."""
+
+    def terms(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
+              num_views: int) -> Tuple[Tensor, Tensor]:
+        """``(perceptual, distance)`` per target, each ``(K,)``."""
+
+    def stop_rule(self) -> StopRule:
+        """The thresholds of a target's success and stop."""
+
+
+@dataclass(frozen=True)
+class AttackCall:
+    """What one attack call works on: the mesh, the views, the victim, the render setup and the mesh's edges.
+
+    Attributes:
+        mesh: the pristine ``Mesh``.
+        views: the ``ViewSet`` of the ``V`` victim views (detached).
+        victim: the victim.
+        setup: how the mesh is rendered.
+        edges: int64 ``(E, 2)`` unique undirected edges of the mesh.
+    """
+
+    mesh: Any
+    views: Any
+    victim: Any
+    setup: RenderSetup
+    edges: Tensor
+
+
+class StepTerms(NamedTuple):
+    """What a step measured, per active target (``K`` of them), on the images the gradient was taken from.
+
+    Attributes:
+        adv: ``(K,)`` adversarial loss (differentiable).
+        perceptual: ``(K,)`` perceptual loss (differentiable).
+        distance: ``(K,)`` distortion (differentiable).
+        output: the victim's output for the ``K x V`` images.
+        margins: ``(K, V)`` criterion margins (detached).
+    """
+
+    adv: Tensor
+    perceptual: Tensor
+    distance: Tensor
+    output: Any
+    margins: Tensor
+
+
+def adversarial_terms(attack: AttackFamily, output: Any, criteria: List[Criterion],
+                      num_views: int) -> Tuple[Tensor, Tensor]:
+    """Per-target adversarial loss ``(K,)`` (differentiable; the attack's ``loss`` and ``kappa``) and per-view margins
+    ``(K, V)`` (detached) of a victim output of ``K x V`` images (mesh-major)."""
+    parts = [slice_output(output, a * num_views, (a + 1) * num_views) for a in range(len(criteria))]
+    adv = torch.stack([c.loss(o, loss=attack.loss, kappa=attack.kappa).mean() for c, o in zip(criteria, parts)])
+    with torch.no_grad():
+        margins = torch.stack([c.margin(o).detach() for c, o in zip(criteria, parts)])
+    return adv, margins
+
+
+def attack_step(attack: AttackFamily, p: Tensor, idx: Tensor, criteria: List[Criterion], call: AttackCall,
+                views: Any, rule: UpdateRule) -> StepTerms:
+    """One step: forward, objective, ``backward()`` into the parameters' ``.grad``.
+
+    Args:
+        attack: the attack (its parametrisation, perceptual term and loss settings).
+        p: ``(K, ...)`` the active targets' rows of the parameters (``params[idx]``, still in their graph).
+        idx: int64 ``(K,)`` the active targets.
+        criteria: the ``K`` bound criteria.
+        call: the attack call.
+        views: the step's (possibly jittered) views.
+        rule: the update rule, whose ``objective`` is differentiated.
+    """
+    verts, colors = attack.apply(p, call.mesh, call.edges)
+    images, alpha = call.setup.render(verts, call.mesh.faces, colors, views, rule.edge_gradient)
+    output = call.victim(images)
+    adv, margins = adversarial_terms(attack, output, criteria, len(views))
+    perc, dist = attack.terms(p, call.mesh, call.edges, images, alpha, len(views))
+    rule.objective(adv, perc, dist, idx).backward()
+    return StepTerms(adv, perc, dist, output, margins)
+
+
 
 
 @dataclass(frozen=True)
@@ -60,7 +163,7 @@ class _RunInfo:
     config: Dict[str, Any]
 
 
-def run_attack(attack: "MeshAttack", call: AttackCall, criteria: List[Criterion], eval_views: Any,
+def run_attack(attack: AttackFamily, call: AttackCall, criteria: List[Criterion], eval_views: Any,
                callback: Optional[Callable[[StepInfo], None]]) -> AttackResult:
     """Run ``attack`` on ``call`` towards the bound ``criteria`` (one per target) and return its result.
 
@@ -76,15 +179,13 @@ def run_attack(attack: "MeshAttack", call: AttackCall, criteria: List[Criterion]
         loop.run_rounds()
     except KeyboardInterrupt:  # Ctrl-C between steps: keep what we have
         loop.interrupted = True
-    finally:
-        loop.close()
     return loop.finish(eval_views)
 
 
 class _Loop:
     """The state of one attack call's loop: the update rule, the targets, the loss history and the step count."""
 
-    def __init__(self, attack: "MeshAttack", call: AttackCall, criteria: List[Criterion],
+    def __init__(self, attack: AttackFamily, call: AttackCall, criteria: List[Criterion],
                  callback: Optional[Callable[[StepInfo], None]]) -> None:
         self.t_start = time.perf_counter()
         self.attack, self.call, self.callback = attack, call, callback
@@ -94,13 +195,11 @@ class _Loop:
                                      **attack.method_options)
         self.rule.prepare(call.mesh, call.edges)
         self.targets = [TargetState(c) for c in criteria]
-        self.stop = attack._stop_rule()
+        self.stop = attack.stop_rule()
         self.history: List[Dict[str, Any]] = []
         self.total_steps = 0
         self.interrupted = False
         self.classifier = getattr(call.victim, "kind", "") == "classifier"
-        most = attack.workers_for(self.num_targets * self.num_views)
-        self.workers = StepWorkers(most, max(1, torch.get_num_threads() // most)) if most > 1 else None
 
     def run_rounds(self) -> None:
         """Every round, until the rule's rounds are done or the attack is interrupted."""
@@ -114,7 +213,7 @@ class _Loop:
         """One round from the pristine mesh: steps until every target is finished or ``steps`` are done."""
         attack = self.attack
         generator = torch.Generator().manual_seed(attack.seed)
-        params = attack._init_params(self.call.mesh, self.num_targets).detach().clone().requires_grad_(True)
+        params = attack.initial_params(self.call.mesh, self.num_targets).detach().clone().requires_grad_(True)
         self.rule.start_round(params)
         lambdas = self.rule.lambdas
         for target in self.targets:
@@ -143,10 +242,7 @@ class _Loop:
         step_views = call.views.jitter(generator, **attack.jitter) if attack.jitter else call.views
         p = params[idx]
         crits = [self.targets[t].criterion for t in active]
-        if self.workers is not None and attack.workers_for(len(active) * self.num_views) > 1:
-            terms = pipelined_step(attack, params, idx, crits, call, step_views, self.rule, self.workers)
-        else:
-            terms = serial_step(attack, p, idx, crits, call, step_views, self.rule)
+        terms = attack_step(attack, p, idx, crits, call, step_views, self.rule)
         with torch.no_grad():
             fractions = (terms.margins > 0).float().mean(dim=1)
             is_adv = enough_views(fractions, attack.success_fraction)
@@ -179,7 +275,7 @@ class _Loop:
             return [True] * params.shape[0]
         mesh = self.call.mesh
         with torch.no_grad():
-            verts, colors = self.attack._apply(params.detach(), mesh, self.call.edges)
+            verts, colors = self.attack.apply(params.detach(), mesh, self.call.edges)
             measures = step_measures(cap, verts, colors, mesh.vertices, mesh.face_colors, mesh.faces)
         inside = cap.admits(measures)
         if not isinstance(inside, Tensor):
@@ -198,28 +294,23 @@ class _Loop:
             return False
         return True
 
-    def close(self) -> None:
-        """Stop the step workers, if any."""
-        if self.workers is not None:
-            self.workers.close()
-
     def finish(self, eval_views: Any) -> AttackResult:
         """Every target's chosen parameters as its adversarial mesh, measured from scratch."""
-        pristine = self.attack._init_params(self.call.mesh, 1)[0].detach()
+        pristine = self.attack.initial_params(self.call.mesh, 1)[0].detach()
         chosen = torch.stack([tg.chosen(pristine) for tg in self.targets])
         run = _RunInfo(history=tuple(self.history), steps=self.total_steps,
                        wall_time=time.perf_counter() - self.t_start, interrupted=self.interrupted, config=self.config)
         return _final_result(self.attack, self.call, self.targets, eval_views, chosen, run)
 
 
-def _adversarial_meshes(attack: "MeshAttack", call: AttackCall, params: Tensor) -> Tuple[Any, ...]:
+def _adversarial_meshes(attack: AttackFamily, call: AttackCall, params: Tensor) -> Tuple[Any, ...]:
     """The ``T`` adversarial meshes of parameters ``(T, ...)`` (float32, contiguous, detached copies)."""
     from meshadv.mesh import Mesh
 
     mesh = call.mesh
     num_t = params.shape[0]
     with torch.no_grad():
-        verts, colors = attack._apply(params, mesh, call.edges)
+        verts, colors = attack.apply(params, mesh, call.edges)
         if colors.dim() == 2:
             colors = colors.unsqueeze(0).expand(num_t, -1, -1)
     return tuple(
@@ -229,7 +320,7 @@ def _adversarial_meshes(attack: "MeshAttack", call: AttackCall, params: Tensor) 
     )
 
 
-def _final_result(attack: "MeshAttack", call: AttackCall, targets: List[TargetState], eval_views: Any,
+def _final_result(attack: AttackFamily, call: AttackCall, targets: List[TargetState], eval_views: Any,
                   params: Tensor, run: _RunInfo) -> AttackResult:
     """The result of a run: the chosen parameters' meshes scored on the views (and ``eval_views``) from scratch."""
     mesh, views, victim = call.mesh, call.views, call.victim
@@ -242,6 +333,7 @@ def _final_result(attack: "MeshAttack", call: AttackCall, targets: List[TargetSt
         held_out = evaluate(adversarial, eval_views.detach(), victim, criteria, setup=call.setup)
         eval_success, eval_scores = held_out.success, held_out.scores
     perceptible = perceptibility_measures(mesh, adversarial, views, call.setup)
+    cap = attack.stop_rule().cap
     distances = tuple(
         {**seen, **mesh_distances(mesh.vertices, mesh.face_colors, m.vertices, m.face_colors, call.edges)}
         for m, seen in zip(adversarial, perceptible)
@@ -268,7 +360,7 @@ def _final_result(attack: "MeshAttack", call: AttackCall, targets: List[TargetSt
         wall_time=run.wall_time,
         interrupted=run.interrupted,
         success_fraction=attack.success_fraction,
-        perceptibility_cap=None if attack.perceptibility_cap is None else attack.perceptibility_cap.to_record(),
+        perceptibility_cap=None if cap is None else cap.to_record(),
         original_images=before.images[0],
         images=after.images,
         view_records=tuple(views.to_records()),

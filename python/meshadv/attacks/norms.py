@@ -1,12 +1,16 @@
-"""The norms of the distortion-budget rule (``method="ddn"``, :mod:`meshadv.attacks.budget`): how large a
-perturbation is, which step is steepest, and what a step may not change.
+"""The parameter spaces of the distortion-budget rule (``method="ddn"``, :mod:`meshadv.attacks.budget`): how large a
+perturbation is, which step is steepest, what a step may not change, and how a perturbation becomes the attack's
+parameters and back.
 
 * :class:`LaplacianNorm` (shape): ``sqrt(laplacian_pair_mean(dv))``, directions preconditioned by
-  ``(L + I / smoothness)^-1``, perturbations kept free of every connected component's translation;
+  ``(L + I / smoothness)^-1`` (the steepest descent in the metric ``L + I / smoothness``, ``L`` the mesh graph
+  Laplacian), perturbations kept free of every connected component's translation (invisible to ``L``);
 * :class:`ColorNorm` (texture): the face-colour RMSE, directions along the colour gradient.
+* :class:`FlowSpace` and :class:`ColorSpace`: a family's perturbation (a vertex flow, a colour change) with its norm,
+  read from and written into the attack's parameters. A family returns one from
+  :meth:`~meshadv.attacks.base.MeshAttack.budget_space`.
 
-Both work on ``(T, ...)`` rows, one per target; the module docstring of :mod:`meshadv.attacks.budget` explains the
-choices and their measurements.
+All work on ``(T, ...)`` rows, one per target.
 """
 
 from __future__ import annotations
@@ -20,10 +24,13 @@ from torch import Tensor
 
 from meshadv.attacks.losses import laplacian_flow_loss
 
-__all__ = ["LaplacianNorm", "ColorNorm", "positive_option", "per_row", "unit_rows"]
+__all__ = ["COLOR_EPS", "ColorNorm", "ColorSpace", "FlowSpace", "LaplacianNorm", "per_row", "positive_option",
+           "unit_rows"]
 
 #: Sizes below this count as zero (a zero gradient has no direction).
 TINY = 1e-30
+#: Colours are clamped into ``[COLOR_EPS, 1 - COLOR_EPS]`` before their logit (the texture parametrisation's start).
+COLOR_EPS = 1e-4
 
 
 def positive_option(name: str, value: Any) -> float:
@@ -156,3 +163,96 @@ class ColorNorm:
         """Unit-RMSE descent direction ``-grad`` per target; zero where ``grad`` is 0."""
         g = self.project(grad)
         return unit_rows(-g, self.norm(g))
+
+
+class _Space:
+    """What both spaces share: the norm of the prepared mesh and its methods on perturbations ``(K, ...)``."""
+
+    _norm: Any = None
+    origin: Optional[Tensor] = None
+
+    def _built(self) -> Any:
+        if self._norm is None:
+            raise RuntimeError(f"{type(self).__name__}.prepare(mesh, edges) must be called first")
+        return self._norm
+
+    def norm(self, delta: Tensor) -> Tensor:
+        """The size of every row of ``delta`` in the space's norm, ``(K,)``."""
+        return self._built().norm(delta)
+
+    def from_distance(self, distance: float) -> float:
+        """The norm of a perturbation whose distortion (the family's ``distance``) is ``distance``."""
+        return self._built().from_distance(distance)
+
+    def project(self, delta: Tensor) -> Tensor:
+        """``delta`` without what a step may not change."""
+        return self._built().project(delta)
+
+    def direction(self, grad: Tensor) -> Tensor:
+        """The unit steepest-descent direction of a gradient with respect to the perturbation."""
+        return self._built().direction(grad)
+
+
+class FlowSpace(_Space):
+    """A vertex flow ``dv (T, N, 3)`` that is the attack's parameters themselves, measured by :class:`LaplacianNorm`.
+
+    Args:
+        smoothness: ``s`` of the metric ``L + I / s`` of the steps (``None``: the Laplacian alone).
+        vertex_mask: optional bool ``(N,)``: only these vertices move.
+
+    Raises:
+        ValueError: ``smoothness`` is not a finite number > 0 (or None).
+    """
+
+    def __init__(self, smoothness: Optional[float] = None, vertex_mask: Optional[Tensor] = None) -> None:
+        self.smoothness = None if smoothness is None else positive_option("smoothness", smoothness)
+        self.vertex_mask = vertex_mask
+
+    def prepare(self, mesh: Any, edges: Tensor) -> None:
+        """Build the norm of ``mesh`` (its Laplacian and connected components); the origin is no displacement."""
+        self._norm = LaplacianNorm(edges, mesh.vertices.shape[0], self.smoothness, self.vertex_mask)
+        self.origin = torch.zeros_like(mesh.vertices)
+
+    def gradient(self, params: Tensor, idx: Tensor) -> Tensor:
+        """The gradient of the rows ``idx`` with respect to the flow (zeros when there is none)."""
+        grad = params.grad
+        return torch.zeros_like(params[idx]) if grad is None else grad[idx].detach()
+
+    def write(self, params: Tensor, idx: Tensor, delta: Tensor) -> Tensor:
+        """Write the flow ``delta`` of the rows ``idx`` into ``params``; returns it."""
+        params[idx] = delta.to(params.dtype)
+        return delta
+
+
+class ColorSpace(_Space):
+    """A face-colour change ``dt (T, M, 3)`` of parameters that are the colours' logits, measured by
+    :class:`ColorNorm`; colours stay in ``[0, 1]``.
+
+    Args:
+        face_mask: optional bool ``(M,)``: only these faces change colour and count in the norm.
+    """
+
+    def __init__(self, face_mask: Optional[Tensor] = None) -> None:
+        self.face_mask = face_mask
+
+    def prepare(self, mesh: Any, edges: Tensor) -> None:
+        """The norm of ``mesh``'s faces; the origin is its colours (clamped as the parametrisation's start)."""
+        self._norm = ColorNorm(self.face_mask)
+        self.origin = mesh.face_colors.detach().clamp(COLOR_EPS, 1 - COLOR_EPS)
+
+    def gradient(self, params: Tensor, idx: Tensor) -> Tensor:
+        """The gradient of the rows ``idx`` with respect to the colours: ``d loss / d logit / (c (1 - c))``."""
+        grad = params.grad
+        grad = torch.zeros_like(params[idx]) if grad is None else grad[idx].detach()
+        colors = torch.sigmoid(params[idx].detach())
+        return grad / (colors * (1 - colors)).clamp(min=TINY)
+
+    def write(self, params: Tensor, idx: Tensor, delta: Tensor) -> Tensor:
+        """Write the colour change ``delta`` of the rows ``idx`` into ``params`` as logits, the colours
+        ``origin + delta`` clipped into ``[0, 1]`` and projected again; returns the change kept."""
+        if self.origin is None:
+            raise RuntimeError("ColorSpace.prepare(mesh, edges) must be called first")
+        delta = (self.origin + delta).clamp(0.0, 1.0) - self.origin
+        delta = self.project(delta)
+        params[idx] = torch.logit((self.origin + delta).clamp(COLOR_EPS, 1 - COLOR_EPS)).to(params.dtype)
+        return delta

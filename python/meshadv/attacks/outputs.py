@@ -1,8 +1,7 @@
 """Victim outputs as the attacks handle them: a classifier's logits tensor or a detector's ``DetectorOutput``.
 
 Both have one row per image (mesh-major: image ``k * V + v`` is mesh ``k`` from view ``v``). The attack code cuts
-them into per-target rows, splits them into their tensors to cut the autograd graph, and joins chunks back; these
-helpers are the one place that knows a ``DetectorOutput``'s fields.
+them into per-target rows; these helpers are the one place that knows a ``DetectorOutput``'s fields.
 
 Example:
     >>> import torch
@@ -14,10 +13,9 @@ from __future__ import annotations
 
 from typing import Any, List, Optional, Sequence
 
-import torch
 from torch import Tensor
 
-__all__ = ["output_tensors", "rebuild_output", "cat_outputs", "slice_output"]
+__all__ = ["output_tensors", "rebuild_output", "slice_output"]
 
 
 def output_tensors(output: Any) -> List[Optional[Tensor]]:
@@ -39,13 +37,6 @@ def rebuild_output(like: Any, tensors: Sequence[Optional[Tensor]]) -> Any:
     if isinstance(like, Tensor):
         return tensors[0]
     return type(like)(boxes=tensors[0], objectness=tensors[1], class_probs=tensors[2])
-
-
-def cat_outputs(outputs: Sequence[Any]) -> Any:
-    """Victim outputs of consecutive image chunks concatenated along the image axis."""
-    fields = [output_tensors(o) for o in outputs]
-    cat = [None if parts[0] is None else torch.cat(list(parts)) for parts in zip(*fields)]
-    return rebuild_output(outputs[0], cat)
 
 
 def slice_output(output: Any, start: int, stop: int) -> Any:

@@ -35,6 +35,7 @@ from meshadv.attacks.base import MeshAttack
 from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import laplacian_flow_loss
 from meshadv.attacks.masks import check_mask, check_mask_fits, mask_config
+from meshadv.attacks.norms import FlowSpace
 
 __all__ = ["ShapeAttack", "DEFAULT_SMOOTHING", "DEFAULT_SHAPE_LR"]
 
@@ -45,6 +46,10 @@ __all__ = ["ShapeAttack", "DEFAULT_SMOOTHING", "DEFAULT_SHAPE_LR"]
 DEFAULT_SMOOTHING = 0
 #: Default Adam learning rate of the shape attack (meshes normalised to ``[-1, 1]``).
 DEFAULT_SHAPE_LR = 1e-3
+#: Default options of ``method="ddn"`` on a vertex flow (:meth:`ShapeAttack.budget_defaults`).
+SHAPE_BUDGET_DEFAULTS: Dict[str, Any] = {"init_budget": 1e-3, "gamma": 0.05, "step_size": 1e-3,
+                                         "final_step_size": 1e-4, "min_budget": 1e-7, "smoothness": 0.1,
+                                         "edge_gradient": 0.1}
 
 
 class ShapeAttack(MeshAttack):
@@ -82,7 +87,8 @@ class ShapeAttack(MeshAttack):
         return {**super().config(), "smoothing": self.smoothing, "max_step": self.max_step,
                 "vertex_mask": mask_config(self.vertex_mask)}
 
-    def _check_mesh(self, mesh: Any) -> None:
+    def check_mesh(self, mesh: Any) -> None:
+        """Raise ``ValueError`` when ``vertex_mask`` does not fit ``mesh``."""
         check_mask_fits(self.vertex_mask, "vertex_mask", mesh.vertices.shape[0], "vertices")
 
     def displacement(self, params: Tensor, edges: Tensor) -> Tensor:
@@ -100,10 +106,12 @@ class ShapeAttack(MeshAttack):
         dv = smooth_flow(params, edges, self.smoothing)
         return dv if self.max_step is None else dv.clamp(-self.max_step, self.max_step)
 
-    def _init_params(self, mesh: Any, num_targets: int) -> Tensor:
+    def initial_params(self, mesh: Any, num_targets: int) -> Tensor:
+        """No displacement: zeros ``(T, N, 3)``."""
         return mesh.vertices.new_zeros((num_targets, *mesh.vertices.shape))
 
-    def _apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
+    def apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
+        """The displaced vertices ``(K, N, 3)`` and the unchanged face colours."""
         return mesh.vertices.unsqueeze(0) + self.displacement(params, edges), mesh.face_colors
 
     def _laplacian(self, params: Tensor, edges: Tensor) -> Tensor:
@@ -111,15 +119,40 @@ class ShapeAttack(MeshAttack):
         distance of the shape attack."""
         return laplacian_flow_loss(self.displacement(params, edges), edges)
 
-    def _perceptual(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
-                    num_views: int) -> Tensor:
+    def perceptual(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
+                   num_views: int) -> Tensor:
+        """The Eq. 4 Laplacian of the applied displacement, ``(K,)``."""
         return self._laplacian(params, edges)
 
-    def _distance(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
+    def distance(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
+        """The Eq. 4 Laplacian of the applied displacement, ``(K,)``."""
         return self._laplacian(params, edges)
 
-    def _terms(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
-               num_views: int) -> Tuple[Tensor, Tensor]:
+    def terms(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
+              num_views: int) -> Tuple[Tensor, Tensor]:
         """The perceptual loss and the distance are the same Laplacian: computed once."""
         loss = self._laplacian(params, edges)
         return loss, loss
+
+    @classmethod
+    def budget_defaults(cls) -> Dict[str, Any]:
+        """The ddn defaults of a vertex flow, in :class:`~meshadv.attacks.norms.LaplacianNorm` units for a mesh
+        normalised to ``[-1, 1]`` (:func:`meshadv.attacks.budget.shape_options_for` scales them to another size);
+        ``smoothness`` is the space's, ``edge_gradient`` the weight of NMR's rasterization gradient in the steps."""
+        return dict(SHAPE_BUDGET_DEFAULTS)
+
+    def budget_space(self, **options: Any) -> FlowSpace:
+        """The flow itself, measured by the Laplacian norm (:class:`~meshadv.attacks.norms.FlowSpace`).
+
+        Raises:
+            ValueError: a smoothed (``smoothing != 0``) or clamped (``max_step``) flow, or a subclass with its own
+                displacement: the parameters are then not the flow.
+        """
+        if type(self).displacement is not ShapeAttack.displacement:
+            raise ValueError(f"method='ddn' cannot step the parametrisation of {type(self).__name__}")
+        if self.smoothing != 0:
+            raise ValueError(f"smoothing must be 0 with method='ddn' (its preconditioner smooths the steps), "
+                             f"got {self.smoothing}")
+        if self.max_step is not None:
+            raise ValueError(f"max_step must be None with method='ddn', got {self.max_step}")
+        return FlowSpace(vertex_mask=self.vertex_mask, **options)

@@ -29,7 +29,8 @@ from torch import Tensor
 
 from meshadv._validate import non_negative_int
 from meshadv.attacks.flow import smooth_flow
-from meshadv.attacks.texture import COLOR_EPS, TextureAttack
+from meshadv.attacks.norms import COLOR_EPS
+from meshadv.attacks.texture import TextureAttack
 
 __all__ = ["SmoothTextureAttack"]
 
@@ -56,7 +57,8 @@ class SmoothTextureAttack(TextureAttack):
         """Hyper-parameters, including ``smoothing``."""
         return {**super().config(), "smoothing": self.smoothing}
 
-    def _init_params(self, mesh: Any, num_targets: int) -> Tensor:
+    def initial_params(self, mesh: Any, num_targets: int) -> Tensor:
+        """No offset: zeros ``(T, N, 3)``."""
         return mesh.vertices.new_zeros((num_targets, *mesh.vertices.shape))
 
     def _colors(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:

@@ -23,11 +23,13 @@ from meshadv.attacks.base import MeshAttack
 from meshadv.attacks.distances import color_rmse
 from meshadv.attacks.losses import image_smoothness_loss
 from meshadv.attacks.masks import check_mask, check_mask_fits, mask_config
+from meshadv.attacks.norms import COLOR_EPS, ColorSpace
 
 __all__ = ["TextureAttack"]
 
-#: Colours are clamped into ``[COLOR_EPS, 1 - COLOR_EPS]`` before their logit (the parametrisation's start).
-COLOR_EPS = 1e-4
+#: Default options of ``method="ddn"`` on face colours (:meth:`TextureAttack.budget_defaults`).
+TEXTURE_BUDGET_DEFAULTS: Dict[str, Any] = {"init_budget": 5e-3, "gamma": 0.1, "step_size": 5e-3,
+                                           "final_step_size": 5e-4, "min_budget": 1e-6}
 
 
 class TextureAttack(MeshAttack):
@@ -55,10 +57,12 @@ class TextureAttack(MeshAttack):
         """Hyper-parameters, including ``face_mask``."""
         return {**super().config(), "face_mask": mask_config(self.face_mask)}
 
-    def _check_mesh(self, mesh: Any) -> None:
+    def check_mesh(self, mesh: Any) -> None:
+        """Raise ``ValueError`` when ``face_mask`` does not fit ``mesh``."""
         check_mask_fits(self.face_mask, "face_mask", mesh.faces.shape[0], "faces")
 
-    def _init_params(self, mesh: Any, num_targets: int) -> Tensor:
+    def initial_params(self, mesh: Any, num_targets: int) -> Tensor:
+        """The logits of the pristine colours, ``(T, M, 3)``."""
         logits = torch.logit(mesh.face_colors.clamp(COLOR_EPS, 1 - COLOR_EPS))
         return logits.unsqueeze(0).repeat(num_targets, 1, 1)
 
@@ -74,17 +78,39 @@ class TextureAttack(MeshAttack):
         """Unmasked face colours of the parametrisation: ``sigmoid(params)``."""
         return torch.sigmoid(params)
 
-    def _apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
+    def apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
+        """The unchanged vertices, expanded to ``(K, N, 3)``, and the face colours ``(K, M, 3)``."""
         verts = mesh.vertices.unsqueeze(0).expand(params.shape[0], -1, -1)
         return verts, self.colors(params, mesh, edges)
 
-    def _perceptual(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
-                    num_views: int) -> Tensor:
+    def perceptual(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
+                   num_views: int) -> Tensor:
+        """The image smoothness loss of the renders, mean over the views, ``(K,)``."""
         return image_smoothness_loss(images).view(params.shape[0], num_views).mean(dim=1)
 
-    def _distance(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
+    def distance(self, params: Tensor, mesh: Any, edges: Tensor) -> Tensor:
+        """The face-colour RMSE (over ``face_mask``'s faces when given), ``(K,)``."""
         colors = self._colors(params, mesh, edges)
         if self.face_mask is None:
             return color_rmse(colors, mesh.face_colors)
         mask = self.face_mask.to(colors.device)
         return color_rmse(colors[:, mask], mesh.face_colors[mask])
+
+    @classmethod
+    def budget_defaults(cls) -> Dict[str, Any]:
+        """The ddn defaults of face colours, in :class:`~meshadv.attacks.norms.ColorNorm` (RMSE) units."""
+        return dict(TEXTURE_BUDGET_DEFAULTS)
+
+    def budget_space(self, **options: Any) -> ColorSpace:
+        """The colours of the logit parameters, measured by their RMSE (:class:`~meshadv.attacks.norms.ColorSpace`).
+
+        Raises:
+            ValueError: a subclass with another colour mapping (the parameters are then not the colours' logits),
+                or an option (the colour space has none).
+        """
+        if type(self)._colors is not TextureAttack._colors or type(self).apply is not TextureAttack.apply:
+            raise ValueError(f"method='ddn' cannot step the parametrisation of {type(self).__name__}")
+        if options:
+            raise ValueError(f"the colour space takes no options, got {sorted(options)}")
+        return ColorSpace(self.face_mask)
+

@@ -27,7 +27,7 @@ def error_line(error: Optional[str]) -> str:
 
 def index_rows(store: Any, out_root: Optional[Union[str, Path]] = None) -> List[Dict[str, Any]]:
     """One dict per job of ``store`` (a ``ResultStore``), in :data:`INDEX_COLUMNS` order."""
-    from meshadv.experiments.runner import job_out_dir
+    from meshadv.experiments.store import job_out_dir
 
     rows = []
     for job in store.rows():

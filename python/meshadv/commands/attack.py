@@ -138,8 +138,7 @@ def attack(
         False, "--benign-wrong-ok", help="attack even when the benign render is not the source class on some views "
                                          "(default: refuse)"),
     disappear: Optional[str] = typer.Option(None, help="detector: class to hide, or 'all'"),
-    perturbation: str = typer.Option("shape", "--perturbation", "--perturb",
-                                     help="shape or texture (--perturb is the old name)"),
+    perturbation: str = typer.Option("shape", "--perturbation", help="shape or texture"),
     views: int = typer.Option(5, help="number of victim views"),
     azimuths: str = typer.Option("150:210", help="azimuth range LOW:HIGH or LOW-HIGH (degrees) of the victim views; "
                                                  "180 faces the front of a PASCAL3D+ model"),
@@ -180,10 +179,6 @@ def attack(
     threshold: float = typer.Option(0.5, help="detector score threshold (--disappear)"),
     z_up: Optional[bool] = typer.Option(None, "--z-up/--y-up", help="mesh file is Z-up (default: guess)"),
     seed: int = typer.Option(0, help="random seed"),
-    step_workers: int = typer.Option(1, min=1, max=64, help="threads a step's images are split over, each rendering "
-                                                            "its part on threads of its own and running the victim on "
-                                                            "it (on 2 cores 2 took 3-19% less time per step than 1, "
-                                                            "shape and texture; float rounding differs from 1)"),
     quiet: bool = typer.Option(False, help="no progress bar"),
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
 ) -> None:
@@ -225,7 +220,7 @@ def attack(
         attack_obj = build_attack(
             perturbation, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
-            max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, step_workers=step_workers,
+            max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method,
             perceptibility_cap=parse_cap(cap), **shape_only,
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)

@@ -30,8 +30,7 @@ def attack_scene(
     weights: Optional[Path] = typer.Option(None, help="yolov3: the Darknet .weights file"),
     cfg: Optional[Path] = typer.Option(None, help="yolov3: the Darknet .cfg file"),
     hide: str = typer.Option("all", help="COCO class to hide (e.g. 'dining table', 'dog') or 'all'"),
-    perturbation: str = typer.Option("shape", "--perturbation", "--perturb",
-                                     help="shape or texture (--perturb is the old name)"),
+    perturbation: str = typer.Option("shape", "--perturbation", help="shape or texture"),
     obj: str = typer.Option(
         "bunny", "--object", help="object to perturb (scene object name, or a mesh file for photos)"
     ),

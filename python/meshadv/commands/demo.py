@@ -51,9 +51,8 @@ class DemoSubject:
 
 
 #: The shared PASCAL3D+ chair (``default`` when the shared data are present): "folding chair" at both views. Its
-#: 1,201 faces are subdivided to 15,323 so that a small, smooth move suffices: measured (benchmarks/RESULTS.md,
-#: "demo perturbation"), Adam at 5e-3 on the 1,201 faces moved a vertex by 9% of the diagonal; on the subdivided
-#: chair the largest move is about 0.1% (Adam at 5e-4) or 0.06% (the demo's ddn).
+#: 1,201 faces are subdivided to 15,323 so that a small, smooth move suffices: on the faces as loaded an attack moves
+#: a vertex by several percent of the diagonal, on the subdivided chair the demo's largest move is about 0.06%.
 SHARED_CHAIR = DemoSubject("default", "chair", (165.0, 195.0), 128, max_edge=0.15)
 #: The built-in sofa, used without shared data: EfficientNet-Lite0 says "studio couch" at azimuths 150 and 210
 #: (and at 165, 180, 195) at 224 px. Its 48 box faces are subdivided to 3,776 (same classification) so the shape
@@ -97,9 +96,8 @@ def build_demo_attack(steps: int, seed: int, cap: Any = "default") -> Any:
 
     A shape attack with the recommended update rule (:data:`~meshadv.attacks.update.RECOMMENDED_METHOD`, ``ddn``:
     a distortion budget that shrinks while the target holds, its default options) and the C&W margin loss, run for
-    all ``steps`` and keeping its least distorted success. Measured on both subjects (benchmarks/RESULTS.md, "Demo
-    perturbation"): it holds from step 7 with the largest vertex move at 0.06% (chair) and 0.025% (sofa) of the
-    diagonal, against 0.10% and 0.07% for the Adam attack the demo used before (lr 5e-4 / 1e-3, early stop).
+    all ``steps`` and keeping its least distorted success: on both subjects the largest vertex move is a few
+    hundredths of a percent of the diagonal (the demo prints it).
     ``cap``: its perceptibility cap (``meshadv.perceptibility.as_cap``: ``"default"`` is
     :data:`~meshadv.perceptibility.DEFAULT_CAP`, ``None`` none).
     """

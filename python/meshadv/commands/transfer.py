@@ -41,22 +41,11 @@ def _echo_json(data: dict) -> None:
 @transfer_app.command("variant")
 def variant_cmd() -> None:
     """Probe Mitsuba's CPU variants (each in a child process) and print the one that will be used."""
-    from meshadv.transfer.variants import PREFERRED_VARIANTS, best_variant, probe_variant
+    from meshadv.transfer.mitsuba_process import PREFERRED_VARIANTS, best_variant, probe_variant
 
     for name in PREFERRED_VARIANTS:
         typer.echo(f"{name}: {'works' if probe_variant(name) else 'FAILS'}")
     typer.echo(f"using: {best_variant()}")
-
-
-def _view_record(distance: float, azimuth: float, elevation: float, light: float, ambient: float,
-                 viewing_angle: float = 30.0) -> dict:
-    """A one-view record with a head light (toward the camera) of intensity ``light`` and ambient ``ambient``."""
-    from meshadv.render import Camera, Lights, ViewSet
-
-    camera = Camera.spherical(distance, azimuth, elevation, viewing_angle=viewing_angle)
-    direction = (camera.eye() - camera.target()).detach()
-    lights = Lights(direction.unsqueeze(1) + 0.3, [[light] * 3], [ambient] * 3)
-    return ViewSet(camera, lights).to_records()[0]
 
 
 @transfer_app.command("check")
@@ -71,12 +60,12 @@ def check_cmd(
 ) -> None:
     """Render MESH with meshadv and with Mitsuba (direct light only) and print how well they agree."""
     from meshadv.commands._common import load_mesh_arg
-    from meshadv.transfer.check import conversion_check
+    from meshadv.transfer.mitsuba_check import conversion_check, head_light_record
 
     if size < 8:
         raise typer.BadParameter("size must be >= 8", param_hint="--size")
     mesh_obj, _ = load_mesh_arg(mesh)
-    record = _view_record(distance, azimuth, elevation, 0.5, 0.4)
+    record = head_light_record(distance, azimuth, elevation, 0.5, 0.4)
     result = conversion_check(mesh_obj, record, image_size=size, spp=spp)
     _echo_json(result.summary())
     if out is not None:
@@ -108,21 +97,16 @@ def render_cmd(
     import numpy as np
 
     from meshadv.commands._common import load_mesh_arg
-    from meshadv.data import require_shared_data
     from meshadv.transfer import MitsubaCamera, MitsubaLights, render_scene, scene_spec
+    from meshadv.transfer.setups import base_scene_file
     from meshadv.util.png import save_png
 
     if size < 8:
         raise typer.BadParameter("size must be >= 8", param_hint="--size")
-    base = None
-    if scene == "indoor":
-        base = str(require_shared_data("scenes/indoor/scene.xml"))
-    elif scene == "living-room":
-        base = str(require_shared_data("scenes/living-room/scene_mi3.xml"))
-    elif scene != "none":
-        if not Path(scene).is_file():
-            raise typer.BadParameter(f"{scene} is not none, indoor, living-room or a scene file", param_hint="--scene")
-        base = scene
+    try:
+        base = base_scene_file(scene)
+    except ValueError as err:
+        raise typer.BadParameter(str(err), param_hint="--scene") from None
     mesh_obj, _ = load_mesh_arg(mesh)
     camera = MitsubaCamera.spherical(distance, azimuth, elevation, viewing_angle=viewing_angle)
     lights = MitsubaLights(np.array([camera.eye]), np.full((1, 3), 0.5), np.full(3, 0.5 if base is None else 0.0))
@@ -144,7 +128,7 @@ def attack_cmd(
     """Re-render one `meshadv attack` result with Mitsuba under the attack's own views and test its victim; the benign
     mesh is rendered too, and untargeted transfer counts only on views where the victim gets it right; writes
     FOLDER/transfer.json, FOLDER/mitsuba_v<view>.png and FOLDER/mitsuba_benign_v<view>.png."""
-    from meshadv.commands._single_transfer import transfer_attack_folder, transfer_attack_summary
+    from meshadv.transfer.controlled import transfer_attack_folder, transfer_attack_summary
 
     rows = transfer_attack_folder(folder, spp=spp, max_depth=max_depth, variant=variant)
     for row in rows:
@@ -171,15 +155,12 @@ def controlled_cmd(
     """Re-render RESULTS' adversarial meshes with Mitsuba under the same views and test the victims (resumable); each
     benign mesh is rendered too, and untargeted transfer counts only where the victim gets it right."""
     from meshadv.commands._common_options import interrupted_exit
-    from meshadv.transfer.controlled import cases_from_store, controlled_transfer, write_image_index
-    from meshadv.transfer.results import load_transfer_rows, save_transfer_rows, transfer_report
+    from meshadv.transfer.controlled import pending_cases, transfer_case_into
+    from meshadv.transfer.results import load_transfer_rows, transfer_report
 
     if not results.is_file():
         raise typer.BadParameter(f"{results} does not exist", param_hint="RESULTS")
-    done = {r["case_id"] for r in load_transfer_rows(results, experiment=experiment, kind="controlled")
-            if r.get("error") is None}
-    # artefacts missing here (another machine's sweep) are regenerated from the stored specs next to the database
-    todo = cases_from_store(results, only_successful=not all_attacks, skip=done, limit=limit)
+    done, todo = pending_cases(results, experiment=experiment, only_successful=not all_attacks, limit=limit)
     if not todo and not done:
         hint = "" if all_attacks else " (none succeeded in meshadv; add --all to transfer the failed attacks too)"
         typer.echo(f"no finished single-view attacks with an adversarial mesh in this database{hint}")
@@ -192,11 +173,8 @@ def controlled_cmd(
     finished = 0
     try:
         for case in todo:  # one case at a time, saved at once: an interrupted run resumes where it stopped
-            rows = controlled_transfer([case], spp=spp, max_depth=max_depth, variant=variant, image_dir=images)
-            save_transfer_rows(results, [row.to_record() for row in rows], experiment=experiment,
-                               kind="controlled")
-            if images is not None:
-                write_image_index(images, [case], rows)
+            transfer_case_into(results, case, experiment=experiment, spp=spp, max_depth=max_depth, variant=variant,
+                               image_dir=images)
             finished += 1
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: every finished mesh is already in the database
         raise interrupted_exit(f"interrupted: {len(done) + finished} transferred adversarial meshes are kept in "
@@ -207,8 +185,7 @@ def controlled_cmd(
 
 def _method(method: Optional[str], lr: Optional[float], lambda_perceptual: Optional[float],
             texture_smoothing: Optional[int]) -> str:
-    """The update rule of a black-box command: ``method``, by default ``"adam"`` (every recorded black-box run
-    used it; ddn is not measured on the Mitsuba pipelines, see ``--method``).
+    """The update rule of a black-box command: ``method``, by default ``"adam"``.
 
     Raises:
         typer.BadParameter: an unknown rule, or Adam's own options (--lr, --lambda-perceptual) or
@@ -222,17 +199,6 @@ def _method(method: Optional[str], lr: Optional[float], lambda_perceptual: Optio
         return resolve_method(method, "adam", adam_only)
     except ValueError as err:
         raise typer.BadParameter(str(err), param_hint="--method") from err
-
-
-def _ddn_scaled(method: str, perturbation: str, mesh: Any) -> dict:
-    """``{"method_options": ...}`` of a ddn shape attack on ``mesh``, its lengths scaled to the object's size
-    (:func:`~meshadv.attacks.budget.shape_options_for`, as ``meshadv attack-scene``); ``{}`` otherwise (texture:
-    colour units need no scale)."""
-    if method != "ddn" or perturbation != "shape":
-        return {}
-    from meshadv.attacks.budget import shape_options_for
-
-    return {"method_options": shape_options_for(mesh)}
 
 
 def _attack_kwargs(steps: int, lr: Optional[float], lambda_perceptual: Optional[float], antialias: int = 1,
@@ -268,16 +234,14 @@ def _attack_kwargs(steps: int, lr: Optional[float], lambda_perceptual: Optional[
 
 
 def _jitter(scale: float, light_scale: Optional[float] = None) -> dict:
-    """DEFAULT_JITTER with the camera entries times ``scale`` and the light entries times ``light_scale`` (default
-    ``scale``)."""
-    from meshadv.transfer.robust import DEFAULT_JITTER
+    """:func:`~meshadv.transfer.robust.scaled_jitter` of ``--jitter`` and ``--light-jitter``."""
+    from meshadv.transfer.robust import scaled_jitter
 
     if scale < 0:
         raise typer.BadParameter("jitter must be >= 0", param_hint="--jitter")
     if light_scale is not None and light_scale < 0:
         raise typer.BadParameter("light-jitter must be >= 0", param_hint="--light-jitter")
-    light = scale if light_scale is None else light_scale
-    return {k: v * (light if k.startswith("light_") else scale) for k, v in DEFAULT_JITTER.items()}
+    return scaled_jitter(scale, light_scale)
 
 
 def _robustness(eot: int, margin: float, pixel_noise: float, verify: int, seed: int) -> "Robustness":
@@ -310,23 +274,6 @@ def _check_blackbox_render(perturbation: str, size: int, spp: int, texture_smoot
         raise typer.BadParameter("texture-smoothing needs --perturbation texture", param_hint="--texture-smoothing")
 
 
-def _settings_suffix(jitter: float, eot: int, margin: float, pixel_noise: float, antialias: int, steps: int,
-                     defaults_steps: int, light_jitter: Optional[float] = None, seed: int = 0,
-                     texture_smoothing: Optional[int] = None, spp: int = 64, method: str = "adam") -> str:
-    """The non-default settings of a black-box run, for its default case id (e.g. ``_eot8_margin10_aa3_seed1``).
-
-    The update rule is named unless it is ``"adam"`` (e.g. ``_ddn``): every row recorded before ``--method``
-    existed ran Adam, so its id stays that of ``--method adam`` and ``--resume`` never takes it for a ddn run."""
-    parts = [f"_jitter{jitter:g}" if jitter != 1.0 else "",
-             f"_lightjitter{light_jitter:g}" if light_jitter is not None else ""]
-    parts += [f"_eot{eot}" if eot != 1 else "", f"_margin{margin:g}" if margin else "",
-              f"_noise{pixel_noise:g}" if pixel_noise else "", f"_aa{antialias}" if antialias != 1 else "",
-              f"_steps{steps}" if steps != defaults_steps else "", f"_seed{seed}" if seed != 0 else ""]
-    parts += [f"_smooth{texture_smoothing}" if texture_smoothing is not None else "", f"_spp{spp}" if spp != 64 else ""]
-    parts += [f"_{method}" if method != "adam" else ""]
-    return "".join(parts)
-
-
 def _skip_finished(resume: bool, db: Optional[Path], experiment: str, case_id: str) -> bool:
     """With ``--resume``: whether ``db`` already holds the black-box row ``case_id`` of ``experiment`` (then says so).
 
@@ -338,11 +285,9 @@ def _skip_finished(resume: bool, db: Optional[Path], experiment: str, case_id: s
     if db is None:
         raise typer.BadParameter("--resume needs --db (the database that holds the finished rows)",
                                  param_hint="--resume")
-    if not db.is_file():
-        return False
-    from meshadv.transfer.results import load_transfer_rows
+    from meshadv.transfer.blackbox import finished_blackbox
 
-    if not any(r.get("case_id") == case_id for r in load_transfer_rows(db, experiment=experiment, kind="blackbox")):
+    if not finished_blackbox(db, experiment, case_id):
         return False
     typer.echo(f"{case_id}: already in {db} (experiment {experiment}); skipped (--resume)")
     return True
@@ -352,22 +297,13 @@ def _save_blackbox(result: Any, db: Optional[Path], out: Optional[Path], experim
     """Print the row, write ``out`` (every file atomically) and add the row to ``db``; an attack cut short by Ctrl-C
     or SIGTERM keeps its best mesh so far in ``out`` but stays out of ``db`` and exits with status 130."""
     from meshadv.commands._common_options import interrupted_exit
+    from meshadv.transfer.blackbox import save_blackbox_outputs
     from meshadv.transfer.results import save_transfer_rows
-    from meshadv.util.atomic import write_text_atomic
-    from meshadv.util.png import save_png
 
     public = result.to_record()
     _echo_json(public)
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        for name, im in result.images.items():
-            save_png(im, out / f"{name}.png")
-        from meshadv.mesh import save_mesh
-
-        save_mesh(result.adversarial_mesh.detach(), out / "adversarial.ply")
-        write_text_atomic(out / "loss_history.json",
-                          json.dumps(list(result.attack_result.loss_history), default=str))
-        write_text_atomic(out / "blackbox.json", json.dumps(public, indent=2, default=str))
+        save_blackbox_outputs(result, out)
     if public.get("interrupted"):
         kept = f"the best mesh so far and its renders are in {out}; " if out is not None else ""
         raise interrupted_exit(f"interrupted after {public.get('steps_run')} of {public.get('steps')} attack steps: "
@@ -405,12 +341,11 @@ _NOISE_HELP = ("Std of Gaussian noise added to the rendered object's pixels of w
 _AA_HELP = "Supersampling of meshadv's renders in the attack (Mitsuba's pixels are area averages)."
 _SMOOTH_HELP = ("Texture as a smoothed per-vertex colour field with this many rounds of neighbour averaging "
                 "(for meshes with many faces per pixel); default: the paper's per-face colours.")
-_METHOD_HELP = ("Update rule: adam (Adam + lambda; --lr, --lambda-perceptual, --texture-smoothing; the default: every "
-                "recorded black-box run used it) or ddn (least distortion: a per-target budget that shrinks while the "
-                "criterion holds, no lambda; shape: its lengths scaled to the object's bounding-box diagonal as in "
-                "`meshadv attack-scene`; not yet measured through Mitsuba: it settles on the decision boundary of the "
-                "attack's renders, so give a --margin for a result that transfers). A ddn run's default case id ends "
-                "in _ddn.")
+_METHOD_HELP = ("Update rule: adam (Adam + lambda; --lr, --lambda-perceptual, --texture-smoothing; the default) or ddn "
+                "(least distortion: a per-target budget that shrinks while the criterion holds, no lambda; shape: its "
+                "lengths scaled to the object's bounding-box diagonal as in `meshadv attack-scene`; it settles on the "
+                "decision boundary of the attack's renders, so give a --margin for a result that transfers). A ddn "
+                "run's default case id ends in _ddn.")
 _VERIFY_HELP = ("Fresh views around the estimate (the default jitter, whatever --jitter) to re-test the adversarial "
                 "mesh on in meshadv (0 = skip).")
 
@@ -421,8 +356,7 @@ def blackbox_classifier_cmd(
     true_class: str = typer.Option("aeroplane", help="The object's class."),
     target: Optional[str] = typer.Option(None, help="Target class (default: untargeted)."),
     victim: str = typer.Option("efficientnet_lite0", help="Classifier victim."),
-    perturbation: str = typer.Option("texture", "--perturbation", "--perturb",
-                                     help="shape or texture (--perturb is the old name)."),
+    perturbation: str = typer.Option("texture", "--perturbation", help="shape or texture."),
     method: Optional[str] = typer.Option(None, help=_METHOD_HELP),
     steps: int = typer.Option(100, help="Attack steps."),
     lr: Optional[float] = typer.Option(None, help="--method adam: attack learning rate (default: the attack's)."),
@@ -451,7 +385,7 @@ def blackbox_classifier_cmd(
 ) -> None:
     """Black-box pipeline against a classifier: estimate camera + lights from a Mitsuba photo, attack, re-render."""
     from meshadv.commands._common import load_mesh_arg
-    from meshadv.transfer.blackbox import blackbox_classifier
+    from meshadv.transfer.blackbox import blackbox_classifier, ddn_shape_options, settings_suffix
     from meshadv.transfer.setups import default_aeroplane, outdoor_classifier_setup
     from meshadv.victims import load_victim
 
@@ -463,12 +397,12 @@ def blackbox_classifier_cmd(
     jitter_dict = _jitter(jitter, light_jitter)
     if case_id is None:
         case_id = (f"outdoor_{Path(mesh).stem}_{perturbation}_{target or 'untargeted'}"
-                   + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed,
+                   + settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed,
                                       texture_smoothing, spp, method))
     if _skip_finished(resume, db, experiment, case_id):
         return
     mesh_obj = default_aeroplane() if mesh == "aeroplane" else load_mesh_arg(mesh)[0]
-    kwargs.update(_ddn_scaled(method, perturbation, mesh_obj))
+    kwargs.update(ddn_shape_options(method, perturbation, mesh_obj))
     hidden = outdoor_classifier_setup(mesh_obj, image_size=size, spp=spp)
     row = blackbox_classifier(mesh_obj, hidden, victim=load_victim(victim), true_class=true_class, target=target,
                               perturbation=perturbation, attack_kwargs=kwargs, jitter=jitter_dict,
@@ -481,8 +415,7 @@ def blackbox_classifier_cmd(
 def blackbox_detector_cmd(
     hide: str = typer.Option("dining table", help="Class to hide (detector class name), e.g. 'chair'."),
     victim: str = typer.Option("ssd_mobilenet_v2_coco", help="Detector victim."),
-    perturbation: str = typer.Option("texture", "--perturbation", "--perturb",
-                                     help="texture or shape (of the bunny; --perturb is the old name)."),
+    perturbation: str = typer.Option("texture", "--perturbation", help="texture or shape (of the bunny)."),
     context: str = typer.Option("photo", help="photo: only the bunny is rendered by meshadv, over the Mitsuba photo; "
                                 "render: desk, chair and bunny are rendered by meshadv over the empty room."),
     light_fit: str = typer.Option("object", help="object: fit the lights on the bunny's pixels (the light where it "
@@ -514,7 +447,7 @@ def blackbox_detector_cmd(
     resume: bool = typer.Option(False, "--resume", help=_RESUME_HELP),
 ) -> None:
     """Black-box pipeline against a detector: the bunny on the indoor desk hides the table (or the chair)."""
-    from meshadv.transfer.blackbox import blackbox_detector
+    from meshadv.transfer.blackbox import blackbox_detector, ddn_shape_options, settings_suffix
     from meshadv.transfer.setups import indoor_detector_setup
     from meshadv.victims import load_victim
 
@@ -538,12 +471,12 @@ def blackbox_detector_cmd(
                    + (f"_{context}" if context != "photo" else "")
                    + ("_lightsknown" if light_fit != "object" else "")
                    + (f"_scale{object_scale:g}" if object_scale != 1.0 else "")
-                   + _settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed,
+                   + settings_suffix(jitter, eot, margin, pixel_noise, antialias, steps, 100, light_jitter, seed,
                                       texture_smoothing, spp, method))
     if _skip_finished(resume, db, experiment, case_id):
         return
     setup = indoor_detector_setup(image_size=size, spp=spp, object_scale=object_scale)
-    kwargs.update(_ddn_scaled(method, perturbation, setup.objects[setup.object_index]))
+    kwargs.update(ddn_shape_options(method, perturbation, setup.objects[setup.object_index]))
     row = blackbox_detector(setup.objects, setup.object_index, setup.hidden, victim=load_victim(victim),
                             hide_class=hide, perturbation=perturbation, context=context, light_fit=light_fit,
                             background_exclude=setup.background_exclude,

@@ -14,9 +14,9 @@ Heavy modules (tables, figures, jobs) are imported on use, not here.
 from __future__ import annotations
 
 from meshadv.experiments.backends import BACKENDS, Backend, LocalBackend, RayBackend, SerialBackend, make_backend
-from meshadv.experiments.runner import SweepSummary, job_out_dir, run_sweep
+from meshadv.experiments.runner import SweepSummary, run_sweep
 from meshadv.experiments.spec import canonical_json, job_id, job_ref, resolve_job
-from meshadv.experiments.store import STATES, JobRow, ResultStore, driver_lock
+from meshadv.experiments.store import STATES, JobRow, ResultStore, driver_lock, job_out_dir
 from meshadv.experiments.worker import Outcome, execute
 
 __all__ = [

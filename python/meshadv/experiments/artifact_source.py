@@ -76,7 +76,7 @@ class ArtifactSource:
         if self.use_stored and _complete(row.out_dir, record):
             found = Path(str(row.out_dir))
         elif self.root is not None:
-            from meshadv.experiments.runner import job_out_dir
+            from meshadv.experiments.store import job_out_dir
 
             target = job_out_dir(self.root, row.job_id)
             check = _read_check(target / "regeneration.json") if _complete(target, record) else None

@@ -60,7 +60,7 @@ def compute_environment() -> Dict[str, str]:
     """What an attack's float rounding depends on besides its code and inputs: the CPU model, the instruction set
     torch's CPU kernels use (``torch.backends.cpu.get_cpu_capability()``: AVX2, AVX512, ...; ``ATEN_CPU_CAPABILITY``
     lowers it) and torch's thread count. An attack is a chaotic trajectory, so a job reruns bit for bit only where
-    these match (benchmarks/RESULTS.md, "Regenerating paper_medium's artefacts"); each job record keeps them."""
+    these match (docs/guide/sweeps.md, "Resuming and stopping"); each job record keeps them."""
     out = {"cpu": _cpu_model()}
     try:
         import torch

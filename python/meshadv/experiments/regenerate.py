@@ -24,8 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 
-from meshadv.experiments.runner import job_out_dir
-from meshadv.experiments.store import ResultStore
+from meshadv.experiments.store import ResultStore, job_out_dir
 from meshadv.experiments.worker import execute
 
 __all__ = ["Regenerated", "regenerate_job", "ensure_artifacts", "stored_job_ref", "pinned_spec", "load_assumed",

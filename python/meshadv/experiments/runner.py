@@ -19,16 +19,16 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterable, Optional, Union
+from typing import Any, Callable, Dict, Iterable, List, Optional, Union
 
 from meshadv.experiments.artifacts import deliver
 from meshadv.experiments.backends import Backend, LocalBackend
 from meshadv.experiments.progress import Progress
-from meshadv.experiments.spec import JobFn, job_id, job_ref
-from meshadv.experiments.store import ResultStore, driver_lock
+from meshadv.experiments.spec import JobFn, job_id, job_ref, resolve_job
+from meshadv.experiments.store import ResultStore, driver_lock, job_out_dir
 from meshadv.experiments.worker import StepReport
 
-__all__ = ["SweepSummary", "run_sweep", "job_out_dir", "CHECKPOINT_EVERY"]
+__all__ = ["SweepSummary", "run_sweep", "PrepareSpecs", "CHECKPOINT_EVERY"]
 
 #: The runner copies the write-ahead log into the ``.db`` file after this many attempts (and at the end), so a copy of
 #: the ``.db`` file alone (e.g. committed to git) misses at most this many recent results, which then run again.
@@ -58,27 +58,8 @@ class SweepSummary:
     not_started: int = 0
 
 
-def job_out_dir(out_root: Union[str, Path], job_id: str) -> Path:
-    """Artefact folder of a job: ``<out_root>/jobs/<first 2 hex digits>/<job_id>``."""
-    return Path(out_root) / "jobs" / job_id[:2] / job_id
-
-
-def _attack_job_pins(ref: str, store: ResultStore, queue: Any) -> Optional[Dict[str, Any]]:
-    """The database's pinned defaults when the sweep runs the attack job (:func:`meshadv.experiments.jobs.
-    pin_defaults`), else ``None``."""
-    from meshadv.experiments.config import DEFAULT_JOB
-
-    if ref != DEFAULT_JOB:
-        return None
-    from meshadv.experiments.jobs import pin_defaults
-
-    return pin_defaults(store, [store.spec(jid) for jid in queue])
-
-
-def _pinned(spec: Dict[str, Any], pins: Dict[str, Any]) -> Dict[str, Any]:
-    from meshadv.experiments.regenerate import pinned_spec
-
-    return pinned_spec(spec, None, pins)[0]
+#: ``prepare_specs(store, specs) -> (spec -> spec)``: what a job's specs become before they run.
+PrepareSpecs = Callable[[ResultStore, List[Dict[str, Any]]], Callable[[Dict[str, Any]], Dict[str, Any]]]
 
 
 def run_sweep(
@@ -94,12 +75,15 @@ def run_sweep(
     planned_steps: Optional[Callable[[Dict[str, Any]], Optional[int]]] = None,
     on_steps: Optional[Callable[[StepReport], None]] = None,
     stop_starting: Optional[Callable[[], bool]] = None,
+    prepare_specs: Optional[PrepareSpecs] = None,
 ) -> SweepSummary:
     """Run every job of ``jobs`` that is not done yet, in their order, resumably.
 
-    Attack jobs (:func:`meshadv.experiments.jobs.run_attack_job`) run with the database's pinned defaults
-    (:func:`meshadv.experiments.jobs.pin_defaults`): what a spec does not name is fixed when its kind of job first
-    runs, so a sweep resumed after a default changed still runs its remaining jobs as it ran the first ones.
+    Before the queued jobs run, ``prepare_specs`` (by default the job function's ``prepare_specs`` attribute, if
+    it has one) maps each stored spec to the spec submitted: the attack job
+    (:func:`meshadv.experiments.jobs.run_attack_job`) fills in the database's pinned defaults
+    (:func:`meshadv.experiments.jobs.pin_defaults`), so a sweep resumed after a default changed still runs its
+    remaining jobs as it ran the first ones.
 
     Args:
         store: the results database.
@@ -121,6 +105,8 @@ def run_sweep(
         stop_starting: asked before each job is started; once it returns true no job starts any more, the running
             ones finish and are recorded, and the rest stay for the next run (e.g. a batch slot running out:
             ``meshadv sweep --stop-starting-after``, SIGUSR1).
+        prepare_specs: ``prepare_specs(store, queued_specs)`` returns the function applied to every spec before
+            it is submitted (default: the job function's ``prepare_specs`` attribute; none: specs run as stored).
 
     Returns:
         The :class:`SweepSummary`.
@@ -143,7 +129,9 @@ def run_sweep(
         be = backend if backend is not None else LocalBackend()
         runnable = set(store.runnable(max_attempts))
         queue = [jid for jid in ids if jid in runnable]
-        pins = _attack_job_pins(ref, store, queue)
+        if prepare_specs is None:
+            prepare_specs = getattr(resolve_job(ref), "prepare_specs", None)
+        prepare = None if prepare_specs is None or not queue else prepare_specs(store, [store.spec(j) for j in queue])
         counts = store.counts(ids)
         planned = {jid: planned_steps(store.spec(jid)) for jid in queue} if planned_steps is not None else None
         bar = Progress(total=counts["total"], done=counts["done"], successes=counts["successes"],
@@ -168,7 +156,7 @@ def run_sweep(
                     jid = queue.pop(0)
                     store.mark_running(jid)
                     out_dir = job_out_dir(out_root, jid)
-                    spec = store.spec(jid) if pins is None else _pinned(store.spec(jid), pins)
+                    spec = store.spec(jid) if prepare is None else prepare(store.spec(jid))
                     handle = be.submit(ref, jid, spec, os.fspath(out_dir))
                     in_flight[handle] = jid
                     ran += 1

@@ -1,7 +1,8 @@
 """meshadv.render: differentiable mesh rendering (PyTorch camera and shading, Rust rasterizer).
 
 Public API: :class:`Camera`, :class:`Lights`, :class:`ViewSet`, :func:`render`, :func:`render_silhouette`,
-:class:`RenderOutput`, :func:`rasterize`, :class:`RasterOutput`, :func:`face_normals`, :func:`shade`.
+:class:`RenderOutput`, :func:`rasterize`, :class:`RasterOutput`, :func:`face_normals`, :func:`shade`, and the names of
+the vertex gradients (:data:`VISIBILITY_GRADIENTS`).
 """
 
 from .camera import Camera
@@ -11,6 +12,7 @@ from .raycast import RayCastOutput, raycast
 from .renderer import RenderOutput, render, render_silhouette
 from .setup import RenderSetup, StaticObject, render_views
 from .views import ViewSet
+from .visibility import VISIBILITY_GRADIENTS
 
 __all__ = [
     "Camera",
@@ -20,6 +22,7 @@ __all__ = [
     "RenderOutput",
     "RenderSetup",
     "StaticObject",
+    "VISIBILITY_GRADIENTS",
     "ViewSet",
     "face_normals",
     "native_available",

@@ -1,6 +1,6 @@
 """Memory estimates for the native render ops, checked before anything large is allocated.
 
-A render far larger than the machine can hold used to abort the whole Python process inside the native code
+A render far larger than the machine can hold would abort the whole Python process inside the native code
 ("memory allocation of 4294967296 bytes failed"); :func:`check_memory` raises a ``MemoryError`` with the figures
 instead, while nothing has been allocated yet.
 """

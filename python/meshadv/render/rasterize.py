@@ -20,6 +20,7 @@ import torch
 from .. import _validate
 from ._checks import as_float_tensor, check_faces, require_instance
 from ._memory import check_memory, estimate_forward_bytes
+from .visibility import sweep_radius as _sweep_radius
 
 __all__ = ["MAX_IMAGE_SIDE", "RasterOutput", "native_available", "parse_image_size", "rasterize"]
 
@@ -124,6 +125,7 @@ class _Rasterize(torch.autograd.Function):
         cull_backfaces: bool,
         num_threads: int,
         orthographic: bool,
+        sweep_radius: int | None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         native = _native()
         v_np, a_np = _to_numpy_f32(verts_screen), _to_numpy_f32(face_attrs)
@@ -137,6 +139,7 @@ class _Rasterize(torch.autograd.Function):
         depth_t = torch.from_numpy(depth).to(device)
         ctx.save_for_backward(verts_screen, face_attrs, faces, background, image_t, index_t)
         ctx.params = (height, width, near, far, cull_backfaces, num_threads, orthographic)
+        ctx.sweep_radius = sweep_radius
         ctx.mark_non_differentiable(index_t, depth_t)
         # The index and depth never have a cotangent: no zero-filled (B,H,W) maps for them in every backward.
         ctx.set_materialize_grads(False)
@@ -150,7 +153,7 @@ class _Rasterize(torch.autograd.Function):
         height, width, near, far, cull_backfaces, num_threads, orthographic = ctx.params
         need_v, need_a = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
         if grad_image is None or not (need_v or need_a):
-            return (None,) * 11
+            return (None,) * 12
         # Attribute-only backward (e.g. texture attacks) skips the NMR vertex sweep, the expensive part.
         grad_v, grad_a = _native().rasterize_backward(
             _to_numpy_f32(verts_screen),
@@ -168,6 +171,7 @@ class _Rasterize(torch.autograd.Function):
             num_threads,
             orthographic,
             vertex_grad=bool(need_v),
+            sweep_radius=ctx.sweep_radius,
         )
         if need_v and not np.isfinite(grad_v).all() and bool(torch.isfinite(grad_image).all()):
             peak = float(face_attrs.detach().abs().max())
@@ -178,7 +182,7 @@ class _Rasterize(torch.autograd.Function):
             )
         gv = torch.from_numpy(grad_v).to(device=verts_screen.device, dtype=verts_screen.dtype) if need_v else None
         ga = torch.from_numpy(grad_a).to(device=face_attrs.device, dtype=face_attrs.dtype) if need_a else None
-        return gv, ga, None, None, None, None, None, None, None, None, None
+        return gv, ga, None, None, None, None, None, None, None, None, None, None
 
 
 def rasterize(
@@ -192,6 +196,7 @@ def rasterize(
     cull_backfaces: bool = False,
     num_threads: int = 0,
     orthographic: bool = False,
+    visibility_gradient: str = "nmr",
 ) -> RasterOutput:
     """Rasterize screen-space triangles with per-face attributes (differentiable, NMR gradients).
 
@@ -206,6 +211,9 @@ def rasterize(
         cull_backfaces: drop faces whose normal faces away from the camera.
         num_threads: worker threads for the native op (0 = all available). Results do not depend on it.
         orthographic: interpolate depth linearly (orthographic camera) instead of ``1/z`` (perspective).
+        visibility_gradient: the vertex gradient, ``"nmr"`` (docs/NMR_GRADIENT.md) or ``"local"``: NMR's sweeps
+            truncated to :data:`~meshadv.render.visibility.LOCAL_RADIUS` pixels of each edge
+            (docs/LOCAL_GRADIENT.md). The image does not depend on it.
 
     Returns:
         :class:`RasterOutput` with ``image`` (B,H,W,C) in the dtype of ``face_attrs``, ``face_index`` (B,H,W) int64
@@ -213,7 +221,7 @@ def rasterize(
 
     Raises:
         ValueError: bad dtype, shape, NaN/Inf, face index out of range, empty mesh, bad image size or clip range,
-            naming the offending argument.
+            unknown ``visibility_gradient``, naming the offending argument.
         ImportError: the native module is not built.
 
     Example:
@@ -223,7 +231,8 @@ def rasterize(
         torch.Size([1, 8, 8, 1])
     """
     out = _rasterize_int32(
-        verts_screen, faces, face_attrs, image_size, background, near, far, cull_backfaces, num_threads, orthographic
+        verts_screen, faces, face_attrs, image_size, background, near, far, cull_backfaces, num_threads, orthographic,
+        _sweep_radius(visibility_gradient),
     )
     return RasterOutput(image=out.image, face_index=out.face_index.long(), depth=out.depth)
 
@@ -239,9 +248,10 @@ def _rasterize_int32(
     cull_backfaces: bool,
     num_threads: int,
     orthographic: bool,
+    sweep_radius: int | None = None,
 ) -> RasterOutput:
     """:func:`rasterize` with the face index as the core's int32 (renderers that subsample it, or never read it,
-    convert only what they keep)."""
+    convert only what they keep) and the native backward's ``sweep_radius`` (``None``: NMR's gradient)."""
     verts_screen = _check_float_tensor(verts_screen, "verts_screen", (2, 3), "(B,N,3) or (N,3)")
     if verts_screen.dim() == 2:
         verts_screen = verts_screen.unsqueeze(0)
@@ -303,5 +313,6 @@ def _rasterize_int32(
         bool(cull_backfaces),
         int(num_threads),
         bool(orthographic),
+        sweep_radius,
     )
     return RasterOutput(image=image.to(face_attrs.dtype), face_index=face_index, depth=depth)

@@ -14,6 +14,7 @@ from ._checks import as_float_tensor, check_faces, require_instance
 from .camera import Camera
 from .lighting import Lights, shade
 from .rasterize import RasterOutput, _native, _rasterize_int32, parse_image_size
+from .visibility import sweep_radius as _sweep_radius
 
 __all__ = ["RenderOutput", "render", "render_silhouette"]
 
@@ -118,6 +119,7 @@ def _rasterize_views(
     camera: Camera,
     cull: bool,
     num_threads: int,
+    sweep_radius: int | None = None,
 ) -> RasterOutput:
     """Rasterize, one call per distinct clip range (one call in the usual case); the face index stays int32."""
     b = verts_screen.shape[0]
@@ -125,7 +127,8 @@ def _rasterize_views(
     if len(groups) == 1:
         _, near, far = groups[0]
         return _rasterize_int32(
-            verts_screen, faces, attrs, size, background, near, far, cull, num_threads, camera.orthographic
+            verts_screen, faces, attrs, size, background, near, far, cull, num_threads, camera.orthographic,
+            sweep_radius,
         )
     parts, order = [], []
     for idx, near, far in groups:
@@ -142,6 +145,7 @@ def _rasterize_views(
                 cull,
                 num_threads,
                 camera.orthographic,
+                sweep_radius,
             )
         )
         order.extend(idx)
@@ -175,8 +179,7 @@ class _BoxDownsample(torch.autograd.Function):
 
     The same values, bit for bit, as ``F.avg_pool2d(image.permute(0, 3, 1, 2), k, k)`` and its backward (the ``k*k``
     samples added in its order, row by row, and the sum divided by ``k*k``); the backward writes the cotangent
-    straight into the (B,kH,kW,C) layout the rasterizer's backward reads (benchmarks/RESULTS.md, "Native box
-    filter": batch 6 at 448 -> 224 px, one thread).
+    straight into the (B,kH,kW,C) layout the rasterizer's backward reads.
     """
 
     @staticmethod
@@ -213,6 +216,7 @@ def render(
     antialias: int = 1,
     num_threads: int = 0,
     edge_gradient: float = 1.0,
+    visibility_gradient: str = "nmr",
 ) -> RenderOutput:
     """Render a flat-shaded (per-face Lambert) mesh; differentiable in vertices, colours, lights and camera.
 
@@ -238,6 +242,9 @@ def render(
             colours, lights) is exact whatever ``w``. 1 (default) is NMR's definition; 0 leaves only shading. The
             image does not depend on it. Attacks use ``w < 1`` as a gradient estimator
             (:mod:`meshadv.attacks.budget`'s ``edge_gradient``).
+        visibility_gradient: which rasterization gradient: ``"nmr"`` (default, docs/NMR_GRADIENT.md) or ``"local"``,
+            NMR's sweeps truncated to :data:`~meshadv.render.visibility.LOCAL_RADIUS` output pixels of each edge
+            (docs/LOCAL_GRADIENT.md; cheaper). The image does not depend on it.
 
     Returns:
         :class:`RenderOutput` (image (B,3,H,W), alpha (B,1,H,W), depth (B,H,W), face_index (B,H,W) int64).
@@ -255,7 +262,7 @@ def render(
     """
     rgba, out, k = _render_rgba(
         vertices, faces, face_colors, camera, lights, image_size, background, fill_back, antialias, num_threads,
-        edge_gradient,
+        edge_gradient, visibility_gradient,
     )
     sub = slice(k // 2, None, k)
     return RenderOutput(
@@ -278,6 +285,7 @@ def _render_rgba(
     antialias: int,
     num_threads: int,
     edge_gradient: float,
+    visibility_gradient: str = "nmr",
 ) -> tuple[torch.Tensor, RasterOutput, int]:
     """:func:`render`'s work (arguments as there, checked): the (B,4,H,W) RGB + coverage image (a channels-last
     view), the supersampled raster it was averaged from (face index int32) and the supersampling factor. Callers
@@ -306,12 +314,15 @@ def _render_rgba(
     k = _check_antialias(antialias)
     parse_image_size((height * k, width * k), "image_size * antialias")
     edge_weight = finite_float("edge_gradient", edge_gradient, low=0.0)
+    radius = _sweep_radius(visibility_gradient, k)
 
     verts_screen = _scale_gradient(_project_checked(verts, camera, b), edge_weight)
     shaded = _expand(shade(verts, faces, colors, lights, camera, two_sided=bool(fill_back)), b)
     attrs = torch.cat([shaded, torch.ones_like(shaded[..., :1])], dim=-1)
     bg = torch.cat([_background(background, torch.float32), torch.zeros(1)])
-    out = _rasterize_views(verts_screen, faces, attrs, (height * k, width * k), bg, camera, not fill_back, num_threads)
+    out = _rasterize_views(
+        verts_screen, faces, attrs, (height * k, width * k), bg, camera, not fill_back, num_threads, radius
+    )
     return _downsample(out.image, k, num_threads), out, k
 
 

@@ -2,8 +2,9 @@
 
 An untargeted transfer only means something where the victim gets the benign object right *in Mitsuba's render*:
 an object the victim already misclassifies there is "fooled" without any attack. So every controlled transfer
-renders the benign mesh too (:func:`benign_specs`), scores it (:func:`benign_verdicts`), and the tables count
-untargeted transfer only on views whose benign Mitsuba render is right (:mod:`meshadv.transfer.tables`).
+renders the benign mesh too (``mitsuba_specs_for_case(case, benign=True)`` in :mod:`meshadv.transfer.controlled`),
+scores it (:func:`benign_verdicts`), and the tables count untargeted transfer only on views whose benign Mitsuba
+render is right (:func:`meshadv.transfer.results.transfer_table`).
 
 The benign mesh of a case comes from its attack: :func:`benign_mesh_of_attack_folder` (``meshadv attack`` /
 ``demo`` output: the saved ``benign.ply``, else the input mesh loaded again as the attack loaded it) and
@@ -18,8 +19,8 @@ from typing import Any, Dict, List, Mapping, Sequence
 
 import torch
 
-from meshadv.transfer._scoring import images_tensor, top1_names
-from meshadv.transfer.render import MitsubaImage
+from meshadv.transfer.mitsuba_process import MitsubaImage
+from meshadv.transfer.scoring import images_tensor, top1_names
 
 __all__ = ["BENIGN_FILE", "BenignVerdicts", "benign_mesh_of_attack_folder", "benign_mesh_of_job", "benign_verdicts"]
 

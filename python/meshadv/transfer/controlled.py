@@ -1,44 +1,303 @@
-"""Controlled-parameter transfer: re-render a sweep's adversarial meshes with Mitsuba 3 and test the victims.
+"""Controlled-parameter transfer: re-render adversarial meshes with Mitsuba 3 under the *same* camera and lights they
+were attacked with, and test the victims.
 
-Every adversarial mesh is re-rendered under the *same* camera and lights it was attacked with (the paper's Table 3
-and Fig. 5). Every Mitsuba render runs in a child process (:mod:`meshadv.transfer.render`), so a crash fails one
+* :func:`cases_from_store`: the adversarial meshes of a finished sweep with their views (:class:`TransferCase`);
+  :func:`case_from_attack_folder`: the one of a saved ``meshadv attack`` result.
+* :func:`controlled_transfer` renders and scores cases (one :class:`~meshadv.transfer.results.ControlledResult`
+  per view); :func:`transfer_case_into` does one case of a database and saves its rows at once (resumable), and
+  :func:`transfer_attack_folder` one attack folder.
+* Saved renders are named after what they show,
+  ``<class>_c<configuration>_to_<target>_<perturbation>_<victim>_<job id's first 8 hex digits>_v<view>.png``
+  (:func:`case_name`, :func:`save_images`), and ``index.csv`` in the same folder lists every file with its full job
+  id and outcome (:func:`write_image_index`).
+
+Every Mitsuba render runs in a child process (:mod:`meshadv.transfer.mitsuba_process`), so a crash fails one
 evaluation, never the sweep.
-
-The cases come from a sweep's database (:mod:`meshadv.transfer.cases`); saved renders are named after what they
-show, ``<class>_c<configuration>_to_<target>_<perturbation>_<victim>_<job id's first 8 hex digits>_v<view>.png``
-(:func:`~meshadv.transfer.cases.case_name`), and ``index.csv`` in the same folder lists every file with its full job id
-and outcome (:mod:`meshadv.transfer.images`). Those names are re-exported here.
 """
 
 from __future__ import annotations
 
+import csv
+import io
+import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Optional, Sequence, Union
+from typing import Any, Callable, Collection, Optional, Sequence, Union
 
 import torch
 
 from meshadv import _validate
-from meshadv.transfer._scoring import class_names, classifier_criteria, images_tensor, top1_names
-from meshadv.transfer.benign_control import benign_verdicts
-from meshadv.transfer.cases import TransferCase, case_name, cases_from_store
-from meshadv.transfer.images import INDEX_COLUMNS, save_images, write_image_index
-from meshadv.transfer.render import MitsubaImage, MitsubaRenderError, render_scenes
-from meshadv.transfer.results import ControlledResult
-from meshadv.transfer.spec import MeshObject, SceneSpec, scene_spec
+from meshadv.transfer.benign_control import benign_mesh_of_attack_folder, benign_mesh_of_job, benign_verdicts
+from meshadv.transfer.mitsuba_process import MitsubaImage, MitsubaRenderError, render_scenes
+from meshadv.transfer.mitsuba_spec import MeshObject, SceneSpec, scene_spec
+from meshadv.transfer.results import ControlledResult, load_transfer_rows, save_transfer_rows
+from meshadv.transfer.scoring import class_names, classifier_criteria, images_tensor, top1_names
 
 __all__ = [
-    "ControlledResult",
-    "INDEX_COLUMNS",
-    "TransferCase",
-    "case_name",
-    "write_image_index",
-    "cases_from_store",
-    "controlled_transfer",
-    "evaluate_case",
-    "mitsuba_specs_for_case",
-    "save_images",
+    "INDEX_COLUMNS", "TransferCase", "case_from_attack_folder", "case_name", "cases_from_store", "controlled_transfer",
+    "evaluate_case", "mitsuba_specs_for_case", "pending_cases", "save_images", "transfer_attack_folder",
+    "transfer_attack_summary", "transfer_case_into", "write_image_index",
 ]
+
+
+@dataclass(frozen=True)
+class TransferCase:
+    """One adversarial mesh to transfer, with the views it was attacked under.
+
+    Attributes:
+        case_id: identifier (the sweep job id, or any string).
+        mesh: the adversarial ``meshadv.mesh.Mesh``.
+        views: ``ViewSet.to_records()`` records of the views (camera + lights).
+        victim: victim name (``meshadv.victims.load_victim``).
+        true_class: the class of the benign object (PASCAL3D+ name or ImageNet spec).
+        target: the target class of a targeted attack, or None for an untargeted one.
+        perturbation: ``"shape"`` or ``"texture"``.
+        image_size: (H, W) of the renders.
+        background: RGB background of the renders.
+        benign_correct: whether the victim classified the benign render correctly (from the sweep), if known.
+        antialias: meshadv's supersampling factor for the reference render (the attack's own, so that
+            ``success_meshadv`` is the attack's success).
+        name: file stem of the case's saved renders (``<name>_v<view>.png``); ``""``: the ``case_id``.
+        benign_mesh: the benign mesh the attack started from, rendered by Mitsuba too as the control of untargeted
+            transfer (:mod:`meshadv.transfer.benign_control`); ``None``: no control (the rows say so).
+    """
+
+    case_id: str
+    mesh: Any
+    views: tuple[dict[str, Any], ...]
+    victim: str
+    true_class: str
+    target: Optional[str] = None
+    perturbation: str = ""
+    image_size: tuple[int, int] = (224, 224)
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    benign_correct: Optional[bool] = None
+    antialias: int = 1
+    name: str = ""
+    benign_mesh: Any = None
+
+    def __post_init__(self) -> None:
+        if not self.views:
+            raise ValueError("views must hold at least one view record")
+        object.__setattr__(self, "views", tuple(self.views))
+        size = self.image_size
+        size = (int(size), int(size)) if isinstance(size, (int, float)) else (int(size[0]), int(size[1]))
+        object.__setattr__(self, "image_size", size)
+
+
+def _slug(text: str) -> str:
+    """``text`` as a file-name part: runs of characters other than letters, digits, ``.``, ``_`` and ``-`` become
+    ``-`` (``"studio couch"`` -> ``"studio-couch"``)."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "-", str(text)).strip("-.") or "x"
+
+
+def case_name(spec: dict[str, Any], job_id: str) -> str:
+    """A readable, unique file stem for the renders of a sweep job:
+    ``<class>_c<configuration>_to_<target>_<perturbation>_<victim>_<job id[:8]>`` (``untargeted`` without a target;
+    the short id keeps names unique).
+
+    Example:
+        >>> case_name({"source_class": "aeroplane", "config_index": 0, "target": "bicycle",
+        ...            "perturbation": "shape", "victim": "efficientnet_lite0"}, "4bdd3c57b6a0d378")
+        'aeroplane_c0_to_bicycle_shape_efficientnet_lite0_4bdd3c57'
+    """
+    source = spec.get("source_class") or spec.get("mesh", {}).get("class") or "object"
+    target = spec.get("target") or "untargeted"
+    parts = [_slug(source), f"c{spec.get('config_index', 0)}", "to", _slug(target),
+             _slug(spec.get("perturbation") or "attack"), _slug(spec.get("victim") or "victim"), _slug(job_id[:8])]
+    return "_".join(parts)
+
+
+def cases_from_store(
+    db_path: Union[str, Path], *, limit: Optional[int] = None, only_successful: bool = True,
+    skip: Collection[str] = (), artifact_root: Optional[Union[str, Path]] = None, regenerate: bool = True,
+) -> list[TransferCase]:
+    """Collect the adversarial meshes of a finished sweep (single-view attack jobs) as transfer cases.
+
+    Reads the ``jobs`` table of the sweep database (``meshadv.experiments.ResultStore``); for each done job, the
+    adversarial mesh ``adversarial.ply`` and the views of its ``result.json`` in the job's folder. A job whose folder
+    is missing (the database was moved to another machine, or the sweep ran on a cluster) is regenerated from its
+    stored spec and seed into ``<artifact_root>/jobs/..`` (:func:`meshadv.experiments.regenerate.ensure_artifacts`).
+
+    Args:
+        db_path: the sweep's ``results.db``.
+        limit: at most this many cases.
+        only_successful: keep only attacks that succeeded in meshadv (as the paper does).
+        skip: job ids to leave out (e.g. those already transferred). Retries of stages the sweep's config no longer
+            has are left out too (:func:`meshadv.experiments.retries.superseded_retries`).
+        artifact_root: root of regenerated artefact folders (default: the database's folder).
+        regenerate: regenerate missing artefacts (else such jobs are left out).
+
+    Returns:
+        The cases, in database order.
+
+    Raises:
+        FileNotFoundError: ``db_path`` does not exist.
+        TypeError: ``limit`` is not an int (or None), or ``skip`` is a single string.
+        ValueError: ``limit < 1``.
+    """
+    from meshadv.experiments import ResultStore
+    from meshadv.experiments.retries import superseded_retries
+    from meshadv.experiments.sweep_file import stored_retry_stages
+
+    if not Path(db_path).is_file():
+        raise FileNotFoundError(f"db_path {db_path} does not exist")
+    if limit is not None:
+        _validate.positive_int("limit", limit)  # 0 used to give one case
+    if isinstance(skip, (str, bytes)):
+        raise TypeError("skip must be a collection of job ids, got a single string")
+    cases: list[TransferCase] = []
+    with ResultStore(db_path, read_only=True) as store:  # only read: a kill leaves no "open" mark behind
+        rows = store.rows()
+        stages = stored_retry_stages(store.get_meta("config_text"))
+    skip = {*skip, *superseded_retries(stages, rows)}  # retries of stages the config no longer has
+    rows = [row for row in rows if row.state == "done"]
+    for row in rows:
+        if not _wanted(row, skip, only_successful):
+            continue
+        out = Path(row.out_dir or "")
+        if regenerate and not (out / "result.json").is_file():
+            out = _regenerated(db_path, row, artifact_root)
+        case = _case_from_job(row, out)
+        if case is None:
+            continue
+        cases.append(case)
+        if limit is not None and len(cases) >= limit:
+            break
+    return cases
+
+
+def _wanted(row: Any, skip: Collection[str], only_successful: bool) -> bool:
+    """Whether a done job of the sweep is a case: a single-view attack, not skipped, not in ``skip``, and
+    successful in meshadv when ``only_successful``."""
+    spec, record = row.spec, row.record or {}
+    if spec.get("kind", "single") != "single" or record.get("skipped") or row.job_id in skip:
+        return False
+    return not (only_successful and not record.get("success"))
+
+
+def _regenerated(db_path: Union[str, Path], row: Any, artifact_root: Optional[Union[str, Path]]) -> Path:
+    """The job's artefact folder regenerated from its stored spec and seed under ``artifact_root`` (default: the
+    database's folder)."""
+    from meshadv.experiments.regenerate import ensure_artifacts
+
+    root = Path(artifact_root) if artifact_root is not None else Path(db_path).parent
+    return ensure_artifacts(db_path, row.job_id, root, row.out_dir)
+
+
+def _case_from_job(row: Any, out: Path) -> Optional[TransferCase]:
+    """The case of a done job from its folder ``out`` (``result.json`` and the adversarial mesh; the benign mesh from
+    the job's spec), or None when the folder lacks them or the result has no views."""
+    from meshadv.mesh import load_mesh
+
+    result_path = out / "result.json"
+    if not result_path.is_file():
+        return None
+    result = json.loads(result_path.read_text())
+    meshes = result.get("meshes") or [["adversarial.ply", "adversarial.obj"]]
+    mesh_path = out / meshes[0][0]
+    if not mesh_path.is_file() or not result.get("views"):
+        return None
+    spec, record = row.spec, row.record or {}
+    target = spec.get("target")
+    if target in ("", "untargeted", None):
+        target = None
+    size = result.get("config", {}).get("image_size") or spec.get("image_size") or 224
+    return TransferCase(
+        case_id=row.job_id,
+        mesh=load_mesh(mesh_path),
+        views=tuple(result["views"]),
+        victim=str(spec.get("victim", result.get("victim"))),
+        true_class=str(spec.get("source_class", spec.get("mesh", {}).get("class", ""))),
+        target=None if target is None else str(target),
+        perturbation=str(spec.get("perturbation", result.get("perturbation", ""))),
+        image_size=tuple(size) if isinstance(size, (list, tuple)) else (int(size), int(size)),
+        benign_correct=None if record.get("benign_correct") is None else bool(record["benign_correct"]),
+        antialias=int(result.get("config", {}).get("antialias") or 1),
+        name=case_name(spec, row.job_id),
+        benign_mesh=_benign_of_job(spec),
+    )
+
+
+def _benign_of_job(spec: dict[str, Any]) -> Any:
+    """The benign mesh of a job (:func:`~meshadv.transfer.benign_control.benign_mesh_of_job`), or ``None`` when its
+    spec's mesh cannot be loaded here (e.g. the shared data is missing): its rows then carry no benign control and
+    the tables leave them out of the untargeted count."""
+    try:
+        return benign_mesh_of_job(spec)
+    except (ValueError, FileNotFoundError, KeyError):
+        return None
+
+
+#: Columns of the renders' ``index.csv``.
+INDEX_COLUMNS = ("file", "job_id", "victim", "true_class", "target", "perturbation", "view", "success_meshadv",
+                 "success_mitsuba", "top1_meshadv", "top1_mitsuba")
+
+
+def write_image_index(image_dir: Union[str, Path], cases: Sequence[TransferCase],
+                      rows: Sequence[ControlledResult]) -> Path:
+    """Add the renders of ``cases`` to ``<image_dir>/index.csv`` (file name -> job id, classes, view, outcome), keeping
+    the entries of earlier runs; written atomically.
+
+    Args:
+        image_dir: the folder the renders were saved in.
+        cases: the transferred cases (their ``name`` and ``case_id``).
+        rows: their results (one per case and view).
+
+    Returns:
+        The index path.
+    """
+    from meshadv.util.atomic import write_text_atomic
+
+    path = Path(image_dir) / "index.csv"
+    entries = _read_index(path)
+    stems = {case.case_id: case.name or case.case_id for case in cases}
+    for row in rows:
+        if row.case_id not in stems or row.error is not None:
+            continue
+        entry = _index_entry(stems[row.case_id], row)
+        entries[entry["file"]] = entry
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fieldnames=INDEX_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for file in sorted(entries):
+        writer.writerow({k: entries[file].get(k, "") for k in INDEX_COLUMNS})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, out.getvalue())
+    return path
+
+
+def _read_index(path: Path) -> dict[str, dict[str, Any]]:
+    """The entries of an existing ``index.csv`` by file name (none when there is no such file)."""
+    if not path.is_file():
+        return {}
+    with open(path, newline="", encoding="utf-8") as fh:
+        return {row["file"]: row for row in csv.DictReader(fh)}
+
+
+def _index_entry(stem: str, row: ControlledResult) -> dict[str, Any]:
+    """The ``index.csv`` entry of the render of ``row``'s view, saved as ``<stem>_v<view>.png``."""
+    file = f"{stem}_v{row.view}.png"
+    return {"file": file, "job_id": row.case_id, "victim": row.victim, "true_class": row.true_class,
+            "target": row.target, "perturbation": row.perturbation, "view": row.view,
+            "success_meshadv": row.success_meshadv, "success_mitsuba": row.success_mitsuba,
+            "top1_meshadv": row.top1_meshadv, "top1_mitsuba": row.top1_mitsuba}
+
+
+def save_images(images: Sequence[MitsubaImage], out_dir: Union[str, Path], stem: str) -> list[Path]:
+    """Save Mitsuba renders as 8-bit PNGs ``<stem>_v<i>.png`` in ``out_dir`` (created if missing; linear values, as
+    meshadv's images) and return their paths."""
+    from meshadv.util.png import save_png
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i, im in enumerate(images):
+        path = out_dir / f"{stem}_v{i}.png"
+        save_png(im.image, path)
+        paths.append(path)
+    return paths
 
 
 def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int = 8, seed: int = 0,
@@ -174,7 +433,7 @@ def controlled_transfer(
 ) -> list[ControlledResult]:
     """Re-render each case with Mitsuba under its own camera and lights and test the victims (Table 3 / Fig. 5).
 
-    A case with a ``benign_mesh`` (every case of :func:`cases_from_store` and of ``meshadv transfer attack``) has
+    A case with a ``benign_mesh`` (every case of :func:`cases_from_store` and of :func:`case_from_attack_folder`) has
     its benign mesh rendered too, under the same views: the control of untargeted transfer
     (:mod:`meshadv.transfer.benign_control`).
 
@@ -195,7 +454,7 @@ def controlled_transfer(
         failed render gives results with ``error`` set and no success.
 
     Raises:
-        TypeError: a case is not a :class:`~meshadv.transfer.cases.TransferCase`, ``victim_loader`` is not
+        TypeError: a case is not a :class:`~meshadv.transfer.controlled.TransferCase`, ``victim_loader`` is not
             callable, or ``spp``, ``max_depth`` or ``timeout`` has the wrong type.
         ValueError: unknown ``on_error``, ``spp < 1``, ``max_depth`` neither ``>= 1`` nor ``-1``, or ``timeout <= 0``.
         MitsubaRenderError: a render failed and ``on_error == "raise"``.
@@ -254,3 +513,116 @@ def _failed(case: TransferCase, error: MitsubaRenderError) -> list[ControlledRes
         ControlledResult(**_identity(case, v), success_meshadv=None, success_mitsuba=None, error=str(error))
         for v in range(len(case.views))
     ]
+
+
+def pending_cases(db_path: Union[str, Path], *, experiment: str = "controlled", only_successful: bool = True,
+                  limit: Optional[int] = None) -> tuple[set[str], list[TransferCase]]:
+    """What a resumable controlled transfer of a sweep's database still has to do.
+
+    Args:
+        db_path: the sweep's ``results.db``.
+        experiment: the transfer run's name in the database.
+        only_successful: only attacks that succeeded in meshadv.
+        limit: at most this many cases to do.
+
+    Returns:
+        ``(done, todo)``: the case ids whose rows the database holds without an error, and the cases left (their
+        artefacts regenerated from the stored specs where missing).
+    """
+    done = {r["case_id"] for r in load_transfer_rows(db_path, experiment=experiment, kind="controlled")
+            if r.get("error") is None}
+    return done, cases_from_store(db_path, only_successful=only_successful, skip=done, limit=limit)
+
+
+def transfer_case_into(db_path: Union[str, Path], case: TransferCase, *, experiment: str = "controlled",
+                       spp: int = 64, max_depth: int = 8, variant: Optional[str] = None,
+                       image_dir: Optional[Union[str, Path]] = None) -> list[ControlledResult]:
+    """Transfer one case (:func:`controlled_transfer`) and save its rows into ``db_path`` at once (and its renders'
+    entries into ``image_dir``'s index), so an interrupted run loses no finished case.
+
+    Returns:
+        The case's rows, one per view.
+    """
+    rows = controlled_transfer([case], spp=spp, max_depth=max_depth, variant=variant, image_dir=image_dir)
+    save_transfer_rows(db_path, [row.to_record() for row in rows], experiment=experiment, kind="controlled")
+    if image_dir is not None:
+        write_image_index(image_dir, [case], rows)
+    return rows
+
+
+def case_from_attack_folder(folder: Union[str, Path]) -> TransferCase:
+    """The :class:`TransferCase` of a saved ``meshadv attack`` result: its first adversarial mesh, its views, victim,
+    classes and setup.
+
+    The benign object's class is the victim's pristine top-1 on the first view (what the attack moved away from);
+    the benign mesh (the control rendered by Mitsuba too) is the folder's ``benign.ply``, else the input mesh the
+    record names, loaded again.
+
+    Raises:
+        FileNotFoundError: ``folder`` holds no ``result.json`` or its mesh is missing.
+        ValueError: the result is not a classifier attack.
+    """
+    from meshadv.attacks.result import load_result_record
+    from meshadv.mesh import load_mesh
+
+    record = load_result_record(folder)
+    if not record.get("original_top1_names"):
+        raise ValueError(f"{folder}: only classifier attacks can be transferred this way (no top-1 in result.json)")
+    mesh_file = Path(folder) / record["meshes"][0][0]
+    if not mesh_file.is_file():
+        raise FileNotFoundError(f"{mesh_file} is missing: re-run the attack or copy the whole output folder")
+    config = record.get("config") or {}
+    criterion = record["criteria"][0]
+    adversarial = load_mesh(mesh_file)
+    return TransferCase(
+        case_id="mitsuba",  # the renders are saved as mitsuba_v<view>.png beside result.json
+        mesh=adversarial,
+        views=tuple(record["views"]),
+        victim=record["victim"],
+        true_class=record["original_top1_names"][0],
+        target=criterion.get("target_class"),
+        perturbation=record.get("perturbation", ""),
+        image_size=tuple(config.get("image_size") or (224, 224)),
+        background=tuple(config.get("background") or (1.0, 1.0, 1.0)),
+        benign_correct=None,
+        antialias=int(config.get("antialias") or 1),
+        benign_mesh=benign_mesh_of_attack_folder(Path(folder), record, int(adversarial.vertices.shape[0])),
+    )
+
+
+def transfer_attack_folder(folder: Union[str, Path], *, spp: int = 64, max_depth: int = 8,
+                           variant: Optional[str] = None,
+                           victim_loader: Optional[Callable[[str], Any]] = None) -> list[ControlledResult]:
+    """Render ``folder``'s adversarial mesh with Mitsuba under the attack's views and test the victim.
+
+    Writes ``transfer.json`` (one record per view, see :func:`evaluate_case`) and the Mitsuba renders
+    ``mitsuba_v<view>.png`` (adversarial) and ``mitsuba_benign_v<view>.png`` into ``folder``.
+
+    Returns:
+        One :class:`~meshadv.transfer.results.ControlledResult` per view.
+
+    Raises:
+        FileNotFoundError / ValueError: see :func:`case_from_attack_folder`.
+        ModuleNotFoundError: Mitsuba 3 is not installed (``pip install 'meshadv[transfer]'``).
+    """
+    import mitsuba  # noqa: F401  (a clear ModuleNotFoundError before any work)
+
+    from meshadv.util.atomic import write_json_atomic
+
+    case = case_from_attack_folder(folder)
+    rows = controlled_transfer([case], spp=spp, max_depth=max_depth, variant=variant, victim_loader=victim_loader,
+                               image_dir=folder, on_error="raise")
+    write_json_atomic({"folder": str(Path(folder).resolve()), "spp": spp, "max_depth": max_depth,
+                       "rows": [row.to_record() for row in rows]}, Path(folder) / "transfer.json")
+    return rows
+
+
+def transfer_attack_summary(rows: Sequence[ControlledResult]) -> str:
+    """One line on a transferred attack's views: targeted success in Mitsuba (targeted attacks), and the untargeted
+    transfer counted only on the views whose benign Mitsuba render is right (the benign control)."""
+    control = [r for r in rows if r.benign_correct_mitsuba]
+    untargeted = sum(bool(r.untargeted_mitsuba) for r in control)
+    targeted = (f"targeted transfer on {sum(bool(r.success_mitsuba) for r in rows)}/{len(rows)} views; "
+                if rows and rows[0].target else "")
+    return (f"{targeted}untargeted transfer on {untargeted}/{len(control)} views whose benign Mitsuba render is "
+            f"right ({len(rows) - len(control)} left out: the benign mesh is not its class there either)")

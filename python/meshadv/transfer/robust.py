@@ -1,45 +1,60 @@
-"""Making an attack found with *estimated* parameters survive a different renderer and the true parameters.
+"""Making an attack found with *estimated* parameters survive a different renderer and the true parameters, and
+running it.
 
-Tools of the black-box pipeline (:mod:`meshadv.transfer.blackbox`), built on the public attack API without
-changing it:
-
-* :class:`~meshadv.attacks.WithMargin` (defined with the other criteria in :mod:`meshadv.attacks.criteria`,
-  re-exported here) -- a criterion that counts an image as adversarial only when the wrapped criterion holds with a
-  margin ``required`` (logit units for classifiers, score units for detectors). The attacks keep the *least
-  distorted* successful step, which with a plain criterion is the first, borderline one (a logit margin of ~0.5),
-  and a borderline success does not survive anti-aliasing, Monte-Carlo noise or a slightly different light. With
-  :class:`WithMargin` the kept step is the least distorted one that holds with the margin.
-* :func:`eot_views` -- expectation over transformation: ``K`` copies of the estimated view, which the attack's
-  per-step ``jitter`` then perturbs independently, so every Adam step averages the loss over ``K`` random cameras and
-  lights (one batch), and success at a step needs every one of the ``K`` samples to be adversarial.
-* :class:`NoisyVictim` -- expectation over pixel noise: the victim sees every render with fresh Gaussian noise on the
-  rendered object, so the texture does not depend on exact pixel values that a path tracer's Monte-Carlo noise
-  changes (at 64 samples per pixel Mitsuba's noise has a standard deviation of about 0.01 on the outdoor aeroplane,
-  enough to undo a texture attack that held with a 3-logit margin, and 0.07 on the indoor bunny).
-* :class:`Occluded` -- puts back the photo's pixels where, in the photo, another object hides the attacked one (the
-  attack renders only the attacked object over the photo).
-* :class:`Robustness` -- the settings of a black-box attack that combine these tools, and :data:`DEFAULT_JITTER`, the
-  per-step jitter of the estimated camera and lights.
+* :class:`~meshadv.attacks.WithMargin` (in :mod:`meshadv.attacks.criteria`) counts an image as adversarial only when
+  the wrapped criterion holds with a margin (logit units for classifiers, score units for detectors), so the kept
+  step is the least distorted one that holds with the margin rather than a borderline one.
+* :func:`eot_views`: expectation over transformation, ``K`` copies of the estimated view that the attack's per-step
+  ``jitter`` perturbs independently; success at a step needs every sample to be adversarial.
+* :class:`NoisyVictim`: the victim sees every render with fresh Gaussian noise on the rendered object, so the
+  texture does not depend on exact pixel values that a path tracer's Monte-Carlo noise changes.
+* :class:`Occluded`: puts back the photo's pixels where, in the photo, another object hides the attacked one.
+* :class:`Robustness`: the settings that combine these tools; :data:`DEFAULT_JITTER`, the per-step jitter of the
+  estimated camera and lights (:func:`scaled_jitter` scales it).
+* :func:`object_attack`: the attack of a black-box run (shape, per-face texture or smoothed per-vertex texture,
+  restricted to one object of a merged scene by a mask); :func:`attack_estimated` runs it with the robustness
+  settings, :func:`meshadv_margins` and :func:`robust_rate` measure the result in meshadv.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable, Optional
 
 import torch
 from torch import Tensor
 
 from meshadv import _validate
 from meshadv.attacks.criteria import WithMargin
+from meshadv.render.setup import RenderSetup
 
 if TYPE_CHECKING:
     from meshadv.render import ViewSet
 
-__all__ = ["DEFAULT_JITTER", "NoisyVictim", "Occluded", "Robustness", "WithMargin", "eot_views", "restore_photo"]
+__all__ = [
+    "DEFAULT_JITTER", "NoisyVictim", "Occluded", "Robustness", "attack_estimated", "check_smoothing", "eot_views",
+    "meshadv_margins", "object_attack", "pixel_noise_where", "restore_photo", "robust_rate", "scaled_jitter",
+    "texture_attack",
+]
+
 
 #: Jitter of the estimated camera and lights at every attack step (the paper's step 3).
 DEFAULT_JITTER = {"azimuth": 5.0, "elevation": 5.0, "distance": 0.05, "light_direction": 0.2, "light_intensity": 0.2}
+
+
+def scaled_jitter(scale: float, light_scale: Optional[float] = None) -> dict[str, float]:
+    """:data:`DEFAULT_JITTER` with the camera entries times ``scale`` and the light entries times ``light_scale``
+    (default ``scale``).
+
+    Raises:
+        ValueError: ``scale`` or ``light_scale`` is negative.
+    """
+    if not scale >= 0:
+        raise ValueError(f"scale must be >= 0, got {scale}")
+    if light_scale is not None and not light_scale >= 0:
+        raise ValueError(f"light_scale must be >= 0, got {light_scale}")
+    light = scale if light_scale is None else light_scale
+    return {k: v * (light if k.startswith("light_") else scale) for k, v in DEFAULT_JITTER.items()}
 
 
 def eot_views(views: ViewSet, samples: int) -> ViewSet:
@@ -246,3 +261,89 @@ class Robustness:
         """The fields as result-row entries (``required_margin`` for ``margin``)."""
         return {"eot": self.eot, "required_margin": float(self.margin), "pixel_noise": float(self.pixel_noise),
                 "verify_samples": self.verify_samples, "robust_seed": self.seed}
+
+
+def _photo_background(setup: RenderSetup) -> Optional[Tensor]:
+    """The setup's background when it is a ``(3, H, W)`` photo (the pixel noise then goes on rendered pixels
+    only), else ``None`` (a plain colour: the noise goes everywhere)."""
+    return setup.background if setup.has_photo else None  # type: ignore[return-value]
+
+
+def attack_estimated(attack: Any, mesh: Any, views: ViewSet, victim: Any, criterion: Any, robustness: Robustness,
+                     setup: RenderSetup, callback: Optional[Callable[[Any], None]] = None) -> Any:
+    """Run ``attack`` with ``setup`` on the estimated ``views`` with the EOT batch, the margin and the pixel noise
+    of ``robustness``."""
+    attack_victim = victim
+    if robustness.pixel_noise > 0:
+        attack_victim = NoisyVictim(victim, robustness.pixel_noise, seed=robustness.seed,
+                                    background=_photo_background(setup))
+    return attack(mesh, eot_views(views, robustness.eot), attack_victim, WithMargin(criterion, robustness.margin),
+                  setup=setup, callback=callback)
+
+
+def pixel_noise_where(setup: RenderSetup, robustness: Robustness) -> Optional[str]:
+    """Where :func:`attack_estimated` puts the pixel noise: ``"rendered pixels"``, ``"whole image"`` or None."""
+    if robustness.pixel_noise == 0:
+        return None
+    return "rendered pixels" if _photo_background(setup) is not None else "whole image"
+
+
+def meshadv_margins(setup: RenderSetup, mesh: Any, views: ViewSet, victim: Any, bound: Any,
+                    chunk: int = 8) -> tuple[torch.Tensor, Any]:
+    """Margins (V,) of ``bound`` on meshadv's renders of ``mesh`` (the attack's render setup, clean victim),
+    and the first image (3, H, W)."""
+    from meshadv.attacks import evaluate
+
+    margins, first = [], None
+    for start in range(0, len(views), chunk):
+        part = evaluate(mesh, views[start:start + chunk], victim, bound, setup=setup)
+        first = part.images[0, 0] if first is None else first
+        margins.append(part.margins[0])
+    return torch.cat(margins), first
+
+
+def robust_rate(setup: RenderSetup, mesh: Any, views: ViewSet, victim: Any, bound: Any,
+                robustness: Robustness) -> Optional[float]:
+    """Fraction of ``robustness.verify_samples`` fresh views around the estimated ``views``, drawn with
+    :data:`DEFAULT_JITTER` whatever jitter the attack used (one yardstick for every run), on which ``mesh`` is
+    adversarial in meshadv."""
+    if robustness.verify_samples == 0:
+        return None
+    generator = torch.Generator().manual_seed(robustness.seed + 7919)  # not the attack's samples
+    samples = eot_views(views, robustness.verify_samples).jitter(generator, **DEFAULT_JITTER)
+    margins, _ = meshadv_margins(setup, mesh, samples, victim, bound)
+    return float((margins > 0).float().mean())
+
+
+def check_smoothing(texture_smoothing: Optional[int], perturbation: str) -> None:
+    """Check that ``texture_smoothing`` is None, or an int >= 0 with ``perturbation == "texture"``.
+
+    Raises:
+        TypeError: ``texture_smoothing`` is neither None nor an int.
+        ValueError: it is negative, or given for a shape attack.
+    """
+    if texture_smoothing is None:
+        return
+    if perturbation != "texture":
+        raise ValueError("texture_smoothing applies to texture attacks only (perturbation='texture')")
+    _validate.non_negative_int("texture_smoothing", texture_smoothing)
+
+
+def texture_attack(smoothing: Optional[int], face_mask: Optional[torch.Tensor], kwargs: dict[str, Any]) -> Any:
+    """The paper's per-face texture attack (``smoothing`` None) or the smoothed per-vertex one."""
+    from meshadv.attacks import SmoothTextureAttack, TextureAttack
+
+    if smoothing is None:
+        return TextureAttack(face_mask=face_mask, **kwargs)
+    return SmoothTextureAttack(smoothing=smoothing, face_mask=face_mask, **kwargs)
+
+
+def object_attack(perturbation: str, smoothing: Optional[int], kwargs: dict[str, Any],
+                   mask: Optional[torch.Tensor] = None) -> Any:
+    """The attack of a black-box run: a texture attack (:func:`texture_attack`, ``mask`` its face mask) or a
+    ``ShapeAttack`` (``mask`` its vertex mask); ``mask`` None: the whole mesh may change."""
+    from meshadv.attacks import ShapeAttack
+
+    if perturbation == "texture":
+        return texture_attack(smoothing, mask, kwargs)
+    return ShapeAttack(**kwargs) if mask is None else ShapeAttack(vertex_mask=mask, **kwargs)
