@@ -41,8 +41,10 @@ pub mod raycast;
 pub mod setup;
 pub mod shading;
 mod simd;
+pub mod surface;
 #[cfg(test)]
 mod test_rng;
+pub mod texture;
 
 pub use backward::{rasterize_backward, BackwardInputs, Gradients};
 pub use camera::MIN_VIEWING_ANGLE;

@@ -142,7 +142,8 @@ def attack_step(attack: AttackFamily, p: Tensor, idx: Tensor, criteria: List[Cri
         rule: the update rule, whose ``objective`` is differentiated.
     """
     verts, colors = attack.apply(p, call.mesh, call.edges)
-    images, alpha = call.setup.render(verts, call.mesh.faces, colors, views, rule.edge_gradient)
+    images, alpha = call.setup.render(verts, call.mesh.faces, colors, views, rule.edge_gradient,
+                                      visibility_gradient=rule.visibility_gradient)
     output = call.victim(images)
     adv, margins = adversarial_terms(attack, output, criteria, len(views))
     perc, dist = attack.terms(p, call.mesh, call.edges, images, alpha, len(views))

@@ -156,6 +156,10 @@ def attack(
         None, help="shape only: rounds of neighbour averaging of the optimised vertex flow (default: the attack's; "
                    "0 = the paper's exact per-vertex flow)"),
     binary_search: int = typer.Option(1, help="--method adam: binary-search rounds over lambda (paper: 5)"),
+    visibility_gradient: Optional[str] = typer.Option(
+        None, help="--method ddn, shape only: the rasterization gradient of the vertices, nmr (the Neural Mesh "
+                   "Renderer's, docs/NMR_GRADIENT.md) or local (its sweeps cut to 2 pixels of each edge, "
+                   "docs/LOCAL_GRADIENT.md; cheaper); default: the rule's"),
     loss: str = typer.Option("ce", help="classifier loss: ce or cw"),
     kappa: float = typer.Option(0.0, help="C&W confidence"),
     early_stop: Optional[int] = typer.Option(
@@ -194,6 +198,7 @@ def attack(
     from meshadv.commands._benign_gate import benign_gate, source_class
     from meshadv.commands._comparison import write_attack_outputs
     from meshadv.render import RenderSetup
+    from meshadv.render.visibility import check_visibility_gradient
     from meshadv.victims import load_victim
 
     torch.manual_seed(seed)
@@ -205,6 +210,10 @@ def attack(
             "--smoothing": bool(smoothing)})
         if early_stop is None:
             early_stop = 0 if method == "ddn" else 10
+        if visibility_gradient is not None and (method != "ddn" or perturbation != "shape"):
+            raise ValueError("--visibility-gradient applies to --method ddn --perturbation shape only")
+        method_options = None if visibility_gradient is None else {
+            "visibility_gradient": check_visibility_gradient(visibility_gradient, "--visibility-gradient")}
         loaded = load_mesh_input(mesh, z_up=z_up)
         mesh_obj, label = loaded.mesh, loaded.label
         az = parse_azimuth_range(azimuths)
@@ -220,7 +229,7 @@ def attack(
         attack_obj = build_attack(
             perturbation, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
-            max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method,
+            max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, method_options=method_options,
             perceptibility_cap=parse_cap(cap), **shape_only,
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)

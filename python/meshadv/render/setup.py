@@ -161,7 +161,8 @@ class RenderSetup:
         }
 
     def render(self, vertices: Tensor, faces: Tensor, face_colors: Tensor, views: Any,
-               edge_gradient: float = 1.0, num_threads: int = 0) -> Tuple[Tensor, Tensor]:
+               edge_gradient: float = 1.0, num_threads: int = 0,
+               visibility_gradient: str = "nmr") -> Tuple[Tensor, Tensor]:
         """Render ``K`` versions of the attacked mesh (one topology) from each of ``V`` views in one batched call.
 
         The batch is mesh-major: image ``k * V + v`` is mesh ``k`` seen from view ``v``. Static objects are drawn in
@@ -177,6 +178,8 @@ class RenderSetup:
             num_threads: the native renderer's threads (forward and backward): 0 = rayon's global pool; a count runs
                 on a pool of the calling thread's own, which threads rendering at the same time do not share (an
                 attack's step workers). The images do not depend on it.
+            visibility_gradient: the rasterization gradient of the vertices, ``"nmr"`` or ``"local"``
+                (:func:`meshadv.render.render`; the update rule's choice). The images do not depend on it.
 
         Returns:
             ``(images (K*V, 3, H, W), alpha (K*V, 1, H, W))`` with ``(H, W) = output_size``.
@@ -204,7 +207,7 @@ class RenderSetup:
         # The image alone: an attack step never reads the depth or face-index maps.
         rgba, _, _ = _render_rgba(verts, faces, colors, batched.camera, batched.lights, self.image_size, bg,
                                   fill_back=True, antialias=self.antialias, num_threads=num_threads,
-                                  edge_gradient=edge_gradient)
+                                  edge_gradient=edge_gradient, visibility_gradient=visibility_gradient)
         image, alpha = rgba[:, :3], rgba[:, 3:4]
         if self.crop_rows is not None:
             rows = slice(*self.crop_rows)
