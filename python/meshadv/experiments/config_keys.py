@@ -1,7 +1,6 @@
 """The keys a sweep file may use, checked at load so that a misspelt key fails before any job runs.
 
-A misspelt key used to be silently ignored (``render.image_sise``, ``meshes.clases`` -> 84 jobs instead of 4,
-``stepz = 10`` under ``[attack.shape]`` failing every job at run time). :func:`check_keys` refuses every key not
+:func:`check_keys` refuses every key not
 listed here, naming its full dotted path and suggesting the closest valid key. The keys of ``[attack.shape]`` /
 ``[attack.texture]`` (and of protocols) are the keyword arguments of the attack classes in the family registry,
 read from their signatures, so they follow the attacks without a second list.

@@ -346,7 +346,7 @@ def _runner_section(raw: Dict[str, Any]) -> Dict[str, Any]:
 def _perturbations_key(table: Dict[str, Any], section: str) -> Tuple[Dict[str, Any], str]:
     """``table`` with the perturbation list under its one name, and the key the user wrote (for messages).
 
-    Configs written before issue 13 call it ``types``; giving both is an error.
+    ``types`` is read as the same key; giving both is an error.
     """
     if "types" not in table:
         return table, f"{section}.perturbations"

@@ -140,7 +140,7 @@ def cases_from_store(
     if not Path(db_path).is_file():
         raise FileNotFoundError(f"db_path {db_path} does not exist")
     if limit is not None:
-        _validate.positive_int("limit", limit)  # 0 used to give one case
+        _validate.positive_int("limit", limit)
     if isinstance(skip, (str, bytes)):
         raise TypeError("skip must be a collection of job ids, got a single string")
     cases: list[TransferCase] = []
