@@ -135,7 +135,7 @@ def cases_from_store(
     """
     from meshadv.experiments import ResultStore
     from meshadv.experiments.retries import superseded_retries
-    from meshadv.experiments.sweep_file import stored_retry_stages
+    from meshadv.experiments.config import stored_retry_stages
 
     if not Path(db_path).is_file():
         raise FileNotFoundError(f"db_path {db_path} does not exist")
