@@ -21,6 +21,7 @@ from typing import Any, Optional
 import numpy as np
 import torch
 
+from meshadv.render import Camera, Lights, ViewSet, render
 from meshadv.transfer.mitsuba_process import render_scenes
 from meshadv.transfer.mitsuba_spec import MeshObject, MitsubaCamera, mask_spec, scene_spec
 
@@ -100,8 +101,6 @@ def conversion_check(
     Returns:
         The :class:`ConversionCheck`.
     """
-    from meshadv.render import ViewSet, render
-
     views = ViewSet.from_records([record])
     with torch.no_grad():
         ours = render(mesh.vertices, mesh.faces, mesh.face_colors, views.camera, views.lights, image_size,
@@ -130,8 +129,6 @@ def head_light_record(distance: float, azimuth: float, elevation: float, light: 
                       viewing_angle: float = 30.0) -> dict[str, Any]:
     """A one-view record (``ViewSet.to_records()``) of a spherical camera with a head light (toward the camera,
     slightly offset) of intensity ``light`` and an ambient light ``ambient``."""
-    from meshadv.render import Camera, Lights, ViewSet
-
     camera = Camera.spherical(distance, azimuth, elevation, viewing_angle=viewing_angle)
     direction = (camera.eye() - camera.target()).detach()
     lights = Lights(direction.unsqueeze(1) + 0.3, [[light] * 3], [ambient] * 3)
