@@ -13,6 +13,7 @@ Usage:
     python benchmarks/render_bench.py --quick        # small grid
     python benchmarks/render_bench.py --no-mitsuba --out /tmp/results.md
     PYTHONPATH=/path/to/pytorch3d python benchmarks/render_bench.py   # with the PyTorch3D columns
+    python benchmarks/render_bench.py --deodr --rounds 15  # beside DEODR (benchmarks/deodr_comparison.py) only
 
 PyTorch3D (0.7.9 was timed) builds CPU-only from its source when no CUDA toolkit is found, outside this checkout:
     git clone https://github.com/facebookresearch/pytorch3d /path/to/pytorch3d && cd /path/to/pytorch3d
@@ -48,6 +49,7 @@ from meshadv.render.lighting import shade  # noqa: E402
 
 MARK_START = "<!-- render-bench:start -->"
 MARK_END = "<!-- render-bench:end -->"
+DEODR_MARKS = ("<!-- render-bench-deodr:start -->", "<!-- render-bench-deodr:end -->")
 DISTANCE, FOV = 2.732, 30.0
 READING_NOTE = (
     "meshadv's fwd+bwd is dominated by the Rust NMR vertex-gradient sweep (`rasterize_backward`), which, as NMR "
@@ -437,13 +439,15 @@ def reading(rows: list[dict]) -> str:
     return (text + " " + READING_NOTE).strip()
 
 
-def write_section(path: Path, text: str) -> None:
-    """Replace the render section (between markers) of ``path``, keeping everything else."""
-    block = f"{MARK_START}\n{text.rstrip()}\n{MARK_END}\n"
+def write_section(path: Path, text: str, marks: tuple[str, str] = (MARK_START, MARK_END)) -> None:
+    """Replace the section between the markers ``marks`` (the render section's by default) of ``path``, keeping
+    everything else; a new section goes at the end."""
+    start, end = marks
+    block = f"{start}\n{text.rstrip()}\n{end}\n"
     old = path.read_text() if path.exists() else "# Benchmark results\n\n"
-    if MARK_START in old and MARK_END in old:
-        head, rest = old.split(MARK_START, 1)
-        tail = rest.split(MARK_END, 1)[1].lstrip("\n")
+    if start in old and end in old:
+        head, rest = old.split(start, 1)
+        tail = rest.split(end, 1)[1].lstrip("\n")
         new = head + block + ("\n" + tail if tail else "")
     else:
         new = old.rstrip() + "\n\n" + block
@@ -470,7 +474,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-minutes", type=float, default=45.0, help="stop starting new cells after this long")
     parser.add_argument("--mitsuba-max-batch", type=int, default=8, help="skip Mitsuba for larger batches")
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "RESULTS.md")
+    parser.add_argument("--deodr", action="store_true",
+                        help="only the comparison with DEODR (benchmarks/deodr_comparison.py), its own section")
+    parser.add_argument("--rounds", type=int, default=15, help="--deodr: interleaved rounds (medians reported)")
+    parser.add_argument("--data", type=Path, default=Path(os.environ.get("MESHADV_DATA", Path(__file__).resolve()
+                                                                       .parents[2] / "shared" / "data")),
+                        help="--deodr: the shared data folder (the bunny)")
     args = parser.parse_args(argv)
+    if args.deodr:
+        return run_deodr_comparison(args, argv)
 
     face_counts = [1_000, 10_000] if args.quick else [1_000, 10_000, 100_000]
     sizes = [224] if args.quick else [224, 299, 512]
@@ -600,6 +612,24 @@ def main(argv: list[str] | None = None) -> int:
     if notes:
         lines += ["", "Mitsuba errors: " + "; ".join(notes)]
     write_section(args.out, "\n".join(lines))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def run_deodr_comparison(args: argparse.Namespace, argv: list[str] | None) -> int:
+    """``--deodr``: the comparison of benchmarks/deodr_comparison.py, written to its own section of ``args.out``."""
+    import deodr_comparison
+
+    version, why = deodr_comparison.probe_deodr()
+    print(f"deodr: {version or why}", flush=True)
+    load_start = os.getloadavg()[0]
+    rows = deodr_comparison.compare(args.data, args.rounds, version is not None)
+    info = machine_info()
+    machine = (f"{info['cpu']}, {info['cores']} cores visible, shared (1-minute load {load_start:.1f} at the start, "
+               f"{os.getloadavg()[0]:.1f} at the end); Python {info['python']}, PyTorch {info['torch']}, commit "
+               f"{info['commit']}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
+    cmd = "python benchmarks/render_bench.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    write_section(args.out, deodr_comparison.section(rows, cmd.strip(), machine, version or why), DEODR_MARKS)
     print(f"wrote {args.out}")
     return 0
 

@@ -163,6 +163,7 @@ def test_step_schedule_and_projection_into_the_ball() -> None:
     ({"edge_gradient": -0.1}, "edge_gradient"), ({"edge_gradient": float("inf")}, "edge_gradient"),
     ({"edge_gradient": float("nan")}, "edge_gradient"), ({"edge_gradient": True}, "edge_gradient"),
     ({"edge_gradient": "0.1"}, "edge_gradient"),
+    ({"visibility_gradient": "soft"}, "visibility_gradient"), ({"visibility_gradient": None}, "visibility_gradient"),
 ])
 def test_bad_options_raise_value_error_naming_them(options: Dict[str, Any], name: str) -> None:
     with pytest.raises(ValueError, match=name if name.startswith("^") else f"^{name}"):
@@ -211,7 +212,7 @@ def _chair_case() -> Any:
 
 
 @needs_native
-@pytest.mark.parametrize("extra", [{}, {"edge_gradient": 1.0}])
+@pytest.mark.parametrize("extra", [{}, {"edge_gradient": 1.0}, {"visibility_gradient": "local"}])
 def test_ddn_shape_reaches_targets_with_less_distortion_than_adam(extra: Dict[str, Any]) -> None:
     mesh, views, victim = _chair_case()
     targets = [TargetedMisclassification(728), TargetedMisclassification(247)]  # ranked 2nd and 3rd

@@ -117,6 +117,20 @@ def test_attack_method_option(tmp_path: Path) -> None:
     assert record["config"]["method"] == "ddn" and record["config"]["early_stop"] is None and record["steps"] == 3
 
 
+def test_attack_visibility_gradient_option(tmp_path: Path) -> None:
+    for bad in (["--visibility-gradient", "soft"], ["--visibility-gradient", "local", "--method", "adam"]):
+        result = runner.invoke(app, ["attack", "builtin:cube", "--target", "1", *bad, "-o", str(tmp_path / "v")])
+        assert result.exit_code == 2 and "--visibility-gradient" in unwrapped(result.output), result.output
+    _require_renderer()
+    _require_victim()
+    out = tmp_path / "local"
+    result = runner.invoke(app, ["attack", "builtin:chair", "--target", "bicycle", "--views", "1", "--steps", "2",
+                                 "--image-size", "64", "--visibility-gradient", "local", "--quiet", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "result.json").read_text())
+    assert record["config"]["method_options"]["visibility_gradient"] == "local"
+
+
 def test_demo_runs_end_to_end(tmp_path: Path) -> None:
     _require_renderer()
     _require_victim()

@@ -118,9 +118,10 @@ def test_pinned_spec_pins_what_the_record_says_else_the_assumed_defaults(tmp_pat
                                 "method_options": {"gamma": 0.2, "step_size": 1e-3, "anneal": "cosine"}}}
     out, notes = pinned_spec(spec, record)
     assert notes == [] and out["victim_optimize"] is False
-    # an option the record lacks (edge_gradient) takes the value the record ran with; one the rule no longer takes
-    # (anneal, at its neutral value) is left out
-    assert out["attack"]["method_options"] == {"gamma": 0.2, "step_size": 1e-3, "edge_gradient": 1.0}
+    # the options the record lacks (edge_gradient, visibility_gradient) take the values the record ran with; one the
+    # rule no longer takes (anneal, at its neutral value) is left out
+    assert out["attack"]["method_options"] == {"gamma": 0.2, "step_size": 1e-3, "edge_gradient": 1.0,
+                                               "visibility_gradient": "nmr"}
     assert out["attack"]["antialias"] == 2 and out["attack"]["lr"] == 0.001 and "perturbation" not in out["attack"]
     assert spec["attack"]["method_options"] == {"gamma": 0.2}  # the stored spec is not modified
     # an old record pins nothing: the assumed defaults fill in, the spec's own options still win
@@ -128,7 +129,8 @@ def test_pinned_spec_pins_what_the_record_says_else_the_assumed_defaults(tmp_pat
               "attack": {"shape": {"method": "ddn", "method_options": {"gamma": 0.05, "smoothness": 1.0}}}}
     out, notes = pinned_spec(spec, {"success": True}, assume)
     assert notes == [] and out["victim_optimize"] is True
-    assert out["attack"]["method_options"] == {"gamma": 0.2, "smoothness": 1.0, "edge_gradient": 1.0}
+    assert out["attack"]["method_options"] == {"gamma": 0.2, "smoothness": 1.0, "edge_gradient": 1.0,
+                                               "visibility_gradient": "nmr"}
     own = {**spec, "attack": {**spec["attack"], "method_options": {"edge_gradient": 0.1}}}
     assert pinned_spec(own, record)[0]["attack"]["method_options"]["edge_gradient"] == 0.1  # the spec's own wins
     texture = {"perturbation": "texture", "attack": {"method": "ddn"}}

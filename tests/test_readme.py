@@ -201,6 +201,8 @@ def _check_attacks(ns: dict, root: Path) -> None:
     assert "views" in ns["shape"].summary() and "views" in ns["texture"].summary()
     assert (root / "out" / "sofa-shape" / "result.json").is_file()
     assert ns["attack"].max_distortion == 3.0e-4 * ns["pairs"] and ns["pairs"] > 0
+    assert len(ns["result"].view_records) == 12 and ns["result"].config["eot"]["samples"] == 4
+    assert ns["custom"].eot.azimuth == (0.0, 360.0)
 
 
 def _check_victims(ns: dict, root: Path) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 from types import ModuleType
 
 import pytest
@@ -44,3 +45,30 @@ def test_pytorch3d_that_cannot_be_imported_is_reported_not_raised(
     monkeypatch.setitem(sys.modules, "pytorch3d", None)  # makes `import pytorch3d` raise ImportError
     version, message = bench.probe_pytorch3d()
     assert version is None and "PYTHONPATH" in message
+
+
+def test_the_deodr_section_gives_the_ratios_of_the_medians(bench: ModuleType) -> None:
+    comparison = load_benchmark("deodr_comparison")
+    rows = [{"scene": "icosphere", "faces": 5120, "size": 299, "antialias": 2, "nmr": 0.040, "local": 0.010,
+             "deodr": 0.020, "nmr_torch_share": 0.3, "local_torch_share": 0.5},
+            {"scene": "bunny", "faces": 10235, "size": 224, "antialias": 1, "nmr": 0.030, "local": 0.015,
+             "nmr_torch_share": 0.2, "local_torch_share": 0.25}]
+    text = comparison.section(rows, "python benchmarks/render_bench.py --deodr", "a machine", "0.2.3")
+    assert "| icosphere | 5120 | 299 | 2 | 40.0 | 10.0 | 20.0 | 2.00 | 0.50 | 30% | 50% |" in text
+    assert "| bunny | 10235 | 224 | 1 | 30.0 | 15.0 | – | – | – | 20% | 25% |" in text
+
+
+def test_deodr_that_cannot_be_imported_is_reported_not_raised(monkeypatch: pytest.MonkeyPatch) -> None:
+    comparison = load_benchmark("deodr_comparison")
+    monkeypatch.setitem(sys.modules, "deodr", None)
+    version, message = comparison.probe_deodr()
+    assert version is None and "pip install deodr" in message
+
+
+def test_a_second_section_is_written_beside_the_first(bench: ModuleType, tmp_path: Path) -> None:
+    out = tmp_path / "RESULTS.md"
+    bench.write_section(out, "## Renderer\nA")
+    bench.write_section(out, "## DEODR\nB", bench.DEODR_MARKS)
+    bench.write_section(out, "## DEODR\nC", bench.DEODR_MARKS)
+    text = out.read_text()
+    assert "## Renderer\nA" in text and "## DEODR\nC" in text and "## DEODR\nB" not in text

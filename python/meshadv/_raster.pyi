@@ -138,3 +138,86 @@ def render_full(
     Returns:
         ``(image (H,W,3), alpha (H,W), depth (H,W), face_index (H,W))``.
     """
+
+def pixel_weights(
+    verts_screen: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
+    face_index: npt.NDArray[np.int32],
+    near: float,
+    far: float,
+    orthographic: bool = False,
+    num_threads: int = 0,
+) -> npt.NDArray[np.float32]:
+    """Perspective-correct barycentric weights (B,H,W,3) of the face drawn at each pixel of ``face_index`` (B,H,W),
+    0 on background (docs/TEXTURES.md)."""
+
+def pixel_weights_backward(
+    verts_screen: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
+    face_index: npt.NDArray[np.int32],
+    grad_weights: npt.NDArray[np.float32],
+    near: float,
+    far: float,
+    orthographic: bool = False,
+    num_threads: int = 0,
+) -> npt.NDArray[np.float32]:
+    """Backward of ``pixel_weights``: the exact gradient (B,N,3) to ``verts_screen`` (x, y and z)."""
+
+def interpolate(
+    verts_screen: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
+    face_index: npt.NDArray[np.int32],
+    weights: npt.NDArray[np.float32],
+    corners: npt.NDArray[np.int32],
+    values: npt.NDArray[np.float32],
+    num_threads: int = 0,
+) -> npt.NDArray[np.float32]:
+    """Per-corner attributes ``values`` (Bv,A,K) with rows ``corners`` (M,3) interpolated with ``weights``
+    (B,H,W,3): (B,H,W,K), 0 on background."""
+
+def interpolate_backward(
+    verts_screen: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
+    face_index: npt.NDArray[np.int32],
+    weights: npt.NDArray[np.float32],
+    corners: npt.NDArray[np.int32],
+    values: npt.NDArray[np.float32],
+    grad: npt.NDArray[np.float32],
+    num_threads: int = 0,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """Backward of ``interpolate``: ``(grad_values (Bv,A,K), grad_weights (B,H,W,3))``."""
+
+def sample_texture(
+    texture: npt.NDArray[np.float32],
+    uv: npt.NDArray[np.float32],
+    face_index: npt.NDArray[np.int32],
+    wrap: str = "repeat",
+    num_threads: int = 0,
+) -> npt.NDArray[np.float32]:
+    """Bilinear samples (B,H,W,C) of ``texture`` (Bt,Ht,Wt,C) at ``uv`` (B,H,W,2) where ``face_index >= 0`` (0
+    elsewhere); ``wrap`` is ``"repeat"`` or ``"clamp"`` (docs/TEXTURES.md)."""
+
+def sample_texture_backward(
+    texture: npt.NDArray[np.float32],
+    uv: npt.NDArray[np.float32],
+    face_index: npt.NDArray[np.int32],
+    grad: npt.NDArray[np.float32],
+    wrap: str = "repeat",
+    num_threads: int = 0,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """Backward of ``sample_texture``: ``(grad_texture (Bt,Ht,Wt,C), grad_uv (B,H,W,2))``."""
+
+def image_vertex_backward(
+    verts_screen: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
+    face_index: npt.NDArray[np.int32],
+    image: npt.NDArray[np.float32],
+    grad_image: npt.NDArray[np.float32],
+    near: float,
+    far: float,
+    cull_backfaces: bool,
+    orthographic: bool = False,
+    num_threads: int = 0,
+) -> npt.NDArray[np.float32]:
+    """NMR's vertex gradient (B,N,3), z = 0, of an image (B,H,W,C) with per-pixel colours drawn with ``face_index``,
+    for its cotangent ``grad_image``; on an image drawn with per-face colours it is ``rasterize_backward``'s."""

@@ -27,7 +27,9 @@ from __future__ import annotations
 import difflib
 import math
 import numbers
+import os
 from collections.abc import Iterable, Sequence
+from pathlib import Path
 from typing import Any, Optional
 
 __all__ = [
@@ -35,11 +37,13 @@ __all__ = [
     "MAX_THREADS",
     "boolean",
     "choice",
+    "color",
     "finite_float",
     "index",
     "integer",
     "non_negative_int",
     "num_threads",
+    "path",
     "positive_float",
     "positive_int",
     "seed",
@@ -255,3 +259,29 @@ def index(name: str, value: Any, length: int) -> int:
     if not -length <= i < length:
         raise IndexError(f"{name} {i} is out of range for length {length}")
     return i + length if i < 0 else i
+
+
+def path(name: str, value: Any) -> Path:
+    """Return ``value`` as a :class:`~pathlib.Path`; only ``str`` and ``os.PathLike`` of ``str`` are paths.
+
+    Raises:
+        TypeError: ``value`` is not a ``str`` or ``os.PathLike`` (a ``bytes`` path, a number, ``None``).
+    """
+    if isinstance(value, str) or (isinstance(value, os.PathLike) and isinstance(os.fspath(value), str)):
+        return Path(value)
+    raise TypeError(f"{name} must be a path (str or os.PathLike), got {_type_name(value)} {value!r}")
+
+
+def color(name: str, value: Any) -> "tuple[float, float, float]":
+    """Return an RGB colour as 3 floats in ``[0, 1]``.
+
+    Raises:
+        TypeError: ``value`` is not a sequence of 3 real numbers (a string such as ``"red"``, ``None``).
+        ValueError: not 3 values, or a value is not finite or outside ``[0, 1]``.
+    """
+    if isinstance(value, (str, bytes)) or not isinstance(value, Iterable):
+        raise TypeError(f"{name} must be 3 numbers in [0, 1] (RGB), got {_type_name(value)} {value!r}")
+    items = list(value)
+    if len(items) != 3:
+        raise ValueError(f"{name} must be 3 numbers in [0, 1] (RGB), got {len(items)} values {value!r}")
+    return tuple(finite_float(f"{name}[{k}]", c, low=0.0, high=1.0) for k, c in enumerate(items))  # type: ignore

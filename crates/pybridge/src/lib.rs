@@ -6,6 +6,8 @@
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
+mod surface;
+
 use meshadv_raster::backward::Visibility;
 use meshadv_raster::boxfilter::{self, BoxShape};
 use meshadv_raster::camera::SphericalCamera;
@@ -250,6 +252,19 @@ impl<'py> OpArrays<'py> {
     }
 }
 
+/// The vertex gradient named by the bindings' `sweep_radius`: `None` NMR's, `r >= 1` the local one.
+fn visibility(sweep_radius: Option<i64>) -> PyResult<Visibility> {
+    match sweep_radius {
+        None => Ok(Visibility::Nmr),
+        Some(r) if r >= 1 => Ok(Visibility::Local {
+            radius: usize::try_from(r).unwrap_or(usize::MAX),
+        }),
+        Some(r) => Err(PyValueError::new_err(format!(
+            "sweep_radius: must be None (NMR's gradient) or an int >= 1, got {r}"
+        ))),
+    }
+}
+
 /// Rasterizes screen-space triangles with per-face attributes (see docs/ARCHITECTURE.md, "The native op").
 ///
 /// Returns `(image f32[B,H,W,C], face_index i32[B,H,W], depth f32[B,H,W])`.
@@ -314,17 +329,7 @@ fn rasterize_backward<'py>(
     sweep_radius: Option<i64>,
 ) -> PyResult<(PyArr<'py, f32>, PyArr<'py, f32>)> {
     let nt = threads(num_threads)?;
-    let visibility = match sweep_radius {
-        None => Visibility::Nmr,
-        Some(r) if r >= 1 => Visibility::Local {
-            radius: usize::try_from(r).unwrap_or(usize::MAX),
-        },
-        Some(r) => {
-            return Err(PyValueError::new_err(format!(
-                "sweep_radius: must be None (NMR's gradient) or an int >= 1, got {r}"
-            )))
-        }
-    };
+    let visibility = visibility(sweep_radius)?;
     let arrays = OpArrays::extract(verts_screen, faces, face_attrs, background)?;
     let face_index = array::<i32>("face_index", "int32", face_index)?;
     let image = array::<f32>("image", "float32", image)?;
@@ -587,7 +592,17 @@ fn _raster(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(box_spread, m)?)?;
     m.add_function(wrap_pyfunction!(raycast, m)?)?;
     m.add_function(wrap_pyfunction!(render_full, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::pixel_weights, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::pixel_weights_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::interpolate, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::interpolate_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::sample_texture, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::sample_texture_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(surface::image_vertex_backward, m)?)?;
     m.add("MAX_IMAGE_SIZE", meshadv_raster::MAX_IMAGE_SIZE)?;
     m.add("MAX_CACHED_POOLS", meshadv_raster::MAX_CACHED_POOLS)?;
+    m.add("MAX_MESH_FILE_BYTES", meshadv_raster::MAX_MESH_FILE_BYTES)?;
+    m.add("MIN_VIEWING_ANGLE", meshadv_raster::MIN_VIEWING_ANGLE)?;
+    m.add("MIN_LIGHT_DIRECTION", meshadv_raster::MIN_LIGHT_DIRECTION)?;
     Ok(())
 }

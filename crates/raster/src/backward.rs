@@ -158,10 +158,15 @@ struct Ctx<'a> {
     drawn: &'a [Drawn],
     rows: &'a lines::Lines,
     cols: &'a lines::Lines,
-    /// `(M + 1, C)` colours as f64: the face attributes, then the background (row `M`). The forward drew
-    /// `I[P] = colors[F[P]]` (background where `F[P] = -1`), so the IN sweeps read the colour beyond an edge here, by
-    /// the face index of the line buffers, rather than from the image (a cache and TLB miss per column line).
+    /// Per-face colours: `(M + 1, C)` colours as f64, the face attributes, then the background (row `M`). The
+    /// forward drew `I[P] = colors[F[P]]` (background where `F[P] = -1`), so the IN sweeps read the colour beyond an
+    /// edge here, by the face index of the line buffers, rather than from the image (a cache and TLB miss per column
+    /// line). Per-pixel colours ([`Ctx::per_pixel`]): the `(H * W, C)` image as f64.
     colors: &'a [f64],
+    /// Whether the colours are per pixel (a textured or smooth-shaded image): the OUT sweep's face colour on a line is
+    /// that of the face's pixel at the edge (`I[pix(d_in)]`) and the IN sweep's colour beyond the edge `I[pix(d_out)]`,
+    /// NMR's rule for images that vary within a face; with per-face colours both are the face attributes.
+    per_pixel: bool,
     /// `(H, W, C)` image (row-major, as given; debug builds check the colours read against it).
     image: &'a [f32],
     /// The channels of the image (and of `attrs`) whose cotangent is not all zero, ascending: the line buffers and
@@ -341,8 +346,11 @@ impl Ctx<'_> {
         let sgn = if s.ortho { -1.0 } else { 1.0 };
         let c = if C == 0 { self.kept.len() } else { C };
         let fi = f as f64;
-        let attrs_f = &self.colors[f * c..(f + 1) * c];
-        let background = self.colors.len() / c - 1;
+        let background = if self.per_pixel {
+            0
+        } else {
+            self.colors.len() / c - 1
+        };
         let jobs = &mut scratch.jobs;
         let mut g = [[0.0f64; 2]; 3];
         for e in 0..3 {
@@ -367,6 +375,11 @@ impl Ctx<'_> {
                     continue;
                 }
                 let comp = if axis == Axis::U { 1 } else { 0 };
+                // The flat pixel index of position `d` along line `line`.
+                let pix = |line: usize, d: usize| match axis {
+                    Axis::U => d * w as usize + line,
+                    Axis::V => line * w as usize + d,
+                };
                 // to_ndc(disp): U -> -2 disp / H, V -> 2 disp / W.
                 let ndc = match axis {
                     Axis::U => -2.0 / h as f64,
@@ -433,6 +446,11 @@ impl Ctx<'_> {
                         key0: 0.0,
                         inside: (0, 0),
                         out_color: 0,
+                        in_color: if self.per_pixel {
+                            pix(line, d_in as usize) * c
+                        } else {
+                            f * c
+                        },
                         sums: [0.0; 4],
                     };
                     // OUT: pixels beyond the edge that the face would cover (only where the cotangent is not zero).
@@ -477,8 +495,12 @@ impl Ctx<'_> {
                         job.inside = (from as usize, to as usize + 1);
                         let beyond = ln.face_at(line, d_out as usize);
                         let row = usize::try_from(beyond).unwrap_or(background);
-                        job.out_color = row * c;
-                        if cfg!(debug_assertions) {
+                        job.out_color = if self.per_pixel {
+                            pix(line, d_out as usize) * c
+                        } else {
+                            row * c
+                        };
+                        if cfg!(debug_assertions) && !self.per_pixel {
                             let out_px = match axis {
                                 Axis::U => d_out as usize * w as usize + line,
                                 Axis::V => line * w as usize + d_out as usize,
@@ -498,7 +520,7 @@ impl Ctx<'_> {
                     pos: self.pos,
                     fi,
                     key_step,
-                    attrs: attrs_f,
+                    channels: c,
                     own: (along[0], along[1]),
                     colors: self.colors,
                 };
@@ -606,7 +628,8 @@ pub fn rasterize_backward_on(
         .enumerate()
         .try_for_each(|(b, (gv, ga))| {
             let mut ws = workspace::take();
-            let done = element_grads(isa, mesh, attrs, params, inputs, b, gv, ga, &mut ws);
+            let colors = Colors::Faces(attrs);
+            let done = element_grads(isa, mesh, colors, c, params, inputs, b, gv, ga, &mut ws);
             workspace::give(ws);
             done
         })?;
@@ -614,6 +637,78 @@ pub fn rasterize_backward_on(
         grad_verts_screen,
         grad_face_attrs,
     })
+}
+
+/// NMR's vertex gradient of an image whose colours vary within faces (textured or smooth-shaded): `(B, N, 3)`
+/// gradient with respect to `verts_screen` (z component 0), for the forward's face index `(B, H, W)`, its image
+/// `(B, H, W, C)` and the image's cotangent `(B, H, W, C)`; `visibility` picks NMR's sweeps or their local truncation.
+///
+/// The definition of [`rasterize_backward`] (docs/NMR_GRADIENT.md) with the colours read from the image, as NMR does
+/// for textured faces: the colour a face would give a pixel beyond its edge is the image at the face's last pixel on
+/// that line (`I[pix(d_in)]`), and the colour uncovered inside a face is the image at the first pixel beyond the edge
+/// (`I[pix(d_out)]`). For an image drawn with per-face colours this is [`rasterize_backward`]'s vertex gradient bit
+/// for bit (tested). The interior change of the colours (UVs, normals moving with the vertices) is not part of it:
+/// see [`crate::surface::pixel_weights_backward`].
+pub fn image_vertex_backward(
+    mesh: &ScreenMesh<'_>,
+    params: &RasterParams,
+    face_index: &[i32],
+    image: &[f32],
+    grad_image: &[f32],
+    channels: usize,
+    visibility: Visibility,
+) -> Result<Vec<f32>> {
+    let isa = Isa::detect();
+    mesh.validate()?;
+    params.validate()?;
+    if channels == 0 {
+        return Err(RasterError::shape(
+            "image",
+            "(B, H, W, C) with C >= 1",
+            "C = 0",
+        ));
+    }
+    let inputs = BackwardInputs {
+        face_index,
+        image,
+        grad_image,
+        vertex_grad: true,
+        visibility,
+    };
+    let (m, c) = (mesh.num_faces(), channels);
+    inputs.validate(mesh.batch, m, c, params)?;
+    let nv = mesh.num_verts;
+    let mut grad_verts_screen = vec![0f32; mesh.batch * nv * 3];
+    grad_verts_screen
+        .par_chunks_mut(nv * 3)
+        .enumerate()
+        .try_for_each(|(b, gv)| {
+            let mut ws = workspace::take();
+            let done = element_grads(
+                isa,
+                mesh,
+                Colors::Pixels,
+                c,
+                params,
+                &inputs,
+                b,
+                gv,
+                &mut [],
+                &mut ws,
+            );
+            workspace::give(ws);
+            done
+        })?;
+    Ok(grad_verts_screen)
+}
+
+/// Where the vertex gradient reads the colours the forward drew.
+#[derive(Clone, Copy)]
+enum Colors<'a> {
+    /// Per-face attributes (flat): the attributes of the face drawn at a pixel, or the background.
+    Faces(&'a FaceAttrs<'a>),
+    /// The image itself, per pixel.
+    Pixels,
 }
 
 /// The channels (ascending) of the interleaved `(H, W, c)` cotangent `grad` that are not zero at every pixel.
@@ -656,13 +751,14 @@ fn nonzero_channels(grad: &[f32], c: usize) -> Vec<usize> {
     (0..c).filter(|&k| any[k] != 0).collect()
 }
 
-/// The gradients of batch element `b` (`gv`: its `(N, 3)` vertex gradient, `ga`: its `(M, C)` attribute gradient),
-/// in the buffers of `ws` (each refilled before it is read).
+/// The gradients of batch element `b` (`gv`: its `(N, 3)` vertex gradient, `ga`: its `(M, C)` attribute gradient,
+/// empty for per-pixel colours), for `c` channels, in the buffers of `ws` (each refilled before it is read).
 #[allow(clippy::too_many_arguments)]
 fn element_grads(
     isa: Isa,
     mesh: &ScreenMesh<'_>,
-    attrs: &FaceAttrs<'_>,
+    source: Colors<'_>,
+    c: usize,
     params: &RasterParams,
     inputs: &BackwardInputs<'_>,
     b: usize,
@@ -670,7 +766,7 @@ fn element_grads(
     ga: &mut [f32],
     ws: &mut workspace::Workspace,
 ) -> Result<()> {
-    let (m, c, hw) = (mesh.num_faces(), attrs.channels, params.pixels());
+    let (m, hw) = (mesh.num_faces(), params.pixels());
     let nv = mesh.num_verts;
     let workspace::Workspace {
         rows,
@@ -716,18 +812,20 @@ fn element_grads(
     }));
     rows.fill_rows(isa, setups, face_index, image, grad, c, &kept, params)?;
     cols.fill_columns(isa, rows)?;
-    try_clear_for(colors, (m + 1) * kept.len(), "backward colours")?;
-    let values = &attrs.values[b * m * c..(b + 1) * m * c];
-    if kept.len() == c {
-        // Every channel: one flat conversion (vectorised).
-        colors.extend(values.iter().chain(attrs.background).map(|&x| x as f64));
-    } else {
-        colors.extend(
-            values
-                .chunks_exact(c)
-                .chain([attrs.background])
-                .flat_map(|row| kept.iter().map(|&ch| row[ch] as f64)),
-        );
+    match source {
+        Colors::Faces(attrs) => face_colors(attrs, b, m, c, &kept, colors)?,
+        Colors::Pixels => {
+            try_clear_for(colors, hw * kept.len(), "backward colours")?;
+            if kept.len() == c {
+                colors.extend(image.iter().map(|&x| x as f64));
+            } else {
+                colors.extend(
+                    image
+                        .chunks_exact(c)
+                        .flat_map(|px| kept.iter().map(|&ch| px[ch] as f64)),
+                );
+            }
+        }
     }
     let longest = params.height.max(params.width);
     let pos = Positions::new(longest);
@@ -737,6 +835,7 @@ fn element_grads(
         rows,
         cols,
         colors,
+        per_pixel: matches!(source, Colors::Pixels),
         image,
         kept: &kept,
         pos: &pos,
@@ -772,6 +871,31 @@ fn element_grads(
     for (k, xy) in accv.chunks_exact(2).enumerate() {
         gv[k * 3] = xy[0] as f32;
         gv[k * 3 + 1] = xy[1] as f32;
+    }
+    Ok(())
+}
+
+/// Fills `colors` with the `(M + 1, kept)` per-face colours of batch element `b` (attributes, then the background).
+fn face_colors(
+    attrs: &FaceAttrs<'_>,
+    b: usize,
+    m: usize,
+    c: usize,
+    kept: &[usize],
+    colors: &mut Vec<f64>,
+) -> Result<()> {
+    try_clear_for(colors, (m + 1) * kept.len(), "backward colours")?;
+    let values = &attrs.values[b * m * c..(b + 1) * m * c];
+    if kept.len() == c {
+        // Every channel: one flat conversion (vectorised).
+        colors.extend(values.iter().chain(attrs.background).map(|&x| x as f64));
+    } else {
+        colors.extend(
+            values
+                .chunks_exact(c)
+                .chain([attrs.background])
+                .flat_map(|row| kept.iter().map(|&ch| row[ch] as f64)),
+        );
     }
     Ok(())
 }

@@ -5,6 +5,10 @@ use glam::DVec3;
 
 use crate::error::{RasterError, Result};
 
+/// Smallest accepted perspective field of view, degrees: narrower views project unit coordinates beyond what
+/// float32 screen coordinates hold (the Python camera refuses the same range).
+pub const MIN_VIEWING_ANGLE: f64 = 1e-4;
+
 /// A camera on a sphere around the origin, NMR's `get_points_from_angles` plus tilt. Angles in degrees.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SphericalCamera {
@@ -95,8 +99,8 @@ pub fn look_at(eye: DVec3, at: DVec3, up: DVec3, tilt_deg: f64) -> Result<ViewTr
 }
 
 impl SphericalCamera {
-    /// Checks the parameters: finite, `distance > 0`, `0 < viewing_angle < 180`, `0 <= near < far`,
-    /// `ortho_scale > 0`.
+    /// Checks the parameters: finite, `distance > 0`, `MIN_VIEWING_ANGLE <= viewing_angle < 180`,
+    /// `0 <= near < far`, `ortho_scale > 0`.
     pub fn validate(&self) -> Result<()> {
         let vals = [
             ("distance", self.distance),
@@ -120,10 +124,13 @@ impl SphericalCamera {
                 message: format!("must be > 0, got {}", self.distance),
             });
         }
-        if !(self.viewing_angle > 0.0 && self.viewing_angle < 180.0) {
+        if !(self.viewing_angle >= MIN_VIEWING_ANGLE && self.viewing_angle < 180.0) {
             return Err(RasterError::Parameter {
                 arg: "viewing_angle",
-                message: format!("must be in (0, 180) degrees, got {}", self.viewing_angle),
+                message: format!(
+                    "must be in [{MIN_VIEWING_ANGLE}, 180) degrees, got {}",
+                    self.viewing_angle
+                ),
             });
         }
         if self.ortho_scale <= 0.0 {

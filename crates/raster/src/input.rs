@@ -5,6 +5,9 @@ use crate::error::{RasterError, Result};
 /// Largest accepted image height or width.
 pub const MAX_IMAGE_SIZE: usize = 16384;
 
+/// Largest mesh file the readers open, in bytes (1 GiB): the render binary's and the Python loader's limit.
+pub const MAX_MESH_FILE_BYTES: u64 = 1 << 30;
+
 /// How screen-space depth is interpolated (and how the view rays are formed in the ray cast).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Projection {

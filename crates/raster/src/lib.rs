@@ -41,11 +41,17 @@ pub mod raycast;
 pub mod setup;
 pub mod shading;
 mod simd;
+pub mod surface;
 #[cfg(test)]
 mod test_rng;
+pub mod texture;
 
 pub use backward::{rasterize_backward, BackwardInputs, Gradients};
+pub use camera::MIN_VIEWING_ANGLE;
 pub use error::{try_filled_vec, ErrorKind, RasterError, Result};
-pub use input::{bits_hash, FaceAttrs, Projection, RasterParams, ScreenMesh, MAX_IMAGE_SIZE};
+pub use input::{
+    bits_hash, FaceAttrs, Projection, RasterParams, ScreenMesh, MAX_IMAGE_SIZE, MAX_MESH_FILE_BYTES,
+};
 pub use parallel::{with_threads, MAX_CACHED_POOLS};
 pub use raster::{rasterize, rasterize_fragments, Fragments, RasterOutput};
+pub use shading::MIN_LIGHT_DIRECTION;

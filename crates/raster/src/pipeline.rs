@@ -127,20 +127,7 @@ pub fn render(
         ));
     }
     check_finite("face_colors", reflectance)?;
-    if lights.directions.len() != lights.colors.len() {
-        return Err(RasterError::shape(
-            "light_colors",
-            format!("({}, 3) like light_directions", lights.directions.len()),
-            format!("({}, 3)", lights.colors.len()),
-        ));
-    }
-    for (arg, arr) in [
-        ("light_directions", &lights.directions),
-        ("light_colors", &lights.colors),
-    ] {
-        check_finite(arg, arr.as_flattened())?;
-    }
-    check_finite("ambient", &lights.ambient)?;
+    lights.validate()?;
     check_finite("background", &settings.background)?;
     let view = camera.view()?;
     let verts_view = world_to_view(verts_world, &view);
@@ -170,10 +157,26 @@ pub fn render(
         0.0,
     ];
     // Vertices at z <= 0 project to infinity; the rasterizer skips their faces, so give them finite placeholders.
-    let verts_screen: Vec<f32> = verts_screen
-        .into_iter()
-        .map(|x| if x.is_finite() { x } else { 0.0 })
-        .collect();
+    // A vertex in front of the camera must project to finite screen coordinates.
+    let mut verts_screen = verts_screen;
+    for (k, p) in verts_screen.chunks_exact_mut(3).enumerate() {
+        if p.iter().all(|x| x.is_finite()) {
+            continue;
+        }
+        if p[2] > 0.0 || camera.orthographic {
+            return Err(RasterError::Parameter {
+                arg: "verts_world",
+                message: format!(
+                    "vertex {k} projects beyond float32 screen coordinates (viewing_angle {} too narrow or the \
+                     vertex too far out)",
+                    camera.viewing_angle
+                ),
+            });
+        }
+        for x in p.iter_mut().filter(|x| !x.is_finite()) {
+            *x = 0.0;
+        }
+    }
     let mesh = ScreenMesh::new(&verts_screen, faces, 1, n)?;
     let params = RasterParams {
         height: settings.height,

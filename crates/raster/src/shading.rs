@@ -5,6 +5,13 @@
 
 use glam::DVec3;
 
+use crate::error::{RasterError, Result};
+use crate::input::check_finite;
+
+/// A light direction whose components are all at most this in magnitude is refused as the zero vector (it has
+/// no direction; the Python lights refuse the same).
+pub const MIN_LIGHT_DIRECTION: f32 = 1e-9;
+
 /// Directional lights plus ambient light.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Lights {
@@ -24,6 +31,36 @@ impl Default for Lights {
             colors: vec![[0.5, 0.5, 0.5]],
             ambient: [0.5, 0.5, 0.5],
         }
+    }
+}
+
+impl Lights {
+    /// Checks one colour per direction, finite values and non-zero directions (see [`MIN_LIGHT_DIRECTION`]).
+    pub fn validate(&self) -> Result<()> {
+        if self.directions.len() != self.colors.len() {
+            return Err(RasterError::shape(
+                "light_colors",
+                format!("({}, 3) like light_directions", self.directions.len()),
+                format!("({}, 3)", self.colors.len()),
+            ));
+        }
+        check_finite("light_directions", self.directions.as_flattened())?;
+        check_finite("light_colors", self.colors.as_flattened())?;
+        check_finite("ambient", &self.ambient)?;
+        if let Some(k) = self
+            .directions
+            .iter()
+            .position(|d| d.iter().all(|x| x.abs() <= MIN_LIGHT_DIRECTION))
+        {
+            return Err(RasterError::Parameter {
+                arg: "light_directions",
+                message: format!(
+                    "light {k} has the zero direction {:?}; give a non-zero vector toward the light",
+                    self.directions[k]
+                ),
+            });
+        }
+        Ok(())
     }
 }
 

@@ -120,23 +120,32 @@ fn z_up_to_y_up(v: &mut [f32]) {
     }
 }
 
-/// Centres the bounding box at the origin and scales the largest extent to 2.
-fn normalize(v: &mut [f32]) {
-    let mut lo = [f32::INFINITY; 3];
-    let mut hi = [f32::NEG_INFINITY; 3];
+/// Centres the bounding box at the origin and scales the largest extent to 2, in f64 (the extent of float32
+/// coordinates may overflow float32), as the Python `normalize_mesh`; a mesh of one point has no extent to scale.
+fn normalize(v: &mut [f32]) -> Result<(), CliError> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
     for p in v.chunks_exact(3) {
         for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
+            lo[a] = lo[a].min(p[a] as f64);
+            hi[a] = hi[a].max(p[a] as f64);
         }
     }
-    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0f32, f32::max);
-    let scale = if extent > 0.0 { 2.0 / extent } else { 1.0 };
+    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0f64, f64::max);
+    if extent <= 0.0 {
+        return Err(CliError::Argument {
+            arg: "--normalize",
+            message: "the mesh has zero extent (all vertices coincide); it cannot be normalised"
+                .into(),
+        });
+    }
+    let scale = 2.0 / extent;
     for p in v.chunks_exact_mut(3) {
         for a in 0..3 {
-            p[a] = (p[a] - 0.5 * (lo[a] + hi[a])) * scale;
+            p[a] = ((p[a] as f64 - 0.5 * (lo[a] + hi[a])) * scale) as f32;
         }
     }
+    Ok(())
 }
 
 fn run(args: Args) -> Result<(), CliError> {
@@ -155,7 +164,7 @@ fn run(args: Args) -> Result<(), CliError> {
         z_up_to_y_up(&mut mesh.vertices);
     }
     if args.normalize {
-        normalize(&mut mesh.vertices);
+        normalize(&mut mesh.vertices)?;
     }
     let camera = SphericalCamera {
         distance: args.distance,

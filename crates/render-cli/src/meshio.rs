@@ -12,8 +12,8 @@ use std::path::{Path, PathBuf};
 
 use thiserror::Error;
 
-/// Largest mesh file the binary reads, in bytes (1 GiB).
-pub const MAX_FILE_BYTES: u64 = 1 << 30;
+/// Largest mesh file the binary reads, in bytes (1 GiB, the Python loader's limit too).
+pub const MAX_FILE_BYTES: u64 = meshadv_raster::MAX_MESH_FILE_BYTES;
 
 /// Errors of the mesh readers, each naming the file (when there is one) and what is wrong.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -202,7 +202,9 @@ pub fn load_mesh(path: &Path) -> Result<Mesh, MeshError> {
     Ok(mesh)
 }
 
-/// Checks that the mesh is non-empty, finite and that faces refer to existing vertices.
+/// Checks that the mesh is non-empty, finite, that faces refer to existing vertices and that some face has an
+/// area (the rule of the Python loader: a face is degenerate when two corners are the same vertex or the cross
+/// product of its edges, in f64, is exactly zero).
 pub fn check_mesh(mesh: &Mesh) -> Result<(), MeshError> {
     let bad = |message: String| MeshError::InvalidMesh { message };
     let n = mesh.vertices.len() / 3;
@@ -218,6 +220,28 @@ pub fn check_mesh(mesh: &Mesh) -> Result<(), MeshError> {
             i / 3,
             mesh.faces[i]
         )));
+    }
+    let corner = |i: i32| {
+        let o = i as usize * 3;
+        [0, 1, 2].map(|a| mesh.vertices[o + a] as f64)
+    };
+    let has_area = |t: &[i32]| {
+        let [a, b, c] = [corner(t[0]), corner(t[1]), corner(t[2])];
+        let (u, v) = (
+            [0, 1, 2].map(|k| b[k] - a[k]),
+            [0, 1, 2].map(|k| c[k] - a[k]),
+        );
+        let cross = [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ];
+        t[0] != t[1] && t[1] != t[2] && t[0] != t[2] && cross.iter().any(|&x| x != 0.0)
+    };
+    if !mesh.faces.chunks_exact(3).any(has_area) {
+        return Err(bad(
+            "every face is degenerate (repeated corner or zero area)".into(),
+        ));
     }
     Ok(())
 }
@@ -653,7 +677,7 @@ fn ply_body(bytes: &[u8]) -> Result<Mesh, String> {
             for (pi, p) in el.props.iter().enumerate() {
                 if let Some(ct) = p.list {
                     let k = rd.read(ct)?;
-                    if !(0.0..=1_000_000.0).contains(&k) {
+                    if !(0.0..=1_000_000.0).contains(&k) || k.fract() != 0.0 {
                         return Err(format!(
                             "malformed PLY: {} {row}: bad list length {k}",
                             el.name
@@ -661,7 +685,15 @@ fn ply_body(bytes: &[u8]) -> Result<Mesh, String> {
                     }
                     let mut items = Vec::with_capacity(k as usize);
                     for _ in 0..k as usize {
-                        items.push(rd.read(p.kind)? as i64);
+                        let x = rd.read(p.kind)?;
+                        // A float list (indices as doubles) must hold integers: NaN or 1.5 is no index.
+                        if x.fract() != 0.0 || x.abs() > i64::MAX as f64 {
+                            return Err(format!(
+                                "malformed PLY: {} {row}: list {} holds {x}, not an integer",
+                                el.name, p.name
+                            ));
+                        }
+                        items.push(x as i64);
                     }
                     if is_face && (p.name == "vertex_indices" || p.name == "vertex_index") {
                         fan(&items, &mut faces, &format!("malformed PLY: face {row}"))?;

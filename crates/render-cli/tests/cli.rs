@@ -155,3 +155,119 @@ fn renders_the_shared_pascal_chair_when_present() {
         "{white} foreground pixels"
     );
 }
+
+/// Runs the binary on `mesh_text` (written as `name`) with `extra` options (after [`CAMERA`] unless they give
+/// an azimuth of their own) and returns (exit code, stderr).
+fn run_on(name: &str, mesh_text: &[u8], extra: &[&str]) -> (Option<i32>, String) {
+    let mesh = tmp(name);
+    std::fs::write(&mesh, mesh_text).expect("write");
+    let camera: &[&str] = if extra.contains(&"--azimuth") {
+        &[]
+    } else {
+        &CAMERA
+    };
+    let res = bin()
+        .arg(&mesh)
+        .args(camera)
+        .args(["--size", "16"])
+        .args(extra)
+        .arg("-o")
+        .arg(tmp(&format!("{name}.png")))
+        .output()
+        .expect("run");
+    (
+        res.status.code(),
+        String::from_utf8_lossy(&res.stderr).into_owned(),
+    )
+}
+
+const TRIANGLE: &[u8] = b"v -1 -1 0\nv 1 -1 0\nv 0 1 0\nf 1 2 3\n";
+
+#[test]
+fn inputs_the_python_api_refuses_are_errors_naming_what_is_wrong() {
+    let ply_double_list = |count: &str, index: &str| {
+        format!(
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty double x\nproperty double y\nproperty double z\n\
+             element face 1\nproperty list double double vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n\
+             {count} 0 {index} 2\n"
+        )
+        .into_bytes()
+    };
+    let cases: Vec<(&str, Vec<u8>, Vec<&str>, &str)> = vec![
+        (
+            "nan_index.ply",
+            ply_double_list("3", "nan"),
+            vec![],
+            "not an integer",
+        ),
+        (
+            "fraction_count.ply",
+            ply_double_list("3.9", "1"),
+            vec![],
+            "bad list length 3.9",
+        ),
+        (
+            "flat.obj",
+            b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n".to_vec(),
+            vec!["--normalize"],
+            "every face is degenerate",
+        ),
+        (
+            "point.obj",
+            b"v 1 1 1\nv 1 1 1\nv 1 1 1\nf 1 2 3\n".to_vec(),
+            vec!["--normalize"],
+            "degenerate",
+        ),
+        (
+            "narrow.obj",
+            TRIANGLE.to_vec(),
+            vec!["--viewing-angle", "1e-40"],
+            "viewing_angle",
+        ),
+        (
+            "tall.obj",
+            // far out along the view's x axis, in front of the camera
+            b"v -1 -1 0\nv 1 -1 0\nv 1e37 0 0\nf 1 2 3\n".to_vec(),
+            vec![
+                "--azimuth",
+                "0",
+                "--elevation",
+                "0",
+                "--distance",
+                "4",
+                "--viewing-angle",
+                "0.001",
+            ],
+            "projects beyond float32",
+        ),
+        (
+            "dark.obj",
+            TRIANGLE.to_vec(),
+            vec!["--light-dir", "0,0,0"],
+            "light_directions",
+        ),
+    ];
+    for (name, text, extra, needle) in cases {
+        let (code, err) = run_on(name, &text, &extra);
+        assert_eq!(code, Some(1), "{name}: {err}");
+        assert!(err.contains(needle), "{name}: {err:?} lacks {needle:?}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+}
+
+#[test]
+fn normalize_scales_float32_extremes_without_overflow() {
+    // The extent 6e38 overflows float32; normalised in f64 the triangle fills the view as at unit scale.
+    let huge = b"v -3e38 -3e38 0\nv 3e38 -3e38 0\nv 0 3e38 0\nf 1 2 3\n";
+    let mut coverage = Vec::new();
+    for (name, text) in [("huge.obj", &huge[..]), ("unit.obj", TRIANGLE)] {
+        let (code, err) = run_on(name, text, &["--normalize", "--mask"]);
+        assert_eq!(code, Some(0), "{name}: {err}");
+        let img = std::fs::read(tmp(&format!("{name}.png"))).expect("png");
+        coverage.push(img);
+    }
+    assert_eq!(
+        coverage[0], coverage[1],
+        "the huge triangle renders as the unit one"
+    );
+}

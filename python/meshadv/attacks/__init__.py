@@ -7,7 +7,9 @@ returns an :class:`AttackResult`:
     >>> result = ShapeAttack(steps=300)(mesh, views, victim, TargetedMisclassification("bicycle"))  # doctest: +SKIP
     >>> result.succeeded, result.distances[0]["laplacian_pair_mean"]                                 # doctest: +SKIP
 
-Several targets are attacked together as a batch by passing a list of criteria.
+Several targets are attacked together as a batch by passing a list of criteria. ``eot=N`` (or
+``**robust_options(perturbation, method)``) optimises over views drawn afresh at every step and judges success on
+fresh views (:mod:`meshadv.attacks.eot`, :mod:`meshadv.attacks.robust_settings`).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from meshadv.attacks.distances import (
     mesh_distances,
     read_distance,
 )
+from meshadv.attacks.eot import Transformations
 from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import (
     cw_targeted_margin,
@@ -45,6 +48,7 @@ from meshadv.attacks.result import AttackResult, load_result_record
 from meshadv.attacks.search import LambdaSearch
 from meshadv.attacks.budget import DDNRule  # noqa: F401  (registers method="ddn")
 from meshadv.attacks.families import PERTURBATIONS, attack_class, make_attack, perturbations
+from meshadv.attacks.robust_settings import robust_options
 from meshadv.attacks.shape import ShapeAttack
 from meshadv.attacks.smooth_texture import SmoothTextureAttack
 from meshadv.attacks.texture import TextureAttack
@@ -89,4 +93,6 @@ __all__ = [
     "displacement_stats",
     "mesh_distances",
     "smooth_flow",
+    "Transformations",
+    "robust_options",
 ]

@@ -19,6 +19,7 @@ from torch import Tensor
 
 from meshadv import _validate
 from meshadv.attacks.criteria import CLASSIFIER_LOSSES, Criterion, as_criteria
+from meshadv.attacks.eot import TransformationsLike, as_transformations
 from meshadv.attacks.history import StepInfo
 from meshadv.attacks.loop import AttackCall, run_attack
 from meshadv.attacks.result import AttackResult
@@ -71,7 +72,13 @@ class MeshAttack(ABC):
         success_fraction: fraction of the victim views that must be adversarial (1.0 = all).
         jitter: random view / light jitter at every step, keys of ``ViewSet.jitter`` (``azimuth``, ``elevation``,
             ``distance``, ``tilt``, ``light_direction``, ``light_intensity``); ``None`` for none.
-        seed: seed of the jitter generator (the attack is otherwise deterministic).
+        seed: seed of the jitter generator and of the EOT draws (the attack is otherwise deterministic).
+        eot: expectation over transformations (:mod:`meshadv.attacks.eot`): ``None`` (default) optimises the given
+            views; a sample count ``N``, a dict of :class:`~meshadv.attacks.eot.Transformations` fields or a
+            ``Transformations`` draws ``N`` fresh views from the whole range of the given views at every step
+            (sub-pixel shifts, lights, antialias, image size, blur and noise too), keeps the least distorted
+            parameters that hold on fresh check views, and measures the result's success on fresh evaluation views
+            (``success`` and ``view_records`` are theirs; ``eval_views``, if given, are scored as well).
         method: the update rule (:mod:`meshadv.attacks.update`): ``"adam"`` (default) is the paper's Adam on
             ``L_adv + lambda * L_perceptual`` with the ``lambda`` binary search; others are registered there.
         method_options: extra keyword options of the update rule (JSON-able), ``None`` for none.
@@ -102,6 +109,7 @@ class MeshAttack(ABC):
         seed: int = 0,
         method: str = "adam",
         method_options: Optional[Dict[str, Any]] = None,
+        eot: TransformationsLike = None,
     ) -> None:
         self.steps = _validate.positive_int("steps", steps)
         self.lr = _validate.positive_float("lr", lr)
@@ -121,6 +129,9 @@ class MeshAttack(ABC):
         if method_options is not None and not isinstance(method_options, dict):
             raise TypeError(f"method_options must be a dict or None, got {type(method_options).__name__}")
         self.method_options = dict(method_options or {})
+        self.eot = as_transformations(eot)
+        if self.eot is not None and self.jitter:
+            raise ValueError("jitter and eot exclude each other: eot draws its own cameras and lights at every step")
 
     # ------------------------------------------------------------------ the family's parametrisation
     @abstractmethod
@@ -184,13 +195,14 @@ class MeshAttack(ABC):
             ValueError: ``method_options`` the update rule rejects (as the attack call would), naming them.
         """
         rule = make_update_rule(self.method, attack=self, num_targets=1, **self.method_options)
+        robust = {} if self.eot is None else {"eot": self.eot.config()}
         return {
             "perturbation": self.perturbation, "steps": self.steps, "lr": self.lr,
             "lambda_perceptual": self.lambda_perceptual, "binary_search_steps": self.binary_search_steps,
             "loss": self.loss, "kappa": self.kappa, "early_stop": self.early_stop,
             "early_stop_margin": self.early_stop_margin, "max_distortion": self.max_distortion,
             "success_fraction": self.success_fraction, "jitter": self.jitter, "seed": self.seed, "method": self.method,
-            "method_options": {**self.method_options, **rule.config()},
+            "method_options": {**self.method_options, **rule.config()}, **robust,
         }
 
     def __repr__(self) -> str:

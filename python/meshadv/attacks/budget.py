@@ -23,12 +23,15 @@ attack's parameters belong to the attack family (:meth:`~meshadv.attacks.base.Me
   setting suits meshes of any resolution); directions ``(L + I / smoothness)^-1 grad`` (the preconditioner of
   Nicolet et al., SIGGRAPH Asia 2021), free of every connected component's translation. ``edge_gradient`` ``w >= 0``
   weights NMR's rasterization gradient beside the exact shading gradient in the vertex gradient the rule steps along
-  (:func:`meshadv.render.render`'s ``edge_gradient``; the images are the same; 1 is NMR's definition).
+  (:func:`meshadv.render.render`'s ``edge_gradient``; the images are the same; 1 is NMR's definition), and
+  ``visibility_gradient`` (``"nmr"`` or ``"local"``: NMR's sweeps cut to 2 output pixels of each edge,
+  docs/LOCAL_GRADIENT.md) chooses which rasterization gradient that is (:func:`meshadv.render.render`'s).
 * texture -- the face colours, measured by their RMSE (the paper's measure); directions along the colour gradient;
   colours clipped into ``[0, 1]`` after every step and written back as logits.
 
 Options (``method_options``): ``init_budget``, ``gamma``, ``step_size``, ``final_step_size`` and ``min_budget``
-(:class:`BudgetState`), ``edge_gradient`` (the rule's), and the family space's own (shape: ``smoothness``).
+(:class:`BudgetState`), ``edge_gradient`` and ``visibility_gradient`` (the rule's), and the family space's own
+(shape: ``smoothness``).
 
 Example:
     >>> from meshadv.attacks import ShapeAttack
@@ -47,6 +50,7 @@ from torch import Tensor
 from meshadv.attacks.families import PERTURBATIONS
 from meshadv.attacks.norms import TINY, per_row, positive_option
 from meshadv.attacks.update import UpdateRule, register_update_rule
+from meshadv.render.visibility import check_visibility_gradient
 
 __all__ = ["BudgetState", "DDNRule", "DDN_DEFAULTS", "DDN_ADDED_OPTIONS", "DDN_REMOVED_OPTIONS",
            "DDN_REFERENCE_DIAGONAL", "DDN_LENGTH_OPTIONS", "recorded_options", "shape_options_for"]
@@ -56,7 +60,8 @@ DDN_DEFAULTS: Dict[str, Dict[str, Any]] = {name: cls.budget_defaults() for name,
 
 #: Options the rule takes that a recorded (complete) options dict may lack, per perturbation, each at the value the
 #: rule behaves with when it is absent from such a record (:func:`recorded_options`).
-DDN_ADDED_OPTIONS: Dict[str, Dict[str, Any]] = {"shape": {"edge_gradient": 1.0}, "texture": {}}
+DDN_ADDED_OPTIONS: Dict[str, Dict[str, Any]] = {"shape": {"edge_gradient": 1.0, "visibility_gradient": "nmr"},
+                                                 "texture": {}}
 
 #: Options a recorded options dict may hold that the rule does not take, each at the one value with which the run
 #: behaved as the rule does without it (:func:`recorded_options` drops them).
@@ -99,8 +104,9 @@ def recorded_options(kind: str, options: Mapping[str, Any]) -> Dict[str, Any]:
     return out
 
 
-#: Options of :class:`BudgetState`; the rule's own is ``edge_gradient``, every other is the family space's.
+#: Options of :class:`BudgetState`; the rule's own are :data:`_RULE_OPTIONS`, every other is the family space's.
 _BUDGET_OPTIONS = ("init_budget", "gamma", "step_size", "final_step_size", "min_budget")
+_RULE_OPTIONS = ("edge_gradient", "visibility_gradient")
 
 class BudgetState:
     """Per-target budgets and the step schedule of the distortion-budget rule (see the module docstring).
@@ -185,6 +191,7 @@ class DDNRule(UpdateRule):
         num_targets: ``T``.
         init_budget, gamma, step_size, final_step_size, min_budget: :class:`BudgetState` options (norm units).
         edge_gradient: the weight of NMR's rasterization gradient in the vertex gradient (module docstring).
+        visibility_gradient: ``"nmr"`` or ``"local"``, which rasterization gradient (module docstring).
         **options: the options of the family's space (shape: ``smoothness``).
 
     Raises:
@@ -209,8 +216,10 @@ class DDNRule(UpdateRule):
             if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not 0 <= weight < float("inf"):
                 raise ValueError(f"edge_gradient must be a finite number >= 0, got {weight!r}")
             self.edge_gradient = float(weight)
+        if "visibility_gradient" in self.options:
+            self.visibility_gradient = check_visibility_gradient(self.options["visibility_gradient"])
         self._budget_options = {k: v for k, v in self.options.items() if k in _BUDGET_OPTIONS}
-        space_options = {k: v for k, v in self.options.items() if k not in _BUDGET_OPTIONS and k != "edge_gradient"}
+        space_options = {k: v for k, v in self.options.items() if k not in _BUDGET_OPTIONS + _RULE_OPTIONS}
         self.norm = attack.budget_space(**space_options)
         self._attack = attack
         BudgetState(num_targets, attack.steps, **self._budget_options)  # validate every option now

@@ -23,12 +23,18 @@ The result's success and scores are measured on the final meshes re-rendered fro
 :func:`~meshadv.attacks.evaluation.evaluate`), never on the optimiser's last images. Ctrl-C (``KeyboardInterrupt``)
 in a step, in the callback or between steps ends the loop; the result is then the best so far, with
 ``interrupted=True``.
+
+With ``eot`` (:mod:`meshadv.attacks.eot`) every step renders a fresh draw of views and render setup, and the victim
+sees the renders through the draw's blur and noise; a target observes a step (success, best result, early stopping)
+only at the success checks, every ``check_every`` steps and after a round's last step, with the margins of fresh
+check views (:func:`~meshadv.attacks.eot.check_margins`), and leaves at any step once it exceeds the distortion
+budget; the result is measured on a fresh evaluation draw.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Dict, List, NamedTuple, Optional, Protocol, Tuple
 
 import torch
@@ -36,6 +42,8 @@ from torch import Tensor
 
 from meshadv.attacks.criteria import Criterion
 from meshadv.attacks.distances import mesh_distances
+from meshadv.attacks.eot import (CHECK_STREAM, EVAL_STREAM, STEP_STREAM, EOTSampler, Transformations, check_margins,
+                                 stream_seed)
 from meshadv.attacks.evaluation import evaluate
 from meshadv.attacks.history import StepInfo, first_view_top1, history_row, step_info
 from meshadv.attacks.outputs import slice_output
@@ -56,6 +64,7 @@ class AttackFamily(Protocol):
     steps: int
     seed: int
     jitter: Optional[Dict[str, float]]
+    eot: Optional[Transformations]
     method: str
     method_options: Dict[str, Any]
     success_fraction: float
@@ -141,7 +150,8 @@ def attack_step(attack: AttackFamily, p: Tensor, idx: Tensor, criteria: List[Cri
         rule: the update rule, whose ``objective`` is differentiated.
     """
     verts, colors = attack.apply(p, call.mesh, call.edges)
-    images, alpha = call.setup.render(verts, call.mesh.faces, colors, views, rule.edge_gradient)
+    images, alpha = call.setup.render(verts, call.mesh.faces, colors, views, rule.edge_gradient,
+                                      visibility_gradient=rule.visibility_gradient)
     output = call.victim(images)
     adv, margins = adversarial_terms(attack, output, criteria, len(views))
     perc, dist = attack.terms(p, call.mesh, call.edges, images, alpha, len(views))
@@ -199,6 +209,10 @@ class _Loop:
         self.total_steps = 0
         self.interrupted = False
         self.classifier = getattr(call.victim, "kind", "") == "classifier"
+        self.sampler = None if attack.eot is None else EOTSampler(attack.eot, call.views, call.setup)
+        self.check_generator = torch.Generator()
+        if self.sampler is not None:
+            self.num_views = self.sampler.eot.samples
 
     def run_rounds(self) -> None:
         """Every round, until the rule's rounds are done or the attack is interrupted."""
@@ -211,7 +225,9 @@ class _Loop:
     def _run_round(self, rnd: int) -> None:
         """One round from the pristine mesh: steps until every target is finished or ``steps`` are done."""
         attack = self.attack
-        generator = torch.Generator().manual_seed(attack.seed)
+        generator = torch.Generator().manual_seed(attack.seed if self.sampler is None
+                                                  else stream_seed(attack.seed, STEP_STREAM))
+        self.check_generator.manual_seed(stream_seed(attack.seed, CHECK_STREAM))
         params = attack.initial_params(self.call.mesh, self.num_targets).detach().clone().requires_grad_(True)
         self.rule.start_round(params)
         lambdas = self.rule.lambdas
@@ -238,10 +254,15 @@ class _Loop:
         parameters of the active targets (before the update), the step's terms and the fraction of adversarial
         views per active target."""
         attack, call = self.attack, self.call
-        step_views = call.views.jitter(generator, **attack.jitter) if attack.jitter else call.views
         p = params[idx]
         crits = [self.targets[t].criterion for t in active]
-        terms = attack_step(attack, p, idx, crits, call, step_views, self.rule)
+        if self.sampler is not None:
+            draw = self.sampler.draw_step(generator)
+            step_call = replace(call, setup=draw.setup, victim=draw.victim(call.victim))
+            terms = attack_step(attack, p, idx, crits, step_call, draw.views, self.rule)
+        else:
+            step_views = call.views.jitter(generator, **attack.jitter) if attack.jitter else call.views
+            terms = attack_step(attack, p, idx, crits, call, step_views, self.rule)
         with torch.no_grad():
             fractions = (terms.margins > 0).float().mean(dim=1)
             is_adv = enough_views(fractions, attack.success_fraction)
@@ -257,12 +278,28 @@ class _Loop:
             total = adv + lambdas[idx] * perc
             top = (terms.output.detach().argmax(dim=1).view(len(active), self.num_views)[:, 0] if self.classifier
                    else None)
-        for a, t in enumerate(active):
-            self.targets[t].observe(p[a], float(dist[a]), float(fractions[a]), terms.margins[a], float(lambdas[t]),
-                                    self.stop, self.total_steps, time.perf_counter() - self.t_start)
+        if self.sampler is None:
+            self._observe(active, p, dist, fractions, terms.margins, lambdas)
+        elif (step + 1) % self.sampler.eot.check_every == 0 or step == self.attack.steps - 1:
+            call = self.call
+            crits = [self.targets[t].criterion for t in active]
+            margins = check_margins(self.attack, p, crits, call.mesh, call.edges, call.victim, call.setup,
+                                    self.sampler.draw_check(self.check_generator))
+            self._observe(active, p, dist, (margins > 0).float().mean(dim=1), margins, lambdas)
+        elif self.stop.max_distortion is not None:
+            for a, t in enumerate(active):
+                if float(dist[a]) > self.stop.max_distortion:
+                    self.targets[t].active = False
         row = history_row(rnd, step, self.num_targets, active, total, adv, perc, dist, terms.margins, lambdas)
         self.history.append(row)
         return row, first_view_top1(top, self.num_targets, active)
+
+    def _observe(self, active: List[int], p: Tensor, dist: Tensor, fractions: Tensor, margins: Tensor,
+                 lambdas: Tensor) -> None:
+        """Every active target observes parameters ``p`` with their distortion and their views' margins."""
+        for a, t in enumerate(active):
+            self.targets[t].observe(p[a], float(dist[a]), float(fractions[a]), margins[a], float(lambdas[t]),
+                                    self.stop, self.total_steps, time.perf_counter() - self.t_start)
 
     def _report(self, callback: Callable[[StepInfo], None], row: Dict[str, Any], top1: List[Optional[int]]) -> bool:
         """Call ``callback`` with the step's :class:`StepInfo`; ``False`` when it raised ``KeyboardInterrupt`` (the
@@ -282,7 +319,11 @@ class _Loop:
         chosen = torch.stack([tg.chosen(pristine) for tg in self.targets])
         run = _RunInfo(history=tuple(self.history), steps=self.total_steps,
                        wall_time=time.perf_counter() - self.t_start, interrupted=self.interrupted, config=self.config)
-        return _final_result(self.attack, self.call, self.targets, eval_views, chosen, run)
+        call = self.call
+        if self.sampler is not None:
+            generator = torch.Generator().manual_seed(stream_seed(self.attack.seed, EVAL_STREAM))
+            call = replace(call, views=self.sampler.draw_eval(generator))
+        return _final_result(self.attack, call, self.targets, eval_views, chosen, run)
 
 
 def _adversarial_meshes(attack: AttackFamily, call: AttackCall, params: Tensor) -> Tuple[Any, ...]:

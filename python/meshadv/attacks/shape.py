@@ -42,7 +42,7 @@ DEFAULT_SHAPE_LR = 1e-3
 #: Default options of ``method="ddn"`` on a vertex flow (:meth:`ShapeAttack.budget_defaults`).
 SHAPE_BUDGET_DEFAULTS: Dict[str, Any] = {"init_budget": 1e-3, "gamma": 0.05, "step_size": 1e-3,
                                          "final_step_size": 1e-4, "min_budget": 1e-7, "smoothness": 0.1,
-                                         "edge_gradient": 0.1}
+                                         "edge_gradient": 0.1, "visibility_gradient": "nmr"}
 
 
 class ShapeAttack(MeshAttack):
@@ -131,7 +131,8 @@ class ShapeAttack(MeshAttack):
     def budget_defaults(cls) -> Dict[str, Any]:
         """The ddn defaults of a vertex flow, in :class:`~meshadv.attacks.norms.LaplacianNorm` units for a mesh
         normalised to ``[-1, 1]`` (:func:`meshadv.attacks.budget.shape_options_for` scales them to another size);
-        ``smoothness`` is the space's, ``edge_gradient`` the weight of NMR's rasterization gradient in the steps."""
+        ``smoothness`` is the space's, ``edge_gradient`` the weight of the rasterization gradient in the steps and
+        ``visibility_gradient`` which one (:func:`meshadv.render.render`'s)."""
         return dict(SHAPE_BUDGET_DEFAULTS)
 
     def budget_space(self, **options: Any) -> FlowSpace:

@@ -51,6 +51,9 @@ class SmoothTextureAttack(TextureAttack):
 
     def __init__(self, *, smoothing: int = 16, **kwargs: Any) -> None:
         super().__init__(**kwargs)
+        if self.gradient_smoothing:
+            raise ValueError(f"gradient_smoothing must be 0 for SmoothTextureAttack (its smoothing already smooths "
+                             f"the colour field), got {self.gradient_smoothing}")
         self.smoothing = non_negative_int("smoothing", smoothing)
 
     def config(self) -> Dict[str, Any]:

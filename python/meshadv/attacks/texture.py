@@ -6,6 +6,10 @@ Adam's state consistent and the gradient defined at the bounds). The perceptual 
 ``sum_p sum_{q in N4(p)} ||I_p - I_q||^2`` on each rendered adversarial image, averaged over the views.
 The reported distance is the face-colour RMSE ``sqrt(1/m sum_i ||t_i^adv - t_i||^2)``.
 
+``gradient_smoothing=k`` (default 0, the paper's method) preconditions the colour gradient with ``k`` rounds of
+averaging over faces that share an edge (:func:`meshadv.attacks.lowpass.lowpass_gradient`), for Adam and
+``method="ddn"`` alike: the optimiser then changes smooth colour fields, not single facets.
+
 Example:
     >>> from meshadv.attacks import TextureAttack, TargetedMisclassification
     >>> attack = TextureAttack(steps=200, lr=0.05, lambda_perceptual=1e-4)
@@ -19,11 +23,14 @@ from typing import Any, Dict, Optional, Tuple
 import torch
 from torch import Tensor
 
+from meshadv import _validate
 from meshadv.attacks.base import MeshAttack
 from meshadv.attacks.distances import color_rmse
 from meshadv.attacks.losses import image_smoothness_loss
+from meshadv.attacks.lowpass import lowpass_gradient
 from meshadv.attacks.masks import check_mask, check_mask_fits, mask_config
 from meshadv.attacks.norms import COLOR_EPS, ColorSpace
+from meshadv.mesh.adjacency import face_adjacency
 
 __all__ = ["TextureAttack"]
 
@@ -38,6 +45,7 @@ class TextureAttack(MeshAttack):
     Args:
         face_mask: optional bool ``(M,)``: only these faces change colour (one object of a merged scene); the
             distance is then measured on them only.
+        gradient_smoothing: rounds of face-neighbour averaging of the colour gradient (``>= 0``; 0 = none).
         **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.base.MeshAttack`; the default
             ``lr`` is 0.05 (in logit space) and ``lambda_perceptual`` 1e-4 (the image loss sums over pixels).
 
@@ -47,15 +55,28 @@ class TextureAttack(MeshAttack):
 
     perturbation = "texture"
 
-    def __init__(self, *, face_mask: Optional[Tensor] = None, **kwargs: Any) -> None:
+    def __init__(self, *, face_mask: Optional[Tensor] = None, gradient_smoothing: int = 0, **kwargs: Any) -> None:
         kwargs.setdefault("lr", 0.05)
         kwargs.setdefault("lambda_perceptual", 1e-4)
         super().__init__(**kwargs)
         self.face_mask = check_mask(face_mask, "face_mask", "face")
+        self.gradient_smoothing = _validate.non_negative_int("gradient_smoothing", gradient_smoothing, high=10_000)
+        self._face_edges: Optional[Tuple[Tensor, Tensor]] = None
 
     def config(self) -> Dict[str, Any]:
-        """Hyper-parameters, including ``face_mask``."""
-        return {**super().config(), "face_mask": mask_config(self.face_mask)}
+        """Hyper-parameters, including ``face_mask`` (and ``gradient_smoothing`` when it is on)."""
+        smoothing = {"gradient_smoothing": self.gradient_smoothing} if self.gradient_smoothing else {}
+        return {**super().config(), "face_mask": mask_config(self.face_mask), **smoothing}
+
+    def _preconditioned(self, params: Tensor, mesh: Any) -> Tensor:
+        """``params`` with the face-neighbour low-pass on their gradient (``gradient_smoothing`` rounds)."""
+        if not self.gradient_smoothing:
+            return params
+        cached = self._face_edges
+        if cached is None or cached[0] is not mesh.faces:
+            cached = (mesh.faces, face_adjacency(mesh.faces))
+            self._face_edges = cached
+        return lowpass_gradient(params, cached[1], self.gradient_smoothing)
 
     def check_mesh(self, mesh: Any) -> None:
         """Raise ``ValueError`` when ``face_mask`` does not fit ``mesh``."""
@@ -81,7 +102,7 @@ class TextureAttack(MeshAttack):
     def apply(self, params: Tensor, mesh: Any, edges: Tensor) -> Tuple[Tensor, Tensor]:
         """The unchanged vertices, expanded to ``(K, N, 3)``, and the face colours ``(K, M, 3)``."""
         verts = mesh.vertices.unsqueeze(0).expand(params.shape[0], -1, -1)
-        return verts, self.colors(params, mesh, edges)
+        return verts, self.colors(self._preconditioned(params, mesh), mesh, edges)
 
     def perceptual(self, params: Tensor, mesh: Any, edges: Tensor, images: Tensor, alpha: Tensor,
                    num_views: int) -> Tensor:

@@ -66,12 +66,17 @@ class UpdateRule(ABC):
     Attributes:
         rounds: number of rounds (restarts from the pristine mesh) the loop runs.
         edge_gradient: weight of NMR's rasterization gradient on the vertices in the renders the rule differentiates.
+        visibility_gradient: which rasterization gradient those renders give the vertices (``"nmr"`` or
+            ``"local"``, :func:`meshadv.render.render`'s ``visibility_gradient``).
     """
 
     rounds: int = 1
     #: Weight of NMR's rasterization gradient in the vertex gradient the rule steps along
     #: (:func:`meshadv.render.render`'s ``edge_gradient``): 1, NMR's definition, unless a rule says otherwise.
     edge_gradient: float = 1.0
+    #: The rasterization gradient of the renders the rule differentiates (:func:`meshadv.render.render`'s
+    #: ``visibility_gradient``): NMR's unless a rule says otherwise.
+    visibility_gradient: str = "nmr"
 
     @property
     @abstractmethod

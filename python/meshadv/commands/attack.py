@@ -148,6 +148,10 @@ def attack(
         None, help="shape only: rounds of neighbour averaging of the optimised vertex flow (default: the attack's; "
                    "0 = the paper's exact per-vertex flow)"),
     binary_search: int = typer.Option(1, help="--method adam: binary-search rounds over lambda (paper: 5)"),
+    visibility_gradient: Optional[str] = typer.Option(
+        None, help="--method ddn, shape only: the rasterization gradient of the vertices, nmr (the Neural Mesh "
+                   "Renderer's, docs/NMR_GRADIENT.md) or local (its sweeps cut to 2 pixels of each edge, "
+                   "docs/LOCAL_GRADIENT.md; cheaper); default: the rule's"),
     loss: str = typer.Option("ce", help="classifier loss: ce or cw"),
     kappa: float = typer.Option(0.0, help="C&W confidence"),
     early_stop: Optional[int] = typer.Option(
@@ -159,6 +163,12 @@ def attack(
     budget: Optional[float] = typer.Option(None, help="distortion ceiling (shape: the Eq. 4 Laplacian sum of the "
                                                 "flow, i.e. pair mean x 2E; texture: colour RMSE)"),
     jitter: bool = typer.Option(False, help="random camera/light jitter at every step (robustness)"),
+    eot: int = typer.Option(0, min=0, max=4096, help="robust attack: draw this many fresh views from the whole "
+                                                     "azimuth range (+-10 degrees), elevation (+-5) and distance "
+                                                     "(+-10%) at every step, with sub-pixel shifts, light, "
+                                                     "antialias, size, blur and noise, and a low-frequency "
+                                                     "perturbation; success is judged on 12 fresh views "
+                                                     "(0: off, the fixed views)"),
     image_size: int = typer.Option(224, min=1, max=16384, help="rendered image size in pixels"),
     background: str = typer.Option(DEFAULT_BACKGROUND, help="background colour r,g,b in [0, 1]"),
     threshold: float = typer.Option(0.5, help="detector score threshold (--disappear)"),
@@ -175,9 +185,11 @@ def attack(
     inception_v3 (--weights STATE_DICT.pth), yolov3 (--weights FILE.weights --cfg FILE.cfg)."""
     import torch
 
+    from meshadv.attacks.robust_settings import robust_options
     from meshadv.attacks.update import RECOMMENDED_METHOD
     from meshadv.commands._comparison import write_attack_outputs
     from meshadv.render import RenderSetup
+    from meshadv.render.visibility import check_visibility_gradient
     from meshadv.victims import load_victim
 
     torch.manual_seed(seed)
@@ -189,6 +201,10 @@ def attack(
             "--smoothing": bool(smoothing)})
         if early_stop is None:
             early_stop = 0 if method == "ddn" else 10
+        if visibility_gradient is not None and (method != "ddn" or perturbation != "shape"):
+            raise ValueError("--visibility-gradient applies to --method ddn --perturbation shape only")
+        method_options = None if visibility_gradient is None else {
+            "visibility_gradient": check_visibility_gradient(visibility_gradient, "--visibility-gradient")}
         loaded = load_mesh_input(mesh, z_up=z_up)
         mesh_obj, label = loaded.mesh, loaded.label
         az = parse_azimuth_range(azimuths)
@@ -199,13 +215,18 @@ def attack(
         victim_obj = load_victim(victim, weights=weights, cfg=cfg)
         if early_stop_margin is None:
             early_stop_margin = 0.05 if victim_obj.kind == "detector" else 0.5
-        shape_only = {"smoothing": smoothing} if perturbation == "shape" else {}
+        shape_only = {"smoothing": smoothing} if perturbation == "shape" and smoothing is not None else {}
+        robust = robust_options(perturbation, method, eot) if eot > 0 else {}
+        robust_lr = robust.pop("lr", None)
+        if lr is None and smoothing is None:
+            lr = robust_lr
+        method_options = {**robust.pop("method_options", {}), **(method_options or {})} or None
         setup = RenderSetup(image_size=image_size, background=parse_color(background))
         attack_obj = build_attack(
             perturbation, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
-            max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method,
-            **shape_only,
+            max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, method_options=method_options,
+            **{**robust, **shape_only},
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
         for crit in criteria:
@@ -222,6 +243,9 @@ def attack(
                                       f"{label}: {perturbation} attack ({result.criteria[0].get('label', '')}) "
                                       f"{status} ({result.steps} steps)")
     typer.echo(result.summary())
+    if eot > 0:
+        typer.echo(f"robust attack: {eot} fresh views per step; success judged on {len(result.view_records)} fresh "
+                   f"views of the range, none of them optimised on")
     if result.interrupted:
         typer.echo("interrupted: saved the best result so far")
     typer.echo(f"wrote {path} and {comparison}")

@@ -67,6 +67,8 @@ def report(
         raise typer.BadParameter(f"{results} is a sweep config, not a results database: run `meshadv sweep "
                                  f"{results}` first, then `meshadv report {_database_of(results)} -o {out}`",
                                  param_hint="RESULTS")
+    if results.is_dir():
+        raise typer.BadParameter(f"{results} is a folder; give the results.db file in it", param_hint="RESULTS")
     if not results.is_file():
         raise typer.BadParameter(f"{results} does not exist (give the results.db that `meshadv sweep` wrote)",
                                  param_hint="RESULTS")

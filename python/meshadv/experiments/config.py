@@ -278,9 +278,11 @@ def load_config(path: Union[str, Path]) -> SweepConfig:
     """Read a sweep file (``.toml``, ``.yaml`` or ``.yml``).
 
     Raises:
-        FileNotFoundError: no such file. ValueError: unknown extension or invalid content.
+        FileNotFoundError: no such file. ValueError: a folder, an unknown extension or invalid content.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"config file {path} is a folder; give a sweep file (.toml, .yaml or .yml)")
     if not path.is_file():
         raise FileNotFoundError(f"config file {path} does not exist")
     text = path.read_text(encoding="utf-8")
@@ -358,6 +360,8 @@ def _meshes_section(raw: Dict[str, Any], base: Path) -> Dict[str, Any]:
               "builtin": [], "files": [], "target_faces": 0, "max_faces": 20000, **raw.get("meshes", {})}
     if meshes["source"] not in ("pascal3d", "builtin", "files"):
         raise ValueError(f"meshes.source must be pascal3d, builtin or files, got {meshes['source']!r}")
+    if not isinstance(meshes["classes"], list) or not all(isinstance(c, str) for c in meshes["classes"]):
+        raise ValueError(f"meshes.classes must be a list of class names, got {meshes['classes']!r}")
     bad = [c for c in meshes["classes"] if c not in PASCAL3D_CLASSES]
     if meshes["source"] == "pascal3d" and bad:
         raise ValueError(f"meshes.classes must be PASCAL3D+ classes {list(PASCAL3D_CLASSES)}, got {bad}")
@@ -377,10 +381,10 @@ def _render_section(raw: Dict[str, Any], mesh_source: str, base: Path) -> Dict[s
     """``[render]`` with its defaults; every sampling range as a ``(low, high)`` pair."""
     render = {"image_size": 224, "configurations": 72, "config_seed": 0, "viewing_angle": 30.0,
               "light_jitter": 30.0, **raw.get("render", {})}
-    if int(render["image_size"]) < 8:
-        raise ValueError(f"render.image_size must be >= 8, got {render['image_size']}")
-    if int(render["configurations"]) < 1:
-        raise ValueError(f"render.configurations must be >= 1, got {render['configurations']}")
+    for key, low in (("image_size", 8), ("configurations", 1), ("config_seed", 0)):
+        value = render[key]
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ValueError(f"render.{key} must be an integer >= {low}, got {value!r}")
     if render.get("rendering_set") is not None:
         if not isinstance(render["rendering_set"], str):
             raise ValueError(f"render.rendering_set must be 'packaged' or a file path, got {render['rendering_set']!r}")

@@ -160,9 +160,11 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         A :class:`ReportOutput`.
 
     Raises:
-        FileNotFoundError: ``db_path`` does not exist.
+        FileNotFoundError: ``db_path`` does not exist. ValueError: ``db_path`` is a folder.
     """
     db = Path(db_path)
+    if db.is_dir():
+        raise ValueError(f"results database {db} is a folder; give the results.db file in it")
     if not db.is_file():
         raise FileNotFoundError(f"results database {db} does not exist")
     out = ReportOutput(out_dir=Path(out_dir))

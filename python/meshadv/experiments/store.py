@@ -128,7 +128,8 @@ class ResultStore:
             mark, no checkpoint, so a committed ``results.db`` stays byte-identical.
 
     Raises:
-        ValueError: ``path`` exists and is not an SQLite database of this format.
+        ValueError: ``path`` exists and is not an SQLite database of this format, or it cannot be opened or
+            created (a folder this user cannot write).
         FileNotFoundError: ``read_only`` and ``path`` does not exist.
     """
 
@@ -142,11 +143,14 @@ class ResultStore:
                 raise FileNotFoundError(f"path {self.path!r} does not exist (give the results.db of a sweep)")
             wal_present = Path(self.path + "-wal").exists()  # before connecting: connecting creates it
             Path(self.path).parent.mkdir(parents=True, exist_ok=True)
-        if self.read_only:
-            uri = Path(self.path).resolve().as_uri() + "?mode=ro"
-            self._conn = sqlite3.connect(uri, uri=True, timeout=timeout, isolation_level=None)
-        else:
-            self._conn = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)
+        try:
+            if self.read_only:
+                uri = Path(self.path).resolve().as_uri() + "?mode=ro"
+                self._conn = sqlite3.connect(uri, uri=True, timeout=timeout, isolation_level=None)
+            else:
+                self._conn = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)
+        except sqlite3.OperationalError as err:
+            raise self._cannot_open(err) from None
         self._closed = False
         try:
             if existed and not wal_present:
@@ -160,6 +164,8 @@ class ResultStore:
         except sqlite3.DatabaseError as err:
             self._closed = True
             self._conn.close()
+            if not existed and isinstance(err, sqlite3.OperationalError):
+                raise self._cannot_open(err) from None
             raise ValueError(f"path {self.path!r} is not a meshadv results database: {err}") from err
         except ValueError:
             self._closed = True
@@ -169,6 +175,11 @@ class ResultStore:
             # Mark the database open in its main file: a copy taken without its -wal file then shows the mark.
             self._conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('open', '1')")
             self.checkpoint()
+
+    def _cannot_open(self, err: Exception) -> ValueError:
+        """The error of a database file SQLite cannot open or create (an unwritable folder)."""
+        return ValueError(f"path {self.path!r}: cannot open or create the results database there ({err}); give a "
+                          "database path in a folder this user can write")
 
     def _check_not_a_lost_wal_copy(self) -> None:
         """Refuse a database whose write-ahead log is missing (copied without ``<db>-wal``)."""

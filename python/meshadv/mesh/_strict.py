@@ -199,6 +199,8 @@ def _walk_ascii_ply(body: "list[str]", elements: "list[tuple[str, int, list[tupl
                 if n < 0 or len(values) != n:
                     raise MeshLoadError(f"{path}: {name} {item} list {prop} is shorter than its count {n}")
                 if name == "face" and nv is not None and prop in ("vertex_indices", "vertex_index"):
+                    if n < 3:
+                        raise MeshLoadError(f"{path}: face {item} has {n} vertex indices; a face needs at least 3")
                     bad = [v for v in values if not (v.is_integer() and 0 <= v < nv)]
                     if bad:
                         raise MeshLoadError(f"{path}: face {item} vertex index {bad[0]:g} is out of range [0, {nv})")

@@ -7,6 +7,7 @@ with their node transforms. Unusable files raise :class:`~meshadv.mesh.errors.Me
 
 from __future__ import annotations
 
+import importlib
 import io as _io
 import os
 from dataclasses import dataclass
@@ -16,7 +17,7 @@ from typing import Sequence, Union
 import numpy as np
 import trimesh
 
-from meshadv import __version__
+from meshadv import __version__, _validate
 from meshadv.mesh import _obj, _ply, _strict
 from meshadv.util.atomic import write_bytes_atomic
 from meshadv.mesh.cleanup import clean_arrays
@@ -33,6 +34,12 @@ DEFAULT_COLOR = (0.7, 0.7, 0.7)
 LOAD_FORMATS = (".obj", ".off", ".ply", ".stl", ".glb", ".gltf")
 #: File extensions :func:`save_mesh` writes.
 SAVE_FORMATS = (".ply", ".obj")
+
+
+def max_file_bytes() -> int:
+    """The largest mesh file :func:`load_mesh` reads, in bytes (1 GiB), checked before anything is read: the native
+    core's ``MAX_MESH_FILE_BYTES``, the render binary's limit too."""
+    return int(importlib.import_module("meshadv._raster").MAX_MESH_FILE_BYTES)
 
 
 @dataclass(frozen=True)
@@ -180,21 +187,21 @@ def load_mesh_with_report(
         ``(mesh, report)``; the mesh is on the CPU, vertices in the file's coordinates.
 
     Raises:
+        TypeError: ``path`` is not a str or os.PathLike (a bytes path), ``default_color`` not 3 numbers.
         FileNotFoundError: ``path`` does not exist.
-        ValueError: bad ``max_faces`` or ``default_color``.
-        MeshLoadError: (a ``ValueError``) unsupported extension, unreadable or truncated file, no faces,
-            non-finite coordinates, out-of-range face indices, or more than ``max_faces`` faces.
+        ValueError: bad ``max_faces``, or a ``default_color`` value outside ``[0, 1]``.
+        MeshLoadError: (a ``ValueError``) unsupported extension, a file larger than :func:`max_file_bytes`,
+            unreadable or truncated file, no faces, non-finite coordinates, out-of-range face indices, or more
+            than ``max_faces`` faces.
 
     Example:
         >>> mesh, report = load_mesh_with_report("chair/01.ply")  # doctest: +SKIP
         >>> print(report.summary())  # doctest: +SKIP
     """
-    path = Path(path)
+    path = _validate.path("path", path)
     if isinstance(max_faces, bool) or not isinstance(max_faces, int) or max_faces < 1:
         raise ValueError(f"max_faces must be a positive integer, got {max_faces!r}")
-    default = np.asarray(default_color, dtype=np.float32)
-    if default.shape != (3,) or not np.all(np.isfinite(default)):
-        raise ValueError(f"default_color must be 3 finite numbers, got {default_color!r}")
+    default = np.asarray(_validate.color("default_color", default_color), dtype=np.float32)
     if not path.exists():
         raise FileNotFoundError(f"mesh file not found: {path}")
     if not path.is_file():
@@ -202,8 +209,12 @@ def load_mesh_with_report(
     ext = path.suffix.lower()
     if ext not in LOAD_FORMATS:
         raise MeshLoadError(f"{path}: unsupported mesh format {ext!r}; expected one of {', '.join(LOAD_FORMATS)}")
-    if path.stat().st_size == 0:
+    size = path.stat().st_size
+    if size == 0:
         raise MeshLoadError(f"{path}: the file is empty")
+    limit = max_file_bytes()
+    if size > limit:
+        raise MeshLoadError(f"{path}: the file ({size} bytes) is larger than the {limit}-byte limit")
 
     try:
         loaded = _trimesh_load(path, ext)

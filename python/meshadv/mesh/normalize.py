@@ -148,7 +148,7 @@ def normalize_mesh(mesh: Mesh, *, z_up: bool = False, extent: float = 1.0) -> "t
     Raises:
         TypeError: ``mesh`` is not a :class:`Mesh`, ``extent`` not a real number or ``z_up`` not a bool.
         ValueError: ``extent`` is not positive and finite or exceeds ``1e30`` (float32 vertices would overflow),
-            or the mesh is a single point (no extent to scale).
+            or the mesh is empty or a single point (no extent to scale).
 
     Example:
         >>> unit, tf = normalize_mesh(builtin_mesh("cube"))  # doctest: +SKIP
@@ -158,6 +158,8 @@ def normalize_mesh(mesh: Mesh, *, z_up: bool = False, extent: float = 1.0) -> "t
         raise TypeError(f"mesh must be a Mesh, got {type(mesh).__name__}")
     extent = _validate.positive_float("extent", extent, high=_MAX_EXTENT)
     z_up = _validate.boolean("z_up", z_up)
+    if mesh.num_vertices == 0:
+        raise ValueError("mesh has no vertices; an empty mesh cannot be normalised")
     verts = mesh.vertices.detach().double().cpu().numpy()
     lo, hi = verts.min(axis=0), verts.max(axis=0)
     center = (lo + hi) / 2.0

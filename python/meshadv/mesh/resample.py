@@ -35,7 +35,6 @@ from pathlib import Path
 from typing import Optional, Union
 
 import numpy as np
-import torch
 from scipy.spatial import cKDTree
 
 from meshadv import _validate
@@ -220,7 +219,8 @@ def resample_mesh_with_info(
 
     Raises:
         TypeError: an argument of the wrong type (``mesh`` not a Mesh, ``target_faces=4.5``, ...).
-        ValueError: invalid arguments, an input without faces or with NaN/infinite vertices.
+        ValueError: invalid arguments (a ``cache_dir`` that is a file) or an input without faces (a
+            :class:`Mesh` has finite vertices).
         MeshProcessingError: MeshLab failed, crashed, timed out or produced an empty mesh.
 
     Example:
@@ -240,12 +240,12 @@ def resample_mesh_with_info(
     _validate.finite_float("max_deviation", max_deviation, low=0.0, high=1.0, low_open=True, high_open=True)
     _validate.finite_float("max_hausdorff", max_hausdorff, low=0.0, high=1.0, low_open=True, high_open=True)
     _validate.positive_int("iterations", iterations)
+    folder = _validate.path("cache_dir", cache_dir) if cache_dir is not None else default_cache_dir()
+    blocker = next((p for p in (folder, *folder.parents) if p.exists()), None)
+    if use_cache and blocker is not None and not blocker.is_dir():
+        raise ValueError(f"cache_dir must be a folder, but {blocker} is a file")
     if mesh.num_faces == 0:
         raise ValueError("mesh has no faces; there is nothing to resample")
-    finite = torch.isfinite(mesh.vertices.detach()).all(dim=1)
-    if not bool(finite.all()):
-        bad = int((~finite).sum())
-        raise ValueError(f"mesh has {bad} vertices with NaN or infinite coordinates; MeshLab cannot resample it")
 
     vertices, faces, colors = mesh.numpy()
     # MeshLab's uniform resampling runs out of memory on duplicate faces; send it a clean copy.
@@ -272,7 +272,6 @@ def resample_mesh_with_info(
     cache_path = None
     cached = None
     if use_cache:
-        folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()
         cache_path = folder / key[:2] / f"{key}.npz"
         if cache_path.is_file():
             cached = _read_cache(cache_path)

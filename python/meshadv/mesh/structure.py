@@ -33,7 +33,8 @@ class Mesh:
         vertices: ``(N, 3)``; faces: ``(M, 3)``; face_colors: ``(M, 3)``.
 
     Raises:
-        ValueError: a field has the wrong shape, dtype or device, or a face index is out of range.
+        ValueError: a field has the wrong shape, dtype or device, a vertex is NaN or infinite, or a face index is
+            out of range.
 
     Example:
         >>> m = Mesh.from_numpy(np.eye(3), np.array([[0, 1, 2]]))
@@ -61,6 +62,13 @@ class Mesh:
         if not (v.device == f.device == c.device):
             raise ValueError(
                 f"vertices, faces and face_colors must be on one device, got {v.device}, {f.device}, {c.device}"
+            )
+        finite = torch.isfinite(v.detach()).all(dim=1)
+        if not bool(finite.all()):
+            first = int(torch.nonzero(~finite)[0, 0])
+            raise ValueError(
+                f"vertices must be finite: {int((~finite).sum())} vertices hold NaN or infinite coordinates "
+                f"(the first is vertex {first})"
             )
         if f.numel() > 0:
             lo, hi = int(f.min()), int(f.max())

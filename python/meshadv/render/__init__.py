@@ -1,8 +1,9 @@
 """meshadv.render: differentiable mesh rendering (PyTorch camera and shading, Rust rasterizer).
 
 Public API: :class:`Camera`, :class:`Lights`, :class:`ViewSet`, :func:`render`, :func:`render_silhouette`,
-:class:`RenderOutput`, :func:`rasterize`, :class:`RasterOutput`, :func:`face_normals`, :func:`shade`, and the names of
-the vertex gradients (:data:`VISIBILITY_GRADIENTS`).
+:class:`RenderOutput`, :func:`rasterize`, :class:`RasterOutput`, :func:`face_normals`, :func:`shade`, the names of
+the vertex gradients (:data:`VISIBILITY_GRADIENTS`), and :func:`render_surface` (textures, vertex colours, smooth
+shading; docs/TEXTURES.md) with :func:`vertex_normals`.
 """
 
 from .camera import Camera
@@ -11,6 +12,7 @@ from .rasterize import RasterOutput, native_available, rasterize
 from .raycast import RayCastOutput, raycast
 from .renderer import RenderOutput, render, render_silhouette
 from .setup import RenderSetup, StaticObject, render_views
+from .surface import render_surface, vertex_normals
 from .views import ViewSet
 from .visibility import VISIBILITY_GRADIENTS
 
@@ -31,6 +33,8 @@ __all__ = [
     "raycast",
     "render",
     "render_silhouette",
+    "render_surface",
     "render_views",
     "shade",
+    "vertex_normals",
 ]

@@ -32,6 +32,7 @@ import torch
 from ..util.spherical import spherical_direction
 from ._checks import as_float_tensor, batch_selector, require_instance
 from ._ops import small_matmul
+from .rasterize import _native
 
 __all__ = ["Camera", "TensorLike"]
 
@@ -108,6 +109,12 @@ def _normalize(v: torch.Tensor) -> torch.Tensor:
     scale = torch.where(scale > 0, scale, torch.ones_like(scale))
     v = v / scale
     return v / v.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+
+
+def _min_viewing_angle() -> float:
+    """The narrowest perspective field of view in degrees, the native core's ``MIN_VIEWING_ANGLE`` (narrower views
+    project unit coordinates beyond float32 screen coordinates; the render binary refuses the same)."""
+    return float(_native().MIN_VIEWING_ANGLE)
 
 
 @dataclass(frozen=True)
@@ -278,8 +285,9 @@ class Camera:
         if bool((far <= near).any()):
             raise ValueError(f"far must be > near, got near={near.cpu().tolist()} far={far.cpu().tolist()}")
         fov = self.viewing_angle.detach()
-        if not self.orthographic and bool(((fov <= 0) | (fov >= 180)).any()):
-            raise ValueError(f"viewing_angle must be in (0, 180) degrees, got {fov.cpu().tolist()}")
+        low = _min_viewing_angle()
+        if not self.orthographic and bool(((fov < low) | (fov >= 180)).any()):
+            raise ValueError(f"viewing_angle must be in [{low}, 180) degrees, got {fov.cpu().tolist()}")
         if self.orthographic and bool((self.ortho_scale.detach() <= 0).any()):
             raise ValueError(f"ortho_scale must be > 0, got {self.ortho_scale.detach().cpu().tolist()}")
 

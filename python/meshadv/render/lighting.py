@@ -14,9 +14,10 @@ from typing import Union
 
 import torch
 
-from ._checks import as_float_tensor, batch_selector
+from ._checks import as_float_tensor, batch_selector, require_instance
 from ._ops import small_matmul
 from .camera import Camera, _normalize
+from .rasterize import _native
 
 __all__ = ["Lights", "face_normals", "orient_normals", "shade"]
 
@@ -86,7 +87,8 @@ class Lights:
         b = sizes.pop() if sizes else 1
         if b == 0:
             raise ValueError("lights must hold at least one light set (batch size 0)")
-        if bool((d.detach().abs().amax(dim=-1) <= 1e-9).any()):
+        # The native core's rule (the render binary refuses the same directions).
+        if bool((d.detach().abs().amax(dim=-1) <= _native().MIN_LIGHT_DIRECTION).any()):
             raise ValueError("directions must be non-zero vectors")
         object.__setattr__(self, "directions", d.expand(b, -1, -1) if d.shape[0] != b else d)
         object.__setattr__(self, "colors", c.expand(b, -1, -1) if c.shape[0] != b else c)
@@ -121,9 +123,13 @@ class Lights:
 
         Returns:
             Lights of batch size ``len(camera)`` (or 1).
+
+        Raises:
+            TypeError: ``camera`` is neither a :class:`Camera` nor ``None``.
         """
         if camera is None:
             return cls.single()
+        require_instance(camera, Camera, "camera")
         direction = (camera.eye() - camera.target()).detach()
         b = direction.shape[0]
         color = torch.full((b, 3), 0.5, dtype=direction.dtype, device=direction.device)

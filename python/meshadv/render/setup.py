@@ -17,6 +17,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Dict, Optional, Sequence, Tuple, Union
 
@@ -88,33 +89,19 @@ class RenderSetup:
     crop_rows: Optional[Tuple[int, int]] = None
 
     def __post_init__(self) -> None:
-        size = _parse_image_size(self.image_size)
+        from meshadv.render.rasterize import parse_image_size
+        from meshadv.render.renderer import _check_antialias
+
+        size = parse_image_size(_parse_image_size(self.image_size))
         object.__setattr__(self, "image_size", size)
-        if isinstance(self.antialias, bool) or not isinstance(self.antialias, int) or self.antialias < 1:
-            raise ValueError(f"antialias must be an integer >= 1, got {self.antialias!r}")
+        _check_antialias(self.antialias)
+        parse_image_size((size[0] * self.antialias, size[1] * self.antialias), "image_size * antialias")
         if self.crop_rows is not None:
             top, bottom = (int(r) for r in self.crop_rows)
             if not 0 <= top < bottom <= size[0]:
                 raise ValueError(f"crop_rows must be (top, bottom) within [0, {size[0]}], got {self.crop_rows!r}")
             object.__setattr__(self, "crop_rows", (top, bottom))
-        bg = self.background
-        if isinstance(bg, Tensor):
-            if bg.dim() == 3:
-                if bg.shape[0] != 3 or tuple(bg.shape[1:]) != self.output_size:
-                    raise ValueError(f"background image must have shape (3, {self.output_size[0]}, "
-                                     f"{self.output_size[1]}), got {tuple(bg.shape)}")
-            elif tuple(bg.shape) != (3,):
-                raise ValueError(f"background must be 3 values or a (3, H, W) image, got {tuple(bg.shape)}")
-            else:
-                object.__setattr__(self, "background", tuple(float(c) for c in bg))
-        else:
-            try:
-                values = tuple(float(c) for c in bg)
-            except TypeError:
-                raise TypeError(f"background must be 3 values or a (3, H, W) image, got {bg!r}") from None
-            if len(values) != 3:
-                raise ValueError(f"background must be 3 values or a (3, H, W) image, got {bg!r}")
-            object.__setattr__(self, "background", values)
+        object.__setattr__(self, "background", self._checked_background())
         if self.transform is not None:
             matrix = torch.as_tensor(self.transform, dtype=torch.float32)
             if matrix.shape != (4, 4) or not bool(torch.isfinite(matrix).all()):
@@ -124,6 +111,30 @@ class RenderSetup:
         for obj in self.static:
             if not isinstance(obj, StaticObject):
                 raise TypeError(f"static must hold StaticObject items, got {type(obj).__name__}")
+
+    def _checked_background(self) -> Background:
+        """The background as 3 finite floats or a finite ``(3, H_out, W_out)`` image."""
+        bg = self.background
+        if isinstance(bg, Tensor) and bg.dim() == 3:
+            if bg.shape[0] != 3 or tuple(bg.shape[1:]) != self.output_size:
+                raise ValueError(f"background image must have shape (3, {self.output_size[0]}, "
+                                 f"{self.output_size[1]}), got {tuple(bg.shape)}")
+            if not bg.is_floating_point():
+                raise TypeError(f"background image must be a floating tensor, got {bg.dtype}")
+            if not bool(torch.isfinite(bg.detach()).all()):
+                raise ValueError("background image contains NaN or Inf")
+            return bg
+        if isinstance(bg, (str, bytes)) or not (isinstance(bg, Tensor) or hasattr(bg, "__iter__")):
+            raise TypeError(f"background must be 3 numbers (RGB) or a (3, H, W) image, got {bg!r}")
+        try:
+            values = tuple(float(c) for c in bg)
+        except (TypeError, ValueError):
+            raise TypeError(f"background must be 3 numbers (RGB) or a (3, H, W) image, got {bg!r}") from None
+        if len(values) != 3:
+            raise ValueError(f"background must be 3 numbers (RGB) or a (3, H, W) image, got {bg!r}")
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"background must be finite, got {values!r}")
+        return values
 
     @property
     def output_size(self) -> Tuple[int, int]:
@@ -150,7 +161,8 @@ class RenderSetup:
         }
 
     def render(self, vertices: Tensor, faces: Tensor, face_colors: Tensor, views: Any,
-               edge_gradient: float = 1.0, num_threads: int = 0) -> Tuple[Tensor, Tensor]:
+               edge_gradient: float = 1.0, num_threads: int = 0,
+               visibility_gradient: str = "nmr") -> Tuple[Tensor, Tensor]:
         """Render ``K`` versions of the attacked mesh (one topology) from each of ``V`` views in one batched call.
 
         The batch is mesh-major: image ``k * V + v`` is mesh ``k`` seen from view ``v``. Static objects are drawn in
@@ -166,6 +178,8 @@ class RenderSetup:
             num_threads: the native renderer's threads (forward and backward): 0 = rayon's global pool; a count runs
                 on a pool of the calling thread's own, which threads rendering at the same time do not share (an
                 attack's step workers). The images do not depend on it.
+            visibility_gradient: the rasterization gradient of the vertices, ``"nmr"`` or ``"local"``
+                (:func:`meshadv.render.render`; the update rule's choice). The images do not depend on it.
 
         Returns:
             ``(images (K*V, 3, H, W), alpha (K*V, 1, H, W))`` with ``(H, W) = output_size``.
@@ -193,7 +207,7 @@ class RenderSetup:
         # The image alone: an attack step never reads the depth or face-index maps.
         rgba, _, _ = _render_rgba(verts, faces, colors, batched.camera, batched.lights, self.image_size, bg,
                                   fill_back=True, antialias=self.antialias, num_threads=num_threads,
-                                  edge_gradient=edge_gradient)
+                                  edge_gradient=edge_gradient, visibility_gradient=visibility_gradient)
         image, alpha = rgba[:, :3], rgba[:, 3:4]
         if self.crop_rows is not None:
             rows = slice(*self.crop_rows)

@@ -127,10 +127,12 @@ def load_victim(
         ValueError: unknown ``name`` (the closest is suggested), a required ``weights`` / ``cfg`` not given (the
             message says what to pass), a weights file that is empty, truncated, not a torch file or carries
             pickled objects (naming the file), or a ``device`` this machine does not have.
-        TypeError: ``name``, ``device`` or ``optimize`` of the wrong type.
+        TypeError: ``name``, ``device`` or ``optimize`` of the wrong type, or ``weights`` / ``cfg`` not a path.
         FileNotFoundError: ``weights`` or ``cfg`` does not exist.
         ImportError: the package that ships the weights is not installed (the message says what to install).
     """
     _validate.choice("name", name, list(_REGISTRY))
+    weights = None if weights is None else _validate.path("weights", weights)
+    cfg = None if cfg is None else _validate.path("cfg", cfg)
     check_device(device)  # before any weights are read
     return _REGISTRY[name](weights, cfg, device, _validate.boolean("optimize", optimize))

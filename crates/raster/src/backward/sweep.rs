@@ -165,6 +165,8 @@ pub(super) struct LineJob {
     pub inside: (usize, usize),
     /// Offset of `I[pix(d_out)]` (the colour beyond the edge) in [`FaceLines::colors`].
     pub out_color: usize,
+    /// Offset of the face's colour on this line (the OUT sweep's `A`) in [`FaceLines::colors`].
+    pub in_color: usize,
     /// Sums for endpoints a and c of the OUT sweep, then of the IN sweep.
     pub sums: [f64; 4],
 }
@@ -179,12 +181,13 @@ pub(super) struct FaceLines<'a> {
     pub fi: f64,
     /// The face's key increment per pixel along a line.
     pub key_step: f64,
-    /// The face's attributes.
-    pub attrs: &'a [f64],
+    /// The channel count of [`FaceLines::colors`].
+    pub channels: usize,
     /// The face's drawn pixels along a line lie in `own.0..=own.1` (from its drawn box): only there does an OUT
     /// sweep's pixel need the test `F[P] != f`.
     pub own: (usize, usize),
-    /// The colours the forward draws, `(M + 1, C)`: every face's attributes, then the background.
+    /// The colours the forward draws: `(M + 1, C)`, every face's attributes, then the background (per-face
+    /// colours), or `(H * W, C)`, the image (per-pixel colours).
     pub colors: &'a [f64],
 }
 
@@ -279,12 +282,13 @@ unsafe fn lines_on<S: Sweeps, const C: usize>(
     jobs: &mut [LineJob],
     scratch: &mut [f64],
 ) {
-    let (ln, attrs) = (face.ln, face.attrs);
-    let c = if C == 0 { attrs.len() } else { C };
+    let ln = face.ln;
+    let c = if C == 0 { face.channels } else { C };
     let (lines, pos) = (ln.of::<C>(), face.pos.of(ln.len));
     for job in jobs.iter_mut() {
         let (start, end) = job.out;
         if start < end {
+            let attrs = &face.colors[job.in_color..job.in_color + c];
             let r = start..end;
             let at = lines.at(job.line, start, end);
             let pre = if C == 0 {

@@ -1,0 +1,162 @@
+"""Surface meshes (meshadv.mesh.surface_mesh): a textured mesh generated here round-trips through OBJ + MTL + PNG and
+GLB with its UV seam, texture and render; a texture optimised through render_surface survives save and load; PLY
+vertex colours load; bad files are errors naming the file and field."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from meshadv.mesh import MeshLoadError, face_adjacency, vertex_edges
+from meshadv.mesh.structure import Mesh
+from meshadv.mesh.surface_mesh import SurfaceMesh, load_surface_mesh, save_surface_mesh
+from meshadv.render import Camera, Lights, native_available, render_surface
+
+
+def _textured_grid(n: int = 6) -> SurfaceMesh:
+    """An n x n grid with heights, a 16 x 20 texture, and a UV seam down the middle (the right half reads shifted
+    copies of its UVs)."""
+    g = torch.Generator().manual_seed(0)
+    xs = torch.linspace(-1.0, 1.0, n)
+    yy, xx = torch.meshgrid(xs, xs, indexing="ij")
+    verts = torch.stack([xx, yy, 0.2 * torch.rand(n, n, generator=g)], -1).reshape(-1, 3)
+    faces = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
+            faces += [[a, b, d], [a, d, c]]
+    faces_t = torch.tensor(faces)
+    uv = 0.1 + 0.8 * (verts[:, :2] + 1) / 2
+    uvs = torch.cat([uv, uv + 0.05])
+    uv_faces = faces_t.clone()
+    uv_faces[verts[faces_t].mean(1)[:, 0] > 0] += verts.shape[0]
+    # 8-bit exact texels, so that a PNG round trip is exact.
+    texture = torch.randint(0, 256, (16, 20, 3), generator=g).float() / 255.0
+    return SurfaceMesh(Mesh(verts, faces_t, torch.full((faces_t.shape[0], 3), 0.5)), uvs, uv_faces, texture)
+
+
+def _corner_uvs(sm: SurfaceMesh) -> dict:
+    """Each face corner's (position, uv), keyed by position: independent of vertex and UV row order."""
+    pos = sm.mesh.vertices[sm.mesh.faces].reshape(-1, 3).numpy().round(5)
+    uv = sm.uvs[sm.uv_faces].reshape(-1, 2).numpy().round(5)
+    return sorted(map(tuple, np.concatenate([pos, uv], 1).tolist()))
+
+
+@pytest.mark.parametrize("ext", [".obj", ".glb"])
+def test_a_textured_mesh_round_trips_with_its_seam_and_texture(tmp_path: Path, ext: str) -> None:
+    sm = _textured_grid()
+    written = save_surface_mesh(sm, tmp_path / f"grid{ext}")
+    if ext == ".obj":
+        assert {p.name for p in written} == {"grid.obj", "grid.mtl", "grid_texture.png"}
+    back = load_surface_mesh(tmp_path / f"grid{ext}")
+    # Welded geometry: one vertex per position although the seam splits UVs (the Laplacian sees one surface).
+    assert back.mesh.num_vertices == sm.mesh.num_vertices
+    assert back.mesh.num_faces == sm.mesh.num_faces
+    # A 6 x 6 grid: 85 edges, 65 of them between two faces, also across the UV seam.
+    assert vertex_edges(back.mesh.faces).shape[0] == 85
+    assert face_adjacency(back.mesh.faces).shape[0] == 65
+    assert back.uvs[back.uv_faces].reshape(-1, 2).unique(dim=0).shape[0] > sm.mesh.num_vertices  # seam UV rows
+    assert _corner_uvs(back) == _corner_uvs(sm)
+    torch.testing.assert_close(back.texture, sm.texture, atol=0.6 / 255, rtol=0)
+
+
+@pytest.mark.skipif(not native_available(), reason="the native module meshadv._raster is not built")
+def test_a_texture_optimised_through_the_renderer_is_saved_and_rendered_the_same(tmp_path: Path) -> None:
+    sm = _textured_grid()
+    camera, lights = Camera.spherical(3.0, azimuth=10.0, elevation=20.0), Lights.default()
+    target = torch.zeros(1, 3, 32, 32)
+    target[..., :16] = 1.0  # left half white, right half black
+    texture = sm.texture.clone().requires_grad_(True)
+    opt = torch.optim.Adam([texture], lr=0.05)
+
+    def draw(s: SurfaceMesh, tex: torch.Tensor) -> torch.Tensor:
+        out = render_surface(
+            s.mesh.vertices,
+            s.mesh.faces,
+            camera,
+            lights,
+            32,
+            texture=tex,
+            uvs=s.uvs,
+            uv_faces=s.uv_faces,
+            shading="flat",
+        )
+        return out.image * out.alpha
+
+    first = float(((draw(sm, texture.detach()) - target) ** 2).mean())
+    for _ in range(30):
+        opt.zero_grad()
+        loss = ((draw(sm, texture) - target) ** 2).mean()
+        loss.backward()
+        opt.step()
+        with torch.no_grad():
+            texture.clamp_(0, 1)
+    assert float(loss.detach()) < 0.7 * first
+    attacked = sm.with_texture(texture)
+    save_surface_mesh(attacked, tmp_path / "attacked.obj")
+    back = load_surface_mesh(tmp_path / "attacked.obj")
+    with torch.no_grad():
+        a, b = draw(attacked, attacked.texture), draw(back, back.texture)
+    assert float((a - b).abs().max()) < 3.0 / 255  # 8-bit PNG quantisation only
+
+
+def test_ply_vertex_colours_load_per_welded_vertex(tmp_path: Path) -> None:
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], dtype=np.float64)
+    faces = np.array([[0, 1, 2], [1, 3, 2]])
+    colors = np.array([[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255], [255, 255, 255, 255]], dtype=np.uint8)
+    trimesh.Trimesh(verts, faces, vertex_colors=colors, process=False).export(tmp_path / "c.ply")
+    sm = load_surface_mesh(tmp_path / "c.ply")
+    assert sm.texture is None and sm.vertex_colors is not None
+    for k in range(4):
+        row = int(np.flatnonzero((sm.mesh.vertices.numpy() == verts[k]).all(1))[0])
+        np.testing.assert_allclose(sm.vertex_colors[row].numpy(), colors[k, :3] / 255.0, atol=1e-6)
+
+
+def _write_obj(folder: Path, body: str, mtl: str | None = None, image: bytes | None = None) -> Path:
+    obj = folder / "m.obj"
+    obj.write_text(("mtllib m.mtl\nusemtl a\n" if mtl is not None else "") + body)
+    if mtl is not None:
+        (folder / "m.mtl").write_text(mtl)
+    if image is not None:
+        (folder / "tex.png").write_bytes(image)
+    return obj
+
+
+_QUAD = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n"
+
+
+@pytest.mark.parametrize(
+    ("body", "mtl", "image", "message"),
+    [
+        (_QUAD, "newmtl a\nmap_Kd tex.png\n", None, r"map_Kd: the texture image .*tex.png does not exist"),
+        (_QUAD, "newmtl a\nmap_Kd tex.png\n", b"not a png", r"map_Kd: the texture image .*cannot be read"),
+        (_QUAD.replace("vt 1 0", "vt nan 0"), None, None, r"vt: needs two finite values"),
+        (_QUAD.replace("3/3", "3/7"), None, None, r"f: vt index 7 outside the 3 vt lines"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1//4 2//1 3//1\nvn 0 0 1\n", None, None, r"f: vn index 4"),
+    ],
+)
+def test_bad_textured_files_are_errors_naming_the_file_and_field(
+    tmp_path: Path, body: str, mtl: str | None, image: bytes | None, message: str
+) -> None:
+    obj = _write_obj(tmp_path, body, mtl, image)
+    with pytest.raises(MeshLoadError, match=message) as err:
+        load_surface_mesh(obj)
+    assert str(obj) in str(err.value) or "m.mtl" in str(err.value)
+
+
+def test_a_zero_size_texture_or_mismatched_attributes_are_errors_naming_the_field() -> None:
+    sm = _textured_grid(3)
+    with pytest.raises(ValueError, match="texture must have shape"):
+        SurfaceMesh(sm.mesh, sm.uvs, sm.uv_faces, torch.zeros(0, 4, 3))
+    with pytest.raises(ValueError, match="uv_faces must have shape"):
+        SurfaceMesh(sm.mesh, sm.uvs, sm.uv_faces[:-1], sm.texture)
+    with pytest.raises(ValueError, match="uv_faces refers to rows"):
+        SurfaceMesh(sm.mesh, sm.uvs[:3], sm.uv_faces, sm.texture)
+    with pytest.raises(ValueError, match="uvs contains NaN"):
+        SurfaceMesh(sm.mesh, torch.full_like(sm.uvs, float("nan")), sm.uv_faces, sm.texture)
+    with pytest.raises(ValueError, match="vertex_colors must have shape"):
+        SurfaceMesh(sm.mesh, vertex_colors=torch.zeros(2, 3))
