@@ -285,6 +285,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
 
     from meshadv.attacks import Criterion, TargetedMisclassification, WithMargin
     from meshadv.attacks.families import check_perturbation
+    from meshadv.experiments.perturbation import PERTURBATION_KEY, Perturbation
     from meshadv.experiments.provenance import compute_environment
     from meshadv.experiments.worker import attack_step_callback
     from meshadv.util.png import save_png
@@ -346,6 +347,8 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         lambda_perceptual=rec["lambdas"][0],
     )
     n_views = result.original_images.shape[0]
+    # the perturbation itself (float16, compressed): a copy of the database alone rebuilds the mesh counted here
+    record[PERTURBATION_KEY] = Perturbation.between(mesh, result.mesh).to_record()
     record["artifacts"].update(
         adversarial_mesh=ply,
         adversarial_obj=obj,

@@ -32,7 +32,6 @@ from meshadv.attacks import evaluate
 from meshadv.attacks.result import load_result_record
 from meshadv.experiments import ResultStore
 from meshadv.experiments.config import stored_retry_stages
-from meshadv.experiments.regenerate import ensure_artifacts
 from meshadv.experiments.retries import superseded_retries
 from meshadv.mesh import load_mesh
 from meshadv.render import RenderSetup, ViewSet
@@ -129,7 +128,7 @@ def cases_from_store(
     Reads the ``jobs`` table of the sweep database (``meshadv.experiments.ResultStore``); for each done job, the
     adversarial mesh ``adversarial.ply`` and the views of its ``result.json`` in the job's folder. A job whose folder
     is missing (the database was moved to another machine, or the sweep ran on a cluster) is regenerated from its
-    stored spec and seed into ``<artifact_root>/jobs/..`` (:func:`meshadv.experiments.regenerate.ensure_artifacts`).
+    stored spec and seed into ``<artifact_root>/jobs/..`` (:func:`meshadv.experiments.rebuild.ensure_artifacts`).
 
     Args:
         db_path: the sweep's ``results.db``.
@@ -187,6 +186,8 @@ def _wanted(row: Any, skip: Collection[str], only_successful: bool) -> bool:
 def _regenerated(db_path: Union[str, Path], row: Any, artifact_root: Optional[Union[str, Path]]) -> Path:
     """The job's artefact folder regenerated from its stored spec and seed under ``artifact_root`` (default: the
     database's folder)."""
+    from meshadv.experiments.rebuild import ensure_artifacts
+
     root = Path(artifact_root) if artifact_root is not None else Path(db_path).parent
     return ensure_artifacts(db_path, row.job_id, root, row.out_dir)
 
