@@ -20,6 +20,7 @@ Nothing else changes; the file is closed without a write-ahead log, as a committ
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import sqlite3
@@ -47,7 +48,8 @@ def make_portable(db: Path, config: Path, checkouts: List[str]) -> dict:
                 conn.execute("UPDATE jobs SET out_dir = ? WHERE job_id = ?", (new, job_id))
                 changed["out_dir"] += 1
         config_path = os.path.relpath(config.resolve(), db.resolve().parent)
-        conn.execute("UPDATE meta SET value = ? WHERE key = 'config_path'", (config_path,))
+        # meta values are JSON (ResultStore.set_meta)
+        conn.execute("UPDATE meta SET value = ? WHERE key = 'config_path'", (json.dumps(config_path),))
         changed["meta"] += 1
         pattern = re.compile("|".join(re.escape(c.rstrip("/") + "/") for c in checkouts))
         for key, value in conn.execute("SELECT key, value FROM meta WHERE key != 'config_path'").fetchall():

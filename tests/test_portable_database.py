@@ -121,6 +121,8 @@ def test_the_committed_databases_hold_no_absolute_path(name: str) -> None:
     assert not found, f"{len(found)} absolute paths, e.g. {found[:3]}"
     with ResultStore(db, read_only=True) as store:
         rows = store.rows("done")
+        meta = store.meta()
+    assert (db.parent / meta["config_path"]).resolve() == (ROOT / "configs" / f"{name}.toml").resolve()
     assert rows and all(r.out_dir is None or Path(r.out_dir).is_relative_to(db.parent) for r in rows)
 
 

@@ -99,7 +99,8 @@ class ArtifactSource:
 
                     self._told.add(row.job_id)
                     say_on_stderr(f"job {row.job_id}: its artefacts are not here and the database keeps no "
-                                  "perturbation of it; not regenerated (give a folder to regenerate into)")
+                                  "perturbation of it; not regenerated (`meshadv report --artifacts DIR` "
+                                  "regenerates it)")
         self._folders[row.job_id] = found
         return found
 
