@@ -22,7 +22,7 @@ dissimilarity ``(1 - SSIM) / 2`` of the least similar held-out view), for record
 attacked towards fewer targets than the others of their group (a job still missing or crashed) are left out of the
 best and worst cases and counted as ``incomplete``; crashed jobs are not results and never count as failed attacks.
 
-**Tail columns** (issue 14/16: a mean or median hides a tail of broken meshes): over every successful attack of a
+**Tail columns** (a mean or median hides a tail of broken meshes): over every successful attack of a
 row (the average case's population), the median, the 90th percentile (:func:`percentile`, linear interpolation
 between order statistics) and the largest distance, and, for the paper's measure, the share of successful attacks
 whose distance exceeds :data:`PAPER_WORST` (the largest worst-case distance of the paper's Table 1, a mean over its
