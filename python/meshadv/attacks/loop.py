@@ -50,6 +50,7 @@ from meshadv.attacks.outputs import slice_output
 from meshadv.attacks.result import AttackResult, enough_views
 from meshadv.attacks.targets import StopRule, TargetState
 from meshadv.attacks.update import UpdateRule, make_update_rule
+from meshadv.mesh import Mesh
 from meshadv.render.setup import RenderSetup
 
 __all__ = ["AttackCall", "AttackFamily", "StepTerms", "adversarial_terms", "attack_step", "run_attack"]
@@ -327,8 +328,6 @@ class _Loop:
 
 def _adversarial_meshes(attack: AttackFamily, call: AttackCall, params: Tensor) -> Tuple[Any, ...]:
     """The ``T`` adversarial meshes of parameters ``(T, ...)`` (float32, contiguous, detached copies)."""
-    from meshadv.mesh import Mesh
-
     mesh = call.mesh
     num_t = params.shape[0]
     with torch.no_grad():

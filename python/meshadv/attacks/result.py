@@ -29,6 +29,7 @@ from typing import Any, Dict, List, Optional, Tuple, Union
 
 from torch import Tensor
 
+from meshadv.mesh import save_mesh
 from meshadv.util.atomic import write_json_atomic
 from meshadv.util.png import save_png
 
@@ -218,8 +219,6 @@ class AttackResult:
 
     def _write_meshes(self, folder: Path) -> None:
         """Every target's adversarial mesh as PLY and OBJ (:meth:`mesh_filenames`) into ``folder``."""
-        from meshadv.mesh import save_mesh
-
         for t, mesh in enumerate(self.adversarial):
             for name in self.mesh_filenames(t):
                 save_mesh(mesh.detach(), folder / name)

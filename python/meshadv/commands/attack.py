@@ -139,7 +139,7 @@ def attack(
     distance: float = typer.Option(DEFAULT_DISTANCE, help="camera distance (mesh normalised to [-1, 1])"),
     method: Optional[str] = typer.Option(
         None, help="update rule: ddn (least distortion: a per-target budget that shrinks while the target holds, no "
-                   "lambda; benchmarks/RESULTS.md; the default) or adam (the paper's Adam + lambda search; with "
+                   "lambda; the default) or adam (the paper's Adam + lambda search; with "
                    "--binary-search 5 --steps 1000 --early-stop 0 the paper's protocol exactly)"),
     steps: int = typer.Option(300, help="maximum steps (per binary-search round with --method adam)"),
     lr: Optional[float] = typer.Option(None, help="--method adam: Adam learning rate (default: the attack's)"),
@@ -185,7 +185,7 @@ def attack(
     inception_v3 (--weights STATE_DICT.pth), yolov3 (--weights FILE.weights --cfg FILE.cfg)."""
     import torch
 
-    from meshadv.attacks.robust import robust_options
+    from meshadv.attacks.robust_settings import robust_options
     from meshadv.attacks.update import RECOMMENDED_METHOD
     from meshadv.commands._comparison import write_attack_outputs
     from meshadv.render import RenderSetup

@@ -6,8 +6,7 @@ PASCAL3D+ chair 01 (seen as a "folding chair") when the shared data are present,
 the shape towards the class the pristine renders rank next (or ``--target``), and writes ``comparison.png``
 (benign | adversarial side by side, each labelled with the victim's top-1 and confidence, with the distortion
 numbers), the adversarial mesh in the input's frame, the renders and ``result.json``, and prints the largest vertex
-move as a percentage of the bounding-box diagonal (about 0.06% on the chair, 0.03% on the sofa: a change one has to
-look for).
+move as a percentage of the bounding-box diagonal.
 
 The attack is built in one place, :func:`build_demo_attack`; switching the demo to another attack method is a
 change of that function.

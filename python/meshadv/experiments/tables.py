@@ -20,7 +20,7 @@ face-colour RMSE. Instances attacked towards fewer targets than the others of th
 crashed) are left out of the best and worst cases and counted as ``incomplete``; crashed jobs are not results and
 never count as failed attacks.
 
-**Tail columns** (issue 14/16: a mean or median hides a tail of broken meshes): over every successful attack of a
+**Tail columns** (a mean or median hides a tail of broken meshes): over every successful attack of a
 row (the average case's population), the median, the 90th percentile (:func:`percentile`, linear interpolation
 between order statistics) and the largest distance, and, for the paper's measure, the share of successful attacks
 whose distance exceeds :data:`PAPER_WORST` (the largest worst-case distance of the paper's Table 1, a mean over its

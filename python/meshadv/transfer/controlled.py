@@ -28,16 +28,30 @@ from typing import Any, Callable, Collection, Optional, Sequence, Union
 import torch
 
 from meshadv import _validate
+from meshadv.attacks import evaluate
+from meshadv.attacks.result import load_result_record
+from meshadv.experiments import ResultStore
+from meshadv.experiments.config import stored_retry_stages
+from meshadv.experiments.retries import superseded_retries
+from meshadv.mesh import load_mesh
+from meshadv.render import RenderSetup, ViewSet
 from meshadv.transfer.mitsuba_process import MitsubaImage, MitsubaRenderError, render_scenes
 from meshadv.transfer.mitsuba_spec import MeshObject, SceneSpec, scene_spec
 from meshadv.transfer.results import ControlledResult, load_transfer_rows, save_transfer_rows
 from meshadv.transfer.scoring import class_names, classifier_criteria, images_tensor, top1_names
+from meshadv.util.atomic import write_json_atomic, write_text_atomic
+from meshadv.util.png import save_png
+from meshadv.victims import load_victim
 
 __all__ = [
     "INDEX_COLUMNS", "TransferCase", "case_from_attack_folder", "case_name", "cases_from_store", "controlled_transfer",
     "evaluate_case", "mitsuba_specs_for_case", "pending_cases", "save_images", "transfer_attack_folder",
     "transfer_case_into", "write_image_index",
 ]
+
+#: Columns of the renders' ``index.csv``.
+INDEX_COLUMNS = ("file", "job_id", "victim", "true_class", "target", "perturbation", "view", "success_meshadv",
+                 "success_mitsuba", "top1_meshadv", "top1_mitsuba")
 
 
 @dataclass(frozen=True)
@@ -133,14 +147,10 @@ def cases_from_store(
         TypeError: ``limit`` is not an int (or None), or ``skip`` is a single string.
         ValueError: ``limit < 1``.
     """
-    from meshadv.experiments import ResultStore
-    from meshadv.experiments.retries import superseded_retries
-    from meshadv.experiments.sweep_file import stored_retry_stages
-
     if not Path(db_path).is_file():
         raise FileNotFoundError(f"db_path {db_path} does not exist")
     if limit is not None:
-        _validate.positive_int("limit", limit)  # 0 used to give one case
+        _validate.positive_int("limit", limit)
     if isinstance(skip, (str, bytes)):
         raise TypeError("skip must be a collection of job ids, got a single string")
     cases: list[TransferCase] = []
@@ -185,8 +195,6 @@ def _regenerated(db_path: Union[str, Path], row: Any, artifact_root: Optional[Un
 def _case_from_job(row: Any, out: Path) -> Optional[TransferCase]:
     """The case of a done job from its folder ``out`` (``result.json`` and the adversarial mesh), or None when the
     folder lacks them or the result has no views."""
-    from meshadv.mesh import load_mesh
-
     result_path = out / "result.json"
     if not result_path.is_file():
         return None
@@ -215,11 +223,6 @@ def _case_from_job(row: Any, out: Path) -> Optional[TransferCase]:
     )
 
 
-#: Columns of the renders' ``index.csv``.
-INDEX_COLUMNS = ("file", "job_id", "victim", "true_class", "target", "perturbation", "view", "success_meshadv",
-                 "success_mitsuba", "top1_meshadv", "top1_mitsuba")
-
-
 def write_image_index(image_dir: Union[str, Path], cases: Sequence[TransferCase],
                       rows: Sequence[ControlledResult]) -> Path:
     """Add the renders of ``cases`` to ``<image_dir>/index.csv`` (file name -> job id, classes, view, outcome), keeping
@@ -233,8 +236,6 @@ def write_image_index(image_dir: Union[str, Path], cases: Sequence[TransferCase]
     Returns:
         The index path.
     """
-    from meshadv.util.atomic import write_text_atomic
-
     path = Path(image_dir) / "index.csv"
     entries = _read_index(path)
     stems = {case.case_id: case.name or case.case_id for case in cases}
@@ -273,8 +274,6 @@ def _index_entry(stem: str, row: ControlledResult) -> dict[str, Any]:
 def save_images(images: Sequence[MitsubaImage], out_dir: Union[str, Path], stem: str) -> list[Path]:
     """Save Mitsuba renders as 8-bit PNGs ``<stem>_v<i>.png`` in ``out_dir`` (created if missing; linear values, as
     meshadv's images) and return their paths."""
-    from meshadv.util.png import save_png
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -360,9 +359,6 @@ def _meshadv_verdicts(case: TransferCase, victim: Any, untargeted: Any,
                       targeted: Optional[Any]) -> tuple[_Verdicts, torch.Tensor]:
     """The verdicts on meshadv's renders of the case (its image size, background and the attack's supersampling,
     scored as the attack scores them) and those renders ``(V, 3, H, W)``."""
-    from meshadv.attacks import evaluate
-    from meshadv.render import RenderSetup, ViewSet
-
     views = ViewSet.from_records(list(case.views))
     criteria = [untargeted] if targeted is None else [untargeted, targeted]
     setup = RenderSetup(image_size=case.image_size, background=case.background, antialias=case.antialias)
@@ -425,8 +421,6 @@ def controlled_transfer(
     cases = list(cases)
     _check_transfer_options(cases, spp, max_depth, timeout, victim_loader, on_error)
     if victim_loader is None:
-        from meshadv.victims import load_victim
-
         victim_loader = load_victim
     victims: dict[str, Any] = {}
     rows: list[ControlledResult] = []
@@ -516,9 +510,6 @@ def case_from_attack_folder(folder: Union[str, Path]) -> TransferCase:
         FileNotFoundError: ``folder`` holds no ``result.json`` or its mesh is missing.
         ValueError: the result is not a classifier attack.
     """
-    from meshadv.attacks.result import load_result_record
-    from meshadv.mesh import load_mesh
-
     record = load_result_record(folder)
     if not record.get("original_top1_names"):
         raise ValueError(f"{folder}: only classifier attacks can be transferred this way (no top-1 in result.json)")
@@ -558,8 +549,6 @@ def transfer_attack_folder(folder: Union[str, Path], *, spp: int = 64, max_depth
         ModuleNotFoundError: Mitsuba 3 is not installed (``pip install 'meshadv[transfer]'``).
     """
     import mitsuba  # noqa: F401  (a clear ModuleNotFoundError before any work)
-
-    from meshadv.util.atomic import write_json_atomic
 
     case = case_from_attack_folder(folder)
     rows = controlled_transfer([case], spp=spp, max_depth=max_depth, variant=variant, victim_loader=victim_loader,
