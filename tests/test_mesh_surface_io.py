@@ -160,3 +160,50 @@ def test_a_zero_size_texture_or_mismatched_attributes_are_errors_naming_the_fiel
         SurfaceMesh(sm.mesh, torch.full_like(sm.uvs, float("nan")), sm.uv_faces, sm.texture)
     with pytest.raises(ValueError, match="vertex_colors must have shape"):
         SurfaceMesh(sm.mesh, vertex_colors=torch.zeros(2, 3))
+
+
+@pytest.mark.skipif(not native_available(), reason="the native module meshadv._raster is not built")
+def test_meshadv_render_draws_a_textured_file_with_its_texture(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from meshadv.cli import app
+    from PIL import Image
+
+    sm = _textured_grid()
+    black = sm.with_texture(torch.zeros_like(sm.texture))
+    white = sm.with_texture(torch.ones_like(sm.texture))
+    means = {}
+    for name, surface in (("black", black), ("white", white)):
+        save_surface_mesh(surface, tmp_path / f"{name}.obj")
+        for shading in ("flat", "smooth"):
+            out = tmp_path / f"{name}_{shading}"
+            result = CliRunner().invoke(
+                app,
+                [
+                    "render",
+                    str(tmp_path / f"{name}.obj"),
+                    "--views",
+                    "1",
+                    "--azimuths",
+                    "0:0",
+                    "--elevation",
+                    "60",
+                    "--image-size",
+                    "32",
+                    "--shading",
+                    shading,
+                    "--background",
+                    "0.5,0.5,0.5",
+                    "-o",
+                    str(out),
+                ],
+            )
+            assert result.exit_code == 0, result.output
+            means[name, shading] = float(np.asarray(Image.open(out / "view_0.png"), dtype=np.float64).mean() / 255)
+    # The texture decides the colour (a per-face grey would give both files the same image).
+    assert means["black", "flat"] < 0.45 < 0.55 < means["white", "flat"]
+    assert means["black", "smooth"] < 0.45 < 0.55 < means["white", "smooth"]
+    result = CliRunner().invoke(
+        app, ["render", str(tmp_path / "black.obj"), "--shading", "phong", "-o", str(tmp_path / "x")]
+    )
+    assert result.exit_code == 2 and "--shading" in result.output

@@ -363,28 +363,38 @@ pub fn interpolate(
     out.par_chunks_mut(params.width * k)
         .enumerate()
         .for_each(|(line, dst)| {
-            let b = line / params.height;
-            let o = line * params.width;
-            for (j, px) in dst.chunks_exact_mut(k).enumerate() {
-                let f = face_index[o + j];
-                if f < 0 {
-                    continue;
-                }
-                let w = &weights[(o + j) * 3..(o + j) * 3 + 3];
-                let c = &attrs.corners[f as usize * 3..f as usize * 3 + 3];
-                let rows = [
-                    attrs.row(b, c[0] as usize),
-                    attrs.row(b, c[1] as usize),
-                    attrs.row(b, c[2] as usize),
-                ];
-                for ch in 0..k {
-                    px[ch] = (w[0] as f64 * rows[0][ch] as f64
-                        + w[1] as f64 * rows[1][ch] as f64
-                        + w[2] as f64 * rows[2][ch] as f64) as f32;
-                }
-            }
+            with_channels!(k, K => interpolate_line::<K>(attrs, face_index, weights, params, line, dst))
         });
     Ok(out)
+}
+
+/// [`interpolate`] of image line `line` into `dst`, for `K` channels (0: any count).
+#[inline(always)]
+fn interpolate_line<const K: usize>(
+    attrs: &CornerAttrs<'_>,
+    face_index: &[i32],
+    weights: &[f32],
+    params: &RasterParams,
+    line: usize,
+    dst: &mut [f32],
+) {
+    let k = if K == 0 { attrs.channels } else { K };
+    let b = line / params.height;
+    let o = line * params.width;
+    for (j, px) in dst.chunks_exact_mut(k).enumerate() {
+        let f = face_index[o + j];
+        if f < 0 {
+            continue;
+        }
+        let w = &weights[(o + j) * 3..(o + j) * 3 + 3];
+        let c = &attrs.corners[f as usize * 3..f as usize * 3 + 3];
+        let rows: [&[f32]; 3] = std::array::from_fn(|i| &attrs.row(b, c[i] as usize)[..k]);
+        for ch in 0..k {
+            px[ch] = (w[0] as f64 * rows[0][ch] as f64
+                + w[1] as f64 * rows[1][ch] as f64
+                + w[2] as f64 * rows[2][ch] as f64) as f32;
+        }
+    }
 }
 
 /// Gradients of [`interpolate`].
@@ -394,6 +404,44 @@ pub struct InterpGradients {
     pub grad_values: Vec<f32>,
     /// `(B, H, W, 3)` gradient with respect to the weights.
     pub grad_weights: Vec<f32>,
+}
+
+/// [`interpolate_backward`] of batch element `b`: its weight gradient into `gw` and its value gradient added to
+/// `acc`, pixels in row-major order, for `K` channels (0: any count).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn interpolate_backward_element<const K: usize>(
+    attrs: &CornerAttrs<'_>,
+    face_index: &[i32],
+    weights: &[f32],
+    grad: &[f32],
+    hw: usize,
+    b: usize,
+    gw: &mut [f32],
+    acc: &mut [f64],
+) {
+    let k = if K == 0 { attrs.channels } else { K };
+    for p in 0..hw {
+        let q = b * hw + p;
+        let f = face_index[q];
+        if f < 0 {
+            continue;
+        }
+        let w = &weights[q * 3..q * 3 + 3];
+        let g = &grad[q * k..(q + 1) * k];
+        let c = &attrs.corners[f as usize * 3..f as usize * 3 + 3];
+        for corner in 0..3 {
+            let r = c[corner] as usize;
+            let row = &attrs.row(b, r)[..k];
+            let a = &mut acc[r * k..(r + 1) * k];
+            let mut sum = 0f64;
+            for ch in 0..k {
+                sum += g[ch] as f64 * row[ch] as f64;
+                a[ch] += w[corner] as f64 * g[ch] as f64;
+            }
+            gw[p * 3 + corner] = sum as f32;
+        }
+    }
 }
 
 /// Backward of [`interpolate`] for the cotangent `grad` `(B, H, W, K)`: exact gradients to the values (summed over
@@ -420,51 +468,14 @@ pub fn interpolate_backward(
     check_finite("grad", grad)?;
     let hw = params.pixels();
     let mut grad_weights = try_filled_vec(face_index.len() * 3, 0f32, "grad_weights")?;
-    grad_weights
-        .par_chunks_mut(params.width * 3)
-        .enumerate()
-        .for_each(|(line, dst)| {
-            let b = line / params.height;
-            let o = line * params.width;
-            for (j, gw) in dst.chunks_exact_mut(3).enumerate() {
-                let f = face_index[o + j];
-                if f < 0 {
-                    continue;
-                }
-                let g = &grad[(o + j) * k..(o + j + 1) * k];
-                let c = &attrs.corners[f as usize * 3..f as usize * 3 + 3];
-                for corner in 0..3 {
-                    let row = attrs.row(b, c[corner] as usize);
-                    let mut sum = 0f64;
-                    for ch in 0..k {
-                        sum += g[ch] as f64 * row[ch] as f64;
-                    }
-                    gw[corner] = sum as f32;
-                }
-            }
-        });
-    // Values: per batch element in parallel, pixels in row-major order; shared values are summed in batch order.
+    // Per batch element in parallel, pixels in row-major order; shared values are summed in batch order below.
     let per_elem = attrs.rows * k;
-    let partial: Vec<Vec<f64>> = (0..mesh.batch)
-        .into_par_iter()
-        .map(|b| {
+    let partial: Vec<Vec<f64>> = grad_weights
+        .par_chunks_mut(hw * 3)
+        .enumerate()
+        .map(|(b, gw)| {
             let mut acc = vec![0f64; per_elem];
-            let fi = &face_index[b * hw..(b + 1) * hw];
-            for (p, &f) in fi.iter().enumerate() {
-                if f < 0 {
-                    continue;
-                }
-                let q = b * hw + p;
-                let w = &weights[q * 3..q * 3 + 3];
-                let g = &grad[q * k..(q + 1) * k];
-                let c = &attrs.corners[f as usize * 3..f as usize * 3 + 3];
-                for corner in 0..3 {
-                    let a = &mut acc[c[corner] as usize * k..(c[corner] as usize + 1) * k];
-                    for ch in 0..k {
-                        a[ch] += w[corner] as f64 * g[ch] as f64;
-                    }
-                }
-            }
+            with_channels!(k, K => interpolate_backward_element::<K>(attrs, face_index, weights, grad, hw, b, gw, &mut acc));
             acc
         })
         .collect();

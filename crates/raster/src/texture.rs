@@ -146,29 +146,49 @@ pub fn sample(texture: &Texture<'_>, uv: &[f32], mask: &[i32], batch: usize) -> 
     out.par_chunks_mut(CHUNK * c)
         .enumerate()
         .for_each(|(chunk, dst)| {
-            let p0 = chunk * CHUNK;
-            for (i, px) in dst.chunks_exact_mut(c).enumerate() {
-                let p = p0 + i;
-                if mask[p] < 0 {
-                    continue;
-                }
-                let (t, fx, fy) = texture.cell(p / per_elem, [uv[2 * p], uv[2 * p + 1]]);
-                let wts = [
-                    (1.0 - fx) * (1.0 - fy),
-                    fx * (1.0 - fy),
-                    (1.0 - fx) * fy,
-                    fx * fy,
-                ];
-                for (ch, out) in px.iter_mut().enumerate() {
-                    let mut s = 0f64;
-                    for k in 0..4 {
-                        s += wts[k] * texture.texels[t[k] + ch] as f64;
-                    }
-                    *out = s as f32;
-                }
-            }
+            with_channels!(c, C => sample_chunk::<C>(texture, uv, mask, per_elem, chunk * CHUNK, dst))
         });
     Ok(out)
+}
+
+/// The bilinear weights of the four texels of a cell with fractions `(fx, fy)`.
+#[inline(always)]
+fn bilinear_weights(fx: f64, fy: f64) -> [f64; 4] {
+    [
+        (1.0 - fx) * (1.0 - fy),
+        fx * (1.0 - fy),
+        (1.0 - fx) * fy,
+        fx * fy,
+    ]
+}
+
+/// [`sample`] of the pixels `p0..` that `dst` holds, for `C` channels (0: any count).
+#[inline(always)]
+fn sample_chunk<const C: usize>(
+    texture: &Texture<'_>,
+    uv: &[f32],
+    mask: &[i32],
+    per_elem: usize,
+    p0: usize,
+    dst: &mut [f32],
+) {
+    let c = if C == 0 { texture.channels } else { C };
+    for (i, px) in dst.chunks_exact_mut(c).enumerate() {
+        let p = p0 + i;
+        if mask[p] < 0 {
+            continue;
+        }
+        let (t, fx, fy) = texture.cell(p / per_elem, [uv[2 * p], uv[2 * p + 1]]);
+        let wts = bilinear_weights(fx, fy);
+        let tx: [&[f32]; 4] = std::array::from_fn(|k| &texture.texels[t[k]..t[k] + c]);
+        for ch in 0..c {
+            let mut s = 0f64;
+            for k in 0..4 {
+                s += wts[k] * tx[k][ch] as f64;
+            }
+            px[ch] = s as f32;
+        }
+    }
 }
 
 /// Gradients of [`sample`].
@@ -200,40 +220,54 @@ pub fn sample_backward(
     }
     check_finite("grad", grad)?;
     let per_elem = mask.len() / batch;
-    let (wf, hf) = (texture.width as f64, texture.height as f64);
     let mut grad_uv = try_filled_vec(mask.len() * 2, 0f32, "grad_uv")?;
     let mut acc = try_filled_vec(texture.texels.len(), 0f64, "texture gradient accumulator")?;
-    // One pass in pixel order (the texel sums' order): the UV gradient and the texels' shares of each sample.
-    for p in 0..mask.len() {
-        if mask[p] < 0 {
+    with_channels!(c, C => sample_backward_pixels::<C>(texture, uv, mask, per_elem, grad, &mut grad_uv, &mut acc));
+    Ok(SampleGradients {
+        grad_texels: acc.iter().map(|&x| x as f32).collect(),
+        grad_uv,
+    })
+}
+
+/// [`sample_backward`]'s one pass in pixel order (the texel sums' order): the UV gradient and the texels' shares of
+/// each sample, for `C` channels (0: any count).
+#[inline(always)]
+fn sample_backward_pixels<const C: usize>(
+    texture: &Texture<'_>,
+    uv: &[f32],
+    mask: &[i32],
+    per_elem: usize,
+    grad: &[f32],
+    grad_uv: &mut [f32],
+    acc: &mut [f64],
+) {
+    let c = if C == 0 { texture.channels } else { C };
+    let (wf, hf) = (texture.width as f64, texture.height as f64);
+    for (p, &f) in mask.iter().enumerate() {
+        if f < 0 {
             continue;
         }
         let g = &grad[p * c..(p + 1) * c];
         let (t, fx, fy) = texture.cell(p / per_elem, [uv[2 * p], uv[2 * p + 1]]);
-        let wts = [
-            (1.0 - fx) * (1.0 - fy),
-            fx * (1.0 - fy),
-            (1.0 - fx) * fy,
-            fx * fy,
-        ];
+        let wts = bilinear_weights(fx, fy);
+        let tx: [&[f32]; 4] = std::array::from_fn(|k| &texture.texels[t[k]..t[k] + c]);
         let (mut gx, mut gy) = (0f64, 0f64);
-        for (ch, &gc) in g.iter().enumerate() {
-            let gc = gc as f64;
-            let tx = |k: usize| texture.texels[t[k] + ch] as f64;
-            gx += gc * ((1.0 - fy) * (tx(1) - tx(0)) + fy * (tx(3) - tx(2)));
-            gy += gc * ((1.0 - fx) * (tx(2) - tx(0)) + fx * (tx(3) - tx(1)));
-            for k in 0..4 {
-                acc[t[k] + ch] += wts[k] * gc;
+        for ch in 0..c {
+            let gc = g[ch] as f64;
+            let v: [f64; 4] = std::array::from_fn(|k| tx[k][ch] as f64);
+            gx += gc * ((1.0 - fy) * (v[1] - v[0]) + fy * (v[3] - v[2]));
+            gy += gc * ((1.0 - fx) * (v[2] - v[0]) + fx * (v[3] - v[1]));
+        }
+        for k in 0..4 {
+            let a = &mut acc[t[k]..t[k] + c];
+            for ch in 0..c {
+                a[ch] += wts[k] * g[ch] as f64;
             }
         }
         // x = u W - 0.5, y = (1 - v) H - 0.5.
         grad_uv[2 * p] = (gx * wf) as f32;
         grad_uv[2 * p + 1] = (-gy * hf) as f32;
     }
-    Ok(SampleGradients {
-        grad_texels: acc.iter().map(|&x| x as f32).collect(),
-        grad_uv,
-    })
 }
 
 #[cfg(test)]

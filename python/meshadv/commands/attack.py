@@ -12,6 +12,7 @@ from typing import Any, Callable, List, Optional, Sequence
 
 import typer
 
+from meshadv.commands._cap_option import CAP_HELP, parse_cap
 from meshadv.commands._common import (
     DEFAULT_BACKGROUND,
     DEFAULT_DISTANCE,
@@ -129,6 +130,13 @@ def attack(
     target: List[str] = typer.Option([], help="target class: ImageNet name/index or PASCAL3D+ class (repeatable: "
                                               "several targets are attacked together as a batch)"),
     untargeted: Optional[str] = typer.Option(None, help="untargeted attack away from this true class"),
+    source: Optional[str] = typer.Option(
+        None, help="the class the benign mesh is, checked on every attack view before the attack (default: "
+                   "--untargeted's class, else the PASCAL3D+ class of a mesh under a pascal3d/CLASS/ folder, else "
+                   "not checked)"),
+    benign_wrong_ok: bool = typer.Option(
+        False, "--benign-wrong-ok", help="attack even when the benign render is not the source class on some views "
+                                         "(default: refuse)"),
     disappear: Optional[str] = typer.Option(None, help="detector: class to hide, or 'all'"),
     perturbation: str = typer.Option("shape", "--perturbation", help="shape or texture"),
     views: int = typer.Option(5, help="number of victim views"),
@@ -139,7 +147,7 @@ def attack(
     distance: float = typer.Option(DEFAULT_DISTANCE, help="camera distance (mesh normalised to [-1, 1])"),
     method: Optional[str] = typer.Option(
         None, help="update rule: ddn (least distortion: a per-target budget that shrinks while the target holds, no "
-                   "lambda; benchmarks/RESULTS.md; the default) or adam (the paper's Adam + lambda search; with "
+                   "lambda; the default) or adam (the paper's Adam + lambda search; with "
                    "--binary-search 5 --steps 1000 --early-stop 0 the paper's protocol exactly)"),
     steps: int = typer.Option(300, help="maximum steps (per binary-search round with --method adam)"),
     lr: Optional[float] = typer.Option(None, help="--method adam: Adam learning rate (default: the attack's)"),
@@ -162,6 +170,13 @@ def attack(
                    "0.05 below the threshold for detectors)"),
     budget: Optional[float] = typer.Option(None, help="distortion ceiling (shape: the Eq. 4 Laplacian sum of the "
                                                 "flow, i.e. pair mean x 2E; texture: colour RMSE)"),
+    cap: str = typer.Option(
+        "default", help="perceptibility cap: 'default' (" + CAP_HELP + "), 'none' (the paper's protocol), or "
+                        "NAME=VALUE,... of max_displacement (largest vertex move / bounding-box diagonal), "
+                        "normal_change_p95_deg (area-weighted 95th-percentile turn of the face normals, degrees), "
+                        "color_change_p95 (area-weighted 95th-percentile RGB change of the face colours); a step "
+                        "outside it never counts as a success, and a target that cannot succeed inside it fails with "
+                        "its closest result inside it"),
     jitter: bool = typer.Option(False, help="random camera/light jitter at every step (robustness)"),
     eot: int = typer.Option(0, min=0, max=4096, help="robust attack: draw this many fresh views from the whole "
                                                      "azimuth range (+-10 degrees), elevation (+-5) and distance "
@@ -185,8 +200,9 @@ def attack(
     inception_v3 (--weights STATE_DICT.pth), yolov3 (--weights FILE.weights --cfg FILE.cfg)."""
     import torch
 
-    from meshadv.attacks.robust import robust_options
+    from meshadv.attacks.robust_settings import robust_options
     from meshadv.attacks.update import RECOMMENDED_METHOD
+    from meshadv.commands._benign_gate import benign_gate, source_class
     from meshadv.commands._comparison import write_attack_outputs
     from meshadv.render import RenderSetup
     from meshadv.render.visibility import check_visibility_gradient
@@ -226,7 +242,7 @@ def attack(
             perturbation, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
             max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, method_options=method_options,
-            **{**robust, **shape_only},
+            perceptibility_cap=parse_cap(cap), **{**robust, **shape_only},
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
         for crit in criteria:
@@ -235,6 +251,9 @@ def attack(
         raise typer.BadParameter(str(exc)) from exc
     typer.echo(f"mesh {label}: {mesh_obj.num_vertices} vertices, {mesh_obj.num_faces} faces; "
                f"{attack_obj!r}")
+    criteria = benign_gate(mesh_obj, view_set, victim_obj, criteria, setup=setup,
+                           source=source_class(source, untargeted, loaded.path),
+                           success_fraction=attack_obj.success_fraction, go_on=benign_wrong_ok)
     result = run_with_progress(attack_obj, mesh_obj, view_set, victim_obj, criteria, eval_views=held_out,
                                setup=setup, quiet=quiet)
     path = result.save(output)

@@ -16,7 +16,7 @@ from meshadv.commands._common import (
     DEFAULT_BACKGROUND,
     DEFAULT_DISTANCE,
     DEFAULT_ELEVATION,
-    load_mesh_arg,
+    load_mesh_input,
     make_views,
     parse_azimuth_range,
     parse_color,
@@ -41,25 +41,34 @@ def render(
     weights: Optional[Path] = typer.Option(None, help="weights file of densenet121 / inception_v3 / yolov3"),
     cfg: Optional[Path] = typer.Option(None, help="Darknet .cfg file (yolov3 only)"),
     z_up: Optional[bool] = typer.Option(None, "--z-up/--y-up", help="mesh file is Z-up (default: guess)"),
+    shading: Optional[str] = typer.Option(None, help="flat or smooth (default: what the file asks for: smooth when "
+                                                     "it has vertex normals); textures and vertex colours are "
+                                                     "rendered as the file has them"),
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
 ) -> None:
     """Render MESH from VIEWS azimuths and write view_{j}.png (+ predictions.json with --victim) into OUTPUT."""
     import torch
 
+    from meshadv.commands._surface_views import render_file_surface
     from meshadv.render import RenderSetup, render_views
     from meshadv.util.atomic import write_json_atomic
     from meshadv.util.png import save_png
 
     try:
-        mesh_obj, label = load_mesh_arg(mesh, z_up=z_up)
+        if shading not in (None, "flat", "smooth"):
+            raise ValueError(f"--shading must be flat or smooth, got {shading!r}")
+        loaded = load_mesh_input(mesh, z_up=z_up)
+        mesh_obj, label = loaded.mesh, loaded.label
         view_set = make_views(views, parse_azimuth_range(azimuths), elevation, distance)
         bg = parse_color(background)
+        images = render_file_surface(loaded.path, bool(loaded.z_up), view_set, image_size, bg, shading)
     except (ValueError, FileNotFoundError) as exc:
         raise typer.BadParameter(str(exc)) from exc
     output.mkdir(parents=True, exist_ok=True)
-    with torch.no_grad():
-        images, _ = render_views(mesh_obj.vertices.unsqueeze(0), mesh_obj.faces, mesh_obj.face_colors, view_set,
-                                 RenderSetup(image_size=image_size, background=bg))
+    if images is None:
+        with torch.no_grad():
+            images, _ = render_views(mesh_obj.vertices.unsqueeze(0), mesh_obj.faces, mesh_obj.face_colors, view_set,
+                                     RenderSetup(image_size=image_size, background=bg))
     records = []
     for j, rec in enumerate(view_set.to_records()):
         name = f"view_{j}.png"

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 import shlex
 import signal
 import sys
@@ -246,7 +247,8 @@ def sweep(
         raise typer.Exit(1) from None
     with store:
         store.set_meta("name", cfg.name)
-        store.set_meta("config_path", str(Path(config).resolve()))
+        # relative to the database's folder, as its job folders: a copied run folder keeps pointing at its config
+        store.set_meta("config_path", os.path.relpath(Path(config).resolve(), Path(db_path).resolve().parent))
         store.set_meta("config_text", cfg.text)
         store.set_meta("command", "meshadv sweep " + " ".join(shlex.quote(a) for a in sys.argv[2:]))
         store.set_meta("sweep_versions", environment_versions())

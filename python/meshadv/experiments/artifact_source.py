@@ -45,21 +45,28 @@ class ArtifactSource:
     """Where the report finds the artefacts (meshes, renders) of a finished job.
 
     The folder the database records for the job when it is complete on this machine (``use_stored``), else
-    ``<root>/jobs/<id[:2]>/<id>`` when it is complete there (regenerated earlier), else, with ``root`` set, the job is
-    regenerated there from its stored spec and seed (:func:`meshadv.experiments.regenerate.regenerate_job`) and its
-    new record is compared with the stored one; each regeneration's check is kept in :attr:`checks` and written to
-    ``regeneration.json`` in the job's folder (read back when a later report reuses the folder).
+    ``<root>/jobs/<id[:2]>/<id>`` when it is complete there (rebuilt or regenerated earlier), else, with ``root`` set,
+    the job is rebuilt there from the perturbation the database keeps (:func:`meshadv.experiments.rebuild.
+    rebuild_job`; its check says so), else (``regenerate_missing``) regenerated there from its stored spec and seed
+    (:func:`meshadv.experiments.regenerate.regenerate_job`) and its new record is compared with the stored one; each
+    regeneration's check is kept in :attr:`checks` and written to ``regeneration.json`` in the job's folder (read
+    back when a later report reuses the folder).
 
     Args:
         db_path: the results database. root: the folder for regenerated artefacts (``None``: never regenerate).
         use_stored: use the folders the database records. threads: intra-op threads of a regeneration.
+        regenerate_missing: regenerate a job the database keeps no perturbation of (``False``: rebuild only, and say
+            in one line which jobs are left out).
         assume: the sweep's defaults for records that do not pin them (:func:`~meshadv.experiments.regenerate.
             pinned_spec`).
     """
 
     def __init__(self, db_path: Union[str, Path], root: Optional[Union[str, Path]] = None, *,
-                 use_stored: bool = True, threads: int = 1, assume: Optional[Dict[str, Any]] = None) -> None:
+                 use_stored: bool = True, threads: int = 1, assume: Optional[Dict[str, Any]] = None,
+                 regenerate_missing: bool = True) -> None:
         self.db_path = Path(db_path)
+        self.regenerate_missing = bool(regenerate_missing)
+        self._told: set = set()
         self.root = None if root is None else Path(root)
         self.use_stored = bool(use_stored)
         self.threads = int(threads)
@@ -84,15 +91,40 @@ class ArtifactSource:
                 found = target
                 self.checks[row.job_id] = check
             elif regenerate:
-                found = self._regenerate(row, target)
+                found = self._rebuild(row, target)
+                if found is None and self.regenerate_missing:
+                    found = self._regenerate(row, target)
+                elif found is None and row.job_id not in self._told:
+                    from meshadv.experiments.rebuild import say_on_stderr
+
+                    self._told.add(row.job_id)
+                    say_on_stderr(f"job {row.job_id}: its artefacts are not here and the database keeps no "
+                                  "perturbation of it; not regenerated (`meshadv report --artifacts DIR` "
+                                  "regenerates it)")
         self._folders[row.job_id] = found
+        return found
+
+    def _rebuild(self, row: JobRow, target: Path) -> Optional[Path]:
+        """The job's folder rebuilt from the perturbation the database keeps (``None`` when it keeps none)."""
+        from meshadv.experiments.rebuild import rebuild_job, say_on_stderr
+
+        found = rebuild_job(self.db_path, row, target)
+        if found is not None:
+            say_on_stderr(f"job {row.job_id}: artefacts rebuilt from the perturbation kept in the database, into "
+                          f"{found}")
+            self.checks[row.job_id] = {"job_id": row.job_id, "matches": True, "rebuilt": True, "differences": [],
+                                       "notes": ["rebuilt from the stored perturbation: no attack ran"]}
+            write_text_atomic(found / "regeneration.json", json.dumps(self.checks[row.job_id], indent=2))
         return found
 
     def _regenerate(self, row: JobRow, target: Path) -> Path:
         import time
 
+        from meshadv.experiments.rebuild import regeneration_warning, say_on_stderr
         from meshadv.experiments.regenerate import regenerate_job
 
+        say_on_stderr(f"job {row.job_id}: the database keeps no perturbation of this job; regenerating it from its "
+                      f"stored spec and seed into {target}")
         cpu = time.process_time()
         done = regenerate_job(self.db_path, row.job_id, target, threads=self.threads, assume=self.assume)
         check = {"job_id": row.job_id, "matches": done.matches, "differences": list(done.differences),
@@ -101,6 +133,9 @@ class ArtifactSource:
                  "regenerated": {k: done.record.get(k) for k in ("success", "steps", "distance", "compute")}}
         write_text_atomic(target / "regeneration.json", json.dumps(check, indent=2, sort_keys=True))
         self.checks[row.job_id] = check
+        warning = regeneration_warning(done)
+        if warning is not None:
+            say_on_stderr(warning)
         return target
 
 

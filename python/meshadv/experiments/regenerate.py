@@ -27,7 +27,7 @@ from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 from meshadv.experiments.store import ResultStore, job_out_dir
 from meshadv.experiments.worker import execute
 
-__all__ = ["Regenerated", "regenerate_job", "ensure_artifacts", "stored_job_ref", "pinned_spec", "load_assumed",
+__all__ = ["Regenerated", "regenerate_job", "stored_job_ref", "pinned_spec", "load_assumed",
            "COMPARED_KEYS", "Assumed", "attack_pin_key", "compute_note"]
 
 #: What the sweep's code used where neither its specs nor its records say: ``{"victim_optimize": bool, "attack":
@@ -94,7 +94,7 @@ class Regenerated:
 def stored_job_ref(store: ResultStore) -> str:
     """The job function the sweep ran (``[runner] job`` of the config text stored in the database, else the default)."""
     from meshadv.experiments.config import DEFAULT_JOB
-    from meshadv.experiments.sweep_file import raw_from_text
+    from meshadv.experiments.config import raw_from_text
 
     text = store.get_meta("config_text")
     if not text:
@@ -243,24 +243,3 @@ def regenerate_job(db_path: Union[str, Path], job: str, out_dir: Optional[Union[
             if key in stored and not _same(stored.get(key), outcome.record.get(key)):
                 diffs.append(f"{key}: {stored.get(key)!r} -> {outcome.record.get(key)!r}")
     return Regenerated(jid, out, outcome.record, stored, diffs, tuple(notes))
-
-
-def ensure_artifacts(db_path: Union[str, Path], job: str, artifact_root: Union[str, Path],
-                     stored_out_dir: Optional[str] = None, marker: str = "result.json") -> Path:
-    """The artefact folder of a finished job, regenerated when neither its stored folder nor
-    ``<artifact_root>/jobs/..`` holds ``marker``.
-
-    Args:
-        db_path: the results database.
-        job: the full job id.
-        artifact_root: where regenerated artefacts go (``job_out_dir(artifact_root, job)``), e.g. the database's folder.
-        stored_out_dir: the folder the database records for the job (another machine's path, perhaps).
-        marker: the file that proves a folder complete (the attack job writes ``result.json`` last).
-
-    Returns:
-        A folder holding the job's artefacts.
-    """
-    for folder in (stored_out_dir, job_out_dir(artifact_root, job)):
-        if folder and (Path(folder) / marker).is_file():
-            return Path(folder)
-    return regenerate_job(db_path, job, job_out_dir(artifact_root, job)).out_dir

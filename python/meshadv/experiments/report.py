@@ -49,7 +49,7 @@ from meshadv.experiments.report_figures import (
     slug_of,
 )
 from meshadv.experiments.store import JobRow, ResultStore
-from meshadv.experiments.sweep_file import stored_retry_stages
+from meshadv.experiments.config import stored_retry_stages
 from meshadv.util.atomic import write_text_atomic
 from meshadv.util.png import add_png_text
 from meshadv.experiments.tables import (
@@ -144,8 +144,10 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
             named (``meshadv.transfer.results.transfer_report``); ``None`` or no rows: none.
         sections: extra sections, in order (see :data:`ReportSection`), after the built-in one comparing an extra
             protocol with the main attack (:func:`meshadv.experiments.protocols.protocol_section`).
-        artifacts: where the artefacts the figures need are regenerated when they are not on this machine
-            (:class:`ArtifactSource`; only the jobs a figure uses); ``None``: never regenerate.
+        artifacts: where the artefacts the figures need are rebuilt from the perturbations the database keeps, or
+            regenerated from the stored spec and seed for jobs it keeps none of, when they are not on this machine
+            (:class:`ArtifactSource`; only the jobs a figure uses); ``None``: rebuilt next to the database
+            (``<its folder>/jobs/..``), never regenerated.
         use_stored: use the artefact folders the database records (``False``: every figure from regenerated
             artefacts, e.g. to check that the database reproduces them).
         threads: intra-op threads of each regeneration.
@@ -206,13 +208,17 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         # the figures show the main attacks and the extra protocols; a retry is drawn in neither
         single = [r for r in done if r.spec.get("kind", "single") == "single" and not r.record.get("skipped")
                   and not is_retry(r.spec)]
-        source = ArtifactSource(db, artifacts, use_stored=use_stored, threads=threads, assume=assume)
+        # a job whose folder is not here is rebuilt from its stored perturbation (next to the database unless told
+        # where); one without a perturbation is regenerated only into a folder given for it (an attack per job)
+        root = artifacts if artifacts is not None else db.parent
+        source = ArtifactSource(db, root, use_stored=use_stored, threads=threads, assume=assume,
+                                regenerate_missing=artifacts is not None)
         reuse = use_stored and not redraw
         cache = fig_dir / "cells" if use_stored else None  # --no-stored: every render regenerated, none cached
         out.figures.extend(_grids(single, fig_dir, source, reuse=reuse, cache=cache))
         flow_paths, out.correlations = flow_figures(single, fig_dir, source, redraw=not reuse)
         out.figures.extend(flow_paths)
-        out.regenerations = dict(source.checks)
+        out.regenerations = {job: c for job, c in source.checks.items() if not c.get("rebuilt")}
         if out.regenerations:
             out.tables.extend(_write_regenerations(out.out_dir, out.regenerations, done))
     extra = []

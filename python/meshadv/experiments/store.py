@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Collection, Dict, Iterable, Iterator, List, Optional, Tuple, Union
 
+from meshadv.experiments.perturbation import PERTURBATION_KEY, Perturbation
 from meshadv.experiments.spec import canonical, canonical_json, job_id
 
 __all__ = ["JobRow", "ResultStore", "check_snapshot_target", "driver_lock", "job_out_dir", "STATES"]
@@ -61,6 +62,12 @@ CREATE INDEX IF NOT EXISTS jobs_state ON jobs (state);
 CREATE TABLE IF NOT EXISTS meta (
     key   TEXT PRIMARY KEY,
     value TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS perturbations (
+    job_id  TEXT PRIMARY KEY,
+    kind    TEXT NOT NULL,
+    data    BLOB NOT NULL,
+    source  TEXT NOT NULL CHECK (source IN ('attack', 'regenerated'))
 );
 """
 
@@ -103,7 +110,8 @@ class JobRow:
         attempts: number of started attempts (an attempt interrupted by a killed run is not counted).
         error: the last error (traceback or crash reason), ``None`` when the last attempt succeeded.
         record: the job's result record (``None`` unless done).
-        out_dir: where the job wrote its artefacts.
+        out_dir: where the job wrote its artefacts, on this machine: the database stores it relative to its own
+            folder (a URL as it is), so a copied database points into the copy's folder.
         started: UNIX time of the last start, finished: UNIX time of completion (or ``None``).
     """
 
@@ -405,6 +413,8 @@ class ResultStore:
         Returns:
             ``True`` when the row changed, ``False`` when the job was not running (e.g. already done).
         """
+        record = dict(record)
+        packed = record.pop(PERTURBATION_KEY, None)
         rec = canonical(record)
         success = rec.get("success")
         with self._transaction() as conn:
@@ -417,12 +427,55 @@ class ResultStore:
                     rec.get("steps"),
                     rec.get("time"),
                     json.dumps(rec, sort_keys=True),
-                    out_dir,
+                    self._stored_dir(out_dir),
                     time.time(),
                     job,
                 ),
             )
+            if cur.rowcount == 1 and packed is not None:
+                self._put_perturbation(conn, job, Perturbation.from_record(packed), "attack")
             return cur.rowcount == 1
+
+    def _stored_dir(self, out_dir: Optional[str]) -> Optional[str]:
+        """``out_dir`` as the database keeps it: relative to the database's folder (a URL as it is)."""
+        if out_dir is None or "://" in str(out_dir) or self.path == ":memory:":
+            return None if out_dir is None else str(out_dir)
+        base = Path(self.path).resolve().parent
+        return Path(os.path.relpath(Path(out_dir).resolve(), base)).as_posix()
+
+    def _local_dir(self, stored: Optional[str]) -> Optional[str]:
+        """A stored ``out_dir`` on this machine: a relative one joined to the database's folder."""
+        if not stored or "://" in stored or Path(stored).is_absolute() or self.path == ":memory:":
+            return stored
+        return os.path.normpath(Path(self.path).resolve().parent / stored)
+
+    @staticmethod
+    def _put_perturbation(conn: sqlite3.Connection, job: str, packed: "Perturbation", source: str) -> None:
+        conn.execute("INSERT OR REPLACE INTO perturbations (job_id, kind, data, source) VALUES (?, ?, ?, ?)",
+                     (job, packed.kind, packed.data, source))
+
+    def put_perturbation(self, job: str, packed: "Perturbation", source: str) -> None:
+        """Keep a finished job's perturbation (:class:`~meshadv.experiments.perturbation.Perturbation`).
+
+        Args:
+            job: the job id. packed: the perturbation. source: ``"attack"`` (the job's own) or ``"regenerated"``
+                (a rerun's, which may differ from the attack the tables counted: another CPU's kernels).
+        """
+        if source not in ("attack", "regenerated"):
+            raise ValueError(f"source must be 'attack' or 'regenerated', got {source!r}")
+        with self._transaction() as conn:
+            self._put_perturbation(conn, job, packed, source)
+
+    def perturbation(self, job: str) -> "Optional[Tuple[Perturbation, str]]":
+        """``(perturbation, source)`` kept for ``job``, or ``None`` (none kept, or a database older than the table)."""
+        try:
+            row = self._conn.execute("SELECT kind, data, source FROM perturbations WHERE job_id = ?",
+                                     (job,)).fetchone()
+        except sqlite3.OperationalError:  # no such table: a database written before perturbations were kept
+            return None
+        if row is None:
+            return None
+        return Perturbation.from_kind(str(row[0]), bytes(row[1])), str(row[2])
 
     def mark_failed(self, job: str, error: str) -> bool:
         """Record a failed attempt (exception traceback or crash reason) of a ``running`` job.
@@ -497,7 +550,7 @@ class ResultStore:
                     attempts=int(r[3]),
                     error=r[4],
                     record=None if r[5] is None else json.loads(r[5]),
-                    out_dir=r[6],
+                    out_dir=self._local_dir(r[6]),
                     started=r[7],
                     finished=r[8],
                 )

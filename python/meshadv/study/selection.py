@@ -99,20 +99,26 @@ def _rerender(row: JobRow, mesh_path: Path, out_png: Path) -> Path:
     return out_png
 
 
-def job_render(row: JobRow, which: str, cache_dir: Optional[Path] = None) -> Path:
+def job_render(row: JobRow, which: str, cache_dir: Optional[Path] = None,
+               db_path: Optional[Union[str, Path]] = None) -> Path:
     """The PNG of a job's benign or adversarial render (view 0), rendered again from its mesh when missing.
+
+    With ``db_path``, a job whose folder is not on this machine gets it back next to the database
+    (``<database folder>/jobs/..``), rebuilt from the perturbation the database keeps or regenerated from the stored
+    spec and seed (:func:`meshadv.experiments.rebuild.ensure_artifacts`, which says which in one line).
 
     Args:
         row: a ``done`` job row.
         which: ``"benign"`` or ``"adversarial"``.
         cache_dir: where a render made again is written (default: the job's ``out_dir``).
+        db_path: the job's results database (``None``: only the files on this machine are used).
 
     Returns:
         The PNG path.
 
     Raises:
         ValueError: ``which`` is not benign/adversarial.
-        MissingRenderError: neither the render nor the mesh (or the spec's views) is there.
+        MissingRenderError: neither the render nor the mesh (or the spec's views) is there, and no ``db_path``.
     """
     if which not in ("benign", "adversarial"):
         raise ValueError(f"which must be 'benign' or 'adversarial', got {which!r}")
@@ -120,6 +126,13 @@ def job_render(row: JobRow, which: str, cache_dir: Optional[Path] = None) -> Pat
     if png is not None and png.is_file():
         return png
     mesh = _artifact(row, f"{which}_mesh")
+    if (mesh is None or not mesh.is_file()) and db_path is not None:
+        from dataclasses import replace
+
+        from meshadv.experiments.rebuild import ensure_artifacts
+
+        folder = ensure_artifacts(db_path, row.job_id, Path(db_path).parent, row.out_dir)
+        return job_render(replace(row, out_dir=str(folder)), which, cache_dir)
     if mesh is None or not mesh.is_file() or not row.spec.get("views"):
         raise MissingRenderError(
             f"job {row.job_id}: the {which} render ({png or 'not recorded'}) is missing and so is its mesh "
@@ -203,9 +216,9 @@ def select_stimuli(db_path: Union[str, Path], work_dir: Union[str, Path], *, con
     work = Path(work_dir)
     out: List[Stimulus] = []
     for row in rows:
-        out.append(_stimulus(row, "adversarial", job_render(row, "adversarial", work)))
+        out.append(_stimulus(row, "adversarial", job_render(row, "adversarial", work, db)))
     for row in rng.sample(rows, controls):
-        out.append(_stimulus(row, "control", job_render(row, "benign", work)))
+        out.append(_stimulus(row, "control", job_render(row, "benign", work, db)))
     classes = sorted({r.spec["source_class"] for r in rows} | {r.spec["target"] for r in rows})
     from PIL import Image
 

@@ -21,6 +21,8 @@ from typing import Any, Optional
 import numpy as np
 import torch
 
+from meshadv.mesh.surface_mesh import SurfaceMesh
+from meshadv.render import Camera, Lights, ViewSet, render, render_surface
 from meshadv.transfer.mitsuba_process import render_scenes
 from meshadv.transfer.mitsuba_spec import MeshObject, MitsubaCamera, mask_spec, scene_spec
 
@@ -86,29 +88,41 @@ def conversion_check(
     spp: int = 256,
     variant: Optional[str] = None,
     timeout: float = 600.0,
+    shading: Optional[str] = None,
 ) -> ConversionCheck:
     """Render ``mesh`` with meshadv and with Mitsuba (direct light only) under one view record and compare.
 
     Args:
-        mesh: a ``meshadv.mesh.Mesh``.
+        mesh: a ``meshadv.mesh.Mesh`` (per-face colours, flat), or a ``meshadv.mesh.SurfaceMesh`` (its texture as a
+            bitmap, its UVs, and for smooth shading the same vertex normals, in both renderers).
         record: a ``ViewSet.to_records()`` record (camera and lights).
         image_size: square image side.
         spp: Mitsuba samples per pixel for the shaded image.
         variant: Mitsuba variant.
         timeout: seconds for the Mitsuba call.
+        shading: for a ``SurfaceMesh``, ``"flat"`` or ``"smooth"`` (default: what the mesh asks for).
 
     Returns:
         The :class:`ConversionCheck`.
     """
-    from meshadv.render import ViewSet, render
-
     views = ViewSet.from_records([record])
     with torch.no_grad():
-        ours = render(mesh.vertices, mesh.faces, mesh.face_colors, views.camera, views.lights, image_size,
-                      background=(1.0, 1.0, 1.0))
+        if isinstance(mesh, SurfaceMesh):
+            if mesh.texture is None:
+                raise ValueError("mesh: a SurfaceMesh is compared with its texture; this one has none")
+            shading = shading or mesh.shading
+            ours = render_surface(
+                mesh.mesh.vertices, mesh.mesh.faces, views.camera, views.lights, image_size, texture=mesh.texture,
+                uvs=mesh.uvs, uv_faces=mesh.uv_faces, normals=mesh.normals, normal_faces=mesh.normal_faces,
+                shading=shading, background=(1.0, 1.0, 1.0),
+            )
+            obj = MeshObject.from_surface(mesh, shading)
+        else:
+            ours = render(mesh.vertices, mesh.faces, mesh.face_colors, views.camera, views.lights, image_size,
+                          background=(1.0, 1.0, 1.0))
+            obj = MeshObject.from_mesh(mesh)
     ours_img = ours.image[0].permute(1, 2, 0).numpy()
     ours_mask = ours.alpha[0, 0].numpy() > 0.5
-    obj = MeshObject.from_mesh(mesh)
     shaded = scene_spec(obj, record, lights=record, image_size=image_size, spp=spp, max_depth=2,
                         background=(1.0, 1.0, 1.0))
     mask = mask_spec(obj, MitsubaCamera.from_record(record), image_size, spp=1)
@@ -130,8 +144,6 @@ def head_light_record(distance: float, azimuth: float, elevation: float, light: 
                       viewing_angle: float = 30.0) -> dict[str, Any]:
     """A one-view record (``ViewSet.to_records()``) of a spherical camera with a head light (toward the camera,
     slightly offset) of intensity ``light`` and an ambient light ``ambient``."""
-    from meshadv.render import Camera, Lights, ViewSet
-
     camera = Camera.spherical(distance, azimuth, elevation, viewing_angle=viewing_angle)
     direction = (camera.eye() - camera.target()).detach()
     lights = Lights(direction.unsqueeze(1) + 0.3, [[light] * 3], [ambient] * 3)

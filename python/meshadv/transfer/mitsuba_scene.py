@@ -109,13 +109,19 @@ def _base_scene_xml(path: Path, exclude: Sequence[str], keep_emitters: bool) -> 
 
 
 def _mitsuba_mesh(mi: Any, obj: MeshObject) -> Any:
-    """A Mitsuba mesh of ``obj`` (``to_world`` applied) with its face colours as a two-sided diffuse reflectance."""
-    bsdf = mi.load_dict(
-        {
-            "type": "twosided",
-            "material": {"type": "diffuse", "reflectance": {"type": "mesh_attribute", "name": "face_color"}},
+    """A Mitsuba mesh of ``obj`` (``to_world`` applied) with its face colours, or its bitmap texture (bilinear,
+    repeat, linear values), as a two-sided diffuse reflectance; vertex normals when it has them."""
+    if obj.texture is not None:
+        reflectance = {
+            "type": "bitmap",
+            "bitmap": mi.Bitmap(np.ascontiguousarray(obj.texture, dtype=np.float32)),
+            "filter_type": "bilinear",
+            "wrap_mode": "repeat",
+            "raw": True,
         }
-    )
+    else:
+        reflectance = {"type": "mesh_attribute", "name": "face_color"}
+    bsdf = mi.load_dict({"type": "twosided", "material": {"type": "diffuse", "reflectance": reflectance}})
     props = mi.Properties()
     props["bsdf"] = bsdf
     vertices = obj.vertices.astype(np.float64)
@@ -123,12 +129,26 @@ def _mitsuba_mesh(mi: Any, obj: MeshObject) -> Any:
         homo = np.concatenate([vertices, np.ones((len(vertices), 1))], axis=1) @ obj.to_world.T
         vertices = homo[:, :3] / homo[:, 3:4]
     mesh = mi.Mesh(
-        obj.name, len(vertices), len(obj.faces), props=props, has_vertex_normals=False, has_vertex_texcoords=False
+        obj.name,
+        len(vertices),
+        len(obj.faces),
+        props=props,
+        has_vertex_normals=obj.normals is not None,
+        has_vertex_texcoords=obj.uvs is not None,
     )
     params = mi.traverse(mesh)
     float_buffer = type(params["vertex_positions"])  # mi.Float (JIT variants) or drjit.scalar.ArrayXf (scalar)
     params["vertex_positions"] = float_buffer(vertices.astype(np.float32).ravel())
     params["faces"] = type(params["faces"])(obj.faces.ravel())
+    if obj.uvs is not None:
+        # Mitsuba's bitmap rows run top to bottom in v (its OBJ loader flips v): meshadv's v is 1 - v there.
+        texcoords = np.stack([obj.uvs[:, 0], 1.0 - obj.uvs[:, 1]], axis=1).astype(np.float32)
+        params["vertex_texcoords"] = float_buffer(texcoords.ravel())
+    if obj.normals is not None:
+        normals = obj.normals.astype(np.float64)
+        if obj.to_world is not None:
+            normals = normals @ np.linalg.inv(obj.to_world[:3, :3])
+        params["vertex_normals"] = float_buffer(normals.astype(np.float32).ravel())
     params.update()
     mesh.add_attribute("face_color", 3, float_buffer(obj.face_colors.ravel()))
     return mesh

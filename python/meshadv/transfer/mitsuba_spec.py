@@ -257,6 +257,10 @@ class MeshObject:
         face_colors: (M, 3) float32 reflectance in [0, 1].
         to_world: optional (4, 4) object-to-world transform.
         name: identifier used in the Mitsuba scene.
+        uvs: optional (N, 2) float32 per-vertex texture coordinates (origin bottom-left, docs/TEXTURES.md), with
+            ``texture``: then the reflectance is the bitmap, not ``face_colors``.
+        texture: optional (Ht, Wt, 3) float32 reflectance image, row 0 at the top.
+        normals: optional (N, 3) float32 vertex normals (smooth shading); without them Mitsuba shades flat.
     """
 
     vertices: np.ndarray
@@ -264,6 +268,9 @@ class MeshObject:
     face_colors: np.ndarray
     to_world: Optional[np.ndarray] = None
     name: str = "object"
+    uvs: Optional[np.ndarray] = None
+    texture: Optional[np.ndarray] = None
+    normals: Optional[np.ndarray] = None
 
     def __post_init__(self) -> None:
         v = as_numpy(self.vertices, np.float32)
@@ -285,11 +292,64 @@ class MeshObject:
             if m.shape != (4, 4):
                 raise ValueError(f"to_world must be a 4x4 matrix, got {m.shape}")
             object.__setattr__(self, "to_world", m)
+        if (self.uvs is None) != (self.texture is None):
+            raise ValueError("uvs and texture must be given together")
+        for name, width in (("uvs", 2), ("normals", 3)):
+            value = getattr(self, name)
+            if value is not None:
+                a = as_numpy(value, np.float32)
+                if a.shape != (len(v), width) or not np.isfinite(a).all():
+                    raise ValueError(f"{name} must be finite with shape ({len(v)}, {width}), got {a.shape}")
+                object.__setattr__(self, name, a)
+        if self.texture is not None:
+            t = as_numpy(self.texture, np.float32)
+            if t.ndim != 3 or t.shape[2] != 3 or 0 in t.shape:
+                raise ValueError(f"texture must have shape (Ht, Wt, 3) with Ht, Wt >= 1, got {t.shape}")
+            object.__setattr__(self, "texture", np.clip(t, 0.0, 1.0))
 
     @classmethod
     def from_mesh(cls, mesh: Any, to_world: Optional[np.ndarray] = None, name: str = "object") -> "MeshObject":
         """Build from a ``meshadv.mesh.Mesh`` (or anything with vertices, faces, face_colors)."""
         return cls(mesh.vertices, mesh.faces, mesh.face_colors, to_world, name)
+
+    @classmethod
+    def from_surface(
+        cls, surface: Any, shading: str = "flat", to_world: Optional[np.ndarray] = None, name: str = "object"
+    ) -> "MeshObject":
+        """Build from a ``meshadv.mesh.SurfaceMesh``: vertices split where UVs (or normals) differ, as a Mitsuba
+        mesh needs one of each per vertex; ``shading="smooth"`` gives the normals meshadv shades with (the file's, or
+        area-weighted ones of the vertices)."""
+        import torch
+
+        from meshadv.render import vertex_normals
+
+        faces = surface.mesh.faces.cpu().numpy()
+        keys = [faces]
+        normals = normal_faces = None
+        if shading == "smooth":
+            if surface.normals is not None:
+                normals, normal_faces = surface.normals.cpu().numpy(), surface.normal_faces.cpu().numpy()
+            else:
+                with torch.no_grad():
+                    normals = vertex_normals(surface.mesh.vertices, surface.mesh.faces)[0].numpy()
+                normal_faces = faces
+            keys.append(normal_faces)
+        if surface.uvs is not None:
+            keys.append(surface.uv_faces.cpu().numpy())
+        corners = np.stack([k.reshape(-1) for k in keys], axis=1)
+        unique, inverse = np.unique(corners, axis=0, return_inverse=True)
+        new_faces = inverse.reshape(-1, 3)
+        verts = surface.mesh.vertices.detach().cpu().numpy()[unique[:, 0]]
+        return cls(
+            verts,
+            new_faces,
+            surface.mesh.face_colors.detach().cpu().numpy(),
+            to_world,
+            name,
+            uvs=None if surface.uvs is None else surface.uvs.detach().cpu().numpy()[unique[:, -1]],
+            texture=None if surface.texture is None else surface.texture.detach().cpu().numpy(),
+            normals=None if normals is None else normals[unique[:, 1]],
+        )
 
 
 @dataclass(frozen=True)
