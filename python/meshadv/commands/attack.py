@@ -1,8 +1,12 @@
 """``meshadv attack``: a shape or texture attack of one mesh against one victim, saved atomically.
 
+The benign mesh is checked on the attack views first (:mod:`meshadv.commands._benign_gate`): PASCAL3D+ chair 01 is
+a desk to EfficientNet-Lite0 on two of the five default views, so the example below needs ``--benign-wrong-ok`` (or
+views where it is a chair, ``--azimuths``); the default perceptibility cap applies (``--cap``).
+
 Example:
     $ meshadv attack ../shared/data/pascal3d/chair/01.ply --victim efficientnet_lite0 --target bicycle \\
-          --perturbation shape --views 5 --steps 300 -o out/chair-bicycle
+          --perturbation shape --views 5 --steps 300 --benign-wrong-ok -o out/chair-bicycle
 """
 
 from __future__ import annotations
