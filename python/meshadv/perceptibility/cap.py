@@ -29,7 +29,10 @@ from torch import Tensor
 from meshadv import _validate
 from meshadv.perceptibility.geometry import color_changes, normal_changes, vertex_moves
 
-__all__ = ["PerceptibilityCap", "DEFAULT_CAP", "NO_CAP", "recommended_cap", "step_measures", "as_cap"]
+__all__ = ["CAP_SLACK", "PerceptibilityCap", "DEFAULT_CAP", "NO_CAP", "recommended_cap", "step_measures", "as_cap"]
+
+#: Relative slack of the ceilings' comparisons (float rounding between the loop's check and the result's measures).
+CAP_SLACK = 1e-5
 
 
 @dataclass(frozen=True)
@@ -68,14 +71,16 @@ class PerceptibilityCap:
 
     def admits(self, measures: Mapping[str, Any]) -> Any:
         """Whether ``measures`` (floats or ``(K,)`` tensors per measure, :func:`step_measures`) lie inside every
-        ceiling: a bool, or a bool tensor like the measures. A bounded measure missing from ``measures`` or ``nan``
+        ceiling, up to a relative :data:`CAP_SLACK` (so that one mesh measured in float32 and in float64 gets one
+        verdict): a bool, or a bool tensor like the measures. A bounded measure missing from ``measures`` or ``nan``
         is not inside."""
         inside: Any = True
         for name, ceiling in self.limits.items():
             value = measures.get(name)
             if value is None:
                 return False if not isinstance(inside, Tensor) else torch.zeros_like(inside)
-            ok = value <= ceiling if isinstance(value, Tensor) else (float(value) <= ceiling)
+            bound = ceiling * (1.0 + CAP_SLACK)
+            ok = value <= bound if isinstance(value, Tensor) else (float(value) <= bound)
             inside = ok & inside if isinstance(ok, Tensor) else (bool(ok) and inside)
         return inside
 
@@ -84,7 +89,7 @@ class PerceptibilityCap:
         out = []
         for name, ceiling in self.limits.items():
             value = measures.get(name)
-            if value is None or not float(value) <= ceiling:
+            if value is None or not float(value) <= ceiling * (1.0 + CAP_SLACK):
                 out.append(f"{name} {'missing' if value is None else format(float(value), '.3g')} > {ceiling:g}")
         return out
 
