@@ -102,7 +102,8 @@ class SceneAttackResult:
     """Outcome of a scene attack.
 
     Attributes:
-        success: the hidden class's best score is below the threshold on a fresh render of the final object.
+        success: the hidden class's best score is below the threshold on a fresh render of the final object, and
+            the object lies inside the attack's perceptibility cap (when it has one).
         object_mesh: the object's adversarial mesh (model space).
         image_before: (1, 3, H, W) the pristine scene image; image_after: the adversarial one.
         detections_before / detections_after: the victim's NMS-filtered detections on those images.
@@ -174,7 +175,7 @@ def attack_scene(attack: MeshAttack, setup: SceneSetup, victim: Any, criterion: 
     with torch.no_grad():
         detections = victim.detect(torch.cat([image_before, image_after]), score_threshold=bound.threshold)
     return SceneAttackResult(
-        success=bool(result.success[0, 0]),
+        success=bool(result.succeeded[0]),
         object_mesh=result.mesh,
         image_before=image_before,
         image_after=image_after,
