@@ -166,7 +166,7 @@ def controlled_cmd(
         typer.echo(f"no finished single-view attacks with an adversarial mesh in this database{hint}")
         raise typer.Exit(code=1)
     typer.echo(f"{len(done)} adversarial meshes already transferred, transferring {len(todo)}")
-    uncontrolled = sum(case.benign_mesh is None for case in todo)
+    uncontrolled = sum(getattr(case, "benign_mesh", None) is None for case in todo)
     if uncontrolled:
         typer.echo(f"warning: {uncontrolled} of them have no benign mesh here (their spec's mesh cannot be loaded): "
                    "their untargeted transfer is not counted", err=True)
