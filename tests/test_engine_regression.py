@@ -89,7 +89,7 @@ def _views(num: int = 1, elevation: float = 20.0) -> Any:
 
 
 def _laplacian_sum(distances: Dict[str, float]) -> float:
-    """The literal Eq. 4 Laplacian sum, whichever name the distances dict gives it (older records call it ``laplacian``)."""
+    """The literal Eq. 4 Laplacian sum, whichever name the distances dict gives it (older records: ``laplacian``)."""
     return float(distances["laplacian_sum"] if "laplacian_sum" in distances else distances["laplacian"])
 
 
