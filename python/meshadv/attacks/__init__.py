@@ -14,7 +14,7 @@ fresh views (:mod:`meshadv.attacks.eot`, :mod:`meshadv.attacks.robust_settings`)
 
 from __future__ import annotations
 
-from meshadv.attacks.base import MeshAttack
+from meshadv.attacks.mesh_attack import MeshAttack
 from meshadv.attacks.evaluation import Evaluation, evaluate
 from meshadv.attacks.history import StepInfo
 from meshadv.attacks.criteria import (

@@ -6,7 +6,7 @@ once. Because the paper's Adam is element-wise and the total loss is a sum of pe
 optimised exactly as if they ran one at a time. A target stops being rendered once it is finished (early stopping or
 budget). How losses become updates is the attack's update rule (``method=``, :mod:`meshadv.attacks.update`); this
 loop serves every rule. What is optimised is the attack family's (:class:`AttackFamily`, the public family methods of
-:class:`~meshadv.attacks.base.MeshAttack`).
+:class:`~meshadv.attacks.mesh_attack.MeshAttack`).
 
 Per round (``rule.rounds`` of them: for ``method="adam"`` the ``binary_search_steps`` rounds of the per-target
 ``lambda`` search, :class:`~meshadv.attacks.search.LambdaSearch`) the parameters restart from the pristine mesh and
@@ -59,8 +59,8 @@ __all__ = ["AttackCall", "AttackFamily", "StepTerms", "adversarial_terms", "atta
 
 
 class AttackFamily(Protocol):
-    """What the loop asks of an attack (:class:`~meshadv.attacks.base.MeshAttack` and its families): hyper-parameters
-    and the family's parametrisation."""
+    """What the loop asks of an attack (:class:`~meshadv.attacks.mesh_attack.MeshAttack` and its families):
+    hyper-parameters and the family's parametrisation."""
 
     perturbation: str
     steps: int

@@ -27,7 +27,7 @@ from typing import Any, Dict, Optional, Tuple
 from torch import Tensor
 
 from meshadv import _validate
-from meshadv.attacks.base import MeshAttack
+from meshadv.attacks.mesh_attack import MeshAttack
 from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import laplacian_flow_loss
 from meshadv.attacks.masks import check_mask, check_mask_fits, mask_config
@@ -57,7 +57,7 @@ class ShapeAttack(MeshAttack):
         vertex_mask: optional bool ``(N,)``: only these vertices may move (e.g. one object of a merged scene). The
             other vertices' parameters are multiplied by zero before the parametrisation, so they get no gradient;
             objects of a merged scene share no edge, so neither the smoothing nor the Laplacian crosses them.
-        **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.base.MeshAttack`; the default
+        **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.mesh_attack.MeshAttack`; the default
             ``lr`` is :data:`DEFAULT_SHAPE_LR` and ``lambda_perceptual`` 0.05 (meshes scaled to ``[-1, 1]``).
 
     Raises:

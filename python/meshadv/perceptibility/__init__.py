@@ -3,7 +3,7 @@
 * :mod:`~meshadv.perceptibility.geometry` -- vertex moves relative to the bounding-box diagonal, area-weighted
   changes of the face normals (degrees) and of the face colours;
 * :mod:`~meshadv.perceptibility.images` -- SSIM between benign and adversarial renders;
-* :mod:`~meshadv.perceptibility.views` -- the held-out views (between and away from an attack's views);
+* :mod:`~meshadv.perceptibility.held_out` -- the held-out views (between and away from an attack's views);
 * :mod:`~meshadv.perceptibility.measures` -- all of them for an attack's meshes;
 * :mod:`~meshadv.perceptibility.cap` -- :class:`PerceptibilityCap` and :data:`DEFAULT_CAP`.
 """
@@ -19,7 +19,7 @@ from meshadv.perceptibility.geometry import (
 )
 from meshadv.perceptibility.images import render_ssim
 from meshadv.perceptibility.measures import MEASURE_DESCRIPTIONS, perceptibility_measures
-from meshadv.perceptibility.views import held_out_views
+from meshadv.perceptibility.held_out import held_out_views
 
 __all__ = [
     "DEFAULT_CAP", "NO_CAP", "PerceptibilityCap", "as_cap", "recommended_cap", "step_measures",

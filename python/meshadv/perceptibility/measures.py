@@ -2,7 +2,7 @@
 
 :func:`perceptibility_measures` gives, per adversarial mesh, the surface measures of
 :mod:`meshadv.perceptibility.geometry` and the SSIM (:func:`~meshadv.perceptibility.images.render_ssim`) between the
-benign and the adversarial renders on the held-out views of :func:`~meshadv.perceptibility.views.held_out_views`
+benign and the adversarial renders on the held-out views of :func:`~meshadv.perceptibility.held_out.held_out_views`
 (``ssim_held_out_mean``, ``ssim_held_out_min``, and ``dssim_held_out_max = (1 - ssim_held_out_min) / 2``, a
 distance for tables), rendered with the attack's own setup.
 
@@ -23,7 +23,7 @@ import torch
 
 from meshadv.perceptibility.geometry import SURFACE_MEASURES, surface_measures
 from meshadv.perceptibility.images import render_ssim
-from meshadv.perceptibility.views import held_out_views
+from meshadv.perceptibility.held_out import held_out_views
 from meshadv.render.setup import RenderSetup
 
 __all__ = ["perceptibility_measures", "MEASURE_DESCRIPTIONS"]

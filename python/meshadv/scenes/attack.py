@@ -20,14 +20,14 @@ from typing import Any, Callable, Dict, List, Optional
 
 import torch
 
-from meshadv.attacks.base import MeshAttack, StepInfo
+from meshadv.attacks.mesh_attack import MeshAttack, StepInfo
 from meshadv.attacks.criteria import Disappearance
 from meshadv.mesh import Mesh
 from meshadv.render import Lights, ViewSet
 from meshadv.render.setup import RenderSetup, static_objects
 from meshadv.scenes.composite import composite_over_photo
 from meshadv.scenes.scene import Scene, SceneCamera
-from meshadv.victims.base import Detections
+from meshadv.victims.victim import Detections
 
 __all__ = ["SceneSetup", "SceneAttackResult", "attack_scene"]
 
