@@ -217,4 +217,20 @@ def section(rows: list[dict], command: str, machine: str, deodr: str) -> str:
             f"{ms(r.get('deodr'))} | {over(r['nmr'], r.get('deodr'))} | {over(r['local'], r.get('deodr'))} | "
             f"{r['nmr_torch_share']:.0%} | {r['local_torch_share']:.0%} |"
         )
-    return "\n".join(lines)
+    return "\n".join(lines + ["", reading(rows)])
+
+
+def reading(rows: list[dict]) -> str:
+    """The section's reading, computed from its rows: the ratio ranges per antialias factor and the torch share."""
+    def span(values: list[float], fmt: str) -> str:
+        return f"{format(min(values), fmt)}-{format(max(values), fmt)}" if values else "–"
+
+    parts = []
+    for k in sorted({r["antialias"] for r in rows}):
+        at = [r for r in rows if r["antialias"] == k and r.get("deodr")]
+        parts.append(f"at antialias {k}, local / DEODR {span([r['local'] / r['deodr'] for r in at], '.2f')} and "
+                     f"NMR / DEODR {span([r['nmr'] / r['deodr'] for r in at], '.2f')}")
+    shares = [r[f"{v}_torch_share"] for r in rows for v in ("nmr", "local")]
+    return ("**Reading:** " + "; ".join(parts) + f"; torch share of meshadv's call {span(shares, '.0%')}. "
+            "DEODR renders at the output size with analytic edge antialiasing, so meshadv's `antialias=2` (4x the "
+            "pixels) is compared with the same DEODR render.")

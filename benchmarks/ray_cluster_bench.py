@@ -1,7 +1,7 @@
 """The Ray backend on a local multi-node cluster without a shared file system: throughput and a lost node.
 
 A head node (no CPUs) and worker nodes are started with ``ray start`` as separate processes, each with its own temp
-dir and scratch folder (:class:`meshadv.experiments.ray_local.LocalRayCluster`); jobs are pinned to worker nodes by a
+dir and scratch folder (``tests/ray_local.py``); jobs are pinned to worker nodes by a
 custom resource, run in their node's scratch folder and send their artefacts back through Ray; the driver alone
 writes the artefact folders and the database.
 
@@ -29,7 +29,13 @@ from pathlib import Path
 from typing import Any, Dict, List
 
 from meshadv.experiments import RayBackend, ResultStore, job_id, run_sweep
-from meshadv.experiments.ray_local import WORKER_RESOURCE, LocalRayCluster, can_hide_folders, write_token
+
+#: The local Ray cluster and the probe jobs are test tooling (tests/); the cluster's nodes import the probe jobs too.
+_TESTS = str(Path(__file__).resolve().parents[1] / "tests")
+sys.path.insert(0, _TESTS)
+os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (_TESTS, os.environ.get("PYTHONPATH", "")) if p)
+
+from ray_local import WORKER_RESOURCE, LocalRayCluster, can_hide_folders, write_token  # noqa: E402
 
 
 def _connect(address: str, workers: int, timeout: float = 120.0) -> None:
@@ -82,11 +88,11 @@ def throughput(root: Path, jobs: int, job_seconds: float) -> Dict[str, Any]:
             _connect(cluster.address, nodes)
             warm = [{"warm": i, "nodes": nodes, "sleep": job_seconds, "source_class": "chair", "target": "sofa"}
                     for i in range(2 * nodes)]
-            _sweep(cluster.address, warm, "meshadv.experiments.probes:mesh_probe_job", root / f"warm{nodes}")
+            _sweep(cluster.address, warm, "probe_jobs:mesh_probe_job", root / f"warm{nodes}")
             specs = [{"probe": "mesh", "seed": i, "nodes": nodes, "sleep": job_seconds, "source_class": "chair",
                       "target": "sofa"} for i in range(jobs)]
             folder = root / f"driver_tp{nodes}"
-            res = _sweep(cluster.address, specs, "meshadv.experiments.probes:mesh_probe_job", folder)
+            res = _sweep(cluster.address, specs, "probe_jobs:mesh_probe_job", folder)
             where = _check_no_shared_folder(res.pop("rows"), folder,
                                             [cluster.scratch(n) for n in cluster.workers])
             overhead = (res["seconds"] - jobs * job_seconds / nodes) / jobs * nodes
@@ -124,7 +130,7 @@ def lost_node(root: Path, jobs: int, sleep: float) -> Dict[str, Any]:
                 killed["timer"] = threading.Timer(sleep / 2, kill)
                 killed["timer"].start()
 
-        res = _sweep(cluster.address, specs, "meshadv.experiments.probes:mesh_probe_job", folder,
+        res = _sweep(cluster.address, specs, "probe_jobs:mesh_probe_job", folder,
                      on_outcome=on_outcome)
         rows = res.pop("rows")
         killed.pop("timer", None)

@@ -105,14 +105,17 @@ def heldout_views(count: int) -> Any:
     return ViewSet.orbit(az.float(), elevation=el.float(), distance=dist.float())
 
 
-def make_attack(method: str, perturbation: str, steps: int, paper_steps: int) -> Any:
-    """The attack of ``method`` (see the module docstring)."""
+def make_attack(method: str, perturbation: str, steps: int, paper_steps: int, cap: str = "none") -> Any:
+    """The attack of ``method`` (see the module docstring), under ``meshadv.perceptibility.DEFAULT_CAP`` when
+    ``cap`` is ``"default"``."""
     from meshadv.attacks import make_attack as build, robust_options
+    from meshadv.perceptibility import DEFAULT_CAP
 
+    capped = {"perceptibility_cap": DEFAULT_CAP} if cap == "default" else {}
     if method == "paper":
-        return build(perturbation, steps=paper_steps, binary_search_steps=5, method="adam")
+        return build(perturbation, steps=paper_steps, binary_search_steps=5, method="adam", **capped)
     robust = robust_options(perturbation, "ddn") if method == "robust" else {}
-    return build(perturbation, steps=steps, method="ddn", early_stop=None, early_stop_margin=0.5, **robust)
+    return build(perturbation, steps=steps, method="ddn", early_stop=None, early_stop_margin=0.5, **robust, **capped)
 
 
 def _fractions(success: torch.Tensor, mask: Optional[torch.Tensor] = None) -> List[Optional[float]]:
@@ -191,7 +194,7 @@ def run_one(method: str, perturbation: str, cls: str, index: int, victim: Any, a
     targets = targets_for(cls, args.targets)
     setup = RenderSetup(image_size=224)
     views, held = attack_views(), heldout_views(args.heldout)
-    attack = make_attack(method, perturbation, args.steps, args.paper_steps)
+    attack = make_attack(method, perturbation, args.steps, args.paper_steps, args.cap)
     start = time.perf_counter()
     result = attack(mesh, views, victim, [TargetedMisclassification(t) for t in targets], setup=setup)
     wall = time.perf_counter() - start
@@ -241,7 +244,7 @@ def run_one(method: str, perturbation: str, cls: str, index: int, victim: Any, a
                                                                                    "variant")},
         "targets": per_target,
         "settings": {"heldout": args.heldout, "mitsuba_views": m, "spp": args.spp, "steps": args.steps,
-                     "paper_steps": args.paper_steps, "threads": torch.get_num_threads()},
+                     "paper_steps": args.paper_steps, "threads": torch.get_num_threads(), "cap": args.cap},
     }
 
 
@@ -353,6 +356,7 @@ def plot_frontier(rows: Sequence[Dict[str, Any]], path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     measures = [("heldout targeted", lambda t: t["success_heldout"]),
                 ("held-out untargeted (benign-ctrl)", lambda t: t["untargeted_heldout"]),
@@ -372,7 +376,8 @@ def plot_frontier(rows: Sequence[Dict[str, Any]], path: Path) -> None:
                        for t in r["targets"] if t.get(key) and get(t) is not None]
                 if pts:
                     ax.scatter([x for x, _ in pts], [y for _, y in pts], s=18, alpha=0.75, color=colors[m], label=m)
-            ax.set_xscale("log")
+            ax.xaxis.set_major_locator(MaxNLocator(4))
+            ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 2))
             ax.set_ylim(-0.05, 1.05)
             ax.set_xlabel(xlabel, fontsize=8)
             ax.set_title(f"{pert}: {name}", fontsize=9)
@@ -407,6 +412,8 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     parser.add_argument("--perturbations", nargs="+", default=list(PERTURBATIONS), choices=PERTURBATIONS)
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--paper-steps", type=int, default=1000)
+    parser.add_argument("--cap", choices=("none", "default"), default="none",
+                        help="attack under no perceptibility cap (the recorded runs) or meshadv's default cap")
     parser.add_argument("--heldout", type=int, default=8)
     parser.add_argument("--mitsuba-views", type=int, default=4)
     parser.add_argument("--spp", type=int, default=64)

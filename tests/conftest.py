@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from meshadv.data import DATA_ENV_VAR, shared_data_dir
+
+#: The test helpers (probe jobs, the local Ray cluster, stand-in victims) are importable in every process a test
+#: starts: spawned workers, Ray nodes and command-line subprocesses.
+_TESTS = str(Path(__file__).resolve().parent)
+if _TESTS not in os.environ.get("PYTHONPATH", "").split(os.pathsep):
+    os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (_TESTS, os.environ.get("PYTHONPATH", "")) if p)
 
 try:  # the property-based suite's budget: bounded and derandomised so CI time and results are repeatable
     from hypothesis import HealthCheck, settings

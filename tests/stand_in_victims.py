@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from meshadv.victims.base import ClassifierVictim, DetectorOutput, DetectorVictim
+from meshadv.victims.victim import ClassifierVictim, DetectorOutput, DetectorVictim
 
 
 class DarkBlobDetector(DetectorVictim):

@@ -19,7 +19,7 @@ TINY_STUDY_SWEEP = {
 
 
 def make_study_db(root: Path, classes: Sequence[str] = ("boat", "chair", "sofa")) -> Path:
-    """Run the synthetic sweep (:func:`meshadv.experiments.probes.mesh_probe_job`) over ``classes`` into ``root``;
+    """Run the synthetic sweep (:func:`probe_jobs.mesh_probe_job`) over ``classes`` into ``root``;
     return the db. Every fourth job fails."""
     raw = {**TINY_STUDY_SWEEP, "meshes": {"classes": list(classes)}}
     jobs = [{**j, "success": i % 4 != 3} for i, j in enumerate(expand_jobs(parse_config(raw)))]

@@ -31,10 +31,10 @@ def tiny_builtin_config(name: str, *, image_size: int = 32, steps: int = 3,
 
 
 def run_probe_sweep(db: Path, jobs: Iterable[Dict[str, Any]], out_root: Path) -> Path:
-    """Run synthetic attack jobs (:func:`meshadv.experiments.probes.mesh_probe_job`: no renderer, no victim; each
+    """Run synthetic attack jobs (:func:`probe_jobs.mesh_probe_job`: no renderer, no victim; each
     job's ``success`` key decides its outcome) serially into the database ``db``; return ``db``."""
     with ResultStore(db) as store:
-        run_sweep(store, jobs, "meshadv.experiments.probes:mesh_probe_job", out_root=out_root,
+        run_sweep(store, jobs, "probe_jobs:mesh_probe_job", out_root=out_root,
                   backend=SerialBackend(), progress=False)
     return db
 

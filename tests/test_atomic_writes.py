@@ -313,7 +313,7 @@ def test_private_files_are_never_readable_by_others(tmp_path: Path, monkeypatch:
     umask as before."""
     import stat
 
-    from meshadv.experiments.ray_local import write_token
+    from ray_local import write_token
     from meshadv.util import atomic
 
     modes: List[int] = []

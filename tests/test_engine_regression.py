@@ -1,7 +1,7 @@
 """Seeded reference runs of the attack engine: the refactored code must reproduce their success flags and distances.
 
 The expected values in ``tests/data/engine_reference.json`` were recorded with the code before the attack engine was
-unified (issue 13); regenerate them only on purpose, with ``python tests/test_engine_regression.py`` (it rewrites
+unified into one loop; regenerate them only on purpose, with ``python tests/test_engine_regression.py`` (it rewrites
 the JSON). Runs are short (15-25 steps, small images) so they take seconds.
 
 One scenario changed on purpose: the indoor-scene attack used to have its own loop (``SceneAttack``), which kept the
@@ -89,7 +89,7 @@ def _views(num: int = 1, elevation: float = 20.0) -> Any:
 
 
 def _laplacian_sum(distances: Dict[str, float]) -> float:
-    """The literal Eq. 4 Laplacian sum, whichever name the distances dict gives it (``laplacian`` before issue 16)."""
+    """The literal Eq. 4 Laplacian sum, whichever name the distances dict gives it (older records: ``laplacian``)."""
     return float(distances["laplacian_sum"] if "laplacian_sum" in distances else distances["laplacian"])
 
 
@@ -173,7 +173,7 @@ def _lite0() -> Any:
         from meshadv.victims import load_victim
 
         # The references were recorded with the batch norms as separate layers. The default victim folds them into
-        # the convolutions (issue 15): the same network up to float rounding, which the shape attack amplifies like
+        # the convolutions: the same network up to float rounding, which the shape attack amplifies like
         # a thread-count change (pascal_shape's Laplacian 0.29 -> 0.19 after 20 steps), so the reference runs keep it.
         return load_victim("efficientnet_lite0", optimize=False)
     except ImportError as exc:  # the package is missing; broken weights must fail, not skip

@@ -13,7 +13,7 @@ from meshadv.experiments import ResultStore, SerialBackend, job_id, run_sweep
 from meshadv.experiments.artifacts import collect_files, deliver, run_detached, write_files
 from meshadv.experiments.worker import Outcome
 
-PROBE = "meshadv.experiments.probes:probe_job"
+PROBE = "probe_jobs:probe_job"
 
 
 def test_detached_job_returns_its_files_and_leaves_nothing_behind(tmp_path: Path) -> None:

@@ -18,7 +18,7 @@ def test_ray_backend_tiny_sweep(tmp_path: Path) -> None:
         backend = RayBackend()
         assert backend.capacity == 1 and not backend._owns  # an existing Ray instance is reused, not shut down
         store = ResultStore(tmp_path / "r.db")
-        summary = run_sweep(store, specs, "meshadv.experiments.probes:probe_job", out_root=tmp_path,
+        summary = run_sweep(store, specs, "probe_jobs:probe_job", out_root=tmp_path,
                             backend=backend, max_attempts=1, progress=False)
         backend.close()
         assert ray.is_initialized()

@@ -40,7 +40,7 @@ def test_lost_worker_node_is_retried_and_nothing_is_lost() -> None:
     assert lost["killed"]["processes"] >= 1
     assert lost["retried_jobs"] >= 1  # the killed node's job ran again elsewhere
     assert set(lost["jobs_by_node"]) <= {"w1_scratch", "w2_scratch"} and lost["jobs_by_node"].get("w2_scratch")
-    from meshadv.experiments.ray_local import can_hide_folders
+    from ray_local import can_hide_folders
 
     if can_hide_folders():  # the workers could not see the driver's folder at all, and no job saw it
         assert lost["isolation"]["driver_folder_hidden_from_workers"] and lost["isolation"]["jobs_that_saw_it"] == 0

@@ -49,7 +49,7 @@ types = ["shape"]
 classes = ["chair"]
 
 [runner]
-job = "meshadv.experiments.probes:mesh_probe_job"
+job = "probe_jobs:mesh_probe_job"
 max_attempts = 1
 """
 
@@ -249,7 +249,7 @@ def test_flow_figures_validate_and_draw(tmp_path: Path) -> None:
 
 
 def test_view_record_follows_the_camera_convention() -> None:
-    from meshadv.experiments.config import view_record
+    from meshadv.experiments.sweep_views import view_record
 
     rec = view_record(4.0, 90.0, 0.0)
     # eye = d (cos el sin az, sin el, -cos el cos az): azimuth 90 puts the camera on +x; the default light is there too

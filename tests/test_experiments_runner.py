@@ -24,7 +24,7 @@ from meshadv.experiments import (
 )
 from meshadv.experiments.spec import canonical_json, job_ref
 
-PROBE = "meshadv.experiments.probes:probe_job"
+PROBE = "probe_jobs:probe_job"
 
 
 def _runs(out_root: Path, spec: dict) -> int:
@@ -175,7 +175,7 @@ _DRIVER = textwrap.dedent(
     db, out_root, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
     specs = [{"probe": "ok", "sleep": 0.4, "distance": float(i), "i": i} for i in range(n)]
     store = ResultStore(db)
-    run_sweep(store, specs, "meshadv.experiments.probes:probe_job", out_root=out_root,
+    run_sweep(store, specs, "probe_jobs:probe_job", out_root=out_root,
               backend=LocalBackend(workers=2, threads_per_job=1), progress=False)
     """
 )

@@ -54,7 +54,7 @@ def moved_db(tmp_path: Path) -> Path:
 def _set_job_ref(db: Path) -> None:
     """Store a config text naming the probe job, so regeneration runs the job function the sweep ran."""
     with ResultStore(db) as store:
-        store.set_meta("config_text", '[runner]\njob = "meshadv.experiments.probes:mesh_probe_job"\n')
+        store.set_meta("config_text", '[runner]\njob = "probe_jobs:mesh_probe_job"\n')
 
 
 def test_report_regenerates_only_the_jobs_its_figures_use(moved_db: Path, tmp_path: Path) -> None:

@@ -151,7 +151,7 @@ def stand_in(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
     monkeypatch.setattr(attacks, "ShapeAttack", ShortShapeAttack)
     monkeypatch.setattr(attacks, "TextureAttack", ShortTextureAttack)
     real_build = demo.build_demo_attack
-    monkeypatch.setattr(demo, "build_demo_attack", lambda steps, seed: real_build(min(steps, 3), seed))
+    monkeypatch.setattr(demo, "build_demo_attack", lambda steps, seed, *cap: real_build(min(steps, 3), seed, *cap))
     return tmp_path
 
 

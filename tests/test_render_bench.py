@@ -56,6 +56,8 @@ def test_the_deodr_section_gives_the_ratios_of_the_medians(bench: ModuleType) ->
     text = comparison.section(rows, "python benchmarks/render_bench.py --deodr", "a machine", "0.2.3")
     assert "| icosphere | 5120 | 299 | 2 | 40.0 | 10.0 | 20.0 | 2.00 | 0.50 | 30% | 50% |" in text
     assert "| bunny | 10235 | 224 | 1 | 30.0 | 15.0 | – | – | – | 20% | 25% |" in text
+    assert "at antialias 2, local / DEODR 0.50-0.50 and NMR / DEODR 2.00-2.00" in text
+    assert "at antialias 1, local / DEODR –" in text and "torch share of meshadv's call 20%-50%" in text
 
 
 def test_deodr_that_cannot_be_imported_is_reported_not_raised(monkeypatch: pytest.MonkeyPatch) -> None:

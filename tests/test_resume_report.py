@@ -28,7 +28,7 @@ SLOW_S = 0.8
 
 def slow_mesh_probe_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     """The mesh probe after :data:`SLOW_S` seconds (a regeneration that takes a while)."""
-    from meshadv.experiments.probes import mesh_probe_job
+    from probe_jobs import mesh_probe_job
 
     time.sleep(SLOW_S)
     return mesh_probe_job(spec, out_dir)

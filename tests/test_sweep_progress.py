@@ -15,7 +15,7 @@ from meshadv.experiments.progress import Progress
 from meshadv.experiments.worker import StepReport, execute, report_steps
 
 JOB = "meshadv.experiments.jobs:run_attack_job"
-PROBE = "meshadv.experiments.probes:probe_job"
+PROBE = "probe_jobs:probe_job"
 
 
 def _victim_or_skip() -> None:

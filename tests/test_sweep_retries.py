@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from meshadv.experiments.config import parse_config
 from meshadv.experiments.report import write_report
-from meshadv.experiments.job_expansion import job_part, select_parts
+from meshadv.experiments.config import job_part, select_parts
 from meshadv.experiments.retries import (
     place_retries,
     protocol_label,
@@ -25,7 +25,7 @@ from meshadv.experiments.retries import (
 )
 from meshadv.experiments.spec import job_id
 from meshadv.experiments.store import JobRow, ResultStore
-from meshadv.experiments.sweep_file import stored_retry_stages
+from meshadv.experiments.config import stored_retry_stages
 from meshadv.experiments.tables import attack_rows, table1
 from sweep_fixtures import job_states, probe_jobs, run_probe_sweep, sweep_cli, two_job_config
 

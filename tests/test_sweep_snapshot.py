@@ -12,7 +12,7 @@ from meshadv.commands.sweep import DatabaseSnapshots
 from meshadv.experiments import ResultStore, SerialBackend, run_sweep
 from sweep_fixtures import job_states, probe_jobs, sweep_cli, two_job_config
 
-PROBE = "meshadv.experiments.probes:mesh_probe_job"
+PROBE = "probe_jobs:mesh_probe_job"
 
 
 def _meta_open(db: Path) -> str:

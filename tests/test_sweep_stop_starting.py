@@ -18,7 +18,7 @@ from meshadv.commands._common import parse_duration
 from meshadv.experiments import ResultStore, SerialBackend, run_sweep
 from sweep_fixtures import job_states, probe_jobs, start_sweep_process, sweep_cli, two_job_config
 
-PROBE = "meshadv.experiments.probes:mesh_probe_job"
+PROBE = "probe_jobs:mesh_probe_job"
 
 
 def test_run_sweep_stops_starting_and_the_next_run_continues(tmp_path: Path) -> None:

@@ -18,7 +18,7 @@ from meshadv.attacks import Criterion, Disappearance, Misclassification, Texture
 from meshadv.render import native_available
 from meshadv.transfer.robust import NoisyVictim, eot_views
 from meshadv.attacks.criteria import WithMargin
-from meshadv.victims.base import ClassifierVictim
+from meshadv.victims.victim import ClassifierVictim
 
 needs_native = pytest.mark.skipif(not native_available(), reason="native module meshadv._raster not built")
 

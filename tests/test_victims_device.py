@@ -12,7 +12,7 @@ import pytest
 import torch
 from torch import Tensor, nn
 
-from meshadv.victims.base import ClassifierVictim, DetectorOutput, DetectorVictim
+from meshadv.victims.victim import ClassifierVictim, DetectorOutput, DetectorVictim
 
 
 class _Tiny(ClassifierVictim):

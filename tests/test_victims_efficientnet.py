@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from meshadv.victims import efficientnet_lite as effnet
-from meshadv.victims.base import ClassifierVictim
+from meshadv.victims.victim import ClassifierVictim
 from meshadv.victims.efficientnet_lite import EfficientNetLite, EfficientNetLiteVictim, efficientnet_lite_weights_path
 from meshadv.victims.labels import imagenet_class_names
 from meshadv.victims.preprocess import image_to_tensor, load_image

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from meshadv.victims.base import DetectorOutput, check_images, postprocess_detections
+from meshadv.victims.victim import DetectorOutput, check_images, postprocess_detections
 from meshadv.victims.preprocess import Preprocess, center_crop, image_to_tensor, load_image
 
 

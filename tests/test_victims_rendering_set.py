@@ -27,7 +27,7 @@ from meshadv.datasets.rendering_set import (
     sampling_config,
 )
 from meshadv.render.views import frame_distance
-from meshadv.victims.base import ClassifierVictim
+from meshadv.victims.victim import ClassifierVictim
 
 pytest.importorskip("meshadv._raster", reason="the native renderer is not built (maturin develop)")
 

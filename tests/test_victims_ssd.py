@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from meshadv.victims import ssd_mobilenet as ssd
-from meshadv.victims.base import DetectorOutput
+from meshadv.victims.victim import DetectorOutput
 from meshadv.victims.ssd_anchors import anchors_per_cell, decode_boxes, ssd_anchor_grid
 from meshadv.victims.tf_graphdef import parse_graphdef, read_graphdef
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from meshadv.victims.base import Detections, DetectorOutput
+from meshadv.victims.victim import Detections, DetectorOutput
 from meshadv.victims.darknet import (
     DarknetHeader,
     DarknetNet,

@@ -1,4 +1,4 @@
-//! The backward pass against the pre-SIMD implementation kept in `meshadv_raster_tests::nmr_reference`: equal
+//! The backward pass against the plain implementation in `meshadv_raster_tests::nmr_reference`: equal
 //! within 1e-5 relative on randomized scenes and on the scenes of the other tests, and bit-identical on every
 //! instruction set this CPU offers.
 

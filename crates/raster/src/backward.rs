@@ -9,44 +9,11 @@
 //! partials are added to the vertices in increasing face order; pixels are summed in row-major order for
 //! `grad_face_attrs`. Results are therefore bit-identical for any thread count, and for any [`Isa`].
 //!
-//! # Implementation notes (precomputations; same numbers as the definition up to float rounding)
+//! How the core computes it (per-pixel line buffers, planned sweeps, vector kernels, kept buffers, the instruction
+//! sets) is described in `docs/NMR_GRADIENT.md`, "How the core computes it"; the local gradient's truncation in
+//! `docs/LOCAL_GRADIENT.md` ([`Visibility`]).
 //!
-//! * Once per batch element, per pixel: the depth-test key of the drawn face (`1/z` in perspective, `-z` in
-//!   orthographic, `z` from the barycentric depth exactly as the forward computes it; larger = nearer) and
-//!   `gI[P] = sum_c G[P, c] I[P, c]`, so that the OUT sweep's `delta = sum_c G[P, c] A[f, c] - gI[P]`. These, the
-//!   face index and the cotangent are stored along sweep lines (`lines::Lines`): row lines for the row sweeps, a
-//!   transposed copy for the column sweeps, so the inner loops read contiguous memory and vectorise.
-//!   The keys are computed along runs of one face in a row, 4 (AVX2) or 2 (SSE2) pixels at a time with the scalar
-//!   operations lane by lane (same bits).
-//! * Per batch element, the cotangent's channels that are zero at every pixel (the coverage channel of a render whose
-//!   victim sees only RGB) are left out of the line buffers and the sweeps: they add only zero terms, so the vertex
-//!   gradient has the bits of the same render without them (tested), from fewer bytes per pixel.
-//! * Per line, the range of pixels with a non-zero cotangent: an OUT sweep is cut to it (elsewhere `delta = 0`).
-//! * Per face, edge and axis, the lines' sweeps are first planned (scalar work: crossing, ranges, factors, one
-//!   `sweep::LineJob` per line), then run one after another with the face's constants and the buffers' bounds checked
-//!   once, and their sums added to the corners line by line (OUT, then IN), in the definition's order.
-//! * Per face, the box of the pixels it is drawn on: only faces drawn somewhere are set up; lines outside the box
-//!   are skipped (their in-pixel is not the face's, so no OUT sweep) and IN sweeps are cut to it (only the face's
-//!   own pixels contribute).
-//! * Per OUT sweep: the face's key along the line is `key0 + key_step * d` (its plane in pixel space); the pixels
-//!   whose key lies in the clip range form one interval (the computed key is monotone in `d`), found once, so the
-//!   inner loop only tests the depth order and `delta < 0`; `F[P] != f` is tested only in the blocks of pixels
-//!   that meet the face's drawn box (no pixel outside it is the face's).
-//! * The line buffers hold what the sweeps read in as few bytes as is exact: the cotangent as f32 (as given), the
-//!   face index as i32, the depth keys and `gI` as f64; the sweeps are bound by the bytes they read.
-//! * Per pixel of an OUT or IN sweep, `delta / dist_a` and `delta / dist_c` (the two endpoint displacements) use one
-//!   division, `q = delta / (dist_a * dist_c)`, times `dist_c` and `dist_a`. Both loops are branch-free (skipped
-//!   pixels add 0), sum in four lanes added in a fixed order, and run their last partial block masked over padded
-//!   line buffers (see `sweep`).
-//! * The buffers of a batch element (line buffers, setups, accumulators; about 10 MB at 299 x 299) are kept between
-//!   calls and refilled in place (`workspace`), so that a call does not page-fault fresh memory in.
-//! * The per-face work is compiled three times, for the portable baseline (SSE2 vectors on x86-64, plain code the
-//!   compiler vectorises elsewhere), for AVX2 and for AVX-512 (x86-64; its OUT sweeps take two 4-pixel blocks per
-//!   8-lane vector and add the halves to the block sums one after the other), and the instruction set is picked at
-//!   run time (`Isa`), so one portable wheel still uses 256- and 512-bit vectors. Every path gives the same bits
-//!   (tested against each other), and the channel count is a constant of the per-face code for 1 to 4 channels.
-//!
-//! The exact, step-by-step definition (the same text as `docs/NMR_GRADIENT.md`) follows.
+//! The exact, step-by-step definition and those notes (the text of `docs/NMR_GRADIENT.md`) follow.
 //!
 #![doc = include_str!("../../../docs/NMR_GRADIENT.md")]
 

@@ -1,5 +1,5 @@
-//! Regression tests: every file in `tests/crashers/` once made the mesh readers panic, hang or load garbage
-//! (found by hand or by the fuzz targets in `crates/render-cli/fuzz`). Each must now give a `MeshError`.
+//! Regression tests: every file in `tests/crashers/` is an input that can make a mesh reader panic, hang or load
+//! garbage (found by hand or by the fuzz targets in `crates/render-cli/fuzz`). Each must give a `MeshError`.
 //! Files whose name starts with `ok_` must load.
 
 use std::fs;

@@ -9,12 +9,12 @@ returns an :class:`AttackResult`:
 
 Several targets are attacked together as a batch by passing a list of criteria. ``eot=N`` (or
 ``**robust_options(perturbation, method)``) optimises over views drawn afresh at every step and judges success on
-fresh views (:mod:`meshadv.attacks.eot`, :mod:`meshadv.attacks.robust`).
+fresh views (:mod:`meshadv.attacks.eot`, :mod:`meshadv.attacks.robust_settings`).
 """
 
 from __future__ import annotations
 
-from meshadv.attacks.base import MeshAttack
+from meshadv.attacks.mesh_attack import MeshAttack
 from meshadv.attacks.evaluation import Evaluation, evaluate
 from meshadv.attacks.history import StepInfo
 from meshadv.attacks.criteria import (
@@ -48,7 +48,7 @@ from meshadv.attacks.result import AttackResult, load_result_record
 from meshadv.attacks.search import LambdaSearch
 from meshadv.attacks.budget import DDNRule  # noqa: F401  (registers method="ddn")
 from meshadv.attacks.families import PERTURBATIONS, attack_class, make_attack, perturbations
-from meshadv.attacks.robust import robust_options
+from meshadv.attacks.robust_settings import robust_options
 from meshadv.attacks.shape import ShapeAttack
 from meshadv.attacks.smooth_texture import SmoothTextureAttack
 from meshadv.attacks.texture import TextureAttack

@@ -15,9 +15,9 @@ is the budget. Per step ``k`` of ``steps``, for each active target (``delta`` is
 run returns its best success, not its last step.
 
 The space ``delta`` lives in, its norm, its steepest direction and how it is read from and written into the
-attack's parameters belong to the attack family (:meth:`~meshadv.attacks.base.MeshAttack.budget_space`,
+attack's parameters belong to the attack family (:meth:`~meshadv.attacks.mesh_attack.MeshAttack.budget_space`,
 :mod:`meshadv.attacks.norms`), and so do the defaults in its norm units
-(:meth:`~meshadv.attacks.base.MeshAttack.budget_defaults`, :data:`DDN_DEFAULTS`):
+(:meth:`~meshadv.attacks.mesh_attack.MeshAttack.budget_defaults`, :data:`DDN_DEFAULTS`):
 
 * shape -- the flow, measured by ``sqrt(laplacian_pair_mean(dv))`` (the RMS change of an edge vector, so one
   setting suits meshes of any resolution); directions ``(L + I / smoothness)^-1 grad`` (the preconditioner of

@@ -14,9 +14,13 @@ faces (``t_i`` the face's RGB colour); ``color_rmse_per_channel`` -- the same ov
 (``color_rmse / sqrt(3)``). Also ``max_displacement`` / ``mean_displacement`` (:func:`displacement_stats`), relative
 to the pristine mesh's bounding-box diagonal.
 
-:func:`mesh_distances` computes all of them for a pristine / adversarial mesh pair; :func:`read_distance` reads one
-from a stored record, old records (one key ``laplacian``, the Eq. 4 sum) included. :data:`PAPER_COMPARABLE` names the
-measure per perturbation type that the paper's tables report.
+The measures a person would agree with (95th-percentile displacement, area-weighted change of the face normals and
+colours, SSIM of renders on held-out views) are :mod:`meshadv.perceptibility`'s; an attack's result reports them
+beside these (:data:`DISTANCE_DESCRIPTIONS` describes both).
+
+:func:`mesh_distances` computes the measures above for a pristine / adversarial mesh pair; :func:`read_distance`
+reads one from a stored record, old records (one key ``laplacian``, the Eq. 4 sum) included.
+:data:`PAPER_COMPARABLE` names the measure per perturbation type that the paper's tables report.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import torch
 from torch import Tensor
 
 from meshadv.attacks.losses import laplacian_flow_loss
+from meshadv.perceptibility.measures import MEASURE_DESCRIPTIONS
 
 __all__ = [
     "laplacian_distance",
@@ -53,6 +58,7 @@ DISTANCE_DESCRIPTIONS = {
     "color_rmse_per_channel": "face-colour RMSE over the 3m channel values (color_rmse / sqrt(3))",
     "max_displacement": "largest vertex displacement / bounding-box diagonal",
     "mean_displacement": "mean vertex displacement / bounding-box diagonal",
+    **{k: v for k, v in MEASURE_DESCRIPTIONS.items() if k != "max_displacement"},
 }
 
 

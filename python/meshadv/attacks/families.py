@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from typing import Any, Dict, List, Type
 
-from meshadv.attacks.base import MeshAttack
+from meshadv.attacks.mesh_attack import MeshAttack
 from meshadv.attacks.shape import ShapeAttack
 from meshadv.attacks.texture import TextureAttack
 from meshadv.attacks.texture_map import TextureMapAttack

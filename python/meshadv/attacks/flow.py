@@ -12,9 +12,8 @@ and NMR's rasterization gradient plus the shading gradient are noisy from vertex
 (``k = 0``, the paper's method) roughens a dense mesh. With ``k > 0`` the gradient on ``p`` is ``(S^T)^k`` of the
 gradient on ``dv`` (spread over about ``sqrt(k)`` rings of neighbours) and each Adam step moves smooth patches, in
 the spirit of Nicolet et al., "Large Steps in Inverse Rendering of Geometry" (2021), whose ``(I + lambda L)^-1``
-reparametrisation this cheap explicit filter approximates. The scene attack uses it on the dense Stanford bunny. It
-is no free lunch: on coarse meshes (the 1.2k-face PASCAL3D+ models) the label is changed fastest by per-vertex
-detail, which the filter removes (benchmarks/RESULTS.md, "Shape-attack convergence"). The perturbation is always
+reparametrisation this cheap explicit filter approximates. The scene attack uses it on the dense Stanford bunny; on
+coarse meshes the filter removes the per-vertex detail that changes the label fastest. The perturbation is always
 measured (Laplacian loss, displacement) on the applied ``dv``.
 
 Example:

@@ -6,7 +6,7 @@ once. Because the paper's Adam is element-wise and the total loss is a sum of pe
 optimised exactly as if they ran one at a time. A target stops being rendered once it is finished (early stopping or
 budget). How losses become updates is the attack's update rule (``method=``, :mod:`meshadv.attacks.update`); this
 loop serves every rule. What is optimised is the attack family's (:class:`AttackFamily`, the public family methods of
-:class:`~meshadv.attacks.base.MeshAttack`).
+:class:`~meshadv.attacks.mesh_attack.MeshAttack`).
 
 Per round (``rule.rounds`` of them: for ``method="adam"`` the ``binary_search_steps`` rounds of the per-target
 ``lambda`` search, :class:`~meshadv.attacks.search.LambdaSearch`) the parameters restart from the pristine mesh and
@@ -49,14 +49,16 @@ from meshadv.attacks.outputs import slice_output
 from meshadv.attacks.result import AttackResult, enough_views
 from meshadv.attacks.targets import StopRule, TargetState
 from meshadv.attacks.update import UpdateRule, make_update_rule
+from meshadv.perceptibility.cap import step_measures
+from meshadv.perceptibility.measures import perceptibility_measures
 from meshadv.render.setup import RenderSetup
 
 __all__ = ["AttackCall", "AttackFamily", "StepTerms", "adversarial_terms", "attack_step", "run_attack"]
 
 
 class AttackFamily(Protocol):
-    """What the loop asks of an attack (:class:`~meshadv.attacks.base.MeshAttack` and its families): hyper-parameters
-    and the family's parametrisation."""
+    """What the loop asks of an attack (:class:`~meshadv.attacks.mesh_attack.MeshAttack` and its families):
+    hyper-parameters and the family's parametrisation."""
 
     perturbation: str
     steps: int
@@ -300,10 +302,28 @@ class _Loop:
 
     def _observe(self, active: List[int], p: Tensor, dist: Tensor, fractions: Tensor, margins: Tensor,
                  lambdas: Tensor) -> None:
-        """Every active target observes parameters ``p`` with their distortion and their views' margins."""
+        """Every active target observes parameters ``p`` with their distortion, their views' margins and whether they
+        lie inside the perceptibility cap."""
+        inside = self._inside_cap(p)
         for a, t in enumerate(active):
             self.targets[t].observe(p[a], float(dist[a]), float(fractions[a]), margins[a], float(lambdas[t]),
-                                    self.stop, self.total_steps, time.perf_counter() - self.t_start)
+                                    self.stop, self.total_steps, time.perf_counter() - self.t_start,
+                                    inside_cap=inside[a])
+
+    def _inside_cap(self, params: Tensor) -> List[bool]:
+        """Per row of the rendered parameters ``params`` ``(K, ...)``, whether its mesh is inside the attack's
+        perceptibility cap (all ``True`` without one)."""
+        cap = self.stop.cap
+        if cap is None:
+            return [True] * params.shape[0]
+        mesh = self.call.mesh
+        with torch.no_grad():
+            verts, colors = self.attack.apply(params.detach(), mesh, self.call.edges)
+            measures = step_measures(cap, verts, colors, mesh.vertices, mesh.face_colors, mesh.faces)
+        inside = cap.admits(measures)
+        if not isinstance(inside, Tensor):
+            return [bool(inside)] * params.shape[0]
+        return [bool(x) for x in inside.reshape(-1).tolist()]
 
     def _report(self, callback: Callable[[StepInfo], None], row: Dict[str, Any], top1: List[Optional[int]]) -> bool:
         """Call ``callback`` with the step's :class:`StepInfo`; ``False`` when it raised ``KeyboardInterrupt`` (the
@@ -342,7 +362,12 @@ def _final_result(attack: AttackFamily, call: AttackCall, targets: List[TargetSt
     if eval_views is not None:
         held_out = evaluate(adversarial, eval_views.detach(), victim, criteria, setup=call.setup)
         eval_success, eval_scores = held_out.success, held_out.scores
-    distances = tuple(attack.result_distances(mesh, m, call.edges) for m in adversarial)
+    perceptible = perceptibility_measures(mesh, adversarial, views, call.setup)
+    cap = attack.stop_rule().cap
+    distances = tuple(
+        {**seen, **attack.result_distances(mesh, m, call.edges)}
+        for m, seen in zip(adversarial, perceptible)
+    )
     return AttackResult(
         original=mesh,
         adversarial=adversarial,
@@ -365,6 +390,7 @@ def _final_result(attack: AttackFamily, call: AttackCall, targets: List[TargetSt
         wall_time=run.wall_time,
         interrupted=run.interrupted,
         success_fraction=attack.success_fraction,
+        perceptibility_cap=None if cap is None else cap.to_record(),
         original_images=before.images[0],
         images=after.images,
         view_records=tuple(views.to_records()),

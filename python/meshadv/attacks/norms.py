@@ -8,7 +8,7 @@ parameters and back.
 * :class:`ColorNorm` (texture): the face-colour RMSE, directions along the colour gradient.
 * :class:`FlowSpace` and :class:`ColorSpace`: a family's perturbation (a vertex flow, a colour change) with its norm,
   read from and written into the attack's parameters. A family returns one from
-  :meth:`~meshadv.attacks.base.MeshAttack.budget_space`.
+  :meth:`~meshadv.attacks.mesh_attack.MeshAttack.budget_space`.
 
 All work on ``(T, ...)`` rows, one per target.
 """

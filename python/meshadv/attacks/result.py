@@ -27,12 +27,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Tuple, Union
 
+import torch
 from torch import Tensor
 
+from meshadv.mesh import save_mesh
 from meshadv.util.atomic import write_json_atomic
 from meshadv.util.png import save_png
 
-__all__ = ["AttackResult", "load_result_record", "RESULT_FILE", "enough_views"]
+__all__ = ["AttackResult", "load_result_record", "RESULT_FILE", "enough_views", "perceptibility_line"]
 
 #: Name of the JSON record inside a result folder.
 RESULT_FILE = "result.json"
@@ -51,6 +53,23 @@ def _json_float(value: float) -> Optional[float]:
     """A float for JSON (``None`` for nan / inf)."""
     value = float(value)
     return value if math.isfinite(value) else None
+
+
+def _get(distances: Dict[str, Any], name: str) -> float:
+    """``distances[name]`` as a float (``nan`` when absent or ``None``)."""
+    value = distances.get(name)
+    return math.nan if value is None else float(value)
+
+
+def perceptibility_line(distances: Dict[str, Any]) -> str:
+    """The perceptibility measures of one target's ``distances`` on one line, the way a person reads them:
+    ``"move max 1.2% p95 0.4% of the diagonal, normals mean 2.1 p95 8.3 deg, colours p95 0, SSIM held-out mean
+    0.98 min 0.95"`` (``nan`` for a measure the record lacks)."""
+    return (f"move max {100 * _get(distances, 'max_displacement'):.3g}% p95 "
+            f"{100 * _get(distances, 'p95_displacement'):.3g}% of the diagonal, normals mean "
+            f"{_get(distances, 'normal_change_mean_deg'):.3g} p95 {_get(distances, 'normal_change_p95_deg'):.3g} "
+            f"deg, colours p95 {_get(distances, 'color_change_p95'):.3g}, SSIM held-out mean "
+            f"{_get(distances, 'ssim_held_out_mean'):.3g} min {_get(distances, 'ssim_held_out_min'):.3g}")
 
 
 def load_result_record(out_dir: Union[str, Path]) -> Dict[str, Any]:
@@ -83,7 +102,9 @@ class AttackResult:
         eval_success: bool ``(T, V_eval)`` on the held-out views, or ``None``.
         eval_scores: ``(T, V_eval)`` or ``None``.
         distances: one dict per target: ``laplacian_sum``, ``laplacian_pair_mean``, ``color_rmse``, ...
-            (``attacks.distances.mesh_distances``).
+            (``attacks.distances.mesh_distances``) and the perceptibility measures (``max_displacement``,
+            ``p95_displacement``, ``normal_change_*_deg``, ``color_change_p95``, ``ssim_held_out_*``;
+            ``meshadv.perceptibility.measures``).
         lambdas: the ``lambda`` that produced each kept mesh (``nan`` when no round succeeded).
         loss_history: one JSON-able dict per optimiser step (round, step, per-target loss, adversarial and
             perceptual terms, distance, worst-view margin; ``None`` for targets no longer optimised).
@@ -99,6 +120,9 @@ class AttackResult:
         config: the attack's hyper-parameters.
         victim: the victim's name.
         class_names: the victim's class names (to label ``top1``), may be empty.
+        perceptibility_cap: the record of the attack's perceptibility cap
+            (``meshadv.perceptibility.PerceptibilityCap.to_record``), or ``None`` for none: a target whose final mesh
+            lies outside it has not succeeded, whatever its views say.
     """
 
     original: Any
@@ -129,6 +153,7 @@ class AttackResult:
     config: Dict[str, Any]
     victim: str
     class_names: Tuple[str, ...] = field(default=(), repr=False)
+    perceptibility_cap: Optional[Dict[str, Any]] = None
 
     @property
     def num_targets(self) -> int:
@@ -146,24 +171,47 @@ class AttackResult:
         return self.success.float().mean(dim=1)
 
     @property
+    def inside_cap(self) -> Tensor:
+        """bool ``(T,)``: each target's final mesh lies inside the perceptibility cap (all true without one)."""
+        if self.perceptibility_cap is None:
+            return torch.ones(self.num_targets, dtype=torch.bool)
+        from meshadv.perceptibility.cap import PerceptibilityCap
+
+        cap = PerceptibilityCap.from_record(self.perceptibility_cap)
+        return torch.tensor([bool(cap.admits(d)) for d in self.distances], dtype=torch.bool)
+
+    def cap_violations(self, target: int) -> List[str]:
+        """The ceilings of the perceptibility cap that target ``target``'s final mesh exceeds (empty without a cap)."""
+        if self.perceptibility_cap is None:
+            return []
+        from meshadv.perceptibility.cap import PerceptibilityCap
+
+        return PerceptibilityCap.from_record(self.perceptibility_cap).violations(self.distances[target])
+
+    @property
     def succeeded(self) -> Tensor:
-        """bool ``(T,)``: the target holds on at least ``success_fraction`` of the victim views."""
-        return enough_views(self.success_rate, self.success_fraction)
+        """bool ``(T,)``: the target holds on at least ``success_fraction`` of the victim views and its mesh lies
+        inside the perceptibility cap."""
+        return enough_views(self.success_rate, self.success_fraction) & self.inside_cap
 
     def _name(self, idx: int) -> str:
         return self.class_names[idx] if 0 <= idx < len(self.class_names) else str(idx)
 
     def summary(self) -> str:
         """A few human-readable lines: per target, success, distances and top-1 labels."""
+        cap = "none" if self.perceptibility_cap is None else ", ".join(
+            f"{k} <= {v:g}" for k, v in self.perceptibility_cap.items() if v is not None) or "none"
         lines = [f"{self.perturbation} attack on {self.victim}: {self.steps} steps in {self.wall_time:.1f} s"
-                 + (" (interrupted)" if self.interrupted else "")]
+                 + (" (interrupted)" if self.interrupted else "") + f"; perceptibility cap: {cap}"]
         for t, crit in enumerate(self.criteria):
             d = self.distances[t]
             status = "SUCCESS" if bool(self.succeeded[t]) else "failed"
+            outside = self.cap_violations(t)
+            if outside:
+                status += f" (outside the perceptibility cap: {'; '.join(outside)})"
             line = (f"  {crit.get('label', '?')}: {status} on {int(self.success[t].sum())}/{self.success.shape[1]} "
-                    f"views; laplacian_pair_mean={d.get('laplacian_pair_mean', float('nan')):.4g} "
-                    f"laplacian_sum={d.get('laplacian_sum', float('nan')):.4g} "
-                    f"rmse={d['color_rmse']:.4g} max_disp={d['max_displacement']:.4g}")
+                    f"views; {perceptibility_line(d)}; laplacian_pair_mean={_get(d, 'laplacian_pair_mean'):.4g} "
+                    f"laplacian_sum={_get(d, 'laplacian_sum'):.4g} rmse={_get(d, 'color_rmse'):.4g}")
             if "texel_rmse" in d:
                 line += f" texel_rmse={d['texel_rmse']:.4g} texture_tv={d['texture_tv']:.4g}"
             if self.eval_success is not None:
@@ -190,6 +238,8 @@ class AttackResult:
             "victim": self.victim,
             "criteria": list(self.criteria),
             "succeeded": [bool(s) for s in self.succeeded.tolist()],
+            "perceptibility_cap": self.perceptibility_cap,
+            "inside_cap": [bool(s) for s in self.inside_cap.tolist()],
             "success": self.success.tolist(),
             "success_rate": self.success_rate.tolist(),
             "success_fraction": self.success_fraction,
@@ -221,7 +271,6 @@ class AttackResult:
     def _write_meshes(self, folder: Path) -> None:
         """Every target's adversarial mesh as PLY and OBJ (:meth:`mesh_filenames`) into ``folder``; a textured one
         (a SurfaceMesh) also as GLB, its OBJ with an MTL and the texture PNG."""
-        from meshadv.mesh import save_mesh
         from meshadv.mesh.surface_mesh import save_surface_mesh
 
         for t, mesh in enumerate(self.adversarial):

@@ -8,12 +8,8 @@ Parametrisation: Adam optimises parameters ``p`` (``T x N x 3``) and the applied
 edges, :func:`meshadv.attacks.flow.smooth_flow`, the low-pass reparametrisation used for the dense bunny of the
 indoor scene). ``smoothing=0``, the default, is the paper's exact method (``dv =
 p``). ``smoothing > 0`` makes every Adam step move smooth patches of the surface instead of single vertices: it
-keeps a dense mesh from roughening, but it also removes the perturbation's high frequencies, and on the 1.2k-face
-PASCAL3D+ meshes against EfficientNet-Lite0 those are what changes the label fastest (a sub-pixel per-vertex jitter
-changes the flat-shaded faces' normals, hence their shading); there it reached fewer targets, in more steps, with
-larger displacements (benchmarks/RESULTS.md, "Shape-attack convergence"). What made those attacks converge is the
-step size: ``lr=1e-3`` reached 5 of 6 runner-up targets within 200 steps where ``5e-3`` reached 1 of 6 (within 60).
-Whatever ``smoothing`` is, the objective is the same: the Laplacian loss, the budget ``max_distortion`` and the
+keeps a dense mesh from roughening, but it also removes the perturbation's high frequencies. Whatever ``smoothing``
+is, the objective is the same: the Laplacian loss, the budget ``max_distortion`` and the
 distances of the result are those of the applied ``dv``.
 
 Example:
@@ -31,7 +27,7 @@ from typing import Any, Dict, Optional, Tuple
 from torch import Tensor
 
 from meshadv import _validate
-from meshadv.attacks.base import MeshAttack
+from meshadv.attacks.mesh_attack import MeshAttack
 from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import laplacian_flow_loss
 from meshadv.attacks.masks import check_mask, check_mask_fits, mask_config
@@ -40,10 +36,7 @@ from meshadv.render.surface_reflectance import reflectance_of
 
 __all__ = ["ShapeAttack", "DEFAULT_SMOOTHING", "DEFAULT_SHAPE_LR"]
 
-#: Default rounds of neighbour averaging of the flow parameters: 0, the paper's per-vertex flow. Measured on the
-#: shared chair/01 and sofa/01 with EfficientNet-Lite0 (runner-up targets, 200 steps), smoothing 2 or 8 reached no
-#: more targets and usually later than the per-vertex flow at lr 1e-3 (benchmarks/RESULTS.md, "Shape-attack
-#: convergence"); it stays an option.
+#: Default rounds of neighbour averaging of the flow parameters: 0, the paper's per-vertex flow.
 DEFAULT_SMOOTHING = 0
 #: Default Adam learning rate of the shape attack (meshes normalised to ``[-1, 1]``).
 DEFAULT_SHAPE_LR = 1e-3
@@ -65,7 +58,7 @@ class ShapeAttack(MeshAttack):
         vertex_mask: optional bool ``(N,)``: only these vertices may move (e.g. one object of a merged scene). The
             other vertices' parameters are multiplied by zero before the parametrisation, so they get no gradient;
             objects of a merged scene share no edge, so neither the smoothing nor the Laplacian crosses them.
-        **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.base.MeshAttack`; the default
+        **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.mesh_attack.MeshAttack`; the default
             ``lr`` is :data:`DEFAULT_SHAPE_LR` and ``lambda_perceptual`` 0.05 (meshes scaled to ``[-1, 1]``).
 
     Raises:

@@ -1,9 +1,11 @@
 """Per-target bookkeeping of the attack loop: the best result so far, the first success and when a target stops.
 
 A step *holds* for a target when at least ``success_fraction`` of its views are adversarial; a step that holds within
-the distortion budget is a *success*. Each target keeps the parameters of its least distorted success (else those of
-the step closest to success: most views adversarial, then the largest mean margin), counts consecutive steps that
-hold with ``early_stop_margin`` on every view for early stopping, and stops once it leaves the budget.
+the distortion budget and inside the perceptibility cap (when the attack has one) is a *success*. Each target keeps
+the parameters of its least distorted success (else those of the step closest to success among the steps inside the
+cap: most views adversarial, then the largest mean margin), counts consecutive steps that hold with
+``early_stop_margin`` on every view for early stopping, and stops once it leaves the budget (leaving the cap does not
+stop it: the update rule may bring it back inside).
 
 Example:
     >>> import torch
@@ -19,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Optional, Tuple
+from typing import Any, Optional, Tuple
 
 from torch import Tensor
 
@@ -38,12 +40,15 @@ class StopRule:
         max_distortion: the distortion budget, or ``None``.
         early_stop: consecutive steps a target must hold with ``early_stop_margin`` before it stops, or ``None``.
         early_stop_margin: the margin every view must hold with for early stopping.
+        cap: the perceptibility cap (``meshadv.perceptibility.PerceptibilityCap``) steps must be inside to count,
+            or ``None``.
     """
 
     success_fraction: float
     max_distortion: Optional[float]
     early_stop: Optional[int]
     early_stop_margin: float
+    cap: Optional[Any] = None
 
 
 @dataclass
@@ -55,7 +60,8 @@ class TargetState:
         best_params: parameters of the least distorted success so far (``None`` before any).
         best_distance: their distortion (``inf`` before any success).
         best_lambda: the perceptual weight they were found with (``nan`` before any success).
-        fallback: without a success, the parameters of the step closest to success (``None`` before any step).
+        fallback: without a success, the parameters of the step closest to success among the steps inside the
+            perceptibility cap (``None`` before any such step).
         fallback_key: ``(fraction of adversarial views, mean margin)`` of ``fallback``.
         first_step: total step count at the first success (``None`` before it).
         first_time: seconds from the start of the call to the first success (``None`` before it).
@@ -81,7 +87,7 @@ class TargetState:
         self.active, self.hold, self.round_success = True, 0, False
 
     def observe(self, params: Tensor, distance: float, fraction: float, margins: Tensor, lam: float, rule: StopRule,
-                total_steps: int, elapsed: float) -> None:
+                total_steps: int, elapsed: float, inside_cap: bool = True) -> None:
         """Record one step's parameters (before the update), distortion and per-view margins.
 
         Args:
@@ -93,13 +99,14 @@ class TargetState:
             rule: the attack's success and stop thresholds.
             total_steps: steps done over all rounds, this one included.
             elapsed: seconds since the start of the call.
+            inside_cap: whether the step's mesh is inside the attack's perceptibility cap (``True`` without one).
         """
         ok = enough_views(fraction, rule.success_fraction)
         within = rule.max_distortion is None or distance <= rule.max_distortion
-        if ok and within:
+        if ok and within and inside_cap:
             self._record_success(params, distance, lam, total_steps, elapsed)
         key = (fraction, float(margins.mean()))
-        if self.best_params is None and key > self.fallback_key:
+        if self.best_params is None and inside_cap and key > self.fallback_key:
             self.fallback_key = key
             self.fallback = params.detach().clone()
         self.hold = self.hold + 1 if ok and float(margins.min()) >= rule.early_stop_margin else 0
@@ -119,7 +126,7 @@ class TargetState:
             self.best_lambda = lam
 
     def chosen(self, pristine: Tensor) -> Tensor:
-        """The least distorted success, else the step closest to success, else ``pristine``."""
+        """The least distorted success, else the step closest to success inside the cap, else ``pristine``."""
         if self.best_params is not None:
             return self.best_params
         return self.fallback if self.fallback is not None else pristine

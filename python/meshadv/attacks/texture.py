@@ -24,7 +24,7 @@ import torch
 from torch import Tensor
 
 from meshadv import _validate
-from meshadv.attacks.base import MeshAttack
+from meshadv.attacks.mesh_attack import MeshAttack
 from meshadv.attacks.distances import color_rmse
 from meshadv.attacks.losses import image_smoothness_loss
 from meshadv.attacks.lowpass import lowpass_gradient
@@ -46,7 +46,7 @@ class TextureAttack(MeshAttack):
         face_mask: optional bool ``(M,)``: only these faces change colour (one object of a merged scene); the
             distance is then measured on them only.
         gradient_smoothing: rounds of face-neighbour averaging of the colour gradient (``>= 0``; 0 = none).
-        **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.base.MeshAttack`; the default
+        **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.mesh_attack.MeshAttack`; the default
             ``lr`` is 0.05 (in logit space) and ``lambda_perceptual`` 1e-4 (the image loss sums over pixels).
 
     Raises:

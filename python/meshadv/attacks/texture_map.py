@@ -24,7 +24,7 @@ from typing import Any, Dict, Tuple
 import torch
 from torch import Tensor
 
-from meshadv.attacks.base import MeshAttack
+from meshadv.attacks.mesh_attack import MeshAttack
 from meshadv.attacks.distances import color_rmse
 from meshadv.attacks.losses import image_smoothness_loss
 from meshadv.attacks.norms import COLOR_EPS, ColorNorm, ColorSpace
@@ -100,7 +100,7 @@ class TextureMapAttack(MeshAttack):
     ``texel_rmse`` and ``texture_tv`` (:func:`texture_distances`) to the mesh distances.
 
     Args:
-        **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.base.MeshAttack`; the default ``lr``
+        **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.mesh_attack.MeshAttack`; the default ``lr``
             is 0.05 (in logit space) and ``lambda_perceptual`` 1e-4 (the image loss sums over pixels);
             ``max_distortion`` is a texel RMSE.
 

@@ -55,9 +55,8 @@ __all__ = ["RECOMMENDED_METHOD", "UpdateRule", "AdamLambdaRule", "register_updat
            "update_rules"]
 
 #: The update rule that ``meshadv attack``, ``meshadv demo`` and sweep files use unless told otherwise: the
-#: distortion-budget rule, which the convergence benchmark found to reach more targets with less distortion in
-#: fewer steps than the paper's Adam + lambda search (benchmarks/RESULTS.md, "Minimal-distortion attacks"). The
-#: attack classes themselves keep ``method="adam"``, the paper's reference.
+#: distortion-budget rule (:mod:`meshadv.attacks.budget`). The attack classes themselves keep ``method="adam"``, the
+#: paper's reference.
 RECOMMENDED_METHOD = "ddn"
 
 

@@ -58,13 +58,27 @@ def distortion_line(distances: dict, perturbation: str) -> str:
         rmse, tv = pick("texel_rmse"), pick("texture_tv")
         return ("texture image change: texel RMSE " + ("-" if rmse is None else f"{rmse:.4f}") + ", UV total "
                 "variation " + ("-" if tv is None else f"{tv:.4f}"))
+    seen = []
+    ssim_mean, ssim_min = pick("ssim_held_out_mean"), pick("ssim_held_out_min")
+    if ssim_mean is not None and ssim_min is not None:
+        seen.append(f"SSIM of benign vs adversarial renders on held-out views: mean {ssim_mean:.3f}, "
+                    f"lowest {ssim_min:.3f}")
     if perturbation == "texture":
-        rmse = pick("color_rmse")
-        return "texture change: colour RMSE " + ("-" if rmse is None else f"{rmse:.4f}")
+        rmse, p95 = pick("color_rmse"), pick("color_change_p95")
+        parts = ["colour RMSE " + ("-" if rmse is None else f"{rmse:.4f}")]
+        if p95 is not None:
+            parts.append(f"95% of the area changes colour by at most {p95:.3f}")
+        return "texture change: " + ", ".join(parts + seen)
     parts = []
-    disp = pick("max_displacement")
+    disp, p95 = pick("max_displacement"), pick("p95_displacement")
     if disp is not None:
-        parts.append(f"largest vertex move {100 * disp:.2g}% of the bounding-box diagonal")
+        parts.append(f"largest vertex move {100 * disp:.2g}% of the bounding-box diagonal"
+                     + ("" if p95 is None else f" (95th percentile {100 * p95:.2g}%)"))
+    turn_mean, turn_p95 = pick("normal_change_mean_deg"), pick("normal_change_p95_deg")
+    if turn_mean is not None and turn_p95 is not None:
+        parts.append(f"face normals turn {turn_mean:.2g} deg on average, 95% of the area by at most {turn_p95:.2g} "
+                     "deg")
+    parts += seen
     pair_mean, eq4_sum = pick("laplacian_pair_mean"), pick("laplacian_sum")
     if pair_mean is not None:
         parts.append(f"Laplacian pair mean {pair_mean:.3g} (the paper's measure)")
@@ -164,7 +178,8 @@ def captions_for(victim: Any, images: Any) -> Tuple[List[str], Any]:
 
 def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, title: str) -> Path:
     """What ``meshadv attack`` and ``meshadv demo`` add to ``AttackResult.save``: ``comparison.png``, the
-    adversarial mesh in the input file's frame, and the input (path, Z-up, transform) in ``result.json``.
+    adversarial mesh in the input file's frame, the benign (attacked, normalised) mesh as ``benign.ply``, and the
+    input (path, Z-up, transform) in ``result.json``.
 
     Args:
         result: the saved ``AttackResult`` (its folder is ``output``).
@@ -202,6 +217,8 @@ def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, ti
                 detached = mesh.detach()
                 save_mesh(detached.with_vertices(loaded.transform.to_original(detached.vertices)), output / name)
             entry["input_frame_meshes"].append(name)
+    save_mesh(result.original.detach(), output / "benign.ply")  # the benign control of `meshadv transfer attack`
+    entry["benign_mesh"] = "benign.ply"
     record["input"] = entry
     write_json_atomic(record, output / "result.json")
     return path

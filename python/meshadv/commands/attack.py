@@ -1,8 +1,12 @@
 """``meshadv attack``: a shape or texture attack of one mesh against one victim, saved atomically.
 
+The benign mesh is checked on the attack views first (:mod:`meshadv.commands._benign_gate`): PASCAL3D+ chair 01 is
+a desk to EfficientNet-Lite0 on two of the five default views, so the example below needs ``--benign-wrong-ok`` (or
+views where it is a chair, ``--azimuths``); the default perceptibility cap applies (``--cap``).
+
 Example:
     $ meshadv attack ../shared/data/pascal3d/chair/01.ply --victim efficientnet_lite0 --target bicycle \\
-          --perturbation shape --views 5 --steps 300 -o out/chair-bicycle
+          --perturbation shape --views 5 --steps 300 --benign-wrong-ok -o out/chair-bicycle
 """
 
 from __future__ import annotations
@@ -12,6 +16,7 @@ from typing import Any, Callable, List, Optional, Sequence
 
 import typer
 
+from meshadv.commands._cap_option import CAP_HELP, parse_cap
 from meshadv.commands._common import (
     DEFAULT_BACKGROUND,
     DEFAULT_DISTANCE,
@@ -23,9 +28,29 @@ from meshadv.commands._common import (
     resolve_method,
 )
 
-__all__ = ["attack", "build_attack", "build_criteria", "run_with_progress"]
+__all__ = ["attack", "build_attack", "build_criteria", "resampled_input", "run_with_progress"]
 
 
+
+
+def resampled_input(loaded: Any, faces: int) -> Any:
+    """``loaded`` (a ``MeshInput``) with its mesh resampled uniformly with MeshLab to about ``faces`` faces
+    (:func:`meshadv.mesh.resample.resample_mesh_with_info`), saying the face counts; unchanged for ``faces == 0`` and
+    for built-in shapes (no file).
+
+    Raises:
+        MeshProcessingError: MeshLab failed on the mesh (the message says so; ``--resample 0`` attacks it as loaded).
+    """
+    if faces == 0 or loaded.path is None:
+        return loaded
+    from dataclasses import replace
+
+    from meshadv.mesh.resample import resample_mesh_with_info
+
+    dense, info = resample_mesh_with_info(loaded.mesh, target_faces=faces)
+    typer.echo(f"resampled uniformly with MeshLab ({info.method}): {info.input_faces} -> {info.output_faces} faces "
+               "(--resample 0 attacks the mesh as loaded)")
+    return replace(loaded, mesh=dense)
 
 
 def build_attack(perturbation: str, **kwargs: Any) -> Any:
@@ -130,6 +155,13 @@ def attack(
     target: List[str] = typer.Option([], help="target class: ImageNet name/index or PASCAL3D+ class (repeatable: "
                                               "several targets are attacked together as a batch)"),
     untargeted: Optional[str] = typer.Option(None, help="untargeted attack away from this true class"),
+    source: Optional[str] = typer.Option(
+        None, help="the class the benign mesh is, checked on every attack view before the attack (default: "
+                   "--untargeted's class, else the PASCAL3D+ class of a mesh under a pascal3d/CLASS/ folder, else "
+                   "not checked)"),
+    benign_wrong_ok: bool = typer.Option(
+        False, "--benign-wrong-ok", help="attack even when the benign render is not the source class on some views "
+                                         "(default: refuse)"),
     disappear: Optional[str] = typer.Option(None, help="detector: class to hide, or 'all'"),
     perturbation: str = typer.Option("shape", "--perturbation",
                                       help="shape, texture (face colours) or texture-map (the texels of the "
@@ -142,7 +174,7 @@ def attack(
     distance: float = typer.Option(DEFAULT_DISTANCE, help="camera distance (mesh normalised to [-1, 1])"),
     method: Optional[str] = typer.Option(
         None, help="update rule: ddn (least distortion: a per-target budget that shrinks while the target holds, no "
-                   "lambda; benchmarks/RESULTS.md; the default) or adam (the paper's Adam + lambda search; with "
+                   "lambda; the default) or adam (the paper's Adam + lambda search; with "
                    "--binary-search 5 --steps 1000 --early-stop 0 the paper's protocol exactly)"),
     steps: int = typer.Option(300, help="maximum steps (per binary-search round with --method adam)"),
     lr: Optional[float] = typer.Option(None, help="--method adam: Adam learning rate (default: the attack's)"),
@@ -166,6 +198,13 @@ def attack(
     budget: Optional[float] = typer.Option(None, help="distortion ceiling (shape: the Eq. 4 Laplacian sum of the "
                                                 "flow, i.e. pair mean x 2E; texture: colour RMSE; "
                                                 "texture-map: texel RMSE)"),
+    cap: str = typer.Option(
+        "default", help="perceptibility cap: 'default' (" + CAP_HELP + "), 'none' (the paper's protocol), or "
+                        "NAME=VALUE,... of max_displacement (largest vertex move / bounding-box diagonal), "
+                        "normal_change_p95_deg (area-weighted 95th-percentile turn of the face normals, degrees), "
+                        "color_change_p95 (area-weighted 95th-percentile RGB change of the face colours); a step "
+                        "outside it never counts as a success, and a target that cannot succeed inside it fails with "
+                        "its closest result inside it"),
     jitter: bool = typer.Option(False, help="random camera/light jitter at every step (robustness)"),
     eot: int = typer.Option(0, min=0, max=4096, help="robust attack: draw this many fresh views from the whole "
                                                      "azimuth range (+-10 degrees), elevation (+-5) and distance "
@@ -177,6 +216,10 @@ def attack(
     background: str = typer.Option(DEFAULT_BACKGROUND, help="background colour r,g,b in [0, 1]"),
     threshold: float = typer.Option(0.5, help="detector score threshold (--disappear)"),
     z_up: Optional[bool] = typer.Option(None, "--z-up/--y-up", help="mesh file is Z-up (default: guess)"),
+    resample: int = typer.Option(
+        4000, min=0, help="attack a mesh file resampled uniformly with MeshLab to about this many faces, as the paper "
+                          "does (0: the mesh as loaded; built-in shapes are never resampled); the adversarial mesh "
+                          "is saved in the input file's frame all the same"),
     seed: int = typer.Option(0, help="random seed"),
     quiet: bool = typer.Option(False, help="no progress bar"),
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
@@ -189,10 +232,12 @@ def attack(
     inception_v3 (--weights STATE_DICT.pth), yolov3 (--weights FILE.weights --cfg FILE.cfg)."""
     import torch
 
-    from meshadv.attacks.robust import robust_options
+    from meshadv.attacks.robust_settings import robust_options
     from meshadv.attacks.update import RECOMMENDED_METHOD
+    from meshadv.commands._benign_gate import benign_gate, source_class
     from meshadv.commands._comparison import write_attack_outputs
     from meshadv.commands._surface_views import textured_input
+    from meshadv.mesh.errors import MeshProcessingError
     from meshadv.render import RenderSetup
     from meshadv.render.visibility import check_visibility_gradient
     from meshadv.victims import load_victim
@@ -210,7 +255,7 @@ def attack(
             raise ValueError("--visibility-gradient applies to --method ddn --perturbation shape only")
         method_options = None if visibility_gradient is None else {
             "visibility_gradient": check_visibility_gradient(visibility_gradient, "--visibility-gradient")}
-        loaded = load_mesh_input(mesh, z_up=z_up)
+        loaded = resampled_input(load_mesh_input(mesh, z_up=z_up), resample)
         if perturbation in ("texture-map", "shape"):  # a shape attack on a textured file keeps its texture
             loaded = textured_input(loaded, required=perturbation == "texture-map")
         mesh_obj, label = loaded.mesh, loaded.label
@@ -233,15 +278,18 @@ def attack(
             perturbation, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
             max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, method_options=method_options,
-            **{**robust, **shape_only},
+            perceptibility_cap=parse_cap(cap), **{**robust, **shape_only},
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
         for crit in criteria:
             crit.bind(victim_obj)  # validate class names now, before the attack starts
-    except (ValueError, FileNotFoundError, ImportError) as exc:
+    except (ValueError, FileNotFoundError, ImportError, MeshProcessingError) as exc:
         raise typer.BadParameter(str(exc)) from exc
     typer.echo(f"mesh {label}: {mesh_obj.num_vertices} vertices, {mesh_obj.num_faces} faces; "
                f"{attack_obj!r}")
+    criteria = benign_gate(mesh_obj, view_set, victim_obj, criteria, setup=setup,
+                           source=source_class(source, untargeted, loaded.path),
+                           success_fraction=attack_obj.success_fraction, go_on=benign_wrong_ok)
     result = run_with_progress(attack_obj, mesh_obj, view_set, victim_obj, criteria, eval_views=held_out,
                                setup=setup, quiet=quiet)
     path = result.save(output)

@@ -7,6 +7,8 @@ from typing import Any, Optional
 
 import typer
 
+from meshadv.commands._cap_option import CAP_HELP, parse_cap
+
 #: Default Adam learning rates (``--method adam``): for shape in units of the object's bounding-box diagonal per step
 #: (small: NMR gradients are heavy-tailed and Adam moves every parameter that receives any gradient by about lr per
 #: step), for texture in logit units per step.
@@ -49,6 +51,9 @@ def attack_scene(
         None, "--lambda", help=f"--method adam: perceptual loss weight (default: {DEFAULT_LAMBDA:g}; texture: per "
                                f"pixel)"),
     threshold: float = typer.Option(0.5, help="detection score threshold"),
+    cap: str = typer.Option("default", help="perceptibility cap of the object: 'default' (" + CAP_HELP + "), "
+                                            "'none', or NAME=VALUE,... (as `meshadv attack --cap`); a result outside "
+                                            "it is a failure"),
     width: Optional[int] = typer.Option(None, help="render width (default: the scene's / photo's own)"),
     seed: int = typer.Option(0, help="random seed"),
     output: Path = typer.Option(Path("out/attack-scene"), "-o", "--output", help="output folder"),
@@ -74,12 +79,13 @@ def attack_scene(
         method = resolve_method(method, RECOMMENDED_METHOD, {
             "--lr": lr is not None, "--lambda": lambda_perceptual is not None, "--smoothing": bool(smoothing)})
         setup = build_setup(scene, obj, place, width)
+        cap = parse_cap(cap)
     except (ValueError, FileNotFoundError) as exc:
         raise typer.BadParameter(str(exc)) from exc
     detector = load_victim(victim, weights=weights, cfg=cfg)
     criterion = Disappearance(hide, threshold=threshold)
     _require_something_to_hide(setup, detector, criterion, hide, threshold)
-    attack = _scene_attack(setup, perturbation, method, steps, seed, lr, smoothing, lambda_perceptual)
+    attack = _scene_attack(setup, perturbation, method, steps, seed, lr, smoothing, lambda_perceptual, cap)
 
     def progress(info: object) -> None:
         step = info.total_step  # type: ignore[attr-defined]
@@ -110,7 +116,7 @@ def attack_scene(
 
 
 def _scene_attack(setup: Any, perturbation: str, method: str, steps: int, seed: int, lr: Optional[float],
-                  smoothing: Optional[int], lambda_perceptual: Optional[float]) -> Any:
+                  smoothing: Optional[int], lambda_perceptual: Optional[float], cap: Any = None) -> Any:
     """The attack of ``meshadv attack-scene``. ``method="adam"``: the paper's Adam with a perceptual weight, stopped
     once the hidden score stayed 0.05 below the threshold for 5 steps (``lr`` of a shape attack in units of the
     object's bounding-box diagonal, ``lambda_perceptual`` of a texture attack per pixel; defaults
@@ -118,14 +124,16 @@ def _scene_attack(setup: Any, perturbation: str, method: str, steps: int, seed: 
     rule with its default options, a shape attack's lengths scaled to the object
     (:func:`~meshadv.attacks.budget.shape_options_for`),
     run for every step (it keeps lowering the distortion after the first success and returns the least distorted
-    success)."""
+    success). ``cap``: the perceptibility cap (``None``: none)."""
     from meshadv.attacks import make_attack
     from meshadv.attacks.budget import shape_options_for
 
     if method == "ddn":
         options = shape_options_for(setup.mesh) if perturbation == "shape" else {}
-        return make_attack(perturbation, method=method, method_options=options, steps=steps, seed=seed)
-    common = dict(method=method, steps=steps, early_stop=5, early_stop_margin=0.05, seed=seed)
+        return make_attack(perturbation, method=method, method_options=options, steps=steps, seed=seed,
+                           perceptibility_cap=cap)
+    common = dict(method=method, steps=steps, early_stop=5, early_stop_margin=0.05, seed=seed,
+                  perceptibility_cap=cap)
     lr = DEFAULT_LR[perturbation] if lr is None else lr
     lambda_perceptual = DEFAULT_LAMBDA if lambda_perceptual is None else lambda_perceptual
     if perturbation == "shape":  # lr in units of the object's bounding-box diagonal

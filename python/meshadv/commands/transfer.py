@@ -125,17 +125,18 @@ def attack_cmd(
     max_depth: int = typer.Option(8, help="Path depth (>= 3 adds interreflection)."),
     variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
 ) -> None:
-    """Re-render one `meshadv attack` result with Mitsuba under the attack's own views and test its victim; writes
-    FOLDER/transfer.json and FOLDER/mitsuba_v<view>.png."""
-    from meshadv.transfer.controlled import transfer_attack_folder
+    """Re-render one `meshadv attack` result with Mitsuba under the attack's own views and test its victim; the benign
+    mesh is rendered too, and untargeted transfer counts only on views where the victim gets it right; writes
+    FOLDER/transfer.json, FOLDER/mitsuba_v<view>.png and FOLDER/mitsuba_benign_v<view>.png."""
+    from meshadv.transfer.controlled import transfer_attack_folder, transfer_attack_summary
 
     rows = transfer_attack_folder(folder, spp=spp, max_depth=max_depth, variant=variant)
     for row in rows:
         typer.echo(f"view {row.view}: meshadv {'adversarial' if row.success_meshadv else 'benign'} "
                    f"({row.top1_meshadv}), Mitsuba {'adversarial' if row.success_mitsuba else 'benign'} "
-                   f"({row.top1_mitsuba})")
-    typer.echo(f"transferred {sum(bool(r.success_mitsuba) for r in rows)}/{len(rows)} views; "
-               f"wrote {folder / 'transfer.json'}")
+                   f"({row.top1_mitsuba}); benign mesh in Mitsuba: {row.top1_benign_mitsuba} "
+                   f"({'right' if row.benign_correct_mitsuba else 'WRONG: untargeted transfer not counted'})")
+    typer.echo(transfer_attack_summary(rows) + f"; wrote {folder / 'transfer.json'}")
 
 
 @transfer_app.command("controlled")
@@ -151,7 +152,8 @@ def controlled_cmd(
     all_attacks: bool = typer.Option(False, "--all", help="Also transfer attacks that failed in meshadv."),
     variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
 ) -> None:
-    """Re-render RESULTS' adversarial meshes with Mitsuba under the same views and test the victims (resumable)."""
+    """Re-render RESULTS' adversarial meshes with Mitsuba under the same views and test the victims (resumable); each
+    benign mesh is rendered too, and untargeted transfer counts only where the victim gets it right."""
     from meshadv.commands._common_options import interrupted_exit
     from meshadv.transfer.controlled import pending_cases, transfer_case_into
     from meshadv.transfer.results import load_transfer_rows, transfer_report
@@ -164,6 +166,10 @@ def controlled_cmd(
         typer.echo(f"no finished single-view attacks with an adversarial mesh in this database{hint}")
         raise typer.Exit(code=1)
     typer.echo(f"{len(done)} adversarial meshes already transferred, transferring {len(todo)}")
+    uncontrolled = sum(getattr(case, "benign_mesh", None) is None for case in todo)
+    if uncontrolled:
+        typer.echo(f"warning: {uncontrolled} of them have no benign mesh here (their spec's mesh cannot be loaded): "
+                   "their untargeted transfer is not counted", err=True)
     finished = 0
     try:
         for case in todo:  # one case at a time, saved at once: an interrupted run resumes where it stopped

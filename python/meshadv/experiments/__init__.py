@@ -1,11 +1,10 @@
 """Experiments: declarative sweeps of MeshAdv attacks, a resumable SQLite-backed runner, the paper's tables and figures.
 
-- :mod:`~meshadv.experiments.config`: the sweep file and its jobs (it re-exports
-  :mod:`~meshadv.experiments.sweep_file`, the TOML/YAML file and its checks; :mod:`~meshadv.experiments.sweep_views`,
-  the views; :mod:`~meshadv.experiments.job_expansion`, the expansion into job specs).
+- :mod:`~meshadv.experiments.config`: the sweep file (TOML/YAML), its checks and its expansion into job specs;
+  :mod:`~meshadv.experiments.sweep_views`: the views a sweep attacks from.
 - :mod:`~meshadv.experiments.store`: the results database (one row per job, WAL, resumable).
 - :mod:`~meshadv.experiments.runner` and :mod:`~meshadv.experiments.backends`: running jobs (process pool, Ray).
-- :mod:`~meshadv.experiments.jobs`: the attack job; :mod:`~meshadv.experiments.probes`: cheap probe jobs.
+- :mod:`~meshadv.experiments.jobs`: the attack job.
 - :mod:`~meshadv.experiments.tables`, :mod:`~meshadv.experiments.figures`, :mod:`~meshadv.experiments.report`: results.
 
 Heavy modules (tables, figures, jobs) are imported on use, not here.

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
+from meshadv.experiments.regenerate import attack_pin_key, pinned_spec
+
 __all__ = ["run_attack_job", "load_job_mesh", "JobContext", "BenignVerdict", "planned_steps", "victim_optimize",
            "default_attack_options", "pin_defaults", "prepare_attack_specs", "seed_pinned_defaults", "DISTANCE_KEYS",
            "PINNED_DEFAULTS_KEY"]
@@ -129,11 +131,17 @@ PINNED_DEFAULTS_KEY = "pinned_defaults"
 def default_attack_options(perturbation: str, method: Optional[str]) -> Dict[str, Any]:
     """The code's current defaults of an attack of ``perturbation`` and update rule ``method`` (``None``: the
     attack's default rule): ``Attack.config()`` of an attack built with nothing else set, less ``perturbation`` and
-    ``seed``. Only defaults: a spec's own options are merged over them."""
+    ``seed``, with the recommended rule's perceptibility cap (:func:`meshadv.perceptibility.recommended_cap`) for
+    ``method`` :data:`~meshadv.attacks.update.RECOMMENDED_METHOD` (the paper's Adam keeps none). Only defaults: a
+    spec's own options are merged over them."""
     from meshadv.attacks import make_attack
     from meshadv.attacks.families import check_perturbation
+    from meshadv.attacks.update import RECOMMENDED_METHOD
+    from meshadv.perceptibility import recommended_cap
 
-    kwargs = {} if method is None else {"method": method}
+    kwargs: Dict[str, Any] = {} if method is None else {"method": method}
+    if method == RECOMMENDED_METHOD:
+        kwargs["perceptibility_cap"] = recommended_cap(perturbation)
     config = make_attack(check_perturbation(perturbation, "perturbation"), **kwargs).config()
     return {k: v for k, v in config.items() if k not in ("perturbation", "seed")}
 
@@ -156,8 +164,6 @@ def pin_defaults(store: Any, specs: Any) -> Dict[str, Any]:
     Returns:
         The pinned defaults.
     """
-    from meshadv.experiments.regenerate import attack_pin_key
-
     pins = dict(store.get_meta(PINNED_DEFAULTS_KEY) or {})
     attack_pins = dict(pins.get("attack") or {})
     changed = False
@@ -188,8 +194,6 @@ def seed_pinned_defaults(store: Any, assumed: Dict[str, Any]) -> Dict[str, Any]:
     Returns:
         The pinned defaults.
     """
-    from meshadv.experiments.regenerate import attack_pin_key, pinned_spec
-
     pinned_spec({}, None, assumed)  # validates
     pins = dict(store.get_meta(PINNED_DEFAULTS_KEY) or {})
     attack_pins = dict(pins.get("attack") or {})
@@ -364,8 +368,6 @@ def prepare_attack_specs(store: Any, specs: List[Dict[str, Any]]) -> Callable[[D
     """The ``prepare_specs`` hook of :func:`run_attack_job` (:func:`meshadv.experiments.runner.run_sweep`): pin the
     database's defaults for ``specs`` (:func:`pin_defaults`) and return the function that fills them into a spec
     (:func:`meshadv.experiments.regenerate.pinned_spec`)."""
-    from meshadv.experiments.regenerate import pinned_spec
-
     pins = pin_defaults(store, specs)
     return lambda spec: pinned_spec(spec, None, pins)[0]
 

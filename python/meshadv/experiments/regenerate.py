@@ -94,7 +94,7 @@ class Regenerated:
 def stored_job_ref(store: ResultStore) -> str:
     """The job function the sweep ran (``[runner] job`` of the config text stored in the database, else the default)."""
     from meshadv.experiments.config import DEFAULT_JOB
-    from meshadv.experiments.sweep_file import raw_from_text
+    from meshadv.experiments.config import raw_from_text
 
     text = store.get_meta("config_text")
     if not text:

@@ -49,7 +49,7 @@ from meshadv.experiments.report_figures import (
     slug_of,
 )
 from meshadv.experiments.store import JobRow, ResultStore
-from meshadv.experiments.sweep_file import stored_retry_stages
+from meshadv.experiments.config import stored_retry_stages
 from meshadv.util.atomic import write_text_atomic
 from meshadv.util.png import add_png_text
 from meshadv.experiments.tables import (

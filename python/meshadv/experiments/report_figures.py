@@ -60,7 +60,7 @@ def grid_choice(rows: List[JobRow]) -> GridChoice:
         score = sum(bool(r.record.get("success")) for r in inst_rows)
         if src not in best or score > sum(bool(r.record.get("success")) for r in best[src]):
             best[src] = inst_rows
-    from meshadv.experiments.config import PASCAL3D_CLASSES
+    from meshadv.data import PASCAL3D_CLASSES
 
     classes = sorted({r.spec["source_class"] for r in rows} | {r.spec["target"] for r in rows},
                      key=lambda c: (PASCAL3D_CLASSES.index(c) if c in PASCAL3D_CLASSES else 99, c))

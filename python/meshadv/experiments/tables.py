@@ -16,11 +16,13 @@ Success rates are fractions of instances; a case's mean distance is taken over i
 attacks for the average case), as in C&W. Each measure of :data:`DISTANCE_NAMES` gets its own row (same success
 columns): shape attacks in both conventions of the Laplacian loss (``laplacian_pair_mean``, the one comparable with
 the paper, and the literal Eq. 4 ``laplacian_sum``; see :mod:`meshadv.attacks.distances`), texture attacks by the
-face-colour RMSE. Instances attacked towards fewer targets than the others of their group (a job still missing or
-crashed) are left out of the best and worst cases and counted as ``incomplete``; crashed jobs are not results and
-never count as failed attacks.
+face-colour RMSE; after them the perceptibility measures of :mod:`meshadv.perceptibility` (largest and
+95th-percentile vertex move, face-normal change, face-colour change, and ``dssim_held_out_max``, the structural
+dissimilarity ``(1 - SSIM) / 2`` of the least similar held-out view), for records that hold them. Instances
+attacked towards fewer targets than the others of their group (a job still missing or crashed) are left out of the
+best and worst cases and counted as ``incomplete``; crashed jobs are not results and never count as failed attacks.
 
-**Tail columns** (issue 14/16: a mean or median hides a tail of broken meshes): over every successful attack of a
+**Tail columns** (a mean or median hides a tail of broken meshes): over every successful attack of a
 row (the average case's population), the median, the 90th percentile (:func:`percentile`, linear interpolation
 between order statistics) and the largest distance, and, for the paper's measure, the share of successful attacks
 whose distance exceeds :data:`PAPER_WORST` (the largest worst-case distance of the paper's Table 1, a mean over its
@@ -76,9 +78,15 @@ __all__ = [
     "tail_cells",
 ]
 
-#: The distances reported per perturbation type, the one comparable with the paper first.
-DISTANCE_NAMES: Dict[str, Tuple[str, ...]] = {"shape": ("laplacian_pair_mean", "laplacian_sum"),
-                                              "texture": ("color_rmse",)}
+#: The distances reported per perturbation type, the one comparable with the paper first, then the measures a person
+#: would agree with (:mod:`meshadv.perceptibility`; rows only for records that hold them).
+DISTANCE_NAMES: Dict[str, Tuple[str, ...]] = {
+    "shape": ("laplacian_pair_mean", "laplacian_sum", "max_displacement", "p95_displacement",
+              "normal_change_mean_deg", "normal_change_p95_deg", "dssim_held_out_max"),
+    "texture": ("color_rmse", "color_change_p95", "dssim_held_out_max"),
+}
+#: The measures every record can give (the others are left out of the rows of records that lack them).
+_ALWAYS_READ = ("laplacian_pair_mean", "laplacian_sum", "color_rmse", "distance")
 
 #: The paper's largest worst-case distance per perturbation type, in its measure (:data:`PAPER_COMPARABLE`): the
 #: largest of its two models' Table 1 worst cases (shape 3.0e-4, DenseNet; texture 3.2e-2, Inception-v3).
@@ -252,6 +260,8 @@ def attack_rows(jobs: Iterable[Any], *, benign_correct_only: bool = False) -> Li
         victim = victim_label(spec)
         for measure in DISTANCE_NAMES.get(perturbation, ("distance",)):
             dist = read_distance(distances, measure) if distances else record.get("distance")
+            if dist is None and measure not in _ALWAYS_READ:
+                continue  # a record from before the perceptibility measures
             out.append(AttackRow(victim=victim, perturbation=perturbation, instance=key,
                                  source=spec["source_class"], target=spec["target"],
                                  success=bool(record.get("success")), distance=dist, measure=measure))

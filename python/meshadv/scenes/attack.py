@@ -20,14 +20,14 @@ from typing import Any, Callable, Dict, List, Optional
 
 import torch
 
-from meshadv.attacks.base import MeshAttack, StepInfo
+from meshadv.attacks.mesh_attack import MeshAttack, StepInfo
 from meshadv.attacks.criteria import Disappearance
 from meshadv.mesh import Mesh
 from meshadv.render import Lights, ViewSet
 from meshadv.render.setup import RenderSetup, static_objects
 from meshadv.scenes.composite import composite_over_photo
 from meshadv.scenes.scene import Scene, SceneCamera
-from meshadv.victims.base import Detections
+from meshadv.victims.victim import Detections
 
 __all__ = ["SceneSetup", "SceneAttackResult", "attack_scene"]
 
@@ -102,7 +102,8 @@ class SceneAttackResult:
     """Outcome of a scene attack.
 
     Attributes:
-        success: the hidden class's best score is below the threshold on a fresh render of the final object.
+        success: the hidden class's best score is below the threshold on a fresh render of the final object, and
+            the object lies inside the attack's perceptibility cap (when it has one).
         object_mesh: the object's adversarial mesh (model space).
         image_before: (1, 3, H, W) the pristine scene image; image_after: the adversarial one.
         detections_before / detections_after: the victim's NMS-filtered detections on those images.
@@ -174,7 +175,7 @@ def attack_scene(attack: MeshAttack, setup: SceneSetup, victim: Any, criterion: 
     with torch.no_grad():
         detections = victim.detect(torch.cat([image_before, image_after]), score_threshold=bound.threshold)
     return SceneAttackResult(
-        success=bool(result.success[0, 0]),
+        success=bool(result.succeeded[0]),
         object_mesh=result.mesh,
         image_before=image_before,
         image_after=image_after,

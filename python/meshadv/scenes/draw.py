@@ -6,7 +6,7 @@ import torch
 from PIL import Image, ImageDraw
 
 from meshadv.util.png import to_uint8_hwc
-from meshadv.victims.base import Detections
+from meshadv.victims.victim import Detections
 
 _PALETTE = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240)]
 

@@ -24,7 +24,10 @@ import numpy as np
 import torch
 
 from meshadv import _validate
+from meshadv.attacks import Disappearance
+from meshadv.attacks.budget import shape_options_for
 from meshadv.attacks.families import check_perturbation
+from meshadv.mesh import save_mesh
 from meshadv.render.setup import RenderSetup, split_setup_options
 from meshadv.transfer.mitsuba_process import MitsubaImage, render_scenes
 from meshadv.transfer.photos import Estimation, background_photo, composite, estimate_parameters, estimated_view_spec
@@ -43,6 +46,8 @@ from meshadv.transfer.robust import (
 )
 from meshadv.transfer.scoring import classifier_criteria, detection_scores, images_tensor, top1_names
 from meshadv.transfer.setups import HiddenScene, merge_meshes, object_range, occlusion_mask
+from meshadv.util.atomic import write_text_atomic
+from meshadv.util.png import save_png
 
 __all__ = [
     "blackbox_classifier", "blackbox_detector", "ddn_shape_options", "finished_blackbox", "save_blackbox_outputs",
@@ -504,8 +509,6 @@ def blackbox_detector(
             ``score_threshold``, a ``hide_class`` the victim does not know, ``texture_smoothing`` given for a shape
             attack or negative, a bad count, ``timeout`` or render-setup option; all before any render.
     """
-    from meshadv.attacks import Disappearance
-
     objects = list(scene_objects)
     # every argument is checked (the attack and its criterion built) before the first Mitsuba render
     _check_detector_options(objects, object_index, perturbation, context, light_fit, texture_smoothing,
@@ -585,8 +588,6 @@ def ddn_shape_options(method: str, perturbation: str, mesh: Any) -> dict[str, An
     need no scale)."""
     if method != "ddn" or perturbation != "shape":
         return {}
-    from meshadv.attacks.budget import shape_options_for
-
     return {"method_options": shape_options_for(mesh)}
 
 
@@ -601,10 +602,6 @@ def save_blackbox_outputs(result: BlackBoxResult, out: Union[str, Path]) -> None
     """Write a black-box run into the folder ``out`` (created), every file atomically: its images as PNGs, the
     adversarial mesh (``adversarial.ply``), the attack's loss history and the row (``blackbox.json``)."""
     import json
-
-    from meshadv.mesh import save_mesh
-    from meshadv.util.atomic import write_text_atomic
-    from meshadv.util.png import save_png
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -28,16 +28,31 @@ from typing import Any, Callable, Collection, Optional, Sequence, Union
 import torch
 
 from meshadv import _validate
+from meshadv.attacks import evaluate
+from meshadv.attacks.result import load_result_record
+from meshadv.experiments import ResultStore
+from meshadv.experiments.config import stored_retry_stages
+from meshadv.experiments.retries import superseded_retries
+from meshadv.mesh import load_mesh
+from meshadv.render import RenderSetup, ViewSet
+from meshadv.transfer.benign_control import benign_mesh_of_attack_folder, benign_mesh_of_job, benign_verdicts
 from meshadv.transfer.mitsuba_process import MitsubaImage, MitsubaRenderError, render_scenes
 from meshadv.transfer.mitsuba_spec import MeshObject, SceneSpec, scene_spec
 from meshadv.transfer.results import ControlledResult, load_transfer_rows, save_transfer_rows
 from meshadv.transfer.scoring import class_names, classifier_criteria, images_tensor, top1_names
+from meshadv.util.atomic import write_json_atomic, write_text_atomic
+from meshadv.util.png import save_png
+from meshadv.victims import load_victim
 
 __all__ = [
     "INDEX_COLUMNS", "TransferCase", "case_from_attack_folder", "case_name", "cases_from_store", "controlled_transfer",
     "evaluate_case", "mitsuba_specs_for_case", "pending_cases", "save_images", "transfer_attack_folder",
-    "transfer_case_into", "write_image_index",
+    "transfer_attack_summary", "transfer_case_into", "write_image_index",
 ]
+
+#: Columns of the renders' ``index.csv``.
+INDEX_COLUMNS = ("file", "job_id", "victim", "true_class", "target", "perturbation", "view", "success_meshadv",
+                 "success_mitsuba", "top1_meshadv", "top1_mitsuba")
 
 
 @dataclass(frozen=True)
@@ -58,6 +73,8 @@ class TransferCase:
         antialias: meshadv's supersampling factor for the reference render (the attack's own, so that
             ``success_meshadv`` is the attack's success).
         name: file stem of the case's saved renders (``<name>_v<view>.png``); ``""``: the ``case_id``.
+        benign_mesh: the benign mesh the attack started from, rendered by Mitsuba too as the control of untargeted
+            transfer (:mod:`meshadv.transfer.benign_control`); ``None``: no control (the rows say so).
     """
 
     case_id: str
@@ -72,6 +89,7 @@ class TransferCase:
     benign_correct: Optional[bool] = None
     antialias: int = 1
     name: str = ""
+    benign_mesh: Any = None
 
     def __post_init__(self) -> None:
         if not self.views:
@@ -133,14 +151,10 @@ def cases_from_store(
         TypeError: ``limit`` is not an int (or None), or ``skip`` is a single string.
         ValueError: ``limit < 1``.
     """
-    from meshadv.experiments import ResultStore
-    from meshadv.experiments.retries import superseded_retries
-    from meshadv.experiments.sweep_file import stored_retry_stages
-
     if not Path(db_path).is_file():
         raise FileNotFoundError(f"db_path {db_path} does not exist")
     if limit is not None:
-        _validate.positive_int("limit", limit)  # 0 used to give one case
+        _validate.positive_int("limit", limit)
     if isinstance(skip, (str, bytes)):
         raise TypeError("skip must be a collection of job ids, got a single string")
     cases: list[TransferCase] = []
@@ -183,10 +197,8 @@ def _regenerated(db_path: Union[str, Path], row: Any, artifact_root: Optional[Un
 
 
 def _case_from_job(row: Any, out: Path) -> Optional[TransferCase]:
-    """The case of a done job from its folder ``out`` (``result.json`` and the adversarial mesh), or None when the
-    folder lacks them or the result has no views."""
-    from meshadv.mesh import load_mesh
-
+    """The case of a done job from its folder ``out`` (``result.json`` and the adversarial mesh; the benign mesh from
+    the job's spec), or None when the folder lacks them or the result has no views."""
     result_path = out / "result.json"
     if not result_path.is_file():
         return None
@@ -212,12 +224,18 @@ def _case_from_job(row: Any, out: Path) -> Optional[TransferCase]:
         benign_correct=None if record.get("benign_correct") is None else bool(record["benign_correct"]),
         antialias=int(result.get("config", {}).get("antialias") or 1),
         name=case_name(spec, row.job_id),
+        benign_mesh=_benign_of_job(spec),
     )
 
 
-#: Columns of the renders' ``index.csv``.
-INDEX_COLUMNS = ("file", "job_id", "victim", "true_class", "target", "perturbation", "view", "success_meshadv",
-                 "success_mitsuba", "top1_meshadv", "top1_mitsuba")
+def _benign_of_job(spec: dict[str, Any]) -> Any:
+    """The benign mesh of a job (:func:`~meshadv.transfer.benign_control.benign_mesh_of_job`), or ``None`` when its
+    spec's mesh cannot be loaded here (e.g. the shared data is missing): its rows then carry no benign control and
+    the tables leave them out of the untargeted count."""
+    try:
+        return benign_mesh_of_job(spec)
+    except (ValueError, FileNotFoundError, KeyError):
+        return None
 
 
 def write_image_index(image_dir: Union[str, Path], cases: Sequence[TransferCase],
@@ -233,8 +251,6 @@ def write_image_index(image_dir: Union[str, Path], cases: Sequence[TransferCase]
     Returns:
         The index path.
     """
-    from meshadv.util.atomic import write_text_atomic
-
     path = Path(image_dir) / "index.csv"
     entries = _read_index(path)
     stems = {case.case_id: case.name or case.case_id for case in cases}
@@ -273,8 +289,6 @@ def _index_entry(stem: str, row: ControlledResult) -> dict[str, Any]:
 def save_images(images: Sequence[MitsubaImage], out_dir: Union[str, Path], stem: str) -> list[Path]:
     """Save Mitsuba renders as 8-bit PNGs ``<stem>_v<i>.png`` in ``out_dir`` (created if missing; linear values, as
     meshadv's images) and return their paths."""
-    from meshadv.util.png import save_png
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -285,7 +299,8 @@ def save_images(images: Sequence[MitsubaImage], out_dir: Union[str, Path], stem:
     return paths
 
 
-def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int = 8, seed: int = 0) -> list[SceneSpec]:
+def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int = 8, seed: int = 0,
+                           benign: bool = False) -> list[SceneSpec]:
     """One Mitsuba scene per view of ``case``: same camera, lights, image size and background.
 
     Args:
@@ -293,11 +308,17 @@ def mitsuba_specs_for_case(case: TransferCase, *, spp: int = 64, max_depth: int 
         spp: samples per pixel.
         max_depth: path depth.
         seed: sampler seed of view 0 (view ``i`` gets ``seed + i``).
+        benign: the scenes of the case's benign mesh instead of its adversarial one.
 
     Returns:
         The scene specs, in view order.
+
+    Raises:
+        ValueError: ``benign`` for a case without a benign mesh.
     """
-    obj = MeshObject.from_mesh(case.mesh)
+    if benign and case.benign_mesh is None:
+        raise ValueError(f"case {case.case_id} has no benign_mesh to render")
+    obj = MeshObject.from_mesh(case.benign_mesh if benign else case.mesh)
     return [scene_spec(obj, rec, lights=rec, image_size=case.image_size, spp=spp, max_depth=max_depth,
                        background=case.background, seed=seed + i) for i, rec in enumerate(case.views)]
 
@@ -306,6 +327,7 @@ def evaluate_case(
     case: TransferCase,
     victim: Any,
     mitsuba_images: Sequence[MitsubaImage],
+    benign_images: Optional[Sequence[MitsubaImage]] = None,
 ) -> list[ControlledResult]:
     """Evaluate one case on its meshadv renders and its Mitsuba renders (classifier victims).
 
@@ -313,13 +335,21 @@ def evaluate_case(
         case: the case.
         victim: a classifier victim.
         mitsuba_images: the case's Mitsuba renders, one per view (:func:`mitsuba_specs_for_case`).
+        benign_images: Mitsuba's renders of the case's benign mesh, one per view (``benign=True``), or ``None``.
 
     Returns:
         One :class:`~meshadv.transfer.results.ControlledResult` per view: ``success_meshadv`` / ``success_mitsuba``
         (targeted when the case has a target, else untargeted), ``untargeted_meshadv`` / ``untargeted_mitsuba``, the
-        top-1 labels and the Mitsuba variant.
+        top-1 labels, the Mitsuba variant and, with ``benign_images``, ``benign_correct_mitsuba`` and
+        ``top1_benign_mitsuba`` (the benign control).
+
+    Raises:
+        ValueError: ``benign_images`` of another number of views.
     """
+    if benign_images is not None and len(benign_images) != len(case.views):
+        raise ValueError(f"benign_images has {len(benign_images)} renders for {len(case.views)} views")
     untargeted, targeted = classifier_criteria(victim, case.true_class, case.target)
+    control = None if benign_images is None else benign_verdicts(victim, benign_images, untargeted)
     ours, images_ours = _meshadv_verdicts(case, victim, untargeted, targeted)
     images_theirs = images_tensor(mitsuba_images)
     theirs = _victim_verdicts(victim, images_theirs, untargeted, targeted)
@@ -336,6 +366,8 @@ def evaluate_case(
             mean_abs_image_difference=float(diff[v]),
             variant=mitsuba_images[v].variant,
             benign_correct=case.benign_correct,
+            benign_correct_mitsuba=None if control is None else control.correct[v],
+            top1_benign_mitsuba=None if control is None else control.top1[v],
         )
         for v in range(len(case.views))
     ]
@@ -360,9 +392,6 @@ def _meshadv_verdicts(case: TransferCase, victim: Any, untargeted: Any,
                       targeted: Optional[Any]) -> tuple[_Verdicts, torch.Tensor]:
     """The verdicts on meshadv's renders of the case (its image size, background and the attack's supersampling,
     scored as the attack scores them) and those renders ``(V, 3, H, W)``."""
-    from meshadv.attacks import evaluate
-    from meshadv.render import RenderSetup, ViewSet
-
     views = ViewSet.from_records(list(case.views))
     criteria = [untargeted] if targeted is None else [untargeted, targeted]
     setup = RenderSetup(image_size=case.image_size, background=case.background, antialias=case.antialias)
@@ -400,6 +429,10 @@ def controlled_transfer(
 ) -> list[ControlledResult]:
     """Re-render each case with Mitsuba under its own camera and lights and test the victims (Table 3 / Fig. 5).
 
+    A case with a ``benign_mesh`` (every case of :func:`cases_from_store` and of :func:`case_from_attack_folder`) has
+    its benign mesh rendered too, under the same views: the control of untargeted transfer
+    (:mod:`meshadv.transfer.benign_control`).
+
     Args:
         cases: the adversarial meshes (see :func:`cases_from_store`).
         spp: Mitsuba samples per pixel.
@@ -408,7 +441,7 @@ def controlled_transfer(
         timeout: seconds per case.
         victim_loader: ``name -> victim`` (default ``meshadv.victims.load_victim``); victims are loaded once.
         image_dir: when given, Mitsuba renders are saved there as ``<name>_v<view>.png`` (``TransferCase.name``,
-            else its ``case_id``).
+            else its ``case_id``), the benign control's as ``<name>_benign_v<view>.png``.
         on_error: ``"record"`` keeps going and records a result with an ``error`` for a failed render; ``"raise"``
             re-raises.
 
@@ -425,25 +458,30 @@ def controlled_transfer(
     cases = list(cases)
     _check_transfer_options(cases, spp, max_depth, timeout, victim_loader, on_error)
     if victim_loader is None:
-        from meshadv.victims import load_victim
-
         victim_loader = load_victim
     victims: dict[str, Any] = {}
     rows: list[ControlledResult] = []
     for case in cases:
+        specs = mitsuba_specs_for_case(case, spp=spp, max_depth=max_depth)
+        if case.benign_mesh is not None:  # the benign control, in the same child process
+            specs += mitsuba_specs_for_case(case, spp=spp, max_depth=max_depth, benign=True)
         try:
-            images = render_scenes(mitsuba_specs_for_case(case, spp=spp, max_depth=max_depth), variant=variant,
-                                   timeout=timeout)
+            rendered = render_scenes(specs, variant=variant, timeout=timeout)
         except MitsubaRenderError as exc:
             if on_error == "raise":
                 raise
             rows.extend(_failed(case, exc))
             continue
+        views = len(case.views)
+        images, benign = rendered[:views], (rendered[views:] if case.benign_mesh is not None else None)
         if case.victim not in victims:
             victims[case.victim] = victim_loader(case.victim)
-        rows.extend(evaluate_case(case, victims[case.victim], images))
+        rows.extend(evaluate_case(case, victims[case.victim], images, benign))
         if image_dir is not None:
-            save_images(images, Path(image_dir), case.name or case.case_id)
+            stem = case.name or case.case_id
+            save_images(images, Path(image_dir), stem)
+            if benign is not None:
+                save_images(benign, Path(image_dir), f"{stem}_benign")
     return rows
 
 
@@ -510,15 +548,14 @@ def case_from_attack_folder(folder: Union[str, Path]) -> TransferCase:
     """The :class:`TransferCase` of a saved ``meshadv attack`` result: its first adversarial mesh, its views, victim,
     classes and setup.
 
-    The benign object's class is the victim's pristine top-1 on the first view (what the attack moved away from).
+    The benign object's class is the victim's pristine top-1 on the first view (what the attack moved away from);
+    the benign mesh (the control rendered by Mitsuba too) is the folder's ``benign.ply``, else the input mesh the
+    record names, loaded again.
 
     Raises:
         FileNotFoundError: ``folder`` holds no ``result.json`` or its mesh is missing.
         ValueError: the result is not a classifier attack.
     """
-    from meshadv.attacks.result import load_result_record
-    from meshadv.mesh import load_mesh
-
     record = load_result_record(folder)
     if not record.get("original_top1_names"):
         raise ValueError(f"{folder}: only classifier attacks can be transferred this way (no top-1 in result.json)")
@@ -527,9 +564,10 @@ def case_from_attack_folder(folder: Union[str, Path]) -> TransferCase:
         raise FileNotFoundError(f"{mesh_file} is missing: re-run the attack or copy the whole output folder")
     config = record.get("config") or {}
     criterion = record["criteria"][0]
+    adversarial = load_mesh(mesh_file)
     return TransferCase(
         case_id="mitsuba",  # the renders are saved as mitsuba_v<view>.png beside result.json
-        mesh=load_mesh(mesh_file),
+        mesh=adversarial,
         views=tuple(record["views"]),
         victim=record["victim"],
         true_class=record["original_top1_names"][0],
@@ -539,6 +577,7 @@ def case_from_attack_folder(folder: Union[str, Path]) -> TransferCase:
         background=tuple(config.get("background") or (1.0, 1.0, 1.0)),
         benign_correct=None,
         antialias=int(config.get("antialias") or 1),
+        benign_mesh=benign_mesh_of_attack_folder(Path(folder), record, int(adversarial.vertices.shape[0])),
     )
 
 
@@ -548,7 +587,7 @@ def transfer_attack_folder(folder: Union[str, Path], *, spp: int = 64, max_depth
     """Render ``folder``'s adversarial mesh with Mitsuba under the attack's views and test the victim.
 
     Writes ``transfer.json`` (one record per view, see :func:`evaluate_case`) and the Mitsuba renders
-    ``mitsuba_v<view>.png`` into ``folder``.
+    ``mitsuba_v<view>.png`` (adversarial) and ``mitsuba_benign_v<view>.png`` into ``folder``.
 
     Returns:
         One :class:`~meshadv.transfer.results.ControlledResult` per view.
@@ -559,11 +598,20 @@ def transfer_attack_folder(folder: Union[str, Path], *, spp: int = 64, max_depth
     """
     import mitsuba  # noqa: F401  (a clear ModuleNotFoundError before any work)
 
-    from meshadv.util.atomic import write_json_atomic
-
     case = case_from_attack_folder(folder)
     rows = controlled_transfer([case], spp=spp, max_depth=max_depth, variant=variant, victim_loader=victim_loader,
                                image_dir=folder, on_error="raise")
     write_json_atomic({"folder": str(Path(folder).resolve()), "spp": spp, "max_depth": max_depth,
                        "rows": [row.to_record() for row in rows]}, Path(folder) / "transfer.json")
     return rows
+
+
+def transfer_attack_summary(rows: Sequence[ControlledResult]) -> str:
+    """One line on a transferred attack's views: targeted success in Mitsuba (targeted attacks), and the untargeted
+    transfer counted only on the views whose benign Mitsuba render is right (the benign control)."""
+    control = [r for r in rows if r.benign_correct_mitsuba]
+    untargeted = sum(bool(r.untargeted_mitsuba) for r in control)
+    targeted = (f"targeted transfer on {sum(bool(r.success_mitsuba) for r in rows)}/{len(rows)} views; "
+                if rows and rows[0].target else "")
+    return (f"{targeted}untargeted transfer on {untargeted}/{len(control)} views whose benign Mitsuba render is "
+            f"right ({len(rows) - len(control)} left out: the benign mesh is not its class there either)")

@@ -21,6 +21,8 @@ from typing import Any, Optional
 import numpy as np
 import torch
 
+from meshadv.mesh.surface_mesh import SurfaceMesh
+from meshadv.render import Camera, Lights, ViewSet, render, render_surface
 from meshadv.transfer.mitsuba_process import render_scenes
 from meshadv.transfer.mitsuba_spec import MeshObject, MitsubaCamera, mask_spec, scene_spec
 
@@ -103,9 +105,6 @@ def conversion_check(
     Returns:
         The :class:`ConversionCheck`.
     """
-    from meshadv.mesh.surface_mesh import SurfaceMesh
-    from meshadv.render import ViewSet, render, render_surface
-
     views = ViewSet.from_records([record])
     with torch.no_grad():
         if isinstance(mesh, SurfaceMesh):
@@ -145,8 +144,6 @@ def head_light_record(distance: float, azimuth: float, elevation: float, light: 
                       viewing_angle: float = 30.0) -> dict[str, Any]:
     """A one-view record (``ViewSet.to_records()``) of a spherical camera with a head light (toward the camera,
     slightly offset) of intensity ``light`` and an ambient light ``ambient``."""
-    from meshadv.render import Camera, Lights, ViewSet
-
     camera = Camera.spherical(distance, azimuth, elevation, viewing_angle=viewing_angle)
     direction = (camera.eye() - camera.target()).detach()
     lights = Lights(direction.unsqueeze(1) + 0.3, [[light] * 3], [ambient] * 3)

@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING, Any, Optional, Sequence
 import torch
 
 from meshadv import _validate
-from meshadv.transfer.estimation import as_geometry
+from meshadv.render import Lights, ViewSet, render
+from meshadv.transfer.estimation import as_geometry, estimate_camera, estimate_lights, light_errors, masked_rmse
 from meshadv.transfer.mitsuba_process import MitsubaImage, render_mask, render_scenes
 from meshadv.transfer.mitsuba_spec import MitsubaLights, SceneSpec, scene_spec
 from meshadv.transfer.setups import HiddenScene
@@ -85,9 +86,6 @@ def estimate_parameters(
         ValueError: ``light_faces`` is not a non-empty range of ``known``'s faces, or selects no visible pixel;
             ``camera_size`` < 8; a negative ``num_lights``, ``camera_steps`` or ``light_steps``.
     """
-    from meshadv.render import ViewSet
-    from meshadv.transfer.estimation import estimate_camera, estimate_lights
-
     if not isinstance(hidden, HiddenScene):
         raise TypeError(f"hidden must be a HiddenScene, got {type(hidden).__name__}")
     if isinstance(camera_size, bool) or not isinstance(camera_size, int) or camera_size < 8:
@@ -157,8 +155,6 @@ def _light_mask(mask: torch.Tensor, light_faces: tuple[int, int], verts: torch.T
     Raises:
         ValueError: those faces cover no pixel of ``mask``.
     """
-    from meshadv.render import Lights, render
-
     with torch.no_grad():
         visible = render(verts, faces, colors, camera, Lights.default(), image_size).face_index[0]
     light_mask = mask * ((visible >= light_faces[0]) & (visible < light_faces[1])).float()
@@ -172,9 +168,6 @@ def _light_fit_errors(photo: torch.Tensor, light_mask: torch.Tensor, verts: torc
                       image_size: tuple[int, int]) -> dict[str, float]:
     """``light_rmse`` (meshadv's render under the estimates vs the photo, on the fitted pixels meshadv covers) and
     ``light_fit_pixels`` (their count)."""
-    from meshadv.render import render
-    from meshadv.transfer.estimation import masked_rmse
-
     with torch.no_grad():
         ours = render(verts, faces, colors, camera, lights, image_size, background=(0.0, 0.0, 0.0))
     both = (light_mask.numpy() > 0.5) & (ours.alpha[0, 0].numpy() > 0.5)
@@ -185,9 +178,6 @@ def _light_fit_errors(photo: torch.Tensor, light_mask: torch.Tensor, verts: torc
 def _true_light_errors(estimated: Lights, true_lights: MitsubaLights, has_environment: bool) -> dict[str, float]:
     """Errors of the estimated lights against the hidden world's directional lights (no ``ambient_error`` when
     ``has_environment``: the environment map is the true ambient, no single colour to compare with)."""
-    from meshadv.render import Lights
-    from meshadv.transfer.estimation import light_errors
-
     true = Lights(torch.from_numpy(true_lights.directions), torch.from_numpy(true_lights.colors),
                   torch.from_numpy(true_lights.ambient))
     errors = light_errors(estimated, true)

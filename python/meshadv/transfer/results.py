@@ -199,13 +199,19 @@ def transfer_table(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """The paper's Table 3: success rates per victim and attack type, untargeted and targeted.
 
     A targeted row counts for the targeted rate (top-1 in the target group); every row also counts for the untargeted
-    rate through ``untargeted_meshadv`` / ``untargeted_mitsuba`` (top-1 not in the true group).
+    rate through ``untargeted_meshadv`` / ``untargeted_mitsuba`` (top-1 not in the true group). Untargeted transfer
+    to Mitsuba counts only on views whose benign mesh Mitsuba renders the victim classifies right
+    (``benign_correct_mitsuba``, the benign control): a benign object the victim already gets wrong there is no
+    transfer. Groups whose rows carry no control at all (older runs) fall back to every row, and say so with
+    ``n_benign_mitsuba_checked`` 0.
 
     Returns:
-        One dict per (victim, perturbation): ``n``, ``untargeted_meshadv``, ``untargeted_mitsuba``,
-        ``targeted_meshadv``, ``targeted_mitsuba`` (rates in [0, 1] or None), ``n_benign_correct`` (rows whose benign
-        render the victim classified correctly) and ``untargeted_mitsuba_benign_correct`` (the untargeted rate over
-        those rows only: a misclassified benign object makes untargeted success trivial).
+        One dict per (victim, perturbation): ``n``, ``untargeted_meshadv``, ``untargeted_mitsuba`` (controlled, see
+        above), ``targeted_meshadv``, ``targeted_mitsuba`` (rates in [0, 1] or None), ``n_benign_mitsuba_checked``
+        (rows with the control) and ``n_benign_mitsuba_correct`` (rows whose benign Mitsuba render is right),
+        ``untargeted_mitsuba_uncontrolled`` (the rate over every row, for comparison), ``n_benign_correct`` (rows
+        whose benign meshadv render the sweep found right) and ``untargeted_mitsuba_benign_correct`` (the
+        controlled rate over those rows only).
     """
     groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
     for row in rows:
@@ -213,18 +219,23 @@ def transfer_table(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     table = []
     for (victim, perturbation), items in sorted(groups.items()):
         targeted = [r for r in items if r.get("target")]
+        checked = [r for r in items if r.get("benign_correct_mitsuba") is not None]
+        counted = [r for r in items if r.get("benign_correct_mitsuba")] if checked else items
         table.append(
             {
                 "victim": victim,
                 "perturbation": perturbation,
                 "n": len(items),
                 "untargeted_meshadv": _rate([r.get("untargeted_meshadv") for r in items]),
-                "untargeted_mitsuba": _rate([r.get("untargeted_mitsuba") for r in items]),
+                "untargeted_mitsuba": _rate([r.get("untargeted_mitsuba") for r in counted]),
                 "targeted_meshadv": _rate([r.get("success_meshadv") for r in targeted]),
                 "targeted_mitsuba": _rate([r.get("success_mitsuba") for r in targeted]),
+                "n_benign_mitsuba_checked": len(checked),
+                "n_benign_mitsuba_correct": sum(1 for r in checked if r.get("benign_correct_mitsuba")),
+                "untargeted_mitsuba_uncontrolled": _rate([r.get("untargeted_mitsuba") for r in items]),
                 "n_benign_correct": sum(1 for r in items if r.get("benign_correct")),
                 "untargeted_mitsuba_benign_correct": _rate(
-                    [r.get("untargeted_mitsuba") for r in items if r.get("benign_correct")]
+                    [r.get("untargeted_mitsuba") for r in counted if r.get("benign_correct")]
                 ),
             }
         )
@@ -400,7 +411,7 @@ class ControlledResult:
 
     The successes are targeted when the case has a target, else untargeted; they are ``None`` (and ``error`` says
     why) when the Mitsuba render failed. The stored record (:meth:`to_record`) is flat: these attributes, ``error``
-    only when set.
+    and the benign control's two only when set.
 
     Attributes:
         case_id: the case (the sweep job id, or any string).
@@ -418,6 +429,9 @@ class ControlledResult:
         mean_abs_image_difference: mean absolute difference of the two renders (linear values in [0, 1]).
         variant: the Mitsuba variant that rendered the view.
         benign_correct: whether the victim classified the benign render correctly (from the sweep), if known.
+        benign_correct_mitsuba: whether the victim classifies Mitsuba's render of the benign mesh on this view as
+            the true class (``None``: the case had no benign mesh); untargeted transfer counts only where it does.
+        top1_benign_mitsuba: the victim's top-1 class name on that render.
         error: why the Mitsuba render failed, ``None`` when it did not.
     """
 
@@ -436,11 +450,21 @@ class ControlledResult:
     mean_abs_image_difference: Optional[float] = None
     variant: Optional[str] = None
     benign_correct: Optional[bool] = None
+    benign_correct_mitsuba: Optional[bool] = None
+    top1_benign_mitsuba: Optional[str] = None
     error: Optional[str] = None
 
+    @property
+    def untargeted_counted(self) -> Optional[bool]:
+        """The untargeted transfer of this view as the tables count it: ``untargeted_mitsuba`` where the benign
+        Mitsuba render is right, ``None`` (not counted) where it is wrong or was not rendered."""
+        return self.untargeted_mitsuba if self.benign_correct_mitsuba else None
+
     def to_record(self) -> dict[str, Any]:
-        """The row as a JSON-able dict (the ``transfer`` table's record); ``error`` only when the render failed."""
+        """The row as a JSON-able dict (the ``transfer`` table's record); ``error`` only when the render failed, the
+        benign control's ``benign_correct_mitsuba`` / ``top1_benign_mitsuba`` only when it was rendered."""
         record = {f.name: getattr(self, f.name) for f in fields(self)}
-        if record["error"] is None:
-            del record["error"]
+        for optional in ("error", "benign_correct_mitsuba", "top1_benign_mitsuba"):
+            if record[optional] is None:
+                del record[optional]
         return record

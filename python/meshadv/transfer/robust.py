@@ -25,7 +25,9 @@ import torch
 from torch import Tensor
 
 from meshadv import _validate
+from meshadv.attacks import ShapeAttack, SmoothTextureAttack, TextureAttack, evaluate
 from meshadv.attacks.criteria import WithMargin
+from meshadv.render import ViewSet
 from meshadv.render.setup import RenderSetup
 
 if TYPE_CHECKING:
@@ -74,8 +76,6 @@ def eot_views(views: ViewSet, samples: int) -> ViewSet:
         TypeError: ``samples`` is not an int, or ``views`` is not a ``ViewSet``.
         ValueError: ``samples < 1``.
     """
-    from meshadv.render import ViewSet
-
     _validate.positive_int("samples", samples)
     ViewSet.require(views)
     return views if samples == 1 else ViewSet.cat([views] * samples)
@@ -292,8 +292,6 @@ def meshadv_margins(setup: RenderSetup, mesh: Any, views: ViewSet, victim: Any, 
                     chunk: int = 8) -> tuple[torch.Tensor, Any]:
     """Margins (V,) of ``bound`` on meshadv's renders of ``mesh`` (the attack's render setup, clean victim),
     and the first image (3, H, W)."""
-    from meshadv.attacks import evaluate
-
     margins, first = [], None
     for start in range(0, len(views), chunk):
         part = evaluate(mesh, views[start:start + chunk], victim, bound, setup=setup)
@@ -331,8 +329,6 @@ def check_smoothing(texture_smoothing: Optional[int], perturbation: str) -> None
 
 def texture_attack(smoothing: Optional[int], face_mask: Optional[torch.Tensor], kwargs: dict[str, Any]) -> Any:
     """The paper's per-face texture attack (``smoothing`` None) or the smoothed per-vertex one."""
-    from meshadv.attacks import SmoothTextureAttack, TextureAttack
-
     if smoothing is None:
         return TextureAttack(face_mask=face_mask, **kwargs)
     return SmoothTextureAttack(smoothing=smoothing, face_mask=face_mask, **kwargs)
@@ -342,8 +338,6 @@ def object_attack(perturbation: str, smoothing: Optional[int], kwargs: dict[str,
                    mask: Optional[torch.Tensor] = None) -> Any:
     """The attack of a black-box run: a texture attack (:func:`texture_attack`, ``mask`` its face mask) or a
     ``ShapeAttack`` (``mask`` its vertex mask); ``mask`` None: the whole mesh may change."""
-    from meshadv.attacks import ShapeAttack
-
     if perturbation == "texture":
         return texture_attack(smoothing, mask, kwargs)
     return ShapeAttack(**kwargs) if mask is None else ShapeAttack(vertex_mask=mask, **kwargs)

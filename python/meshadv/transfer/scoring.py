@@ -9,6 +9,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 import torch
 
+from meshadv.attacks import Misclassification, TargetedMisclassification
 from meshadv.transfer.mitsuba_process import MitsubaImage
 
 __all__ = ["class_names", "classifier_criteria", "detection_scores", "images_tensor", "top1_names"]
@@ -21,8 +22,6 @@ def classifier_criteria(victim: Any, true_class: str, target: Optional[str]) -> 
     Raises:
         ValueError: ``victim`` is not a classifier, or a class it does not know.
     """
-    from meshadv.attacks import Misclassification, TargetedMisclassification
-
     untargeted = Misclassification(true_class).bind(victim)
     targeted = TargetedMisclassification(target).bind(victim) if target else None
     return untargeted, targeted

@@ -23,6 +23,9 @@ import torch
 
 from meshadv import _validate
 from meshadv.data import require_shared_data
+from meshadv.mesh import Mesh, load_mesh, normalize_mesh
+from meshadv.render import render
+from meshadv.scenes.indoor import load_indoor_scene
 from meshadv.transfer.mitsuba_scene import outdoor_environment
 from meshadv.transfer.mitsuba_spec import (
     MeshObject,
@@ -42,6 +45,14 @@ __all__ = [
     "default_aeroplane", "indoor_detector_setup", "merge_meshes", "object_range", "occlusion_mask",
     "outdoor_classifier_setup", "scale_on_base",
 ]
+
+
+#: The hidden camera of the outdoor setup (degrees; distance in object units): slightly below a flying airliner,
+#: against the sky (EfficientNet-Lite0 says "airliner" with p = 0.8 for PASCAL3D+ aeroplane/01 here).
+OUTDOOR_CAMERA = {"distance": 3.2, "azimuth": 120.0, "elevation": -5.0}
+
+#: The hidden camera of the indoor setup: close to the scene file's own view, looking at the origin.
+INDOOR_CAMERA = {"distance": 3.4, "azimuth": 145.0, "elevation": 24.0}
 
 
 @dataclass(frozen=True)
@@ -147,8 +158,6 @@ def merge_meshes(meshes: Sequence[Any]) -> Any:
         The merged mesh (float32 vertices and colours, int64 faces); mesh ``i``'s rows are
         :func:`object_range` ``(meshes, i, ...)``.
     """
-    from meshadv.mesh import Mesh
-
     verts, faces, colors, offset = [], [], [], 0
     for m in meshes:
         verts.append(torch.as_tensor(m.vertices, dtype=torch.float32))
@@ -184,8 +193,6 @@ def occlusion_mask(objects: Sequence[Any], index: int, views: ViewSet, image_siz
     Raises:
         ValueError: ``index`` out of range.
     """
-    from meshadv.render import render
-
     if not 0 <= index < len(objects):
         raise ValueError(f"index {index} out of range for {len(objects)} objects")
     merged = merge_meshes(objects)
@@ -197,14 +204,6 @@ def occlusion_mask(objects: Sequence[Any], index: int, views: ViewSet, image_siz
         alone = render(obj.vertices, obj.faces, obj.face_colors, views.camera, views.lights, image_size).face_index[0]
     visible = (scene >= start) & (scene < stop)
     return ((alone >= 0) & ~visible).float()
-
-
-#: The hidden camera of the outdoor setup (degrees; distance in object units): slightly below a flying airliner,
-#: against the sky (EfficientNet-Lite0 says "airliner" with p = 0.8 for PASCAL3D+ aeroplane/01 here).
-OUTDOOR_CAMERA = {"distance": 3.2, "azimuth": 120.0, "elevation": -5.0}
-
-#: The hidden camera of the indoor setup: close to the scene file's own view, looking at the origin.
-INDOOR_CAMERA = {"distance": 3.4, "azimuth": 145.0, "elevation": 24.0}
 
 
 def _sun(elevation: float, azimuth: float, strength: float) -> MitsubaLights:
@@ -304,9 +303,6 @@ def indoor_detector_setup(
         TypeError: ``object_scale`` is not a number.
         ValueError: ``object_scale`` is not a positive finite number.
     """
-    from meshadv.mesh import Mesh
-    from meshadv.scenes.indoor import load_indoor_scene
-
     _validate.positive_float("object_scale", object_scale)
     root = Path(scene_dir) if scene_dir is not None else require_shared_data("scenes/indoor")
     xml = root / "scene.xml"
@@ -354,8 +350,6 @@ def default_aeroplane() -> Any:
     Raises:
         FileNotFoundError: the shared data has no aeroplane.
     """
-    from meshadv.mesh import load_mesh, normalize_mesh
-
     path = require_shared_data("pascal3d/aeroplane/01.ply")
     mesh, _ = normalize_mesh(load_mesh(path, default_color=(0.75, 0.75, 0.78)), z_up=True)
     return mesh

@@ -6,7 +6,7 @@ frozen in eval mode. Load one by name with :func:`load_victim`; list names with 
 
 from __future__ import annotations
 
-from meshadv.victims.base import (
+from meshadv.victims.victim import (
     ClassifierVictim,
     Detections,
     DetectorOutput,

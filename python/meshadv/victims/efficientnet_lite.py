@@ -21,7 +21,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from meshadv.victims.base import ClassifierVictim, freeze
+from meshadv.victims.victim import ClassifierVictim, freeze
 from meshadv.victims.torchvision_models import read_state_dict
 from meshadv.victims.preprocess import Preprocess
 

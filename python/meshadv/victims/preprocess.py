@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from meshadv.victims.base import check_images
+from meshadv.victims.victim import check_images
 
 __all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "Preprocess", "center_crop", "image_to_tensor", "load_image"]
 

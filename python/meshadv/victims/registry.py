@@ -28,7 +28,7 @@ import torch
 
 from meshadv import _validate
 from meshadv.victims._weights import check_device
-from meshadv.victims.base import Victim
+from meshadv.victims.victim import Victim
 
 __all__ = ["available_victims", "load_victim"]
 
@@ -121,7 +121,7 @@ def load_victim(
             the network exactly as its weights describe it.
 
     Returns:
-        A :class:`~meshadv.victims.base.ClassifierVictim` or :class:`~meshadv.victims.base.DetectorVictim`.
+        A :class:`~meshadv.victims.victim.ClassifierVictim` or :class:`~meshadv.victims.victim.DetectorVictim`.
 
     Raises:
         ValueError: unknown ``name`` (the closest is suggested), a required ``weights`` / ``cfg`` not given (the

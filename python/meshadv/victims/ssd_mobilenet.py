@@ -44,7 +44,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from meshadv.victims.base import Detections, DetectorOutput, DetectorVictim, check_images, freeze
+from meshadv.victims.victim import Detections, DetectorOutput, DetectorVictim, check_images, freeze
 from meshadv.victims.ssd_anchors import anchors_per_cell, decode_boxes, ssd_anchor_grid
 from meshadv.victims.tf_graphdef import GraphDef, read_graphdef
 

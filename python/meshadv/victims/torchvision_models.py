@@ -18,7 +18,7 @@ import torch
 from torch import Tensor, nn
 
 from meshadv.victims._weights import read_torch_state
-from meshadv.victims.base import ClassifierVictim, freeze
+from meshadv.victims.victim import ClassifierVictim, freeze
 from meshadv.victims.preprocess import IMAGENET_MEAN, IMAGENET_STD, Preprocess
 
 __all__ = ["TORCHVISION_SPECS", "TorchvisionVictim", "build_torchvision_model", "read_state_dict"]

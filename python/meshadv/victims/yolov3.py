@@ -22,7 +22,7 @@ from typing import Union
 import torch
 from torch import Tensor
 
-from meshadv.victims.base import DetectorOutput, DetectorVictim, check_images, freeze
+from meshadv.victims.victim import DetectorOutput, DetectorVictim, check_images, freeze
 from meshadv.victims.darknet import DarknetHeader, DarknetNet, YoloSpec, load_darknet_weights, parse_cfg
 from meshadv.victims.labels import coco_class_names
 

@@ -395,8 +395,8 @@ fn channels<const C: usize, const K: usize>(
 const GROUP: usize = 8;
 
 /// Rows transposed together by [`transpose`]: few enough that their pages and cache lines stay in the first-level
-/// TLB and cache while every column of a group is written (one column at a time over all rows did not: at 448 x 448
-/// each of its reads was a TLB miss).
+/// TLB and cache while every column of a group is written (one column at a time over all rows does not: at 448 x
+/// 448 each of its reads is a TLB miss).
 const ROWS: usize = 32;
 
 /// [`transpose`] with the widest tiles of the instruction set `isa` (which the caller has checked is available):

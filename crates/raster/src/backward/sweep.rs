@@ -426,7 +426,7 @@ impl<const C: usize> Dot<'_, C> {
         } else {
             let mut s = V::load_f32(self.g[0].add(i)).mul(w[0]);
             #[allow(clippy::needless_range_loop)]
-            // a plain index loop unrolls; an iterator chain did not
+            // a plain index loop unrolls; an iterator chain does not
             for k in 1..C {
                 s = s.add(V::load_f32(self.g[k].add(i)).mul(w[k]));
             }
@@ -507,8 +507,8 @@ unsafe fn lanes<V: F64s, K: Kernel>(k: &K) -> ([f64; LANES], [f64; LANES]) {
             }
         };
     }
-    // Before, in and after the own blocks; the blocks outside are one loop in the code, run twice (a loop for
-    // each of them made the compiler allocate the registers of one of the two worse).
+    // Before, in and after the own blocks; the blocks outside are one loop in the code, run twice (with a loop for
+    // each of them the compiler allocates the registers of one of the two worse).
     let mut to = own_lo;
     let mut own_next = true;
     loop {

@@ -1,8 +1,8 @@
 //! The per-batch-element buffers of the backward pass, kept between calls.
 //!
-//! Allocating them anew on every call (about 10 MB for a 299 x 299 image) cost a page fault per 4 KiB page: glibc
-//! returns a thread arena's freed top to the kernel (`madvise(MADV_DONTNEED)`) when a call ends, so the next call
-//! faults every page in again. A call now takes a [`Workspace`] from a process-wide pool, refills its buffers in
+//! Allocating them anew on every call (about 10 MB for a 299 x 299 image) would cost a page fault per 4 KiB page:
+//! glibc returns a thread arena's freed top to the kernel (`madvise(MADV_DONTNEED)`) when a call ends, so the next
+//! call would fault every page in again. A call takes a [`Workspace`] from a process-wide pool, refills its buffers in
 //! place (every value is rewritten before it is read; nothing relies on fresh zeros) and gives it back. One
 //! workspace is in use per batch element being computed, so the pool holds about as many as elements ran at once.
 //! At most [`MAX_KEPT_BYTES`] are kept in all; a workspace that would go beyond is freed.

@@ -16,7 +16,7 @@ from meshadv.datasets.rendering_set.rendering import load_set_mesh, render_mesh_
 from meshadv.datasets.rendering_set.sampling import RenderingSetConfig, candidate_seed, sample_view
 from meshadv.datasets.rendering_set.set_file import PathLike, content_identity, load_rendering_set, new_document
 from meshadv.util.atomic import write_json_atomic
-from meshadv.victims.base import Victim
+from meshadv.victims.victim import Victim
 from meshadv.victims.labels import PASCAL3D_CLASSES, PASCAL3D_TO_IMAGENET, imagenet_class_names
 
 if TYPE_CHECKING:

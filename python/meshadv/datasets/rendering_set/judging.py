@@ -8,7 +8,7 @@ from typing import Union
 
 import torch
 
-from meshadv.victims.base import ClassifierVictim, DetectorVictim, Victim
+from meshadv.victims.victim import ClassifierVictim, DetectorVictim, Victim
 from meshadv.victims.labels import PASCAL3D_TO_COCO, PASCAL3D_TO_IMAGENET
 
 __all__ = ["Judge", "resolve_victims"]

@@ -28,6 +28,7 @@ from meshadv.attacks.result import AttackResult
 from meshadv.attacks.targets import StopRule
 from meshadv.attacks.update import make_update_rule, update_rules
 from meshadv.mesh.adjacency import vertex_edges
+from meshadv.perceptibility.cap import as_cap
 from meshadv.render.setup import RenderSetup
 from meshadv.render.surface_reflectance import SurfaceReflectance
 from meshadv.render.views import ViewSet
@@ -85,6 +86,11 @@ class MeshAttack(ABC):
         method: the update rule (:mod:`meshadv.attacks.update`): ``"adam"`` (default) is the paper's Adam on
             ``L_adv + lambda * L_perceptual`` with the ``lambda`` binary search; others are registered there.
         method_options: extra keyword options of the update rule (JSON-able), ``None`` for none.
+        perceptibility_cap: ceilings on what a person sees (:class:`meshadv.perceptibility.PerceptibilityCap`, a
+            dict of its ceilings, or a string such as ``"default"`` or ``"max_displacement=0.02"``); ``None`` (the
+            paper's protocol): none. A step counts as a success only inside the cap, a target that never succeeds
+            inside it keeps its closest step inside it (or the pristine mesh), and a final mesh outside it is
+            reported as failed. :func:`meshadv.perceptibility.recommended_cap` gives the cap of the command line.
 
     Raises:
         TypeError: a hyper-parameter of the wrong type (``lr="0.1"``, ``steps=1.9``, ``steps=None``, ``jitter=[]``),
@@ -113,6 +119,7 @@ class MeshAttack(ABC):
         method: str = "adam",
         method_options: Optional[Dict[str, Any]] = None,
         eot: TransformationsLike = None,
+        perceptibility_cap: Any = None,
     ) -> None:
         self.steps = _validate.positive_int("steps", steps)
         self.lr = _validate.positive_float("lr", lr)
@@ -135,6 +142,7 @@ class MeshAttack(ABC):
         self.eot = as_transformations(eot)
         if self.eot is not None and self.jitter:
             raise ValueError("jitter and eot exclude each other: eot draws its own cameras and lights at every step")
+        self.perceptibility_cap = as_cap(perceptibility_cap)
 
     # ------------------------------------------------------------------ the family's parametrisation
     @abstractmethod
@@ -184,7 +192,8 @@ class MeshAttack(ABC):
     def stop_rule(self) -> StopRule:
         """The thresholds of a target's success and stop (:mod:`meshadv.attacks.targets`)."""
         return StopRule(success_fraction=self.success_fraction, max_distortion=self.max_distortion,
-                        early_stop=self.early_stop, early_stop_margin=self.early_stop_margin)
+                        early_stop=self.early_stop, early_stop_margin=self.early_stop_margin,
+                        cap=self.perceptibility_cap)
 
     def check_mesh(self, mesh: Any) -> None:
         """Raise ``ValueError`` when the attack's masks do not fit ``mesh`` (the default accepts every mesh)."""
@@ -227,6 +236,7 @@ class MeshAttack(ABC):
             "early_stop_margin": self.early_stop_margin, "max_distortion": self.max_distortion,
             "success_fraction": self.success_fraction, "jitter": self.jitter, "seed": self.seed, "method": self.method,
             "method_options": {**self.method_options, **rule.config()}, **robust,
+            "perceptibility_cap": None if self.perceptibility_cap is None else self.perceptibility_cap.to_record(),
         }
 
     def __repr__(self) -> str:

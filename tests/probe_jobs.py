@@ -1,8 +1,7 @@
 """Probe jobs: cheap job functions that exercise the sweep machinery without rendering anything.
 
-Use them to check a backend or a cluster before spending hours on attacks, e.g. a config with
-``[runner] job = "meshadv.experiments.probes:probe_job"``. The runner's tests use them too, because job functions must
-be importable by spawned and Ray worker processes.
+The runner's tests use them (``"probe_jobs:probe_job"``); job functions must be importable by spawned and Ray worker
+processes, so the test session puts this folder on ``PYTHONPATH`` (conftest.py).
 
 ``probe_job`` reads ``spec["probe"]``:
 

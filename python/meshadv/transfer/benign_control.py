@@ -1,0 +1,105 @@
+"""The benign control of a transfer: the benign mesh rendered by Mitsuba under the same views as the adversarial one.
+
+An untargeted transfer only means something where the victim gets the benign object right *in Mitsuba's render*:
+an object the victim already misclassifies there is "fooled" without any attack. So every controlled transfer
+renders the benign mesh too (``mitsuba_specs_for_case(case, benign=True)`` in :mod:`meshadv.transfer.controlled`),
+scores it (:func:`benign_verdicts`), and the tables count untargeted transfer only on views whose benign Mitsuba
+render is right (:func:`meshadv.transfer.results.transfer_table`).
+
+The benign mesh of a case comes from its attack: :func:`benign_mesh_of_attack_folder` (``meshadv attack`` /
+``demo`` output: the saved ``benign.ply``, else the input mesh loaded again as the attack loaded it) and
+:func:`benign_mesh_of_job` (a sweep job: its spec's mesh, loaded and preprocessed as the job did).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, List, Mapping, Sequence
+
+import torch
+
+from meshadv.transfer.mitsuba_process import MitsubaImage
+from meshadv.transfer.scoring import images_tensor, top1_names
+
+__all__ = ["BENIGN_FILE", "BenignVerdicts", "benign_mesh_of_attack_folder", "benign_mesh_of_job", "benign_verdicts"]
+
+#: The benign (normalised) mesh ``meshadv attack`` and ``meshadv demo`` save beside the adversarial one.
+BENIGN_FILE = "benign.ply"
+
+
+@dataclass(frozen=True)
+class BenignVerdicts:
+    """The victim on Mitsuba's renders of the benign mesh, per view.
+
+    Attributes:
+        correct: the victim's top-1 is the true class (not untargeted-adversarial).
+        top1: the victim's top-1 class names.
+    """
+
+    correct: List[bool]
+    top1: List[str]
+
+
+def benign_verdicts(victim: Any, images: Sequence[MitsubaImage], untargeted: Any) -> BenignVerdicts:
+    """Score Mitsuba's benign renders: per view, whether the victim's top-1 is the true class of the bound
+    ``untargeted`` criterion, and its top-1 name."""
+    with torch.no_grad():
+        logits = victim(images_tensor(images))
+    wrong = untargeted.is_adversarial(logits).tolist()
+    return BenignVerdicts([not bool(w) for w in wrong], top1_names(victim, logits))
+
+
+def benign_mesh_of_attack_folder(folder: Path, record: Mapping[str, Any], num_vertices: int) -> Any:
+    """The benign mesh of a saved attack: ``folder/benign.ply``, else the input the record names (``input``: the
+    command-line mesh and its up axis), loaded again as the attack loaded it.
+
+    Args:
+        folder: the attack's output folder.
+        record: its ``result.json``.
+        num_vertices: the adversarial mesh's vertex count (the benign one must match it).
+
+    Raises:
+        FileNotFoundError: neither is available.
+        ValueError: the mesh found has another vertex count (the attack changed the mesh first, e.g. the demo's
+            subdivision, and ``benign.ply`` is missing).
+    """
+    from meshadv.mesh import load_mesh
+
+    path = Path(folder) / BENIGN_FILE
+    if path.is_file():
+        mesh = load_mesh(path)
+    else:
+        entry = record.get("input") or {}
+        if not entry.get("mesh"):
+            raise FileNotFoundError(f"{folder} holds no {BENIGN_FILE} and its result.json names no input mesh: the "
+                                    "benign control cannot be rendered; re-run the attack")
+        mesh = _input_mesh(entry)
+    if int(mesh.vertices.shape[0]) != int(num_vertices):
+        raise ValueError(f"{folder}: the benign mesh has {mesh.vertices.shape[0]} vertices, the adversarial one "
+                         f"{num_vertices}; re-run the attack so that it saves {BENIGN_FILE}")
+    return mesh
+
+
+def _input_mesh(entry: Mapping[str, Any]) -> Any:
+    """The normalised mesh of a record's ``input`` entry: a file (normalised with its recorded up axis), a
+    ``builtin:NAME`` shape or ``default``, as ``meshadv attack`` loads them."""
+    from meshadv.mesh import builtin_mesh, load_mesh, normalize_mesh
+    from meshadv.mesh.shapes import default_mesh
+
+    label = str(entry["mesh"])
+    if entry.get("path"):
+        return normalize_mesh(load_mesh(Path(entry["path"])), z_up=bool(entry.get("z_up")))[0]
+    if label.startswith("builtin:"):
+        return builtin_mesh(label.split(":", 1)[1])
+    if label == "default":
+        return default_mesh()
+    raise FileNotFoundError(f"input mesh {label!r} of the record cannot be loaded again")
+
+
+def benign_mesh_of_job(spec: Dict[str, Any]) -> Any:
+    """The benign mesh of a sweep job: its spec's ``mesh`` loaded as the job loads it
+    (:func:`meshadv.experiments.jobs.load_job_mesh`)."""
+    from meshadv.experiments.jobs import load_job_mesh
+
+    return load_job_mesh(spec["mesh"])
