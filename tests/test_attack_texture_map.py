@@ -148,6 +148,7 @@ def test_the_cli_attacks_a_generated_textured_obj(tmp_path: Path, monkeypatch: p
                                    "--steps", "3", "--views", "1", "--image-size", "32", "--quiet", "--method",
                                    "adam", "--lr", "0.5", "-o", str(out)])
     assert run.exit_code == 0, run.output
+    assert "attacked as loaded" in run.output and "resampled uniformly" not in run.output
     assert "texel_rmse=" in run.output
     record = json.loads((out / "result.json").read_text())
     assert record["perturbation"] == "texture-map" and record["distances"][0]["texel_rmse"] > 0

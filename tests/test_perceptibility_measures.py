@@ -221,3 +221,35 @@ def test_sweep_tables_get_rows_for_the_measures_records_hold() -> None:
     old = attack_rows([{"spec": spec, "record": {"success": True, "distances": {"laplacian_sum": 0.25,
                                                                                  "laplacian_pair_mean": 0.01}}}])
     assert [r.measure for r in old] == ["laplacian_pair_mean", "laplacian_sum"]  # no empty rows for older records
+
+
+def test_texel_changes_is_the_95th_percentile_over_texels() -> None:
+    from meshadv.perceptibility.geometry import texel_changes
+
+    texture = torch.zeros(4, 5, 3)
+    adversarial = texture.clone()
+    adversarial[0, :4] = 0.1  # 4 of 20 texels (more than 5%) move by 0.1 * sqrt(3): the 95th percentile
+    assert float(texel_changes(adversarial, texture)["color_change_p95"][0]) == pytest.approx(0.1 * math.sqrt(3))
+    adversarial[1:, :] = 0.0
+    adversarial[0, :] = 0.0
+    adversarial[0, 0] = 1.0  # one texel of 20 (5%) changes: the 95th percentile stays 0
+    assert float(texel_changes(adversarial, texture)["color_change_p95"][0]) == 0.0
+    with pytest.raises(ValueError, match="texture"):
+        texel_changes(torch.zeros(2, 4, 4, 3), texture)
+
+
+def test_the_step_cap_of_a_texture_image_needs_the_pristine_texture() -> None:
+    from meshadv.perceptibility.cap import PerceptibilityCap, step_measures
+    from meshadv.render.surface_reflectance import SurfaceReflectance
+
+    vertices = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    faces = torch.tensor([[0, 1, 2]])
+    uvs = torch.tensor([[0.0, 0], [1, 0], [0, 1]])
+    texture = torch.zeros(2, 2, 3)
+    adversarial = SurfaceReflectance(torch.full((1, 2, 2, 3), 0.2), uvs, faces)
+    cap = PerceptibilityCap(max_displacement=None, normal_change_p95_deg=None, color_change_p95=0.05)
+    measured = step_measures(cap, vertices[None], adversarial, vertices, torch.zeros(1, 3), faces, texture=texture)
+    assert float(measured["color_change_p95"][0]) == pytest.approx(0.2 * math.sqrt(3))
+    assert not bool(cap.admits(measured))
+    with pytest.raises(ValueError, match="pristine texture"):
+        step_measures(cap, vertices[None], adversarial, vertices, torch.zeros(1, 3), faces)

@@ -319,7 +319,8 @@ class _Loop:
         mesh = self.call.mesh
         with torch.no_grad():
             verts, colors = self.attack.apply(params.detach(), mesh, self.call.edges)
-            measures = step_measures(cap, verts, colors, mesh.vertices, mesh.face_colors, mesh.faces)
+            measures = step_measures(cap, verts, colors, mesh.vertices, mesh.face_colors, mesh.faces,
+                                     texture=getattr(mesh, "texture", None))
         inside = cap.admits(measures)
         if not isinstance(inside, Tensor):
             return [bool(inside)] * params.shape[0]

@@ -100,8 +100,8 @@ class TextureMapAttack(MeshAttack):
     ``texel_rmse`` and ``texture_tv`` (:func:`texture_distances`) to the mesh distances.
 
     Args:
-        **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.mesh_attack.MeshAttack`; the default ``lr``
-            is 0.05 (in logit space) and ``lambda_perceptual`` 1e-4 (the image loss sums over pixels);
+        **kwargs: the keyword-only hyper-parameters of :class:`~meshadv.attacks.mesh_attack.MeshAttack`; the default
+            ``lr`` is 0.05 (in logit space) and ``lambda_perceptual`` 1e-4 (the image loss sums over pixels);
             ``max_distortion`` is a texel RMSE.
 
     Raises:

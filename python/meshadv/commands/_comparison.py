@@ -217,7 +217,8 @@ def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, ti
                 detached = mesh.detach()
                 save_mesh(detached.with_vertices(loaded.transform.to_original(detached.vertices)), output / name)
             entry["input_frame_meshes"].append(name)
-    save_mesh(result.original.detach(), output / "benign.ply")  # the benign control of `meshadv transfer attack`
+    benign = getattr(result.original, "mesh", result.original)  # a textured mesh's geometry and face colours
+    save_mesh(benign.detach(), output / "benign.ply")  # the benign control of `meshadv transfer attack`
     entry["benign_mesh"] = "benign.ply"
     record["input"] = entry
     write_json_atomic(record, output / "result.json")

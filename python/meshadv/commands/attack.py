@@ -255,9 +255,14 @@ def attack(
             raise ValueError("--visibility-gradient applies to --method ddn --perturbation shape only")
         method_options = None if visibility_gradient is None else {
             "visibility_gradient": check_visibility_gradient(visibility_gradient, "--visibility-gradient")}
-        loaded = resampled_input(load_mesh_input(mesh, z_up=z_up), resample)
+        loaded = load_mesh_input(mesh, z_up=z_up)
         if perturbation in ("texture-map", "shape"):  # a shape attack on a textured file keeps its texture
             loaded = textured_input(loaded, required=perturbation == "texture-map")
+        if getattr(loaded.mesh, "texture", None) is not None:
+            if resample:
+                typer.echo("textured file: attacked as loaded (MeshLab resampling would drop its UVs and texture)")
+        else:
+            loaded = resampled_input(loaded, resample)
         mesh_obj, label = loaded.mesh, loaded.label
         az = parse_azimuth_range(azimuths)
         view_set = make_views(views, az, elevation, distance)

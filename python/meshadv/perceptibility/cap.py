@@ -27,7 +27,7 @@ import torch
 from torch import Tensor
 
 from meshadv import _validate
-from meshadv.perceptibility.geometry import color_changes, normal_changes, vertex_moves
+from meshadv.perceptibility.geometry import color_changes, normal_changes, texel_changes, vertex_moves
 
 __all__ = ["CAP_SLACK", "PerceptibilityCap", "DEFAULT_CAP", "NO_CAP", "recommended_cap", "step_measures", "as_cap"]
 
@@ -179,20 +179,25 @@ def as_cap(value: Union[None, PerceptibilityCap, Mapping[str, Any], str], name: 
     return cap if cap.bounds_anything else None
 
 
-def step_measures(cap: PerceptibilityCap, vertices_adv: Tensor, colors_adv: Tensor, vertices: Tensor,
-                  colors: Tensor, faces: Tensor) -> Dict[str, Tensor]:
+def step_measures(cap: PerceptibilityCap, vertices_adv: Tensor, colors_adv: Any, vertices: Tensor,
+                  colors: Tensor, faces: Tensor, texture: Optional[Tensor] = None) -> Dict[str, Tensor]:
     """The measures ``cap`` bounds, for a batch of ``K`` adversarial meshes (the attack loop's per-step check).
 
     Args:
         cap: the cap (only its bounded measures are computed).
         vertices_adv: ``(K, N, 3)`` adversarial vertices.
-        colors_adv: ``(K, M, 3)`` or shared ``(M, 3)`` adversarial face colours.
+        colors_adv: ``(K, M, 3)`` or shared ``(M, 3)`` adversarial face colours, or a reflectance with a
+            ``texture`` of shape ``(K, Ht, Wt, 3)`` (a texture-image attack: its colour change is over texels).
         vertices: ``(N, 3)`` pristine vertices.
         colors: ``(M, 3)`` pristine face colours.
         faces: int ``(M, 3)``.
+        texture: ``(Ht, Wt, 3)`` pristine texture; required when ``colors_adv`` carries a texture.
 
     Returns:
         ``{measure: (K,)}``.
+
+    Raises:
+        ValueError: ``colors_adv`` carries a texture and ``texture`` is None.
     """
     limits = cap.limits
     out: Dict[str, Tensor] = {}
@@ -201,7 +206,11 @@ def step_measures(cap: PerceptibilityCap, vertices_adv: Tensor, colors_adv: Tens
             out["max_displacement"] = vertex_moves(vertices_adv, vertices)["max_displacement"]
         if "normal_change_p95_deg" in limits:
             out["normal_change_p95_deg"] = normal_changes(vertices_adv, vertices, faces)["normal_change_p95_deg"]
-        if "color_change_p95" in limits:
+        if "color_change_p95" in limits and not isinstance(colors_adv, Tensor):
+            if texture is None:
+                raise ValueError("texture (the pristine texture) is required to cap a texture image's change")
+            out["color_change_p95"] = texel_changes(colors_adv.texture, texture)["color_change_p95"]
+        elif "color_change_p95" in limits:
             batch = colors_adv if colors_adv.dim() == 3 else colors_adv.unsqueeze(0).expand(
                 vertices_adv.shape[0], -1, -1)
             out["color_change_p95"] = color_changes(batch, colors, vertices, faces)["color_change_p95"]

@@ -215,3 +215,33 @@ def surface_measures(vertices_adv: Tensor, colors_adv: Tensor, vertices: Tensor,
         out.update({k: float(v[0]) for k, v in normal_changes(vertices_adv, vertices, faces).items()})
         out.update({k: float(v[0]) for k, v in color_changes(colors_adv, colors, vertices, faces).items()})
     return out
+
+
+def texel_changes(texture_adv: Tensor, texture: Tensor) -> Dict[str, Tensor]:
+    """95th percentile over texels of the RGB change of a texture image (Euclidean distance, ``[0, sqrt(3)]``).
+
+    The texture-image counterpart of :func:`color_changes`: every texel counts once (texels are not weighted by the
+    surface area they cover).
+
+    Args:
+        texture_adv: ``(Ht, Wt, 3)`` or ``(K, Ht, Wt, 3)`` adversarial texture.
+        texture: ``(Ht, Wt, 3)`` pristine texture.
+
+    Returns:
+        ``{"color_change_p95": (K,)}``: the smallest change that 95% of the texels stay within.
+
+    Raises:
+        ValueError: the shapes disagree.
+
+    Example:
+        >>> t = torch.zeros(2, 2, 3); adv = t.clone(); adv[0] = 0.5       # half the texels change by sqrt(3) / 2
+        >>> round(float(texel_changes(adv, t)["color_change_p95"][0]), 4)
+        0.866
+    """
+    batch = texture_adv.unsqueeze(0) if texture_adv.dim() == 3 else texture_adv
+    if texture.dim() != 3 or texture.shape[-1] != 3 or batch.dim() != 4 or batch.shape[1:] != texture.shape:
+        raise ValueError(f"texture {tuple(texture.shape)} and texture_adv {tuple(texture_adv.shape)} must be "
+                         "(Ht, Wt, 3) and (Ht, Wt, 3) or (K, Ht, Wt, 3)")
+    change = (batch.double() - texture.double()).norm(dim=-1).reshape(batch.shape[0], -1)
+    rank = max(1, math.ceil(0.95 * change.shape[1]))
+    return {"color_change_p95": change.sort(dim=1).values[:, rank - 1].float()}

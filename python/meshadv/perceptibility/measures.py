@@ -25,6 +25,7 @@ from meshadv.perceptibility.geometry import SURFACE_MEASURES, surface_measures
 from meshadv.perceptibility.images import render_ssim
 from meshadv.perceptibility.held_out import held_out_views
 from meshadv.render.setup import RenderSetup
+from meshadv.render.surface_reflectance import reflectance_of, stacked_reflectance
 
 __all__ = ["perceptibility_measures", "MEASURE_DESCRIPTIONS"]
 
@@ -62,10 +63,10 @@ def perceptibility_measures(mesh: Any, adversarial: Sequence[Any], views: Any, s
     held = held_out_views(views)
     faces = mesh.faces.long()
     with torch.no_grad():
-        benign, benign_alpha = setup.render(mesh.vertices.detach()[None], faces, mesh.face_colors.detach(), held)
+        # textured meshes render their texture images, others their face colours
+        benign, benign_alpha = setup.render(mesh.vertices.detach()[None], faces, reflectance_of(mesh), held)
         verts = torch.stack([m.vertices.detach() for m in adversarial])
-        colors = torch.stack([m.face_colors.detach() for m in adversarial])
-        images, alpha = setup.render(verts, faces, colors, held)
+        images, alpha = setup.render(verts, faces, stacked_reflectance(adversarial), held)
     num = len(held)
     out = []
     for k, m in enumerate(adversarial):
