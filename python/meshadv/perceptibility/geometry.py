@@ -243,5 +243,4 @@ def texel_changes(texture_adv: Tensor, texture: Tensor) -> Dict[str, Tensor]:
         raise ValueError(f"texture {tuple(texture.shape)} and texture_adv {tuple(texture_adv.shape)} must be "
                          "(Ht, Wt, 3) and (Ht, Wt, 3) or (K, Ht, Wt, 3)")
     change = (batch.double() - texture.double()).norm(dim=-1).reshape(batch.shape[0], -1)
-    rank = max(1, math.ceil(0.95 * change.shape[1]))
-    return {"color_change_p95": change.sort(dim=1).values[:, rank - 1].float()}
+    return {"color_change_p95": _weighted_upper(change, torch.ones_like(change[0])).float()}
