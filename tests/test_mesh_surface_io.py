@@ -11,6 +11,8 @@ import pytest
 import torch
 import trimesh
 
+from seamed_grid import seamed_grid
+
 from meshadv.mesh import MeshLoadError, face_adjacency, vertex_edges
 from meshadv.mesh.structure import Mesh
 from meshadv.mesh.surface_mesh import SurfaceMesh, load_surface_mesh, save_surface_mesh
@@ -21,19 +23,7 @@ def _textured_grid(n: int = 6) -> SurfaceMesh:
     """An n x n grid with heights, a 16 x 20 texture, and a UV seam down the middle (the right half reads shifted
     copies of its UVs)."""
     g = torch.Generator().manual_seed(0)
-    xs = torch.linspace(-1.0, 1.0, n)
-    yy, xx = torch.meshgrid(xs, xs, indexing="ij")
-    verts = torch.stack([xx, yy, 0.2 * torch.rand(n, n, generator=g)], -1).reshape(-1, 3)
-    faces = []
-    for i in range(n - 1):
-        for j in range(n - 1):
-            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
-            faces += [[a, b, d], [a, d, c]]
-    faces_t = torch.tensor(faces)
-    uv = 0.1 + 0.8 * (verts[:, :2] + 1) / 2
-    uvs = torch.cat([uv, uv + 0.05])
-    uv_faces = faces_t.clone()
-    uv_faces[verts[faces_t].mean(1)[:, 0] > 0] += verts.shape[0]
+    verts, faces_t, uvs, uv_faces = seamed_grid(n, g, 0.2)
     # 8-bit exact texels, so that a PNG round trip is exact.
     texture = torch.randint(0, 256, (16, 20, 3), generator=g).float() / 255.0
     return SurfaceMesh(Mesh(verts, faces_t, torch.full((faces_t.shape[0], 3), 0.5)), uvs, uv_faces, texture)

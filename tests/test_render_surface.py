@@ -9,6 +9,7 @@ import pytest
 import torch
 
 import surface_reference as ref
+from seamed_grid import seamed_grid
 from meshadv.render import Camera, Lights, native_available, render
 from meshadv.render.surface import render_surface, vertex_normals
 
@@ -16,25 +17,8 @@ pytestmark = pytest.mark.skipif(not native_available(), reason="the native modul
 
 
 def _bumpy_grid(n: int = 5, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """An n x n grid in the z = 0 plane with random heights, per-vertex UVs over [0.1, 0.9], and a UV seam: the
-    right half of the faces read a second copy of their UVs shifted by 0.05 (separate uv_faces rows)."""
-    g = torch.Generator().manual_seed(seed)
-    xs = torch.linspace(-1.0, 1.0, n)
-    yy, xx = torch.meshgrid(xs, xs, indexing="ij")
-    zz = 0.25 * torch.rand(n, n, generator=g)
-    verts = torch.stack([xx, yy, zz], -1).reshape(-1, 3)
-    faces = []
-    for i in range(n - 1):
-        for j in range(n - 1):
-            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
-            faces += [[a, b, d], [a, d, c]]
-    faces_t = torch.tensor(faces)
-    uv = 0.1 + 0.8 * (verts[:, :2] + 1) / 2
-    uvs = torch.cat([uv, uv + 0.05])
-    uv_faces = faces_t.clone()
-    right = verts[faces_t].mean(1)[:, 0] > 0
-    uv_faces[right] += verts.shape[0]
-    return verts, faces_t, uvs, uv_faces
+    """An n x n grid with random heights up to 0.25 and a UV seam (:func:`seamed_grid.seamed_grid`)."""
+    return seamed_grid(n, torch.Generator().manual_seed(seed), 0.25)
 
 
 def _scene(seed: int = 0) -> dict:
