@@ -17,7 +17,7 @@
 use rayon::prelude::*;
 
 use crate::error::{try_filled_vec, RasterError, Result};
-use crate::input::{check_finite, Projection, RasterParams, ScreenMesh};
+use crate::input::{check_finite, first_bad_face, Projection, RasterParams, ScreenMesh};
 use crate::setup::{ndc_to_u, ndc_to_v};
 
 /// Checks a `(B, H, W)` face-index map against the mesh: length and entries in `-1..M`.
@@ -35,10 +35,7 @@ pub fn check_face_index(
         ));
     }
     let m = mesh.num_faces();
-    match face_index
-        .iter()
-        .position(|&f| f < -1 || f as i64 >= m as i64)
-    {
+    match first_bad_face(face_index, m) {
         Some(index) => Err(RasterError::FaceMapOutOfRange {
             index,
             value: face_index[index] as i64,
@@ -198,25 +195,19 @@ fn drawn_planes(
         .collect()
 }
 
-/// Adds the per-face vertex gradients `per_face` (`[corner][x, y, z]`) to the vertices of the faces, in face order,
-/// and writes the sums to `dst` `(N, 3)`.
-pub(crate) fn scatter_to_vertices(
+/// Adds the vertex gradient `g` (`[corner][x, y, z]`) of face `f` to the vertex sums `sums` `(N, 3)`.
+#[inline]
+pub(crate) fn add_to_vertices(
     mesh: &ScreenMesh<'_>,
-    per_face: &[[[f64; 3]; 3]],
-    dst: &mut [f32],
-) -> Result<()> {
-    let mut sums = try_filled_vec(mesh.num_verts * 3, 0f64, "vertex gradient accumulator")?;
-    for (f, g) in per_face.iter().enumerate() {
-        for (k, &vi) in mesh.face(f).iter().enumerate() {
-            for i in 0..3 {
-                sums[vi * 3 + i] += g[k][i];
-            }
+    f: usize,
+    g: &[[f64; 3]; 3],
+    sums: &mut [f64],
+) {
+    for (&vi, gk) in mesh.face(f).iter().zip(g) {
+        for (s, &x) in sums[vi * 3..vi * 3 + 3].iter_mut().zip(gk) {
+            *s += x;
         }
     }
-    for (d, &s) in dst.iter_mut().zip(&sums) {
-        *d = s as f32;
-    }
-    Ok(())
 }
 
 /// Perspective-correct barycentric weights `(B, H, W, 3)` of the face drawn at each pixel (0 on background), for
@@ -312,15 +303,16 @@ pub fn pixel_weights_backward(
                     a[2] += g * v;
                 }
             }
-            let per_face: Vec<[[f64; 3]; 3]> = acc
-                .iter()
-                .zip(&planes)
-                .map(|(a, pl)| match a.iter().flatten().all(|&x| x == 0.0) {
-                    true => [[0f64; 3]; 3],
-                    false => pl.vertex_grads(a, params),
-                })
-                .collect();
-            scatter_to_vertices(mesh, &per_face, gv)
+            let mut sums = try_filled_vec(nv * 3, 0f64, "vertex gradient accumulator")?;
+            for (f, (a, pl)) in acc.iter().zip(&planes).enumerate() {
+                if a.iter().flatten().any(|&x| x != 0.0) {
+                    add_to_vertices(mesh, f, &pl.vertex_grads(a, params), &mut sums);
+                }
+            }
+            for (d, &s) in gv.iter_mut().zip(&sums) {
+                *d = s as f32;
+            }
+            Ok(())
         })?;
     Ok(grad)
 }

@@ -77,14 +77,38 @@ impl Texture<'_> {
     /// The texel indices along an axis of `size` texels of the integer positions `i` and `i + 1`.
     #[inline(always)]
     fn pair(&self, i: i64, size: usize) -> (usize, usize) {
-        let n = size as i64;
-        if i >= 0 && i + 1 < n {
+        // One comparison for `0 <= i && i + 1 < size`.
+        if (i as u64) < size as u64 - 1 {
             return (i as usize, i as usize + 1);
         }
+        let n = size as i64;
         match self.wrap {
             Wrap::Repeat => (i.rem_euclid(n) as usize, (i + 1).rem_euclid(n) as usize),
             Wrap::Clamp => (i.clamp(0, n - 1) as usize, (i + 1).clamp(0, n - 1) as usize),
         }
+    }
+
+    /// The two texel indices along an axis of `size` texels around the continuous position `x`, and the fraction
+    /// of the way from the first to the second (`x - floor(x)`).
+    #[inline(always)]
+    fn axis(&self, x: f64, size: usize) -> (usize, usize, f64) {
+        // Below 2^31 in magnitude, adding 1.5 * 2^52 rounds `x` to the nearest integer, which the low bits of the
+        // sum hold in two's complement; one step down where that rounded up gives the floor.
+        const ROUND: f64 = 6_755_399_441_055_744.0;
+        if x.abs() < 2_147_483_648.0 {
+            let r = x + ROUND;
+            let (mut i, mut t) = (r.to_bits() as i32 as i64, r - ROUND);
+            if t > x {
+                i -= 1;
+                t -= 1.0;
+            }
+            let (a, b) = self.pair(i, size);
+            return (a, b, x - t);
+        }
+        // Far outside the image (beyond i64) the position saturates; it is a texel index all the same.
+        let x0 = floor(x);
+        let (a, b) = self.pair(x0 as i64, size);
+        (a, b, x - x0)
     }
 
     /// The texture of batch element `b` alone (batch 1; the whole texture when it has batch 1).
@@ -103,18 +127,31 @@ impl Texture<'_> {
     /// fractions `(fx, fy)`.
     #[inline(always)]
     fn cell(&self, u: f64, v: f64) -> Cell {
-        let x = u * self.width as f64 - 0.5;
-        let y = (1.0 - v) * self.height as f64 - 0.5;
-        let (x0, y0) = (floor(x), floor(y));
-        // Far outside the image (beyond i64) the position saturates; it is a texel index all the same.
-        let (c0, c1) = self.pair(x0 as i64, self.width);
-        let (r0, r1) = self.pair(y0 as i64, self.height);
+        let (c0, c1, fx) = self.axis(u * self.width as f64 - 0.5, self.width);
+        let (r0, r1, fy) = self.axis((1.0 - v) * self.height as f64 - 0.5, self.height);
         let at = |r: usize, c: usize| (r * self.width + c) * self.channels;
         Cell {
             offsets: [at(r0, c0), at(r0, c1), at(r1, c0), at(r1, c1)],
-            fx: x - x0,
-            fy: y - y0,
+            fx,
+            fy,
         }
+    }
+
+    /// The cell of a sample at `(u, v)` and its four texels (`c` channels each), or `None` for an empty texture.
+    #[inline(always)]
+    fn cell_texels(&self, u: f64, v: f64, c: usize) -> Option<(Cell, [&[f32]; 4])> {
+        if self.height == 0 || self.width == 0 || c != self.channels {
+            return None;
+        }
+        let texels = &self.texels[..self.height * self.width * c];
+        let cell = self.cell(u, v);
+        // SAFETY: the cell's texel indices are below `height` and `width` (`pair` maps every integer into the
+        // image of a non-empty axis), so `offset + c <= height * width * c = texels.len()`.
+        #[allow(unsafe_code)]
+        let tx = cell
+            .offsets
+            .map(|o| unsafe { texels.get_unchecked(o..o + c) });
+        Some((cell, tx))
     }
 
     /// The bilinear sample at `(u, v)` (of batch element 0) into `out` (`C` channels; `C = 0`: `channels`, read at
@@ -122,7 +159,9 @@ impl Texture<'_> {
     #[inline(always)]
     pub(crate) fn sample_into<const C: usize>(&self, u: f64, v: f64, out: &mut [f32]) {
         let c = if C == 0 { self.channels } else { C };
-        let cell = self.cell(u, v);
+        let Some((cell, tx)) = self.cell_texels(u, v, c) else {
+            return;
+        };
         let (fx, fy) = (cell.fx, cell.fy);
         let wts = [
             (1.0 - fx) * (1.0 - fy),
@@ -130,8 +169,6 @@ impl Texture<'_> {
             (1.0 - fx) * fy,
             fx * fy,
         ];
-        let tx: [&[f32]; 4] =
-            std::array::from_fn(|k| &self.texels[cell.offsets[k]..cell.offsets[k] + c]);
         for (ch, o) in out[..c].iter_mut().enumerate() {
             *o = (wts[0] * tx[0][ch] as f64
                 + wts[1] * tx[1][ch] as f64
@@ -151,7 +188,10 @@ impl Texture<'_> {
         grad_texels: &mut [f64],
     ) -> [f64; 2] {
         let c = if C == 0 { self.channels } else { C };
-        let cell = self.cell(u, v);
+        let Some((cell, tx)) = self.cell_texels(u, v, c) else {
+            return [0.0; 2];
+        };
+        let grad_texels = &mut grad_texels[..self.texels.len()];
         let (fx, fy) = (cell.fx, cell.fy);
         let wts = [
             (1.0 - fx) * (1.0 - fy),
@@ -159,37 +199,72 @@ impl Texture<'_> {
             (1.0 - fx) * fy,
             fx * fy,
         ];
-        let tx: [&[f32]; 4] =
-            std::array::from_fn(|k| &self.texels[cell.offsets[k]..cell.offsets[k] + c]);
-        let (mut gx, mut gy) = (0f64, 0f64);
+        // The cotangent's dot product with each texel's colour; the sample is bilinear in them.
+        let mut d = [0f64; 4];
         for (ch, &g) in grad[..c].iter().enumerate() {
             let gc = g as f64;
-            let t: [f64; 4] = std::array::from_fn(|k| tx[k][ch] as f64);
-            gx += gc * ((1.0 - fy) * (t[1] - t[0]) + fy * (t[3] - t[2]));
-            gy += gc * ((1.0 - fx) * (t[2] - t[0]) + fx * (t[3] - t[1]));
+            for (dk, t) in d.iter_mut().zip(&tx) {
+                *dk += gc * t[ch] as f64;
+            }
         }
-        for (k, &o) in cell.offsets.iter().enumerate() {
-            for (a, &g) in grad_texels[o..o + c].iter_mut().zip(&grad[..c]) {
-                *a += wts[k] * g as f64;
+        let gx = (1.0 - fy) * (d[1] - d[0]) + fy * (d[3] - d[2]);
+        let gy = (1.0 - fx) * (d[2] - d[0]) + fx * (d[3] - d[1]);
+        for (&o, w) in cell.offsets.iter().zip(wts) {
+            #[allow(unsafe_code)]
+            // SAFETY: `o` is an offset of `cell_texels`, so `o + c <= texels.len() = grad_texels.len()`.
+            let a = unsafe { grad_texels.get_unchecked_mut(o..o + c) };
+            for (a, &g) in a.iter_mut().zip(&grad[..c]) {
+                *a += w * g as f64;
             }
         }
         // x = u W - 0.5, y = (1 - v) H - 0.5.
         [gx * self.width as f64, -gy * self.height as f64]
     }
 
-    /// The bilinear sample of batch element `b` (0 when the texture has batch 1) at `uv`: `channels` values.
+    /// Checks the texture ([`Texture::validate`]), a batch element `b` it has (any `b` when it has batch 1) and,
+    /// for a backward, the cotangent and gradient lengths.
+    fn check_sample(&self, b: usize, grad: Option<(&[f32], usize)>) -> Result<()> {
+        self.validate(self.batch)?;
+        if self.batch != 1 && b >= self.batch {
+            return Err(RasterError::shape(
+                "texture",
+                format!("a batch element {b}"),
+                format!("batch {}", self.batch),
+            ));
+        }
+        if let Some((grad, grad_texels)) = grad {
+            if grad.len() != self.channels {
+                return Err(RasterError::shape(
+                    "grad",
+                    format!("({},)", self.channels),
+                    format!("{} values", grad.len()),
+                ));
+            }
+            if grad_texels != self.texels.len() {
+                return Err(RasterError::shape(
+                    "grad_texels",
+                    "the texture's shape",
+                    format!("{grad_texels} values"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The bilinear sample of batch element `b` (any `b` when the texture has batch 1) at `uv`: `channels` values.
     ///
     /// ```
     /// use meshadv_raster::texture::{Texture, Wrap};
     /// // A 1 x 2 texture: black left texel, white right texel; the middle of the image is half grey.
     /// let tex = Texture { texels: &[0.0, 1.0], batch: 1, height: 1, width: 2, channels: 1, wrap: Wrap::Clamp };
-    /// assert_eq!(tex.sample(0, [0.5, 0.5]), vec![0.5]);
-    /// assert_eq!(tex.sample(0, [0.75, 0.5]), vec![1.0]);
+    /// assert_eq!(tex.sample(0, [0.5, 0.5]).unwrap(), vec![0.5]);
+    /// assert_eq!(tex.sample(0, [0.75, 0.5]).unwrap(), vec![1.0]);
     /// ```
-    pub fn sample(&self, b: usize, uv: [f64; 2]) -> Vec<f32> {
+    pub fn sample(&self, b: usize, uv: [f64; 2]) -> Result<Vec<f32>> {
+        self.check_sample(b, None)?;
         let mut out = vec![0f32; self.channels];
         self.element(b).sample_into::<0>(uv[0], uv[1], &mut out);
-        out
+        Ok(out)
     }
 
     /// Backward of [`Texture::sample`] for the cotangent `grad` (`channels` values): adds the texels' shares to
@@ -201,15 +276,16 @@ impl Texture<'_> {
         uv: [f64; 2],
         grad: &[f32],
         grad_texels: &mut [f64],
-    ) -> [f64; 2] {
+    ) -> Result<[f64; 2]> {
+        self.check_sample(b, Some((grad, grad_texels.len())))?;
         let n = self.height * self.width * self.channels;
         let b = if self.batch == 1 { 0 } else { b };
-        self.element(b).sample_backward_into::<0>(
+        Ok(self.element(b).sample_backward_into::<0>(
             uv[0],
             uv[1],
             grad,
             &mut grad_texels[b * n..(b + 1) * n],
-        )
+        ))
     }
 }
 
@@ -262,7 +338,7 @@ mod tests {
                         1.0 - (i as f64 + 0.5) / h as f64,
                     ];
                     let want = &texels[(i * w + j) * 3..(i * w + j) * 3 + 3];
-                    for (a, b) in tex.sample(0, uv).iter().zip(want) {
+                    for (a, b) in tex.sample(0, uv).expect("sample").iter().zip(want) {
                         assert!((a - b).abs() < 1e-5, "{wrap:?}: {a} vs {b}");
                     }
                 }
@@ -277,7 +353,10 @@ mod tests {
         let rep = texture(&texels, 4, 6, 3, Wrap::Repeat);
         for _ in 0..20 {
             let uv = [rng.next(), rng.next()];
-            let (a, b) = (rep.sample(0, uv), rep.sample(0, [uv[0] + 3.0, uv[1] - 2.0]));
+            let (a, b) = (
+                rep.sample(0, uv).expect("a"),
+                rep.sample(0, [uv[0] + 3.0, uv[1] - 2.0]).expect("b"),
+            );
             for (x, y) in a.iter().zip(&b) {
                 assert!((x - y).abs() < 1e-5);
             }
@@ -288,7 +367,7 @@ mod tests {
         };
         // Far to the left of the image: the left column's texels, blended only vertically.
         assert_eq!(
-            clamp.sample(0, [-5.0, 1.0 - 0.5 / 4.0]),
+            clamp.sample(0, [-5.0, 1.0 - 0.5 / 4.0]).expect("far"),
             texels[0..3].to_vec()
         );
     }
@@ -314,7 +393,7 @@ mod tests {
                 uv.iter()
                     .enumerate()
                     .map(|(i, &p)| {
-                        let s = tex.sample(0, p);
+                        let s = tex.sample(0, p).expect("sample");
                         (0..c)
                             .map(|ch| s[ch] as f64 * g[i * c + ch] as f64)
                             .sum::<f64>()
@@ -326,7 +405,10 @@ mod tests {
             let grad_uv: Vec<[f64; 2]> = uv
                 .iter()
                 .enumerate()
-                .map(|(i, &p)| tex.sample_backward(0, p, &g[i * c..(i + 1) * c], &mut grad_texels))
+                .map(|(i, &p)| {
+                    tex.sample_backward(0, p, &g[i * c..(i + 1) * c], &mut grad_texels)
+                        .expect("backward")
+                })
                 .collect();
             let eps = 1e-3;
             for i in 0..n {
@@ -380,5 +462,14 @@ mod tests {
             .validate(3)
             .expect_err("batch 2 of 3");
         assert!(e.to_string().starts_with("texture"), "{e}");
+        // Sampling checks the texture and the cotangent too.
+        let e = short.sample(0, [0.5, 0.5]).expect_err("11 texels");
+        assert!(e.to_string().starts_with("texture"), "{e}");
+        let tex = texture(&texels, 2, 2, 3, Wrap::Repeat);
+        let mut grad_texels = vec![0f64; 12];
+        let e = tex
+            .sample_backward(0, [0.5, 0.5], &[1.0; 2], &mut grad_texels)
+            .expect_err("2 of 3 channels");
+        assert!(e.to_string().starts_with("grad"), "{e}");
     }
 }

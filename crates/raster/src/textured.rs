@@ -11,15 +11,13 @@
 //! once per face. Conventions (UV origin, texel centres, wrap): [`crate::texture`]; the result equals sampling the
 //! texture at the UVs that [`crate::surface::interpolate`] gives with [`crate::surface::pixel_weights`], up to
 //! rounding. Texel sums run over pixels in row-major order and batch elements in order, the UV and vertex sums over
-//! faces in order: bit-identical for any thread count.
+//! the drawn faces in the order of their first pixels: bit-identical for any thread count.
 
 use rayon::prelude::*;
 
 use crate::error::{try_filled_vec, RasterError, Result};
 use crate::input::{check_finite, RasterParams, ScreenMesh};
-use crate::surface::{
-    check_face_index, dot3, plane_at, scatter_to_vertices, CornerAttrs, FacePlanes,
-};
+use crate::surface::{add_to_vertices, check_face_index, dot3, plane_at, CornerAttrs, FacePlanes};
 use crate::texture::Texture;
 
 /// The planes of one face whose ratios are the UV at a pixel: `uv = (N_u, N_v) / Q`.
@@ -69,16 +67,45 @@ fn corner_uvs<'a>(uvs: &'a CornerAttrs<'_>, b: usize, f: usize) -> [&'a [f32]; 3
     std::array::from_fn(|k| uvs.row(b, c[k] as usize))
 }
 
-/// The UV planes of every face of batch element `b`.
-fn uv_planes(
-    mesh: &ScreenMesh<'_>,
-    params: &RasterParams,
-    uvs: &CornerAttrs<'_>,
-    b: usize,
-) -> Vec<UvPlanes> {
-    (0..mesh.num_faces())
-        .map(|f| UvPlanes::new(&FacePlanes::new(mesh, b, f, params), corner_uvs(uvs, b, f)))
-        .collect()
+/// The faces of one batch element drawn somewhere in its fragments, in order of their first pixel (row-major).
+struct DrawnFaces {
+    /// Per face of the mesh: its index in `faces`, or `u32::MAX` where it is not drawn.
+    slot: Vec<u32>,
+    /// The drawn faces.
+    faces: Vec<u32>,
+    /// Their weight planes.
+    planes: Vec<FacePlanes>,
+    /// Their UV planes.
+    uv: Vec<UvPlanes>,
+}
+
+impl DrawnFaces {
+    /// The faces of batch element `b` drawn in its fragments `fi`.
+    fn new(
+        mesh: &ScreenMesh<'_>,
+        params: &RasterParams,
+        uvs: &CornerAttrs<'_>,
+        b: usize,
+        fi: &[i32],
+    ) -> DrawnFaces {
+        let mut d = DrawnFaces {
+            slot: vec![u32::MAX; mesh.num_faces()],
+            faces: Vec::new(),
+            planes: Vec::new(),
+            uv: Vec::new(),
+        };
+        for &f in fi {
+            if f >= 0 && d.slot[f as usize] == u32::MAX {
+                let f = f as usize;
+                d.slot[f] = d.faces.len() as u32;
+                let planes = FacePlanes::new(mesh, b, f, params);
+                d.faces.push(f as u32);
+                d.uv.push(UvPlanes::new(&planes, corner_uvs(uvs, b, f)));
+                d.planes.push(planes);
+            }
+        }
+        d
+    }
 }
 
 /// Checks the mesh, parameters, fragments, UVs (2 channels) and texture of [`sample_uv_texture`].
@@ -132,9 +159,9 @@ pub fn sample_uv_texture(
 ) -> Result<Vec<f32>> {
     validate(mesh, params, face_index, uvs, texture)?;
     let (c, w, hw) = (texture.channels, params.width, params.pixels());
-    let planes: Vec<Vec<UvPlanes>> = (0..mesh.batch)
+    let drawn: Vec<DrawnFaces> = (0..mesh.batch)
         .into_par_iter()
-        .map(|b| uv_planes(mesh, params, uvs, b))
+        .map(|b| DrawnFaces::new(mesh, params, uvs, b, &face_index[b * hw..(b + 1) * hw]))
         .collect();
     let mut out = try_filled_vec(face_index.len() * c, 0f32, "textured image")?;
     out.par_chunks_mut(w * c)
@@ -142,19 +169,19 @@ pub fn sample_uv_texture(
         .enumerate()
         .for_each(|(line, (dst, fi))| {
             let b = line / params.height;
-            let (tex, planes) = (texture.element(b), &planes[b]);
+            let (tex, drawn) = (texture.element(b), &drawn[b]);
             let v = (line % params.height) as f64;
-            with_channels!(c, C => sample_line::<C>(&tex, planes, fi, v, dst))
+            with_channels!(c, C => sample_line::<C>(&tex, drawn, fi, v, dst))
         });
-    debug_assert_eq!(out.len(), hw * mesh.batch * c);
     Ok(out)
 }
 
-/// [`sample_uv_texture`] of one image line (row `v`, fragments `fi`) into `dst`, `C` channels (0: any count).
-#[inline(never)]
+/// [`sample_uv_texture`] of one image line (row `v`, fragments `fi`) into `dst` (background pixels are left as
+/// they are); `C` channels (0: any count).
+#[inline(always)]
 fn sample_line<const C: usize>(
     tex: &Texture<'_>,
-    planes: &[UvPlanes],
+    drawn: &DrawnFaces,
     fi: &[i32],
     v: f64,
     dst: &mut [f32],
@@ -162,7 +189,7 @@ fn sample_line<const C: usize>(
     let c = if C == 0 { tex.channels } else { C };
     for (j, (px, &f)) in dst.chunks_exact_mut(c).zip(fi).enumerate() {
         if f >= 0 {
-            let (_, s, t) = planes[f as usize].at(j as f64, v);
+            let (_, s, t) = drawn.uv[drawn.slot[f as usize] as usize].at(j as f64, v);
             tex.sample_into::<C>(s, t, px);
         }
     }
@@ -217,8 +244,9 @@ pub fn sample_uv_texture_backward(
             with_channels!(c, C => element_backward::<C>(mesh, params, fi, uvs, texture, g, b, gv))
         })
         .collect::<Result<_>>()?;
+    // Shared values: the elements' sums added in batch order; per-element values: concatenated.
     let sum_parts = |shared: bool, get: &dyn Fn(&ElementGrads) -> &[f64]| -> Vec<f32> {
-        if shared {
+        if shared && parts.len() > 1 {
             let mut sum = get(&parts[0]).to_vec();
             for part in &parts[1..] {
                 for (s, &x) in sum.iter_mut().zip(get(part)) {
@@ -226,6 +254,8 @@ pub fn sample_uv_texture_backward(
                 }
             }
             sum.iter().map(|&x| x as f32).collect()
+        } else if parts.len() == 1 {
+            get(&parts[0]).iter().map(|&x| x as f32).collect()
         } else {
             parts.iter().flat_map(get).map(|&x| x as f32).collect()
         }
@@ -253,42 +283,58 @@ fn element_backward<const C: usize>(
 ) -> Result<ElementGrads> {
     let c = if C == 0 { texture.channels } else { C };
     let tex = texture.element(b);
-    let planes = uv_planes(mesh, params, uvs, b);
+    let drawn = DrawnFaces::new(mesh, params, uvs, b, fi);
     let mut texels = try_filled_vec(tex.texels.len(), 0f64, "texture gradient accumulator")?;
-    // Per face, summed over its pixels: dL/dQ, dL/dN_u and dL/dN_v, each times (1, u, v).
-    let m = mesh.num_faces();
-    let mut sums = try_filled_vec(m, [[0f64; 3]; 3], "UV plane gradient accumulator")?;
+    // Per drawn face, summed over its pixels: dL/dQ, dL/dN_u and dL/dN_v, each times (1, u, v); along a line, over
+    // each run of pixels of one face first (the row v is constant there).
+    let mut sums = vec![[[0f64; 3]; 3]; drawn.faces.len()];
+    let flush = |sums: &mut [[[f64; 3]; 3]], slot: usize, run: &[[f64; 2]; 3], v: f64| {
+        if let Some(a) = sums.get_mut(slot) {
+            for (a, r) in a.iter_mut().zip(run) {
+                a[0] += r[0];
+                a[1] += r[1];
+                a[2] += r[0] * v;
+            }
+        }
+    };
     for (row, (fi, grad)) in fi
         .chunks_exact(params.width)
         .zip(grad.chunks_exact(params.width * c))
         .enumerate()
     {
         let v = row as f64;
+        let (mut current, mut slot, mut run) = (-1, usize::MAX, [[0f64; 2]; 3]);
         for (col, (&f, g)) in fi.iter().zip(grad.chunks_exact(c)).enumerate() {
+            if f != current {
+                flush(&mut sums, slot, &run, v);
+                current = f;
+                slot = if f < 0 {
+                    usize::MAX
+                } else {
+                    drawn.slot[f as usize] as usize
+                };
+                run = [[0f64; 2]; 3];
+            }
             if f < 0 {
                 continue;
             }
             let u = col as f64;
-            let (inv, s, t) = planes[f as usize].at(u, v);
+            let (inv, s, t) = drawn.uv[slot].at(u, v);
             let [gs, gt] = tex.sample_backward_into::<C>(s, t, g, &mut texels);
             // uv = N / Q.
             let (gnu, gnv) = (gs * inv, gt * inv);
             let gq = -(gnu * s + gnv * t);
-            let a = &mut sums[f as usize];
-            for (a, x) in a.iter_mut().zip([gq, gnu, gnv]) {
-                a[0] += x;
-                a[1] += x * u;
-                a[2] += x * v;
+            for (r, x) in run.iter_mut().zip([gq, gnu, gnv]) {
+                r[0] += x;
+                r[1] += x * u;
             }
         }
+        flush(&mut sums, slot, &run, v);
     }
     let mut uv_sums = try_filled_vec(uvs.rows * 2, 0f64, "UV gradient accumulator")?;
-    let mut per_face = try_filled_vec(m, [[0f64; 3]; 3], "UV vertex gradient")?;
-    for (f, (a, dst)) in sums.iter().zip(per_face.iter_mut()).enumerate() {
-        if a.iter().flatten().all(|&x| x == 0.0) {
-            continue;
-        }
-        let pl = FacePlanes::new(mesh, b, f, params);
+    let mut vertex_sums = try_filled_vec(mesh.num_verts * 3, 0f64, "vertex gradient accumulator")?;
+    for ((a, &f), pl) in sums.iter().zip(&drawn.faces).zip(&drawn.planes) {
+        let f = f as usize;
         let uv = corner_uvs(uvs, b, f);
         // dL/dq_k = dL/dQ + uv_k . dL/dN (Q is 1 in orthographic projection, not a function of the q_k).
         let gq: [[f64; 3]; 3] = std::array::from_fn(|k| {
@@ -298,7 +344,7 @@ fn element_backward<const C: usize>(
                 q + x * a[1][i] + y * a[2][i]
             })
         });
-        *dst = pl.vertex_grads(&gq, params);
+        add_to_vertices(mesh, f, &pl.vertex_grads(&gq, params), &mut vertex_sums);
         // dL/duv_k = sum_P (q_k / Q) dL/duv = sum_P q_k dL/dN.
         for (k, &r) in uvs.corners[f * 3..f * 3 + 3].iter().enumerate() {
             let q = pl.numerator(k);
@@ -306,7 +352,9 @@ fn element_backward<const C: usize>(
             uv_sums[r as usize * 2 + 1] += dot3(&q, &a[2]);
         }
     }
-    scatter_to_vertices(mesh, &per_face, gv)?;
+    for (d, &s) in gv.iter_mut().zip(&vertex_sums) {
+        *d = s as f32;
+    }
     Ok(ElementGrads {
         texels,
         uvs: uv_sums,
@@ -487,7 +535,9 @@ mod tests {
                     continue;
                 }
                 drawn += 1;
-                let want = tex.sample(p / hw, [uv[2 * p] as f64, uv[2 * p + 1] as f64]);
+                let want = tex
+                    .sample(p / hw, [uv[2 * p] as f64, uv[2 * p + 1] as f64])
+                    .expect("sample");
                 for (a, b) in px.iter().zip(&want) {
                     assert!((a - b).abs() < 1e-4, "{projection:?} pixel {p}: {a} vs {b}");
                 }
