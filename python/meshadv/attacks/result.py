@@ -230,7 +230,8 @@ class AttackResult:
             outside = self.cap_violations(t)
             if outside:
                 status += f" (outside the perceptibility cap: {'; '.join(outside)})"
-            if not bool(self.holds_held_out[t]):
+            views_hold = bool(enough_views(self.success_rate[t], self.success_fraction))
+            if views_hold and not bool(self.holds_held_out[t]):  # the held-out views are why it failed
                 status += f" (held-out views: fewer than {100 * float(self.held_out_fraction or 0):.0f}% hold)"
             line = (f"  {crit.get('label', '?')}: {status} on {int(self.success[t].sum())}/{self.success.shape[1]} "
                     f"views; {perceptibility_line(d)}; laplacian_pair_mean={_get(d, 'laplacian_pair_mean'):.4g} "
