@@ -262,6 +262,7 @@ class AttackResult:
 
         return {
             "perturbation": self.perturbation,
+            "shading": getattr(self.original, "shading", "flat"),
             "victim": self.victim,
             "criteria": list(self.criteria),
             "succeeded": [bool(s) for s in self.succeeded.tolist()],
@@ -299,20 +300,23 @@ class AttackResult:
         }
 
     def _write_meshes(self, folder: Path) -> None:
-        """Every target's adversarial mesh as PLY and OBJ (:meth:`mesh_filenames`) into ``folder``; a textured one
-        (a SurfaceMesh) also as GLB, its OBJ with an MTL and the texture PNG."""
-        from meshadv.mesh.surface_mesh import save_surface_mesh
+        """Every target's adversarial mesh as PLY and OBJ (:meth:`mesh_filenames`) into ``folder``; a SurfaceMesh
+        (textured or vertex-coloured) also as GLB, its OBJ with an MTL and the texture PNG or with its vertex
+        colours (``v x y z r g b``), its PLY with the vertex colours (else per face)."""
+        from meshadv.mesh.surface_mesh import SurfaceMesh, save_surface_mesh
 
         for t, mesh in enumerate(self.adversarial):
             ply, obj = self.mesh_filenames(t)
-            if getattr(mesh, "texture", None) is None:
+            if not isinstance(mesh, SurfaceMesh):
                 save_mesh(mesh.detach(), folder / ply)
                 save_mesh(mesh.detach(), folder / obj)
                 continue
-            # a textured mesh: OBJ + MTL + the texture PNG at the file's resolution, GLB, and a per-face PLY
             save_surface_mesh(mesh, folder / obj)
             save_surface_mesh(mesh, folder / Path(obj).with_suffix(".glb").name)
-            save_mesh(mesh.mesh.detach(), folder / ply)
+            if mesh.vertex_colors is not None:
+                save_surface_mesh(mesh, folder / ply)
+            else:
+                save_mesh(mesh.mesh.detach(), folder / ply)
 
     def _write_images(self, folder: Path) -> None:
         """The pristine and adversarial renders of every view as PNG into ``folder``."""

@@ -11,12 +11,14 @@ Example:
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, List, Optional, Sequence
 
 import typer
 
 from meshadv.commands._cap_option import CAP_HELP, parse_cap
+from meshadv.commands._surface_views import SHADING_HELP
 from meshadv.commands._common import (
     DEFAULT_BACKGROUND,
     DEFAULT_DISTANCE,
@@ -28,9 +30,7 @@ from meshadv.commands._common import (
     resolve_method,
 )
 
-__all__ = ["attack", "build_attack", "build_criteria", "resampled_input", "run_with_progress"]
-
-
+__all__ = ["attack", "attack_input", "build_attack", "build_criteria", "resampled_input", "run_with_progress"]
 
 
 def resampled_input(loaded: Any, faces: int) -> Any:
@@ -43,14 +43,45 @@ def resampled_input(loaded: Any, faces: int) -> Any:
     """
     if faces == 0 or loaded.path is None:
         return loaded
-    from dataclasses import replace
-
     from meshadv.mesh.resample import resample_mesh_with_info
 
     dense, info = resample_mesh_with_info(loaded.mesh, target_faces=faces)
     typer.echo(f"resampled uniformly with MeshLab ({info.method}): {info.input_faces} -> {info.output_faces} faces "
                "(--resample 0 attacks the mesh as loaded)")
     return replace(loaded, mesh=dense)
+
+
+def attack_input(loaded: Any, perturbation: str, shading: Optional[str], resample: int) -> Any:
+    """The ``MeshInput`` an attack of ``perturbation`` works on: a file's texture or vertex colours drawn as the file
+    has them (a :class:`~meshadv.mesh.surface_mesh.SurfaceMesh`, attacked as loaded: MeshLab resampling would drop
+    them), else the mesh resampled (:func:`resampled_input`), drawn smooth with each vertex the mean of its faces'
+    colours for ``shading="smooth"``; under ``shading`` (default: what the file asks for). Smooth shading uses the
+    area-weighted normals of the attacked vertices (the file's normals do not follow a shape perturbation).
+
+    Raises:
+        ValueError: ``texture-map`` of a mesh without a UV texture image, or ``texture`` (per-face colours, drawn
+            flat) with ``shading="smooth"``.
+        MeshLoadError: the file's texture or attributes are unusable (the message names the file and field).
+        MeshProcessingError: MeshLab failed on the mesh.
+    """
+    from meshadv.commands._surface_views import surface_input
+    from meshadv.mesh.surface_mesh import SurfaceMesh
+
+    if perturbation == "texture":
+        if shading == "smooth":
+            raise ValueError("--shading smooth needs --perturbation shape or texture-map: the per-face colour "
+                             "attack (texture) draws its faces flat")
+        return resampled_input(loaded, resample)
+    surface = surface_input(loaded, None if shading == "smooth" else shading, keep_normals=False)
+    if isinstance(surface.mesh, SurfaceMesh):
+        if resample:
+            typer.echo("textured or vertex-coloured file: attacked as loaded (MeshLab resampling would drop its UVs, "
+                       "texture and vertex colours)")
+        return replace(surface, mesh=replace(surface.mesh, shading=shading or surface.mesh.shading))
+    if perturbation == "texture-map":
+        raise ValueError(f"--perturbation texture-map needs a UV texture image: {loaded.label} has none (an OBJ "
+                         "needs a map_Kd in its MTL, a GLB a base-colour texture)")
+    return surface_input(resampled_input(loaded, resample), shading)
 
 
 def build_attack(perturbation: str, **kwargs: Any) -> Any:
@@ -223,10 +254,14 @@ def attack(
     background: str = typer.Option(DEFAULT_BACKGROUND, help="background colour r,g,b in [0, 1]"),
     threshold: float = typer.Option(0.5, help="detector score threshold (--disappear)"),
     z_up: Optional[bool] = typer.Option(None, "--z-up/--y-up", help="mesh file is Z-up (default: guess)"),
+    shading: Optional[str] = typer.Option(
+        None, help=SHADING_HELP + "; the attack's renders, its saved meshes and their Mitsuba transfer use it (smooth: "
+                   "the area-weighted normals of the attacked vertices; not with --perturbation texture)"),
     resample: int = typer.Option(
         4000, min=0, help="attack a mesh file resampled uniformly with MeshLab to about this many faces, as the paper "
-                          "does (0: the mesh as loaded; built-in shapes are never resampled); the adversarial mesh "
-                          "is saved in the input file's frame all the same"),
+                          "does (0: the mesh as loaded; built-in shapes are never resampled; textured and "
+                          "vertex-coloured files are attacked as loaded); the adversarial mesh is saved in the input "
+                          "file's frame all the same"),
     seed: int = typer.Option(0, help="random seed"),
     quiet: bool = typer.Option(False, help="no progress bar"),
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
@@ -234,7 +269,8 @@ def attack(
     """Attack MESH so that VICTIM sees the target class (shape or texture perturbation); Ctrl-C saves the best
     result so far. SUCCESS means: the target holds on the victim views and on at least --held-out-fraction of the
     held-out views, which the attack never optimised on, with the mesh inside the perceptibility cap (--cap).
-    Writes the adversarial mesh (PLY, OBJ; and in the input file's frame), before/after PNGs, a labelled
+    Writes the adversarial mesh (PLY, OBJ; a textured one also as OBJ + MTL + texture PNG and GLB, vertex colours
+    as OBJ `v x y z r g b`; and in the input file's frame), before/after PNGs, a labelled
     comparison.png and result.json into OUTPUT.
 
     Victims: efficientnet_lite0, efficientnet_lite2, ssd_mobilenet_v2_coco (weights included); densenet121,
@@ -245,7 +281,7 @@ def attack(
     from meshadv.attacks.update import RECOMMENDED_METHOD
     from meshadv.commands._benign_gate import benign_gate, source_class
     from meshadv.commands._comparison import write_attack_outputs
-    from meshadv.commands._surface_views import textured_input
+    from meshadv.commands._surface_views import parse_shading
     from meshadv.mesh.errors import MeshProcessingError
     from meshadv.perceptibility import held_out_views
     from meshadv.render import RenderSetup
@@ -265,14 +301,7 @@ def attack(
             raise ValueError("--visibility-gradient applies to --method ddn --perturbation shape only")
         method_options = None if visibility_gradient is None else {
             "visibility_gradient": check_visibility_gradient(visibility_gradient, "--visibility-gradient")}
-        loaded = load_mesh_input(mesh, z_up=z_up)
-        if perturbation in ("texture-map", "shape"):  # a shape attack on a textured file keeps its texture
-            loaded = textured_input(loaded, required=perturbation == "texture-map")
-        if getattr(loaded.mesh, "texture", None) is not None:
-            if resample:
-                typer.echo("textured file: attacked as loaded (MeshLab resampling would drop its UVs and texture)")
-        else:
-            loaded = resampled_input(loaded, resample)
+        loaded = attack_input(load_mesh_input(mesh, z_up=z_up), perturbation, parse_shading(shading), resample)
         mesh_obj, label = loaded.mesh, loaded.label
         az = parse_azimuth_range(azimuths)
         view_set = make_views(views, az, elevation, distance)
