@@ -40,7 +40,7 @@ def _cli(*args: str) -> Any:
 def _attack(source: Path, out: Path, *extra: str, perturbation: str = "shape") -> Any:
     return _cli("attack", source, "--perturbation", perturbation, "--target", "728", "--steps", "2", "--views", "1",
                 "--azimuths", "30:30", "--image-size", SIZE, "--quiet", "--method", "adam", "--lr", "0.01",
-                "--cap", "none", "--benign-wrong-ok", "-o", out, *extra)
+                "--cap", "none", "--benign-wrong-ok", "--resample", "0", "-o", out, *extra)  # extra's --resample wins
 
 
 def _png(path: Path) -> np.ndarray:
@@ -104,9 +104,8 @@ def test_vertex_colours_survive_load_attack_save_load(tmp_path: Path, stand_in: 
     loaded = load_surface_mesh(source)
     assert loaded.vertex_colors is not None and loaded.texture is None
     out = tmp_path / "out"
-    run = _attack(source, out, "--resample", "4000")
+    run = _attack(source, out)
     assert run.exit_code == 0, run.output
-    assert "attacked as loaded" in run.output and "resampled uniformly" not in run.output
     # the attack draws the interpolated vertex colours, as `meshadv render` does (not per-face means)
     np.testing.assert_allclose(_png(out / "before_v0.png"), _render(source, tmp_path / "r"), atol=1.5 / 255, rtol=0)
     record = json.loads((out / "result.json").read_text())
@@ -131,7 +130,7 @@ def test_smooth_shading_of_a_plain_mesh_draws_its_faces_colours_per_vertex(tmp_p
     source = tmp_path / "plain.ply"
     save_mesh(builtin_mesh("sphere"), source)
     out = tmp_path / "out"
-    run = _attack(source, out, "--shading", "smooth", "--resample", "0")
+    run = _attack(source, out, "--shading", "smooth")
     assert run.exit_code == 0, run.output
     assert json.loads((out / "result.json").read_text())["shading"] == "smooth"
     np.testing.assert_allclose(_png(out / "before_v0.png"), _render(source, tmp_path / "r", "--shading", "smooth"),
@@ -176,3 +175,33 @@ def test_a_mitsuba_mesh_draws_a_texture_or_vertex_colours_not_both() -> None:
                        vertex_coloured().vertex_colors)
     with pytest.raises(ValueError, match="vertex_colors and texture"):
         MeshObject.from_surface(both)
+
+
+@pytest.mark.parametrize("asset", ["textured", "painted"])
+def test_resampling_carries_the_texture_or_colours_and_keeps_the_look(tmp_path: Path, stand_in: None,
+                                                                      asset: str) -> None:
+    surface = box_textured() if asset == "textured" else vertex_coloured()
+    source = tmp_path / ("ball.obj" if asset == "textured" else "ball.ply")
+    save_surface_mesh(surface, source)
+    out = tmp_path / "out"
+    run = _attack(source, out, "--resample", "3000")
+    assert run.exit_code == 0, run.output
+    assert "resampled uniformly with MeshLab" in run.output
+    assert ("texture carried onto a 1024x1024 atlas" in run.output) == (asset == "textured")
+    assert ("vertex colours carried" in run.output) == (asset == "painted")
+    dense = load_surface_mesh(out / "adversarial.obj")
+    assert 2000 < dense.num_faces < 4000 and dense.num_faces != surface.num_faces
+    assert (dense.texture is not None) == (asset == "textured")
+    assert (dense.vertex_colors is not None) == (asset == "painted")
+    before, original = _png(out / "before_v0.png"), _render(source, tmp_path / "r")
+    drawn = (before < 0.99).any(-1) & (original < 0.99).any(-1)
+    assert np.abs(before - original).mean(-1)[drawn].mean() < 0.03
+
+
+def test_the_texture_map_attack_takes_the_textured_file_as_loaded(tmp_path: Path, stand_in: None) -> None:
+    source = tmp_path / "ball.obj"
+    save_surface_mesh(box_textured(), source)
+    run = _attack(source, tmp_path / "out", "--resample", "3000", perturbation="texture-map")
+    assert run.exit_code == 0, run.output
+    assert "attacked as loaded" in run.output and "resampled uniformly" not in run.output
+    assert load_surface_mesh(tmp_path / "out" / "adversarial.obj").texture.shape == (16, 16, 3)

@@ -34,29 +34,44 @@ __all__ = ["attack", "attack_input", "build_attack", "build_criteria", "resample
 
 
 def resampled_input(loaded: Any, faces: int) -> Any:
-    """``loaded`` (a ``MeshInput``) with its mesh resampled uniformly with MeshLab to about ``faces`` faces
-    (:func:`meshadv.mesh.resample.resample_mesh_with_info`), saying the face counts; unchanged for ``faces == 0`` and
-    for built-in shapes (no file).
+    """``loaded`` (a ``MeshInput``) with its mesh resampled uniformly with MeshLab to about ``faces`` faces, saying
+    the face counts: a per-face mesh by :func:`meshadv.mesh.resample.resample_mesh_with_info`, a textured or
+    vertex-coloured one by :func:`meshadv.mesh.surface_resample.resample_surface_mesh` (its texture carried onto a
+    new atlas, its vertex colours onto the new vertices); unchanged for ``faces == 0`` and for built-in shapes (no
+    file).
 
     Raises:
         MeshProcessingError: MeshLab failed on the mesh (the message says so; ``--resample 0`` attacks it as loaded).
     """
     if faces == 0 or loaded.path is None:
         return loaded
-    from meshadv.mesh.resample import resample_mesh_with_info
+    from meshadv.mesh.surface_mesh import SurfaceMesh
 
-    dense, info = resample_mesh_with_info(loaded.mesh, target_faces=faces)
-    typer.echo(f"resampled uniformly with MeshLab ({info.method}): {info.input_faces} -> {info.output_faces} faces "
-               "(--resample 0 attacks the mesh as loaded)")
+    carried = ""
+    if isinstance(loaded.mesh, SurfaceMesh):
+        from meshadv.mesh.surface_resample import resample_surface_mesh
+
+        dense, info = resample_surface_mesh(loaded.mesh, target_faces=faces)
+        carried = "; " + " and ".join(
+            ([f"texture carried onto a {dense.texture.shape[1]}x{dense.texture.shape[0]} atlas"]
+             if dense.texture is not None else []) + (["vertex colours carried"] if dense.vertex_colors is not None
+                                                      else []))
+    else:
+        from meshadv.mesh.resample import resample_mesh_with_info
+
+        dense, info = resample_mesh_with_info(loaded.mesh, target_faces=faces)
+    typer.echo(f"resampled uniformly with MeshLab ({info.method}): {info.input_faces} -> {info.output_faces} faces"
+               f"{carried} (--resample 0 attacks the mesh as loaded)")
     return replace(loaded, mesh=dense)
 
 
 def attack_input(loaded: Any, perturbation: str, shading: Optional[str], resample: int) -> Any:
-    """The ``MeshInput`` an attack of ``perturbation`` works on: a file's texture or vertex colours drawn as the file
-    has them (a :class:`~meshadv.mesh.surface_mesh.SurfaceMesh`, attacked as loaded: MeshLab resampling would drop
-    them), else the mesh resampled (:func:`resampled_input`), drawn smooth with each vertex the mean of its faces'
-    colours for ``shading="smooth"``; under ``shading`` (default: what the file asks for). Smooth shading uses the
-    area-weighted normals of the attacked vertices (the file's normals do not follow a shape perturbation).
+    """The ``MeshInput`` an attack of ``perturbation`` works on, resampled (:func:`resampled_input`) and under
+    ``shading`` (default: what the file asks for): a file's texture or vertex colours drawn as the file has them (a
+    :class:`~meshadv.mesh.surface_mesh.SurfaceMesh`; ``texture-map`` attacks it as loaded, its texels in the file's
+    UV layout being the perturbation), else the per-face mesh, drawn smooth with each vertex the mean of its faces'
+    colours for ``shading="smooth"``. Smooth shading uses the area-weighted normals of the attacked vertices (the
+    file's normals do not follow a shape perturbation).
 
     Raises:
         ValueError: ``texture-map`` of a mesh without a UV texture image, or ``texture`` (per-face colours, drawn
@@ -74,10 +89,13 @@ def attack_input(loaded: Any, perturbation: str, shading: Optional[str], resampl
         return resampled_input(loaded, resample)
     surface = surface_input(loaded, None if shading == "smooth" else shading, keep_normals=False)
     if isinstance(surface.mesh, SurfaceMesh):
-        if resample:
-            typer.echo("textured or vertex-coloured file: attacked as loaded (MeshLab resampling would drop its UVs, "
-                       "texture and vertex colours)")
-        return replace(surface, mesh=replace(surface.mesh, shading=shading or surface.mesh.shading))
+        surface = replace(surface, mesh=replace(surface.mesh, shading=shading or surface.mesh.shading))
+        if perturbation == "texture-map":
+            if resample:
+                typer.echo("texture-map: the textured file is attacked as loaded (its texels, in the file's UV "
+                           "layout, are the perturbation; resampling would re-encode them)")
+            return surface
+        return resampled_input(surface, resample)
     if perturbation == "texture-map":
         raise ValueError(f"--perturbation texture-map needs a UV texture image: {loaded.label} has none (an OBJ "
                          "needs a map_Kd in its MTL, a GLB a base-colour texture)")
@@ -259,9 +277,9 @@ def attack(
                    "the area-weighted normals of the attacked vertices; not with --perturbation texture)"),
     resample: int = typer.Option(
         4000, min=0, help="attack a mesh file resampled uniformly with MeshLab to about this many faces, as the paper "
-                          "does (0: the mesh as loaded; built-in shapes are never resampled; textured and "
-                          "vertex-coloured files are attacked as loaded); the adversarial mesh is saved in the input "
-                          "file's frame all the same"),
+                          "does (0: the mesh as loaded; built-in shapes are never resampled; a texture is carried "
+                          "onto a new atlas, vertex colours onto the new vertices; --perturbation texture-map attacks "
+                          "the file as loaded); the adversarial mesh is saved in the input file's frame all the same"),
     seed: int = typer.Option(0, help="random seed"),
     quiet: bool = typer.Option(False, help="no progress bar"),
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
