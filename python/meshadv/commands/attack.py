@@ -218,7 +218,14 @@ def attack(
     views: int = typer.Option(5, help="number of victim views"),
     azimuths: str = typer.Option("150:210", help="azimuth range LOW:HIGH or LOW-HIGH (degrees) of the victim views; "
                                                  "180 faces the front of a PASCAL3D+ model"),
-    eval_views: int = typer.Option(0, help="held-out views in the same range (between the victim views)"),
+    eval_views: Optional[int] = typer.Option(
+        None, min=0, help="held-out views that judge the result (never optimised on, never used to pick it): "
+                          "default: the views between and around the victim views (8 for the default 5: the 4 "
+                          "azimuths between them, 30 degrees beyond either end, 20 degrees above and below); N: N "
+                          "views between the victim views; 0: none (needs --held-out-fraction 0)"),
+    held_out_fraction: float = typer.Option(
+        0.8, min=0.0, max=1.0, help="SUCCESS needs the target to hold on at least this fraction of the held-out "
+                                    "views as well as on the victim views (0: the victim views' verdict alone)"),
     elevation: float = typer.Option(DEFAULT_ELEVATION, help="camera elevation (degrees)"),
     distance: float = typer.Option(DEFAULT_DISTANCE, help="camera distance (mesh normalised to [-1, 1])"),
     method: Optional[str] = typer.Option(
@@ -278,8 +285,10 @@ def attack(
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
 ) -> None:
     """Attack MESH so that VICTIM sees the target class (shape or texture perturbation); Ctrl-C saves the best
-    result so far. Writes the adversarial mesh (PLY, OBJ; a textured one also as OBJ + MTL + texture PNG and GLB,
-    vertex colours as OBJ `v x y z r g b`; and in the input file's frame), before/after PNGs, a labelled
+    result so far. SUCCESS means: the target holds on the victim views and on at least --held-out-fraction of the
+    held-out views, which the attack never optimised on, with the mesh inside the perceptibility cap (--cap).
+    Writes the adversarial mesh (PLY, OBJ; a textured one also as OBJ + MTL + texture PNG and GLB, vertex colours
+    as OBJ `v x y z r g b`; and in the input file's frame), before/after PNGs, a labelled
     comparison.png and result.json into OUTPUT.
 
     Victims: efficientnet_lite0, efficientnet_lite2, ssd_mobilenet_v2_coco (weights included); densenet121,
@@ -292,6 +301,7 @@ def attack(
     from meshadv.commands._comparison import write_attack_outputs
     from meshadv.commands._surface_views import parse_shading
     from meshadv.mesh.errors import MeshProcessingError
+    from meshadv.perceptibility import held_out_views
     from meshadv.render import RenderSetup
     from meshadv.render.visibility import check_visibility_gradient
     from meshadv.victims import load_victim
@@ -313,7 +323,13 @@ def attack(
         mesh_obj, label = loaded.mesh, loaded.label
         az = parse_azimuth_range(azimuths)
         view_set = make_views(views, az, elevation, distance)
-        held_out = make_views(eval_views + 1, az, elevation, distance, offset=0.5) if eval_views > 0 else None
+        if eval_views == 0 and held_out_fraction > 0:
+            raise ValueError("--eval-views 0 leaves no held-out views to judge the result on: give "
+                             "--held-out-fraction 0 too (the victim views' verdict alone)")
+        if eval_views is None:
+            held_out = held_out_views(view_set)
+        else:
+            held_out = make_views(eval_views + 1, az, elevation, distance, offset=0.5) if eval_views > 0 else None
         jitter_cfg = dict(azimuth=5.0, elevation=3.0, distance=0.05, light_direction=0.2,
                           light_intensity=0.2) if jitter else None
         victim_obj = load_victim(victim, weights=weights, cfg=cfg)
@@ -330,7 +346,7 @@ def attack(
             perturbation, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
             max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, method_options=method_options,
-            perceptibility_cap=parse_cap(cap), **{**robust, **shape_only},
+            perceptibility_cap=parse_cap(cap), held_out_fraction=held_out_fraction, **{**robust, **shape_only},
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
         for crit in criteria:
@@ -350,6 +366,11 @@ def attack(
                                       f"{label}: {perturbation} attack ({result.criteria[0].get('label', '')}) "
                                       f"{status} ({result.steps} steps)")
     typer.echo(result.summary())
+    if held_out is not None:
+        verdict = (f"SUCCESS needs the target on >= {100 * held_out_fraction:.0f}% of them"
+                   if held_out_fraction > 0 else "the verdict is the victim views' alone (--held-out-fraction 0)")
+        typer.echo(f"held-out views: {len(held_out)}, never optimised on and never used to pick the result; "
+                   f"{verdict}")
     if eot > 0:
         typer.echo(f"robust attack: {eot} fresh views per step; success judged on {len(result.view_records)} fresh "
                    f"views of the range, none of them optimised on")
