@@ -11,13 +11,13 @@ from typing import Any
 import pytest
 import torch
 from stand_in_victims import PooledLinearClassifier
+from surface_assets import box_textured
 
 from meshadv.attacks import TargetedMisclassification
 from meshadv.attacks.families import make_attack, perturbations
 from meshadv.attacks.texture_map import (TextureMapAttack, params_to_texture, texture_distances, texture_to_params,
                                          texture_tv)
 from meshadv.mesh import builtin_mesh, vertex_edges
-from meshadv.mesh.structure import Mesh
 from meshadv.mesh.surface_mesh import SurfaceMesh, load_surface_mesh, save_surface_mesh
 from meshadv.render import RenderSetup, ViewSet, native_available
 
@@ -31,21 +31,8 @@ def _views(n: int = 2) -> Any:
 
 
 def _textured_cube(side: int = 12) -> SurfaceMesh:
-    """The built-in cube with one UV per face corner (a box projection) and a random 8-bit ``side x side``
-    texture (8-bit exact, so a PNG round trip is exact)."""
-    cube = builtin_mesh("cube")
-    verts, faces = cube.vertices, cube.faces
-    corners = verts[faces]  # (M,3,3)
-    normal = torch.linalg.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]).abs().argmax(dim=1)
-    keep = torch.tensor([[1, 2], [0, 2], [0, 1]])[normal]  # (M,2): the two axes across the face
-    uv = torch.gather(corners, 2, keep[:, None, :].expand(-1, 3, -1))
-    uv = 0.05 + 0.9 * (uv - uv.min()) / (uv.max() - uv.min())
-    g = torch.Generator().manual_seed(0)
-    texture = torch.randint(0, 256, (side, side, 3), generator=g).float() / 255.0
-    uvs = uv.reshape(-1, 2).contiguous()
-    uv_faces = torch.arange(uvs.shape[0]).reshape(-1, 3)
-    surface = SurfaceMesh(Mesh(verts, faces, torch.full((faces.shape[0], 3), 0.5)), uvs, uv_faces, texture)
-    return surface.with_texture(texture)
+    """The built-in cube, box-projected UVs and a random 8-bit ``side x side`` texture."""
+    return box_textured("cube", side)
 
 
 def test_params_round_trip_the_texture() -> None:

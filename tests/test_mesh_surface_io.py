@@ -197,3 +197,102 @@ def test_meshadv_render_draws_a_textured_file_with_its_texture(tmp_path: Path) -
         app, ["render", str(tmp_path / "black.obj"), "--shading", "phong", "-o", str(tmp_path / "x")]
     )
     assert result.exit_code == 2 and "--shading" in result.output
+
+
+def test_normalising_keeps_the_texture_colours_and_turns_the_normals_with_the_mesh() -> None:
+    from meshadv.mesh.normalize import Z_UP_TO_Y_UP
+    from meshadv.render import vertex_normals
+
+    sm = _textured_grid()
+    verts = sm.mesh.vertices * 3.0 + torch.tensor([1.0, -2.0, 0.5])
+    normals = vertex_normals(verts, sm.mesh.faces)[0]  # the area-weighted normals of the file's vertices
+    colors = torch.rand(sm.mesh.num_vertices, 3, generator=torch.Generator().manual_seed(1))
+    file_mesh = SurfaceMesh(Mesh(verts, sm.mesh.faces, sm.mesh.face_colors), sm.uvs, sm.uv_faces, sm.texture,
+                            colors, normals, sm.mesh.faces, "smooth")
+    unit, transform = file_mesh.normalized(z_up=True)
+    assert float(unit.vertices.abs().max()) == pytest.approx(1.0)
+    for name in ("uvs", "uv_faces", "texture", "vertex_colors", "normal_faces"):
+        assert torch.equal(getattr(unit, name), getattr(file_mesh, name)), name
+    assert unit.shading == "smooth"
+    # turned with the mesh: still the area-weighted normals of the (rotated) vertices, not the file's directions
+    torch.testing.assert_close(unit.normals, vertex_normals(unit.vertices, unit.faces)[0], atol=1e-5, rtol=0)
+    torch.testing.assert_close(unit.normals, normals @ torch.as_tensor(Z_UP_TO_Y_UP, dtype=torch.float32).T)
+    assert float((unit.normals - normals).abs().max()) > 0.5
+    back = unit.to_original(transform)
+    torch.testing.assert_close(back.vertices, verts, atol=1e-5, rtol=0)
+    torch.testing.assert_close(back.normals, normals, atol=1e-6, rtol=0)
+    with pytest.raises(ValueError, match="rotation must have shape"):
+        unit.with_mesh(unit.mesh, np.eye(2))
+    with pytest.raises(ValueError, match="mesh must have"):
+        unit.with_mesh(Mesh(verts[:3], torch.tensor([[0, 1, 2]]), sm.mesh.face_colors[:1]))
+
+
+def test_obj_vertex_colours_beside_a_texture_round_trip(tmp_path: Path) -> None:
+    sm = _textured_grid()
+    colors = torch.randint(0, 256, (sm.mesh.num_vertices, 3), generator=torch.Generator().manual_seed(2)) / 255.0
+    painted = SurfaceMesh(sm.mesh, sm.uvs, sm.uv_faces, sm.texture, colors.float())
+    save_surface_mesh(painted, tmp_path / "p.obj")
+    back = load_surface_mesh(tmp_path / "p.obj")
+    assert back.texture is not None and back.vertex_colors is not None
+    torch.testing.assert_close(back.vertex_colors, painted.vertex_colors, atol=1e-6, rtol=0)
+    # the per-face colours are the texture's times the vertex colours, as the loader computes them
+    torch.testing.assert_close(back.face_colors, painted.with_texture(painted.texture).face_colors, atol=1e-5,
+                               rtol=0)
+    save_surface_mesh(painted, tmp_path / "p.ply")
+    torch.testing.assert_close(load_surface_mesh(tmp_path / "p.ply").vertex_colors, painted.vertex_colors,
+                               atol=0.6 / 255, rtol=0)
+    with pytest.raises(ValueError, match=r"\.obj, \.glb or \.ply"):
+        save_surface_mesh(painted, tmp_path / "p.stl")
+
+
+def test_nan_obj_vertex_colours_are_an_error_naming_the_file_and_field(tmp_path: Path) -> None:
+    obj = _write_obj(tmp_path, "v 0 0 0 1 0 0\nv 1 0 0 nan 1 0\nv 0 1 0 0 0 1\nf 1 2 3\n")
+    with pytest.raises(MeshLoadError, match=r"m\.obj: line 2: vertex colors: NaN"):
+        load_surface_mesh(obj)
+
+
+@pytest.mark.skipif(not native_available(), reason="the native module meshadv._raster is not built")
+def test_meshadv_render_shades_smooth_with_the_files_normals_turned_with_the_mesh(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from PIL import Image
+    from meshadv.cli import app
+    from meshadv.commands._common import make_views
+
+    sm = _textured_grid()
+    tilted = torch.nn.functional.normalize(torch.tensor([[0.9, 0.3, 0.3]]), dim=1).expand(sm.mesh.num_vertices, 3)
+    save_surface_mesh(SurfaceMesh(sm.mesh, sm.uvs, sm.uv_faces, sm.texture, normals=tilted.contiguous(),
+                                  normal_faces=sm.mesh.faces), tmp_path / "n.obj")
+    run = CliRunner().invoke(app, ["render", str(tmp_path / "n.obj"), "--z-up", "--views", "1", "--azimuths", "20:20",
+                                   "--elevation", "50", "--image-size", "32", "-o", str(tmp_path / "r")])
+    assert run.exit_code == 0, run.output
+    image = torch.as_tensor(np.asarray(Image.open(tmp_path / "r" / "view_0.png"), dtype=np.float32) / 255)
+    views = make_views(1, (20.0, 20.0), 50.0)
+    unit, _ = load_surface_mesh(tmp_path / "n.obj").normalized(z_up=True)
+
+    def draw(normals: torch.Tensor | None, normal_faces: torch.Tensor | None) -> torch.Tensor:
+        out = render_surface(unit.vertices, unit.faces, views.camera, views.lights, 32, texture=unit.texture,
+                             uvs=unit.uvs, uv_faces=unit.uv_faces, normals=normals, normal_faces=normal_faces,
+                             shading="smooth")
+        return out.image[0].permute(1, 2, 0)
+
+    torch.testing.assert_close(image, draw(unit.normals, unit.normal_faces), atol=1 / 255, rtol=0)
+    drawn = (image < 0.99).any(-1)
+    # the file's directions unturned, or the mesh's own normals, draw another image
+    for normals, normal_faces in ((tilted.contiguous(), unit.faces), (None, None)):
+        assert float((image - draw(normals, normal_faces)).abs()[drawn].mean()) > 0.03
+
+
+@pytest.mark.parametrize("ext", [".obj", ".glb"])
+def test_the_files_own_normals_load_as_written(tmp_path: Path, ext: str) -> None:
+    sm = _textured_grid()
+    tilted = torch.nn.functional.normalize(torch.rand(sm.mesh.num_vertices, 3) + 0.1, dim=1)
+    save_surface_mesh(SurfaceMesh(sm.mesh, sm.uvs, sm.uv_faces, sm.texture, normals=tilted,
+                                  normal_faces=sm.mesh.faces), tmp_path / f"n{ext}")
+    back = load_surface_mesh(tmp_path / f"n{ext}")
+    assert back.shading == "smooth"
+    # per face corner, keyed by position: the normals written, not ones trimesh recomputed from the faces
+    expect = {tuple(p): n for p, n in zip(sm.mesh.vertices.numpy().round(5).tolist(), tilted.numpy())}
+    corners = back.mesh.vertices[back.mesh.faces].reshape(-1, 3).numpy().round(5)
+    got = back.normals[back.normal_faces].reshape(-1, 3).numpy()
+    np.testing.assert_allclose(got, np.stack([expect[tuple(p)] for p in corners.tolist()]), atol=1e-5)

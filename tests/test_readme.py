@@ -203,6 +203,7 @@ def _check_attacks(ns: dict, root: Path) -> None:
     assert ns["attack"].max_distortion == 3.0e-4 * ns["pairs"] and ns["pairs"] > 0
     assert len(ns["result"].view_records) == 12 and ns["result"].config["eot"]["samples"] == 4
     assert ns["custom"].eot.azimuth == (0.0, 360.0)
+    assert ns["judged"].held_out_fraction == 0.8 and ns["judged"].perceptibility_cap.max_displacement == 0.02
 
 
 def _check_victims(ns: dict, root: Path) -> None:

@@ -269,6 +269,14 @@ class DDNRule(UpdateRule):
         params.grad = None
         self._step += 1
 
+    def params_changed(self, params: Tensor, active: Tensor) -> None:
+        """Re-read the perturbation of the rows ``active`` from ``params`` (changed by the loop's projection)."""
+        if self._delta is None:
+            raise RuntimeError("DDNRule.start_round must be called before params_changed")
+        idx = active.cpu().long()
+        with torch.no_grad():
+            self._delta[idx] = self.norm.read(params, idx).to(self._delta.dtype)
+
     def config(self) -> Dict[str, Any]:
         """The effective options (defaults filled in)."""
         return dict(self.options)

@@ -19,8 +19,14 @@ target whose views are adversarial (at least ``success_fraction`` of them) withi
 parameters when their distortion is the least seen so far. The step's loss-history row is kept and the callback, if
 any, gets a :class:`~meshadv.attacks.history.StepInfo`.
 
+Under a perceptibility cap with a largest-move ceiling (``max_displacement``), every update is followed by a
+projection of the flow into it (the family's ``limit_moves``, :mod:`meshadv.attacks.move_limit`), for every update
+rule: no vertex ever moves farther than the ceiling allows, so the steps are spent on meshes the cap admits.
+
 The result's success and scores are measured on the final meshes re-rendered from scratch (without jitter,
-:func:`~meshadv.attacks.evaluation.evaluate`), never on the optimiser's last images. Ctrl-C (``KeyboardInterrupt``)
+:func:`~meshadv.attacks.evaluation.evaluate`), never on the optimiser's last images; held-out views (``eval_views``,
+or the held-out views of the attack's views when its ``held_out_fraction`` asks for a held-out verdict) only judge
+the kept meshes, they never choose them. Ctrl-C (``KeyboardInterrupt``)
 in a step, in the callback or between steps ends the loop; the result is then the best so far, with
 ``interrupted=True``.
 
@@ -50,10 +56,11 @@ from meshadv.attacks.result import AttackResult, enough_views
 from meshadv.attacks.targets import StopRule, TargetState
 from meshadv.attacks.update import UpdateRule, make_update_rule
 from meshadv.perceptibility.cap import step_measures
+from meshadv.perceptibility.held_out import held_out_views
 from meshadv.perceptibility.measures import perceptibility_measures
 from meshadv.render.setup import RenderSetup
 
-__all__ = ["AttackCall", "AttackFamily", "StepTerms", "adversarial_terms", "attack_step", "run_attack"]
+__all__ = ["AttackCall", "AttackFamily", "StepTerms", "adversarial_terms", "attack_step", "move_radius", "run_attack"]
 
 
 class AttackFamily(Protocol):
@@ -68,6 +75,7 @@ class AttackFamily(Protocol):
     method: str
     method_options: Dict[str, Any]
     success_fraction: float
+    held_out_fraction: Optional[float]
     loss: str
     kappa: float
 
@@ -92,6 +100,10 @@ class AttackFamily(Protocol):
 
     def result_distances(self, mesh: Any, adversarial: Any, edges: Tensor) -> Dict[str, float]:
         """Every distance between the pristine mesh and one adversarial mesh."""
+
+    def limit_moves(self, params: Tensor, idx: Tensor, edges: Tensor, radius: float) -> bool:
+        """Pull the rows ``idx`` of ``params`` in place so that no vertex moves farther than ``radius``; ``True``
+        when a row changed."""
 
 
 @dataclass(frozen=True)
@@ -167,6 +179,17 @@ def attack_step(attack: AttackFamily, p: Tensor, idx: Tensor, criteria: List[Cri
 
 
 
+def move_radius(cap: Any, vertices: Tensor) -> Optional[float]:
+    """The largest vertex move (scene units) a ``max_displacement`` ceiling of ``cap`` allows on a mesh of pristine
+    ``vertices (N, 3)``: the ceiling times their bounding-box diagonal; ``None`` without a cap or without that
+    ceiling."""
+    ceiling = None if cap is None else cap.max_displacement
+    if ceiling is None:
+        return None
+    diagonal = float((vertices.max(dim=0).values - vertices.min(dim=0).values).norm())
+    return ceiling * diagonal if diagonal > 0 else None
+
+
 @dataclass(frozen=True)
 class _RunInfo:
     """What the loop hands to the final evaluation besides the chosen parameters."""
@@ -186,9 +209,13 @@ def run_attack(attack: AttackFamily, call: AttackCall, criteria: List[Criterion]
         attack: the attack (hyper-parameters and parametrisation).
         call: the mesh, views, victim, render setup and edges of the call (validated).
         criteria: the ``T`` bound criteria.
-        eval_views: optional held-out ``ViewSet`` the final meshes are also scored on.
+        eval_views: optional held-out ``ViewSet`` the final meshes are also scored on; with the attack's
+            ``held_out_fraction`` and none given, :func:`~meshadv.perceptibility.held_out.held_out_views` of the
+            call's views.
         callback: called with a :class:`StepInfo` after every step (``KeyboardInterrupt`` there stops the attack).
     """
+    if eval_views is None and getattr(attack, "held_out_fraction", None):
+        eval_views = held_out_views(call.views)
     loop = _Loop(attack, call, criteria, callback)
     try:
         loop.run_rounds()
@@ -211,6 +238,7 @@ class _Loop:
         self.rule.prepare(call.mesh, call.edges)
         self.targets = [TargetState(c) for c in criteria]
         self.stop = attack.stop_rule()
+        self.move_radius = move_radius(self.stop.cap, call.mesh.vertices)
         self.history: List[Dict[str, Any]] = []
         self.total_steps = 0
         self.interrupted = False
@@ -273,6 +301,8 @@ class _Loop:
             fractions = (terms.margins > 0).float().mean(dim=1)
             is_adv = enough_views(fractions, attack.success_fraction)
         self.rule.step(params, idx, is_adv)
+        if self.move_radius is not None and self.attack.limit_moves(params, idx, call.edges, self.move_radius):
+            self.rule.params_changed(params, idx)
         return p, terms, fractions
 
     def _record(self, rnd: int, step: int, active: List[int], idx: Tensor, p: Tensor, terms: StepTerms,
@@ -391,6 +421,7 @@ def _final_result(attack: AttackFamily, call: AttackCall, targets: List[TargetSt
         wall_time=run.wall_time,
         interrupted=run.interrupted,
         success_fraction=attack.success_fraction,
+        held_out_fraction=getattr(attack, "held_out_fraction", None),
         perceptibility_cap=None if cap is None else cap.to_record(),
         original_images=before.images[0],
         images=after.images,

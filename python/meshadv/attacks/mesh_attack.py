@@ -91,6 +91,13 @@ class MeshAttack(ABC):
             paper's protocol): none. A step counts as a success only inside the cap, a target that never succeeds
             inside it keeps its closest step inside it (or the pristine mesh), and a final mesh outside it is
             reported as failed. :func:`meshadv.perceptibility.recommended_cap` gives the cap of the command line.
+            Under a ``max_displacement`` ceiling every update is followed by a projection of the flow into it
+            (:mod:`meshadv.attacks.move_limit`), so no step moves a vertex farther than it allows.
+        held_out_fraction: ``None`` or ``0`` (default): a target's verdict is that of the attack views (and the cap).
+            A fraction in ``(0, 1]``: a target succeeds only when it also holds on at least this fraction of the
+            held-out views, ``eval_views`` of the call or, when it gives none,
+            :func:`meshadv.perceptibility.held_out_views` of its views (between and around them). Held-out views
+            are never optimised on and never pick the kept result; they only judge it.
 
     Raises:
         TypeError: a hyper-parameter of the wrong type (``lr="0.1"``, ``steps=1.9``, ``steps=None``, ``jitter=[]``),
@@ -120,6 +127,7 @@ class MeshAttack(ABC):
         method_options: Optional[Dict[str, Any]] = None,
         eot: TransformationsLike = None,
         perceptibility_cap: Any = None,
+        held_out_fraction: Optional[float] = None,
     ) -> None:
         self.steps = _validate.positive_int("steps", steps)
         self.lr = _validate.positive_float("lr", lr)
@@ -143,6 +151,9 @@ class MeshAttack(ABC):
         if self.eot is not None and self.jitter:
             raise ValueError("jitter and eot exclude each other: eot draws its own cameras and lights at every step")
         self.perceptibility_cap = as_cap(perceptibility_cap)
+        held = None if held_out_fraction is None else _validate.finite_float("held_out_fraction", held_out_fraction,
+                                                                              low=0.0, high=1.0)
+        self.held_out_fraction = held if held else None
 
     # ------------------------------------------------------------------ the family's parametrisation
     @abstractmethod
@@ -198,6 +209,13 @@ class MeshAttack(ABC):
     def check_mesh(self, mesh: Any) -> None:
         """Raise ``ValueError`` when the attack's masks do not fit ``mesh`` (the default accepts every mesh)."""
 
+    def limit_moves(self, params: Tensor, idx: Tensor, edges: Tensor, radius: float) -> bool:
+        """Pull the rows ``idx`` of ``params`` (in place) so that no vertex of their meshes moves farther than
+        ``radius`` (scene units) from its pristine place, leaving rows already inside unchanged; ``True`` when a row
+        changed. The attack loop calls it after every update under a cap with a ``max_displacement`` ceiling. The
+        default, for families that move no vertex, changes nothing."""
+        return False
+
     def budget_space(self, **options: Any) -> Any:
         """The space a distortion-budget rule (``method="ddn"``) steps this family's parameters in: a
         :class:`~meshadv.attacks.norms.FlowSpace` or :class:`~meshadv.attacks.norms.ColorSpace` (built for a mesh by
@@ -229,6 +247,8 @@ class MeshAttack(ABC):
         """
         rule = make_update_rule(self.method, attack=self, num_targets=1, **self.method_options)
         robust = {} if self.eot is None else {"eot": self.eot.config()}
+        if self.held_out_fraction is not None:
+            robust["held_out_fraction"] = self.held_out_fraction
         return {
             "perturbation": self.perturbation, "steps": self.steps, "lr": self.lr,
             "lambda_perceptual": self.lambda_perceptual, "binary_search_steps": self.binary_search_steps,

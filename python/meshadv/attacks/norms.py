@@ -223,6 +223,10 @@ class FlowSpace(_Space):
         params[idx] = delta.to(params.dtype)
         return delta
 
+    def read(self, params: Tensor, idx: Tensor) -> Tensor:
+        """The flow of the rows ``idx`` of ``params`` (a detached copy)."""
+        return params[idx].detach().clone()
+
 
 class ColorSpace(_Space):
     """A face-colour change ``dt (T, M, 3)`` of parameters that are the colours' logits, measured by
@@ -256,3 +260,9 @@ class ColorSpace(_Space):
         delta = self.project(delta)
         params[idx] = torch.logit((self.origin + delta).clamp(COLOR_EPS, 1 - COLOR_EPS)).to(params.dtype)
         return delta
+
+    def read(self, params: Tensor, idx: Tensor) -> Tensor:
+        """The colour change of the rows ``idx`` of ``params`` (logits) from the origin."""
+        if self.origin is None:
+            raise RuntimeError("ColorSpace.prepare(mesh, edges) must be called first")
+        return torch.sigmoid(params[idx].detach()) - self.origin

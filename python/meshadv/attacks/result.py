@@ -123,6 +123,8 @@ class AttackResult:
         perceptibility_cap: the record of the attack's perceptibility cap
             (``meshadv.perceptibility.PerceptibilityCap.to_record``), or ``None`` for none: a target whose final mesh
             lies outside it has not succeeded, whatever its views say.
+        held_out_fraction: ``None`` (the verdict of the victim views alone), or the fraction of the held-out views
+            (``eval_success``) a target must also hold on to have succeeded.
     """
 
     original: Any
@@ -154,6 +156,7 @@ class AttackResult:
     victim: str
     class_names: Tuple[str, ...] = field(default=(), repr=False)
     perceptibility_cap: Optional[Dict[str, Any]] = None
+    held_out_fraction: Optional[float] = None
 
     @property
     def num_targets(self) -> int:
@@ -189,10 +192,28 @@ class AttackResult:
         return PerceptibilityCap.from_record(self.perceptibility_cap).violations(self.distances[target])
 
     @property
+    def held_out_rate(self) -> Optional[Tensor]:
+        """Fraction of the held-out views on which each target holds, ``(T,)``, or ``None`` without held-out
+        views."""
+        return None if self.eval_success is None else self.eval_success.float().mean(dim=1)
+
+    @property
+    def holds_held_out(self) -> Tensor:
+        """bool ``(T,)``: the target holds on at least ``held_out_fraction`` of the held-out views (all true without
+        a held-out verdict; all false when one is asked for and there are no held-out views)."""
+        if self.held_out_fraction is None:
+            return torch.ones(self.num_targets, dtype=torch.bool)
+        rate = self.held_out_rate
+        if rate is None:
+            return torch.zeros(self.num_targets, dtype=torch.bool)
+        return enough_views(rate, self.held_out_fraction)
+
+    @property
     def succeeded(self) -> Tensor:
-        """bool ``(T,)``: the target holds on at least ``success_fraction`` of the victim views and its mesh lies
-        inside the perceptibility cap."""
-        return enough_views(self.success_rate, self.success_fraction) & self.inside_cap
+        """bool ``(T,)``: the target holds on at least ``success_fraction`` of the victim views, on at least
+        ``held_out_fraction`` of the held-out views (when asked for), and its mesh lies inside the perceptibility
+        cap."""
+        return enough_views(self.success_rate, self.success_fraction) & self.inside_cap & self.holds_held_out
 
     def _name(self, idx: int) -> str:
         return self.class_names[idx] if 0 <= idx < len(self.class_names) else str(idx)
@@ -209,13 +230,19 @@ class AttackResult:
             outside = self.cap_violations(t)
             if outside:
                 status += f" (outside the perceptibility cap: {'; '.join(outside)})"
+            views_hold = bool(enough_views(self.success_rate[t], self.success_fraction))
+            if views_hold and not bool(self.holds_held_out[t]):  # the held-out views are why it failed
+                status += f" (held-out views: fewer than {100 * float(self.held_out_fraction or 0):.0f}% hold)"
             line = (f"  {crit.get('label', '?')}: {status} on {int(self.success[t].sum())}/{self.success.shape[1]} "
                     f"views; {perceptibility_line(d)}; laplacian_pair_mean={_get(d, 'laplacian_pair_mean'):.4g} "
                     f"laplacian_sum={_get(d, 'laplacian_sum'):.4g} rmse={_get(d, 'color_rmse'):.4g}")
             if "texel_rmse" in d:
                 line += f" texel_rmse={d['texel_rmse']:.4g} texture_tv={d['texture_tv']:.4g}"
             if self.eval_success is not None:
-                line += f"; held-out {int(self.eval_success[t].sum())}/{self.eval_success.shape[1]}"
+                line += (f"; held-out views (never optimised on) {int(self.eval_success[t].sum())}/"
+                         f"{self.eval_success.shape[1]}")
+                if self.held_out_fraction is not None:
+                    line += f" (SUCCESS needs >= {100 * self.held_out_fraction:.0f}%)"
             lines.append(line)
             if self.top1 is not None:
                 lines.append("    top-1: " + ", ".join(self._name(int(i)) for i in self.top1[t].tolist()))
@@ -235,6 +262,7 @@ class AttackResult:
 
         return {
             "perturbation": self.perturbation,
+            "shading": getattr(self.original, "shading", "flat"),
             "victim": self.victim,
             "criteria": list(self.criteria),
             "succeeded": [bool(s) for s in self.succeeded.tolist()],
@@ -251,6 +279,9 @@ class AttackResult:
             "original_top1": None if self.original_top1 is None else self.original_top1.tolist(),
             "original_top1_names": None if self.original_top1 is None else names(self.original_top1.unsqueeze(0))[0],
             "eval_success": None if self.eval_success is None else self.eval_success.tolist(),
+            "held_out_rate": None if self.held_out_rate is None else self.held_out_rate.tolist(),
+            "held_out_fraction": self.held_out_fraction,
+            "holds_held_out": [bool(s) for s in self.holds_held_out.tolist()],
             "eval_scores": None if self.eval_scores is None else self.eval_scores.tolist(),
             "distances": [{k: _json_float(v) for k, v in d.items()} for d in self.distances],
             "lambdas": [_json_float(v) for v in self.lambdas],
@@ -269,20 +300,23 @@ class AttackResult:
         }
 
     def _write_meshes(self, folder: Path) -> None:
-        """Every target's adversarial mesh as PLY and OBJ (:meth:`mesh_filenames`) into ``folder``; a textured one
-        (a SurfaceMesh) also as GLB, its OBJ with an MTL and the texture PNG."""
-        from meshadv.mesh.surface_mesh import save_surface_mesh
+        """Every target's adversarial mesh as PLY and OBJ (:meth:`mesh_filenames`) into ``folder``; a SurfaceMesh
+        (textured or vertex-coloured) also as GLB, its OBJ with an MTL and the texture PNG or with its vertex
+        colours (``v x y z r g b``), its PLY with the vertex colours (else per face)."""
+        from meshadv.mesh.surface_mesh import SurfaceMesh, save_surface_mesh
 
         for t, mesh in enumerate(self.adversarial):
             ply, obj = self.mesh_filenames(t)
-            if getattr(mesh, "texture", None) is None:
+            if not isinstance(mesh, SurfaceMesh):
                 save_mesh(mesh.detach(), folder / ply)
                 save_mesh(mesh.detach(), folder / obj)
                 continue
-            # a textured mesh: OBJ + MTL + the texture PNG at the file's resolution, GLB, and a per-face PLY
             save_surface_mesh(mesh, folder / obj)
             save_surface_mesh(mesh, folder / Path(obj).with_suffix(".glb").name)
-            save_mesh(mesh.mesh.detach(), folder / ply)
+            if mesh.vertex_colors is not None:
+                save_surface_mesh(mesh, folder / ply)
+            else:
+                save_mesh(mesh.mesh.detach(), folder / ply)
 
     def _write_images(self, folder: Path) -> None:
         """The pristine and adversarial renders of every view as PNG into ``folder``."""

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from typing import Any, Dict, Optional, Tuple
 
+import torch
 from torch import Tensor
 
 from meshadv import _validate
@@ -31,6 +32,7 @@ from meshadv.attacks.mesh_attack import MeshAttack
 from meshadv.attacks.flow import smooth_flow
 from meshadv.attacks.losses import laplacian_flow_loss
 from meshadv.attacks.masks import check_mask, check_mask_fits, mask_config
+from meshadv.attacks.move_limit import move_lengths, scale_factors, shorten_moves
 from meshadv.attacks.norms import FlowSpace
 from meshadv.render.surface_reflectance import reflectance_of
 
@@ -99,6 +101,32 @@ class ShapeAttack(MeshAttack):
             params = params * self.vertex_mask.to(params.device)[..., :, None].to(params.dtype)
         dv = smooth_flow(params, edges, self.smoothing)
         return dv if self.max_step is None else dv.clamp(-self.max_step, self.max_step)
+
+    def limit_moves(self, params: Tensor, idx: Tensor, edges: Tensor, radius: float) -> bool:
+        """Pull the rows ``idx`` of ``params`` (in place) so that no applied vertex move is longer than ``radius``
+        (:mod:`meshadv.attacks.move_limit`); ``True`` when a row changed.
+
+        With ``smoothing=0`` the parameters are the flow (masked, clamped by ``max_step``), and every vertex that
+        moved too far is pulled back along its move (the Euclidean projection onto the limit); with ``smoothing > 0``
+        the flow ``S^k p`` is linear in ``p``, and the rows with a vertex too far are scaled down as a whole. Rows
+        whose moves are all within ``radius`` are left exactly as they are.
+        """
+        with torch.no_grad():
+            rows = params[idx]
+            over = move_lengths(self.displacement(rows, edges)) > radius  # (K, N)
+            if not bool(over.any()):
+                return False
+            goal = radius * (1.0 - 1e-6)  # a hair inside, so float rounding never leaves a pulled row outside
+            if self.smoothing == 0:
+                # |dv_i| <= |p_i|: shortening p_i to the radius brings dv_i inside it
+                limited = torch.where(over.unsqueeze(-1), shorten_moves(rows, goal), rows)
+            else:
+                masked = rows if self.vertex_mask is None else rows * self.vertex_mask.to(rows)[..., :, None]
+                flow = smooth_flow(masked, edges, self.smoothing)  # the flow before max_step's clamp
+                factor = torch.where(over.any(dim=1), scale_factors(flow, goal), torch.ones_like(flow[:, 0, 0]))
+                limited = rows * factor.view(-1, 1, 1)
+            params[idx] = limited.to(params.dtype)
+        return True
 
     def initial_params(self, mesh: Any, num_targets: int) -> Tensor:
         """No displacement: zeros ``(T, N, 3)``."""

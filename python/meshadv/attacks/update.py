@@ -16,6 +16,8 @@ optimisation itself. Contract, per attack call with ``T`` targets:
 4. The loop then calls ``rule.step(params, idx, is_adversarial)``: ``is_adversarial (K,) bool`` says which active
    targets met the criterion (``success_fraction`` of the views) *before* this update, measured on the images the
    objective was computed from. The rule updates ``params`` in place (an optimiser step, a projection, ...).
+   Under a cap with a largest-move ceiling the loop then projects the updated rows into it and, when that changed
+   them, calls ``rule.params_changed(params, idx)``.
 5. After a round, ``rule.end_round(successes)`` with one flag per target (did the round reach a success within the
    distortion budget?) drives any outer search.
 
@@ -98,6 +100,11 @@ class UpdateRule(ABC):
     def prepare(self, mesh: Any, edges: Tensor) -> None:
         """Called once per attack call, before the first round, with the pristine mesh and its unique edges
         ``(E, 2)`` (for rules whose geometry depends on the mesh, e.g. a Laplacian). The default does nothing."""
+
+    def params_changed(self, params: Tensor, active: Tensor) -> None:
+        """The loop changed the rows ``active`` of ``params`` after :meth:`step` (a projection into the
+        perceptibility cap's largest move); a rule that keeps its own copy of the perturbation re-reads it. The
+        default does nothing (Adam steps ``params`` itself)."""
 
     def end_round(self, successes: Sequence[bool]) -> None:
         """A round ended; ``successes`` has one flag per target. The default does nothing."""

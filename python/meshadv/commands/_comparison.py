@@ -178,8 +178,8 @@ def captions_for(victim: Any, images: Any) -> Tuple[List[str], Any]:
 
 def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, title: str) -> Path:
     """What ``meshadv attack`` and ``meshadv demo`` add to ``AttackResult.save``: ``comparison.png``, the
-    adversarial mesh in the input file's frame, the benign (attacked, normalised) mesh as ``benign.ply``, and the
-    input (path, Z-up, transform) in ``result.json``.
+    adversarial mesh in the input file's frame, the benign (attacked, normalised) mesh as ``benign.ply`` (and as
+    ``benign.obj`` with its texture or vertex colours), and the input (path, Z-up, transform) in ``result.json``.
 
     Args:
         result: the saved ``AttackResult`` (its folder is ``output``).
@@ -194,7 +194,7 @@ def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, ti
     import json
 
     from meshadv.mesh import save_mesh
-    from meshadv.mesh.surface_mesh import save_surface_mesh
+    from meshadv.mesh.surface_mesh import SurfaceMesh, save_surface_mesh
     from meshadv.util.atomic import write_json_atomic
 
     before, _ = captions_for(victim, result.original_images)
@@ -209,9 +209,9 @@ def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, ti
     if loaded.transform is not None:
         for t, mesh in enumerate(result.adversarial):
             stem = "adversarial" if len(result.adversarial) == 1 else f"adversarial_t{t}"
-            if getattr(mesh, "texture", None) is not None:  # textured: OBJ + MTL + texture PNG
+            if isinstance(mesh, SurfaceMesh):  # OBJ + MTL + texture PNG, or OBJ with vertex colours
                 name = f"{stem}_input_frame.obj"
-                save_surface_mesh(mesh.with_vertices(loaded.transform.to_original(mesh.vertices)), output / name)
+                save_surface_mesh(mesh.to_original(loaded.transform), output / name)
             else:
                 name = f"{stem}_input_frame.ply"
                 detached = mesh.detach()
@@ -220,6 +220,9 @@ def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, ti
     benign = getattr(result.original, "mesh", result.original)  # a textured mesh's geometry and face colours
     save_mesh(benign.detach(), output / "benign.ply")  # the benign control of `meshadv transfer attack`
     entry["benign_mesh"] = "benign.ply"
+    if isinstance(result.original, SurfaceMesh):  # with its texture or vertex colours, as the attack drew it
+        save_surface_mesh(result.original, output / "benign.obj")
+        entry["benign_mesh"] = "benign.obj"
     record["input"] = entry
     write_json_atomic(record, output / "result.json")
     return path

@@ -11,12 +11,14 @@ Example:
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, List, Optional, Sequence
 
 import typer
 
 from meshadv.commands._cap_option import CAP_HELP, parse_cap
+from meshadv.commands._surface_views import SHADING_HELP
 from meshadv.commands._common import (
     DEFAULT_BACKGROUND,
     DEFAULT_DISTANCE,
@@ -28,29 +30,76 @@ from meshadv.commands._common import (
     resolve_method,
 )
 
-__all__ = ["attack", "build_attack", "build_criteria", "resampled_input", "run_with_progress"]
-
-
+__all__ = ["attack", "attack_input", "build_attack", "build_criteria", "resampled_input", "run_with_progress"]
 
 
 def resampled_input(loaded: Any, faces: int) -> Any:
-    """``loaded`` (a ``MeshInput``) with its mesh resampled uniformly with MeshLab to about ``faces`` faces
-    (:func:`meshadv.mesh.resample.resample_mesh_with_info`), saying the face counts; unchanged for ``faces == 0`` and
-    for built-in shapes (no file).
+    """``loaded`` (a ``MeshInput``) with its mesh resampled uniformly with MeshLab to about ``faces`` faces, saying
+    the face counts: a per-face mesh by :func:`meshadv.mesh.resample.resample_mesh_with_info`, a textured or
+    vertex-coloured one by :func:`meshadv.mesh.surface_resample.resample_surface_mesh` (its texture carried onto a
+    new atlas, its vertex colours onto the new vertices); unchanged for ``faces == 0`` and for built-in shapes (no
+    file).
 
     Raises:
         MeshProcessingError: MeshLab failed on the mesh (the message says so; ``--resample 0`` attacks it as loaded).
     """
     if faces == 0 or loaded.path is None:
         return loaded
-    from dataclasses import replace
+    from meshadv.mesh.surface_mesh import SurfaceMesh
 
-    from meshadv.mesh.resample import resample_mesh_with_info
+    carried = ""
+    if isinstance(loaded.mesh, SurfaceMesh):
+        from meshadv.mesh.surface_resample import resample_surface_mesh
 
-    dense, info = resample_mesh_with_info(loaded.mesh, target_faces=faces)
-    typer.echo(f"resampled uniformly with MeshLab ({info.method}): {info.input_faces} -> {info.output_faces} faces "
-               "(--resample 0 attacks the mesh as loaded)")
+        dense, info = resample_surface_mesh(loaded.mesh, target_faces=faces)
+        carried = "; " + " and ".join(
+            ([f"texture carried onto a {dense.texture.shape[1]}x{dense.texture.shape[0]} atlas"]
+             if dense.texture is not None else []) + (["vertex colours carried"] if dense.vertex_colors is not None
+                                                      else []))
+    else:
+        from meshadv.mesh.resample import resample_mesh_with_info
+
+        dense, info = resample_mesh_with_info(loaded.mesh, target_faces=faces)
+    typer.echo(f"resampled uniformly with MeshLab ({info.method}): {info.input_faces} -> {info.output_faces} faces"
+               f"{carried} (--resample 0 attacks the mesh as loaded)")
     return replace(loaded, mesh=dense)
+
+
+def attack_input(loaded: Any, perturbation: str, shading: Optional[str], resample: int) -> Any:
+    """The ``MeshInput`` an attack of ``perturbation`` works on, resampled (:func:`resampled_input`) and under
+    ``shading`` (default: what the file asks for): a file's texture or vertex colours drawn as the file has them (a
+    :class:`~meshadv.mesh.surface_mesh.SurfaceMesh`; ``texture-map`` attacks it as loaded, its texels in the file's
+    UV layout being the perturbation), else the per-face mesh, drawn smooth with each vertex the mean of its faces'
+    colours for ``shading="smooth"``. Smooth shading uses the area-weighted normals of the attacked vertices (the
+    file's normals do not follow a shape perturbation).
+
+    Raises:
+        ValueError: ``texture-map`` of a mesh without a UV texture image, or ``texture`` (per-face colours, drawn
+            flat) with ``shading="smooth"``.
+        MeshLoadError: the file's texture or attributes are unusable (the message names the file and field).
+        MeshProcessingError: MeshLab failed on the mesh.
+    """
+    from meshadv.commands._surface_views import surface_input
+    from meshadv.mesh.surface_mesh import SurfaceMesh
+
+    if perturbation == "texture":
+        if shading == "smooth":
+            raise ValueError("--shading smooth needs --perturbation shape or texture-map: the per-face colour "
+                             "attack (texture) draws its faces flat")
+        return resampled_input(loaded, resample)
+    surface = surface_input(loaded, None if shading == "smooth" else shading, keep_normals=False)
+    if isinstance(surface.mesh, SurfaceMesh):
+        surface = replace(surface, mesh=replace(surface.mesh, shading=shading or surface.mesh.shading))
+        if perturbation == "texture-map":
+            if resample:
+                typer.echo("texture-map: the textured file is attacked as loaded (its texels, in the file's UV "
+                           "layout, are the perturbation; resampling would re-encode them)")
+            return surface
+        return resampled_input(surface, resample)
+    if perturbation == "texture-map":
+        raise ValueError(f"--perturbation texture-map needs a UV texture image: {loaded.label} has none (an OBJ "
+                         "needs a map_Kd in its MTL, a GLB a base-colour texture)")
+    return surface_input(resampled_input(loaded, resample), shading)
 
 
 def build_attack(perturbation: str, **kwargs: Any) -> Any:
@@ -169,7 +218,14 @@ def attack(
     views: int = typer.Option(5, help="number of victim views"),
     azimuths: str = typer.Option("150:210", help="azimuth range LOW:HIGH or LOW-HIGH (degrees) of the victim views; "
                                                  "180 faces the front of a PASCAL3D+ model"),
-    eval_views: int = typer.Option(0, help="held-out views in the same range (between the victim views)"),
+    eval_views: Optional[int] = typer.Option(
+        None, min=0, help="held-out views that judge the result (never optimised on, never used to pick it): "
+                          "default: the views between and around the victim views (8 for the default 5: the 4 "
+                          "azimuths between them, 30 degrees beyond either end, 20 degrees above and below); N: N "
+                          "views between the victim views; 0: none (needs --held-out-fraction 0)"),
+    held_out_fraction: float = typer.Option(
+        0.8, min=0.0, max=1.0, help="SUCCESS needs the target to hold on at least this fraction of the held-out "
+                                    "views as well as on the victim views (0: the victim views' verdict alone)"),
     elevation: float = typer.Option(DEFAULT_ELEVATION, help="camera elevation (degrees)"),
     distance: float = typer.Option(DEFAULT_DISTANCE, help="camera distance (mesh normalised to [-1, 1])"),
     method: Optional[str] = typer.Option(
@@ -216,17 +272,24 @@ def attack(
     background: str = typer.Option(DEFAULT_BACKGROUND, help="background colour r,g,b in [0, 1]"),
     threshold: float = typer.Option(0.5, help="detector score threshold (--disappear)"),
     z_up: Optional[bool] = typer.Option(None, "--z-up/--y-up", help="mesh file is Z-up (default: guess)"),
+    shading: Optional[str] = typer.Option(
+        None, help=SHADING_HELP + "; the attack's renders, its saved meshes and their Mitsuba transfer use it (smooth: "
+                   "the area-weighted normals of the attacked vertices; not with --perturbation texture)"),
     resample: int = typer.Option(
         4000, min=0, help="attack a mesh file resampled uniformly with MeshLab to about this many faces, as the paper "
-                          "does (0: the mesh as loaded; built-in shapes are never resampled); the adversarial mesh "
-                          "is saved in the input file's frame all the same"),
+                          "does (0: the mesh as loaded; built-in shapes are never resampled; a texture is carried "
+                          "onto a new atlas, vertex colours onto the new vertices; --perturbation texture-map attacks "
+                          "the file as loaded); the adversarial mesh is saved in the input file's frame all the same"),
     seed: int = typer.Option(0, help="random seed"),
     quiet: bool = typer.Option(False, help="no progress bar"),
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
 ) -> None:
     """Attack MESH so that VICTIM sees the target class (shape or texture perturbation); Ctrl-C saves the best
-    result so far. Writes the adversarial mesh (PLY, OBJ; and in the input file's frame), before/after PNGs, a
-    labelled comparison.png and result.json into OUTPUT.
+    result so far. SUCCESS means: the target holds on the victim views and on at least --held-out-fraction of the
+    held-out views, which the attack never optimised on, with the mesh inside the perceptibility cap (--cap).
+    Writes the adversarial mesh (PLY, OBJ; a textured one also as OBJ + MTL + texture PNG and GLB, vertex colours
+    as OBJ `v x y z r g b`; and in the input file's frame), before/after PNGs, a labelled
+    comparison.png and result.json into OUTPUT.
 
     Victims: efficientnet_lite0, efficientnet_lite2, ssd_mobilenet_v2_coco (weights included); densenet121,
     inception_v3 (--weights STATE_DICT.pth), yolov3 (--weights FILE.weights --cfg FILE.cfg)."""
@@ -236,8 +299,9 @@ def attack(
     from meshadv.attacks.update import RECOMMENDED_METHOD
     from meshadv.commands._benign_gate import benign_gate, source_class
     from meshadv.commands._comparison import write_attack_outputs
-    from meshadv.commands._surface_views import textured_input
+    from meshadv.commands._surface_views import parse_shading
     from meshadv.mesh.errors import MeshProcessingError
+    from meshadv.perceptibility import held_out_views
     from meshadv.render import RenderSetup
     from meshadv.render.visibility import check_visibility_gradient
     from meshadv.victims import load_victim
@@ -255,18 +319,17 @@ def attack(
             raise ValueError("--visibility-gradient applies to --method ddn --perturbation shape only")
         method_options = None if visibility_gradient is None else {
             "visibility_gradient": check_visibility_gradient(visibility_gradient, "--visibility-gradient")}
-        loaded = load_mesh_input(mesh, z_up=z_up)
-        if perturbation in ("texture-map", "shape"):  # a shape attack on a textured file keeps its texture
-            loaded = textured_input(loaded, required=perturbation == "texture-map")
-        if getattr(loaded.mesh, "texture", None) is not None:
-            if resample:
-                typer.echo("textured file: attacked as loaded (MeshLab resampling would drop its UVs and texture)")
-        else:
-            loaded = resampled_input(loaded, resample)
+        loaded = attack_input(load_mesh_input(mesh, z_up=z_up), perturbation, parse_shading(shading), resample)
         mesh_obj, label = loaded.mesh, loaded.label
         az = parse_azimuth_range(azimuths)
         view_set = make_views(views, az, elevation, distance)
-        held_out = make_views(eval_views + 1, az, elevation, distance, offset=0.5) if eval_views > 0 else None
+        if eval_views == 0 and held_out_fraction > 0:
+            raise ValueError("--eval-views 0 leaves no held-out views to judge the result on: give "
+                             "--held-out-fraction 0 too (the victim views' verdict alone)")
+        if eval_views is None:
+            held_out = held_out_views(view_set)
+        else:
+            held_out = make_views(eval_views + 1, az, elevation, distance, offset=0.5) if eval_views > 0 else None
         jitter_cfg = dict(azimuth=5.0, elevation=3.0, distance=0.05, light_direction=0.2,
                           light_intensity=0.2) if jitter else None
         victim_obj = load_victim(victim, weights=weights, cfg=cfg)
@@ -283,7 +346,7 @@ def attack(
             perturbation, steps=steps, lr=lr, lambda_perceptual=lambda_, binary_search_steps=binary_search, loss=loss,
             kappa=kappa, early_stop=early_stop if early_stop > 0 else None, early_stop_margin=early_stop_margin,
             max_distortion=budget, jitter=jitter_cfg, seed=seed, method=method, method_options=method_options,
-            perceptibility_cap=parse_cap(cap), **{**robust, **shape_only},
+            perceptibility_cap=parse_cap(cap), held_out_fraction=held_out_fraction, **{**robust, **shape_only},
         )
         criteria = build_criteria(victim_obj, target, untargeted, disappear, threshold)
         for crit in criteria:
@@ -303,6 +366,11 @@ def attack(
                                       f"{label}: {perturbation} attack ({result.criteria[0].get('label', '')}) "
                                       f"{status} ({result.steps} steps)")
     typer.echo(result.summary())
+    if held_out is not None:
+        verdict = (f"SUCCESS needs the target on >= {100 * held_out_fraction:.0f}% of them"
+                   if held_out_fraction > 0 else "the verdict is the victim views' alone (--held-out-fraction 0)")
+        typer.echo(f"held-out views: {len(held_out)}, never optimised on and never used to pick the result; "
+                   f"{verdict}")
     if eot > 0:
         typer.echo(f"robust attack: {eot} fresh views per step; success judged on {len(result.view_records)} fresh "
                    f"views of the range, none of them optimised on")

@@ -12,6 +12,7 @@ from typing import Optional
 
 import typer
 
+from meshadv.commands._surface_views import SHADING_HELP
 from meshadv.commands._common import (
     DEFAULT_BACKGROUND,
     DEFAULT_DISTANCE,
@@ -41,27 +42,24 @@ def render(
     weights: Optional[Path] = typer.Option(None, help="weights file of densenet121 / inception_v3 / yolov3"),
     cfg: Optional[Path] = typer.Option(None, help="Darknet .cfg file (yolov3 only)"),
     z_up: Optional[bool] = typer.Option(None, "--z-up/--y-up", help="mesh file is Z-up (default: guess)"),
-    shading: Optional[str] = typer.Option(None, help="flat or smooth (default: what the file asks for: smooth when "
-                                                     "it has vertex normals); textures and vertex colours are "
-                                                     "rendered as the file has them"),
+    shading: Optional[str] = typer.Option(None, help=SHADING_HELP),
     output: Path = typer.Option(..., "-o", "--output", help="output folder"),
 ) -> None:
     """Render MESH from VIEWS azimuths and write view_{j}.png (+ predictions.json with --victim) into OUTPUT."""
     import torch
 
-    from meshadv.commands._surface_views import render_file_surface
+    from meshadv.commands._surface_views import parse_shading, render_file_surface
     from meshadv.render import RenderSetup, render_views
     from meshadv.util.atomic import write_json_atomic
     from meshadv.util.png import save_png
 
     try:
-        if shading not in (None, "flat", "smooth"):
-            raise ValueError(f"--shading must be flat or smooth, got {shading!r}")
+        shading = parse_shading(shading)
         loaded = load_mesh_input(mesh, z_up=z_up)
         mesh_obj, label = loaded.mesh, loaded.label
         view_set = make_views(views, parse_azimuth_range(azimuths), elevation, distance)
         bg = parse_color(background)
-        images = render_file_surface(loaded.path, bool(loaded.z_up), view_set, image_size, bg, shading)
+        images = render_file_surface(loaded, view_set, image_size, bg, shading)
     except (ValueError, FileNotFoundError) as exc:
         raise typer.BadParameter(str(exc)) from exc
     output.mkdir(parents=True, exist_ok=True)

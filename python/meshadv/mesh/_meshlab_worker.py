@@ -7,7 +7,9 @@ prints one line to stderr and exits with status 2; a crash (segfault, out-of-mem
 parent as a negative return code.
 
 Ops: ``uniform`` (``generate_resampled_uniform_mesh``), ``isotropic`` (``meshing_isotropic_explicit_remeshing``),
-and the diagnostics ``crash`` (raises SIGSEGV) and ``sleep`` (sleeps ``seconds``), used to test the isolation.
+``surface_transfer`` (a source OBJ's texture and/or vertex colours carried onto the input geometry, written as an OBJ
+at ``request["output"]``: :func:`_surface_transfer`), and the diagnostics ``crash`` (raises SIGSEGV) and ``sleep``
+(sleeps ``seconds``), used to test the isolation.
 """
 
 from __future__ import annotations
@@ -157,6 +159,35 @@ def _isotropic(vertices: np.ndarray, faces: np.ndarray, req: dict) -> "tuple[np.
     return out_v, out_f, {"attempts": tried, "smooth": smooth, "hausdorff": distance / diag}
 
 
+def _surface_transfer(req: dict) -> None:
+    """Carry the texture and/or vertex colours of the OBJ ``req["source"]`` onto the geometry of ``req["input"]``
+    and save it as the OBJ ``req["output"]`` (its MTL and texture PNG beside it).
+
+    The texture: a trivial per-triangle atlas of ``texture_side`` squared texels on the new faces
+    (``compute_texcoord_parametrization_triangle_trivial_per_wedge``), filled with the source's texture colour at the
+    closest source point (``transfer_attributes_to_texture_per_vertex``, "Texture Color"). Vertex colours: the
+    source's colour at the closest point (``transfer_attributes_per_vertex``).
+    """
+    import pymeshlab
+
+    with np.load(req["input"]) as data:
+        vertices = np.ascontiguousarray(data["vertices"], dtype=np.float64)
+        faces = np.ascontiguousarray(data["faces"], dtype=np.int32)
+    ms = pymeshlab.MeshSet()
+    ms.load_new_mesh(req["source"])
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces))
+    texture, colors = bool(req.get("texture")), bool(req.get("colors"))
+    if texture:
+        side = int(req["texture_side"])
+        ms.compute_texcoord_parametrization_triangle_trivial_per_wedge(textdim=side, border=2)
+        ms.transfer_attributes_to_texture_per_vertex(sourcemesh=0, targetmesh=1, attributeenum="Texture Color",
+                                                     textname=str(req["texture_name"]), textw=side, texth=side)
+    if colors:
+        ms.transfer_attributes_per_vertex(sourcemesh=0, targetmesh=1, colortransfer=True)
+    ms.save_current_mesh(req["output"], save_vertex_color=colors, save_wedge_texcoord=texture,
+                         save_vertex_normal=False)
+
+
 def main(argv: "list[str]") -> int:
     """Run the request in ``argv[1]``; return the exit status."""
     if len(argv) != 2:
@@ -173,6 +204,13 @@ def main(argv: "list[str]") -> int:
         os.kill(os.getpid(), signal.SIGSEGV)
     if op == "sleep":
         time.sleep(float(req.get("seconds", 60)))
+        return 0
+    if op == "surface_transfer":  # writes its own OBJ output
+        try:
+            _surface_transfer(req)
+        except Exception as exc:  # noqa: BLE001 - report any pymeshlab failure as one line
+            print(f"{type(exc).__name__}: {exc}", file=sys.stderr)
+            return 2
         return 0
     try:
         with np.load(req["input"]) as data:

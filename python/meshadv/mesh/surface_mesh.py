@@ -1,5 +1,6 @@
 """Meshes with surface attributes: a UV texture image, vertex colours and vertex normals, loaded from OBJ + MTL
-(``map_Kd``), glTF/GLB (base-colour texture) and PLY (vertex colours), and saved as OBJ + MTL + PNG or GLB.
+(``map_Kd``, ``v x y z r g b`` vertex colours), glTF/GLB (base-colour texture) and PLY (vertex colours), and saved as
+OBJ + MTL + PNG, GLB or PLY.
 
 The geometry is welded (one vertex per distinct position), so adjacency, the Laplacian and shape perturbations see
 one surface; UVs and normals keep their own per-corner index (``uv_faces``, ``normal_faces``), so a UV seam is two UV
@@ -21,6 +22,7 @@ import trimesh
 from PIL import Image, UnidentifiedImageError
 
 from meshadv.mesh.errors import MeshLoadError
+from meshadv.mesh.normalize import NormalizeTransform, normalize_mesh
 from meshadv.mesh.structure import Mesh
 from meshadv.util.atomic import write_bytes_atomic
 
@@ -111,17 +113,43 @@ class SurfaceMesh:
         mesh = Mesh(self.mesh.vertices, self.mesh.faces, torch.as_tensor(colors, dtype=torch.float32))
         return replace(self, mesh=mesh, texture=texture)
 
-    def with_mesh(self, mesh: Mesh) -> SurfaceMesh:
-        """The surface on another geometry of the same faces (e.g. the normalised mesh): texture, UVs and colours
-        are kept, normals from the file are dropped (they do not follow a moved or rotated mesh).
+    def with_mesh(self, mesh: Mesh, rotation: Optional[np.ndarray] = None) -> SurfaceMesh:
+        """The surface on another geometry of the same faces: texture, UVs and colours are kept; the file's normals
+        are turned by ``rotation`` (a (3,3) rotation, the one that moved the vertices) or, without it, dropped
+        (they do not follow an arbitrary move).
 
         Raises:
-            ValueError: ``mesh`` has another number of faces or vertices.
+            ValueError: ``mesh`` has another number of faces or vertices, or ``rotation`` is not (3,3).
         """
         if mesh.num_faces != self.mesh.num_faces or mesh.num_vertices != self.mesh.num_vertices:
             raise ValueError(f"mesh must have {self.mesh.num_vertices} vertices and {self.mesh.num_faces} faces, got "
                              f"{mesh.num_vertices} and {mesh.num_faces}")
-        return replace(self, mesh=mesh, normals=None, normal_faces=None)
+        if rotation is None:
+            return replace(self, mesh=mesh, normals=None, normal_faces=None)
+        if self.normals is None:
+            return replace(self, mesh=mesh)
+        r = np.asarray(rotation, dtype=np.float64)
+        if r.shape != (3, 3):
+            raise ValueError(f"rotation must have shape (3,3), got {r.shape}")
+        turned = torch.as_tensor(self.normals.detach().double().cpu().numpy() @ r.T, dtype=torch.float32)
+        return replace(self, mesh=mesh, normals=turned)
+
+    def normalized(self, *, z_up: bool = False) -> tuple[SurfaceMesh, NormalizeTransform]:
+        """The surface normalised into ``[-1, 1]`` (:func:`~meshadv.mesh.normalize.normalize_mesh`, a similarity),
+        with its texture, UVs, vertex colours and normals (turned with the mesh), and the transform.
+
+        Example:
+            >>> unit, transform = load_surface_mesh("textured.obj").normalized()  # doctest: +SKIP
+        """
+        mesh, transform = normalize_mesh(self.mesh, z_up=z_up)
+        return self.with_mesh(mesh, transform.rotation), transform
+
+    def to_original(self, transform: NormalizeTransform) -> SurfaceMesh:
+        """The surface mapped back into the frame ``transform`` normalised it from (vertices and normals); the
+        inverse of :meth:`normalized`."""
+        vertices = transform.to_original(self.mesh.vertices.detach().double()).float()
+        mesh = Mesh(vertices, self.mesh.faces, self.mesh.face_colors)
+        return self.with_mesh(mesh, transform.rotation.T)
 
     # The geometry, so that a SurfaceMesh stands where a Mesh does (an attack, an evaluation).
     @property
@@ -207,8 +235,8 @@ def _obj_has_normals(path: Path) -> bool:
 
 
 def _check_obj_indices(path: Path) -> None:
-    """Every ``f`` corner's ``vt`` / ``vn`` index within the counts of ``vt`` / ``vn`` lines (trimesh would silently
-    drop the attribute or misread it)."""
+    """Every ``f`` corner's ``vt`` / ``vn`` index within the counts of ``vt`` / ``vn`` lines, finite ``vt`` values and
+    ``v`` colours (trimesh would silently drop the attribute or misread it)."""
     counts = {"v": 0, "vt": 0, "vn": 0}
     for lineno, raw in enumerate(path.read_text(errors="replace").splitlines(), 1):
         parts = raw.split()
@@ -216,6 +244,14 @@ def _check_obj_indices(path: Path) -> None:
             continue
         if parts[0] in counts:
             counts[parts[0]] += 1
+            if parts[0] == "v" and len(parts) > 4:  # `v x y z r g b`: trimesh would read NaN colours as 0
+                try:
+                    rgb = [float(x) for x in parts[4:7]]
+                except ValueError as exc:
+                    raise MeshLoadError(f"{path}: line {lineno}: vertex colors: not numbers: {raw.strip()!r}") from exc
+                if not all(np.isfinite(rgb)):
+                    raise MeshLoadError(f"{path}: line {lineno}: vertex colors: NaN or infinite colour "
+                                        f"{raw.strip()!r}")
             if parts[0] == "vt":
                 try:
                     values = [float(x) for x in parts[1:3]]
@@ -237,9 +273,22 @@ def _check_obj_indices(path: Path) -> None:
 
 
 def _load_trimesh(path: Path) -> trimesh.Trimesh:
+    """The file's one triangle mesh; a scene of one mesh is that mesh placed by its node's transform (with the
+    file's normals, which trimesh's concatenation into one mesh would recompute), a scene of several their
+    concatenation."""
     try:
         # Without maintain_order trimesh splits OBJ vertices per (v, vt, vn) corner, keeping UV seams.
-        loaded = trimesh.load(str(path), force="mesh", process=False)
+        loaded = trimesh.load(str(path), process=False)
+        if isinstance(loaded, trimesh.Scene):
+            nodes = loaded.graph.nodes_geometry
+            if len(nodes) == 1:
+                transform, name = loaded.graph[nodes[0]]
+                loaded = loaded.geometry[name]
+                if not np.allclose(transform, np.eye(4)):
+                    loaded = loaded.copy()
+                    loaded.apply_transform(transform)
+            else:
+                loaded = trimesh.load(str(path), force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for bad files
         raise MeshLoadError(f"{path}: cannot be read as a mesh ({type(exc).__name__}: {exc})") from exc
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
@@ -250,8 +299,9 @@ def _load_trimesh(path: Path) -> trimesh.Trimesh:
 def load_surface_mesh(path: PathLike) -> SurfaceMesh:
     """Load a mesh with its surface attributes.
 
-    OBJ: ``vt`` UVs with the ``map_Kd`` image of its MTL, ``vn`` normals. GLB/glTF: the base-colour texture, UVs and
-    normals of the primitive. PLY: vertex colours (and normals when present). Other formats: geometry only.
+    OBJ: ``vt`` UVs with the ``map_Kd`` image of its MTL, ``vn`` normals, ``v x y z r g b`` vertex colours (in
+    ``[0, 1]``, as MeshLab and trimesh write them). GLB/glTF: the base-colour texture, UVs and normals of the
+    primitive. PLY: vertex colours (and normals when present). Other formats: geometry only.
 
     Args:
         path: the mesh file.
@@ -301,23 +351,29 @@ def load_surface_mesh(path: PathLike) -> SurfaceMesh:
                 tex = _image_to_texture(image, path, "baseColorTexture")
         if tex is not None:
             uvs, uv_faces = uv, raw_f
-    colors = None
+    colors = rgb = None
     if isinstance(visual, trimesh.visual.color.ColorVisuals) and visual.kind == "vertex":
-        vc = np.asarray(visual.vertex_colors)
-        if vc.shape[0] != len(raw_v):
-            raise MeshLoadError(f"{path}: vertex colors: {vc.shape[0]} colours for {len(raw_v)} vertices")
-        rgb = vc[:, :3].astype(np.float64) / 255.0
+        rgb = np.asarray(visual.vertex_colors)[:, :3].astype(np.float64) / 255.0
+    elif "color" in tm.vertex_attributes:  # an OBJ's `v x y z r g b` beside a texture, in [0, 1]
+        rgb = np.asarray(tm.vertex_attributes["color"], dtype=np.float64)
+        rgb = rgb.reshape(len(rgb), -1)[:, :3]
+    if rgb is not None:
+        if rgb.shape[0] != len(raw_v):
+            raise MeshLoadError(f"{path}: vertex colors: {rgb.shape[0]} colours for {len(raw_v)} vertices")
+        if not np.isfinite(rgb).all():
+            raise MeshLoadError(f"{path}: vertex colors: NaN or infinite colours")
         colors = np.zeros((len(verts), 3))
         colors[faces.reshape(-1)] = rgb[raw_f.reshape(-1)]
+    # the file's normals when trimesh kept them (else smooth shading with the vertices' own normals)
     has_normals = "vertex_normals" in tm._cache or (ext == ".obj" and _obj_has_normals(path))
     normals = normal_faces = None
-    if has_normals:
+    if "vertex_normals" in tm._cache:
         vn = np.asarray(tm.vertex_normals, dtype=np.float64)
         if vn.shape == raw_v.shape and np.isfinite(vn).all():
             normals, normal_faces = vn, raw_f
     face_colors = _mean_face_colors(verts, faces, uvs, uv_faces, tex, colors)
     mesh = Mesh.from_numpy(verts.astype(np.float32), faces, face_colors.astype(np.float32))
-    as_t = lambda a, dt=torch.float32: None if a is None else torch.as_tensor(np.ascontiguousarray(a), dtype=dt)  # noqa: E731
+    as_t = lambda a, dt=torch.float32: None if a is None else torch.tensor(np.asarray(a), dtype=dt)  # noqa: E731
     return SurfaceMesh(
         mesh=mesh,
         uvs=as_t(uvs),
@@ -326,7 +382,7 @@ def load_surface_mesh(path: PathLike) -> SurfaceMesh:
         vertex_colors=as_t(colors),
         normals=as_t(normals),
         normal_faces=as_t(normal_faces, torch.long),
-        shading="smooth" if normals is not None else "flat",
+        shading="smooth" if has_normals else "flat",
     )
 
 
@@ -363,20 +419,24 @@ def _png_bytes(texture: torch.Tensor) -> bytes:
 def save_surface_mesh(surface: SurfaceMesh, path: PathLike) -> list[Path]:
     """Save a :class:`SurfaceMesh` (written atomically, file by file).
 
-    ``.obj``: the OBJ with ``vt`` / ``vn`` and ``f v/vt/vn``, an MTL next to it naming the texture, and the texture as
-    an 8-bit PNG (``<stem>_texture.png``, the print-ready image). ``.glb``: one binary glTF with the texture embedded
-    (vertices split where UVs or normals differ, as glTF needs). Vertex colours are written to GLB (and, as OBJ has
-    no standard field for them, not to OBJ).
+    ``.obj``: the OBJ with ``vt`` / ``vn`` and ``f v/vt/vn``, vertex colours as ``v x y z r g b`` (in ``[0, 1]``,
+    which MeshLab and trimesh read), an MTL next to it naming the texture, and the texture as an 8-bit PNG
+    (``<stem>_texture.png``, the print-ready image). ``.glb``: one binary glTF with the texture embedded (vertices
+    split where UVs or normals differ, as glTF needs), or the vertex colours of an untextured mesh. ``.ply``: the
+    welded geometry with 8-bit vertex colours (the per-face colours of ``mesh`` when it has none) and no texture.
 
     Args:
         surface: the mesh.
-        path: ``.obj`` or ``.glb`` file to write.
+        path: ``.obj``, ``.glb`` or ``.ply`` file to write.
 
     Returns:
         The files written.
 
     Raises:
         ValueError: another extension.
+
+    Example:
+        >>> save_surface_mesh(load_surface_mesh("painted.ply"), "painted.obj")  # doctest: +SKIP
     """
     path = Path(path)
     ext = path.suffix.lower()
@@ -384,7 +444,9 @@ def save_surface_mesh(surface: SurfaceMesh, path: PathLike) -> list[Path]:
         return _save_obj(surface, path)
     if ext == ".glb":
         return _save_glb(surface, path)
-    raise ValueError(f"path: save_surface_mesh writes .obj or .glb, got {path.suffix!r}")
+    if ext == ".ply":
+        return _save_ply(surface, path)
+    raise ValueError(f"path: save_surface_mesh writes .obj, .glb or .ply, got {path.suffix!r}")
 
 
 def _save_obj(surface: SurfaceMesh, path: Path) -> list[Path]:
@@ -398,7 +460,11 @@ def _save_obj(surface: SurfaceMesh, path: Path) -> list[Path]:
         write_bytes_atomic(mtl, f"newmtl surface\nKd 1 1 1\nmap_Kd {png.name}\n".encode())
         written += [png, mtl]
         lines += [f"mtllib {mtl.name}", "usemtl surface"]
-    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in verts]
+    if surface.vertex_colors is None:
+        lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in verts]
+    else:
+        rgb = surface.vertex_colors.detach().clamp(0, 1).cpu().numpy()
+        lines += [f"v {x:.9g} {y:.9g} {z:.9g} {r:.6g} {g:.6g} {b:.6g}" for (x, y, z), (r, g, b) in zip(verts, rgb)]
     corner = [faces.astype(str)]
     if surface.uvs is not None:
         lines += [f"vt {u:.9g} {v:.9g}" for u, v in surface.uvs.detach().cpu().numpy()]
@@ -438,4 +504,19 @@ def _save_glb(surface: SurfaceMesh, path: Path) -> list[Path]:
         kwargs["vertex_colors"] = (rgb * 255 + 0.5).astype(np.uint8)
     tm = trimesh.Trimesh(vertices=verts, faces=inverse.reshape(-1, 3), process=False, **kwargs)
     write_bytes_atomic(path, tm.export(file_type="glb"))
+    return [path]
+
+
+def _save_ply(surface: SurfaceMesh, path: Path) -> list[Path]:
+    verts = surface.mesh.vertices.detach().cpu().numpy()
+    faces = surface.mesh.faces.cpu().numpy()
+    if surface.vertex_colors is not None:
+        rgb = surface.vertex_colors.detach().clamp(0, 1).cpu().numpy()
+        tm = trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=(rgb * 255 + 0.5).astype(np.uint8),
+                             process=False)
+    else:
+        rgb = surface.mesh.face_colors.detach().clamp(0, 1).cpu().numpy()
+        tm = trimesh.Trimesh(vertices=verts, faces=faces, face_colors=(rgb * 255 + 0.5).astype(np.uint8),
+                             process=False)
+    write_bytes_atomic(path, tm.export(file_type="ply"))
     return [path]

@@ -7,13 +7,14 @@ scores it (:func:`benign_verdicts`), and the tables count untargeted transfer on
 render is right (:func:`meshadv.transfer.results.transfer_table`).
 
 The benign mesh of a case comes from its attack: :func:`benign_mesh_of_attack_folder` (``meshadv attack`` /
-``demo`` output: the saved ``benign.ply``, else the input mesh loaded again as the attack loaded it) and
+``demo`` output: the saved ``benign.obj`` of a textured or vertex-coloured mesh, else ``benign.ply``, else the input
+mesh loaded again as the attack loaded it) and
 :func:`benign_mesh_of_job` (a sweep job: its spec's mesh, loaded and preprocessed as the job did).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Sequence
 
@@ -22,10 +23,30 @@ import torch
 from meshadv.transfer.mitsuba_process import MitsubaImage
 from meshadv.transfer.scoring import images_tensor, top1_names
 
-__all__ = ["BENIGN_FILE", "BenignVerdicts", "benign_mesh_of_attack_folder", "benign_mesh_of_job", "benign_verdicts"]
+__all__ = ["BENIGN_FILE", "BENIGN_SURFACE_FILE", "BenignVerdicts", "benign_mesh_of_attack_folder",
+           "benign_mesh_of_job", "benign_verdicts", "load_saved_mesh"]
 
 #: The benign (normalised) mesh ``meshadv attack`` and ``meshadv demo`` save beside the adversarial one.
 BENIGN_FILE = "benign.ply"
+#: The benign mesh with its texture or vertex colours (OBJ), saved beside :data:`BENIGN_FILE` when it has them.
+BENIGN_SURFACE_FILE = "benign.obj"
+
+
+def load_saved_mesh(path: Path, record: Mapping[str, Any]) -> Any:
+    """A mesh file of a saved attack as the attack rendered it: an OBJ with a texture or vertex colours as a
+    ``SurfaceMesh`` under the record's ``shading``, else its per-face mesh (``load_mesh``).
+
+    Raises:
+        MeshLoadError: the file or its texture cannot be read (the message names the file and field).
+    """
+    from meshadv.mesh import load_mesh
+    from meshadv.mesh.surface_mesh import load_surface_mesh
+
+    if path.suffix.lower() == ".obj":
+        surface = load_surface_mesh(path)
+        if surface.texture is not None or surface.vertex_colors is not None:
+            return replace(surface, shading=str(record.get("shading") or "flat"))
+    return load_mesh(path)
 
 
 @dataclass(frozen=True)
@@ -51,8 +72,9 @@ def benign_verdicts(victim: Any, images: Sequence[MitsubaImage], untargeted: Any
 
 
 def benign_mesh_of_attack_folder(folder: Path, record: Mapping[str, Any], num_vertices: int) -> Any:
-    """The benign mesh of a saved attack: ``folder/benign.ply``, else the input the record names (``input``: the
-    command-line mesh and its up axis), loaded again as the attack loaded it.
+    """The benign mesh of a saved attack: ``folder/benign.obj`` (a textured or vertex-coloured mesh, under the
+    record's shading), else ``folder/benign.ply``, else the input the record names (``input``: the command-line mesh
+    and its up axis), loaded again as the attack loaded it.
 
     Args:
         folder: the attack's output folder.
@@ -64,11 +86,11 @@ def benign_mesh_of_attack_folder(folder: Path, record: Mapping[str, Any], num_ve
         ValueError: the mesh found has another vertex count (the attack changed the mesh first, e.g. the demo's
             subdivision, and ``benign.ply`` is missing).
     """
-    from meshadv.mesh import load_mesh
-
-    path = Path(folder) / BENIGN_FILE
-    if path.is_file():
-        mesh = load_mesh(path)
+    surface, path = Path(folder) / BENIGN_SURFACE_FILE, Path(folder) / BENIGN_FILE
+    if surface.is_file():
+        mesh = load_saved_mesh(surface, record)
+    elif path.is_file():
+        mesh = load_saved_mesh(path, record)
     else:
         entry = record.get("input") or {}
         if not entry.get("mesh"):

@@ -35,7 +35,8 @@ from meshadv.experiments.config import stored_retry_stages
 from meshadv.experiments.retries import superseded_retries
 from meshadv.mesh import load_mesh
 from meshadv.render import RenderSetup, ViewSet
-from meshadv.transfer.benign_control import benign_mesh_of_attack_folder, benign_mesh_of_job, benign_verdicts
+from meshadv.transfer.benign_control import (benign_mesh_of_attack_folder, benign_mesh_of_job, benign_verdicts,
+                                             load_saved_mesh)
 from meshadv.transfer.mitsuba_process import MitsubaImage, MitsubaRenderError, render_scenes
 from meshadv.transfer.mitsuba_spec import MeshObject, SceneSpec, scene_spec
 from meshadv.transfer.results import ControlledResult, load_transfer_rows, save_transfer_rows
@@ -545,8 +546,8 @@ def transfer_case_into(db_path: Union[str, Path], case: TransferCase, *, experim
 
 
 def case_from_attack_folder(folder: Union[str, Path]) -> TransferCase:
-    """The :class:`TransferCase` of a saved ``meshadv attack`` result: its first adversarial mesh, its views, victim,
-    classes and setup.
+    """The :class:`TransferCase` of a saved ``meshadv attack`` result: its first adversarial mesh (a textured or
+    vertex-coloured one with its texture or colours and the attack's shading), its views, victim, classes and setup.
 
     The benign object's class is the victim's pristine top-1 on the first view (what the attack moved away from);
     the benign mesh (the control rendered by Mitsuba too) is the folder's ``benign.ply``, else the input mesh the
@@ -559,12 +560,15 @@ def case_from_attack_folder(folder: Union[str, Path]) -> TransferCase:
     record = load_result_record(folder)
     if not record.get("original_top1_names"):
         raise ValueError(f"{folder}: only classifier attacks can be transferred this way (no top-1 in result.json)")
-    mesh_file = Path(folder) / record["meshes"][0][0]
+    ply, obj = record["meshes"][0][:2]
+    # a textured or vertex-coloured result: its OBJ (texture PNG or vertex colours) beside its GLB
+    surface = Path(obj).with_suffix(".glb").name in (record.get("files") or [])
+    mesh_file = Path(folder) / (obj if surface else ply)
     if not mesh_file.is_file():
         raise FileNotFoundError(f"{mesh_file} is missing: re-run the attack or copy the whole output folder")
     config = record.get("config") or {}
     criterion = record["criteria"][0]
-    adversarial = load_mesh(mesh_file)
+    adversarial = load_saved_mesh(mesh_file, record)
     return TransferCase(
         case_id="mitsuba",  # the renders are saved as mitsuba_v<view>.png beside result.json
         mesh=adversarial,

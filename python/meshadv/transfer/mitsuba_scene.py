@@ -17,7 +17,9 @@ Conventions (see docs/ARCHITECTURE.md):
   a constant environment ``a`` reflects exactly ``rho * a``). Where the environment is occluded (concave shapes) the
   path tracer produces ambient occlusion that meshadv does not have.
 * Material: two-sided diffuse with per-face reflectance (a ``face_color`` mesh attribute read by a ``mesh_attribute``
-  texture), flat shading (no vertex normals), as meshadv's two-sided per-face Lambert shading.
+  texture), flat shading (no vertex normals), as meshadv's two-sided per-face Lambert shading; a textured or
+  vertex-coloured mesh's bitmap texture or ``vertex_color`` attribute instead, and its vertex normals when meshadv
+  shades it smooth.
 * Images are linear RGB clamped to [0, 1] (no tone mapping or gamma), as meshadv's.
 """
 
@@ -109,8 +111,9 @@ def _base_scene_xml(path: Path, exclude: Sequence[str], keep_emitters: bool) -> 
 
 
 def _mitsuba_mesh(mi: Any, obj: MeshObject) -> Any:
-    """A Mitsuba mesh of ``obj`` (``to_world`` applied) with its face colours, or its bitmap texture (bilinear,
-    repeat, linear values), as a two-sided diffuse reflectance; vertex normals when it has them."""
+    """A Mitsuba mesh of ``obj`` (``to_world`` applied) with its face colours, its bitmap texture (bilinear, repeat,
+    linear values) or its vertex colours (interpolated), as a two-sided diffuse reflectance; vertex normals when it
+    has them."""
     if obj.texture is not None:
         reflectance = {
             "type": "bitmap",
@@ -119,6 +122,8 @@ def _mitsuba_mesh(mi: Any, obj: MeshObject) -> Any:
             "wrap_mode": "repeat",
             "raw": True,
         }
+    elif obj.vertex_colors is not None:
+        reflectance = {"type": "mesh_attribute", "name": "vertex_color"}
     else:
         reflectance = {"type": "mesh_attribute", "name": "face_color"}
     bsdf = mi.load_dict({"type": "twosided", "material": {"type": "diffuse", "reflectance": reflectance}})
@@ -151,6 +156,8 @@ def _mitsuba_mesh(mi: Any, obj: MeshObject) -> Any:
         params["vertex_normals"] = float_buffer(normals.astype(np.float32).ravel())
     params.update()
     mesh.add_attribute("face_color", 3, float_buffer(obj.face_colors.ravel()))
+    if obj.vertex_colors is not None:
+        mesh.add_attribute("vertex_color", 3, float_buffer(obj.vertex_colors.astype(np.float32).ravel()))
     return mesh
 
 

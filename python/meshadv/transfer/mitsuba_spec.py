@@ -261,6 +261,8 @@ class MeshObject:
             ``texture``: then the reflectance is the bitmap, not ``face_colors``.
         texture: optional (Ht, Wt, 3) float32 reflectance image, row 0 at the top.
         normals: optional (N, 3) float32 vertex normals (smooth shading); without them Mitsuba shades flat.
+        vertex_colors: optional (N, 3) float32 per-vertex reflectance in [0, 1], interpolated over the faces (not
+            with ``texture``): then the reflectance is these, not ``face_colors``.
     """
 
     vertices: np.ndarray
@@ -271,6 +273,7 @@ class MeshObject:
     uvs: Optional[np.ndarray] = None
     texture: Optional[np.ndarray] = None
     normals: Optional[np.ndarray] = None
+    vertex_colors: Optional[np.ndarray] = None
 
     def __post_init__(self) -> None:
         v = as_numpy(self.vertices, np.float32)
@@ -294,7 +297,9 @@ class MeshObject:
             object.__setattr__(self, "to_world", m)
         if (self.uvs is None) != (self.texture is None):
             raise ValueError("uvs and texture must be given together")
-        for name, width in (("uvs", 2), ("normals", 3)):
+        if self.texture is not None and self.vertex_colors is not None:
+            raise ValueError("vertex_colors and texture: a Mitsuba mesh here draws one of them, not their product")
+        for name, width in (("uvs", 2), ("normals", 3), ("vertex_colors", 3)):
             value = getattr(self, name)
             if value is not None:
                 a = as_numpy(value, np.float32)
@@ -309,7 +314,11 @@ class MeshObject:
 
     @classmethod
     def from_mesh(cls, mesh: Any, to_world: Optional[np.ndarray] = None, name: str = "object") -> "MeshObject":
-        """Build from a ``meshadv.mesh.Mesh`` (or anything with vertices, faces, face_colors)."""
+        """Build from a ``meshadv.mesh.Mesh`` (or anything with vertices, faces, face_colors); a
+        ``meshadv.mesh.SurfaceMesh`` with a texture or vertex colours as :meth:`from_surface` under its own shading
+        (what meshadv renders of it)."""
+        if getattr(mesh, "texture", None) is not None or getattr(mesh, "vertex_colors", None) is not None:
+            return cls.from_surface(mesh, mesh.shading, to_world, name)
         return cls(mesh.vertices, mesh.faces, mesh.face_colors, to_world, name)
 
     @classmethod
@@ -317,8 +326,11 @@ class MeshObject:
         cls, surface: Any, shading: str = "flat", to_world: Optional[np.ndarray] = None, name: str = "object"
     ) -> "MeshObject":
         """Build from a ``meshadv.mesh.SurfaceMesh``: vertices split where UVs (or normals) differ, as a Mitsuba
-        mesh needs one of each per vertex; ``shading="smooth"`` gives the normals meshadv shades with (the file's, or
-        area-weighted ones of the vertices)."""
+        mesh needs one of each per vertex; its texture or vertex colours; ``shading="smooth"`` gives the normals
+        meshadv shades with (the file's, or area-weighted ones of the vertices).
+
+        Raises:
+            ValueError: the surface has both a texture and vertex colours (drawn multiplied by meshadv only)."""
         import torch
 
         from meshadv.render import vertex_normals
@@ -349,6 +361,8 @@ class MeshObject:
             uvs=None if surface.uvs is None else surface.uvs.detach().cpu().numpy()[unique[:, -1]],
             texture=None if surface.texture is None else surface.texture.detach().cpu().numpy(),
             normals=None if normals is None else normals[unique[:, 1]],
+            vertex_colors=(None if surface.vertex_colors is None
+                           else surface.vertex_colors.detach().cpu().numpy()[unique[:, 0]]),
         )
 
 
