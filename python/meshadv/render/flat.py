@@ -123,10 +123,11 @@ class _FlatRenderOp(torch.autograd.Function):
 
 
 def supports_flat_render(verts: torch.Tensor, colors: torch.Tensor, camera: Camera, lights: Lights) -> bool:
-    """True when :func:`flat_render` takes these inputs: float32 CPU vertices and colours, CPU camera and lights."""
+    """True when :func:`flat_render` takes these inputs: float32 CPU vertices and colours, CPU camera and lights,
+    and a native module that has the op (a build older than the Python package falls back to the composition)."""
     tensors = (verts, colors, camera.near, lights.ambient)
     return (verts.dtype == torch.float32 and colors.dtype == torch.float32
-            and all(t.device.type == "cpu" for t in tensors))
+            and all(t.device.type == "cpu" for t in tensors) and hasattr(_native(), "flat_render_forward"))
 
 
 def flat_render(
