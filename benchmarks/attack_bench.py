@@ -232,7 +232,8 @@ def step_split(mesh_name: str, perturb: str, args: argparse.Namespace,
     for step in range(args.steps + 1):
         for label, victim in victims.items():
             t0 = clock()
-            images, _ = setup.render(verts, mesh.faces, colors, views)
+            images, _ = setup.render(verts, mesh.faces, colors, views,
+                                     visibility_gradient=args.visibility_gradient)
             t1 = clock()
             x = images.detach().requires_grad_(True)
             out = victim(x)
@@ -512,6 +513,8 @@ def main(argv: List[str]) -> int:
     parser.add_argument("--split", action="store_true",
                         help="only time one step's parts (render fwd, victim, render bwd), --targets batched")
     parser.add_argument("--antialias", type=int, default=1, help="--split: supersampling factor of the render")
+    parser.add_argument("--visibility-gradient", choices=("nmr", "local"), default="nmr",
+                        help="--split: the render's visibility gradient (meshadv.render.render)")
     parser.add_argument("--cpu-time", action="store_true",
                         help="--split: process CPU time instead of wall time (steadier on a busy machine; run with "
                              "OMP_NUM_THREADS=1 RAYON_NUM_THREADS=1 so that it is also the 1-thread wall time)")

@@ -33,7 +33,8 @@ DISTANCE, ELEVATION, AZIMUTH, FOV = 2.732, 20.0, 30.0, 30.0
 LIGHT_DIRECTION, LIGHT_INTENSITY, AMBIENT = (0.3, 1.0, -0.6), 0.5, 0.5
 #: (mesh, faces wanted, image side); meshadv renders each at antialias 1 and 2
 SCENES = (("icosphere", 5_120, 299), ("icosphere", 20_480, 299), ("bunny", 10_000, 224))
-NATIVE_CALLS = ("rasterize_forward", "rasterize_backward", "box_downsample", "box_spread")
+NATIVE_CALLS = ("rasterize_forward", "rasterize_backward", "box_downsample", "box_spread", "flat_render_forward",
+                "flat_render_backward")
 
 
 def probe_deodr() -> tuple[str | None, str]:

@@ -205,3 +205,27 @@ def test_the_texture_map_attack_takes_the_textured_file_as_loaded(tmp_path: Path
     assert run.exit_code == 0, run.output
     assert "attacked as loaded" in run.output and "resampled uniformly" not in run.output
     assert load_surface_mesh(tmp_path / "out" / "adversarial.obj").texture.shape == (16, 16, 3)
+
+
+@pytest.mark.parametrize(("asset", "shading"), [("textured", "smooth"), ("painted", "flat"), ("painted", "smooth")])
+def test_transfer_check_compares_a_files_texture_or_colours_under_its_shading(tmp_path: Path, asset: str,
+                                                                              shading: str) -> None:
+    pytest.importorskip("mitsuba")
+    surface = box_textured() if asset == "textured" else vertex_coloured()
+    source = tmp_path / ("ball.obj" if asset == "textured" else "ball.ply")
+    save_surface_mesh(surface, source)
+    run = _cli("transfer", "check", source, "--size", 48, "--spp", 64, "--shading", shading, "-o", tmp_path / "c")
+    assert run.exit_code == 0, run.output
+    check = json.loads((tmp_path / "c" / "check.json").read_text())
+    assert check["mask_iou"] > 0.97
+    assert check["mean_abs_difference"] < 0.03 and check["p95_abs_difference"] < 0.1
+    # both sides draw the file's surface: the same mesh with its per-face colours only draws another image
+    from meshadv.mesh import save_mesh
+
+    save_mesh(surface.mesh, tmp_path / "per_face.ply")
+    run = _cli("transfer", "check", tmp_path / "per_face.ply", "--size", 48, "--spp", 4, "-o", tmp_path / "f")
+    assert run.exit_code == 0, run.output
+    ours, per_face = _png(tmp_path / "c" / "meshadv.png"), _png(tmp_path / "f" / "meshadv.png")
+    assert np.abs(ours - per_face).mean() > 0.004  # identical (0) if the per-face path drew both
+    run = _cli("transfer", "check", source, "--shading", "phong")
+    assert run.exit_code == 2 and "--shading must be flat or smooth" in run.output

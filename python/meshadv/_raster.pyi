@@ -71,6 +71,96 @@ def rasterize_backward(
         rasterization gradient defined in docs/NMR_GRADIENT.md; the attribute gradient is exact.
     """
 
+def flat_render_forward(
+    verts: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
+    face_colors: npt.NDArray[np.float32],
+    rotation: npt.NDArray[np.float32],
+    eye: npt.NDArray[np.float32],
+    scale: npt.NDArray[np.float32],
+    light_directions: npt.NDArray[np.float32],
+    light_colors: npt.NDArray[np.float32],
+    ambient: npt.NDArray[np.float32],
+    background: npt.NDArray[np.float32],
+    batch: int,
+    height: int,
+    width: int,
+    k: int,
+    near: float,
+    far: float,
+    fill_back: bool,
+    orthographic: bool,
+    num_threads: int = 0,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32] | None, npt.NDArray[np.int32], npt.NDArray[np.float32],
+           npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """The flat render (projection, Lambert shading, raster at ``k`` times ``height x width``, box filter).
+
+    Args:
+        verts: (Bv,N,3) world-space vertices; every batched input has batch 1 or ``batch``.
+        faces: (M,3) vertex indices.
+        face_colors: (Bc,M,3) reflectances.
+        rotation: (Bk,3,3) world-to-view rotations (rows the view axes).
+        eye: (Bk,3) eye positions.
+        scale: (Bk,) ``tan(fov / 2)`` (perspective) or the half extent (orthographic), > 0.
+        light_directions: (Bl,K,3) unit directions toward the lights.
+        light_colors: (Bl,K,3) light intensities.
+        ambient: (Bl,3) ambient intensities.
+        background: (3,) RGB background.
+        batch: views B.
+        height: output height.
+        width: output width.
+        k: supersampling factor.
+        near: near clipping depth.
+        far: far clipping depth.
+        fill_back: two-sided shading (normals flipped toward the camera); else back faces are culled.
+        orthographic: orthographic projection.
+        num_threads: rayon threads, 0 = default. Results do not depend on it.
+
+    Returns:
+        ``(image (B,H,W,4) RGB + coverage, full_image (B,kH,kW,4) or None when k = 1, face_index (B,kH,kW),
+        depth (B,kH,kW), verts_screen (B,N,3), attrs (B,M,4))``.
+    """
+
+def flat_render_backward(
+    verts: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
+    face_colors: npt.NDArray[np.float32],
+    rotation: npt.NDArray[np.float32],
+    eye: npt.NDArray[np.float32],
+    scale: npt.NDArray[np.float32],
+    light_directions: npt.NDArray[np.float32],
+    light_colors: npt.NDArray[np.float32],
+    ambient: npt.NDArray[np.float32],
+    background: npt.NDArray[np.float32],
+    batch: int,
+    height: int,
+    width: int,
+    k: int,
+    near: float,
+    far: float,
+    fill_back: bool,
+    orthographic: bool,
+    verts_screen: npt.NDArray[np.float32],
+    attrs: npt.NDArray[np.float32],
+    face_index: npt.NDArray[np.int32],
+    image: npt.NDArray[np.float32],
+    grad_image: npt.NDArray[np.float32] | None,
+    grad_alpha: npt.NDArray[np.float32] | None,
+    edge_weight: float = 1.0,
+    need_verts: bool = True,
+    sweep_radius: int | None = None,
+    num_threads: int = 0,
+) -> tuple[npt.NDArray[np.float32], ...]:
+    """Backward of :func:`flat_render_forward` (its arguments, its ``verts_screen``, ``attrs``, ``face_index`` and
+    supersampled image, and the cotangents of the (B,3,H,W) image and (B,1,H,W) coverage, any strides).
+
+    Returns:
+        The gradients of ``(verts, face_colors, rotation, eye, scale, light_directions, light_colors, ambient)``,
+        each shaped as its input. ``edge_weight`` scales the rasterization gradient of the screen-space vertices;
+        ``need_verts=False`` skips the vertex and camera gradients (zeros); ``sweep_radius`` as in
+        :func:`rasterize_backward`.
+    """
+
 def box_downsample(image: npt.NDArray[np.float32], k: int, num_threads: int = 0) -> npt.NDArray[np.float32]:
     """The ``k x k`` block averages of a supersampled image: (B,kH,kW,C) -> (B,H,W,C), the bits of
     ``F.avg_pool2d(x, k, k)`` on the channels-first view (samples added row by row, then divided by ``k*k``).

@@ -6,6 +6,7 @@
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
+mod flat;
 mod surface;
 
 use meshadv_raster::backward::Visibility;
@@ -588,6 +589,8 @@ fn render_full<'py>(
 fn _raster(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(rasterize_forward, m)?)?;
     m.add_function(wrap_pyfunction!(rasterize_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(flat::flat_render_forward, m)?)?;
+    m.add_function(wrap_pyfunction!(flat::flat_render_backward, m)?)?;
     m.add_function(wrap_pyfunction!(box_downsample, m)?)?;
     m.add_function(wrap_pyfunction!(box_spread, m)?)?;
     m.add_function(wrap_pyfunction!(raycast, m)?)?;

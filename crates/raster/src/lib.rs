@@ -5,6 +5,7 @@
 //! * [`backward`]: exact attribute gradients and the Neural Mesh Renderer's approximate vertex gradients.
 //! * [`boxfilter`]: the box filter of an antialiased (supersampled) render and its adjoint.
 //! * [`camera`], [`shading`], [`pipeline`]: NMR camera conventions, Lambert shading and the full forward render.
+//! * [`flat`]: the flat render around the rasterizer (projection, Lambert shading, box filter) and its adjoint.
 //! * [`raycast`]: BVH ray cast (obvhs), the rasterizer's oracle and an alternative for very large meshes.
 //!
 //! Conventions are those of `docs/ARCHITECTURE.md` (Neural Mesh Renderer's). Every function validates its input and
@@ -33,6 +34,7 @@ pub mod backward;
 pub mod boxfilter;
 pub mod camera;
 pub mod error;
+pub mod flat;
 pub mod input;
 pub mod parallel;
 pub mod pipeline;

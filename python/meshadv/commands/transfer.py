@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, Callable, Optional
 import typer
 
 from meshadv.commands._common import DEFAULT_DISTANCE, DEFAULT_ELEVATION
+from meshadv.commands._surface_views import SHADING_HELP
 
 if TYPE_CHECKING:
     from meshadv.transfer.robust import Robustness
@@ -32,6 +33,18 @@ transfer_app = typer.Typer(
     help="Transfer adversarial meshes to Mitsuba 3 (controlled and black-box evaluations).",
     no_args_is_help=True,
 )
+
+
+def _surface_mesh_arg(spec: str, shading: Optional[str]) -> Any:
+    """The normalised mesh of MESH drawn as ``meshadv render`` draws it: a file's texture or vertex colours under
+    ``--shading`` (:func:`~meshadv.commands._surface_views.surface_input`), else per face."""
+    from meshadv.commands._common import load_mesh_input
+    from meshadv.commands._surface_views import parse_shading, surface_input
+
+    try:
+        return surface_input(load_mesh_input(spec), parse_shading(shading)).mesh
+    except (ValueError, FileNotFoundError) as exc:
+        raise typer.BadParameter(str(exc)) from exc
 
 
 def _echo_json(data: dict) -> None:
@@ -56,15 +69,16 @@ def check_cmd(
     distance: float = typer.Option(3.0, help="Camera distance."),
     azimuth: float = typer.Option(30.0, help="Camera azimuth (degrees)."),
     elevation: float = typer.Option(20.0, help="Camera elevation (degrees)."),
+    shading: Optional[str] = typer.Option(None, help=SHADING_HELP),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="Folder for the two images and the numbers."),
 ) -> None:
-    """Render MESH with meshadv and with Mitsuba (direct light only) and print how well they agree."""
-    from meshadv.commands._common import load_mesh_arg
+    """Render MESH with meshadv and with Mitsuba (direct light only) and print how well they agree; a textured or
+    vertex-coloured file is compared with its texture or colours under --shading."""
     from meshadv.transfer.mitsuba_check import conversion_check, head_light_record
 
     if size < 8:
         raise typer.BadParameter("size must be >= 8", param_hint="--size")
-    mesh_obj, _ = load_mesh_arg(mesh)
+    mesh_obj = _surface_mesh_arg(mesh, shading)
     record = head_light_record(distance, azimuth, elevation, 0.5, 0.4)
     result = conversion_check(mesh_obj, record, image_size=size, spp=spp)
     _echo_json(result.summary())
@@ -92,11 +106,12 @@ def render_cmd(
     viewing_angle: float = typer.Option(30.0, help="Field of view (degrees)."),
     scene: str = typer.Option("none", help="none, indoor, living-room, or a Mitsuba scene XML to place the mesh in."),
     variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: the best that works)."),
+    shading: Optional[str] = typer.Option(None, help=SHADING_HELP),
 ) -> None:
-    """Render MESH with Mitsuba under meshadv's camera conventions and a head light."""
+    """Render MESH with Mitsuba under meshadv's camera conventions and a head light (a textured or vertex-coloured
+    file with its texture or colours under --shading)."""
     import numpy as np
 
-    from meshadv.commands._common import load_mesh_arg
     from meshadv.transfer import MitsubaCamera, MitsubaLights, render_scene, scene_spec
     from meshadv.transfer.setups import base_scene_file
     from meshadv.util.png import save_png
@@ -107,7 +122,7 @@ def render_cmd(
         base = base_scene_file(scene)
     except ValueError as err:
         raise typer.BadParameter(str(err), param_hint="--scene") from None
-    mesh_obj, _ = load_mesh_arg(mesh)
+    mesh_obj = _surface_mesh_arg(mesh, shading)
     camera = MitsubaCamera.spherical(distance, azimuth, elevation, viewing_angle=viewing_angle)
     lights = MitsubaLights(np.array([camera.eye]), np.full((1, 3), 0.5), np.full(3, 0.5 if base is None else 0.0))
     spec = scene_spec(mesh_obj, camera, lights, image_size=size, spp=spp, max_depth=max_depth, base_scene=base,

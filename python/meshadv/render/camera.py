@@ -463,13 +463,19 @@ class Camera:
         verts_view = self.world_to_view(verts_world)
         x, y, z = verts_view.unbind(-1)
         b = verts_view.shape[0]
+        scale = self._projection_scale(verts_view.dtype).expand(b).unsqueeze(-1)
         if self.orthographic:
-            scale = self.ortho_scale.to(verts_view.dtype).expand(b).unsqueeze(-1)
             return torch.stack([x / scale, y / scale, z], dim=-1)
-        width = torch.tan(torch.deg2rad(self.viewing_angle.to(verts_view.dtype)) / 2).expand(b).unsqueeze(-1)
         # Keep the division finite for points at or behind the eye; those are clipped by near anyway.
         z_safe = torch.where(z.abs() < 1e-12, torch.full_like(z, 1e-12), z)
-        return torch.stack([x / (z_safe * width), y / (z_safe * width), z], dim=-1)
+        return torch.stack([x / (z_safe * scale), y / (z_safe * scale), z], dim=-1)
+
+    def _projection_scale(self, dtype: torch.dtype) -> torch.Tensor:
+        """(B,) what :meth:`project` divides view coordinates by: ``ortho_scale`` (orthographic), else
+        ``tan(viewing_angle / 2)`` (then times the depth), computed in ``dtype``."""
+        if self.orthographic:
+            return self.ortho_scale.to(dtype)
+        return torch.tan(torch.deg2rad(self.viewing_angle.to(dtype)) / 2)
 
     def spherical_params(self) -> dict:
         """Distance, azimuth and elevation (degrees) of the eye relative to the target, as (B,) tensors.

@@ -1,4 +1,4 @@
-"""``render``: camera + Lambert shading in PyTorch, then one call of the Rust rasterizer (NMR's pipeline)."""
+"""``render``: camera + Lambert shading + the Rust rasterizer (NMR's pipeline), one native op for float32 CPU meshes."""
 
 from __future__ import annotations
 
@@ -9,9 +9,12 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
+from .. import _validate
 from .._validate import finite_float
 from ._checks import as_float_tensor, check_faces, require_instance
+from ._memory import check_memory, estimate_forward_bytes
 from .camera import Camera
+from .flat import flat_render, supports_flat_render
 from .lighting import Lights, shade
 from .rasterize import RasterOutput, _native, _rasterize_int32, parse_image_size
 from .visibility import sweep_radius as _sweep_radius
@@ -260,20 +263,20 @@ def render(
         >>> out.image.shape, out.alpha.shape
         (torch.Size([1, 3, 32, 32]), torch.Size([1, 1, 32, 32]))
     """
-    rgba, out, k = _render_rgba(
+    image, alpha, face_index, depth, k = _render_image_alpha(
         vertices, faces, face_colors, camera, lights, image_size, background, fill_back, antialias, num_threads,
         edge_gradient, visibility_gradient,
     )
     sub = slice(k // 2, None, k)
     return RenderOutput(
-        image=rgba[:, :3],
-        alpha=rgba[:, 3:4],
-        depth=out.depth[:, sub, sub].contiguous(),
-        face_index=out.face_index[:, sub, sub].to(torch.long, memory_format=torch.contiguous_format),
+        image=image,
+        alpha=alpha,
+        depth=depth[:, sub, sub].contiguous(),
+        face_index=face_index[:, sub, sub].to(torch.long, memory_format=torch.contiguous_format),
     )
 
 
-def _render_rgba(
+def _render_image_alpha(
     vertices: torch.Tensor,
     faces: torch.Tensor,
     face_colors: torch.Tensor,
@@ -286,10 +289,15 @@ def _render_rgba(
     num_threads: int,
     edge_gradient: float,
     visibility_gradient: str = "nmr",
-) -> tuple[torch.Tensor, RasterOutput, int]:
-    """:func:`render`'s work (arguments as there, checked): the (B,4,H,W) RGB + coverage image (a channels-last
-    view), the supersampled raster it was averaged from (face index int32) and the supersampling factor. Callers
-    that only need the image (attacks, every step) skip the depth and face-index maps."""
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, int]:
+    """:func:`render`'s work (arguments as there, checked): the (B,3,H,W) image and (B,1,H,W) coverage
+    (channels-last views), the (B,kH,kW) int32 face index and depth of the supersampled raster they were averaged
+    from, and the supersampling factor ``k``. Callers that only need the image (attacks, every step) skip the depth
+    and face-index maps.
+
+    Float32 CPU inputs with one clip range for every view take the native flat render (:mod:`.flat`: one native
+    op and one autograd node); others (float64, other devices, views of different clip ranges) the composition of
+    :meth:`Camera.project`, :func:`shade` and the rasterizer, which gives the same images and gradients."""
     verts, faces = _check_mesh(vertices, faces)
     require_instance(lights, Lights, "lights")
     if not isinstance(face_colors, torch.Tensor) or not face_colors.is_floating_point():
@@ -316,6 +324,19 @@ def _render_rgba(
     edge_weight = finite_float("edge_gradient", edge_gradient, low=0.0)
     radius = _sweep_radius(visibility_gradient, k)
 
+    groups = _raster_groups(camera, b)
+    if len(groups) == 1 and supports_flat_render(verts, colors, camera, lights):
+        _, near, far = groups[0]
+        num_threads = _validate.num_threads("num_threads", num_threads)
+        check_memory(
+            estimate_forward_bytes(b, height * k, width * k, 4, verts.shape[1], faces.shape[0]), "rasterize"
+        )
+        flat = flat_render(
+            verts, faces.to(torch.int32).contiguous().numpy(), colors, camera, lights, (height, width),
+            _background(background, torch.float32), bool(fill_back), k, num_threads, edge_weight, radius, b,
+            near, far,
+        )
+        return flat.image, flat.alpha, flat.face_index, flat.depth, k
     verts_screen = _scale_gradient(_project_checked(verts, camera, b), edge_weight)
     shaded = _expand(shade(verts, faces, colors, lights, camera, two_sided=bool(fill_back)), b)
     attrs = torch.cat([shaded, torch.ones_like(shaded[..., :1])], dim=-1)
@@ -323,7 +344,8 @@ def _render_rgba(
     out = _rasterize_views(
         verts_screen, faces, attrs, (height * k, width * k), bg, camera, not fill_back, num_threads, radius
     )
-    return _downsample(out.image, k, num_threads), out, k
+    rgba = _downsample(out.image, k, num_threads)
+    return rgba[:, :3], rgba[:, 3:4], out.face_index, out.depth, k
 
 
 def render_silhouette(

@@ -192,7 +192,7 @@ class RenderSetup:
             TypeError: ``views`` is not a ViewSet (the other arguments are checked by :func:`meshadv.render.render`).
         """
         from meshadv.render import ViewSet
-        from meshadv.render.renderer import _render_rgba
+        from meshadv.render.renderer import _render_image_alpha
 
         views = ViewSet.require(views)
         k, v = vertices.shape[0], len(views)
@@ -215,10 +215,10 @@ class RenderSetup:
             if self.static:
                 verts, faces, colors = self._with_static(verts, faces, colors)
             # The image alone: an attack step never reads the depth or face-index maps.
-            rgba, _, _ = _render_rgba(verts, faces, colors, batched.camera, batched.lights, self.image_size, bg,
-                                      fill_back=True, antialias=self.antialias, num_threads=num_threads,
-                                      edge_gradient=edge_gradient, visibility_gradient=visibility_gradient)
-            image, alpha = rgba[:, :3], rgba[:, 3:4]
+            image, alpha, _, _, _ = _render_image_alpha(
+                verts, faces, colors, batched.camera, batched.lights, self.image_size, bg, fill_back=True,
+                antialias=self.antialias, num_threads=num_threads, edge_gradient=edge_gradient,
+                visibility_gradient=visibility_gradient)
         if self.crop_rows is not None:
             rows = slice(*self.crop_rows)
             image, alpha = image[:, :, rows, :], alpha[:, :, rows, :]

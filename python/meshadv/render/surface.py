@@ -100,6 +100,22 @@ def _lambert(normals: torch.Tensor, lights: Lights) -> torch.Tensor:
     return intensity
 
 
+def _blinn_phong(normals: torch.Tensor, view: torch.Tensor, lights: Lights, specular: float,
+                 shininess: float) -> torch.Tensor:
+    """``specular * sum_j c_j max(dot(n, h_j), 0)^shininess`` over the lights facing the surface (``dot(n, d_j) >
+    0``), with ``h_j = normalize(d_j + v)`` the half vector of light ``j`` and the unit view vector ``v`` toward the
+    camera; (B,P,3) for (B,P,3) unit normals and view vectors."""
+    dtype = normals.dtype
+    b = max(normals.shape[0], lights.directions.shape[0])
+    if lights.num_lights == 0:
+        return torch.zeros(b, normals.shape[1], 3, dtype=dtype, device=normals.device)
+    dirs = _normalize(lights.directions.to(device=normals.device, dtype=dtype))  # (B,K,3)
+    half = _normalize(dirs.unsqueeze(1) + view.unsqueeze(2))  # (B,P,K,3)
+    cos_h = (normals.unsqueeze(2) * half).sum(-1).clamp_min(0)  # (B,P,K)
+    facing = (small_matmul(normals, dirs.transpose(1, 2)) > 0).to(dtype)
+    return small_matmul(specular * cos_h.pow(shininess) * facing, lights.colors.to(device=normals.device, dtype=dtype))
+
+
 def render_surface(
     vertices: torch.Tensor,
     faces: torch.Tensor,
@@ -114,6 +130,8 @@ def render_surface(
     normals: torch.Tensor | None = None,
     normal_faces: torch.Tensor | None = None,
     shading: str = "smooth",
+    specular: float = 0.0,
+    shininess: float = 32.0,
     wrap: str = "repeat",
     background: float | Sequence[float] | torch.Tensor = (1.0, 1.0, 1.0),
     fill_back: bool = True,
@@ -127,7 +145,10 @@ def render_surface(
     The reflectance at a pixel is ``texture(uv)`` times the interpolated vertex colour (either alone when only one is
     given); the shaded colour is ``clamp(reflectance * (ambient + sum_j c_j max(dot(d_j, n), 0)), 0, 1)`` with ``n``
     the face normal (``flat``) or the interpolated, renormalised vertex normal (``smooth``), turned toward the camera
-    on faces seen from behind when ``fill_back``.
+    on faces seen from behind when ``fill_back``. With ``specular > 0`` (smooth shading) a white Blinn-Phong term is
+    added before the clamp: ``specular * sum_j c_j max(dot(n, h_j), 0)^shininess`` over the lights facing the
+    surface, ``h_j`` the half vector of light ``j`` and the direction toward the camera from the pixel's surface
+    point (perspective) or the viewing direction (orthographic).
 
     Args:
         vertices: (N,3) or (B,N,3) world positions.
@@ -143,6 +164,8 @@ def render_surface(
             the vertices' gradient); with ``normal_faces`` (M,3) their rows at each corner (default: ``faces``).
         normal_faces: see ``normals``.
         shading: ``"flat"`` or ``"smooth"``.
+        specular: weight of the Blinn-Phong specular term (0: Lambert only, the default); smooth shading only.
+        shininess: Blinn-Phong exponent (>= 1).
         wrap: texel indices outside the image: ``"repeat"`` or ``"clamp"``.
         background: RGB background (not differentiable).
         fill_back: two-sided rendering (False culls back faces).
@@ -158,7 +181,8 @@ def render_surface(
     Raises:
         TypeError: an argument of the wrong type.
         ValueError: bad shapes, NaN/Inf, corner rows out of range, an empty texture, no reflectance given, an
-            unknown ``shading`` or ``wrap``; each message names the argument.
+            unknown ``shading`` or ``wrap``, a negative ``specular`` (or one with flat shading) or a ``shininess``
+            below 1; each message names the argument.
 
     Example:
         >>> from meshadv.render import Camera, Lights
@@ -178,6 +202,10 @@ def render_surface(
         raise ValueError(f"wrap must be one of {WRAP_MODES}, got {wrap!r}")
     if texture is None and vertex_colors is None:
         raise ValueError("render_surface needs a reflectance: texture (with uvs) and/or vertex_colors")
+    specular = finite_float("specular", specular, low=0.0)
+    shininess = finite_float("shininess", shininess, low=1.0)
+    if specular > 0 and shading != "smooth":
+        raise ValueError(f"specular needs shading='smooth', got shading={shading!r}")
     n, m = verts.shape[1], faces.shape[0]
     sizes = {"vertices": verts.shape[0], "camera": len(camera), "lights": len(lights)}
     if texture is not None:
@@ -250,7 +278,16 @@ def render_surface(
             n_px = n_px * torch.gather(flip, 1, safe_index.unsqueeze(-1))
         n_px = _normalize(n_px)
     intensity = _lambert(n_px, lights).reshape(b, *size, 3)
-    rgb = (reflectance * intensity).clamp(0.0, 1.0)
+    rgb = reflectance * intensity
+    if specular > 0:
+        if camera.orthographic:
+            view = _expand(_normalize(camera.eye() - camera.target()).to(n_px.dtype), b).unsqueeze(1)
+            view = view.expand(-1, n_px.shape[1], -1)
+        else:
+            points = per_pixel(verts, faces).reshape(b, -1, 3)  # the surface point of each pixel (world)
+            view = _normalize(_expand(camera.eye().to(points.dtype), b).unsqueeze(1) - points)
+        rgb = rgb + _blinn_phong(n_px, view, lights, specular, shininess).reshape(b, *size, 3)
+    rgb = rgb.clamp(0.0, 1.0)
     bg = _background(background, rgb.dtype).to(rgb.device)
     rgba = torch.cat([torch.where(drawn, rgb, bg), drawn.to(rgb.dtype)], dim=-1)
     rgba = pixel_visibility(

@@ -94,7 +94,8 @@ def conversion_check(
 
     Args:
         mesh: a ``meshadv.mesh.Mesh`` (per-face colours, flat), or a ``meshadv.mesh.SurfaceMesh`` (its texture as a
-            bitmap, its UVs, and for smooth shading the same vertex normals, in both renderers).
+            bitmap with its UVs, or its vertex colours, and for smooth shading the same vertex normals, in both
+            renderers).
         record: a ``ViewSet.to_records()`` record (camera and lights).
         image_size: square image side.
         spp: Mitsuba samples per pixel for the shaded image.
@@ -108,13 +109,14 @@ def conversion_check(
     views = ViewSet.from_records([record])
     with torch.no_grad():
         if isinstance(mesh, SurfaceMesh):
-            if mesh.texture is None:
-                raise ValueError("mesh: a SurfaceMesh is compared with its texture; this one has none")
+            if mesh.texture is None and mesh.vertex_colors is None:
+                raise ValueError("mesh: a SurfaceMesh is compared with its texture or vertex colours; this one has "
+                                 "neither")
             shading = shading or mesh.shading
             ours = render_surface(
                 mesh.mesh.vertices, mesh.mesh.faces, views.camera, views.lights, image_size, texture=mesh.texture,
-                uvs=mesh.uvs, uv_faces=mesh.uv_faces, normals=mesh.normals, normal_faces=mesh.normal_faces,
-                shading=shading, background=(1.0, 1.0, 1.0),
+                uvs=mesh.uvs, uv_faces=mesh.uv_faces, vertex_colors=mesh.vertex_colors, normals=mesh.normals,
+                normal_faces=mesh.normal_faces, shading=shading, background=(1.0, 1.0, 1.0),
             )
             obj = MeshObject.from_surface(mesh, shading)
         else:
