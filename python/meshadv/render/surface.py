@@ -1,9 +1,10 @@
 """``render_surface``: renders with attributes that vary within faces: a UV texture image, per-vertex colours, and
 smooth (per-pixel interpolated vertex normal) or flat Lambert shading.
 
-Pipeline per view: project (PyTorch), rasterize the face index (Rust), perspective-correct weights of the drawn face
-(Rust), UVs / colours / normals interpolated per pixel (Rust), bilinear texture sample (Rust), Lambert + ambient + K
-directional lights per pixel (PyTorch), RGB + coverage, NMR's visibility gradient on the image (Rust), box filter.
+Pipeline per view: project (PyTorch), rasterize the face index (Rust), the texture sampled at each pixel's
+perspective-correct UV (Rust, one pass), perspective-correct weights of the drawn face with colours / normals
+interpolated with them (Rust), Lambert + ambient + K directional lights per pixel (PyTorch), RGB + coverage, NMR's
+visibility gradient on the image (Rust), box filter.
 Gradients: exact to texels, UVs, vertex colours, normals and lights, and to vertex positions through the weights
 (interior) plus NMR's visibility gradient (edges), weighted by ``edge_gradient``. Conventions: docs/TEXTURES.md.
 """
@@ -15,7 +16,7 @@ from typing import Any
 
 import torch
 
-from .._validate import finite_float
+from .._validate import MAX_TEXTURE_COORDINATE, finite_float
 from ._checks import require_instance
 from ._ops import small_matmul
 from .camera import Camera, _normalize
@@ -33,7 +34,7 @@ from .renderer import (
     _scale_gradient,
 )
 from .visibility import sweep_radius
-from .surface_ops import WRAP_MODES, fragments, interpolate, pixel_visibility, pixel_weights, sample_texture
+from .surface_ops import WRAP_MODES, fragments, interpolate, pixel_visibility, pixel_weights, sample_uv_texture
 
 __all__ = ["SHADING_MODES", "render_surface", "vertex_normals"]
 
@@ -180,9 +181,9 @@ def render_surface(
 
     Raises:
         TypeError: an argument of the wrong type.
-        ValueError: bad shapes, NaN/Inf, corner rows out of range, an empty texture, no reflectance given, an
-            unknown ``shading`` or ``wrap``, a negative ``specular`` (or one with flat shading) or a ``shininess``
-            below 1; each message names the argument.
+        ValueError: bad shapes, NaN/Inf, UVs beyond +-1e6, corner rows out of range, an empty texture, no
+            reflectance given, an unknown ``shading`` or ``wrap``, a negative ``specular`` (or one with flat
+            shading) or a ``shininess`` below 1; each message names the argument.
 
     Example:
         >>> from meshadv.render import Camera, Lights
@@ -215,6 +216,9 @@ def render_surface(
         if uvs is None:
             raise ValueError("uvs is required with texture (T,2 texture coordinates)")
         uvs = _float_array(uvs, "uvs", ("(T,2)",), (2,), 2)
+        if float(uvs.detach().abs().max()) > MAX_TEXTURE_COORDINATE:
+            raise ValueError(f"uvs must lie within +-{MAX_TEXTURE_COORDINATE:g} (texture coordinates, 1 = the whole "
+                             f"image), got {float(uvs.detach().abs().max()):g}")
         uv_faces = faces if uv_faces is None else _corners(uv_faces, "uv_faces", m, uvs.shape[0], "uvs")
         if uv_faces is faces and uvs.shape[0] != n:
             raise ValueError(f"uvs must have one row per vertex (N = {n}) without uv_faces, got {uvs.shape[0]}")
@@ -246,18 +250,21 @@ def render_surface(
     near = _expand(camera.near.detach().cpu(), b).tolist()
     far = _expand(camera.far.detach().cpu(), b).tolist()
     frags = fragments(verts_screen, faces, size, near, far, not fill_back, camera.orthographic, num_threads)
-    weights = pixel_weights(verts_screen, faces, frags, num_threads)
     face_index = frags.face_index.to(device=verts.device, dtype=torch.long)
     drawn = (face_index >= 0).unsqueeze(-1)
     safe_index = face_index.clamp_min(0).reshape(b, -1)
 
+    weights: list[torch.Tensor] = []  # the perspective-correct weights, computed once when an attribute needs them
+
     def per_pixel(values: torch.Tensor, corners: torch.Tensor) -> torch.Tensor:
-        return interpolate(weights, values, corners, verts_screen, faces, frags, num_threads)
+        if not weights:
+            weights.append(pixel_weights(verts_screen, faces, frags, num_threads))
+        return interpolate(weights[0], values, corners, verts_screen, faces, frags, num_threads)
 
     reflectance = None
     if texture is not None:
-        uv = per_pixel(uvs.unsqueeze(0), uv_faces)
-        reflectance = sample_texture(texture, uv, frags, wrap, num_threads)
+        uv_args = (uvs.unsqueeze(0), verts_screen, uv_faces, faces, frags, wrap, num_threads)
+        reflectance = sample_uv_texture(texture, *uv_args)
     if vertex_colors is not None:
         colors = per_pixel(vertex_colors, faces)
         reflectance = colors if reflectance is None else reflectance * colors
