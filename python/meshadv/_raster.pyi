@@ -277,25 +277,39 @@ def interpolate_backward(
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
     """Backward of ``interpolate``: ``(grad_values (Bv,A,K), grad_weights (B,H,W,3))``."""
 
-def sample_texture(
-    texture: npt.NDArray[np.float32],
-    uv: npt.NDArray[np.float32],
+def sample_uv_texture(
+    verts_screen: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
     face_index: npt.NDArray[np.int32],
+    corners: npt.NDArray[np.int32],
+    uvs: npt.NDArray[np.float32],
+    texture: npt.NDArray[np.float32],
+    near: float,
+    far: float,
+    orthographic: bool = False,
     wrap: str = "repeat",
     num_threads: int = 0,
 ) -> npt.NDArray[np.float32]:
-    """Bilinear samples (B,H,W,C) of ``texture`` (Bt,Ht,Wt,C) at ``uv`` (B,H,W,2) where ``face_index >= 0`` (0
-    elsewhere); ``wrap`` is ``"repeat"`` or ``"clamp"`` (docs/TEXTURES.md)."""
+    """The texture (Bt,Ht,Wt,C) sampled (bilinear) at each pixel's perspective-correct UV, interpolated from ``uvs``
+    (Bv,T,2) with rows ``corners`` (M,3): (B,H,W,C), 0 on background; ``wrap`` is ``"repeat"`` or ``"clamp"``
+    (docs/TEXTURES.md)."""
 
-def sample_texture_backward(
-    texture: npt.NDArray[np.float32],
-    uv: npt.NDArray[np.float32],
+def sample_uv_texture_backward(
+    verts_screen: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.int32],
     face_index: npt.NDArray[np.int32],
+    corners: npt.NDArray[np.int32],
+    uvs: npt.NDArray[np.float32],
+    texture: npt.NDArray[np.float32],
     grad: npt.NDArray[np.float32],
+    near: float,
+    far: float,
+    orthographic: bool = False,
     wrap: str = "repeat",
     num_threads: int = 0,
-) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
-    """Backward of ``sample_texture``: ``(grad_texture (Bt,Ht,Wt,C), grad_uv (B,H,W,2))``."""
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """Backward of ``sample_uv_texture``: ``(grad_texture (Bt,Ht,Wt,C), grad_uvs (Bv,T,2), grad_verts_screen
+    (B,N,3))``, the last at fixed face assignment."""
 
 def image_vertex_backward(
     verts_screen: npt.NDArray[np.float32],

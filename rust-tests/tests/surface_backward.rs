@@ -3,8 +3,9 @@
 //! any thread count; on a textured image it differs from the flat one only through the colours it reads.
 
 use meshadv_raster::backward::{image_vertex_backward, Visibility};
-use meshadv_raster::surface::{interpolate, pixel_weights, CornerAttrs};
-use meshadv_raster::texture::{sample, Texture, Wrap};
+use meshadv_raster::surface::CornerAttrs;
+use meshadv_raster::texture::{Texture, Wrap};
+use meshadv_raster::textured::sample_uv_texture;
 use meshadv_raster::{
     rasterize_backward, rasterize_fragments, with_threads, BackwardInputs, FaceAttrs,
 };
@@ -85,7 +86,6 @@ fn a_textured_image_gets_a_vertex_gradient_from_the_colours_at_its_edges() {
     let p = params(31, 37);
     let view = mesh.view();
     let frags = rasterize_fragments(&view, &p).expect("fragments");
-    let w = pixel_weights(&view, &p, &frags.face_index).expect("weights");
     let uvs: Vec<f32> = (0..mesh.num_faces() * 6)
         .map(|_| rng.uniform(0.0, 1.0))
         .collect();
@@ -98,7 +98,6 @@ fn a_textured_image_gets_a_vertex_gradient_from_the_colours_at_its_edges() {
         channels: 2,
         arg: "uvs",
     };
-    let uv = interpolate(&view, &p, &frags.face_index, &w, &attrs).expect("uv");
     let texels: Vec<f32> = (0..8 * 8 * 3).map(|_| rng.uniform(0.0, 1.0)).collect();
     let tex = Texture {
         texels: &texels,
@@ -108,7 +107,7 @@ fn a_textured_image_gets_a_vertex_gradient_from_the_colours_at_its_edges() {
         channels: 3,
         wrap: Wrap::Repeat,
     };
-    let image = sample(&tex, &uv, &frags.face_index, 1).expect("sample");
+    let image = sample_uv_texture(&view, &p, &frags.face_index, &attrs, &tex).expect("sample");
     let g: Vec<f32> = (0..image.len()).map(|_| rng.uniform(-1.0, 1.0)).collect();
     let one = with_threads(1, || {
         image_vertex_backward(&view, &p, &frags.face_index, &image, &g, 3, Visibility::Nmr)

@@ -1,10 +1,11 @@
-//! Bindings of the per-pixel surface ops: perspective-correct weights, per-corner attribute interpolation, bilinear
-//! texture sampling and the vertex gradient of images with per-pixel colours (see `meshadv_raster::surface`,
-//! `meshadv_raster::texture` and `meshadv_raster::backward::image_vertex_backward`).
+//! Bindings of the per-pixel surface ops: perspective-correct weights, per-corner attribute interpolation, the UV
+//! texture sampled at each pixel (one pass) and the vertex gradient of images with per-pixel colours (see
+//! `meshadv_raster::surface`, `meshadv_raster::textured` and `meshadv_raster::backward::image_vertex_backward`).
 
 use meshadv_raster::backward::image_vertex_backward as core_image_vertex_backward;
 use meshadv_raster::surface::{self, CornerAttrs};
-use meshadv_raster::texture::{self, Texture, Wrap};
+use meshadv_raster::texture::{Texture, Wrap};
+use meshadv_raster::textured;
 use meshadv_raster::{Projection, RasterParams, ScreenMesh};
 use numpy::PyReadonlyArrayDyn;
 use pyo3::exceptions::PyValueError;
@@ -237,60 +238,85 @@ fn texture_view<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>, wrap: &str) -> PyResult<
     })
 }
 
-/// Bilinear samples `f32[B,H,W,C]` of `texture f32[Bt,Ht,Wt,C]` at `uv f32[B,H,W,2]` where `face_index >= 0` (0
-/// elsewhere); `wrap` is `"repeat"` or `"clamp"`.
+/// The texture `f32[Bt,Ht,Wt,C]` sampled (bilinear) at each pixel's perspective-correct UV: `f32[B,H,W,C]`, 0 on
+/// background; `uvs f32[Bv,T,2]` with their rows `corners i32[M,3]`; `wrap` is `"repeat"` or `"clamp"`.
 #[pyfunction]
-#[pyo3(signature = (texture, uv, face_index, wrap = "repeat", num_threads = 0))]
-pub(crate) fn sample_texture<'py>(
+#[pyo3(signature = (verts_screen, faces, face_index, corners, uvs, texture, near, far, orthographic = false,
+                    wrap = "repeat", num_threads = 0))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn sample_uv_texture<'py>(
     py: Python<'py>,
-    texture: &Bound<'py, PyAny>,
-    uv: &Bound<'py, PyAny>,
+    verts_screen: &Bound<'py, PyAny>,
+    faces: &Bound<'py, PyAny>,
     face_index: &Bound<'py, PyAny>,
+    corners: &Bound<'py, PyAny>,
+    uvs: &Bound<'py, PyAny>,
+    texture: &Bound<'py, PyAny>,
+    near: f64,
+    far: f64,
+    orthographic: bool,
     wrap: &str,
     num_threads: i64,
 ) -> PyResult<PyArr<'py, f32>> {
     let nt = threads(num_threads)?;
+    let arrays = Fragments::extract(verts_screen, faces, face_index)?;
+    let corners = array::<i32>("corners", "int32", corners)?;
+    let uvs = array::<f32>("uvs", "float32", uvs)?;
     let texture = array::<f32>("texture", "float32", texture)?;
-    let uv = array::<f32>("uv", "float32", uv)?;
-    let face_index = array::<i32>("face_index", "int32", face_index)?;
+    let v = arrays.views(near, far, orthographic)?;
+    let [b, h, w] = dims(&v);
+    let attrs = corner_attrs("uvs", &uvs, &corners)?;
     let tex = texture_view(&texture, wrap)?;
-    let (is, id) = view("face_index", &face_index, 3)?;
-    let uv = view_exact("uv", &uv, &[is[0], is[1], is[2], 2])?;
-    let out = run(py, nt, || texture::sample(&tex, uv, id, is[0]))?;
-    output(py, out, &[is[0], is[1], is[2], tex.channels])
+    let out = run(py, nt, || {
+        textured::sample_uv_texture(&v.mesh, &v.params, v.face_index, &attrs, &tex)
+    })?;
+    output(py, out, &[b, h, w, tex.channels])
 }
 
-/// Backward of `sample_texture`: `(grad_texture f32[Bt,Ht,Wt,C], grad_uv f32[B,H,W,2])`.
+/// Backward of `sample_uv_texture`: `(grad_texture f32[Bt,Ht,Wt,C], grad_uvs f32[Bv,T,2], grad_verts_screen
+/// f32[B,N,3])`, the last at fixed face assignment (the UVs moving with the vertices).
 #[pyfunction]
-#[pyo3(signature = (texture, uv, face_index, grad, wrap = "repeat", num_threads = 0))]
-pub(crate) fn sample_texture_backward<'py>(
+#[pyo3(signature = (verts_screen, faces, face_index, corners, uvs, texture, grad, near, far, orthographic = false,
+                    wrap = "repeat", num_threads = 0))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+pub(crate) fn sample_uv_texture_backward<'py>(
     py: Python<'py>,
-    texture: &Bound<'py, PyAny>,
-    uv: &Bound<'py, PyAny>,
+    verts_screen: &Bound<'py, PyAny>,
+    faces: &Bound<'py, PyAny>,
     face_index: &Bound<'py, PyAny>,
+    corners: &Bound<'py, PyAny>,
+    uvs: &Bound<'py, PyAny>,
+    texture: &Bound<'py, PyAny>,
     grad: &Bound<'py, PyAny>,
+    near: f64,
+    far: f64,
+    orthographic: bool,
     wrap: &str,
     num_threads: i64,
-) -> PyResult<(PyArr<'py, f32>, PyArr<'py, f32>)> {
+) -> PyResult<(PyArr<'py, f32>, PyArr<'py, f32>, PyArr<'py, f32>)> {
     let nt = threads(num_threads)?;
+    let arrays = Fragments::extract(verts_screen, faces, face_index)?;
+    let corners = array::<i32>("corners", "int32", corners)?;
+    let uvs = array::<f32>("uvs", "float32", uvs)?;
     let texture = array::<f32>("texture", "float32", texture)?;
-    let uv = array::<f32>("uv", "float32", uv)?;
-    let face_index = array::<i32>("face_index", "int32", face_index)?;
     let grad = array::<f32>("grad", "float32", grad)?;
+    let v = arrays.views(near, far, orthographic)?;
+    let [b, h, w] = dims(&v);
+    let attrs = corner_attrs("uvs", &uvs, &corners)?;
     let tex = texture_view(&texture, wrap)?;
-    let (is, id) = view("face_index", &face_index, 3)?;
-    let uv = view_exact("uv", &uv, &[is[0], is[1], is[2], 2])?;
-    let grad = view_exact("grad", &grad, &[is[0], is[1], is[2], tex.channels])?;
+    let grad = view_exact("grad", &grad, &[b, h, w, tex.channels])?;
     let g = run(py, nt, || {
-        texture::sample_backward(&tex, uv, id, is[0], grad)
+        textured::sample_uv_texture_backward(&v.mesh, &v.params, v.face_index, &attrs, &tex, grad)
     })?;
+    let n = v.mesh.num_verts;
     Ok((
         output(
             py,
             g.grad_texels,
             &[tex.batch, tex.height, tex.width, tex.channels],
         )?,
-        output(py, g.grad_uv, &[is[0], is[1], is[2], 2])?,
+        output(py, g.grad_uvs, &[attrs.batch, attrs.rows, attrs.channels])?,
+        output(py, g.grad_verts_screen, &[b, n, 3])?,
     ))
 }
 

@@ -2,10 +2,10 @@
 //!
 //! Case: a UV sphere of 10,000 faces filling a 299 x 299 image (as `bench`'s `sphere`), RGB + coverage, a random
 //! cotangent. Per-face: `rasterize` with per-face RGBA attributes, then `rasterize_backward` (attribute and NMR vertex
-//! gradients). Textured: fragments, perspective-correct weights, UVs interpolated from per-vertex UVs, a bilinear
-//! sample of a 256 x 256 RGB texture, the RGBA image, then the per-pixel NMR vertex gradient, the texel and UV
-//! gradients, the UV interpolation's and the weights' backward (the vertex gradient's interior term). The two
-//! alternate, `reps` times each; medians and their ratio are printed.
+//! gradients). Textured: fragments, the texture sample at each pixel's perspective-correct UV (per-vertex UVs, a
+//! 256 x 256 RGB texture, bilinear; `sample_uv_texture`), the RGBA image, then the per-pixel NMR vertex gradient and
+//! the texel, UV and interior vertex gradients (`sample_uv_texture_backward`). The two alternate, `reps` times each;
+//! medians and their ratio are printed.
 //!
 //! `cargo run --release -p meshadv-raster --example textured_bench [threads] [reps]` (1 thread and 21 repetitions by
 //! default).
@@ -14,10 +14,9 @@ use std::time::Instant;
 
 use meshadv_raster::backward::{image_vertex_backward, Visibility};
 use meshadv_raster::camera::{project, world_to_view, SphericalCamera};
-use meshadv_raster::surface::{
-    interpolate, interpolate_backward, pixel_weights, pixel_weights_backward, CornerAttrs,
-};
-use meshadv_raster::texture::{sample, sample_backward, Texture, Wrap};
+use meshadv_raster::surface::CornerAttrs;
+use meshadv_raster::texture::{Texture, Wrap};
+use meshadv_raster::textured::{sample_uv_texture, sample_uv_texture_backward};
 use meshadv_raster::{
     rasterize, rasterize_backward, rasterize_fragments, with_threads, BackwardInputs, FaceAttrs,
     RasterError, RasterParams, ScreenMesh,
@@ -146,17 +145,14 @@ fn main() -> Result<(), RasterError> {
     };
     let textured = || -> Result<f32, RasterError> {
         let frags = rasterize_fragments(&mesh, &params)?;
-        let w = pixel_weights(&mesh, &params, &frags.face_index)?;
-        let uv = interpolate(&mesh, &params, &frags.face_index, &w, &uv_attrs)?;
-        let rgb = sample(&texture, &uv, &frags.face_index, 1)?;
-        let image: Vec<f32> = rgb
-            .chunks_exact(3)
-            .zip(&frags.face_index)
-            .flat_map(|(c, &f)| match f >= 0 {
+        let rgb = sample_uv_texture(&mesh, &params, &frags.face_index, &uv_attrs, &texture)?;
+        let mut image = Vec::with_capacity(frags.face_index.len() * 4);
+        for (c, &f) in rgb.chunks_exact(3).zip(&frags.face_index) {
+            image.extend_from_slice(&match f >= 0 {
                 true => [c[0], c[1], c[2], 1.0],
                 false => background,
-            })
-            .collect();
+            });
+        }
         let gv = image_vertex_backward(
             &mesh,
             &params,
@@ -166,17 +162,15 @@ fn main() -> Result<(), RasterError> {
             4,
             Visibility::Nmr,
         )?;
-        let gs = sample_backward(&texture, &uv, &frags.face_index, 1, &grad_rgb)?;
-        let gi = interpolate_backward(
+        let gs = sample_uv_texture_backward(
             &mesh,
             &params,
             &frags.face_index,
-            &w,
             &uv_attrs,
-            &gs.grad_uv,
+            &texture,
+            &grad_rgb,
         )?;
-        let gw = pixel_weights_backward(&mesh, &params, &frags.face_index, &gi.grad_weights)?;
-        Ok(gv[0] + gw[0] + gs.grad_texels[0] + gi.grad_values[0])
+        Ok(gv[0] + gs.grad_verts_screen[0] + gs.grad_texels[0] + gs.grad_uvs[0])
     };
     let (mut tf, mut tt) = (Vec::new(), Vec::new());
     let (mut cf, mut ct) = (Vec::new(), Vec::new());

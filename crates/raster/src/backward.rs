@@ -87,20 +87,7 @@ impl BackwardInputs<'_> {
             }
             check_finite(arg, arr)?;
         }
-        // Blocks of 64 values without branching (vectorised), then the first bad value is searched.
-        let bad = |f: i32| f < -1 || f as i64 >= num_faces as i64;
-        let block_ok = |b: &[i32]| b.iter().fold(true, |ok, &f| ok & !bad(f));
-        let first_bad = self
-            .face_index
-            .chunks(64)
-            .position(|b| !block_ok(b))
-            .and_then(|k| {
-                self.face_index[k * 64..]
-                    .iter()
-                    .position(|&f| bad(f))
-                    .map(|i| k * 64 + i)
-            });
-        if let Some(index) = first_bad {
+        if let Some(index) = crate::input::first_bad_face(self.face_index, num_faces) {
             return Err(RasterError::FaceMapOutOfRange {
                 index,
                 value: self.face_index[index] as i64,

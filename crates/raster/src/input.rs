@@ -150,6 +150,22 @@ impl<'a> ScreenMesh<'a> {
     }
 }
 
+/// The first entry of a face-index map that is neither -1 nor a face in `0..num_faces`, if any.
+pub(crate) fn first_bad_face(face_index: &[i32], num_faces: usize) -> Option<usize> {
+    // Blocks of 64 values without branching (vectorised), then the first bad value is searched.
+    let bad = |f: i32| f < -1 || f as i64 >= num_faces as i64;
+    let block_ok = |b: &[i32]| b.iter().fold(true, |ok, &f| ok & !bad(f));
+    face_index
+        .chunks(64)
+        .position(|b| !block_ok(b))
+        .and_then(|k| {
+            face_index[k * 64..]
+                .iter()
+                .position(|&f| bad(f))
+                .map(|i| k * 64 + i)
+        })
+}
+
 /// A hash (FNV-1a) of a sequence of 32-bit words, e.g. the bits of an array of `f32`: equal bits give equal hashes,
 /// to find repeated inputs or to compare outputs of two builds bit for bit.
 pub fn bits_hash(words: impl IntoIterator<Item = u32>) -> u64 {

@@ -6,6 +6,8 @@
 //! * [`boxfilter`]: the box filter of an antialiased (supersampled) render and its adjoint.
 //! * [`camera`], [`shading`], [`pipeline`]: NMR camera conventions, Lambert shading and the full forward render.
 //! * [`flat`]: the flat render around the rasterizer (projection, Lambert shading, box filter) and its adjoint.
+//! * [`surface`], [`texture`], [`textured`]: per-pixel perspective-correct weights and interpolated attributes,
+//!   bilinear texture samples, and a UV-textured surface (UV, sample and their gradients) in one pass per pixel.
 //! * [`raycast`]: BVH ray cast (obvhs), the rasterizer's oracle and an alternative for very large meshes.
 //!
 //! Conventions are those of `docs/ARCHITECTURE.md` (Neural Mesh Renderer's). Every function validates its input and
@@ -47,6 +49,7 @@ pub mod surface;
 #[cfg(test)]
 mod test_rng;
 pub mod texture;
+pub mod textured;
 
 pub use backward::{rasterize_backward, BackwardInputs, Gradients};
 pub use camera::MIN_VIEWING_ANGLE;

@@ -17,8 +17,8 @@
 use rayon::prelude::*;
 
 use crate::error::{try_filled_vec, RasterError, Result};
-use crate::input::{check_finite, RasterParams, ScreenMesh};
-use crate::setup::FaceSetup;
+use crate::input::{check_finite, first_bad_face, Projection, RasterParams, ScreenMesh};
+use crate::setup::{ndc_to_u, ndc_to_v};
 
 /// Checks a `(B, H, W)` face-index map against the mesh: length and entries in `-1..M`.
 pub fn check_face_index(
@@ -35,10 +35,7 @@ pub fn check_face_index(
         ));
     }
     let m = mesh.num_faces();
-    match face_index
-        .iter()
-        .position(|&f| f < -1 || f as i64 >= m as i64)
-    {
+    match first_bad_face(face_index, m) {
         Some(index) => Err(RasterError::FaceMapOutOfRange {
             index,
             value: face_index[index] as i64,
@@ -48,13 +45,137 @@ pub fn check_face_index(
     }
 }
 
-/// The setups of the faces drawn somewhere in `face_index` (one batch element); the others are left default.
-fn drawn_setups(
+/// The screen-space weights of one face as planes in pixel space, and what their gradient needs.
+///
+/// `w_k(u, v) = A_k / A` with `A_k = cross(P_{k+1} - p, P_{k+2} - p)` and `A = cross(P_1 - P_0, P_2 - P_0)` (signed,
+/// pixel space, `cross(a, b) = a.u b.v - a.v b.u`), so `w_k = (n_k0 + n_k1 u + n_k2 v) / A` with
+/// `n_k = (u_{k+1} v_{k+2} - v_{k+1} u_{k+2}, v_{k+1} - v_{k+2}, u_{k+2} - u_{k+1})`. The perspective numerators are
+/// `q_k = w_k / z_k` (orthographic: `q_k = w_k`).
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct FacePlanes {
+    /// `w_k(u, v) = w[k][0] + w[k][1] u + w[k][2] v`.
+    pub(crate) w: [[f64; 3]; 3],
+    /// `1 / z_k` (perspective) or 1 (orthographic): `q_k = iz_k w_k`.
+    pub(crate) iz: [f64; 3],
+    /// Corner columns.
+    u: [f64; 3],
+    /// Corner rows.
+    v: [f64; 3],
+    /// `A`.
+    area: f64,
+    /// Orthographic projection: the weights do not depend on depth.
+    pub(crate) ortho: bool,
+}
+
+/// `p[0] + p[1] u + p[2] v`.
+#[inline(always)]
+pub(crate) fn plane_at(p: &[f64; 3], u: f64, v: f64) -> f64 {
+    p[0] + p[1] * u + p[2] * v
+}
+
+/// `a . b` of two 3-vectors.
+#[inline(always)]
+pub(crate) fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+impl FacePlanes {
+    /// The planes of face `f` of batch element `b` (a face the rasterizer draws: non-zero area, in front).
+    pub(crate) fn new(
+        mesh: &ScreenMesh<'_>,
+        b: usize,
+        f: usize,
+        params: &RasterParams,
+    ) -> FacePlanes {
+        let ortho = params.projection == Projection::Orthographic;
+        let mut s = FacePlanes {
+            ortho,
+            ..Default::default()
+        };
+        for (k, &vi) in mesh.face(f).iter().enumerate() {
+            let p = mesh.vert(b, vi);
+            s.u[k] = ndc_to_u(p[0], params.width);
+            s.v[k] = ndc_to_v(p[1], params.height);
+            s.iz[k] = if ortho { 1.0 } else { 1.0 / p[2] as f64 };
+        }
+        let (u, v) = (s.u, s.v);
+        s.area = (u[1] - u[0]) * (v[2] - v[0]) - (v[1] - v[0]) * (u[2] - u[0]);
+        let inv = 1.0 / s.area;
+        for k in 0..3 {
+            let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
+            s.w[k] = [
+                (u[k1] * v[k2] - v[k1] * u[k2]) * inv,
+                (v[k1] - v[k2]) * inv,
+                (u[k2] - u[k1]) * inv,
+            ];
+        }
+        s
+    }
+
+    /// The perspective numerator `q_k` as a plane.
+    #[inline(always)]
+    pub(crate) fn numerator(&self, k: usize) -> [f64; 3] {
+        self.w[k].map(|x| x * self.iz[k])
+    }
+
+    /// Screen weights `w` and perspective-correct weights `b` at pixel `(row, col)`.
+    #[inline(always)]
+    fn weights_at(&self, row: usize, col: usize) -> ([f64; 3], [f64; 3]) {
+        let (u, v) = (col as f64, row as f64);
+        let w = self.w.map(|p| plane_at(&p, u, v));
+        if self.ortho {
+            return (w, w);
+        }
+        let q = [w[0] * self.iz[0], w[1] * self.iz[1], w[2] * self.iz[2]];
+        let total = q[0] + q[1] + q[2];
+        (w, [q[0] / total, q[1] / total, q[2] / total])
+    }
+
+    /// The gradient `[corner][x_ndc, y_ndc, z_view]` of a loss whose gradient with respect to the coefficients of
+    /// the numerator planes `q_k` is `gq[k]` (summed over the face's pixels: `sum_P dL/dq_k(P) (1, u, v)`).
+    pub(crate) fn vertex_grads(&self, gq: &[[f64; 3]; 3], params: &RasterParams) -> [[f64; 3]; 3] {
+        let (u, v) = (&self.u, &self.v);
+        let inv_area = 1.0 / self.area;
+        let (mut gu, mut gv, mut out) = ([0f64; 3], [0f64; 3], [[0f64; 3]; 3]);
+        let mut g_area = 0f64;
+        for k in 0..3 {
+            let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
+            if !self.ortho {
+                // q_k = w_k / z_k: dL/dz_k = -(dL/d(1/z_k)) / z_k^2.
+                out[k][2] = -self.iz[k] * self.iz[k] * dot3(&gq[k], &self.w[k]);
+            }
+            // w_k = n_k / A.
+            let gw = gq[k].map(|x| x * self.iz[k]);
+            g_area -= dot3(&gw, &self.w[k]) * inv_area;
+            let gn = gw.map(|x| x * inv_area);
+            gu[k1] += gn[0] * v[k2] - gn[2];
+            gu[k2] += gn[2] - gn[0] * v[k1];
+            gv[k1] += gn[1] - gn[0] * u[k2];
+            gv[k2] += gn[0] * u[k1] - gn[1];
+        }
+        let (width, height) = (params.width as f64, params.height as f64);
+        for k in 0..3 {
+            let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
+            // dA/du_k = v_{k+1} - v_{k+2}, dA/dv_k = u_{k+2} - u_{k+1}.
+            let (du, dv) = (
+                gu[k] + g_area * (v[k1] - v[k2]),
+                gv[k] + g_area * (u[k2] - u[k1]),
+            );
+            // u = (x W + W - 1) / 2, v = (H - 1 - y H) / 2.
+            out[k][0] = du * width / 2.0;
+            out[k][1] = -dv * height / 2.0;
+        }
+        out
+    }
+}
+
+/// The planes of the faces drawn somewhere in `face_index` (one batch element); the others are left default.
+fn drawn_planes(
     mesh: &ScreenMesh<'_>,
     b: usize,
     params: &RasterParams,
     face_index: &[i32],
-) -> Vec<FaceSetup> {
+) -> Vec<FacePlanes> {
     let mut drawn = vec![false; mesh.num_faces()];
     for &f in face_index {
         if f >= 0 {
@@ -66,24 +187,27 @@ fn drawn_setups(
         .enumerate()
         .map(|(f, &d)| {
             if d {
-                FaceSetup::new(mesh, b, f, params)
+                FacePlanes::new(mesh, b, f, params)
             } else {
-                FaceSetup::default()
+                FacePlanes::default()
             }
         })
         .collect()
 }
 
-/// Screen-space weights `w` (f64) and perspective-correct weights `b` of pixel `(row, col)` in face setup `s`.
-#[inline(always)]
-fn weights_at(s: &FaceSetup, row: usize, col: usize) -> ([f64; 3], [f64; 3]) {
-    let w = s.barycentric(col as f64, row as f64);
-    if s.ortho {
-        return (w, w);
+/// Adds the vertex gradient `g` (`[corner][x, y, z]`) of face `f` to the vertex sums `sums` `(N, 3)`.
+#[inline]
+pub(crate) fn add_to_vertices(
+    mesh: &ScreenMesh<'_>,
+    f: usize,
+    g: &[[f64; 3]; 3],
+    sums: &mut [f64],
+) {
+    for (&vi, gk) in mesh.face(f).iter().zip(g) {
+        for (s, &x) in sums[vi * 3..vi * 3 + 3].iter_mut().zip(gk) {
+            *s += x;
+        }
     }
-    let q = [w[0] * s.inv_z[0], w[1] * s.inv_z[1], w[2] * s.inv_z[2]];
-    let total = q[0] + q[1] + q[2];
-    (w, [q[0] / total, q[1] / total, q[2] / total])
 }
 
 /// Perspective-correct barycentric weights `(B, H, W, 3)` of the face drawn at each pixel (0 on background), for
@@ -113,10 +237,10 @@ pub fn pixel_weights(
     let mut out = try_filled_vec(face_index.len() * 3, 0f32, "weights")?;
     out.par_chunks_mut(hw * 3).enumerate().for_each(|(b, dst)| {
         let fi = &face_index[b * hw..(b + 1) * hw];
-        let setups = drawn_setups(mesh, b, params, fi);
+        let planes = drawn_planes(mesh, b, params, fi);
         for (p, (&f, wp)) in fi.iter().zip(dst.chunks_exact_mut(3)).enumerate() {
             if f >= 0 {
-                let (_, bw) = weights_at(&setups[f as usize], p / params.width, p % params.width);
+                let (_, bw) = planes[f as usize].weights_at(p / params.width, p % params.width);
                 for k in 0..3 {
                     wp[k] = bw[k] as f32;
                 }
@@ -124,12 +248,6 @@ pub fn pixel_weights(
         }
     });
     Ok(out)
-}
-
-/// `d cross(a, b) / d a` and `/ d b` for `cross(a, b) = a.x b.y - a.y b.x`.
-#[inline(always)]
-fn cross_grads(a: [f64; 2], b: [f64; 2]) -> ([f64; 2], [f64; 2]) {
-    ([b[1], -b[0]], [-a[1], a[0]])
 }
 
 /// Backward of [`pixel_weights`]: the gradient `(B, N, 3)` with respect to `verts_screen` (x, y and z) of
@@ -152,104 +270,47 @@ pub fn pixel_weights_backward(
     }
     check_finite("grad_weights", grad_weights)?;
     let (hw, nv, m) = (params.pixels(), mesh.num_verts, mesh.num_faces());
-    let (width, height) = (params.width as f64, params.height as f64);
     let mut grad = try_filled_vec(mesh.batch * nv * 3, 0f32, "grad_verts_screen")?;
     grad.par_chunks_mut(nv * 3)
         .enumerate()
         .try_for_each(|(b, gv)| -> Result<()> {
-            let setups = drawn_setups(mesh, b, params, &face_index[b * hw..(b + 1) * hw]);
-            // Per face, summed over its pixels in row-major order: for each corner k the weight cotangent `gw_k`
-            // (after the perspective division) alone and times the pixel's column and row, the depth cotangent, and
-            // `sum_k gw_k w_k`; the geometry is applied per face below (the weights are affine in the pixel position).
-            const SUMS: usize = 13;
-            let mut acc = try_filled_vec(m * SUMS, 0f64, "weights backward accumulator")?;
             let fi = &face_index[b * hw..(b + 1) * hw];
+            let planes = drawn_planes(mesh, b, params, fi);
+            // Per face and corner, summed over its pixels in row-major order: the numerator cotangent dL/dq_k times
+            // (1, u, v), the gradient of the plane q_k's coefficients.
+            let mut acc = try_filled_vec(m, [[0f64; 3]; 3], "weights backward accumulator")?;
             let gw = &grad_weights[b * hw * 3..(b + 1) * hw * 3];
             for (p, (&f, g)) in fi.iter().zip(gw.chunks_exact(3)).enumerate() {
-                if f < 0 || (g[0] == 0.0 && g[1] == 0.0 && g[2] == 0.0) {
+                if f < 0 {
                     continue;
                 }
-                let s = &setups[f as usize];
+                let pl = &planes[f as usize];
                 let (row, col) = (p / params.width, p % params.width);
-                let (w, bw) = weights_at(s, row, col);
+                let (w, bw) = pl.weights_at(row, col);
                 let gb = [g[0] as f64, g[1] as f64, g[2] as f64];
                 // Perspective division: b_k = q_k / Q, q_k = w_k / z_k.
-                let (gw_k, gz_k) = if s.ortho {
-                    (gb, [0.0; 3])
+                let gq = if pl.ortho {
+                    gb
                 } else {
-                    let q = [w[0] * s.inv_z[0], w[1] * s.inv_z[1], w[2] * s.inv_z[2]];
-                    let inv_total = 1.0 / (q[0] + q[1] + q[2]);
+                    let total = w[0] * pl.iz[0] + w[1] * pl.iz[1] + w[2] * pl.iz[2];
                     let dot = gb[0] * bw[0] + gb[1] * bw[1] + gb[2] * bw[2];
-                    let gq: [f64; 3] = std::array::from_fn(|k| (gb[k] - dot) * inv_total);
-                    (
-                        std::array::from_fn(|k| gq[k] * s.inv_z[k]),
-                        std::array::from_fn(|k| -gq[k] * q[k] * s.inv_z[k]),
-                    )
+                    gb.map(|x| (x - dot) / total)
                 };
                 let (u, v) = (col as f64, row as f64);
-                let a = &mut acc[f as usize * SUMS..(f as usize + 1) * SUMS];
-                for k in 0..3 {
-                    a[k] += gw_k[k];
-                    a[3 + k] += gw_k[k] * u;
-                    a[6 + k] += gw_k[k] * v;
-                    a[9 + k] += gz_k[k];
-                }
-                a[12] += gw_k[0] * w[0] + gw_k[1] * w[1] + gw_k[2] * w[2];
-            }
-            // Screen weights w_k = A_k / A with A_k = cross(P_{k+1} - p, P_{k+2} - p), A = cross(P_1 - P_0, P_2 - P_0):
-            // d A_k / d P_{k+1} = ((P_{k+2} - p).v, -(P_{k+2} - p).u), d A_k / d P_{k+2} = (-(P_{k+1} - p).v,
-            // (P_{k+1} - p).u), summed over the pixels with the sums above; d w / d A = -w / A.
-            let mut per_face = try_filled_vec(m * 9, 0f64, "weights backward face partials")?;
-            for f in 0..m {
-                let a = &acc[f * SUMS..(f + 1) * SUMS];
-                if a.iter().all(|&x| x == 0.0) {
-                    continue;
-                }
-                let s = &setups[f];
-                let (e1, e2) = (
-                    [s.u[1] - s.u[0], s.v[1] - s.v[0]],
-                    [s.u[2] - s.u[0], s.v[2] - s.v[0]],
-                );
-                let area = e1[0] * e2[1] - e1[1] * e2[0];
-                let mut d = [[0f64; 2]; 3];
-                for k in 0..3 {
-                    let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
-                    let (g, gu, gv) = (a[k] / area, a[3 + k] / area, a[6 + k] / area);
-                    // sum_P g (P_{k2} - p) and sum_P g (P_{k1} - p), per unit of area.
-                    let r2 = [s.u[k2] * g - gu, s.v[k2] * g - gv];
-                    let r1 = [s.u[k1] * g - gu, s.v[k1] * g - gv];
-                    d[k1][0] += r2[1];
-                    d[k1][1] -= r2[0];
-                    d[k2][0] -= r1[1];
-                    d[k2][1] += r1[0];
-                }
-                let g_area = -a[12] / area;
-                let (d1, d2) = cross_grads(e1, e2);
-                for i in 0..2 {
-                    d[1][i] += g_area * d1[i];
-                    d[2][i] += g_area * d2[i];
-                    d[0][i] -= g_area * (d1[i] + d2[i]);
-                }
-                let out = &mut per_face[f * 9..f * 9 + 9];
-                for k in 0..3 {
-                    // u = (x W + W - 1) / 2, v = (H - 1 - y H) / 2.
-                    out[3 * k] = d[k][0] * width / 2.0;
-                    out[3 * k + 1] = -d[k][1] * height / 2.0;
-                    out[3 * k + 2] = a[9 + k];
+                for (a, g) in acc[f as usize].iter_mut().zip(gq) {
+                    a[0] += g;
+                    a[1] += g * u;
+                    a[2] += g * v;
                 }
             }
-            let acc = per_face;
-            let mut sums = try_filled_vec(nv * 3, 0f64, "weights backward vertex accumulator")?;
-            for f in 0..m {
-                let a = &acc[f * 9..f * 9 + 9];
-                for (k, &vi) in mesh.face(f).iter().enumerate() {
-                    for i in 0..3 {
-                        sums[vi * 3 + i] += a[3 * k + i];
-                    }
+            let mut sums = try_filled_vec(nv * 3, 0f64, "vertex gradient accumulator")?;
+            for (f, (a, pl)) in acc.iter().zip(&planes).enumerate() {
+                if a.iter().flatten().any(|&x| x != 0.0) {
+                    add_to_vertices(mesh, f, &pl.vertex_grads(a, params), &mut sums);
                 }
             }
-            for (dst, &src) in gv.iter_mut().zip(&sums) {
-                *dst = src as f32;
+            for (d, &s) in gv.iter_mut().zip(&sums) {
+                *d = s as f32;
             }
             Ok(())
         })?;
@@ -326,8 +387,9 @@ impl CornerAttrs<'_> {
         check_finite(self.arg, self.values)
     }
 
+    /// Row `r` of the values of batch element `b`.
     #[inline(always)]
-    fn row(&self, b: usize, r: usize) -> &[f32] {
+    pub(crate) fn row(&self, b: usize, r: usize) -> &[f32] {
         let b = if self.batch == 1 { 0 } else { b };
         let o = (b * self.rows + r) * self.channels;
         &self.values[o..o + self.channels]

@@ -9,12 +9,10 @@
 //! image wrap around ([`Wrap::Repeat`]) or are clamped to the border ([`Wrap::Clamp`]).
 //!
 //! The gradient to the UVs is the derivative of this bilinear blend (exact wherever the sample is not on a texel
-//! centre line, where the blend has a kink and the one-sided derivative of the cell the sample is in is used). Texel
-//! gradients are summed over pixels in row-major order, batch elements in order: bit-identical for any thread count.
+//! centre line, where the blend has a kink and the one-sided derivative of the cell the sample is in is used). The
+//! per-pixel sampling of a rendered surface and its sums over pixels are [`crate::textured`]'s.
 
-use rayon::prelude::*;
-
-use crate::error::{try_filled_vec, RasterError, Result};
+use crate::error::{RasterError, Result};
 use crate::input::check_finite;
 use crate::setup::floor;
 
@@ -79,195 +77,225 @@ impl Texture<'_> {
     /// The texel indices along an axis of `size` texels of the integer positions `i` and `i + 1`.
     #[inline(always)]
     fn pair(&self, i: i64, size: usize) -> (usize, usize) {
-        let n = size as i64;
-        if i >= 0 && i + 1 < n {
+        // One comparison for `0 <= i && i + 1 < size`.
+        if (i as u64) < size as u64 - 1 {
             return (i as usize, i as usize + 1);
         }
+        let n = size as i64;
         match self.wrap {
             Wrap::Repeat => (i.rem_euclid(n) as usize, (i + 1).rem_euclid(n) as usize),
             Wrap::Clamp => (i.clamp(0, n - 1) as usize, (i + 1).clamp(0, n - 1) as usize),
         }
     }
 
-    /// The four texel offsets (flat, into `texels`) and the fractions `(fx, fy)` of a sample of element `b` at `uv`.
+    /// The two texel indices along an axis of `size` texels around the continuous position `x`, and the fraction
+    /// of the way from the first to the second (`x - floor(x)`).
     #[inline(always)]
-    fn cell(&self, b: usize, uv: [f32; 2]) -> ([usize; 4], f64, f64) {
-        let x = uv[0] as f64 * self.width as f64 - 0.5;
-        let y = (1.0 - uv[1] as f64) * self.height as f64 - 0.5;
-        let (x0, y0) = (floor(x), floor(y));
-        let (fx, fy) = (x - x0, y - y0);
-        // Far outside the image (beyond i64) the position saturates; it is a texel index all the same.
-        let (c0, c1) = self.pair(x0 as i64, self.width);
-        let (r0, r1) = self.pair(y0 as i64, self.height);
-        let b = if self.batch == 1 { 0 } else { b };
-        let base = b * self.height * self.width;
-        let at = |r: usize, c: usize| (base + r * self.width + c) * self.channels;
-        ([at(r0, c0), at(r0, c1), at(r1, c0), at(r1, c1)], fx, fy)
-    }
-}
-
-/// Checks the per-pixel UVs `(B, H, W, 2)` and the mask `(B, H, W)` (a face index map: pixels `>= 0` are sampled).
-fn check_pixels(uv: &[f32], mask: &[i32], batch: usize) -> Result<()> {
-    if batch == 0 || !mask.len().is_multiple_of(batch) {
-        return Err(RasterError::shape(
-            "face_index",
-            "(B, H, W) with B >= 1",
-            format!("{} values for batch {batch}", mask.len()),
-        ));
-    }
-    if uv.len() != mask.len() * 2 {
-        return Err(RasterError::shape(
-            "uv",
-            "(B, H, W, 2) like face_index",
-            format!("{} values for {} pixels", uv.len(), mask.len()),
-        ));
-    }
-    // Only the drawn pixels' UVs are read: background pixels may hold anything finite.
-    check_finite("uv", uv)
-}
-
-/// Samples `texture` at `uv` `(B, H, W, 2)` on the pixels where `mask` `(B, H, W)` is `>= 0`: `(B, H, W, C)`, 0 on the
-/// others.
-///
-/// ```
-/// use meshadv_raster::texture::{sample, Texture, Wrap};
-/// // A 1 x 2 texture: black left texel, white right texel; the middle of the image is half grey.
-/// let tex = Texture { texels: &[0.0, 1.0], batch: 1, height: 1, width: 2, channels: 1, wrap: Wrap::Clamp };
-/// let out = sample(&tex, &[0.5, 0.5, 0.75, 0.5], &[0, 0], 1).unwrap();
-/// assert_eq!(out, vec![0.5, 1.0]);
-/// ```
-pub fn sample(texture: &Texture<'_>, uv: &[f32], mask: &[i32], batch: usize) -> Result<Vec<f32>> {
-    texture.validate(batch)?;
-    check_pixels(uv, mask, batch)?;
-    let c = texture.channels;
-    let per_elem = mask.len() / batch;
-    let mut out = try_filled_vec(mask.len() * c, 0f32, "sampled texture")?;
-    const CHUNK: usize = 1024;
-    out.par_chunks_mut(CHUNK * c)
-        .enumerate()
-        .for_each(|(chunk, dst)| {
-            with_channels!(c, C => sample_chunk::<C>(texture, uv, mask, per_elem, chunk * CHUNK, dst))
-        });
-    Ok(out)
-}
-
-/// The bilinear weights of the four texels of a cell with fractions `(fx, fy)`.
-#[inline(always)]
-fn bilinear_weights(fx: f64, fy: f64) -> [f64; 4] {
-    [
-        (1.0 - fx) * (1.0 - fy),
-        fx * (1.0 - fy),
-        (1.0 - fx) * fy,
-        fx * fy,
-    ]
-}
-
-/// [`sample`] of the pixels `p0..` that `dst` holds, for `C` channels (0: any count).
-#[inline(always)]
-fn sample_chunk<const C: usize>(
-    texture: &Texture<'_>,
-    uv: &[f32],
-    mask: &[i32],
-    per_elem: usize,
-    p0: usize,
-    dst: &mut [f32],
-) {
-    let c = if C == 0 { texture.channels } else { C };
-    for (i, px) in dst.chunks_exact_mut(c).enumerate() {
-        let p = p0 + i;
-        if mask[p] < 0 {
-            continue;
-        }
-        let (t, fx, fy) = texture.cell(p / per_elem, [uv[2 * p], uv[2 * p + 1]]);
-        let wts = bilinear_weights(fx, fy);
-        let tx: [&[f32]; 4] = std::array::from_fn(|k| &texture.texels[t[k]..t[k] + c]);
-        for ch in 0..c {
-            let mut s = 0f64;
-            for k in 0..4 {
-                s += wts[k] * tx[k][ch] as f64;
+    fn axis(&self, x: f64, size: usize) -> (usize, usize, f64) {
+        // Below 2^31 in magnitude, adding 1.5 * 2^52 rounds `x` to the nearest integer, which the low bits of the
+        // sum hold in two's complement; one step down where that rounded up gives the floor.
+        const ROUND: f64 = 6_755_399_441_055_744.0;
+        if x.abs() < 2_147_483_648.0 {
+            let r = x + ROUND;
+            let (mut i, mut t) = (r.to_bits() as i32 as i64, r - ROUND);
+            if t > x {
+                i -= 1;
+                t -= 1.0;
             }
-            px[ch] = s as f32;
+            let (a, b) = self.pair(i, size);
+            return (a, b, x - t);
+        }
+        // Far outside the image (beyond i64) the position saturates; it is a texel index all the same.
+        let x0 = floor(x);
+        let (a, b) = self.pair(x0 as i64, size);
+        (a, b, x - x0)
+    }
+
+    /// The texture of batch element `b` alone (batch 1; the whole texture when it has batch 1).
+    #[inline]
+    pub(crate) fn element(&self, b: usize) -> Texture<'_> {
+        let n = self.height * self.width * self.channels;
+        let b = if self.batch == 1 { 0 } else { b };
+        Texture {
+            texels: &self.texels[b * n..(b + 1) * n],
+            batch: 1,
+            ..*self
         }
     }
-}
 
-/// Gradients of [`sample`].
-#[derive(Debug, Clone, PartialEq)]
-pub struct SampleGradients {
-    /// `(Bt, Ht, Wt, C)` gradient with respect to the texels.
-    pub grad_texels: Vec<f32>,
-    /// `(B, H, W, 2)` gradient with respect to the UVs (0 on unsampled pixels).
-    pub grad_uv: Vec<f32>,
-}
-
-/// Backward of [`sample`] for the cotangent `grad` `(B, H, W, C)`.
-pub fn sample_backward(
-    texture: &Texture<'_>,
-    uv: &[f32],
-    mask: &[i32],
-    batch: usize,
-    grad: &[f32],
-) -> Result<SampleGradients> {
-    texture.validate(batch)?;
-    check_pixels(uv, mask, batch)?;
-    let c = texture.channels;
-    if grad.len() != mask.len() * c {
-        return Err(RasterError::shape(
-            "grad",
-            format!("(B, H, W, {c}) like face_index"),
-            format!("{} values for {} pixels", grad.len(), mask.len()),
-        ));
+    /// The cell of a sample at `(u, v)` (of batch element 0): the four texels' offsets (flat, into `texels`) and the
+    /// fractions `(fx, fy)`.
+    #[inline(always)]
+    fn cell(&self, u: f64, v: f64) -> Cell {
+        let (c0, c1, fx) = self.axis(u * self.width as f64 - 0.5, self.width);
+        let (r0, r1, fy) = self.axis((1.0 - v) * self.height as f64 - 0.5, self.height);
+        let at = |r: usize, c: usize| (r * self.width + c) * self.channels;
+        Cell {
+            offsets: [at(r0, c0), at(r0, c1), at(r1, c0), at(r1, c1)],
+            fx,
+            fy,
+        }
     }
-    check_finite("grad", grad)?;
-    let per_elem = mask.len() / batch;
-    let mut grad_uv = try_filled_vec(mask.len() * 2, 0f32, "grad_uv")?;
-    let mut acc = try_filled_vec(texture.texels.len(), 0f64, "texture gradient accumulator")?;
-    with_channels!(c, C => sample_backward_pixels::<C>(texture, uv, mask, per_elem, grad, &mut grad_uv, &mut acc));
-    Ok(SampleGradients {
-        grad_texels: acc.iter().map(|&x| x as f32).collect(),
-        grad_uv,
-    })
-}
 
-/// [`sample_backward`]'s one pass in pixel order (the texel sums' order): the UV gradient and the texels' shares of
-/// each sample, for `C` channels (0: any count).
-#[inline(always)]
-fn sample_backward_pixels<const C: usize>(
-    texture: &Texture<'_>,
-    uv: &[f32],
-    mask: &[i32],
-    per_elem: usize,
-    grad: &[f32],
-    grad_uv: &mut [f32],
-    acc: &mut [f64],
-) {
-    let c = if C == 0 { texture.channels } else { C };
-    let (wf, hf) = (texture.width as f64, texture.height as f64);
-    for (p, &f) in mask.iter().enumerate() {
-        if f < 0 {
-            continue;
+    /// The cell of a sample at `(u, v)` and its four texels (`c` channels each), or `None` for an empty texture.
+    #[inline(always)]
+    fn cell_texels(&self, u: f64, v: f64, c: usize) -> Option<(Cell, [&[f32]; 4])> {
+        if self.height == 0 || self.width == 0 || c != self.channels {
+            return None;
         }
-        let g = &grad[p * c..(p + 1) * c];
-        let (t, fx, fy) = texture.cell(p / per_elem, [uv[2 * p], uv[2 * p + 1]]);
-        let wts = bilinear_weights(fx, fy);
-        let tx: [&[f32]; 4] = std::array::from_fn(|k| &texture.texels[t[k]..t[k] + c]);
-        let (mut gx, mut gy) = (0f64, 0f64);
-        for ch in 0..c {
-            let gc = g[ch] as f64;
-            let v: [f64; 4] = std::array::from_fn(|k| tx[k][ch] as f64);
-            gx += gc * ((1.0 - fy) * (v[1] - v[0]) + fy * (v[3] - v[2]));
-            gy += gc * ((1.0 - fx) * (v[2] - v[0]) + fx * (v[3] - v[1]));
+        let texels = &self.texels[..self.height * self.width * c];
+        let cell = self.cell(u, v);
+        // SAFETY: the cell's texel indices are below `height` and `width` (`pair` maps every integer into the
+        // image of a non-empty axis), so `offset + c <= height * width * c = texels.len()`.
+        #[allow(unsafe_code)]
+        let tx = cell
+            .offsets
+            .map(|o| unsafe { texels.get_unchecked(o..o + c) });
+        Some((cell, tx))
+    }
+
+    /// The bilinear sample at `(u, v)` (of batch element 0) into `out` (`C` channels; `C = 0`: `channels`, read at
+    /// run time).
+    #[inline(always)]
+    pub(crate) fn sample_into<const C: usize>(&self, u: f64, v: f64, out: &mut [f32]) {
+        let c = if C == 0 { self.channels } else { C };
+        let Some((cell, tx)) = self.cell_texels(u, v, c) else {
+            return;
+        };
+        let (fx, fy) = (cell.fx, cell.fy);
+        let wts = [
+            (1.0 - fx) * (1.0 - fy),
+            fx * (1.0 - fy),
+            (1.0 - fx) * fy,
+            fx * fy,
+        ];
+        for (ch, o) in out[..c].iter_mut().enumerate() {
+            *o = (wts[0] * tx[0][ch] as f64
+                + wts[1] * tx[1][ch] as f64
+                + wts[2] * tx[2][ch] as f64
+                + wts[3] * tx[3][ch] as f64) as f32;
         }
-        for k in 0..4 {
-            let a = &mut acc[t[k]..t[k] + c];
-            for ch in 0..c {
-                a[ch] += wts[k] * g[ch] as f64;
+    }
+
+    /// Backward of [`Texture::sample_into`] for the cotangent `grad` (`C` values): adds the texels' shares to
+    /// `grad_texels` (laid out as one element's texels) and returns the gradient with respect to `(u, v)`.
+    #[inline(always)]
+    pub(crate) fn sample_backward_into<const C: usize>(
+        &self,
+        u: f64,
+        v: f64,
+        grad: &[f32],
+        grad_texels: &mut [f64],
+    ) -> [f64; 2] {
+        let c = if C == 0 { self.channels } else { C };
+        let Some((cell, tx)) = self.cell_texels(u, v, c) else {
+            return [0.0; 2];
+        };
+        let grad_texels = &mut grad_texels[..self.texels.len()];
+        let (fx, fy) = (cell.fx, cell.fy);
+        let wts = [
+            (1.0 - fx) * (1.0 - fy),
+            fx * (1.0 - fy),
+            (1.0 - fx) * fy,
+            fx * fy,
+        ];
+        // The cotangent's dot product with each texel's colour; the sample is bilinear in them.
+        let mut d = [0f64; 4];
+        for (ch, &g) in grad[..c].iter().enumerate() {
+            let gc = g as f64;
+            for (dk, t) in d.iter_mut().zip(&tx) {
+                *dk += gc * t[ch] as f64;
+            }
+        }
+        let gx = (1.0 - fy) * (d[1] - d[0]) + fy * (d[3] - d[2]);
+        let gy = (1.0 - fx) * (d[2] - d[0]) + fx * (d[3] - d[1]);
+        for (&o, w) in cell.offsets.iter().zip(wts) {
+            #[allow(unsafe_code)]
+            // SAFETY: `o` is an offset of `cell_texels`, so `o + c <= texels.len() = grad_texels.len()`.
+            let a = unsafe { grad_texels.get_unchecked_mut(o..o + c) };
+            for (a, &g) in a.iter_mut().zip(&grad[..c]) {
+                *a += w * g as f64;
             }
         }
         // x = u W - 0.5, y = (1 - v) H - 0.5.
-        grad_uv[2 * p] = (gx * wf) as f32;
-        grad_uv[2 * p + 1] = (-gy * hf) as f32;
+        [gx * self.width as f64, -gy * self.height as f64]
     }
+
+    /// Checks the texture ([`Texture::validate`]), a batch element `b` it has (any `b` when it has batch 1) and,
+    /// for a backward, the cotangent and gradient lengths.
+    fn check_sample(&self, b: usize, grad: Option<(&[f32], usize)>) -> Result<()> {
+        self.validate(self.batch)?;
+        if self.batch != 1 && b >= self.batch {
+            return Err(RasterError::shape(
+                "texture",
+                format!("a batch element {b}"),
+                format!("batch {}", self.batch),
+            ));
+        }
+        if let Some((grad, grad_texels)) = grad {
+            if grad.len() != self.channels {
+                return Err(RasterError::shape(
+                    "grad",
+                    format!("({},)", self.channels),
+                    format!("{} values", grad.len()),
+                ));
+            }
+            if grad_texels != self.texels.len() {
+                return Err(RasterError::shape(
+                    "grad_texels",
+                    "the texture's shape",
+                    format!("{grad_texels} values"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The bilinear sample of batch element `b` (any `b` when the texture has batch 1) at `uv`: `channels` values.
+    ///
+    /// ```
+    /// use meshadv_raster::texture::{Texture, Wrap};
+    /// // A 1 x 2 texture: black left texel, white right texel; the middle of the image is half grey.
+    /// let tex = Texture { texels: &[0.0, 1.0], batch: 1, height: 1, width: 2, channels: 1, wrap: Wrap::Clamp };
+    /// assert_eq!(tex.sample(0, [0.5, 0.5]).unwrap(), vec![0.5]);
+    /// assert_eq!(tex.sample(0, [0.75, 0.5]).unwrap(), vec![1.0]);
+    /// ```
+    pub fn sample(&self, b: usize, uv: [f64; 2]) -> Result<Vec<f32>> {
+        self.check_sample(b, None)?;
+        let mut out = vec![0f32; self.channels];
+        self.element(b).sample_into::<0>(uv[0], uv[1], &mut out);
+        Ok(out)
+    }
+
+    /// Backward of [`Texture::sample`] for the cotangent `grad` (`channels` values): adds the texels' shares to
+    /// `grad_texels` (`(Bt, Ht, Wt, C)` like `texels`) and returns the gradient with respect to `uv` (exact off the
+    /// texel centre lines; on one, the derivative of the cell the sample falls in).
+    pub fn sample_backward(
+        &self,
+        b: usize,
+        uv: [f64; 2],
+        grad: &[f32],
+        grad_texels: &mut [f64],
+    ) -> Result<[f64; 2]> {
+        self.check_sample(b, Some((grad, grad_texels.len())))?;
+        let n = self.height * self.width * self.channels;
+        let b = if self.batch == 1 { 0 } else { b };
+        Ok(self.element(b).sample_backward_into::<0>(
+            uv[0],
+            uv[1],
+            grad,
+            &mut grad_texels[b * n..(b + 1) * n],
+        ))
+    }
+}
+
+/// The four texels around a sample (flat offsets of texels `(r0, c0)`, `(r0, c1)`, `(r1, c0)`, `(r1, c1)`) and the
+/// sample's fractions between them.
+#[derive(Debug, Clone, Copy)]
+struct Cell {
+    offsets: [usize; 4],
+    fx: f64,
+    fy: f64,
 }
 
 #[cfg(test)]
@@ -279,32 +307,41 @@ mod tests {
         (0..h * w * c).map(|_| rng.next() as f32).collect()
     }
 
+    fn texture(
+        texels: &[f32],
+        height: usize,
+        width: usize,
+        channels: usize,
+        wrap: Wrap,
+    ) -> Texture<'_> {
+        Texture {
+            texels,
+            batch: 1,
+            height,
+            width,
+            channels,
+            wrap,
+        }
+    }
+
     #[test]
     fn texel_centres_sample_their_texel_exactly() {
         let mut rng = Rng(4);
         let (h, w) = (5, 7);
         let texels = random_texture(&mut rng, h, w, 3);
         for wrap in [Wrap::Repeat, Wrap::Clamp] {
-            let tex = Texture {
-                texels: &texels,
-                batch: 1,
-                height: h,
-                width: w,
-                channels: 3,
-                wrap,
-            };
-            let mut uv = Vec::new();
+            let tex = texture(&texels, h, w, 3, wrap);
             for i in 0..h {
                 for j in 0..w {
-                    uv.extend_from_slice(&[
-                        (j as f32 + 0.5) / w as f32,
-                        1.0 - (i as f32 + 0.5) / h as f32,
-                    ]);
+                    let uv = [
+                        (j as f64 + 0.5) / w as f64,
+                        1.0 - (i as f64 + 0.5) / h as f64,
+                    ];
+                    let want = &texels[(i * w + j) * 3..(i * w + j) * 3 + 3];
+                    for (a, b) in tex.sample(0, uv).expect("sample").iter().zip(want) {
+                        assert!((a - b).abs() < 1e-5, "{wrap:?}: {a} vs {b}");
+                    }
                 }
-            }
-            let out = sample(&tex, &uv, &vec![0; h * w], 1).expect("sample");
-            for (a, b) in out.iter().zip(&texels) {
-                assert!((a - b).abs() < 1e-5, "{wrap:?}: {a} vs {b}");
             }
         }
     }
@@ -313,35 +350,26 @@ mod tests {
     fn repeat_is_periodic_and_clamp_holds_the_border() {
         let mut rng = Rng(8);
         let texels = random_texture(&mut rng, 4, 6, 3);
-        let uv: Vec<f32> = (0..40).map(|_| rng.next() as f32).collect();
-        let shifted: Vec<f32> = uv
-            .iter()
-            .enumerate()
-            .map(|(i, &x)| x + if i % 2 == 0 { 3.0 } else { -2.0 })
-            .collect();
-        let mask = vec![0; 20];
-        let rep = Texture {
-            texels: &texels,
-            batch: 1,
-            height: 4,
-            width: 6,
-            channels: 3,
-            wrap: Wrap::Repeat,
-        };
-        let (a, b) = (
-            sample(&rep, &uv, &mask, 1).expect("a"),
-            sample(&rep, &shifted, &mask, 1).expect("b"),
-        );
-        for (x, y) in a.iter().zip(&b) {
-            assert!((x - y).abs() < 1e-5);
+        let rep = texture(&texels, 4, 6, 3, Wrap::Repeat);
+        for _ in 0..20 {
+            let uv = [rng.next(), rng.next()];
+            let (a, b) = (
+                rep.sample(0, uv).expect("a"),
+                rep.sample(0, [uv[0] + 3.0, uv[1] - 2.0]).expect("b"),
+            );
+            for (x, y) in a.iter().zip(&b) {
+                assert!((x - y).abs() < 1e-5);
+            }
         }
         let clamp = Texture {
             wrap: Wrap::Clamp,
             ..rep
         };
         // Far to the left of the image: the left column's texels, blended only vertically.
-        let far = sample(&clamp, &[-5.0, 1.0 - 0.5 / 4.0], &[0], 1).expect("far");
-        assert_eq!(far, texels[0..3].to_vec());
+        assert_eq!(
+            clamp.sample(0, [-5.0, 1.0 - 0.5 / 4.0]).expect("far"),
+            texels[0..3].to_vec()
+        );
     }
 
     #[test]
@@ -351,60 +379,58 @@ mod tests {
             let (h, w, c, n) = (4, 5, 3, 30);
             let texels = random_texture(&mut rng, h, w, c);
             // UVs inside and outside [0, 1], away from texel centre lines (where the blend has a kink).
-            let away = |t: f32| (0.05..0.95).contains(&t.rem_euclid(1.0));
+            let away = |t: f64| (0.05..0.95).contains(&t.rem_euclid(1.0));
             let mut uv = Vec::new();
-            while uv.len() < 2 * n {
-                let (u, v) = (
-                    (rng.next() * 1.6 - 0.3) as f32,
-                    (rng.next() * 1.6 - 0.3) as f32,
-                );
-                if away(u * w as f32 - 0.5) && away((1.0 - v) * h as f32 - 0.5) {
-                    uv.extend_from_slice(&[u, v]);
+            while uv.len() < n {
+                let (u, v) = (rng.next() * 1.6 - 0.3, rng.next() * 1.6 - 0.3);
+                if away(u * w as f64 - 0.5) && away((1.0 - v) * h as f64 - 0.5) {
+                    uv.push([u, v]);
                 }
             }
-            let mask: Vec<i32> = (0..n).map(|i| if i % 7 == 3 { -1 } else { 0 }).collect();
             let g: Vec<f32> = (0..n * c).map(|_| (rng.next() - 0.5) as f32).collect();
-            fn texture(
-                texels: &[f32],
-                height: usize,
-                width: usize,
-                channels: usize,
-                wrap: Wrap,
-            ) -> Texture<'_> {
-                Texture {
-                    texels,
-                    batch: 1,
-                    height,
-                    width,
-                    channels,
-                    wrap,
+            let loss = |t: &[f32], uv: &[[f64; 2]]| -> f64 {
+                let tex = texture(t, h, w, c, wrap);
+                uv.iter()
+                    .enumerate()
+                    .map(|(i, &p)| {
+                        let s = tex.sample(0, p).expect("sample");
+                        (0..c)
+                            .map(|ch| s[ch] as f64 * g[i * c + ch] as f64)
+                            .sum::<f64>()
+                    })
+                    .sum()
+            };
+            let tex = texture(&texels, h, w, c, wrap);
+            let mut grad_texels = vec![0f64; texels.len()];
+            let grad_uv: Vec<[f64; 2]> = uv
+                .iter()
+                .enumerate()
+                .map(|(i, &p)| {
+                    tex.sample_backward(0, p, &g[i * c..(i + 1) * c], &mut grad_texels)
+                        .expect("backward")
+                })
+                .collect();
+            let eps = 1e-3;
+            for i in 0..n {
+                for axis in 0..2 {
+                    let (mut a, mut b) = (uv.clone(), uv.clone());
+                    a[i][axis] += eps;
+                    b[i][axis] -= eps;
+                    let fd = (loss(&texels, &a) - loss(&texels, &b)) / (2.0 * eps);
+                    let got = grad_uv[i][axis];
+                    assert!(
+                        (fd - got).abs() < 2e-2 * fd.abs().max(1.0),
+                        "{wrap:?} uv {i}.{axis}: fd {fd} vs {got}"
+                    );
                 }
             }
-
-            let loss = |t: &[f32], uv: &[f32]| -> f64 {
-                let out = sample(&texture(t, h, w, c, wrap), uv, &mask, 1).expect("sample");
-                out.iter().zip(&g).map(|(a, b)| *a as f64 * *b as f64).sum()
-            };
-            let grads = sample_backward(&texture(&texels, h, w, c, wrap), &uv, &mask, 1, &g)
-                .expect("backward");
             let eps = 1e-3f32;
-            for i in 0..uv.len() {
-                let (mut a, mut b) = (uv.clone(), uv.clone());
-                a[i] += eps;
-                b[i] -= eps;
-                let fd = (loss(&texels, &a) - loss(&texels, &b)) / (2.0 * eps as f64);
-                let got = grads.grad_uv[i] as f64;
-                assert!(
-                    (fd - got).abs() < 2e-2 * fd.abs().max(1.0),
-                    "{wrap:?} uv {i}: fd {fd} vs {got}"
-                );
-            }
             for i in 0..texels.len() {
                 let (mut a, mut b) = (texels.clone(), texels.clone());
                 a[i] += eps;
                 b[i] -= eps;
                 let fd = (loss(&a, &uv) - loss(&b, &uv)) / (2.0 * eps as f64);
-                let got = grads.grad_texels[i] as f64;
+                let got = grad_texels[i];
                 assert!(
                     (fd - got).abs() < 1e-3 * fd.abs().max(1.0),
                     "{wrap:?} texel {i}: fd {fd} vs {got}"
@@ -414,37 +440,36 @@ mod tests {
     }
 
     #[test]
-    fn empty_or_non_finite_textures_and_uvs_are_errors_naming_the_argument() {
-        let tex = Texture {
-            texels: &[],
-            batch: 1,
-            height: 0,
-            width: 4,
-            channels: 3,
-            wrap: Wrap::Repeat,
-        };
-        let e = sample(&tex, &[0.5, 0.5], &[0], 1).expect_err("zero size");
+    fn empty_or_non_finite_textures_are_errors_naming_the_argument() {
+        let tex = texture(&[], 0, 4, 3, Wrap::Repeat);
+        let e = tex.validate(1).expect_err("zero size");
         assert!(e.to_string().starts_with("texture"), "{e}");
         let texels = [0.5f32; 12];
-        let tex = Texture {
-            texels: &texels,
-            batch: 1,
-            height: 2,
-            width: 2,
-            channels: 3,
-            wrap: Wrap::Repeat,
-        };
-        let e = sample(&tex, &[f32::NAN, 0.5], &[0], 1).expect_err("NaN uv");
-        assert!(e.to_string().starts_with("uv"), "{e}");
-        let e = sample(&tex, &[0.5, 0.5], &[0, 0], 1).expect_err("short uv");
-        assert!(e.to_string().starts_with("uv"), "{e}");
-        let short = Texture {
-            texels: &texels[..11],
-            ..tex
-        };
-        assert!(sample(&short, &[0.5, 0.5], &[0], 1)
+        let short = texture(&texels[..11], 2, 2, 3, Wrap::Repeat);
+        assert!(short
+            .validate(1)
             .expect_err("11 texels")
             .to_string()
             .starts_with("texture"));
+        let mut nan = texels;
+        nan[5] = f32::NAN;
+        let e = texture(&nan, 2, 2, 3, Wrap::Repeat)
+            .validate(1)
+            .expect_err("NaN");
+        assert!(e.to_string().starts_with("texture"), "{e}");
+        let e = texture(&texels, 2, 2, 3, Wrap::Repeat);
+        let e = Texture { batch: 2, ..e }
+            .validate(3)
+            .expect_err("batch 2 of 3");
+        assert!(e.to_string().starts_with("texture"), "{e}");
+        // Sampling checks the texture and the cotangent too.
+        let e = short.sample(0, [0.5, 0.5]).expect_err("11 texels");
+        assert!(e.to_string().starts_with("texture"), "{e}");
+        let tex = texture(&texels, 2, 2, 3, Wrap::Repeat);
+        let mut grad_texels = vec![0f64; 12];
+        let e = tex
+            .sample_backward(0, [0.5, 0.5], &[1.0; 2], &mut grad_texels)
+            .expect_err("2 of 3 channels");
+        assert!(e.to_string().starts_with("grad"), "{e}");
     }
 }

@@ -1,9 +1,10 @@
 """``render_surface``: renders with attributes that vary within faces: a UV texture image, per-vertex colours, and
 smooth (per-pixel interpolated vertex normal) or flat Lambert shading.
 
-Pipeline per view: project (PyTorch), rasterize the face index (Rust), perspective-correct weights of the drawn face
-(Rust), UVs / colours / normals interpolated per pixel (Rust), bilinear texture sample (Rust), Lambert + ambient + K
-directional lights per pixel (PyTorch), RGB + coverage, NMR's visibility gradient on the image (Rust), box filter.
+Pipeline per view: project (PyTorch), rasterize the face index (Rust), the texture sampled at each pixel's
+perspective-correct UV (Rust, one pass), perspective-correct weights of the drawn face with colours / normals
+interpolated with them (Rust), Lambert + ambient + K directional lights per pixel (PyTorch), RGB + coverage, NMR's
+visibility gradient on the image (Rust), box filter.
 Gradients: exact to texels, UVs, vertex colours, normals and lights, and to vertex positions through the weights
 (interior) plus NMR's visibility gradient (edges), weighted by ``edge_gradient``. Conventions: docs/TEXTURES.md.
 """
@@ -15,7 +16,7 @@ from typing import Any
 
 import torch
 
-from .._validate import finite_float
+from .._validate import MAX_TEXTURE_COORDINATE, finite_float
 from ._checks import require_instance
 from ._ops import small_matmul
 from .camera import Camera, _normalize
@@ -33,7 +34,7 @@ from .renderer import (
     _scale_gradient,
 )
 from .visibility import sweep_radius
-from .surface_ops import WRAP_MODES, fragments, interpolate, pixel_visibility, pixel_weights, sample_texture
+from .surface_ops import WRAP_MODES, fragments, interpolate, pixel_visibility, pixel_weights, sample_uv_texture
 
 __all__ = ["SHADING_MODES", "render_surface", "vertex_normals"]
 
@@ -100,6 +101,22 @@ def _lambert(normals: torch.Tensor, lights: Lights) -> torch.Tensor:
     return intensity
 
 
+def _blinn_phong(normals: torch.Tensor, view: torch.Tensor, lights: Lights, specular: float,
+                 shininess: float) -> torch.Tensor:
+    """``specular * sum_j c_j max(dot(n, h_j), 0)^shininess`` over the lights facing the surface (``dot(n, d_j) >
+    0``), with ``h_j = normalize(d_j + v)`` the half vector of light ``j`` and the unit view vector ``v`` toward the
+    camera; (B,P,3) for (B,P,3) unit normals and view vectors."""
+    dtype = normals.dtype
+    b = max(normals.shape[0], lights.directions.shape[0])
+    if lights.num_lights == 0:
+        return torch.zeros(b, normals.shape[1], 3, dtype=dtype, device=normals.device)
+    dirs = _normalize(lights.directions.to(device=normals.device, dtype=dtype))  # (B,K,3)
+    half = _normalize(dirs.unsqueeze(1) + view.unsqueeze(2))  # (B,P,K,3)
+    cos_h = (normals.unsqueeze(2) * half).sum(-1).clamp_min(0)  # (B,P,K)
+    facing = (small_matmul(normals, dirs.transpose(1, 2)) > 0).to(dtype)
+    return small_matmul(specular * cos_h.pow(shininess) * facing, lights.colors.to(device=normals.device, dtype=dtype))
+
+
 def render_surface(
     vertices: torch.Tensor,
     faces: torch.Tensor,
@@ -114,6 +131,8 @@ def render_surface(
     normals: torch.Tensor | None = None,
     normal_faces: torch.Tensor | None = None,
     shading: str = "smooth",
+    specular: float = 0.0,
+    shininess: float = 32.0,
     wrap: str = "repeat",
     background: float | Sequence[float] | torch.Tensor = (1.0, 1.0, 1.0),
     fill_back: bool = True,
@@ -127,7 +146,10 @@ def render_surface(
     The reflectance at a pixel is ``texture(uv)`` times the interpolated vertex colour (either alone when only one is
     given); the shaded colour is ``clamp(reflectance * (ambient + sum_j c_j max(dot(d_j, n), 0)), 0, 1)`` with ``n``
     the face normal (``flat``) or the interpolated, renormalised vertex normal (``smooth``), turned toward the camera
-    on faces seen from behind when ``fill_back``.
+    on faces seen from behind when ``fill_back``. With ``specular > 0`` (smooth shading) a white Blinn-Phong term is
+    added before the clamp: ``specular * sum_j c_j max(dot(n, h_j), 0)^shininess`` over the lights facing the
+    surface, ``h_j`` the half vector of light ``j`` and the direction toward the camera from the pixel's surface
+    point (perspective) or the viewing direction (orthographic).
 
     Args:
         vertices: (N,3) or (B,N,3) world positions.
@@ -143,6 +165,8 @@ def render_surface(
             the vertices' gradient); with ``normal_faces`` (M,3) their rows at each corner (default: ``faces``).
         normal_faces: see ``normals``.
         shading: ``"flat"`` or ``"smooth"``.
+        specular: weight of the Blinn-Phong specular term (0: Lambert only, the default); smooth shading only.
+        shininess: Blinn-Phong exponent (>= 1).
         wrap: texel indices outside the image: ``"repeat"`` or ``"clamp"``.
         background: RGB background (not differentiable).
         fill_back: two-sided rendering (False culls back faces).
@@ -157,8 +181,9 @@ def render_surface(
 
     Raises:
         TypeError: an argument of the wrong type.
-        ValueError: bad shapes, NaN/Inf, corner rows out of range, an empty texture, no reflectance given, an
-            unknown ``shading`` or ``wrap``; each message names the argument.
+        ValueError: bad shapes, NaN/Inf, UVs beyond +-1e6, corner rows out of range, an empty texture, no
+            reflectance given, an unknown ``shading`` or ``wrap``, a negative ``specular`` (or one with flat
+            shading) or a ``shininess`` below 1; each message names the argument.
 
     Example:
         >>> from meshadv.render import Camera, Lights
@@ -178,6 +203,10 @@ def render_surface(
         raise ValueError(f"wrap must be one of {WRAP_MODES}, got {wrap!r}")
     if texture is None and vertex_colors is None:
         raise ValueError("render_surface needs a reflectance: texture (with uvs) and/or vertex_colors")
+    specular = finite_float("specular", specular, low=0.0)
+    shininess = finite_float("shininess", shininess, low=1.0)
+    if specular > 0 and shading != "smooth":
+        raise ValueError(f"specular needs shading='smooth', got shading={shading!r}")
     n, m = verts.shape[1], faces.shape[0]
     sizes = {"vertices": verts.shape[0], "camera": len(camera), "lights": len(lights)}
     if texture is not None:
@@ -187,6 +216,9 @@ def render_surface(
         if uvs is None:
             raise ValueError("uvs is required with texture (T,2 texture coordinates)")
         uvs = _float_array(uvs, "uvs", ("(T,2)",), (2,), 2)
+        if float(uvs.detach().abs().max()) > MAX_TEXTURE_COORDINATE:
+            raise ValueError(f"uvs must lie within +-{MAX_TEXTURE_COORDINATE:g} (texture coordinates, 1 = the whole "
+                             f"image), got {float(uvs.detach().abs().max()):g}")
         uv_faces = faces if uv_faces is None else _corners(uv_faces, "uv_faces", m, uvs.shape[0], "uvs")
         if uv_faces is faces and uvs.shape[0] != n:
             raise ValueError(f"uvs must have one row per vertex (N = {n}) without uv_faces, got {uvs.shape[0]}")
@@ -218,18 +250,21 @@ def render_surface(
     near = _expand(camera.near.detach().cpu(), b).tolist()
     far = _expand(camera.far.detach().cpu(), b).tolist()
     frags = fragments(verts_screen, faces, size, near, far, not fill_back, camera.orthographic, num_threads)
-    weights = pixel_weights(verts_screen, faces, frags, num_threads)
     face_index = frags.face_index.to(device=verts.device, dtype=torch.long)
     drawn = (face_index >= 0).unsqueeze(-1)
     safe_index = face_index.clamp_min(0).reshape(b, -1)
 
+    weights: list[torch.Tensor] = []  # the perspective-correct weights, computed once when an attribute needs them
+
     def per_pixel(values: torch.Tensor, corners: torch.Tensor) -> torch.Tensor:
-        return interpolate(weights, values, corners, verts_screen, faces, frags, num_threads)
+        if not weights:
+            weights.append(pixel_weights(verts_screen, faces, frags, num_threads))
+        return interpolate(weights[0], values, corners, verts_screen, faces, frags, num_threads)
 
     reflectance = None
     if texture is not None:
-        uv = per_pixel(uvs.unsqueeze(0), uv_faces)
-        reflectance = sample_texture(texture, uv, frags, wrap, num_threads)
+        uv_args = (uvs.unsqueeze(0), verts_screen, uv_faces, faces, frags, wrap, num_threads)
+        reflectance = sample_uv_texture(texture, *uv_args)
     if vertex_colors is not None:
         colors = per_pixel(vertex_colors, faces)
         reflectance = colors if reflectance is None else reflectance * colors
@@ -250,7 +285,16 @@ def render_surface(
             n_px = n_px * torch.gather(flip, 1, safe_index.unsqueeze(-1))
         n_px = _normalize(n_px)
     intensity = _lambert(n_px, lights).reshape(b, *size, 3)
-    rgb = (reflectance * intensity).clamp(0.0, 1.0)
+    rgb = reflectance * intensity
+    if specular > 0:
+        if camera.orthographic:
+            view = _expand(_normalize(camera.eye() - camera.target()).to(n_px.dtype), b).unsqueeze(1)
+            view = view.expand(-1, n_px.shape[1], -1)
+        else:
+            points = per_pixel(verts, faces).reshape(b, -1, 3)  # the surface point of each pixel (world)
+            view = _normalize(_expand(camera.eye().to(points.dtype), b).unsqueeze(1) - points)
+        rgb = rgb + _blinn_phong(n_px, view, lights, specular, shininess).reshape(b, *size, 3)
+    rgb = rgb.clamp(0.0, 1.0)
     bg = _background(background, rgb.dtype).to(rgb.device)
     rgba = torch.cat([torch.where(drawn, rgb, bg), drawn.to(rgb.dtype)], dim=-1)
     rgba = pixel_visibility(

@@ -1,9 +1,9 @@
 """Autograd wrappers of the native per-pixel surface ops (``meshadv._raster``): fragments, perspective-correct
-weights, per-corner attribute interpolation, bilinear texture sampling and the vertex gradient of an image whose
-colours vary within faces.
+weights, per-corner attribute interpolation, the UV texture sampled at each pixel (UV interpolation and bilinear
+sample in one pass) and the vertex gradient of an image whose colours vary within faces.
 
 Each op computes on the CPU in float32 and returns tensors on the device of its first tensor argument; gradients are
-exact (``pixel_weights``, ``interpolate``, ``sample_texture``) or NMR's approximate visibility gradient
+exact (``pixel_weights``, ``interpolate``, ``sample_uv_texture``) or NMR's approximate visibility gradient
 (``pixel_visibility``, docs/NMR_GRADIENT.md with colours read from the image). Arguments are assumed checked by the
 caller (:func:`meshadv.render.surface.render_surface`); the native code checks them again and raises ``ValueError``
 naming the argument.
@@ -19,7 +19,7 @@ import torch
 
 from .rasterize import _native
 
-__all__ = ["Fragments", "fragments", "interpolate", "pixel_visibility", "pixel_weights", "sample_texture"]
+__all__ = ["Fragments", "fragments", "interpolate", "pixel_visibility", "pixel_weights", "sample_uv_texture"]
 
 WRAP_MODES = ("repeat", "clamp")
 
@@ -188,37 +188,57 @@ def interpolate(
     return _Interpolate.apply(weights, values, corners, verts_screen, faces, frags, num_threads)
 
 
-class _SampleTexture(torch.autograd.Function):
-    """Bilinear texture samples, differentiable in the texels and the UVs."""
+class _SampleUvTexture(torch.autograd.Function):
+    """The texture sampled at each pixel's perspective-correct UV in one native pass, differentiable in the texels,
+    the UVs and ``verts_screen`` (the UVs moving with the vertices at fixed face assignment)."""
 
     @staticmethod
     def forward(
-        ctx: Any, texture: torch.Tensor, uv: torch.Tensor, frags: Fragments, wrap: str, num_threads: int
+        ctx: Any,
+        texture: torch.Tensor,
+        uvs: torch.Tensor,
+        verts_screen: torch.Tensor,
+        corners: torch.Tensor,
+        faces: torch.Tensor,
+        frags: Fragments,
+        wrap: str,
+        num_threads: int,
     ) -> torch.Tensor:
-        args = (_f32(texture), _f32(uv), frags.face_index.numpy())
-        out = _native().sample_texture(*args, wrap, num_threads)
-        ctx.args, ctx.wrap, ctx.num_threads = args, wrap, num_threads
-        ctx.types = (texture.dtype, texture.device, uv.dtype, uv.device)
-        return torch.from_numpy(out).to(device=uv.device, dtype=texture.dtype)
+        args = (_f32(verts_screen), _i32(faces), frags.face_index.numpy(), _i32(corners), _f32(uvs), _f32(texture))
+        opts = (min(frags.near), max(frags.far), frags.orthographic, wrap, num_threads)
+        out = _native().sample_uv_texture(*args, *opts)
+        ctx.args, ctx.opts = args, opts
+        ctx.types = [(t.dtype, t.device) for t in (texture, uvs, verts_screen)]
+        return torch.from_numpy(out).to(device=verts_screen.device, dtype=texture.dtype)
 
     @staticmethod
     def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
-        need_t, need_uv = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
-        if not (need_t or need_uv):
-            return (None,) * 5
-        gt, guv = _native().sample_texture_backward(*ctx.args, _f32(grad), ctx.wrap, ctx.num_threads)
-        td, tdev, ud, udev = ctx.types
-        grad_t = torch.from_numpy(gt).to(device=tdev, dtype=td) if need_t else None
-        grad_uv = torch.from_numpy(guv).to(device=udev, dtype=ud) if need_uv else None
-        return grad_t, grad_uv, None, None, None
+        needs = ctx.needs_input_grad[:3]
+        if not any(needs):
+            return (None,) * 8
+        gt, guv, gv = _native().sample_uv_texture_backward(*ctx.args, _f32(grad), *ctx.opts)
+        grads = [
+            torch.from_numpy(g).to(device=device, dtype=dtype) if need else None
+            for g, need, (dtype, device) in zip((gt, guv, gv), needs, ctx.types)
+        ]
+        return (*grads, None, None, None, None, None)
 
 
-def sample_texture(
-    texture: torch.Tensor, uv: torch.Tensor, frags: Fragments, wrap: str = "repeat", num_threads: int = 0
+def sample_uv_texture(
+    texture: torch.Tensor,
+    uvs: torch.Tensor,
+    verts_screen: torch.Tensor,
+    corners: torch.Tensor,
+    faces: torch.Tensor,
+    frags: Fragments,
+    wrap: str = "repeat",
+    num_threads: int = 0,
 ) -> torch.Tensor:
-    """(B,H,W,C) bilinear samples of ``texture`` (Bt,Ht,Wt,C) at ``uv`` (B,H,W,2) on drawn pixels (0 elsewhere);
-    UV origin at the bottom-left of the image (docs/TEXTURES.md); differentiable in ``texture`` and ``uv``."""
-    return _SampleTexture.apply(texture, uv, frags, wrap, num_threads)
+    """(B,H,W,C) bilinear samples of ``texture`` (Bt,Ht,Wt,C) at each drawn pixel's perspective-correct UV (0
+    elsewhere), interpolated from ``uvs`` (Bv,T,2) with rows ``corners`` (M,3); UV origin at the bottom-left of the
+    image (docs/TEXTURES.md). Differentiable in ``texture``, ``uvs`` and ``verts_screen`` (x, y and z, exact at fixed
+    face assignment)."""
+    return _SampleUvTexture.apply(texture, uvs, verts_screen, corners, faces, frags, wrap, num_threads)
 
 
 class _PixelVisibility(torch.autograd.Function):

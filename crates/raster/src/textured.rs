@@ -1,0 +1,661 @@
+//! A UV-textured surface in one pass per pixel: the face drawn there, its perspective-correct UV, the bilinear
+//! texture sample at it; and the backward in one pass: the texel and UV gradients and the vertex gradient of the
+//! UVs moving with the vertices (the interior term, exact at fixed face assignment; the visibility term is
+//! [`crate::backward::image_vertex_backward`]'s).
+//!
+//! Per face the perspective numerators `q_k = w_k / z_k` are planes in pixel space ([`crate::surface`]), so the
+//! perspective-correct UV is a ratio of planes, `uv = N / Q` with `Q = sum_k q_k` and `N = sum_k q_k uv_k`
+//! (orthographic: `Q = 1`, `N = sum_k w_k uv_k`): three planes per face, evaluated at each pixel centre, with no
+//! per-pixel weights or UV arrays. The backward sums over each face's pixels (row-major order) the cotangents of
+//! `N` and `Q` times `(1, u, v)`, the gradients of the planes' coefficients, which give the UV and vertex gradients
+//! once per face. Conventions (UV origin, texel centres, wrap): [`crate::texture`]; the result equals sampling the
+//! texture at the UVs that [`crate::surface::interpolate`] gives with [`crate::surface::pixel_weights`], up to
+//! rounding. Texel sums run over pixels in row-major order and batch elements in order, the UV and vertex sums over
+//! the drawn faces in the order of their first pixels: bit-identical for any thread count.
+
+use rayon::prelude::*;
+
+use crate::error::{try_filled_vec, RasterError, Result};
+use crate::input::{check_finite, RasterParams, ScreenMesh};
+use crate::surface::{add_to_vertices, check_face_index, dot3, plane_at, CornerAttrs, FacePlanes};
+use crate::texture::Texture;
+
+/// The planes of one face whose ratios are the UV at a pixel: `uv = (N_u, N_v) / Q`.
+#[derive(Debug, Clone, Copy, Default)]
+struct UvPlanes {
+    /// `Q(u, v)`.
+    q: [f64; 3],
+    /// `N_u(u, v)`.
+    nu: [f64; 3],
+    /// `N_v(u, v)`.
+    nv: [f64; 3],
+}
+
+impl UvPlanes {
+    fn new(planes: &FacePlanes, uv: [&[f32]; 3]) -> UvPlanes {
+        let mut out = UvPlanes::default();
+        for (k, uvk) in uv.iter().enumerate() {
+            for (i, q) in planes.numerator(k).into_iter().enumerate() {
+                out.q[i] += q;
+                out.nu[i] += q * uvk[0] as f64;
+                out.nv[i] += q * uvk[1] as f64;
+            }
+        }
+        if planes.ortho {
+            // sum_k w_k = 1 exactly.
+            out.q = [1.0, 0.0, 0.0];
+        }
+        out
+    }
+
+    /// `(1 / Q, uv)` at pixel centre `(u, v)`.
+    #[inline(always)]
+    fn at(&self, u: f64, v: f64) -> (f64, f64, f64) {
+        let inv = 1.0 / plane_at(&self.q, u, v);
+        (
+            inv,
+            plane_at(&self.nu, u, v) * inv,
+            plane_at(&self.nv, u, v) * inv,
+        )
+    }
+}
+
+/// The UV corners of face `f` (batch element `b`).
+#[inline(always)]
+fn corner_uvs<'a>(uvs: &'a CornerAttrs<'_>, b: usize, f: usize) -> [&'a [f32]; 3] {
+    let c = &uvs.corners[f * 3..f * 3 + 3];
+    std::array::from_fn(|k| uvs.row(b, c[k] as usize))
+}
+
+/// The faces of one batch element drawn somewhere in its fragments, in order of their first pixel (row-major).
+struct DrawnFaces {
+    /// Per face of the mesh: its index in `faces`, or `u32::MAX` where it is not drawn.
+    slot: Vec<u32>,
+    /// The drawn faces.
+    faces: Vec<u32>,
+    /// Their weight planes.
+    planes: Vec<FacePlanes>,
+    /// Their UV planes.
+    uv: Vec<UvPlanes>,
+}
+
+impl DrawnFaces {
+    /// The faces of batch element `b` drawn in its fragments `fi`.
+    fn new(
+        mesh: &ScreenMesh<'_>,
+        params: &RasterParams,
+        uvs: &CornerAttrs<'_>,
+        b: usize,
+        fi: &[i32],
+    ) -> DrawnFaces {
+        let mut d = DrawnFaces {
+            slot: vec![u32::MAX; mesh.num_faces()],
+            faces: Vec::new(),
+            planes: Vec::new(),
+            uv: Vec::new(),
+        };
+        for &f in fi {
+            if f >= 0 && d.slot[f as usize] == u32::MAX {
+                let f = f as usize;
+                d.slot[f] = d.faces.len() as u32;
+                let planes = FacePlanes::new(mesh, b, f, params);
+                d.faces.push(f as u32);
+                d.uv.push(UvPlanes::new(&planes, corner_uvs(uvs, b, f)));
+                d.planes.push(planes);
+            }
+        }
+        d
+    }
+}
+
+/// Checks the mesh, parameters, fragments, UVs (2 channels) and texture of [`sample_uv_texture`].
+fn validate(
+    mesh: &ScreenMesh<'_>,
+    params: &RasterParams,
+    face_index: &[i32],
+    uvs: &CornerAttrs<'_>,
+    texture: &Texture<'_>,
+) -> Result<()> {
+    mesh.validate()?;
+    params.validate()?;
+    check_face_index(face_index, mesh, params)?;
+    if uvs.channels != 2 {
+        return Err(RasterError::shape(
+            uvs.arg,
+            "(Bv, T, 2)",
+            format!("{} channels", uvs.channels),
+        ));
+    }
+    uvs.validate(mesh)?;
+    texture.validate(mesh.batch)
+}
+
+/// The texture sampled at each pixel's perspective-correct UV: `(B, H, W, C)`, 0 on background, for the fragments
+/// `face_index` of a forward pass with the same `mesh` and `params`, the per-corner UVs `uvs` (2 channels) and
+/// `texture` `(Bt, Ht, Wt, C)`.
+///
+/// ```
+/// use meshadv_raster::{rasterize_fragments, RasterParams, ScreenMesh};
+/// use meshadv_raster::surface::CornerAttrs;
+/// use meshadv_raster::textured::sample_uv_texture;
+/// use meshadv_raster::texture::{Texture, Wrap};
+/// let verts = [-1.0f32, -1.0, 2.0, 1.0, -1.0, 2.0, -1.0, 1.0, 2.0];
+/// let mesh = ScreenMesh::new(&verts, &[0, 1, 2], 1, 3).unwrap();
+/// let params = RasterParams::new(4, 4, 0.1, 10.0);
+/// let frags = rasterize_fragments(&mesh, &params).unwrap();
+/// // Every corner at the same UV: the texel there everywhere on the face.
+/// let uvs = CornerAttrs { values: &[0.25, 0.75], corners: &[0, 0, 0], batch: 1, rows: 1, channels: 2, arg: "uvs" };
+/// let tex = Texture { texels: &[0.1, 0.2, 0.3, 0.4], batch: 1, height: 2, width: 2, channels: 1, wrap: Wrap::Repeat };
+/// let out = sample_uv_texture(&mesh, &params, &frags.face_index, &uvs, &tex).unwrap();
+/// assert_eq!(out[12], 0.1); // the bottom-left pixel: the top-left texel
+/// assert_eq!(out[3], 0.0); // background
+/// ```
+pub fn sample_uv_texture(
+    mesh: &ScreenMesh<'_>,
+    params: &RasterParams,
+    face_index: &[i32],
+    uvs: &CornerAttrs<'_>,
+    texture: &Texture<'_>,
+) -> Result<Vec<f32>> {
+    validate(mesh, params, face_index, uvs, texture)?;
+    let (c, w, hw) = (texture.channels, params.width, params.pixels());
+    let drawn: Vec<DrawnFaces> = (0..mesh.batch)
+        .into_par_iter()
+        .map(|b| DrawnFaces::new(mesh, params, uvs, b, &face_index[b * hw..(b + 1) * hw]))
+        .collect();
+    let mut out = try_filled_vec(face_index.len() * c, 0f32, "textured image")?;
+    out.par_chunks_mut(w * c)
+        .zip(face_index.par_chunks(w))
+        .enumerate()
+        .for_each(|(line, (dst, fi))| {
+            let b = line / params.height;
+            let (tex, drawn) = (texture.element(b), &drawn[b]);
+            let v = (line % params.height) as f64;
+            with_channels!(c, C => sample_line::<C>(&tex, drawn, fi, v, dst))
+        });
+    Ok(out)
+}
+
+/// [`sample_uv_texture`] of one image line (row `v`, fragments `fi`) into `dst` (background pixels are left as
+/// they are); `C` channels (0: any count).
+#[inline(always)]
+fn sample_line<const C: usize>(
+    tex: &Texture<'_>,
+    drawn: &DrawnFaces,
+    fi: &[i32],
+    v: f64,
+    dst: &mut [f32],
+) {
+    let c = if C == 0 { tex.channels } else { C };
+    for (j, (px, &f)) in dst.chunks_exact_mut(c).zip(fi).enumerate() {
+        if f >= 0 {
+            let (_, s, t) = drawn.uv[drawn.slot[f as usize] as usize].at(j as f64, v);
+            tex.sample_into::<C>(s, t, px);
+        }
+    }
+}
+
+/// Gradients of [`sample_uv_texture`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct UvTextureGradients {
+    /// `(Bt, Ht, Wt, C)` gradient with respect to the texels.
+    pub grad_texels: Vec<f32>,
+    /// `(Bv, T, 2)` gradient with respect to the UV values.
+    pub grad_uvs: Vec<f32>,
+    /// `(B, N, 3)` gradient with respect to `verts_screen` (x, y and z) at fixed face assignment.
+    pub grad_verts_screen: Vec<f32>,
+}
+
+/// One batch element's share of [`UvTextureGradients`] (f64 sums; the texels and UVs of that element's texture
+/// and UV rows).
+struct ElementGrads {
+    texels: Vec<f64>,
+    uvs: Vec<f64>,
+}
+
+/// Backward of [`sample_uv_texture`] for the cotangent `grad` `(B, H, W, C)`: exact gradients to the texels, the
+/// UV values and the screen-space vertices (the UVs moving with the vertices at fixed face assignment).
+pub fn sample_uv_texture_backward(
+    mesh: &ScreenMesh<'_>,
+    params: &RasterParams,
+    face_index: &[i32],
+    uvs: &CornerAttrs<'_>,
+    texture: &Texture<'_>,
+    grad: &[f32],
+) -> Result<UvTextureGradients> {
+    validate(mesh, params, face_index, uvs, texture)?;
+    let c = texture.channels;
+    if grad.len() != face_index.len() * c {
+        return Err(RasterError::shape(
+            "grad",
+            format!("({}, {}, {}, {c})", mesh.batch, params.height, params.width),
+            format!("{} values", grad.len()),
+        ));
+    }
+    check_finite("grad", grad)?;
+    let (hw, nv) = (params.pixels(), mesh.num_verts);
+    let mut grad_verts_screen = try_filled_vec(mesh.batch * nv * 3, 0f32, "grad_verts_screen")?;
+    let parts: Vec<ElementGrads> = grad_verts_screen
+        .par_chunks_mut(nv * 3)
+        .enumerate()
+        .map(|(b, gv)| {
+            let fi = &face_index[b * hw..(b + 1) * hw];
+            let g = &grad[b * hw * c..(b + 1) * hw * c];
+            with_channels!(c, C => element_backward::<C>(mesh, params, fi, uvs, texture, g, b, gv))
+        })
+        .collect::<Result<_>>()?;
+    // Shared values: the elements' sums added in batch order; per-element values: concatenated.
+    let sum_parts = |shared: bool, get: &dyn Fn(&ElementGrads) -> &[f64]| -> Vec<f32> {
+        if shared && parts.len() > 1 {
+            let mut sum = get(&parts[0]).to_vec();
+            for part in &parts[1..] {
+                for (s, &x) in sum.iter_mut().zip(get(part)) {
+                    *s += x;
+                }
+            }
+            sum.iter().map(|&x| x as f32).collect()
+        } else if parts.len() == 1 {
+            get(&parts[0]).iter().map(|&x| x as f32).collect()
+        } else {
+            parts.iter().flat_map(get).map(|&x| x as f32).collect()
+        }
+    };
+    Ok(UvTextureGradients {
+        grad_texels: sum_parts(texture.batch == 1, &|p| &p.texels),
+        grad_uvs: sum_parts(uvs.batch == 1, &|p| &p.uvs),
+        grad_verts_screen,
+    })
+}
+
+/// [`sample_uv_texture_backward`] of batch element `b` (fragments `fi`, cotangent `grad`): its vertex gradient
+/// into `gv` `(N, 3)`, its texel and UV sums returned; `C` channels (0: any count).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn element_backward<const C: usize>(
+    mesh: &ScreenMesh<'_>,
+    params: &RasterParams,
+    fi: &[i32],
+    uvs: &CornerAttrs<'_>,
+    texture: &Texture<'_>,
+    grad: &[f32],
+    b: usize,
+    gv: &mut [f32],
+) -> Result<ElementGrads> {
+    let c = if C == 0 { texture.channels } else { C };
+    let tex = texture.element(b);
+    let drawn = DrawnFaces::new(mesh, params, uvs, b, fi);
+    let mut texels = try_filled_vec(tex.texels.len(), 0f64, "texture gradient accumulator")?;
+    // Per drawn face, summed over its pixels: dL/dQ, dL/dN_u and dL/dN_v, each times (1, u, v); along a line, over
+    // each run of pixels of one face first (the row v is constant there).
+    let mut sums = vec![[[0f64; 3]; 3]; drawn.faces.len()];
+    let flush = |sums: &mut [[[f64; 3]; 3]], slot: usize, run: &[[f64; 2]; 3], v: f64| {
+        if let Some(a) = sums.get_mut(slot) {
+            for (a, r) in a.iter_mut().zip(run) {
+                a[0] += r[0];
+                a[1] += r[1];
+                a[2] += r[0] * v;
+            }
+        }
+    };
+    for (row, (fi, grad)) in fi
+        .chunks_exact(params.width)
+        .zip(grad.chunks_exact(params.width * c))
+        .enumerate()
+    {
+        let v = row as f64;
+        let (mut current, mut slot, mut run) = (-1, usize::MAX, [[0f64; 2]; 3]);
+        for (col, (&f, g)) in fi.iter().zip(grad.chunks_exact(c)).enumerate() {
+            if f != current {
+                flush(&mut sums, slot, &run, v);
+                current = f;
+                slot = if f < 0 {
+                    usize::MAX
+                } else {
+                    drawn.slot[f as usize] as usize
+                };
+                run = [[0f64; 2]; 3];
+            }
+            if f < 0 {
+                continue;
+            }
+            let u = col as f64;
+            let (inv, s, t) = drawn.uv[slot].at(u, v);
+            let [gs, gt] = tex.sample_backward_into::<C>(s, t, g, &mut texels);
+            // uv = N / Q.
+            let (gnu, gnv) = (gs * inv, gt * inv);
+            let gq = -(gnu * s + gnv * t);
+            for (r, x) in run.iter_mut().zip([gq, gnu, gnv]) {
+                r[0] += x;
+                r[1] += x * u;
+            }
+        }
+        flush(&mut sums, slot, &run, v);
+    }
+    let mut uv_sums = try_filled_vec(uvs.rows * 2, 0f64, "UV gradient accumulator")?;
+    let mut vertex_sums = try_filled_vec(mesh.num_verts * 3, 0f64, "vertex gradient accumulator")?;
+    for ((a, &f), pl) in sums.iter().zip(&drawn.faces).zip(&drawn.planes) {
+        let f = f as usize;
+        let uv = corner_uvs(uvs, b, f);
+        // dL/dq_k = dL/dQ + uv_k . dL/dN (Q is 1 in orthographic projection, not a function of the q_k).
+        let gq: [[f64; 3]; 3] = std::array::from_fn(|k| {
+            let (x, y) = (uv[k][0] as f64, uv[k][1] as f64);
+            std::array::from_fn(|i| {
+                let q = if pl.ortho { 0.0 } else { a[0][i] };
+                q + x * a[1][i] + y * a[2][i]
+            })
+        });
+        add_to_vertices(mesh, f, &pl.vertex_grads(&gq, params), &mut vertex_sums);
+        // dL/duv_k = sum_P (q_k / Q) dL/duv = sum_P q_k dL/dN.
+        for (k, &r) in uvs.corners[f * 3..f * 3 + 3].iter().enumerate() {
+            let q = pl.numerator(k);
+            uv_sums[r as usize * 2] += dot3(&q, &a[1]);
+            uv_sums[r as usize * 2 + 1] += dot3(&q, &a[2]);
+        }
+    }
+    for (d, &s) in gv.iter_mut().zip(&vertex_sums) {
+        *d = s as f32;
+    }
+    Ok(ElementGrads {
+        texels,
+        uvs: uv_sums,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::input::Projection;
+    use crate::parallel::with_threads;
+    use crate::raster::rasterize_fragments;
+    use crate::surface::{interpolate, pixel_weights};
+    use crate::test_rng::Rng;
+    use crate::texture::Wrap;
+
+    /// A few random overlapping triangles in front of the camera, `batch` views of them (moved a little).
+    fn scene(rng: &mut Rng, faces: usize, batch: usize) -> (Vec<f32>, Vec<i32>) {
+        let base: Vec<f32> = (0..faces * 3)
+            .flat_map(|_| {
+                [
+                    (rng.next() * 1.6 - 0.8) as f32,
+                    (rng.next() * 1.6 - 0.8) as f32,
+                    (1.0 + rng.next() * 3.0) as f32,
+                ]
+            })
+            .collect();
+        let verts = (0..batch)
+            .flat_map(|b| {
+                base.iter()
+                    .enumerate()
+                    .map(move |(i, &x)| x + (b * (i % 3)) as f32 * 0.01)
+            })
+            .collect();
+        (verts, (0..faces as i32 * 3).collect())
+    }
+
+    struct Case {
+        verts: Vec<f32>,
+        faces: Vec<i32>,
+        batch: usize,
+        params: RasterParams,
+        face_index: Vec<i32>,
+        uv_values: Vec<f32>,
+        uv_corners: Vec<i32>,
+        uv_rows: usize,
+        texels: Vec<f32>,
+        tex_batch: usize,
+        wrap: Wrap,
+    }
+
+    impl Case {
+        fn new(rng: &mut Rng, batch: usize, tex_batch: usize, projection: Projection) -> Case {
+            let (verts, faces) = scene(rng, 5, batch);
+            let mut params = RasterParams::new(23, 27, 0.1, 10.0);
+            params.projection = projection;
+            let mesh =
+                ScreenMesh::new(&verts, &faces, batch, verts.len() / 3 / batch).expect("mesh");
+            let face_index = rasterize_fragments(&mesh, &params)
+                .expect("raster")
+                .face_index;
+            let uv_rows = 7;
+            let uv_corners = (0..faces.len())
+                .map(|_| rng.below(uv_rows) as i32)
+                .collect();
+            let uv_values = (0..uv_rows * 2)
+                .map(|_| (rng.next() * 0.6 + 0.2) as f32)
+                .collect();
+            // A ramp plus a little noise, clamped, UVs inside: the blend's kinks at texel centre lines stay small for
+            // the differences.
+            let (h, w) = (6, 5);
+            let texels = (0..tex_batch * h * w * 3)
+                .map(|i| {
+                    ((i / 3) % w) as f32 * 0.2
+                        + ((i / 3 / w) % h) as f32 * 0.1
+                        + rng.next() as f32 * 0.05
+                })
+                .collect();
+            Case {
+                verts,
+                faces,
+                batch,
+                params,
+                face_index,
+                uv_values,
+                uv_corners,
+                uv_rows,
+                texels,
+                tex_batch,
+                wrap: Wrap::Clamp,
+            }
+        }
+
+        fn mesh<'a>(&'a self, verts: &'a [f32]) -> ScreenMesh<'a> {
+            ScreenMesh::new(verts, &self.faces, self.batch, verts.len() / 3 / self.batch)
+                .expect("mesh")
+        }
+
+        fn uvs<'a>(&'a self, values: &'a [f32]) -> CornerAttrs<'a> {
+            CornerAttrs {
+                values,
+                corners: &self.uv_corners,
+                batch: 1,
+                rows: self.uv_rows,
+                channels: 2,
+                arg: "uvs",
+            }
+        }
+
+        fn texture<'a>(&self, texels: &'a [f32]) -> Texture<'a> {
+            Texture {
+                texels,
+                batch: self.tex_batch,
+                height: 6,
+                width: 5,
+                channels: 3,
+                wrap: self.wrap,
+            }
+        }
+
+        fn forward(&self, verts: &[f32], uvs: &[f32], texels: &[f32]) -> Vec<f32> {
+            sample_uv_texture(
+                &self.mesh(verts),
+                &self.params,
+                &self.face_index,
+                &self.uvs(uvs),
+                &self.texture(texels),
+            )
+            .expect("forward")
+        }
+
+        fn backward(&self, grad: &[f32]) -> UvTextureGradients {
+            sample_uv_texture_backward(
+                &self.mesh(&self.verts),
+                &self.params,
+                &self.face_index,
+                &self.uvs(&self.uv_values),
+                &self.texture(&self.texels),
+                grad,
+            )
+            .expect("backward")
+        }
+    }
+
+    fn dot(a: &[f32], b: &[f32]) -> f64 {
+        a.iter().zip(b).map(|(x, y)| *x as f64 * *y as f64).sum()
+    }
+
+    #[test]
+    fn equals_sampling_at_the_interpolated_uvs() {
+        let mut rng = Rng(5);
+        for (projection, wrap) in [
+            (Projection::Perspective, Wrap::Repeat),
+            (Projection::Orthographic, Wrap::Clamp),
+        ] {
+            let mut case = Case::new(&mut rng, 2, 2, projection);
+            case.wrap = wrap;
+            // UVs beyond [0, 1]: wrapped or clamped texel indices.
+            case.uv_values.iter_mut().for_each(|x| *x = *x * 3.0 - 1.0);
+            let mesh = case.mesh(&case.verts);
+            let got = case.forward(&case.verts, &case.uv_values, &case.texels);
+            let w = pixel_weights(&mesh, &case.params, &case.face_index).expect("weights");
+            let uv = interpolate(
+                &mesh,
+                &case.params,
+                &case.face_index,
+                &w,
+                &case.uvs(&case.uv_values),
+            )
+            .expect("uv");
+            let tex = case.texture(&case.texels);
+            let hw = case.params.pixels();
+            let mut drawn = 0;
+            for (p, &f) in case.face_index.iter().enumerate() {
+                let px = &got[p * 3..p * 3 + 3];
+                if f < 0 {
+                    assert_eq!(px, &[0.0; 3]);
+                    continue;
+                }
+                drawn += 1;
+                let want = tex
+                    .sample(p / hw, [uv[2 * p] as f64, uv[2 * p + 1] as f64])
+                    .expect("sample");
+                for (a, b) in px.iter().zip(&want) {
+                    assert!((a - b).abs() < 1e-4, "{projection:?} pixel {p}: {a} vs {b}");
+                }
+            }
+            assert!(drawn > 200);
+        }
+    }
+
+    #[test]
+    fn gradients_match_finite_differences() {
+        let mut rng = Rng(11);
+        for projection in [Projection::Perspective, Projection::Orthographic] {
+            let case = Case::new(&mut rng, 2, 1, projection);
+            let g: Vec<f32> = (0..case.face_index.len() * 3)
+                .map(|_| (rng.next() - 0.5) as f32)
+                .collect();
+            let grads = case.backward(&g);
+            // Linear in the texels: the gradient is the exact adjoint.
+            let probe: Vec<f32> = (0..case.texels.len())
+                .map(|_| (rng.next() - 0.5) as f32)
+                .collect();
+            let moved = case.forward(&case.verts, &case.uv_values, &probe);
+            assert!((dot(&moved, &g) - dot(&probe, &grads.grad_texels)).abs() < 1e-4);
+            let loss =
+                |verts: &[f32], uvs: &[f32]| dot(&case.forward(verts, uvs, &case.texels), &g);
+            let h = 1e-3f32;
+            for i in 0..case.uv_values.len() {
+                let (mut a, mut b) = (case.uv_values.clone(), case.uv_values.clone());
+                a[i] += h;
+                b[i] -= h;
+                let fd = (loss(&case.verts, &a) - loss(&case.verts, &b)) / (2.0 * h as f64);
+                let got = grads.grad_uvs[i] as f64;
+                assert!(
+                    (fd - got).abs() < 2e-2 * fd.abs().max(1.0),
+                    "{projection:?} uv {i}: fd {fd} vs {got}"
+                );
+            }
+            let h = 2e-4f32;
+            let mut nonzero = 0;
+            for i in 0..case.verts.len() {
+                if projection == Projection::Orthographic && i % 3 == 2 {
+                    assert_eq!(grads.grad_verts_screen[i], 0.0);
+                    continue;
+                }
+                let (mut a, mut b) = (case.verts.clone(), case.verts.clone());
+                a[i] += h;
+                b[i] -= h;
+                let fd = (loss(&a, &case.uv_values) - loss(&b, &case.uv_values)) / (2.0 * h as f64);
+                let got = grads.grad_verts_screen[i] as f64;
+                nonzero += (got != 0.0) as usize;
+                assert!(
+                    (fd - got).abs() < 2e-2 * fd.abs().max(1.0),
+                    "{projection:?} coord {i}: fd {fd} vs {got}"
+                );
+            }
+            assert!(nonzero > case.verts.len() / 3);
+        }
+    }
+
+    #[test]
+    fn results_are_bit_identical_for_any_thread_count() {
+        let mut rng = Rng(2);
+        let case = Case::new(&mut rng, 3, 1, Projection::Perspective);
+        let g: Vec<f32> = (0..case.face_index.len() * 3)
+            .map(|_| (rng.next() - 0.5) as f32)
+            .collect();
+        let run = |threads| {
+            with_threads(threads, || {
+                (
+                    case.forward(&case.verts, &case.uv_values, &case.texels),
+                    case.backward(&g),
+                )
+            })
+            .expect("pool")
+        };
+        let (one, three) = (run(1), run(3));
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&one.0), bits(&three.0));
+        assert_eq!(bits(&one.1.grad_texels), bits(&three.1.grad_texels));
+        assert_eq!(bits(&one.1.grad_uvs), bits(&three.1.grad_uvs));
+        assert_eq!(
+            bits(&one.1.grad_verts_screen),
+            bits(&three.1.grad_verts_screen)
+        );
+    }
+
+    #[test]
+    fn bad_uvs_textures_and_cotangents_are_errors_naming_the_argument() {
+        let mut rng = Rng(6);
+        let case = Case::new(&mut rng, 1, 1, Projection::Perspective);
+        let mesh = case.mesh(&case.verts);
+        let (p, fi) = (&case.params, &case.face_index[..]);
+        let tex = case.texture(&case.texels);
+        let three = CornerAttrs {
+            channels: 3,
+            rows: 4,
+            ..case.uvs(&case.uv_values[..12])
+        };
+        let e = sample_uv_texture(&mesh, p, fi, &three, &tex).expect_err("3 channels");
+        assert!(e.to_string().starts_with("uvs"), "{e}");
+        let mut nan = case.uv_values.clone();
+        nan[3] = f32::NAN;
+        let e = sample_uv_texture(&mesh, p, fi, &case.uvs(&nan), &tex).expect_err("NaN");
+        assert!(e.to_string().starts_with("uvs"), "{e}");
+        let empty = Texture {
+            texels: &[],
+            height: 0,
+            ..tex
+        };
+        let e =
+            sample_uv_texture(&mesh, p, fi, &case.uvs(&case.uv_values), &empty).expect_err("empty");
+        assert!(e.to_string().starts_with("texture"), "{e}");
+        let e = sample_uv_texture(&mesh, p, &fi[1..], &case.uvs(&case.uv_values), &tex)
+            .expect_err("short map");
+        assert!(e.to_string().starts_with("face_index"), "{e}");
+        let g = vec![0f32; fi.len() * 3 - 1];
+        let e = sample_uv_texture_backward(&mesh, p, fi, &case.uvs(&case.uv_values), &tex, &g)
+            .expect_err("short");
+        assert!(e.to_string().starts_with("grad"), "{e}");
+    }
+}
