@@ -131,17 +131,21 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     parser.add_argument("--budget", type=float, default=570.0, help="seconds before a run is stopped (SIGINT)")
     parser.add_argument("--spp", type=int, default=32, help="Mitsuba samples per pixel")
     parser.add_argument("--parallel", type=int, default=2, help="runs at a time")
+    parser.add_argument("--cases", nargs="+", default=None, help="only these meshes of CASES (e.g. bottle/04)")
+    parser.add_argument("--variants", nargs="+", default=["default", "eot"], choices=["default", "eot"])
     parser.add_argument("--report", action="store_true", help="only summarise the finished folders")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    jobs = [(mesh, target, variant, eot) for mesh, target in CASES
-            for variant, eot in (("default", 0), (f"eot{args.eot}", args.eot))]
+    cases = [(m, t) for m, t in CASES if args.cases is None or m in args.cases]
+    variants = [("default", 0) if v == "default" else (f"eot{args.eot}", args.eot) for v in args.variants]
+    jobs = [(mesh, target, variant, eot) for mesh, target in cases for variant, eot in variants]
     if args.report:
         rows = [summary_row(m, t, v, args.out / f"{m.replace('/', '_')}_{v}") for m, t, v, _ in jobs]
     else:
         with ThreadPoolExecutor(max_workers=args.parallel) as pool:
             rows = list(pool.map(lambda j: run_case(*j, out=args.out, budget=args.budget, spp=args.spp), jobs))
-    (args.out / "summary.json").write_text(json.dumps(rows, indent=2))
+    name = "summary.json" if args.cases is None and len(variants) == 2 else f"summary_eot{args.eot}_{len(rows)}.json"
+    (args.out / name).write_text(json.dumps(rows, indent=2))
     print(markdown(rows))
 
 

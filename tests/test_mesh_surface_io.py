@@ -126,6 +126,7 @@ _QUAD = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n"
         (_QUAD, "newmtl a\nmap_Kd tex.png\n", b"not a png", r"map_Kd: the texture image .*cannot be read"),
         (_QUAD.replace("vt 1 0", "vt nan 0"), None, None, r"vt: needs two finite values"),
         (_QUAD.replace("3/3", "3/7"), None, None, r"f: vt index 7 outside the 3 vt lines"),
+        (_QUAD.replace("vt 1 0", "vt 1e30 0"), None, None, r"line 5: vt: texture coordinates beyond \+-1e\+06"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1//4 2//1 3//1\nvn 0 0 1\n", None, None, r"f: vn index 4"),
     ],
 )
@@ -148,6 +149,8 @@ def test_a_zero_size_texture_or_mismatched_attributes_are_errors_naming_the_fiel
         SurfaceMesh(sm.mesh, sm.uvs[:3], sm.uv_faces, sm.texture)
     with pytest.raises(ValueError, match="uvs contains NaN"):
         SurfaceMesh(sm.mesh, torch.full_like(sm.uvs, float("nan")), sm.uv_faces, sm.texture)
+    with pytest.raises(ValueError, match="uvs must lie within"):
+        SurfaceMesh(sm.mesh, torch.full_like(sm.uvs, 3e38), sm.uv_faces, sm.texture)
     with pytest.raises(ValueError, match="vertex_colors must have shape"):
         SurfaceMesh(sm.mesh, vertex_colors=torch.zeros(2, 3))
 

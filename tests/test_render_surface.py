@@ -263,6 +263,7 @@ def test_the_texture_gradient_is_the_same_for_any_thread_count() -> None:
         (dict(texture=torch.full((4, 4, 3), float("nan"))), "texture contains NaN"),
         (dict(texture=torch.zeros(4, 4)), "texture must have shape"),
         (dict(uvs=torch.full((25, 2), float("nan"))), "uvs contains NaN"),
+        (dict(uvs=torch.full((25, 2), 1e30)), r"uvs must lie within \+-1e\+06"),
         (dict(uvs=torch.zeros(3, 2)), "uv_faces holds rows"),
         (dict(uv_faces=torch.zeros(5, 3, dtype=torch.long)), "uv_faces must have shape"),
         (dict(shading="phong"), "shading"),

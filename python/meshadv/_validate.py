@@ -34,6 +34,7 @@ from typing import Any, Optional
 
 __all__ = [
     "MAX_SEED",
+    "MAX_TEXTURE_COORDINATE",
     "MAX_THREADS",
     "boolean",
     "choice",
@@ -54,6 +55,9 @@ __all__ = [
 MAX_SEED = 2**63 - 1
 #: Largest accepted thread count; more threads than this is a mistake on any machine we run on.
 MAX_THREADS = 1024
+#: Largest accepted magnitude of a texture coordinate: a UV a million tiles away from [0, 1] is a broken file, and
+#: texel indices of much larger ones overflow.
+MAX_TEXTURE_COORDINATE = 1e6
 
 
 def _type_name(value: Any) -> str:

@@ -267,7 +267,8 @@ def attack(
                                                      "(+-10%) at every step, with sub-pixel shifts, light, "
                                                      "antialias, size, blur and noise, and a low-frequency "
                                                      "perturbation; success is judged on 12 fresh views "
-                                                     "(0: off, the fixed views)"),
+                                                     "and the held-out views (0, the default: off, the fixed "
+                                                     "views)"),
     image_size: int = typer.Option(224, min=1, max=16384, help="rendered image size in pixels"),
     background: str = typer.Option(DEFAULT_BACKGROUND, help="background colour r,g,b in [0, 1]"),
     threshold: float = typer.Option(0.5, help="detector score threshold (--disappear)"),

@@ -21,6 +21,7 @@ import torch
 import trimesh
 from PIL import Image, UnidentifiedImageError
 
+from meshadv._validate import MAX_TEXTURE_COORDINATE
 from meshadv.mesh.errors import MeshLoadError
 from meshadv.mesh.normalize import NormalizeTransform, normalize_mesh
 from meshadv.mesh.structure import Mesh
@@ -81,6 +82,8 @@ class SurfaceMesh:
                 raise ValueError(f"{name} must have shape (K,{width}) with K >= 1, got {tuple(rows.shape)}")
             if not bool(torch.isfinite(rows).all()):
                 raise ValueError(f"{name} contains NaN or Inf")
+            if name == "uvs" and float(rows.abs().max()) > MAX_TEXTURE_COORDINATE:
+                raise ValueError(f"uvs must lie within +-{MAX_TEXTURE_COORDINATE:g}, got {float(rows.abs().max()):g}")
             cname = "uv_faces" if name == "uvs" else "normal_faces"
             if tuple(corners.shape) != (m, 3):
                 raise ValueError(f"{cname} must have shape ({m},3), one row per face, got {tuple(corners.shape)}")
@@ -259,6 +262,9 @@ def _check_obj_indices(path: Path) -> None:
                     raise MeshLoadError(f"{path}: line {lineno}: vt: not numbers: {raw.strip()!r}") from exc
                 if len(values) < 2 or not all(np.isfinite(values)):
                     raise MeshLoadError(f"{path}: line {lineno}: vt: needs two finite values, got {raw.strip()!r}")
+                if max(abs(x) for x in values) > MAX_TEXTURE_COORDINATE:
+                    raise MeshLoadError(f"{path}: line {lineno}: vt: texture coordinates beyond "
+                                        f"+-{MAX_TEXTURE_COORDINATE:g}, got {raw.strip()!r}")
         elif parts[0] == "f":
             for corner in parts[1:]:
                 fields = corner.split("/")
@@ -311,8 +317,8 @@ def load_surface_mesh(path: PathLike) -> SurfaceMesh:
 
     Raises:
         MeshLoadError: an unreadable file, a missing or unreadable texture image or material file, a texture of zero
-            size, NaN or non-numeric UVs, corner indices beyond the attribute counts, or a mismatched number of vertex
-            colours; the message names the file and the field.
+            size, NaN, non-numeric or out-of-range (beyond +-1e6) UVs, corner indices beyond the attribute counts, NaN
+            vertex colours or a mismatched number of them; the message names the file and the field.
 
     Example:
         >>> sm = load_surface_mesh("textured.obj")  # doctest: +SKIP
@@ -342,6 +348,8 @@ def load_surface_mesh(path: PathLike) -> SurfaceMesh:
             raise MeshLoadError(f"{path}: uv: {uv.shape[0]} texture coordinates for {len(raw_v)} vertices")
         if not np.isfinite(uv).all():
             raise MeshLoadError(f"{path}: uv: NaN or infinite texture coordinates")
+        if np.abs(uv).max() > MAX_TEXTURE_COORDINATE:
+            raise MeshLoadError(f"{path}: uv: texture coordinates beyond +-{MAX_TEXTURE_COORDINATE:g}")
         if ext == ".obj" and texture_file is not None:
             tex = texture
         else:

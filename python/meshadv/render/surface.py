@@ -16,7 +16,7 @@ from typing import Any
 
 import torch
 
-from .._validate import finite_float
+from .._validate import MAX_TEXTURE_COORDINATE, finite_float
 from ._checks import require_instance
 from ._ops import small_matmul
 from .camera import Camera, _normalize
@@ -181,9 +181,9 @@ def render_surface(
 
     Raises:
         TypeError: an argument of the wrong type.
-        ValueError: bad shapes, NaN/Inf, corner rows out of range, an empty texture, no reflectance given, an
-            unknown ``shading`` or ``wrap``, a negative ``specular`` (or one with flat shading) or a ``shininess``
-            below 1; each message names the argument.
+        ValueError: bad shapes, NaN/Inf, UVs beyond +-1e6, corner rows out of range, an empty texture, no
+            reflectance given, an unknown ``shading`` or ``wrap``, a negative ``specular`` (or one with flat
+            shading) or a ``shininess`` below 1; each message names the argument.
 
     Example:
         >>> from meshadv.render import Camera, Lights
@@ -216,6 +216,9 @@ def render_surface(
         if uvs is None:
             raise ValueError("uvs is required with texture (T,2 texture coordinates)")
         uvs = _float_array(uvs, "uvs", ("(T,2)",), (2,), 2)
+        if float(uvs.detach().abs().max()) > MAX_TEXTURE_COORDINATE:
+            raise ValueError(f"uvs must lie within +-{MAX_TEXTURE_COORDINATE:g} (texture coordinates, 1 = the whole "
+                             f"image), got {float(uvs.detach().abs().max()):g}")
         uv_faces = faces if uv_faces is None else _corners(uv_faces, "uv_faces", m, uvs.shape[0], "uvs")
         if uv_faces is faces and uvs.shape[0] != n:
             raise ValueError(f"uvs must have one row per vertex (N = {n}) without uv_faces, got {uvs.shape[0]}")
