@@ -14,7 +14,32 @@
 
 use crate::error::{RasterError, Result};
 use crate::input::check_finite;
-use crate::setup::floor;
+
+/// Largest accepted magnitude of a texture coordinate in the UVs given to the core ([`Texture::sample`],
+/// [`crate::textured::sample_uv_texture`]): a UV a million tiles away from `[0, 1]` is a broken file.
+pub const MAX_TEXTURE_COORDINATE: f64 = 1e6;
+
+/// Checks that every value in `uv` is finite and at most [`MAX_TEXTURE_COORDINATE`] in magnitude; the error names
+/// `arg` and the flat index of the first bad value.
+pub fn check_texture_coordinates(
+    arg: &'static str,
+    uv: impl IntoIterator<Item = f64>,
+) -> Result<()> {
+    match uv
+        .into_iter()
+        .enumerate()
+        .find(|(_, x)| x.is_nan() || x.abs() > MAX_TEXTURE_COORDINATE)
+    {
+        Some((i, x)) => Err(RasterError::Parameter {
+            arg,
+            message: format!(
+                "texture coordinate {x} at flat index {i}: expected a finite value of magnitude at most \
+                 {MAX_TEXTURE_COORDINATE:e}"
+            ),
+        }),
+        None => Ok(()),
+    }
+}
 
 /// How texel indices outside the image are mapped back into it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -89,7 +114,9 @@ impl Texture<'_> {
     }
 
     /// The two texel indices along an axis of `size` texels around the continuous position `x`, and the fraction
-    /// of the way from the first to the second (`x - floor(x)`).
+    /// of the way from the first to the second (`x - floor(x)`). Positions `2^31` texels or more from the origin
+    /// are clamped to `+-2^31` (their cell's texels, fraction 0) and NaN reads as 0, so that no index overflows
+    /// and the fraction stays finite; a per-pixel UV gets there only from fragments of a face not drawn there.
     #[inline(always)]
     fn axis(&self, x: f64, size: usize) -> (usize, usize, f64) {
         // Below 2^31 in magnitude, adding 1.5 * 2^52 rounds `x` to the nearest integer, which the low bits of the
@@ -105,10 +132,16 @@ impl Texture<'_> {
             let (a, b) = self.pair(i, size);
             return (a, b, x - t);
         }
-        // Far outside the image (beyond i64) the position saturates; it is a texel index all the same.
-        let x0 = floor(x);
-        let (a, b) = self.pair(x0 as i64, size);
-        (a, b, x - x0)
+        // Far outside the image, or NaN: the clamped position, a texel index all the same.
+        let i = if x > 0.0 {
+            1 << 31
+        } else if x < 0.0 {
+            -(1 << 31)
+        } else {
+            0
+        };
+        let (a, b) = self.pair(i, size);
+        (a, b, 0.0)
     }
 
     /// The texture of batch element `b` alone (batch 1; the whole texture when it has batch 1).
@@ -274,6 +307,7 @@ impl Texture<'_> {
     }
 
     /// The bilinear sample of batch element `b` (any `b` when the texture has batch 1) at `uv`: `channels` values.
+    /// Errors: a bad texture or batch element, or a `uv` that is not finite or beyond [`MAX_TEXTURE_COORDINATE`].
     ///
     /// ```
     /// use meshadv_raster::texture::{Texture, Wrap};
@@ -284,6 +318,7 @@ impl Texture<'_> {
     /// ```
     pub fn sample(&self, b: usize, uv: [f64; 2]) -> Result<Vec<f32>> {
         self.check_sample(b, None)?;
+        check_texture_coordinates("uv", uv)?;
         let mut out = vec![0f32; self.channels];
         self.element(b).sample_into::<0>(uv[0], uv[1], &mut out);
         Ok(out)
@@ -300,6 +335,8 @@ impl Texture<'_> {
         grad_texels: &mut [f64],
     ) -> Result<[f64; 2]> {
         self.check_sample(b, Some((grad, grad_texels.len())))?;
+        check_texture_coordinates("uv", uv)?;
+        check_finite("grad", grad)?;
         let n = self.height * self.width * self.channels;
         let b = if self.batch == 1 { 0 } else { b };
         Ok(self.element(b).sample_backward_into::<0>(

@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use crate::error::{try_filled_vec, RasterError, Result};
 use crate::input::{check_finite, RasterParams, ScreenMesh};
 use crate::surface::{add_to_vertices, check_face_index, dot3, plane_at, CornerAttrs, FacePlanes};
-use crate::texture::Texture;
+use crate::texture::{check_texture_coordinates, Texture};
 
 /// The planes of one face whose ratios are the UV at a pixel: `uv = (N_u, N_v) / Q`.
 #[derive(Debug, Clone, Copy, Default)]
@@ -127,12 +127,14 @@ fn validate(
         ));
     }
     uvs.validate(mesh)?;
+    check_texture_coordinates(uvs.arg, uvs.values.iter().map(|&x| x as f64))?;
     texture.validate(mesh.batch)
 }
 
 /// The texture sampled at each pixel's perspective-correct UV: `(B, H, W, C)`, 0 on background, for the fragments
 /// `face_index` of a forward pass with the same `mesh` and `params`, the per-corner UVs `uvs` (2 channels) and
-/// `texture` `(Bt, Ht, Wt, C)`.
+/// `texture` `(Bt, Ht, Wt, C)`. Errors name the argument at fault: among them, UVs that are not finite or beyond
+/// [`crate::texture::MAX_TEXTURE_COORDINATE`] in magnitude.
 ///
 /// ```
 /// use meshadv_raster::{rasterize_fragments, RasterParams, ScreenMesh};
