@@ -17,7 +17,7 @@ use rayon::prelude::*;
 
 use crate::error::{try_filled_vec, RasterError, Result};
 use crate::input::{check_finite, RasterParams, ScreenMesh};
-use crate::surface::{add_to_vertices, check_face_index, dot3, plane_at, CornerAttrs, FacePlanes};
+use crate::surface::{add_to_vertices, check_face_index, dot3, CornerAttrs, FacePlanes};
 use crate::texture::{check_texture_coordinates, Texture};
 
 /// The planes of one face whose ratios are the UV at a pixel: `uv = (N_u, N_v) / Q`.
@@ -48,16 +48,54 @@ impl UvPlanes {
         out
     }
 
-    /// `(1 / Q, uv)` at pixel centre `(u, v)`.
+    /// The planes along image row `v`: lines in the column `u`.
     #[inline(always)]
-    fn at(&self, u: f64, v: f64) -> (f64, f64, f64) {
-        let inv = 1.0 / plane_at(&self.q, u, v);
+    fn row(&self, v: f64) -> UvRow {
+        let line = |p: &[f64; 3]| [p[0] + p[2] * v, p[1]];
+        UvRow {
+            q: line(&self.q),
+            nu: line(&self.nu),
+            nv: line(&self.nv),
+        }
+    }
+}
+
+/// [`UvPlanes`] along one image row: `Q = q[0] + q[1] u`, and `N_u`, `N_v` alike.
+#[derive(Debug, Clone, Copy)]
+struct UvRow {
+    q: [f64; 2],
+    nu: [f64; 2],
+    nv: [f64; 2],
+}
+
+impl UvRow {
+    /// `(1 / Q, uv)` at column `u` of the row.
+    #[inline(always)]
+    fn at(&self, u: f64) -> (f64, f64, f64) {
+        let inv = 1.0 / (self.q[0] + self.q[1] * u);
         (
             inv,
-            plane_at(&self.nu, u, v) * inv,
-            plane_at(&self.nv, u, v) * inv,
+            (self.nu[0] + self.nu[1] * u) * inv,
+            (self.nv[0] + self.nv[1] * u) * inv,
         )
     }
+}
+
+/// The runs of equal entries of a line of fragments: `(start, end, face)` with `fi[start..end]` all `face`.
+#[inline(always)]
+fn runs(fi: &[i32]) -> impl Iterator<Item = (usize, usize, i32)> + '_ {
+    let mut start = 0;
+    std::iter::from_fn(move || {
+        let &f = fi.get(start)?;
+        let end = start
+            + fi[start..]
+                .iter()
+                .position(|&g| g != f)
+                .unwrap_or(fi.len() - start);
+        let run = (start, end, f);
+        start = end;
+        Some(run)
+    })
 }
 
 /// The UV corners of face `f` (batch element `b`).
@@ -189,9 +227,13 @@ fn sample_line<const C: usize>(
     dst: &mut [f32],
 ) {
     let c = if C == 0 { tex.channels } else { C };
-    for (j, (px, &f)) in dst.chunks_exact_mut(c).zip(fi).enumerate() {
-        if f >= 0 {
-            let (_, s, t) = drawn.uv[drawn.slot[f as usize] as usize].at(j as f64, v);
+    for (start, end, f) in runs(fi) {
+        if f < 0 {
+            continue;
+        }
+        let row = drawn.uv[drawn.slot[f as usize] as usize].row(v);
+        for (j, px) in (start..end).zip(dst[start * c..end * c].chunks_exact_mut(c)) {
+            let (_, s, t) = row.at(j as f64);
             tex.sample_into::<C>(s, t, px);
         }
     }
@@ -290,48 +332,37 @@ fn element_backward<const C: usize>(
     // Per drawn face, summed over its pixels: dL/dQ, dL/dN_u and dL/dN_v, each times (1, u, v); along a line, over
     // each run of pixels of one face first (the row v is constant there).
     let mut sums = vec![[[0f64; 3]; 3]; drawn.faces.len()];
-    let flush = |sums: &mut [[[f64; 3]; 3]], slot: usize, run: &[[f64; 2]; 3], v: f64| {
-        if let Some(a) = sums.get_mut(slot) {
-            for (a, r) in a.iter_mut().zip(run) {
-                a[0] += r[0];
-                a[1] += r[1];
-                a[2] += r[0] * v;
-            }
-        }
-    };
     for (row, (fi, grad)) in fi
         .chunks_exact(params.width)
         .zip(grad.chunks_exact(params.width * c))
         .enumerate()
     {
         let v = row as f64;
-        let (mut current, mut slot, mut run) = (-1, usize::MAX, [[0f64; 2]; 3]);
-        for (col, (&f, g)) in fi.iter().zip(grad.chunks_exact(c)).enumerate() {
-            if f != current {
-                flush(&mut sums, slot, &run, v);
-                current = f;
-                slot = if f < 0 {
-                    usize::MAX
-                } else {
-                    drawn.slot[f as usize] as usize
-                };
-                run = [[0f64; 2]; 3];
-            }
+        for (start, end, f) in runs(fi) {
             if f < 0 {
                 continue;
             }
-            let u = col as f64;
-            let (inv, s, t) = drawn.uv[slot].at(u, v);
-            let [gs, gt] = tex.sample_backward_into::<C>(s, t, g, &mut texels);
-            // uv = N / Q.
-            let (gnu, gnv) = (gs * inv, gt * inv);
-            let gq = -(gnu * s + gnv * t);
-            for (r, x) in run.iter_mut().zip([gq, gnu, gnv]) {
-                r[0] += x;
-                r[1] += x * u;
+            let slot = drawn.slot[f as usize] as usize;
+            let line = drawn.uv[slot].row(v);
+            let mut run = [[0f64; 2]; 3];
+            for (col, g) in (start..end).zip(grad[start * c..end * c].chunks_exact(c)) {
+                let u = col as f64;
+                let (inv, s, t) = line.at(u);
+                let [gs, gt] = tex.sample_backward_into::<C>(s, t, g, &mut texels);
+                // uv = N / Q.
+                let (gnu, gnv) = (gs * inv, gt * inv);
+                let gq = -(gnu * s + gnv * t);
+                for (r, x) in run.iter_mut().zip([gq, gnu, gnv]) {
+                    r[0] += x;
+                    r[1] += x * u;
+                }
+            }
+            for (a, r) in sums[slot].iter_mut().zip(&run) {
+                a[0] += r[0];
+                a[1] += r[1];
+                a[2] += r[0] * v;
             }
         }
-        flush(&mut sums, slot, &run, v);
     }
     let mut uv_sums = try_filled_vec(uvs.rows * 2, 0f64, "UV gradient accumulator")?;
     let mut vertex_sums = try_filled_vec(mesh.num_verts * 3, 0f64, "vertex gradient accumulator")?;
