@@ -31,11 +31,12 @@ applied flow at success.
 With ``--split --whole-steps`` a whole step (render, victim, objective, render backward; the attack's own step
 code, Adam's objective, no update) is timed instead, wall time, for each variant in one run with the variants
 interleaved in bursts of ``--burst`` consecutive steps (the first of a burst not recorded): ``serial tN`` (torch and
-the renderer on N threads, for each N of ``--torch-threads``) and ``old serial tN`` (the step with the antialias
-pooling as it was, ``F.avg_pool2d``). The victim-alone ceilings are timed the same way, at each of
-``--torch-threads``. The renderer share is the part of the step's wall time not hidden behind the victim: ``1 -
-victim alone (same threads) / step``. ``--attack-steps N`` adds whole attacks (``ShapeAttack`` /
-``TextureAttack`` of N steps, no early stop) per variant, alternating, and reports their target-steps/s.
+the renderer on N threads, for each N of ``--torch-threads``) and ``old serial tN`` (the step with the render as
+the PyTorch composition of camera, shading and rasterizer and the antialias pooling by ``F.avg_pool2d``). The
+victim-alone ceilings are timed the same way, at each of ``--torch-threads``. The renderer share is the part of
+the step's wall time not hidden behind the victim: ``1 - victim alone (same threads) / step``. ``--attack-steps N``
+adds whole attacks (``ShapeAttack`` / ``TextureAttack`` of N steps, no early stop) per variant, alternating, and
+reports their target-steps/s.
 
 ``--pool-bench`` times only the antialias pooling, forward and backward, the renderer's box filter against
 torch's ``F.avg_pool2d`` (batch ``--targets x --views``, ``--image-size`` times ``--antialias`` pixels, RGBA, one
@@ -270,7 +271,8 @@ def _old_downsample(t: torch.Tensor, k: int, num_threads: int = 0) -> torch.Tens
 
 
 class _Variant:
-    """One way of running a step: at ``threads`` torch threads; ``old_pool``: the antialias pooling as it was."""
+    """One way of running a step: at ``threads`` torch threads; ``old_pool``: the render as the PyTorch composition
+    (camera, shading, rasterize) with the antialias pooling by ``F.avg_pool2d``, not the native flat op."""
 
     def __init__(self, label: str, threads: int, old_pool: bool = False) -> None:
         self.label, self.threads, self.old_pool = label, threads, old_pool
@@ -279,15 +281,16 @@ class _Variant:
         from meshadv.render import renderer
 
         torch.set_num_threads(self.threads)
-        self._saved = renderer._downsample
+        self._saved = renderer._downsample, renderer.supports_flat_render
         if self.old_pool:
             renderer._downsample = _old_downsample
+            renderer.supports_flat_render = lambda *args: False
         return self
 
     def __exit__(self, *exc: Any) -> None:
         from meshadv.render import renderer
 
-        renderer._downsample = self._saved
+        renderer._downsample, renderer.supports_flat_render = self._saved
 
 
 def _variants(args: argparse.Namespace) -> List[_Variant]:

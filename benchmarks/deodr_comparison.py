@@ -120,19 +120,20 @@ def meshadv_renderer(verts: torch.Tensor, faces: torch.Tensor, size: int, antial
 
 
 @contextmanager
-def native_timer() -> Iterator[list[float]]:
-    """Adds the wall time of every call of the native functions ``NATIVE_CALLS`` to the yielded one-element list."""
+def native_timer(clock: Callable[[], float] = time.perf_counter) -> Iterator[list[float]]:
+    """Adds the time (by ``clock``) of every call of the native functions ``NATIVE_CALLS`` to the yielded
+    one-element list."""
     native = importlib.import_module("meshadv._raster")
     spent = [0.0]
     originals = {name: getattr(native, name) for name in NATIVE_CALLS}
 
     def timed(fn: Callable[..., Any]) -> Callable[..., Any]:
         def call(*args: Any, **kwargs: Any) -> Any:
-            t0 = time.perf_counter()
+            t0 = clock()
             try:
                 return fn(*args, **kwargs)
             finally:
-                spent[0] += time.perf_counter() - t0
+                spent[0] += clock() - t0
 
         return call
 
@@ -145,9 +146,11 @@ def native_timer() -> Iterator[list[float]]:
             setattr(native, name, fn)
 
 
-def compare(data: Path, rounds: int, with_deodr: bool) -> list[dict]:
-    """One row per (scene, antialias): medians (s) over ``rounds`` interleaved rounds of meshadv with NMR's and the
-    local gradient, DEODR's (``None`` without it), and the torch share of meshadv's calls."""
+def compare(data: Path, rounds: int, with_deodr: bool,
+            clock: Callable[[], float] = time.perf_counter) -> list[dict]:
+    """One row per (scene, antialias): medians (s, by ``clock``: wall or process CPU time) over ``rounds`` interleaved
+    rounds of meshadv with NMR's and the local gradient, DEODR's (``None`` without it), and the torch share of
+    meshadv's calls."""
     torch.set_num_threads(1)
     rows = []
     for kind, want, size in SCENES:
@@ -167,10 +170,10 @@ def compare(data: Path, rounds: int, with_deodr: bool) -> list[dict]:
                 run()
             for _ in range(rounds):
                 for name, run in runs.items():
-                    with native_timer() as spent:
-                        t0 = time.perf_counter()
+                    with native_timer(clock) as spent:
+                        t0 = clock()
                         run()
-                        times[name].append(time.perf_counter() - t0)
+                        times[name].append(clock() - t0)
                     if name in native:
                         native[name].append(spent[0])
             row: dict[str, Any] = {"scene": kind, "faces": int(faces.shape[0]), "size": size, "antialias": k}
@@ -199,8 +202,9 @@ def section(rows: list[dict], command: str, machine: str, deodr: str) -> str:
         "gradients of vertices and colours) with NMR's visibility gradient and with the local one "
         "(docs/LOCAL_GRADIENT.md), beside DEODR's forward + backward of the same scene (mesh, camera, image size; "
         "DEODR draws per-vertex colours with analytic silhouette antialiasing, its own image model). Interleaved "
-        "rounds, one thread (Rust `num_threads=1`, `torch.set_num_threads(1)`); medians. *torch share*: the part of "
-        "meshadv's call spent outside its native calls (camera, shading, image assembly, autograd).",
+        "rounds, one thread (Rust `num_threads=1`, `torch.set_num_threads(1)`); medians of wall time, or of process "
+        "CPU time with `--cpu-time`. *torch share*: the part of meshadv's call spent outside its native calls "
+        "(camera, shading, image assembly, autograd, and the loss's own multiply, sum and backward).",
         "",
         "**Command:**",
         "",

@@ -480,6 +480,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=Path(os.environ.get("MESHADV_DATA", Path(__file__).resolve()
                                                                        .parents[2] / "shared" / "data")),
                         help="--deodr: the shared data folder (the bunny)")
+    parser.add_argument("--cpu-time", action="store_true",
+                        help="--deodr: process CPU time instead of wall time (steadier on a busy machine; every "
+                             "renderer runs on one thread, so on a quiet one the two agree)")
     args = parser.parse_args(argv)
     if args.deodr:
         return run_deodr_comparison(args, argv)
@@ -557,7 +560,8 @@ def main(argv: list[str] | None = None) -> int:
         "",
         "Median wall time in ms. Mesh: bumpy UV sphere (about 1k/10k/100k faces) filling ~40% of the image, "
         "per-face colours, one directional light + ambient, views at azimuths spread over 0-315°.",
-        "* **meshadv**: `meshadv.render.render` (PyTorch camera + Lambert shading, Rust rasterizer, RGB + alpha), "
+        "* **meshadv**: `meshadv.render.render` (one native op for float32: camera projection, Lambert shading, "
+        "Rust rasterizer, RGB + alpha, and their adjoint), "
         "Rust `num_threads` = thr, `torch.set_num_threads(1)` for the small PyTorch part.",
         "* **torch**: the same camera + shading with the vectorised pure-PyTorch rasterizer "
         "(benchmarks/torch_reference_rasterizer.py: same hard image model; backward = exact attribute gradient plus "
@@ -623,7 +627,8 @@ def run_deodr_comparison(args: argparse.Namespace, argv: list[str] | None) -> in
     version, why = deodr_comparison.probe_deodr()
     print(f"deodr: {version or why}", flush=True)
     load_start = os.getloadavg()[0]
-    rows = deodr_comparison.compare(args.data, args.rounds, version is not None)
+    clock = time.process_time if args.cpu_time else time.perf_counter
+    rows = deodr_comparison.compare(args.data, args.rounds, version is not None, clock)
     info = machine_info()
     machine = (f"{info['cpu']}, {info['cores']} cores visible, shared (1-minute load {load_start:.1f} at the start, "
                f"{os.getloadavg()[0]:.1f} at the end); Python {info['python']}, PyTorch {info['torch']}, commit "

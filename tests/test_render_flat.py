@@ -164,3 +164,47 @@ def test_the_native_op_serves_float32_and_the_composition_float64(monkeypatch: p
     two = Camera.spherical(2.6, [40.0, 50.0], 20.0, far=[100.0, 50.0])
     out = render(verts, faces, colors, two, lights, 16)
     assert calls == ["flat"] and out.image.shape == (2, 3, 16, 16)
+
+
+def test_any_thread_count_gives_the_same_bits() -> None:
+    verts, faces = _sphere(1)
+    colors = torch.rand(faces.shape[0], 3, generator=torch.Generator().manual_seed(4))
+    cam = Camera.spherical(2.6, [10.0, 130.0, 250.0], 20.0)
+    grads = []
+    for threads in (1, 2, 3):
+        v = verts.expand(3, -1, -1).clone().requires_grad_(True)
+        c = colors.clone().requires_grad_(True)
+        out = render(v, faces, c, cam, Lights.default(cam), 32, antialias=2, num_threads=threads)
+        (out.image.sum() + out.alpha.mean()).backward()
+        grads.append((out.image, v.grad, c.grad))
+    for other in grads[1:]:
+        assert all(torch.equal(a, b) for a, b in zip(grads[0], other))
+
+
+def test_the_native_op_names_a_bad_argument() -> None:
+    import numpy as np
+
+    from meshadv.render.rasterize import _native
+
+    verts, faces = _sphere(0)
+    f32 = np.float32
+    args = {
+        "verts": verts.unsqueeze(0).numpy(), "faces": faces.int().numpy(),
+        "face_colors": np.full((1, faces.shape[0], 3), 0.5, f32), "rotation": np.eye(3, dtype=f32)[None],
+        "eye": np.array([[0.0, 0.0, -3.0]], f32), "scale": np.array([0.27], f32),
+        "light_directions": np.array([[[0.0, 0.0, -1.0]]], f32), "light_colors": np.full((1, 1, 3), 0.5, f32),
+        "ambient": np.full((1, 3), 0.5, f32), "background": np.ones(3, f32),
+    }
+    scalars = (1, 16, 16, 1, 0.1, 100.0, True, False)
+    image = _native().flat_render_forward(*args.values(), *scalars)[0]
+    assert image.shape == (1, 16, 16, 4) and image[..., 3].max() == 1.0
+    for name, bad, match in [
+        ("face_colors", np.full((1, faces.shape[0] + 1, 3), 0.5, f32), "face_colors"),
+        ("scale", np.array([0.0], f32), "scale"),
+        ("eye", np.array([[0.0, np.nan, -3.0]], f32), "eye"),
+        ("eye", np.array([[0.0, 0.0, 300.0]], f32), "camera: all geometry is behind"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            _native().flat_render_forward(*{**args, name: bad}.values(), *scalars)
+    with pytest.raises(TypeError, match="verts"):
+        _native().flat_render_forward(*{**args, "verts": args["verts"].astype(np.float64)}.values(), *scalars)

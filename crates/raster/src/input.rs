@@ -152,8 +152,10 @@ impl<'a> ScreenMesh<'a> {
 
 /// The first entry of a face-index map that is neither -1 nor a face in `0..num_faces`, if any.
 pub(crate) fn first_bad_face(face_index: &[i32], num_faces: usize) -> Option<usize> {
-    // Blocks of 64 values without branching (vectorised), then the first bad value is searched.
-    let bad = |f: i32| f < -1 || f as i64 >= num_faces as i64;
+    // Blocks of 64 values without branching (vectorised), then the first bad value is searched. `-1 <= f < M` is
+    // one unsigned comparison of `f + 1` (wrapping: `i32::MAX + 1` is out of range too).
+    let limit = u32::try_from(num_faces).unwrap_or(u32::MAX);
+    let bad = |f: i32| f.wrapping_add(1) as u32 > limit;
     let block_ok = |b: &[i32]| b.iter().fold(true, |ok, &f| ok & !bad(f));
     face_index
         .chunks(64)

@@ -129,9 +129,15 @@ impl Texture<'_> {
     fn cell(&self, u: f64, v: f64) -> Cell {
         let (c0, c1, fx) = self.axis(u * self.width as f64 - 0.5, self.width);
         let (r0, r1, fy) = self.axis((1.0 - v) * self.height as f64 - 0.5, self.height);
-        let at = |r: usize, c: usize| (r * self.width + c) * self.channels;
+        let (row0, row1) = (r0 * self.width, r1 * self.width);
+        let ch = self.channels;
         Cell {
-            offsets: [at(r0, c0), at(r0, c1), at(r1, c0), at(r1, c1)],
+            offsets: [
+                (row0 + c0) * ch,
+                (row0 + c1) * ch,
+                (row1 + c0) * ch,
+                (row1 + c1) * ch,
+            ],
             fx,
             fy,
         }
@@ -169,11 +175,10 @@ impl Texture<'_> {
             (1.0 - fx) * fy,
             fx * fy,
         ];
+        // In f32, the texels' precision.
+        let wts = wts.map(|w| w as f32);
         for (ch, o) in out[..c].iter_mut().enumerate() {
-            *o = (wts[0] * tx[0][ch] as f64
-                + wts[1] * tx[1][ch] as f64
-                + wts[2] * tx[2][ch] as f64
-                + wts[3] * tx[3][ch] as f64) as f32;
+            *o = wts[0] * tx[0][ch] + wts[1] * tx[1][ch] + wts[2] * tx[2][ch] + wts[3] * tx[3][ch];
         }
     }
 
@@ -200,21 +205,38 @@ impl Texture<'_> {
             fx * fy,
         ];
         // The cotangent's dot product with each texel's colour; the sample is bilinear in them.
-        let mut d = [0f64; 4];
+        let mut d32 = [0f32; 4];
         for (ch, &g) in grad[..c].iter().enumerate() {
-            let gc = g as f64;
-            for (dk, t) in d.iter_mut().zip(&tx) {
-                *dk += gc * t[ch] as f64;
+            for (dk, t) in d32.iter_mut().zip(&tx) {
+                *dk += g * t[ch];
             }
         }
+        let d = d32.map(|x| x as f64);
         let gx = (1.0 - fy) * (d[1] - d[0]) + fy * (d[3] - d[2]);
         let gy = (1.0 - fx) * (d[2] - d[0]) + fx * (d[3] - d[1]);
+        // Channels in pairs (two f64 lanes), the cotangent converted once.
+        let mut g = [[0f64; 2]; 2];
+        let paired = c <= 4;
+        for (ch, &x) in grad[..c.min(4)].iter().enumerate() {
+            g[ch / 2][ch % 2] = x as f64;
+        }
         for (&o, w) in cell.offsets.iter().zip(wts) {
             #[allow(unsafe_code)]
             // SAFETY: `o` is an offset of `cell_texels`, so `o + c <= texels.len() = grad_texels.len()`.
             let a = unsafe { grad_texels.get_unchecked_mut(o..o + c) };
-            for (a, &g) in a.iter_mut().zip(&grad[..c]) {
-                *a += w * g as f64;
+            if !paired {
+                for (a, &g) in a.iter_mut().zip(&grad[..c]) {
+                    *a += w * g as f64;
+                }
+                continue;
+            }
+            let mut chunks = a.chunks_exact_mut(2);
+            for (pair, g) in (&mut chunks).zip(&g) {
+                pair[0] += w * g[0];
+                pair[1] += w * g[1];
+            }
+            if let Some(last) = chunks.into_remainder().first_mut() {
+                *last += w * g[c / 2][0];
             }
         }
         // x = u W - 0.5, y = (1 - v) H - 0.5.
@@ -375,8 +397,14 @@ mod tests {
     #[test]
     fn gradients_match_finite_differences() {
         let mut rng = Rng(12);
-        for wrap in [Wrap::Repeat, Wrap::Clamp] {
-            let (h, w, c, n) = (4, 5, 3, 30);
+        for (wrap, c) in [
+            (Wrap::Repeat, 3),
+            (Wrap::Clamp, 3),
+            (Wrap::Repeat, 1),
+            (Wrap::Clamp, 2),
+            (Wrap::Repeat, 5),
+        ] {
+            let (h, w, n) = (4, 5, 30);
             let texels = random_texture(&mut rng, h, w, c);
             // UVs inside and outside [0, 1], away from texel centre lines (where the blend has a kink).
             let away = |t: f64| (0.05..0.95).contains(&t.rem_euclid(1.0));
