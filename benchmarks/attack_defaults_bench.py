@@ -1,11 +1,11 @@
-"""``meshadv attack``'s defaults against the same command with ``--eot N``, side by side, on PASCAL3D+ meshes.
+"""``meshadv attack``'s defaults against the same command with one option changed, side by side, on PASCAL3D+ meshes.
 
 Per (mesh, target) case it runs ``meshadv attack MESH --target T`` (the defaults: 5 views, ddn, 300 steps, MeshLab
-resampling, the default perceptibility cap, the held-out verdict) and the same with ``--eot N``, two runs at a time
-(one thread each), each stopped with Ctrl-C (SIGINT: the command saves its best result so far) after ``--budget``
-seconds; then ``meshadv transfer attack`` renders each result in Mitsuba (benign-controlled). Resumable: a run
-folder with a ``result.json`` (and ``transfer.json``) is not run again. Prints one markdown row per run and writes
-them to ``<out>/summary.json``.
+resampling, the default perceptibility cap, the held-out verdict) and the same with ``--eot N`` or
+``--visibility-gradient local``, two runs at a time (one thread each), each stopped with Ctrl-C (SIGINT: the command
+saves its best result so far) after ``--budget`` seconds; then ``meshadv transfer attack`` renders each result in
+Mitsuba (benign-controlled). Resumable: a run folder with a ``result.json`` (and ``transfer.json``) is not run
+again. Prints one markdown row per run and writes them to ``<out>/summary.json``.
 
 Example:
     python benchmarks/attack_defaults_bench.py --out runs/attack_defaults --eot 4 --budget 570
@@ -58,15 +58,17 @@ def _run(cmd: Sequence[str], log: Path, budget: float) -> Tuple[int, float]:
     return code, time.perf_counter() - start
 
 
-def run_case(mesh: str, target: str, variant: str, eot: int, out: Path, budget: float, spp: int) -> Dict[str, Any]:
-    """One run of ``meshadv attack`` and its Mitsuba transfer (skipped when already done); its summary row."""
+def run_case(mesh: str, target: str, variant: str, extra: Sequence[str], out: Path, budget: float,
+             spp: int) -> Dict[str, Any]:
+    """One run of ``meshadv attack`` (the defaults plus ``extra`` options) and its Mitsuba transfer (skipped when
+    already done); its summary row."""
     folder = out / f"{mesh.replace('/', '_')}_{variant}"
     folder.mkdir(parents=True, exist_ok=True)
     meshadv = [sys.executable, "-m", "meshadv"]
     wall: Optional[float] = None
     if not (folder / "result.json").is_file():
         cmd = [*meshadv, "attack", str(DATA / "pascal3d" / f"{mesh}.ply"), "--target", target, "--quiet",
-               "--threads", "1", "-o", str(folder)] + (["--eot", str(eot)] if eot else [])
+               "--threads", "1", "-o", str(folder), *extra]
         code, wall = _run(cmd, folder / "attack.log", budget)
         (folder / "wall.json").write_text(json.dumps({"exit_code": code, "wall_s": wall, "command": cmd}))
     if (folder / "result.json").is_file() and not (folder / "transfer.json").is_file():
@@ -132,19 +134,23 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     parser.add_argument("--spp", type=int, default=32, help="Mitsuba samples per pixel")
     parser.add_argument("--parallel", type=int, default=2, help="runs at a time")
     parser.add_argument("--cases", nargs="+", default=None, help="only these meshes of CASES (e.g. bottle/04)")
-    parser.add_argument("--variants", nargs="+", default=["default", "eot"], choices=["default", "eot"])
+    parser.add_argument("--variants", nargs="+", default=["default", "eot"], choices=["default", "eot", "local"],
+                        help="default: the defaults; eot: with --eot N; local: with --visibility-gradient local")
     parser.add_argument("--report", action="store_true", help="only summarise the finished folders")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     cases = [(m, t) for m, t in CASES if args.cases is None or m in args.cases]
-    variants = [("default", 0) if v == "default" else (f"eot{args.eot}", args.eot) for v in args.variants]
-    jobs = [(mesh, target, variant, eot) for mesh, target in cases for variant, eot in variants]
+    options = {"default": ("default", ()), "eot": (f"eot{args.eot}", ("--eot", str(args.eot))),
+               "local": ("local", ("--visibility-gradient", "local"))}
+    variants = [options[v] for v in args.variants]
+    jobs = [(mesh, target, variant, extra) for mesh, target in cases for variant, extra in variants]
     if args.report:
         rows = [summary_row(m, t, v, args.out / f"{m.replace('/', '_')}_{v}") for m, t, v, _ in jobs]
     else:
         with ThreadPoolExecutor(max_workers=args.parallel) as pool:
             rows = list(pool.map(lambda j: run_case(*j, out=args.out, budget=args.budget, spp=args.spp), jobs))
-    name = "summary.json" if args.cases is None and len(variants) == 2 else f"summary_eot{args.eot}_{len(rows)}.json"
+    name = ("summary.json" if args.cases is None and args.variants == ["default", "eot"]
+            else f"summary_{'_'.join(v for v, _ in variants)}_{len(rows)}.json")
     (args.out / name).write_text(json.dumps(rows, indent=2))
     print(markdown(rows))
 

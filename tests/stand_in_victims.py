@@ -45,3 +45,19 @@ class PooledLinearClassifier(ClassifierVictim):
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         x = F.avg_pool2d(self.resize(images), 8).flatten(1)  # (B, 48)
         return x @ self.weight.t() + self.bias
+
+
+class ColourClassifier(ClassifierVictim):
+    """Stand-in ImageNet classifier that reads colour: the logit of ``classes[c]`` is 10 x the mean of channel ``c``
+    (red, green, blue), every other logit 0. A flat red image is ``classes[0]``, a flat green one ``classes[1]``, a
+    flat blue one ``classes[2]``: the top-1 of a test's images is chosen by their colour.
+    """
+
+    def __init__(self, classes: tuple = (404, 895, 340)) -> None:
+        super().__init__("colour", (8, 8))
+        self.classes = tuple(int(c) for c in classes)
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        means = self.resize(images).mean(dim=(2, 3))  # (B, 3)
+        logits = torch.zeros(images.shape[0], 1000, dtype=means.dtype, device=means.device)
+        return logits.index_copy(1, torch.tensor(self.classes, device=means.device), 10 * means)

@@ -30,7 +30,8 @@ class BenignCheck:
     Attributes:
         source: the class the benign mesh should be, or ``None`` when unknown (then nothing is checked for it).
         top1: per view, the victim's top-1 class name on the benign render (empty for detectors).
-        source_correct: per view, the benign render is ``source`` (classifiers with a known source), else ``None``.
+        source_correct: per view, the benign render is ``source``: its top-1 is in ``source``'s class group
+            (:func:`~meshadv.attacks.criteria.resolve_true_class`; classifiers with a known source), else ``None``.
         adversarial: per criterion, per view: the criterion already holds on the benign render.
         success_fraction: the attack's fraction of views that must hold.
     """
@@ -40,6 +41,9 @@ class BenignCheck:
     source_correct: Optional[Tuple[bool, ...]]
     adversarial: Tuple[Tuple[bool, ...], ...]
     success_fraction: float = 1.0
+    #: the PASCAL3D+ class group ``source`` stands for (``"aeroplane"`` for ``"airliner"``), ``None`` when it
+    #: stands for itself alone or is unknown.
+    source_group: Optional[str] = None
 
     @property
     def wrong_views(self) -> List[int]:
@@ -51,6 +55,13 @@ class BenignCheck:
         """Per criterion: it holds on at least ``success_fraction`` of the benign views (the attack has nothing to
         do for it)."""
         return [bool(enough_views(sum(row) / len(row), self.success_fraction)) for row in self.adversarial]
+
+    def describe_source(self) -> str:
+        """``source``, with the class group it stands for when that has another name (``"airliner (or any class
+        of its group aeroplane)"``)."""
+        if self.source_group is None or self.source_group == str(self.source).strip().lower():
+            return str(self.source)
+        return f"{self.source} (or any class of its group {self.source_group})"
 
     def describe_wrong(self) -> str:
         """``"views 1, 3 (top-1: studio couch, folding chair)"`` for the views whose benign render is not the
@@ -81,7 +92,10 @@ def check_benign(mesh: Any, views: Any, victim: Any, criteria: Sequence[Criterio
         views: the attack's ``ViewSet``.
         victim: the victim.
         criteria: the attack's criteria.
-        source: the class the mesh should be (a classifier victim's class spec, e.g. a PASCAL3D+ name), or ``None``.
+        source: the class the mesh should be (a classifier victim's class spec, e.g. a PASCAL3D+ name), or ``None``;
+            a view is right when its top-1 is in the class group of ``source``
+            (:func:`~meshadv.attacks.criteria.resolve_true_class`: one ImageNet class of a PASCAL3D+ group stands for
+            the whole group, a class of no group for itself alone).
         setup: the attack's render setup.
         success_fraction: the attack's fraction of views that must hold.
 
@@ -93,8 +107,12 @@ def check_benign(mesh: Any, views: Any, victim: Any, criteria: Sequence[Criterio
     """
     classifier = getattr(victim, "kind", "classifier") == "classifier"
     checks = list(criteria)
+    group = None
     if classifier and source is not None:
-        checks = [Misclassification(source), *checks]
+        from meshadv.victims.labels import PASCAL3D_TO_IMAGENET
+
+        true = Misclassification(source).bind(victim)
+        checks, group = [true, *checks], (true.name if true.name in PASCAL3D_TO_IMAGENET else None)
     scored = evaluate(mesh, views, victim, checks, setup=setup)
     rows = [tuple(bool(x) for x in row) for row in (scored.margins > 0).tolist()]
     names = tuple(getattr(victim, "class_names", ()) or ())
@@ -105,4 +123,4 @@ def check_benign(mesh: Any, views: Any, victim: Any, criteria: Sequence[Criterio
     if classifier and source is not None:
         correct = tuple(not x for x in rows[0])
         rows = rows[1:]
-    return BenignCheck(source if classifier else None, top1, correct, tuple(rows), success_fraction)
+    return BenignCheck(source if classifier else None, top1, correct, tuple(rows), success_fraction, group)

@@ -13,6 +13,11 @@ Classes can be given as an ImageNet index (``340``), an ImageNet class name (``"
 of the name also matches), a PASCAL3D+ class (``"boat"`` -> every ImageNet index of the group) or a list of indices
 (a custom group). A group counts as predicted when the top-1 class is one of its members.
 
+A *true* class (the class a render should be: :class:`Misclassification`, the benign checks, untargeted transfer)
+is resolved by :func:`resolve_true_class`, the one definition of "is this render its class": one ImageNet class of a
+PASCAL3D+ group stands for the whole group (``"airliner"`` -> airliner and warplane), so a render whose top-1 moves
+inside the group is still its class. A target stays the class it names.
+
 Example:
     >>> crit = TargetedMisclassification("bicycle").bind(victim)    # doctest: +SKIP
     >>> crit.margin(victim(images)) > 0          # adversarial?        # doctest: +SKIP
@@ -39,6 +44,7 @@ __all__ = [
     "Disappearance",
     "WithMargin",
     "resolve_imagenet_classes",
+    "resolve_true_class",
     "as_criteria",
 ]
 
@@ -81,6 +87,42 @@ def resolve_imagenet_classes(spec: ClassSpec, name: str = "class") -> Tuple[Tupl
         raise ValueError(f"{name} indices must be in [0, {len(names)}), got {list(idx)}")
     label = names[idx[0]] if len(idx) == 1 else "group(" + ",".join(str(i) for i in idx) + ")"
     return idx, label
+
+
+def resolve_true_class(spec: ClassSpec, name: str = "true_class") -> Tuple[Tuple[int, ...], str]:
+    """The ImageNet classes a render of true class ``spec`` counts as: the one definition of "is this render its
+    class", behind every untargeted-success, benign-correct and misclassified verdict.
+
+    * a PASCAL3D+ class name -> its group (:data:`~meshadv.victims.labels.PASCAL3D_TO_IMAGENET`), label the name;
+    * one ImageNet class (index, digit string, name or synonym) that belongs to a PASCAL3D+ group -> that whole
+      group, label the PASCAL3D+ name (``"airliner"``, ``895`` -> ``((404, 895), "aeroplane")``);
+    * one ImageNet class of no group -> that class alone (the fallback: nothing else counts as it);
+    * a sequence of indices -> exactly those (a custom group; ``[404]`` is the airliner alone).
+
+    Args:
+        spec: the true class, see :data:`ClassSpec`.
+        name: argument name used in error messages.
+
+    Returns:
+        ``(indices, label)``.
+
+    Raises:
+        ValueError: unknown name or index out of ``[0, 1000)``.
+
+    Example:
+        >>> resolve_true_class("warplane")
+        ((404, 895), 'aeroplane')
+        >>> resolve_true_class("zebra")
+        ((340,), 'zebra')
+    """
+    from meshadv.victims.labels import PASCAL3D_TO_IMAGENET, pascal_class_of
+
+    idx, label = resolve_imagenet_classes(spec, name)
+    single = isinstance(spec, (int, str)) and not isinstance(spec, bool)
+    group = pascal_class_of(idx[0]) if single and len(idx) == 1 else None
+    if group is None:
+        return idx, label
+    return tuple(PASCAL3D_TO_IMAGENET[group]), group
 
 
 def as_criteria(criterion: Any) -> List["Criterion"]:
@@ -204,6 +246,8 @@ class _ClassCriterion(Criterion):
     victim_kind: ClassVar[str] = "classifier"
     #: The name of the class-spec field (and of the argument in error messages and records).
     spec_field: ClassVar[str] = ""
+    #: How :meth:`bind` resolves the class spec, ``(spec, name) -> (indices, label)``.
+    _resolve: ClassVar[Callable[..., Tuple[Tuple[int, ...], str]]] = staticmethod(resolve_imagenet_classes)
     #: The ``"ce"`` and ``"cw"`` losses of the criterion, ``(logits, classes[, kappa]) -> (B,)``.
     _cross_entropy: ClassVar[Callable[..., Tensor]]
     _cw_margin: ClassVar[Callable[..., Tensor]]
@@ -217,7 +261,7 @@ class _ClassCriterion(Criterion):
     def bind(self, victim: Any) -> Any:
         """Resolve the class spec against the ImageNet label set (see :class:`Criterion`)."""
         self.check_victim(victim)
-        idx, label = resolve_imagenet_classes(self._spec, self.spec_field)
+        idx, label = type(self)._resolve(self._spec, self.spec_field)
         return replace(self, indices=idx, name=label)  # type: ignore[type-var]
 
     def _bound(self) -> Tuple[int, ...]:
@@ -271,6 +315,10 @@ class TargetedMisclassification(_ClassCriterion):
 class Misclassification(_ClassCriterion):
     """Untargeted: adversarial when the top-1 class is not the true class (nor any member of the true group).
 
+    The true class is resolved by :func:`resolve_true_class`: one member of a PASCAL3D+ group stands for the whole
+    group (``Misclassification("airliner")`` is not adversarial where the top-1 is a warplane); a class of no group
+    is itself alone; ``[index]`` names one class exactly.
+
     Losses: ``"ce"`` minus the (grouped) cross-entropy of the true class; ``"cw"`` C&W untargeted margin.
 
     Args:
@@ -278,6 +326,7 @@ class Misclassification(_ClassCriterion):
     """
 
     spec_field: ClassVar[str] = "true_class"
+    _resolve = staticmethod(resolve_true_class)
     _cross_entropy = staticmethod(losses.untargeted_cross_entropy)
     _cw_margin = staticmethod(losses.cw_untargeted_margin)
     true_class: ClassSpec

@@ -28,7 +28,8 @@ def benign_gate(mesh: Any, views: Any, victim: Any, criteria: Sequence[Any], *, 
                 success_fraction: float, go_on: bool) -> List[Any]:
     """Check the benign mesh on the attack's views and return the criteria still worth attacking.
 
-    Prints the benign top-1 per view; when the render is not ``source`` on some views, ends the command with exit
+    Prints the benign top-1 per view; when the render is not ``source`` (its top-1 outside ``source``'s class group,
+    :func:`meshadv.attacks.criteria.resolve_true_class`) on some views, ends the command with exit
     status 1 unless ``go_on`` (then it warns); prints which targets already hold and leaves them out; ends with exit
     status 0 and "nothing to do" when every target already holds.
 
@@ -42,7 +43,8 @@ def benign_gate(mesh: Any, views: Any, victim: Any, criteria: Sequence[Any], *, 
     if check.top1:
         typer.echo("benign top-1 per view: " + ", ".join(check.top1))
     if check.wrong_views:
-        message = (f"the benign render is not {source} on {check.describe_wrong()} of the {len(views)} attack views: "
+        message = (f"the benign render is not {check.describe_source()} on {check.describe_wrong()} of the "
+                   f"{len(views)} attack views: "
                    "an attack there shows nothing about the victim")
         if not go_on:
             typer.echo(f"Error: {message}; pass --benign-wrong-ok to attack anyway (or --source CLASS if the mesh is "

@@ -176,10 +176,12 @@ def captions_for(victim: Any, images: Any) -> Tuple[List[str], Any]:
         return captions, None
 
 
-def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, title: str) -> Path:
+def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, title: str, *,
+                         source_class: Optional[str] = None) -> Path:
     """What ``meshadv attack`` and ``meshadv demo`` add to ``AttackResult.save``: ``comparison.png``, the
     adversarial mesh in the input file's frame, the benign (attacked, normalised) mesh as ``benign.ply`` (and as
-    ``benign.obj`` with its texture or vertex colours), and the input (path, Z-up, transform) in ``result.json``.
+    ``benign.obj`` with its texture or vertex colours), and the input (path, Z-up, transform, the source class) in
+    ``result.json``.
 
     Args:
         result: the saved ``AttackResult`` (its folder is ``output``).
@@ -187,6 +189,8 @@ def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, ti
         output: the result folder.
         loaded: the ``MeshInput`` the attack started from.
         title: the comparison image's title line.
+        source_class: the class the benign mesh is (what the benign check checked; ``meshadv transfer attack``
+            judges untargeted transfer against it), or ``None`` when unknown.
 
     Returns:
         The comparison image's path.
@@ -205,7 +209,7 @@ def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, ti
     record = json.loads((output / "result.json").read_text(encoding="utf-8"))
     entry = {"mesh": loaded.label, "path": None if loaded.path is None else str(loaded.path), "z_up": loaded.z_up,
              "normalize_transform": None if loaded.transform is None else loaded.transform.to_dict(),
-             "input_frame_meshes": []}
+             "source_class": source_class, "input_frame_meshes": []}
     if loaded.transform is not None:
         for t, mesh in enumerate(result.adversarial):
             stem = "adversarial" if len(result.adversarial) == 1 else f"adversarial_t{t}"

@@ -356,8 +356,8 @@ def attack(
         raise typer.BadParameter(str(exc)) from exc
     typer.echo(f"mesh {label}: {mesh_obj.num_vertices} vertices, {mesh_obj.num_faces} faces; "
                f"{attack_obj!r}")
-    criteria = benign_gate(mesh_obj, view_set, victim_obj, criteria, setup=setup,
-                           source=source_class(source, untargeted, loaded.path),
+    source = source_class(source, untargeted, loaded.path)
+    criteria = benign_gate(mesh_obj, view_set, victim_obj, criteria, setup=setup, source=source,
                            success_fraction=attack_obj.success_fraction, go_on=benign_wrong_ok)
     result = run_with_progress(attack_obj, mesh_obj, view_set, victim_obj, criteria, eval_views=held_out,
                                setup=setup, quiet=quiet)
@@ -365,7 +365,7 @@ def attack(
     status = "succeeded" if bool(result.succeeded[0]) else "did not succeed"
     comparison = write_attack_outputs(result, victim_obj, output, loaded,
                                       f"{label}: {perturbation} attack ({result.criteria[0].get('label', '')}) "
-                                      f"{status} ({result.steps} steps)")
+                                      f"{status} ({result.steps} steps)", source_class=source)
     typer.echo(result.summary())
     if held_out is not None:
         verdict = (f"SUCCESS needs the target on >= {100 * held_out_fraction:.0f}% of them"

@@ -138,12 +138,11 @@ def demo(
     (--weights STATE_DICT.pth)."""
     import torch
 
-    from meshadv.attacks import TargetedMisclassification
+    from meshadv.attacks import Misclassification, TargetedMisclassification
     from meshadv.commands._comparison import captions_for, distortion_line, write_attack_outputs
     from meshadv.commands.attack import run_with_progress
     from meshadv.render import RenderSetup, render_views
     from meshadv.victims import load_victim
-    from meshadv.victims.labels import classify_pascal
 
     torch.manual_seed(seed)
     perceptibility_cap = parse_cap(cap)
@@ -170,9 +169,9 @@ def demo(
     typer.echo(f"{label} ({mesh_obj.num_faces} faces), {views} views at {size} px; {victim} sees: "
                + "; ".join(captions))
     if subject.pascal_class is not None:
-        seen = classify_pascal(logits)
-        right = sum(s == subject.pascal_class for s in seen)
-        typer.echo(f"  a {subject.pascal_class}: classified correctly in {right}/{len(seen)} views before the attack")
+        wrong = Misclassification(subject.pascal_class).bind(model).is_adversarial(logits)
+        right = int((~wrong).sum())
+        typer.echo(f"  a {subject.pascal_class}: classified correctly in {right}/{len(wrong)} views before the attack")
     goal = target if target is not None else runner_up
     goal_name = target if target is not None else names[runner_up]
     typer.echo(f"target: '{goal_name}'")
@@ -183,7 +182,8 @@ def demo(
     path = result.save(output)
     status = "succeeded" if bool(result.succeeded[0]) else "did not succeed"
     comparison = write_attack_outputs(result, model, output, loaded,
-                                      f"{label}: shape attack towards '{goal_name}' {status} ({result.steps} steps)")
+                                      f"{label}: shape attack towards '{goal_name}' {status} ({result.steps} steps)",
+                                      source_class=subject.pascal_class)
     typer.echo(result.summary())
     typer.echo(distortion_line(result.distances[0], result.perturbation))
     typer.echo(f"wrote {path} and {comparison}")

@@ -261,15 +261,17 @@ class JobContext:
         )
 
     def benign_verdict(self, mesh: Any) -> BenignVerdict:
-        """Judge ``mesh``'s benign render as the attack renders it: the job's check before it attacks."""
-        from meshadv.attacks import TargetedMisclassification, evaluate
+        """Judge ``mesh``'s benign render as the attack renders it: the job's check before it attacks. Right on a
+        view when the top-1 is in the source class's group (:func:`~meshadv.attacks.criteria.resolve_true_class`:
+        any ImageNet class of a PASCAL3D+ class's group; a class of no group itself alone)."""
+        from meshadv.attacks import Misclassification, evaluate
 
-        benign = evaluate(mesh, self.views, self.victim, TargetedMisclassification(self.spec["source_class"]),
+        benign = evaluate(mesh, self.views, self.victim, Misclassification(self.spec["source_class"]),
                           setup=self.setup)
         names = getattr(self.victim, "class_names", None)
         top1 = benign.top1[0].tolist() if benign.top1 is not None else []
         labels = [names[i] if names and i < len(names) else str(i) for i in top1]
-        return BenignVerdict(correct=bool(benign.success.all()), top1=labels, images=benign.images[0])
+        return BenignVerdict(correct=not bool(benign.success.any()), top1=labels, images=benign.images[0])
 
 
 def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:

@@ -1,4 +1,5 @@
-"""meshadv.render: differentiable mesh rendering (PyTorch camera and shading, Rust rasterizer).
+"""meshadv.render: differentiable mesh rendering (PyTorch camera and shading, Rust rasterizer; one native op for
+the whole flat render of float32 CPU meshes, :mod:`meshadv.render.flat`).
 
 Public API: :class:`Camera`, :class:`Lights`, :class:`ViewSet`, :func:`render`, :func:`render_silhouette`,
 :class:`RenderOutput`, :func:`rasterize`, :class:`RasterOutput`, :func:`face_normals`, :func:`shade`, the names of

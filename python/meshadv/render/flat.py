@@ -97,7 +97,8 @@ class _FlatRenderOp(torch.autograd.Function):
         )
         rgba = torch.from_numpy(image).permute(0, 3, 1, 2)
         index_t, depth_t = torch.from_numpy(face_index), torch.from_numpy(depth)
-        ctx.spec, ctx.arrays = spec, arrays
+        ctx.spec = spec
+        ctx.save_for_backward(verts, colors, rotation, eye, scale, directions, light_colors, ambient)
         ctx.raster = (verts_screen, attrs, face_index, image if full is None else full)
         ctx.mark_non_differentiable(index_t, depth_t)
         ctx.set_materialize_grads(False)
@@ -112,7 +113,7 @@ class _FlatRenderOp(torch.autograd.Function):
         spec: _Spec = ctx.spec
         need_verts = any(needs[i] for i in (0, 2, 3, 4))
         cot = [None if g is None else g.detach().to(torch.float32).numpy() for g in (grad_image, grad_alpha)]
-        v, c, r, e, s, d, lc, a = ctx.arrays
+        v, c, r, e, s, d, lc, a = (_np(t) for t in ctx.saved_tensors)
         grads = _native().flat_render_backward(
             v, spec.faces, c, r, e, s, d, lc, a, *spec.scalars(), *ctx.raster, cot[0], cot[1],
             edge_weight=spec.edge_weight, need_verts=need_verts, sweep_radius=spec.sweep_radius,

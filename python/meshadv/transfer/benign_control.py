@@ -54,7 +54,7 @@ class BenignVerdicts:
     """The victim on Mitsuba's renders of the benign mesh, per view.
 
     Attributes:
-        correct: the victim's top-1 is the true class (not untargeted-adversarial).
+        correct: the victim's top-1 is in the true class's group (not untargeted-adversarial).
         top1: the victim's top-1 class names.
     """
 
@@ -63,8 +63,8 @@ class BenignVerdicts:
 
 
 def benign_verdicts(victim: Any, images: Sequence[MitsubaImage], untargeted: Any) -> BenignVerdicts:
-    """Score Mitsuba's benign renders: per view, whether the victim's top-1 is the true class of the bound
-    ``untargeted`` criterion, and its top-1 name."""
+    """Score Mitsuba's benign renders: per view, whether the victim's top-1 is in the true class group of the bound
+    ``untargeted`` criterion (a benign warplane render of an aeroplane is right), and its top-1 name."""
     with torch.no_grad():
         logits = victim(images_tensor(images))
     wrong = untargeted.is_adversarial(logits).tolist()

@@ -23,7 +23,7 @@ import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Collection, Optional, Sequence, Union
+from typing import Any, Callable, Collection, Mapping, Optional, Sequence, Union
 
 import torch
 
@@ -47,7 +47,8 @@ from meshadv.victims import load_victim
 
 __all__ = [
     "INDEX_COLUMNS", "TransferCase", "case_from_attack_folder", "case_name", "cases_from_store", "controlled_transfer",
-    "evaluate_case", "mitsuba_specs_for_case", "pending_cases", "save_images", "transfer_attack_folder",
+    "evaluate_case", "mitsuba_specs_for_case", "pending_cases", "save_images", "source_class_of_record",
+    "transfer_attack_folder",
     "transfer_attack_summary", "transfer_case_into", "write_image_index",
 ]
 
@@ -65,7 +66,10 @@ class TransferCase:
         mesh: the adversarial ``meshadv.mesh.Mesh``.
         views: ``ViewSet.to_records()`` records of the views (camera + lights).
         victim: victim name (``meshadv.victims.load_victim``).
-        true_class: the class of the benign object (PASCAL3D+ name or ImageNet spec).
+        true_class: the class of the benign object (PASCAL3D+ name or ImageNet spec); a render is this class when
+            the victim's top-1 is in its class group (:func:`~meshadv.attacks.criteria.resolve_true_class`: one
+            ImageNet class of a PASCAL3D+ group stands for the whole group, a class of no group for itself alone),
+            for the untargeted verdicts and the benign control alike.
         target: the target class of a targeted attack, or None for an untargeted one.
         perturbation: ``"shape"`` or ``"texture"``.
         image_size: (H, W) of the renders.
@@ -379,7 +383,7 @@ class _Verdicts:
     """One renderer's verdicts on the views of a case.
 
     Attributes:
-        untargeted: per view, the victim's top-1 is outside the true class.
+        untargeted: per view, the victim's top-1 is outside the true class's group.
         targeted: per view, the case's success: targeted for a targeted case, else ``untargeted``.
         top1: per view, the victim's top-1 class name.
     """
@@ -549,9 +553,10 @@ def case_from_attack_folder(folder: Union[str, Path]) -> TransferCase:
     """The :class:`TransferCase` of a saved ``meshadv attack`` result: its first adversarial mesh (a textured or
     vertex-coloured one with its texture or colours and the attack's shading), its views, victim, classes and setup.
 
-    The benign object's class is the victim's pristine top-1 on the first view (what the attack moved away from);
-    the benign mesh (the control rendered by Mitsuba too) is the folder's ``benign.ply``, else the input mesh the
-    record names, loaded again.
+    The benign object's class is :func:`source_class_of_record`'s (the class the attack's benign check checked,
+    else the untargeted attack's true class, else the PASCAL3D+ folder of the input mesh, else the victim's pristine
+    top-1 on the first view), judged as its class group; the benign mesh (the control rendered by Mitsuba too) is
+    the folder's ``benign.ply``, else the input mesh the record names, loaded again.
 
     Raises:
         FileNotFoundError: ``folder`` holds no ``result.json`` or its mesh is missing.
@@ -574,7 +579,7 @@ def case_from_attack_folder(folder: Union[str, Path]) -> TransferCase:
         mesh=adversarial,
         views=tuple(record["views"]),
         victim=record["victim"],
-        true_class=record["original_top1_names"][0],
+        true_class=source_class_of_record(record),
         target=criterion.get("target_class"),
         perturbation=record.get("perturbation", ""),
         image_size=tuple(config.get("image_size") or (224, 224)),
@@ -583,6 +588,34 @@ def case_from_attack_folder(folder: Union[str, Path]) -> TransferCase:
         antialias=int(config.get("antialias") or 1),
         benign_mesh=benign_mesh_of_attack_folder(Path(folder), record, int(adversarial.vertices.shape[0])),
     )
+
+
+def source_class_of_record(record: Mapping[str, Any]) -> str:
+    """The class the benign object of a saved classifier attack (its ``result.json`` ``record``) is: the source
+    class its benign check checked (``input.source_class``: ``--source``, ``--untargeted``'s class or the PASCAL3D+
+    folder), else an untargeted criterion's true class, else the PASCAL3D+ class of the input mesh's folder, else the
+    victim's top-1 on the benign mesh's first view. Untargeted verdicts read it as its class group
+    (:func:`~meshadv.attacks.criteria.resolve_true_class`), so a top-1 of ``"airliner"`` stands for the aeroplane.
+
+    Raises:
+        ValueError: the record names none of them (not a classifier attack).
+    """
+    from meshadv.attacks.benign import source_class_of_path
+    from meshadv.data import PASCAL3D_CLASSES
+
+    entry = record.get("input") or {}
+    if entry.get("source_class"):
+        return str(entry["source_class"])
+    for criterion in record.get("criteria") or []:
+        if criterion.get("true_class") is not None:
+            return str(criterion["true_class"])
+    from_folder = source_class_of_path(entry.get("path"), PASCAL3D_CLASSES)
+    if from_folder is not None:
+        return from_folder
+    top1 = record.get("original_top1_names") or []
+    if not top1:
+        raise ValueError("the result names no source class and no benign top-1 (not a classifier attack)")
+    return str(top1[0])
 
 
 def transfer_attack_folder(folder: Union[str, Path], *, spp: int = 64, max_depth: int = 8,

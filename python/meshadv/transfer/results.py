@@ -422,8 +422,9 @@ class ControlledResult:
         view: index of the view in the case's views.
         success_meshadv: the attack succeeds on meshadv's render of the adversarial mesh.
         success_mitsuba: the attack succeeds on Mitsuba's render.
-        untargeted_meshadv: meshadv's top-1 is outside the true class.
-        untargeted_mitsuba: Mitsuba's top-1 is outside the true class.
+        untargeted_meshadv: meshadv's top-1 is outside the true class's group
+            (:func:`~meshadv.attacks.criteria.resolve_true_class`).
+        untargeted_mitsuba: Mitsuba's top-1 is outside the true class's group.
         top1_meshadv: the victim's top-1 class name on meshadv's render.
         top1_mitsuba: the victim's top-1 class name on Mitsuba's render.
         mean_abs_image_difference: mean absolute difference of the two renders (linear values in [0, 1]).

@@ -17,7 +17,10 @@ __all__ = ["class_names", "classifier_criteria", "detection_scores", "images_ten
 
 def classifier_criteria(victim: Any, true_class: str, target: Optional[str]) -> tuple[Any, Optional[Any]]:
     """The untargeted criterion of ``true_class`` and, when ``target`` is given, the targeted one, bound to
-    ``victim`` (a classifier).
+    ``victim`` (a classifier). The untargeted one holds where the top-1 leaves ``true_class``'s class group
+    (:func:`~meshadv.attacks.criteria.resolve_true_class`: ``"airliner"`` and ``"aeroplane"`` alike are the
+    airliner and the warplane), the one definition of "is this render its class" behind every untargeted and
+    benign-control verdict of the transfer.
 
     Raises:
         ValueError: ``victim`` is not a classifier, or a class it does not know.

@@ -1,7 +1,9 @@
 """Class names (ImageNet-1k, COCO) and the PASCAL3D+ -> ImageNet class groups used to score classifiers.
 
 A rendering of a PASCAL3D+ class ``c`` counts as classified as ``c`` when the top-1 ImageNet label lies in
-``PASCAL3D_TO_IMAGENET[c]``. The groups (ImageNet index: name):
+``PASCAL3D_TO_IMAGENET[c]``, and a true class given as one member of a group stands for its whole group (an
+airliner seen as a warplane is still an aeroplane): :func:`meshadv.attacks.criteria.resolve_true_class` is that
+rule, and every "is this render its class" verdict goes through it. The groups (ImageNet index: name):
 
 - aeroplane: 404 airliner, 895 warplane
 - bicycle: 444 bicycle-built-for-two, 671 mountain bike
@@ -45,6 +47,7 @@ __all__ = [
     "group_scores",
     "imagenet_class_names",
     "imagenet_index",
+    "pascal_class_of",
 ]
 
 
@@ -69,6 +72,21 @@ PASCAL3D_TO_COCO: dict[str, str] = {
     "diningtable": "dining table",
     "sofa": "couch",
 }
+
+
+@cache
+def _pascal_of_index() -> dict[int, str]:
+    return {i: name for name, idx in PASCAL3D_TO_IMAGENET.items() for i in idx}
+
+
+def pascal_class_of(index: int) -> str | None:
+    """The PASCAL3D+ class whose ImageNet group holds ImageNet class ``index``, or ``None`` when no group does.
+
+    Example:
+        >>> pascal_class_of(895), pascal_class_of(340)
+        ('aeroplane', None)
+    """
+    return _pascal_of_index().get(int(index))
 
 
 def _read_names(filename: str) -> tuple[str, ...]:
@@ -175,8 +193,7 @@ def classify_pascal(logits: Tensor) -> str | None | list[str | None]:
     """
     if logits.dim() not in (1, 2) or logits.shape[-1] != 1000:
         raise ValueError(f"logits must have shape (1000,) or (B, 1000), got {tuple(logits.shape)}")
-    lookup = {i: name for name, idx in PASCAL3D_TO_IMAGENET.items() for i in idx}
     top1 = logits.detach().argmax(dim=-1)
     if logits.dim() == 1:
-        return lookup.get(int(top1))
-    return [lookup.get(int(i)) for i in top1.tolist()]
+        return pascal_class_of(int(top1))
+    return [pascal_class_of(i) for i in top1.tolist()]

@@ -9,7 +9,8 @@ from typing import Union
 import torch
 
 from meshadv.victims.victim import ClassifierVictim, DetectorVictim, Victim
-from meshadv.victims.labels import PASCAL3D_TO_COCO, PASCAL3D_TO_IMAGENET
+from meshadv.attacks.criteria import Misclassification
+from meshadv.victims.labels import PASCAL3D_TO_COCO
 
 __all__ = ["Judge", "resolve_victims"]
 
@@ -19,7 +20,8 @@ class Judge:
     """One victim's verdict on images of a PASCAL3D+ class.
 
     Attributes:
-        victim: a classifier (right when its top-1 ImageNet label is in the class's group) or a detector (right when
+        victim: a classifier (right when its top-1 ImageNet label is in the class's group:
+            :func:`~meshadv.attacks.criteria.resolve_true_class`) or a detector (right when
             it finds the class's COCO label with a score of at least ``threshold``).
         threshold: the detector score threshold.
         imagenet_names: the 1000 ImageNet class names, for a classifier's predictions.
@@ -38,9 +40,10 @@ class Judge:
         """
         with torch.no_grad():
             if isinstance(self.victim, ClassifierVictim):
-                top1 = self.victim(images).argmax(dim=1).tolist()
-                group = set(PASCAL3D_TO_IMAGENET[cls])
-                return [i in group for i in top1], [self.imagenet_names[i] for i in top1]
+                logits = self.victim(images)
+                wrong = Misclassification(cls).bind(self.victim).is_adversarial(logits).tolist()
+                top1 = logits.argmax(dim=1).tolist()
+                return [not w for w in wrong], [self.imagenet_names[i] for i in top1]
             if isinstance(self.victim, DetectorVictim):
                 label = self.victim.class_index(PASCAL3D_TO_COCO[cls])
                 scores = self.victim(images).scores()
