@@ -69,16 +69,32 @@ struct UvRow {
 }
 
 impl UvRow {
-    /// `(1 / Q, uv)` at column `u` of the row.
+    /// `(Q, N_u, N_v)` at column `u` of the row.
     #[inline(always)]
-    fn at(&self, u: f64) -> (f64, f64, f64) {
-        let inv = 1.0 / (self.q[0] + self.q[1] * u);
-        (
-            inv,
-            (self.nu[0] + self.nu[1] * u) * inv,
-            (self.nv[0] + self.nv[1] * u) * inv,
-        )
+    fn at(&self, u: f64) -> [f64; 3] {
+        [
+            self.q[0] + self.q[1] * u,
+            self.nu[0] + self.nu[1] * u,
+            self.nv[0] + self.nv[1] * u,
+        ]
     }
+
+    /// The change of [`UvRow::at`] from one column to the next.
+    #[inline(always)]
+    fn step(&self) -> [f64; 3] {
+        [self.q[1], self.nu[1], self.nv[1]]
+    }
+}
+
+/// `(1 / Q, uv)` of the plane values `(Q, N_u, N_v)`, and the values stepped to the next column.
+#[inline(always)]
+fn uv_and_step(p: &mut [f64; 3], step: &[f64; 3]) -> (f64, f64, f64) {
+    let inv = 1.0 / p[0];
+    let out = (inv, p[1] * inv, p[2] * inv);
+    for (x, d) in p.iter_mut().zip(step) {
+        *x += d;
+    }
+    out
 }
 
 /// The runs of equal entries of a line of fragments: `(start, end, face)` with `fi[start..end]` all `face`.
@@ -232,8 +248,10 @@ fn sample_line<const C: usize>(
             continue;
         }
         let row = drawn.uv[drawn.slot[f as usize] as usize].row(v);
-        for (j, px) in (start..end).zip(dst[start * c..end * c].chunks_exact_mut(c)) {
-            let (_, s, t) = row.at(j as f64);
+        // Along the run the planes are stepped by their slopes, as in the backward pass.
+        let (mut p, step) = (row.at(start as f64), row.step());
+        for px in dst[start * c..end * c].chunks_exact_mut(c) {
+            let (_, s, t) = uv_and_step(&mut p, &step);
             tex.sample_into::<C>(s, t, px);
         }
     }
@@ -345,9 +363,11 @@ fn element_backward<const C: usize>(
             let slot = drawn.slot[f as usize] as usize;
             let line = drawn.uv[slot].row(v);
             let mut run = [[0f64; 2]; 3];
-            for (col, g) in (start..end).zip(grad[start * c..end * c].chunks_exact(c)) {
-                let u = col as f64;
-                let (inv, s, t) = line.at(u);
+            // The planes stepped along the run by their slopes, as in the forward pass.
+            let (mut p, step) = (line.at(start as f64), line.step());
+            let mut u = start as f64;
+            for g in grad[start * c..end * c].chunks_exact(c) {
+                let (inv, s, t) = uv_and_step(&mut p, &step);
                 let [gs, gt] = tex.sample_backward_into::<C>(s, t, g, &mut texels);
                 // uv = N / Q.
                 let (gnu, gnv) = (gs * inv, gt * inv);
@@ -356,6 +376,7 @@ fn element_backward<const C: usize>(
                     r[0] += x;
                     r[1] += x * u;
                 }
+                u += 1.0;
             }
             for (a, r) in sums[slot].iter_mut().zip(&run) {
                 a[0] += r[0];
