@@ -5,8 +5,9 @@
 //!
 //! Per face the perspective numerators `q_k = w_k / z_k` are planes in pixel space ([`crate::surface`]), so the
 //! perspective-correct UV is a ratio of planes, `uv = N / Q` with `Q = sum_k q_k` and `N = sum_k q_k uv_k`
-//! (orthographic: `Q = 1`, `N = sum_k w_k uv_k`): three planes per face, evaluated at each pixel centre, with no
-//! per-pixel weights or UV arrays. The backward sums over each face's pixels (row-major order) the cotangents of
+//! (orthographic: `Q = 1`, `N = sum_k w_k uv_k`): three planes per face, evaluated at the first pixel centre of each
+//! run of the face's pixels along a row and stepped by their slopes from one pixel to the next (forward and backward
+//! alike), with no per-pixel weights or UV arrays. The backward sums over each face's pixels (row-major order) the cotangents of
 //! `N` and `Q` times `(1, u, v)`, the gradients of the planes' coefficients, which give the UV and vertex gradients
 //! once per face. Conventions (UV origin, texel centres, wrap): [`crate::texture`]; the result equals sampling the
 //! texture at the UVs that [`crate::surface::interpolate`] gives with [`crate::surface::pixel_weights`], up to
