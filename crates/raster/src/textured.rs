@@ -149,7 +149,13 @@ impl DrawnFaces {
             planes: Vec::new(),
             uv: Vec::new(),
         };
+        // A run of one face's pixels is looked at once.
+        let mut previous = -1;
         for &f in fi {
+            if f == previous {
+                continue;
+            }
+            previous = f;
             if f >= 0 && d.slot[f as usize] == u32::MAX {
                 let f = f as usize;
                 d.slot[f] = d.faces.len() as u32;
