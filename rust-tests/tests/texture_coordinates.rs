@@ -28,13 +28,30 @@ fn texture(texels: &[f32], wrap: Wrap) -> Texture<'_> {
     }
 }
 
+/// 3 x 4 texels of 2 channels.
+fn texels() -> Vec<f32> {
+    (0..24).map(|i| i as f32 * 0.1).collect()
+}
+
+/// The per-corner UVs of the one face `[0, 1, 2]`.
+fn uvs(values: &[f32]) -> CornerAttrs<'_> {
+    CornerAttrs {
+        values,
+        corners: &[0, 1, 2],
+        batch: 1,
+        rows: 3,
+        channels: 2,
+        arg: "uvs",
+    }
+}
+
 fn names(e: &RasterError, arg: &str) -> bool {
     e.to_string().starts_with(&format!("{arg}:"))
 }
 
 #[test]
 fn sampling_at_huge_or_non_finite_uvs_is_an_error_naming_uv() {
-    let texels: Vec<f32> = (0..24).map(|i| i as f32 * 0.1).collect();
+    let texels = texels();
     for wrap in [Wrap::Repeat, Wrap::Clamp] {
         let tex = texture(&texels, wrap);
         for bad in BAD {
@@ -68,19 +85,12 @@ fn huge_or_non_finite_uv_values_are_errors_naming_uvs() {
     let mesh = ScreenMesh::new(&verts, &[0, 1, 2], 1, 3).expect("mesh");
     let p = params(40, 40);
     let face_index = rasterize_fragments(&mesh, &p).expect("raster").face_index;
-    let texels: Vec<f32> = (0..24).map(|i| i as f32 * 0.1).collect();
+    let texels = texels();
     let tex = texture(&texels, Wrap::Repeat);
     let grad = vec![1f32; face_index.len() * 2];
     for bad in BAD {
         let values = [0.1, 0.2, 0.9, 0.2, bad as f32, 0.8];
-        let uvs = CornerAttrs {
-            values: &values,
-            corners: &[0, 1, 2],
-            batch: 1,
-            rows: 3,
-            channels: 2,
-            arg: "uvs",
-        };
+        let uvs = uvs(&values);
         let e = sample_uv_texture(&mesh, &p, &face_index, &uvs, &tex).expect_err("forward");
         assert!(names(&e, "uvs"), "{bad}: {e}");
         let e = sample_uv_texture_backward(&mesh, &p, &face_index, &uvs, &tex, &grad)
@@ -98,15 +108,8 @@ fn fragments_of_a_face_not_drawn_there_give_finite_samples() {
     let p = params(40, 40);
     let face_index = vec![0i32; 40 * 40];
     let values = [0.0f32, 0.0, MAX_TEXTURE_COORDINATE as f32, 0.0, 0.5, -1e6];
-    let uvs = CornerAttrs {
-        values: &values,
-        corners: &[0, 1, 2],
-        batch: 1,
-        rows: 3,
-        channels: 2,
-        arg: "uvs",
-    };
-    let texels: Vec<f32> = (0..24).map(|i| i as f32 * 0.1).collect();
+    let uvs = uvs(&values);
+    let texels = texels();
     for wrap in [Wrap::Repeat, Wrap::Clamp] {
         let tex = texture(&texels, wrap);
         let out = sample_uv_texture(&mesh, &p, &face_index, &uvs, &tex).expect("forward");

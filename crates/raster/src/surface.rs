@@ -396,6 +396,27 @@ impl CornerAttrs<'_> {
     }
 }
 
+/// Checks a per-pixel cotangent `grad` of `channels` values per pixel `(B, H, W, channels)`: its length and that it
+/// is finite.
+pub(crate) fn check_pixel_grad(
+    grad: &[f32],
+    channels: usize,
+    mesh: &ScreenMesh<'_>,
+    params: &RasterParams,
+) -> Result<()> {
+    if grad.len() != mesh.batch * params.pixels() * channels {
+        return Err(RasterError::shape(
+            "grad",
+            format!(
+                "({}, {}, {}, {channels})",
+                mesh.batch, params.height, params.width
+            ),
+            format!("{} values", grad.len()),
+        ));
+    }
+    check_finite("grad", grad)
+}
+
 /// Checks a `(B, H, W, 3)` weights array.
 fn check_weights(weights: &[f32], face_index: &[i32]) -> Result<()> {
     if weights.len() != face_index.len() * 3 {
@@ -520,14 +541,7 @@ pub fn interpolate_backward(
     check_weights(weights, face_index)?;
     attrs.validate(mesh)?;
     let k = attrs.channels;
-    if grad.len() != face_index.len() * k {
-        return Err(RasterError::shape(
-            "grad",
-            format!("({}, {}, {}, {k})", mesh.batch, params.height, params.width),
-            format!("{} values", grad.len()),
-        ));
-    }
-    check_finite("grad", grad)?;
+    check_pixel_grad(grad, k, mesh, params)?;
     let hw = params.pixels();
     let mut grad_weights = try_filled_vec(face_index.len() * 3, 0f32, "grad_weights")?;
     // Per batch element in parallel, pixels in row-major order; shared values are summed in batch order below.

@@ -201,15 +201,8 @@ impl Texture<'_> {
         let Some((cell, tx)) = self.cell_texels(u, v, c) else {
             return;
         };
-        let (fx, fy) = (cell.fx, cell.fy);
-        let wts = [
-            (1.0 - fx) * (1.0 - fy),
-            fx * (1.0 - fy),
-            (1.0 - fx) * fy,
-            fx * fy,
-        ];
         // In f32, the texels' precision.
-        let wts = wts.map(|w| w as f32);
+        let wts = cell.weights().map(|w| w as f32);
         for (ch, o) in out[..c].iter_mut().enumerate() {
             *o = wts[0] * tx[0][ch] + wts[1] * tx[1][ch] + wts[2] * tx[2][ch] + wts[3] * tx[3][ch];
         }
@@ -231,12 +224,7 @@ impl Texture<'_> {
         };
         let grad_texels = &mut grad_texels[..self.texels.len()];
         let (fx, fy) = (cell.fx, cell.fy);
-        let wts = [
-            (1.0 - fx) * (1.0 - fy),
-            fx * (1.0 - fy),
-            (1.0 - fx) * fy,
-            fx * fy,
-        ];
+        let wts = cell.weights();
         // The cotangent's dot product with each texel's colour; the sample is bilinear in them.
         let mut d32 = [0f32; 4];
         for (ch, &g) in grad[..c].iter().enumerate() {
@@ -355,6 +343,20 @@ struct Cell {
     offsets: [usize; 4],
     fx: f64,
     fy: f64,
+}
+
+impl Cell {
+    /// The bilinear weights of the four texels, in the order of `offsets`.
+    #[inline(always)]
+    fn weights(&self) -> [f64; 4] {
+        let (fx, fy) = (self.fx, self.fy);
+        [
+            (1.0 - fx) * (1.0 - fy),
+            fx * (1.0 - fy),
+            (1.0 - fx) * fy,
+            fx * fy,
+        ]
+    }
 }
 
 #[cfg(test)]

@@ -17,8 +17,10 @@
 use rayon::prelude::*;
 
 use crate::error::{try_filled_vec, RasterError, Result};
-use crate::input::{check_finite, RasterParams, ScreenMesh};
-use crate::surface::{add_to_vertices, check_face_index, dot3, CornerAttrs, FacePlanes};
+use crate::input::{RasterParams, ScreenMesh};
+use crate::surface::{
+    add_to_vertices, check_face_index, check_pixel_grad, dot3, CornerAttrs, FacePlanes,
+};
 use crate::texture::{check_texture_coordinates, Texture};
 
 /// The planes of one face whose ratios are the UV at a pixel: `uv = (N_u, N_v) / Q`.
@@ -294,14 +296,7 @@ pub fn sample_uv_texture_backward(
 ) -> Result<UvTextureGradients> {
     validate(mesh, params, face_index, uvs, texture)?;
     let c = texture.channels;
-    if grad.len() != face_index.len() * c {
-        return Err(RasterError::shape(
-            "grad",
-            format!("({}, {}, {}, {c})", mesh.batch, params.height, params.width),
-            format!("{} values", grad.len()),
-        ));
-    }
-    check_finite("grad", grad)?;
+    check_pixel_grad(grad, c, mesh, params)?;
     let (hw, nv) = (params.pixels(), mesh.num_verts);
     let mut grad_verts_screen = try_filled_vec(mesh.batch * nv * 3, 0f32, "grad_verts_screen")?;
     let parts: Vec<ElementGrads> = grad_verts_screen
