@@ -11,6 +11,7 @@ naming the argument.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,6 +33,16 @@ def _f32(t: torch.Tensor) -> np.ndarray:
 def _i32(t: torch.Tensor) -> np.ndarray:
     """A contiguous int32 CPU array of ``t`` (zero-copy when it already is one)."""
     return t.detach().to(device="cpu", dtype=torch.int32).contiguous().numpy()
+
+
+def _as_inputs(
+    grads: Sequence[np.ndarray], needs: Sequence[bool], types: Sequence[tuple[torch.dtype, torch.device]]
+) -> list[torch.Tensor | None]:
+    """Native gradients as tensors of their inputs' ``(dtype, device)`` in ``types``; ``None`` where not needed."""
+    return [
+        torch.from_numpy(g).to(device=device, dtype=dtype) if need else None
+        for g, need, (dtype, device) in zip(grads, needs, types)
+    ]
 
 
 @dataclass(frozen=True)
@@ -159,7 +170,7 @@ class _Interpolate(torch.autograd.Function):
         args = (_f32(weights), _i32(corners), _f32(values))
         out = _native().interpolate(*mesh, *args, num_threads)
         ctx.mesh, ctx.args, ctx.num_threads = mesh, args, num_threads
-        ctx.types = (weights.dtype, weights.device, values.dtype, values.device)
+        ctx.types = [(t.dtype, t.device) for t in (weights, values)]
         return torch.from_numpy(out).to(device=weights.device, dtype=values.dtype)
 
     @staticmethod
@@ -168,10 +179,7 @@ class _Interpolate(torch.autograd.Function):
         if not (need_w or need_v):
             return (None,) * 7
         gv, gw = _native().interpolate_backward(*ctx.mesh, *ctx.args, _f32(grad), ctx.num_threads)
-        wd, wdev, vd, vdev = ctx.types
-        grad_w = torch.from_numpy(gw).to(device=wdev, dtype=wd) if need_w else None
-        grad_v = torch.from_numpy(gv).to(device=vdev, dtype=vd) if need_v else None
-        return grad_w, grad_v, None, None, None, None, None
+        return (*_as_inputs((gw, gv), (need_w, need_v), ctx.types), None, None, None, None, None)
 
 
 def interpolate(
@@ -217,11 +225,7 @@ class _SampleUvTexture(torch.autograd.Function):
         if not any(needs):
             return (None,) * 8
         gt, guv, gv = _native().sample_uv_texture_backward(*ctx.args, _f32(grad), *ctx.opts)
-        grads = [
-            torch.from_numpy(g).to(device=device, dtype=dtype) if need else None
-            for g, need, (dtype, device) in zip((gt, guv, gv), needs, ctx.types)
-        ]
-        return (*grads, None, None, None, None, None)
+        return (*_as_inputs((gt, guv, gv), needs, ctx.types), None, None, None, None, None)
 
 
 def sample_uv_texture(
