@@ -47,6 +47,7 @@ import torch
 from torch import Tensor
 
 from meshadv.attacks.criteria import Criterion
+from meshadv.attacks.distances import bbox_diagonal
 from meshadv.attacks.eot import (CHECK_STREAM, EVAL_STREAM, STEP_STREAM, EOTSampler, Transformations, check_margins,
                                  stream_seed)
 from meshadv.attacks.evaluation import evaluate
@@ -186,7 +187,7 @@ def move_radius(cap: Any, vertices: Tensor) -> Optional[float]:
     ceiling = None if cap is None else cap.max_displacement
     if ceiling is None:
         return None
-    diagonal = float((vertices.max(dim=0).values - vertices.min(dim=0).values).norm())
+    diagonal = float(bbox_diagonal(vertices))
     return ceiling * diagonal if diagonal > 0 else None
 
 
