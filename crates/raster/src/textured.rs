@@ -449,7 +449,8 @@ fn element_backward<const C: usize>(
     let c = if C == 0 { texture.channels } else { C };
     let tex = texture.element(b);
     let drawn = DrawnFaces::new(mesh, params, uvs, b, fi);
-    let mut texels = try_filled_vec(tex.texels.len(), 0f64, "texture gradient accumulator")?;
+    // One value more than the texels: 3-channel texels are added to four at a time.
+    let mut texels = try_filled_vec(tex.texels.len() + 1, 0f64, "texture gradient accumulator")?;
     // Per drawn face, summed over its pixels: dL/dQ, dL/dN_u and dL/dN_v, each times (1, u, v); along a line, over
     // each run of pixels of one face first (the row v is constant there).
     let mut sums = vec![[[0f64; 3]; 3]; drawn.faces.len()];
@@ -512,6 +513,7 @@ fn element_backward<const C: usize>(
     for (d, &s) in gv.iter_mut().zip(&vertex_sums) {
         *d = s as f32;
     }
+    texels.truncate(tex.texels.len());
     Ok(ElementGrads {
         texels,
         uvs: uv_sums,
