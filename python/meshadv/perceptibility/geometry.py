@@ -30,6 +30,8 @@ from typing import Dict
 import torch
 from torch import Tensor
 
+from meshadv.mesh.structure import bbox_diagonal
+
 __all__ = ["vertex_moves", "normal_changes", "color_changes", "surface_measures", "SURFACE_MEASURES", "PERCENTILE"]
 
 #: The percentile of the ``p95_*`` measures.
@@ -78,7 +80,7 @@ def vertex_moves(vertices_adv: Tensor, vertices: Tensor) -> Dict[str, Tensor]:
         [0.2, 0.19]
     """
     batch = _batched(vertices_adv, vertices)
-    diagonal = float((vertices.max(dim=0).values - vertices.min(dim=0).values).norm())
+    diagonal = float(bbox_diagonal(vertices))
     if not diagonal > 0:
         raise ValueError("vertices span a bounding box of zero extent: moves relative to it are undefined")
     moves = (batch - vertices).norm(dim=-1).float() / diagonal
