@@ -167,16 +167,6 @@ def test_the_transfer_of_the_result_draws_its_texture_or_colours_under_its_shadi
     assert rows[0].mean_abs_image_difference < 0.06
 
 
-def test_a_mitsuba_mesh_draws_a_texture_or_vertex_colours_not_both() -> None:
-    from meshadv.transfer.mitsuba_spec import MeshObject
-
-    surface = box_textured()
-    both = SurfaceMesh(surface.mesh, surface.uvs, surface.uv_faces, surface.texture,
-                       vertex_coloured().vertex_colors)
-    with pytest.raises(ValueError, match="vertex_colors and texture"):
-        MeshObject.from_surface(both)
-
-
 @pytest.mark.parametrize("asset", ["textured", "painted"])
 def test_resampling_carries_the_texture_or_colours_and_keeps_the_look(tmp_path: Path, stand_in: None,
                                                                       asset: str) -> None:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from meshadv.mesh import Mesh
+from meshadv.mesh import Mesh, bbox_diagonal
 from meshadv.mesh.cleanup import clean_arrays, degenerate_face_mask, merge_duplicate_vertices
 
 
@@ -26,6 +26,23 @@ def test_mesh_fields_and_dtypes() -> None:
     assert m.faces_int32.dtype == torch.int32 and torch.equal(m.faces_int32.long(), m.faces)
     assert m.bbox_diagonal() == pytest.approx(np.sqrt(3.0))
     assert torch.allclose(m.face_areas()[0], torch.tensor(0.5))
+
+
+def test_one_bounding_box_diagonal_for_the_mesh_the_distances_and_the_moves() -> None:
+    from meshadv.attacks.distances import displacement_stats
+    from meshadv.perceptibility import vertex_moves
+
+    v = torch.tensor([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 3.0, 6.0]])  # box 2 x 3 x 6: diagonal 7
+    assert float(bbox_diagonal(v)) == pytest.approx(7.0)
+    assert bbox_diagonal(v.double()).dtype == torch.float64
+    assert Mesh(v, torch.tensor([[0, 1, 2]]), torch.ones(1, 3)).bbox_diagonal() == pytest.approx(7.0)
+    move = torch.zeros_like(v)
+    move[1, 2] = 1.4  # one vertex by a fifth of the diagonal
+    assert float(vertex_moves(v + move, v)["max_displacement"][0]) == pytest.approx(0.2)
+    assert float(displacement_stats(move, v)["max_displacement"]) == pytest.approx(0.2)
+    for bad in (torch.zeros(0, 3), torch.zeros(4, 2)):
+        with pytest.raises(ValueError, match="vertices must have shape"):
+            bbox_diagonal(bad)
 
 
 def test_mesh_default_color() -> None:

@@ -562,12 +562,7 @@ pub fn rasterize_backward_on(
     params: &RasterParams,
     inputs: &BackwardInputs<'_>,
 ) -> Result<Gradients> {
-    if !isa.available() {
-        return Err(RasterError::Parameter {
-            arg: "isa",
-            message: format!("{isa:?} is not supported by this CPU"),
-        });
-    }
+    isa.check()?;
     mesh.validate()?;
     params.validate()?;
     attrs.validate(mesh)?;

@@ -37,6 +37,17 @@ impl Isa {
         self <= Isa::detect()
     }
 
+    /// `Ok` where this CPU can run `self`, else an error naming the argument `isa`.
+    pub fn check(self) -> crate::error::Result<()> {
+        match self.available() {
+            true => Ok(()),
+            false => Err(crate::error::RasterError::Parameter {
+                arg: "isa",
+                message: format!("{self:?} is not supported by this CPU"),
+            }),
+        }
+    }
+
     /// Every instruction set this CPU can run, from the baseline up.
     pub fn all_available() -> Vec<Isa> {
         [Isa::Portable, Isa::Avx2, Isa::Avx512]

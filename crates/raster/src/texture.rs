@@ -209,7 +209,8 @@ impl Texture<'_> {
     }
 
     /// Backward of [`Texture::sample_into`] for the cotangent `grad` (`C` values): adds the texels' shares to
-    /// `grad_texels` (laid out as one element's texels) and returns the gradient with respect to `(u, v)`.
+    /// `grad_texels` (laid out as one element's texels, with one value more when `C` is 3: a sum that starts at
+    /// +0 and is left as it is) and returns the gradient with respect to `(u, v)`.
     #[inline(always)]
     pub(crate) fn sample_backward_into<const C: usize>(
         &self,
@@ -222,7 +223,9 @@ impl Texture<'_> {
         let Some((cell, tx)) = self.cell_texels(u, v, c) else {
             return [0.0; 2];
         };
-        let grad_texels = &mut grad_texels[..self.texels.len()];
+        // Three channels: each texel's values and the next one's first, as four lanes (see below).
+        let padded = C == 3;
+        let grad_texels = &mut grad_texels[..self.texels.len() + padded as usize];
         let (fx, fy) = (cell.fx, cell.fy);
         let wts = cell.weights();
         // The cotangent's dot product with each texel's colour; the sample is bilinear in them.
@@ -235,6 +238,20 @@ impl Texture<'_> {
         let d = d32.map(|x| x as f64);
         let gx = (1.0 - fy) * (d[1] - d[0]) + fy * (d[3] - d[2]);
         let gy = (1.0 - fx) * (d[2] - d[0]) + fx * (d[3] - d[1]);
+        if padded {
+            // The fourth lane adds +0 to the next value: no change of its bits (a sum that starts at +0 is never
+            // -0, and the weights are not negative).
+            let g4 = [grad[0] as f64, grad[1] as f64, grad[2] as f64, 0.0];
+            for (&o, w) in cell.offsets.iter().zip(wts) {
+                #[allow(unsafe_code)]
+                // SAFETY: `o` is an offset of `cell_texels`, so `o + 4 <= texels.len() + 1 = grad_texels.len()`.
+                let a = unsafe { grad_texels.get_unchecked_mut(o..o + 4) };
+                for (a, g) in a.iter_mut().zip(g4) {
+                    *a += w * g;
+                }
+            }
+            return [gx * self.width as f64, -gy * self.height as f64];
+        }
         // Channels in pairs (two f64 lanes), the cotangent converted once.
         let mut g = [[0f64; 2]; 2];
         let paired = c <= 4;

@@ -18,6 +18,7 @@ use rayon::prelude::*;
 
 use crate::error::{try_filled_vec, RasterError, Result};
 use crate::input::{RasterParams, ScreenMesh};
+use crate::simd::Isa;
 use crate::surface::{
     add_to_vertices, check_face_index, check_pixel_grad, dot3, CornerAttrs, FacePlanes,
 };
@@ -222,6 +223,20 @@ pub fn sample_uv_texture(
     uvs: &CornerAttrs<'_>,
     texture: &Texture<'_>,
 ) -> Result<Vec<f32>> {
+    sample_uv_texture_on(Isa::detect(), mesh, params, face_index, uvs, texture)
+}
+
+/// [`sample_uv_texture`] on the instruction set `isa` (for tests and benchmarks: every choice gives the same bits).
+/// An `isa` this CPU lacks is an error naming the argument.
+pub fn sample_uv_texture_on(
+    isa: Isa,
+    mesh: &ScreenMesh<'_>,
+    params: &RasterParams,
+    face_index: &[i32],
+    uvs: &CornerAttrs<'_>,
+    texture: &Texture<'_>,
+) -> Result<Vec<f32>> {
+    isa.check()?;
     validate(mesh, params, face_index, uvs, texture)?;
     let (c, w, hw) = (texture.channels, params.width, params.pixels());
     let drawn: Vec<DrawnFaces> = (0..mesh.batch)
@@ -236,9 +251,41 @@ pub fn sample_uv_texture(
             let b = line / params.height;
             let (tex, drawn) = (texture.element(b), &drawn[b]);
             let v = (line % params.height) as f64;
-            with_channels!(c, C => sample_line::<C>(&tex, drawn, fi, v, dst))
+            with_channels!(c, C => sample_line_on::<C>(isa, &tex, drawn, fi, v, dst))
         });
     Ok(out)
+}
+
+/// [`sample_line`] compiled for `isa` (AVX2 where it is AVX2 or wider; the same bits: no fused multiply-adds).
+fn sample_line_on<const C: usize>(
+    isa: Isa,
+    tex: &Texture<'_>,
+    drawn: &DrawnFaces,
+    fi: &[i32],
+    v: f64,
+    dst: &mut [f32],
+) {
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(unsafe_code)]
+    unsafe fn avx2<const C: usize>(
+        tex: &Texture<'_>,
+        drawn: &DrawnFaces,
+        fi: &[i32],
+        v: f64,
+        dst: &mut [f32],
+    ) {
+        sample_line::<C>(tex, drawn, fi, v, dst)
+    }
+    #[cfg(target_arch = "x86_64")]
+    if isa >= Isa::Avx2 {
+        // SAFETY: `isa` is available on this CPU.
+        #[allow(unsafe_code)]
+        return unsafe { avx2::<C>(tex, drawn, fi, v, dst) };
+    }
+    sample_line::<C>(tex, drawn, fi, v, dst)
 }
 
 /// [`sample_uv_texture`] of one image line (row `v`, fragments `fi`) into `dst` (background pixels are left as
@@ -294,6 +341,21 @@ pub fn sample_uv_texture_backward(
     texture: &Texture<'_>,
     grad: &[f32],
 ) -> Result<UvTextureGradients> {
+    sample_uv_texture_backward_on(Isa::detect(), mesh, params, face_index, uvs, texture, grad)
+}
+
+/// [`sample_uv_texture_backward`] on the instruction set `isa` (for tests and benchmarks: every choice gives the
+/// same bits). An `isa` this CPU lacks is an error naming the argument.
+pub fn sample_uv_texture_backward_on(
+    isa: Isa,
+    mesh: &ScreenMesh<'_>,
+    params: &RasterParams,
+    face_index: &[i32],
+    uvs: &CornerAttrs<'_>,
+    texture: &Texture<'_>,
+    grad: &[f32],
+) -> Result<UvTextureGradients> {
+    isa.check()?;
     validate(mesh, params, face_index, uvs, texture)?;
     let c = texture.channels;
     check_pixel_grad(grad, c, mesh, params)?;
@@ -305,7 +367,7 @@ pub fn sample_uv_texture_backward(
         .map(|(b, gv)| {
             let fi = &face_index[b * hw..(b + 1) * hw];
             let g = &grad[b * hw * c..(b + 1) * hw * c];
-            with_channels!(c, C => element_backward::<C>(mesh, params, fi, uvs, texture, g, b, gv))
+            with_channels!(c, C => element_backward_on::<C>(isa, mesh, params, fi, uvs, texture, g, b, gv))
         })
         .collect::<Result<_>>()?;
     // Shared values: the elements' sums added in batch order; per-element values: concatenated.
@@ -331,6 +393,45 @@ pub fn sample_uv_texture_backward(
     })
 }
 
+/// [`element_backward`] compiled for `isa` (AVX2 where it is AVX2 or wider; the same bits).
+#[allow(clippy::too_many_arguments)]
+fn element_backward_on<const C: usize>(
+    isa: Isa,
+    mesh: &ScreenMesh<'_>,
+    params: &RasterParams,
+    fi: &[i32],
+    uvs: &CornerAttrs<'_>,
+    texture: &Texture<'_>,
+    grad: &[f32],
+    b: usize,
+    gv: &mut [f32],
+) -> Result<ElementGrads> {
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(unsafe_code, clippy::too_many_arguments)]
+    unsafe fn avx2<const C: usize>(
+        mesh: &ScreenMesh<'_>,
+        params: &RasterParams,
+        fi: &[i32],
+        uvs: &CornerAttrs<'_>,
+        texture: &Texture<'_>,
+        grad: &[f32],
+        b: usize,
+        gv: &mut [f32],
+    ) -> Result<ElementGrads> {
+        element_backward::<C>(mesh, params, fi, uvs, texture, grad, b, gv)
+    }
+    #[cfg(target_arch = "x86_64")]
+    if isa >= Isa::Avx2 {
+        // SAFETY: `isa` is available on this CPU.
+        #[allow(unsafe_code)]
+        return unsafe { avx2::<C>(mesh, params, fi, uvs, texture, grad, b, gv) };
+    }
+    element_backward::<C>(mesh, params, fi, uvs, texture, grad, b, gv)
+}
+
 /// [`sample_uv_texture_backward`] of batch element `b` (fragments `fi`, cotangent `grad`): its vertex gradient
 /// into `gv` `(N, 3)`, its texel and UV sums returned; `C` channels (0: any count).
 #[allow(clippy::too_many_arguments)]
@@ -348,7 +449,8 @@ fn element_backward<const C: usize>(
     let c = if C == 0 { texture.channels } else { C };
     let tex = texture.element(b);
     let drawn = DrawnFaces::new(mesh, params, uvs, b, fi);
-    let mut texels = try_filled_vec(tex.texels.len(), 0f64, "texture gradient accumulator")?;
+    // One value more than the texels: 3-channel texels are added to four at a time.
+    let mut texels = try_filled_vec(tex.texels.len() + 1, 0f64, "texture gradient accumulator")?;
     // Per drawn face, summed over its pixels: dL/dQ, dL/dN_u and dL/dN_v, each times (1, u, v); along a line, over
     // each run of pixels of one face first (the row v is constant there).
     let mut sums = vec![[[0f64; 3]; 3]; drawn.faces.len()];
@@ -411,6 +513,7 @@ fn element_backward<const C: usize>(
     for (d, &s) in gv.iter_mut().zip(&vertex_sums) {
         *d = s as f32;
     }
+    texels.truncate(tex.texels.len());
     Ok(ElementGrads {
         texels,
         uvs: uv_sums,
@@ -678,6 +781,58 @@ mod tests {
             bits(&one.1.grad_verts_screen),
             bits(&three.1.grad_verts_screen)
         );
+    }
+
+    #[test]
+    fn every_instruction_set_gives_the_same_bits() {
+        let mut rng = Rng(9);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for (projection, wrap, channels) in [
+            (Projection::Perspective, Wrap::Repeat, 3),
+            (Projection::Perspective, Wrap::Clamp, 1),
+            (Projection::Orthographic, Wrap::Repeat, 4),
+            (Projection::Perspective, Wrap::Repeat, 5),
+        ] {
+            let mut case = Case::new(&mut rng, 2, 2, projection);
+            // UVs beyond [0, 1]: wrapped or clamped texel indices.
+            case.uv_values.iter_mut().for_each(|x| *x = *x * 3.0 - 1.0);
+            let texels: Vec<f32> = (0..2 * 6 * 5 * channels)
+                .map(|_| rng.next() as f32)
+                .collect();
+            let tex = Texture {
+                channels,
+                wrap,
+                ..case.texture(&texels)
+            };
+            let g: Vec<f32> = (0..case.face_index.len() * channels)
+                .map(|_| (rng.next() - 0.5) as f32)
+                .collect();
+            let (mesh, uvs, p, fi) = (
+                case.mesh(&case.verts),
+                case.uvs(&case.uv_values),
+                &case.params,
+                &case.face_index[..],
+            );
+            let run = |isa| {
+                let image = sample_uv_texture_on(isa, &mesh, p, fi, &uvs, &tex).expect("forward");
+                let grads = sample_uv_texture_backward_on(isa, &mesh, p, fi, &uvs, &tex, &g)
+                    .expect("backward");
+                [
+                    image,
+                    grads.grad_texels,
+                    grads.grad_uvs,
+                    grads.grad_verts_screen,
+                ]
+            };
+            let portable = run(Isa::Portable);
+            assert!(portable[0].iter().any(|&x| x != 0.0));
+            assert!(portable[3].iter().any(|&x| x != 0.0));
+            for isa in Isa::all_available() {
+                for (got, want) in run(isa).iter().zip(&portable) {
+                    assert_eq!(bits(got), bits(want), "{isa:?} {projection:?} {channels}");
+                }
+            }
+        }
     }
 
     #[test]

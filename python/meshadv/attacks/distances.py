@@ -32,13 +32,13 @@ import torch
 from torch import Tensor
 
 from meshadv.attacks.losses import laplacian_flow_loss
+from meshadv.mesh.structure import bbox_diagonal
 from meshadv.perceptibility.measures import MEASURE_DESCRIPTIONS
 
 __all__ = [
     "laplacian_distance",
     "laplacian_pair_mean",
     "color_rmse",
-    "bbox_diagonal",
     "displacement_stats",
     "mesh_distances",
     "read_distance",
@@ -117,13 +117,6 @@ def color_rmse(colors_adv: Tensor, colors: Tensor) -> Tensor:
         raise ValueError(f"colors_adv {tuple(colors_adv.shape)} and colors {tuple(colors.shape)} must be (…, M, 3) "
                          "and (M, 3) with the same M")
     return (colors_adv - colors).pow(2).sum(dim=-1).mean(dim=-1).sqrt()
-
-
-def bbox_diagonal(vertices: Tensor) -> Tensor:
-    """Length of the axis-aligned bounding-box diagonal of ``(N, 3)`` vertices (a scalar tensor)."""
-    if vertices.dim() != 2 or vertices.shape[1] != 3 or vertices.shape[0] == 0:
-        raise ValueError(f"vertices must have shape (N, 3) with N > 0, got {tuple(vertices.shape)}")
-    return (vertices.max(dim=0).values - vertices.min(dim=0).values).norm()
 
 
 def displacement_stats(displacement: Tensor, vertices: Tensor) -> Dict[str, Tensor]:

@@ -47,7 +47,6 @@ import torch
 from torch import Tensor
 
 from meshadv.attacks.criteria import Criterion
-from meshadv.attacks.distances import bbox_diagonal
 from meshadv.attacks.eot import (CHECK_STREAM, EVAL_STREAM, STEP_STREAM, EOTSampler, Transformations, check_margins,
                                  stream_seed)
 from meshadv.attacks.evaluation import evaluate
@@ -56,6 +55,7 @@ from meshadv.attacks.outputs import slice_output
 from meshadv.attacks.result import AttackResult, enough_views
 from meshadv.attacks.targets import StopRule, TargetState
 from meshadv.attacks.update import UpdateRule, make_update_rule
+from meshadv.mesh.structure import bbox_diagonal
 from meshadv.perceptibility.cap import step_measures
 from meshadv.perceptibility.held_out import held_out_views
 from meshadv.perceptibility.measures import perceptibility_measures

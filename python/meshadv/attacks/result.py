@@ -30,7 +30,6 @@ from typing import Any, Dict, List, Optional, Tuple, Union
 import torch
 from torch import Tensor
 
-from meshadv.mesh import save_mesh
 from meshadv.util.atomic import write_json_atomic
 from meshadv.util.png import save_png
 
@@ -304,20 +303,14 @@ class AttackResult:
         """Every target's adversarial mesh as PLY and OBJ (:meth:`mesh_filenames`) into ``folder``; a SurfaceMesh
         (textured or vertex-coloured) also as GLB, its OBJ with an MTL and the texture PNG or with its vertex
         colours (``v x y z r g b``), its PLY with the vertex colours (else per face)."""
-        from meshadv.mesh.surface_mesh import SurfaceMesh, save_surface_mesh
+        from meshadv.mesh.surface_mesh import SurfaceMesh, save_any_mesh
 
         for t, mesh in enumerate(self.adversarial):
             ply, obj = self.mesh_filenames(t)
-            if not isinstance(mesh, SurfaceMesh):
-                save_mesh(mesh.detach(), folder / ply)
-                save_mesh(mesh.detach(), folder / obj)
-                continue
-            save_surface_mesh(mesh, folder / obj)
-            save_surface_mesh(mesh, folder / Path(obj).with_suffix(".glb").name)
-            if mesh.vertex_colors is not None:
-                save_surface_mesh(mesh, folder / ply)
-            else:
-                save_mesh(mesh.mesh.detach(), folder / ply)
+            save_any_mesh(mesh, folder / obj)
+            if isinstance(mesh, SurfaceMesh):
+                save_any_mesh(mesh, folder / Path(obj).with_suffix(".glb").name)
+            save_any_mesh(mesh, folder / ply)
 
     def _write_images(self, folder: Path) -> None:
         """The pristine and adversarial renders of every view as PNG into ``folder``."""

@@ -21,7 +21,7 @@ from meshadv.mesh.io import DEFAULT_MAX_FACES, LoadReport, load_mesh, load_mesh_
 from meshadv.mesh.normalize import NormalizeTransform, normalize_mesh, pascal3d_azimuth_to_renderer
 from meshadv.mesh.resample import ResampleInfo, default_cache_dir, resample_mesh, resample_mesh_with_info
 from meshadv.mesh.shapes import BUILTIN_SHAPES, builtin_mesh, class_mesh, default_mesh
-from meshadv.mesh.structure import Mesh
+from meshadv.mesh.structure import Mesh, bbox_diagonal
 
 __all__ = [
     "BUILTIN_SHAPES",
@@ -34,6 +34,7 @@ __all__ = [
     "NormalizeTransform",
     "Pascal3DCatalog",
     "ResampleInfo",
+    "bbox_diagonal",
     "boundary_vertex_mask",
     "builtin_mesh",
     "class_mesh",

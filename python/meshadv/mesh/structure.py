@@ -16,6 +16,21 @@ import torch
 Device = Union[str, torch.device]
 
 
+def bbox_diagonal(vertices: torch.Tensor) -> torch.Tensor:
+    """Length of the axis-aligned bounding-box diagonal of ``(N, 3)`` vertices: a scalar tensor of their dtype.
+
+    Raises:
+        ValueError: ``vertices`` is not ``(N, 3)`` with ``N > 0``.
+
+    Example:
+        >>> float(bbox_diagonal(torch.tensor([[0.0, 0, 0], [3, 4, 0]])))
+        5.0
+    """
+    if vertices.dim() != 2 or vertices.shape[1] != 3 or vertices.shape[0] == 0:
+        raise ValueError(f"vertices must have shape (N, 3) with N > 0, got {tuple(vertices.shape)}")
+    return (vertices.max(dim=0).values - vertices.min(dim=0).values).norm()
+
+
 @dataclass(frozen=True, eq=False)
 class Mesh:
     """A triangle mesh with one RGB reflectance per face.
@@ -185,9 +200,14 @@ class Mesh:
         return torch.stack([v.min(dim=0).values, v.max(dim=0).values])
 
     def bbox_diagonal(self) -> float:
-        """Length of the diagonal of the axis-aligned bounding box."""
-        lo, hi = self.bounds()
-        return float(torch.linalg.norm((hi - lo).double()))
+        """Length of the diagonal of the axis-aligned bounding box (in double precision, as a float).
+
+        Raises:
+            ValueError: the mesh has no vertices.
+        """
+        if self.num_vertices == 0:
+            raise ValueError("bounds of a mesh without vertices are undefined")
+        return float(bbox_diagonal(self.vertices.detach().double()))
 
     def face_areas(self) -> torch.Tensor:
         """Area of every face, float32 ``(M,)`` (differentiable in the vertices)."""

@@ -1,5 +1,6 @@
 """Meshes with surface attributes: a UV texture image, vertex colours and vertex normals, loaded from OBJ + MTL
-(``map_Kd``, ``v x y z r g b`` vertex colours), glTF/GLB (base-colour texture) and PLY (vertex colours), and saved as
+(``map_Kd``, ``v x y z r g b`` vertex colours), glTF/GLB (base-colour texture, ``COLOR_0``) and PLY (vertex colours),
+and saved as
 OBJ + MTL + PNG, GLB or PLY.
 
 The geometry is welded (one vertex per distinct position), so adjacency, the Laplacian and shape perturbations see
@@ -22,12 +23,13 @@ import trimesh
 from PIL import Image, UnidentifiedImageError
 
 from meshadv._validate import MAX_TEXTURE_COORDINATE
+from meshadv.mesh import _gltf
 from meshadv.mesh.errors import MeshLoadError
 from meshadv.mesh.normalize import NormalizeTransform, normalize_mesh
 from meshadv.mesh.structure import Mesh
 from meshadv.util.atomic import write_bytes_atomic
 
-__all__ = ["SurfaceMesh", "load_surface_mesh", "save_surface_mesh"]
+__all__ = ["SurfaceMesh", "load_surface_mesh", "save_any_mesh", "save_surface_mesh"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -306,8 +308,9 @@ def load_surface_mesh(path: PathLike) -> SurfaceMesh:
     """Load a mesh with its surface attributes.
 
     OBJ: ``vt`` UVs with the ``map_Kd`` image of its MTL, ``vn`` normals, ``v x y z r g b`` vertex colours (in
-    ``[0, 1]``, as MeshLab and trimesh write them). GLB/glTF: the base-colour texture, UVs and normals of the
-    primitive. PLY: vertex colours (and normals when present). Other formats: geometry only.
+    ``[0, 1]``, as MeshLab and trimesh write them). GLB/glTF: the base-colour texture, UVs, normals and ``COLOR_0``
+    vertex colours of the primitive (a texture and colours both: the reflectance is their product, as glTF defines
+    it). PLY: vertex colours (and normals when present). Other formats: geometry only.
 
     Args:
         path: the mesh file.
@@ -318,7 +321,8 @@ def load_surface_mesh(path: PathLike) -> SurfaceMesh:
     Raises:
         MeshLoadError: an unreadable file, a missing or unreadable texture image or material file, a texture of zero
             size, NaN, non-numeric or out-of-range (beyond +-1e6) UVs, corner indices beyond the attribute counts, NaN
-            vertex colours or a mismatched number of them; the message names the file and the field.
+            vertex colours or a mismatched number of them (glTF: a ``COLOR_0`` of another count than ``POSITION``,
+            of a type glTF does not allow, or outside ``[0, 1]``); the message names the file and the field.
 
     Example:
         >>> sm = load_surface_mesh("textured.obj")  # doctest: +SKIP
@@ -329,6 +333,8 @@ def load_surface_mesh(path: PathLike) -> SurfaceMesh:
         raise MeshLoadError(f"{path}: no such file")
     ext = path.suffix.lower()
     texture_file = None
+    if ext in (".glb", ".gltf"):
+        _gltf.check_color_accessors(path)
     if ext == ".obj":
         _check_obj_indices(path)
         texture_file = _obj_map_kd(path)
@@ -365,6 +371,8 @@ def load_surface_mesh(path: PathLike) -> SurfaceMesh:
     elif "color" in tm.vertex_attributes:  # an OBJ's `v x y z r g b` beside a texture, in [0, 1]
         rgb = np.asarray(tm.vertex_attributes["color"], dtype=np.float64)
         rgb = rgb.reshape(len(rgb), -1)[:, :3]
+    elif isinstance(visual, trimesh.visual.texture.TextureVisuals) and "color" in visual.vertex_attributes:
+        rgb = _gltf.color_values(visual.vertex_attributes["color"], path)  # glTF COLOR_0 beside a material
     if rgb is not None:
         if rgb.shape[0] != len(raw_v):
             raise MeshLoadError(f"{path}: vertex colors: {rgb.shape[0]} colours for {len(raw_v)} vertices")
@@ -429,8 +437,8 @@ def save_surface_mesh(surface: SurfaceMesh, path: PathLike) -> list[Path]:
 
     ``.obj``: the OBJ with ``vt`` / ``vn`` and ``f v/vt/vn``, vertex colours as ``v x y z r g b`` (in ``[0, 1]``,
     which MeshLab and trimesh read), an MTL next to it naming the texture, and the texture as an 8-bit PNG
-    (``<stem>_texture.png``, the print-ready image). ``.glb``: one binary glTF with the texture embedded (vertices
-    split where UVs or normals differ, as glTF needs), or the vertex colours of an untextured mesh. ``.ply``: the
+    (``<stem>_texture.png``, the print-ready image). ``.glb``: one binary glTF with the texture embedded and the vertex
+    colours as 8-bit ``COLOR_0`` (vertices split where UVs or normals differ, as glTF needs). ``.ply``: the
     welded geometry with 8-bit vertex colours (the per-face colours of ``mesh`` when it has none) and no texture.
 
     Args:
@@ -455,6 +463,23 @@ def save_surface_mesh(surface: SurfaceMesh, path: PathLike) -> list[Path]:
     if ext == ".ply":
         return _save_ply(surface, path)
     raise ValueError(f"path: save_surface_mesh writes .obj, .glb or .ply, got {path.suffix!r}")
+
+
+def save_any_mesh(mesh: Union[Mesh, SurfaceMesh], path: PathLike) -> list[Path]:
+    """Save a per-face :class:`Mesh` (:func:`~meshadv.mesh.io.save_mesh`) or a :class:`SurfaceMesh`
+    (:func:`save_surface_mesh`; its ``.ply`` per face when it has no vertex colours, as a PLY cannot hold a texture).
+
+    Raises:
+        ValueError: an extension the writer does not take.
+    """
+    from meshadv.mesh.io import save_mesh
+
+    path = Path(path)
+    if not isinstance(mesh, SurfaceMesh):
+        return save_mesh(mesh.detach(), path)
+    if path.suffix.lower() == ".ply" and mesh.vertex_colors is None:
+        return save_mesh(mesh.mesh.detach(), path)
+    return save_surface_mesh(mesh, path)
 
 
 def _save_obj(surface: SurfaceMesh, path: Path) -> list[Path]:
@@ -507,6 +532,10 @@ def _save_glb(surface: SurfaceMesh, path: Path) -> list[Path]:
         image = Image.open(io.BytesIO(_png_bytes(surface.texture)))
         material = trimesh.visual.material.PBRMaterial(baseColorTexture=image, metallicFactor=0.0, roughnessFactor=1.0)
         kwargs["visual"] = trimesh.visual.TextureVisuals(uv=uv, material=material)
+        if surface.vertex_colors is not None:  # written as COLOR_0, which glTF multiplies with the texture
+            rgb = surface.vertex_colors.detach().clamp(0, 1).cpu().numpy()[unique[:, 0]]
+            rgba = np.concatenate([(rgb * 255 + 0.5).astype(np.uint8), np.full((len(rgb), 1), 255, np.uint8)], 1)
+            kwargs["visual"].vertex_attributes["color"] = rgba
     elif surface.vertex_colors is not None:
         rgb = surface.vertex_colors.detach().clamp(0, 1).cpu().numpy()[unique[:, 0]]
         kwargs["vertex_colors"] = (rgb * 255 + 0.5).astype(np.uint8)

@@ -35,6 +35,7 @@ import torch
 from torch import Tensor
 
 from meshadv.mesh.adjacency import vertex_edges
+from meshadv.mesh.structure import bbox_diagonal
 
 __all__ = ["vertex_moves", "normal_changes", "edge_strains", "color_changes", "surface_measures", "SURFACE_MEASURES",
            "PERCENTILE"]
@@ -86,7 +87,7 @@ def vertex_moves(vertices_adv: Tensor, vertices: Tensor) -> Dict[str, Tensor]:
         [0.2, 0.19]
     """
     batch = _batched(vertices_adv, vertices)
-    diagonal = float((vertices.max(dim=0).values - vertices.min(dim=0).values).norm())
+    diagonal = float(bbox_diagonal(vertices))
     if not diagonal > 0:
         raise ValueError("vertices span a bounding box of zero extent: moves relative to it are undefined")
     moves = (batch - vertices).norm(dim=-1).float() / diagonal

@@ -18,7 +18,8 @@ Conventions (see docs/ARCHITECTURE.md):
   path tracer produces ambient occlusion that meshadv does not have.
 * Material: two-sided diffuse with per-face reflectance (a ``face_color`` mesh attribute read by a ``mesh_attribute``
   texture), flat shading (no vertex normals), as meshadv's two-sided per-face Lambert shading; a textured or
-  vertex-coloured mesh's bitmap texture or ``vertex_color`` attribute instead, and its vertex normals when meshadv
+  vertex-coloured mesh's bitmap texture or ``vertex_color`` attribute instead (a mesh with both: their product, the
+  ``meshadv_product`` texture of :mod:`~meshadv.transfer.mitsuba_product`), and its vertex normals when meshadv
   shades it smooth.
 * Images are linear RGB clamped to [0, 1] (no tone mapping or gamma), as meshadv's.
 """
@@ -33,6 +34,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from meshadv import _validate
+from meshadv.transfer.mitsuba_product import product_texture
 from meshadv.transfer.mitsuba_spec import MeshObject, MitsubaCamera, MitsubaLights, SceneSpec, normalize
 from meshadv.util.spherical import spherical_direction
 
@@ -112,8 +114,8 @@ def _base_scene_xml(path: Path, exclude: Sequence[str], keep_emitters: bool) -> 
 
 def _mitsuba_mesh(mi: Any, obj: MeshObject) -> Any:
     """A Mitsuba mesh of ``obj`` (``to_world`` applied) with its face colours, its bitmap texture (bilinear, repeat,
-    linear values) or its vertex colours (interpolated), as a two-sided diffuse reflectance; vertex normals when it
-    has them."""
+    linear values), its vertex colours (interpolated) or the product of both, as a two-sided diffuse reflectance;
+    vertex normals when it has them."""
     if obj.texture is not None:
         reflectance = {
             "type": "bitmap",
@@ -122,6 +124,8 @@ def _mitsuba_mesh(mi: Any, obj: MeshObject) -> Any:
             "wrap_mode": "repeat",
             "raw": True,
         }
+        if obj.vertex_colors is not None:
+            reflectance = product_texture(mi, reflectance, {"type": "mesh_attribute", "name": "vertex_color"})
     elif obj.vertex_colors is not None:
         reflectance = {"type": "mesh_attribute", "name": "vertex_color"}
     else:

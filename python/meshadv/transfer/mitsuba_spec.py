@@ -258,11 +258,11 @@ class MeshObject:
         to_world: optional (4, 4) object-to-world transform.
         name: identifier used in the Mitsuba scene.
         uvs: optional (N, 2) float32 per-vertex texture coordinates (origin bottom-left, docs/TEXTURES.md), with
-            ``texture``: then the reflectance is the bitmap, not ``face_colors``.
+            ``texture``: then the reflectance is the bitmap (times ``vertex_colors`` when given), not ``face_colors``.
         texture: optional (Ht, Wt, 3) float32 reflectance image, row 0 at the top.
         normals: optional (N, 3) float32 vertex normals (smooth shading); without them Mitsuba shades flat.
-        vertex_colors: optional (N, 3) float32 per-vertex reflectance in [0, 1], interpolated over the faces (not
-            with ``texture``): then the reflectance is these, not ``face_colors``.
+        vertex_colors: optional (N, 3) float32 per-vertex reflectance in [0, 1], interpolated over the faces: then
+            the reflectance is these (times the texture when given), not ``face_colors``.
     """
 
     vertices: np.ndarray
@@ -297,8 +297,6 @@ class MeshObject:
             object.__setattr__(self, "to_world", m)
         if (self.uvs is None) != (self.texture is None):
             raise ValueError("uvs and texture must be given together")
-        if self.texture is not None and self.vertex_colors is not None:
-            raise ValueError("vertex_colors and texture: a Mitsuba mesh here draws one of them, not their product")
         for name, width in (("uvs", 2), ("normals", 3), ("vertex_colors", 3)):
             value = getattr(self, name)
             if value is not None:
@@ -326,11 +324,9 @@ class MeshObject:
         cls, surface: Any, shading: str = "flat", to_world: Optional[np.ndarray] = None, name: str = "object"
     ) -> "MeshObject":
         """Build from a ``meshadv.mesh.SurfaceMesh``: vertices split where UVs (or normals) differ, as a Mitsuba
-        mesh needs one of each per vertex; its texture or vertex colours; ``shading="smooth"`` gives the normals
-        meshadv shades with (the file's, or area-weighted ones of the vertices).
-
-        Raises:
-            ValueError: the surface has both a texture and vertex colours (drawn multiplied by meshadv only)."""
+        mesh needs one of each per vertex; its texture, vertex colours or both (drawn multiplied, as meshadv draws
+        them); ``shading="smooth"`` gives the normals meshadv shades with (the file's, or area-weighted ones of the
+        vertices)."""
         import torch
 
         from meshadv.render import vertex_normals
