@@ -30,7 +30,6 @@ from typing import Any, Dict, List, Optional, Tuple, Union
 import torch
 from torch import Tensor
 
-from meshadv.mesh import save_mesh
 from meshadv.util.atomic import write_json_atomic
 from meshadv.util.png import save_png
 
@@ -95,12 +94,13 @@ def _get(distances: Dict[str, Any], name: str) -> float:
 
 def perceptibility_line(distances: Dict[str, Any]) -> str:
     """The perceptibility measures of one target's ``distances`` on one line, the way a person reads them:
-    ``"move max 1.2% p95 0.4% of the diagonal, normals mean 2.1 p95 8.3 deg, colours p95 0, SSIM held-out mean
-    0.98 min 0.95"`` (``nan`` for a measure the record lacks)."""
+    ``"move max 1.2% p95 0.4% of the diagonal, normals mean 2.1 p95 8.3 deg, edge strain p95 0.031, colours p95 0,
+    SSIM held-out mean 0.98 min 0.95"`` (``nan`` for a measure the record lacks)."""
     return (f"move max {100 * _get(distances, 'max_displacement'):.3g}% p95 "
             f"{100 * _get(distances, 'p95_displacement'):.3g}% of the diagonal, normals mean "
             f"{_get(distances, 'normal_change_mean_deg'):.3g} p95 {_get(distances, 'normal_change_p95_deg'):.3g} "
-            f"deg, colours p95 {_get(distances, 'color_change_p95'):.3g}, SSIM held-out mean "
+            f"deg, edge strain p95 {_get(distances, 'edge_strain_p95'):.3g}, colours p95 "
+            f"{_get(distances, 'color_change_p95'):.3g}, SSIM held-out mean "
             f"{_get(distances, 'ssim_held_out_mean'):.3g} min {_get(distances, 'ssim_held_out_min'):.3g}")
 
 
@@ -330,20 +330,14 @@ class AttackResult:
         """Every target's adversarial mesh as PLY and OBJ (:meth:`mesh_filenames`) into ``folder``; a SurfaceMesh
         (textured or vertex-coloured) also as GLB, its OBJ with an MTL and the texture PNG or with its vertex
         colours (``v x y z r g b``), its PLY with the vertex colours (else per face)."""
-        from meshadv.mesh.surface_mesh import SurfaceMesh, save_surface_mesh
+        from meshadv.mesh.surface_mesh import SurfaceMesh, save_any_mesh
 
         for t, mesh in enumerate(self.adversarial):
             ply, obj = self.mesh_filenames(t)
-            if not isinstance(mesh, SurfaceMesh):
-                save_mesh(mesh.detach(), folder / ply)
-                save_mesh(mesh.detach(), folder / obj)
-                continue
-            save_surface_mesh(mesh, folder / obj)
-            save_surface_mesh(mesh, folder / Path(obj).with_suffix(".glb").name)
-            if mesh.vertex_colors is not None:
-                save_surface_mesh(mesh, folder / ply)
-            else:
-                save_mesh(mesh.mesh.detach(), folder / ply)
+            save_any_mesh(mesh, folder / obj)
+            if isinstance(mesh, SurfaceMesh):
+                save_any_mesh(mesh, folder / Path(obj).with_suffix(".glb").name)
+            save_any_mesh(mesh, folder / ply)
 
     def _write_images(self, folder: Path) -> None:
         """The pristine and adversarial renders of every view as PNG into ``folder``."""

@@ -29,7 +29,7 @@ from meshadv.mesh.normalize import NormalizeTransform, normalize_mesh
 from meshadv.mesh.structure import Mesh
 from meshadv.util.atomic import write_bytes_atomic
 
-__all__ = ["SurfaceMesh", "load_surface_mesh", "save_surface_mesh"]
+__all__ = ["SurfaceMesh", "load_surface_mesh", "save_any_mesh", "save_surface_mesh"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -463,6 +463,23 @@ def save_surface_mesh(surface: SurfaceMesh, path: PathLike) -> list[Path]:
     if ext == ".ply":
         return _save_ply(surface, path)
     raise ValueError(f"path: save_surface_mesh writes .obj, .glb or .ply, got {path.suffix!r}")
+
+
+def save_any_mesh(mesh: Union[Mesh, SurfaceMesh], path: PathLike) -> list[Path]:
+    """Save a per-face :class:`Mesh` (:func:`~meshadv.mesh.io.save_mesh`) or a :class:`SurfaceMesh`
+    (:func:`save_surface_mesh`; its ``.ply`` per face when it has no vertex colours, as a PLY cannot hold a texture).
+
+    Raises:
+        ValueError: an extension the writer does not take.
+    """
+    from meshadv.mesh.io import save_mesh
+
+    path = Path(path)
+    if not isinstance(mesh, SurfaceMesh):
+        return save_mesh(mesh.detach(), path)
+    if path.suffix.lower() == ".ply" and mesh.vertex_colors is None:
+        return save_mesh(mesh.mesh.detach(), path)
+    return save_surface_mesh(mesh, path)
 
 
 def _save_obj(surface: SurfaceMesh, path: Path) -> list[Path]:
