@@ -207,6 +207,7 @@ def attack(
         "default", help="perceptibility cap: 'default' (" + CAP_HELP + "), 'none' (the paper's protocol), or "
                         "NAME=VALUE,... of max_displacement (largest vertex move / bounding-box diagonal), "
                         "normal_change_p95_deg (area-weighted 95th-percentile turn of the face normals, degrees), "
+                        "edge_strain_p95 (length-weighted 95th-percentile relative change of the edge lengths), "
                         "color_change_p95 (area-weighted 95th-percentile RGB change of the face colours); a step "
                         "outside it never counts as a success, and a target that cannot succeed inside it fails with "
                         "its closest result inside it"),
