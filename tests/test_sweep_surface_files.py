@@ -1,10 +1,11 @@
 """Sweep jobs take a textured file as ``meshadv attack`` does: a tiny sweep of a generated OBJ + MTL + PNG and an
 untextured PLY (stand-in victim, 32 px, 2 steps) draws the texture, keeps it through the artefacts, the kept
-perturbation and a resume; the untextured file loads per face as before; ``meshadv.shading`` reaches the jobs; a
-database started loading per face keeps doing so."""
+perturbation, the Mitsuba transfer and a resume; the untextured file loads per face as before; ``meshes.shading``
+reaches the jobs; a database started loading per face keeps doing so."""
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 from typing import Any, Dict, List
 
@@ -112,6 +113,16 @@ def test_a_sweep_attacks_a_textured_file_with_its_texture_and_resumes(tmp_path: 
     torch.testing.assert_close(again.texture, texture, atol=0.6 / 255, rtol=0)
     torch.testing.assert_close(again.vertices, attacked.vertices, atol=2e-3, rtol=0)
     assert np.abs(_png(rebuilt / "benign_v0.png") - benign_png).max() < 1.5 / 255
+    # the Mitsuba transfer of the sweep draws the textured job's texture (adversarial and benign control)
+    if importlib.util.find_spec("mitsuba") is not None:
+        from meshadv.transfer.controlled import cases_from_store, controlled_transfer
+
+        cases = {c.true_class: c for c in cases_from_store(db, only_successful=False)}
+        assert isinstance(cases["bottle"].mesh, SurfaceMesh) and cases["bottle"].mesh.texture is not None
+        assert isinstance(cases["bottle"].benign_mesh, SurfaceMesh) and type(cases["chair"].mesh) is Mesh
+        result = controlled_transfer([cases["bottle"]], spp=16, max_depth=2,
+                                     victim_loader=lambda name: PooledLinearClassifier())
+        assert result[0].mean_abs_image_difference < 0.06
     # resuming runs nothing and keeps the records
     second = _run(db, jobs, out)
     assert second.ran == 0 and second.skipped == 2
