@@ -21,11 +21,14 @@ one row of candidates:
   other);
 * ``ssim_min`` -- the record's ``ssim_held_out_min`` (result folders only).
 
-Prints a markdown table and writes ``--out`` (JSON, written atomically).
+Prints a markdown table and writes ``--out`` (JSON, written atomically). With ``--renders DIR``, each result folder
+also gets ``DIR/<folder>.png``: the benign and the adversarial mesh on the attack's first, middle and last views,
+closer (a 26 degree field of view) and larger (384 px, 2x antialias) than the attack's own renders, so that thin
+parts can be judged.
 
 Example:
     python benchmarks/cap_candidates.py /tmp/capthin/aeroplane_02_default /tmp/cap/free_sofa_01@0.01,0.02 \\
-        --out /tmp/capthin/candidates.json
+        --out /tmp/capthin/candidates.json --renders /tmp/capthin/close_ups
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ import math
 import os
 import sys
 from pathlib import Path
-from typing import Any, Dict, List, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("RAYON_NUM_THREADS", "1")
@@ -139,8 +142,26 @@ def _load(folder: Path) -> Tuple[Any, Any, Dict[str, Any]]:
     return benign, adversarial, record
 
 
-def measure(specs: List[str]) -> Dict[str, Dict[str, float]]:
-    """``{row name: candidates}`` of ``FOLDER`` and ``FOLDER@m1,m2`` specs."""
+def close_up(benign: Any, adversarial: Any, record: Dict[str, Any], path: Path) -> None:
+    """The ``--renders`` PNG of one result folder (module docstring)."""
+    from meshadv.render import Camera, Lights, RenderSetup, ViewSet
+
+    cam = ViewSet.from_records(record["views"]).camera
+    pick = sorted({0, len(cam.azimuth) // 2, len(cam.azimuth) - 1})
+    camera = Camera.spherical(float(cam.distance[0]), cam.azimuth[pick], cam.elevation[pick], viewing_angle=26.0)
+    views = ViewSet(camera, Lights.default(camera))
+    setup = RenderSetup(image_size=384, antialias=2)
+    with torch.no_grad():
+        rows = [setup.render(m.vertices[None], m.faces, m.face_colors, views)[0] for m in (benign, adversarial)]
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from cap_renders import _grid
+
+    _grid(rows, [f"benign {path.stem}", f"adversarial {path.stem}"], path)
+
+
+def measure(specs: List[str], renders: Optional[Path] = None) -> Dict[str, Dict[str, float]]:
+    """``{row name: candidates}`` of ``FOLDER`` and ``FOLDER@m1,m2`` specs (and the ``--renders`` PNGs of the
+    folders into ``renders``)."""
     rows: Dict[str, Dict[str, float]] = {}
     for spec in specs:
         path, _, moves = spec.partition("@")
@@ -150,6 +171,8 @@ def measure(specs: List[str]) -> Dict[str, Dict[str, float]]:
             row = candidates(benign, adversarial.vertices)
             row["ssim_min"] = float(record["distances"][0].get("ssim_held_out_min", math.nan))
             rows[folder.name] = row
+            if renders is not None:
+                close_up(benign, adversarial, record, renders / f"{folder.name}.png")
             continue
         flow = adversarial.vertices.double() - benign.vertices.double()
         largest = float(flow.norm(dim=1).max()) / benign.bbox_diagonal()
@@ -171,8 +194,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("specs", nargs="+", help="result folders, or FOLDER@m1,m2 for its flow scaled")
     parser.add_argument("--out", type=Path, default=None, help="JSON of the rows")
+    parser.add_argument("--renders", type=Path, default=None, help="folder for close-up PNGs of the result folders")
     args = parser.parse_args()
-    rows = measure(args.specs)
+    rows = measure(args.specs, args.renders)
     print(table(rows))
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
