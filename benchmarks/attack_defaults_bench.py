@@ -95,7 +95,8 @@ def summary_row(mesh: str, target: str, variant: str, folder: Path) -> Dict[str,
                   else f"{sum(rec['eval_success'][0])}/{len(rec['eval_success'][0])}"),
         held_out_rate=None if rec.get("held_out_rate") is None else rec["held_out_rate"][0],
         attack_wall_s=rec["wall_time"], max_displacement=d.get("max_displacement"),
-        normal_change_p95_deg=d.get("normal_change_p95_deg"), laplacian_pair_mean=d.get("laplacian_pair_mean"),
+        normal_change_p95_deg=d.get("normal_change_p95_deg"), edge_strain_p95=d.get("edge_strain_p95"),
+        laplacian_pair_mean=d.get("laplacian_pair_mean"),
         ssim_held_out_min=d.get("ssim_held_out_min"), num_faces=rec["num_faces"],
     )
     transfer = folder / "transfer.json"
@@ -113,14 +114,16 @@ def markdown(rows: List[Dict[str, Any]]) -> str:
         return "-" if v is None else format(v, fmt)
 
     head = ("| mesh -> target | variant | SUCCESS | attack views | held-out | Mitsuba targeted | Mitsuba untargeted "
-            "(benign-ctrl) | max move | normals p95 | pair mean | SSIM held-out min | steps | attack s |")
+            "(benign-ctrl) | max move | normals p95 | edge strain p95 | pair mean | SSIM held-out min | steps | "
+            "attack s |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
         lines.append(
             f"| {r['mesh']} -> {r['target']} | {r['variant']} | {'yes' if r.get('succeeded') else 'no'} | "
             f"{r.get('attack_views', '-')} | {r.get('held_out', '-')} | {r.get('mitsuba_targeted', '-')} | "
             f"{r.get('mitsuba_untargeted', '-')} | {f(r.get('max_displacement'), '.2%')} | "
-            f"{f(r.get('normal_change_p95_deg'), '.1f')} | {f(r.get('laplacian_pair_mean'), '.2e')} | "
+            f"{f(r.get('normal_change_p95_deg'), '.1f')} | {f(r.get('edge_strain_p95'), '.3f')} | "
+            f"{f(r.get('laplacian_pair_mean'), '.2e')} | "
             f"{f(r.get('ssim_held_out_min'), '.3f')} | {r.get('steps', '-')}"
             f"{' (stopped)' if r.get('interrupted') else ''} | {f(r.get('attack_wall_s'), '.0f')} |")
     return "\n".join(lines)

@@ -78,6 +78,7 @@ def _views(record: Dict[str, Any]) -> Any:
 def _label(name: str, measures: Dict[str, float]) -> str:
     return (f"{name}: move max {100 * measures['max_displacement']:.2g}% p95 {100 * measures['p95_displacement']:.2g}%"
             f", normals mean {measures['normal_change_mean_deg']:.2g} p95 {measures['normal_change_p95_deg']:.2g} deg"
+            f", edge strain p95 {measures.get('edge_strain_p95', float('nan')):.2g}"
             f", SSIM held-out min {measures['ssim_held_out_min']:.3f}")
 
 

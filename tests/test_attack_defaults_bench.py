@@ -16,7 +16,8 @@ def _folder(tmp_path: Path) -> Path:
         "success": [[True, True, True, True, False]], "eval_success": [[True, False, False, True, False, False,
                                                                         False, False]],
         "held_out_rate": [0.25], "wall_time": 419.5, "num_faces": 4003,
-        "distances": [{"max_displacement": 0.0048, "normal_change_p95_deg": 6.3, "laplacian_pair_mean": 3.46e-6,
+        "distances": [{"max_displacement": 0.0048, "normal_change_p95_deg": 6.3, "edge_strain_p95": 0.026,
+                       "laplacian_pair_mean": 3.46e-6,
                        "ssim_held_out_min": 0.907}],
     }
     (folder / "result.json").write_text(json.dumps(record))
@@ -37,7 +38,7 @@ def test_summary_row_reads_the_verdicts_distortion_and_mitsuba_counts(tmp_path: 
     table = bench.markdown([row, bench.summary_row("sofa/03", "chest", "eot4", tmp_path / "missing")])
     lines = table.splitlines()
     assert len(lines) == 4 and lines[0].count("|") == lines[1].count("|") == lines[2].count("|")
-    assert "| bottle/04 -> water jug | default | no | 4/5 | 2/8 | 1/5 | 1/4 | 0.48% |" in lines[2]
+    assert "| bottle/04 -> water jug | default | no | 4/5 | 2/8 | 1/5 | 1/4 | 0.48% | 6.3 | 0.026 |" in lines[2]
     assert "sofa/03 -> chest | eot4 | no | - |" in lines[3]
 
 

@@ -93,6 +93,8 @@ def test_cap_help_spells_out_the_default_cap() -> None:
     assert cap.color_change_p95 is not None
     assert f"largest vertex move {100 * cap.max_displacement:g}% of the bounding-box diagonal" in CAP_HELP
     assert f"at most {cap.normal_change_p95_deg:g} degrees" in CAP_HELP
+    assert cap.edge_strain_p95 is not None
+    assert f"stretched or squeezed by at most {100 * cap.edge_strain_p95:g}%" in CAP_HELP
     assert f"changing colour by at most {cap.color_change_p95:g}" in CAP_HELP
     assert parse_cap("default") == DEFAULT_CAP and parse_cap("none") is None
     with pytest.raises(ValueError, match="--cap"):

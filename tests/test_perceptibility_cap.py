@@ -77,6 +77,17 @@ def test_a_cap_nothing_fits_in_keeps_the_closest_step_inside_it_and_fails() -> N
     assert "failed" in capped.summary() and "max_displacement <= 1e-06" in capped.summary()
 
 
+@needs_native
+def test_an_edge_strain_ceiling_nothing_fits_in_keeps_the_closest_step_inside_it_and_fails() -> None:
+    free = _run("shape", None)
+    assert max(d["edge_strain_p95"] for d in free.distances) > 1e-4  # the free attack strains its edges
+    capped = _run("shape", {"edge_strain_p95": 1e-4})
+    assert not capped.succeeded.any()
+    for d in capped.distances:
+        assert d["edge_strain_p95"] <= 1e-4 * (1 + CAP_SLACK)
+    assert "failed" in capped.summary() and "edge_strain_p95 <= 0.0001" in capped.summary()
+
+
 def test_cap_parsing_records_and_checks() -> None:
     cap = PerceptibilityCap.parse("max_displacement=0.03, normal_change_p95_deg=none")
     assert cap.limits == {"max_displacement": 0.03}
@@ -111,3 +122,85 @@ def test_sweeps_pin_the_recommended_cap_for_ddn_and_none_for_the_papers_adam() -
         assert default_attack_options(perturbation, "ddn")["perceptibility_cap"] == DEFAULT_CAP.to_record()
         assert default_attack_options(perturbation, "adam")["perceptibility_cap"] is None
         assert default_attack_options(perturbation, None)["perceptibility_cap"] is None  # the class default: Adam
+
+
+def _sheet(nx: int, ny: int, length: float, width: float, height: float = 0.0) -> "tuple[Any, Any]":
+    """A flat ``nx`` x ``ny`` grid of triangles in the plane ``z = height``: vertices ``(nx * ny, 3)``, faces."""
+    import torch
+
+    x, y = torch.meshgrid(torch.linspace(0, length, nx), torch.linspace(0, width, ny), indexing="ij")
+    vertices = torch.stack([x.flatten(), y.flatten(), torch.full((nx * ny,), height)], dim=1)
+    index = torch.arange(nx * ny).reshape(nx, ny)
+    a, b, c, d = (index[:-1, :-1].flatten(), index[1:, :-1].flatten(), index[1:, 1:].flatten(),
+                  index[:-1, 1:].flatten())
+    return vertices, torch.cat([torch.stack([a, b, c], dim=1), torch.stack([a, c, d], dim=1)])
+
+
+def _thin_plate() -> "tuple[Any, Any]":
+    """A wing-like plate: two sheets 1 x 0.25, 0.01 apart (1% of its length), facing away from each other."""
+    import torch
+
+    top, faces = _sheet(41, 11, 1.0, 0.25, 0.005)
+    bottom = top - torch.tensor([0.0, 0.0, 0.01])
+    return torch.cat([top, bottom]), torch.cat([faces, faces.flip(1) + top.shape[0]])
+
+
+def _verdict(cap: PerceptibilityCap, moved: Any, vertices: Any, faces: Any) -> "tuple[bool, list]":
+    """The per-step check's verdict on ``moved`` and the ceilings the result's measures exceed."""
+    import torch
+
+    from meshadv.perceptibility import surface_measures
+    from meshadv.perceptibility.cap import step_measures
+
+    colors = torch.zeros(faces.shape[0], 3)
+    inside = cap.admits(step_measures(cap, moved[None], colors, vertices, colors, faces))
+    return bool(inside[0]), cap.violations(surface_measures(moved, colors, vertices, colors, faces))
+
+
+def test_the_default_cap_refuses_a_thin_plate_broken_into_fragments_that_moves_and_turns_little() -> None:
+    import torch
+
+    vertices, faces = _thin_plate()
+    diagonal = float((vertices.max(dim=0).values - vertices.min(dim=0).values).norm())
+    # the trailing 40% of the plate broken up: each vertex there jittered by at most 1% of the diagonal
+    trailing = vertices[:, 1] > 0.15
+    jitter = torch.rand(vertices.shape, generator=torch.Generator().manual_seed(0)) * 2 - 1
+    jitter = jitter * torch.tensor([1.0, 1.0, 0.3])
+    jitter = jitter / jitter.norm(dim=1, keepdim=True).clamp(min=1.0)
+    broken = vertices + 0.01 * diagonal * jitter * trailing[:, None]
+    inside, violations = _verdict(DEFAULT_CAP, broken, vertices, faces)
+    assert not inside and [v.split()[0] for v in violations] == ["edge_strain_p95"]
+    # the older ceilings alone pass it: it moves 1% of the diagonal and turns 95% of the area by less than 25 degrees
+    older = dataclasses.replace(DEFAULT_CAP, edge_strain_p95=None)
+    assert _verdict(older, broken, vertices, faces) == (True, [])
+
+
+def test_the_default_cap_refuses_a_fold_and_passes_a_smooth_small_bend() -> None:
+    import math
+
+    import torch
+
+    vertices, faces = _sheet(41, 11, 1.0, 0.25)
+    diagonal = float((vertices.max(dim=0).values - vertices.min(dim=0).values).norm())
+    x = vertices[:, 0]
+    # a fold across the sheet: a band of 12% of its length pushed in by 1.2% of the diagonal, gathered to its line
+    t = ((x - 0.5) / 0.06).clamp(-1.0, 1.0)
+    band = ((x - 0.5).abs() < 0.06).float()
+    folded = vertices.clone()
+    folded[:, 2] -= 0.012 * diagonal * band * torch.cos(t * math.pi / 2) ** 2
+    folded[:, 0] -= 0.012 * diagonal * band * torch.sin(t * math.pi)
+    inside, violations = _verdict(DEFAULT_CAP, folded, vertices, faces)
+    assert not inside and [v.split()[0] for v in violations] == ["edge_strain_p95"]
+    # the whole sheet bent smoothly by 1% of the diagonal: inside every ceiling
+    bent = vertices.clone()
+    bent[:, 2] += 0.01 * diagonal * torch.sin(math.pi * x)
+    assert _verdict(DEFAULT_CAP, bent, vertices, faces) == (True, [])
+
+
+def test_the_edge_strain_ceiling_parses_and_must_be_positive() -> None:
+    cap = PerceptibilityCap.parse("edge_strain_p95=0.1")
+    assert cap.limits == {"edge_strain_p95": 0.1}
+    assert not cap.admits({"edge_strain_p95": 0.11}) and cap.admits({"edge_strain_p95": 0.1})
+    assert DEFAULT_CAP.edge_strain_p95 is not None and "edge_strain_p95" in DEFAULT_CAP.describe()
+    with pytest.raises(ValueError, match="edge_strain_p95"):
+        PerceptibilityCap(edge_strain_p95=0.0)

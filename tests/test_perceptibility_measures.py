@@ -11,6 +11,7 @@ import torch
 
 from meshadv.perceptibility import (
     color_changes,
+    edge_strains,
     held_out_views,
     normal_changes,
     perceptibility_measures,
@@ -84,6 +85,39 @@ def test_uniform_scaling_moves_vertices_but_turns_no_normal() -> None:
     assert got["normal_change_mean_deg"] == pytest.approx(0.0, abs=1e-3)
     assert got["normal_change_p95_deg"] == pytest.approx(0.0, abs=1e-3)
     assert got["color_change_p95"] == 0.0
+
+
+def test_edge_strain_is_the_length_weighted_95th_percentile_of_the_edges_relative_change() -> None:
+    v = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    f = torch.tensor([[0, 1, 2], [1, 3, 2]])  # 5 edges: 4 sides of length 1, the diagonal 1-2 of length sqrt 2
+    moved = v.clone()
+    moved[3, 0] = 1.5  # edge 1-3 becomes sqrt(1.25), edge 2-3 becomes 1.5, the other three keep their lengths
+    # strains by length: 0 over 2 + sqrt 2, 0.118 over 1, 0.5 over 1 (18% of the length): the 95th percentile is 0.5
+    got = edge_strains(torch.stack([v, moved]), v, f)["edge_strain_p95"]
+    assert got.tolist() == pytest.approx([0.0, 0.5], abs=1e-6)
+    # a short edge doubling holds under 5% of the length: the percentile is the long edge's small strain
+    sliver = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0, 0.02, 0]])
+    widened = sliver.clone()
+    widened[2, 1] = 0.04
+    want = math.sqrt(1 + 0.04 ** 2) / math.sqrt(1 + 0.02 ** 2) - 1  # edge 1-2; edge 0-2 (strain 1) is 1% of the length
+    got = edge_strains(widened, sliver, torch.tensor([[0, 1, 2]]))["edge_strain_p95"]
+    assert float(got[0]) == pytest.approx(want, rel=1e-4)
+
+
+def test_edge_strain_ignores_rigid_motion_and_gives_a_uniform_scale_its_factor() -> None:
+    from meshadv.mesh import builtin_mesh
+
+    mesh = builtin_mesh("chair")
+    c, s = math.cos(0.7), math.sin(0.7)
+    rotation = torch.tensor([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    moved = mesh.vertices @ rotation.T + torch.tensor([0.3, -0.2, 0.1])
+    assert float(edge_strains(moved, mesh.vertices, mesh.faces)["edge_strain_p95"][0]) == pytest.approx(0, abs=1e-5)
+    grown = edge_strains(mesh.vertices * 1.2, mesh.vertices, mesh.faces)["edge_strain_p95"]
+    assert float(grown[0]) == pytest.approx(0.2, rel=1e-4)
+    with pytest.raises(ValueError, match="zero length"):
+        edge_strains(torch.zeros(3, 3), torch.zeros(3, 3), torch.tensor([[0, 1, 2]]))
+    with pytest.raises(ValueError, match="faces"):
+        edge_strains(mesh.vertices, mesh.vertices, torch.zeros(0, 3, dtype=torch.long))
 
 
 def test_color_change_percentile_is_area_weighted() -> None:
@@ -171,6 +205,7 @@ def test_perceptibility_measures_of_a_scaled_mesh() -> None:
     norms = mesh.vertices.norm(dim=1)
     assert scaled["max_displacement"] == pytest.approx(0.2 * float(norms.max()) / mesh.bbox_diagonal(), rel=1e-5)
     assert scaled["normal_change_p95_deg"] == pytest.approx(0.0, abs=1e-2)
+    assert same["edge_strain_p95"] == 0.0 and scaled["edge_strain_p95"] == pytest.approx(0.2, rel=1e-4)
     assert scaled["ssim_held_out_min"] < scaled["ssim_held_out_mean"] < 1.0
     with pytest.raises(ValueError, match="topology"):
         perceptibility_measures(mesh, [builtin_mesh("sphere")], views, RenderSetup(image_size=64))
@@ -190,18 +225,22 @@ def test_an_attack_result_reports_the_measures_in_json_summary_and_footer() -> N
                     PooledLinearClassifier(), TargetedMisclassification(728), setup=RenderSetup(image_size=48))
     record = result.to_record()["distances"][0]
     for key in ("max_displacement", "p95_displacement", "normal_change_mean_deg", "normal_change_p95_deg",
-                "color_change_p95", "ssim_held_out_mean", "ssim_held_out_min", "laplacian_pair_mean"):
+                "edge_strain_p95", "color_change_p95", "ssim_held_out_mean", "ssim_held_out_min",
+                "laplacian_pair_mean"):
         assert record[key] is not None, key
     mesh = builtin_mesh("chair")
     want = surface_measures(result.mesh.vertices, result.mesh.face_colors, mesh.vertices, mesh.face_colors,
                             mesh.faces)
     assert record["normal_change_p95_deg"] == pytest.approx(want["normal_change_p95_deg"], rel=1e-5)
+    assert record["edge_strain_p95"] == pytest.approx(want["edge_strain_p95"], rel=1e-5)
     assert record["max_displacement"] > 0 and record["ssim_held_out_min"] < 1.0
     summary = result.summary()
     assert f"p95 {100 * record['p95_displacement']:.3g}%" in summary
     assert f"SSIM held-out mean {record['ssim_held_out_mean']:.3g}" in summary
+    assert f"edge strain p95 {record['edge_strain_p95']:.3g}" in summary
     footer = distortion_line(record, "shape")
     assert "95th percentile" in footer and "face normals turn" in footer and "SSIM" in footer
+    assert f"edge length stretched or squeezed by at most {100 * record['edge_strain_p95']:.2g}%" in footer
 
 
 def test_sweep_tables_get_rows_for_the_measures_records_hold() -> None:
@@ -212,11 +251,12 @@ def test_sweep_tables_get_rows_for_the_measures_records_hold() -> None:
             "source_class": "chair", "target": "sofa"}
     measures = {"laplacian_sum": 0.25, "laplacian_pair_mean": 0.01, "color_rmse": 0.0, "max_displacement": 0.03,
                 "p95_displacement": 0.01, "normal_change_mean_deg": 2.0, "normal_change_p95_deg": 9.0,
-                "dssim_held_out_max": 0.04}
+                "edge_strain_p95": 0.03, "dssim_held_out_max": 0.04}
     rows = attack_rows([{"spec": spec, "record": {"success": True, "distances": measures}}])
     assert {r.measure: r.distance for r in rows} == {k: v for k, v in measures.items() if k != "color_rmse"}
     by_name = {r.distance_name: r for r in table1(rows)}
     assert by_name["normal_change_p95_deg"].worst.distance == pytest.approx(9.0)
+    assert by_name["edge_strain_p95"].worst.distance == pytest.approx(0.03)
     assert not by_name["max_displacement"].paper_measure
     old = attack_rows([{"spec": spec, "record": {"success": True, "distances": {"laplacian_sum": 0.25,
                                                                                  "laplacian_pair_mean": 0.01}}}])

@@ -30,11 +30,11 @@ from typing import Any, Dict, List, Optional, Tuple, Union
 import torch
 from torch import Tensor
 
-from meshadv.mesh import save_mesh
 from meshadv.util.atomic import write_json_atomic
 from meshadv.util.png import save_png
 
-__all__ = ["AttackResult", "load_result_record", "RESULT_FILE", "enough_views", "perceptibility_line"]
+__all__ = ["AttackResult", "load_result_record", "RESULT_FILE", "enough_views", "held_out_sentence",
+           "held_out_verdict", "perceptibility_line"]
 
 #: Name of the JSON record inside a result folder.
 RESULT_FILE = "result.json"
@@ -47,6 +47,37 @@ def enough_views(fraction: Any, success_fraction: float) -> Any:
     """Whether ``fraction`` (a float or a tensor of fractions of adversarial views) reaches ``success_fraction``:
     ``fraction >= success_fraction - 1e-9``, a bool or a bool tensor like ``fraction``."""
     return fraction >= success_fraction - _FRACTION_SLACK
+
+
+def held_out_verdict(held_out_success: Optional[Tensor], fraction: Optional[float], num_targets: int) -> Tensor:
+    """The held-out part of a verdict: bool ``(T,)``, each target holds on at least ``fraction`` of its held-out
+    views.
+
+    Args:
+        held_out_success: bool ``(T, V_held)``: the target holds on each held-out view, or ``None`` for none.
+        fraction: ``None`` (no held-out verdict: all true) or the fraction in ``(0, 1]`` the target needs (with no
+            held-out views to judge on: all false).
+        num_targets: ``T``.
+
+    Example:
+        >>> held_out_verdict(torch.tensor([[True] * 4 + [False], [True] * 3 + [False] * 2]), 0.8, 2).tolist()
+        [True, False]
+    """
+    if fraction is None:
+        return torch.ones(num_targets, dtype=torch.bool)
+    if held_out_success is None or held_out_success.shape[-1] == 0:
+        return torch.zeros(num_targets, dtype=torch.bool)
+    return enough_views(held_out_success.float().mean(dim=-1), fraction)
+
+
+def held_out_sentence(held: int, total: int, fraction: Optional[float]) -> str:
+    """The held-out verdict of one target in words: ``"held-out views (never optimised on): the target holds on
+    4/5 (80%); SUCCESS needs >= 80%"`` (``fraction`` ``None``: "not part of the verdict")."""
+    share = 100 * held / max(total, 1)
+    line = f"held-out views (never optimised on): the target holds on {held}/{total} ({share:.0f}%)"
+    if fraction is None:
+        return line + "; not part of the verdict"
+    return line + f"; SUCCESS needs >= {100 * fraction:.0f}%"
 
 
 def _json_float(value: float) -> Optional[float]:
@@ -63,12 +94,13 @@ def _get(distances: Dict[str, Any], name: str) -> float:
 
 def perceptibility_line(distances: Dict[str, Any]) -> str:
     """The perceptibility measures of one target's ``distances`` on one line, the way a person reads them:
-    ``"move max 1.2% p95 0.4% of the diagonal, normals mean 2.1 p95 8.3 deg, colours p95 0, SSIM held-out mean
-    0.98 min 0.95"`` (``nan`` for a measure the record lacks)."""
+    ``"move max 1.2% p95 0.4% of the diagonal, normals mean 2.1 p95 8.3 deg, edge strain p95 0.031, colours p95 0,
+    SSIM held-out mean 0.98 min 0.95"`` (``nan`` for a measure the record lacks)."""
     return (f"move max {100 * _get(distances, 'max_displacement'):.3g}% p95 "
             f"{100 * _get(distances, 'p95_displacement'):.3g}% of the diagonal, normals mean "
             f"{_get(distances, 'normal_change_mean_deg'):.3g} p95 {_get(distances, 'normal_change_p95_deg'):.3g} "
-            f"deg, colours p95 {_get(distances, 'color_change_p95'):.3g}, SSIM held-out mean "
+            f"deg, edge strain p95 {_get(distances, 'edge_strain_p95'):.3g}, colours p95 "
+            f"{_get(distances, 'color_change_p95'):.3g}, SSIM held-out mean "
             f"{_get(distances, 'ssim_held_out_mean'):.3g} min {_get(distances, 'ssim_held_out_min'):.3g}")
 
 
@@ -201,12 +233,7 @@ class AttackResult:
     def holds_held_out(self) -> Tensor:
         """bool ``(T,)``: the target holds on at least ``held_out_fraction`` of the held-out views (all true without
         a held-out verdict; all false when one is asked for and there are no held-out views)."""
-        if self.held_out_fraction is None:
-            return torch.ones(self.num_targets, dtype=torch.bool)
-        rate = self.held_out_rate
-        if rate is None:
-            return torch.zeros(self.num_targets, dtype=torch.bool)
-        return enough_views(rate, self.held_out_fraction)
+        return held_out_verdict(self.eval_success, self.held_out_fraction, self.num_targets)
 
     @property
     def succeeded(self) -> Tensor:
@@ -303,20 +330,14 @@ class AttackResult:
         """Every target's adversarial mesh as PLY and OBJ (:meth:`mesh_filenames`) into ``folder``; a SurfaceMesh
         (textured or vertex-coloured) also as GLB, its OBJ with an MTL and the texture PNG or with its vertex
         colours (``v x y z r g b``), its PLY with the vertex colours (else per face)."""
-        from meshadv.mesh.surface_mesh import SurfaceMesh, save_surface_mesh
+        from meshadv.mesh.surface_mesh import SurfaceMesh, save_any_mesh
 
         for t, mesh in enumerate(self.adversarial):
             ply, obj = self.mesh_filenames(t)
-            if not isinstance(mesh, SurfaceMesh):
-                save_mesh(mesh.detach(), folder / ply)
-                save_mesh(mesh.detach(), folder / obj)
-                continue
-            save_surface_mesh(mesh, folder / obj)
-            save_surface_mesh(mesh, folder / Path(obj).with_suffix(".glb").name)
-            if mesh.vertex_colors is not None:
-                save_surface_mesh(mesh, folder / ply)
-            else:
-                save_mesh(mesh.mesh.detach(), folder / ply)
+            save_any_mesh(mesh, folder / obj)
+            if isinstance(mesh, SurfaceMesh):
+                save_any_mesh(mesh, folder / Path(obj).with_suffix(".glb").name)
+            save_any_mesh(mesh, folder / ply)
 
     def _write_images(self, folder: Path) -> None:
         """The pristine and adversarial renders of every view as PNG into ``folder``."""

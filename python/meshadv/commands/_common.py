@@ -6,13 +6,14 @@ Heavy imports (torch, the renderer, victims) happen inside the functions so ``me
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, List, Mapping, Optional, Sequence, Tuple
+from typing import TYPE_CHECKING, Any, List, Mapping, Optional, Sequence, Tuple
+
+if TYPE_CHECKING:
+    from meshadv.mesh.file_input import MeshInput
 
 __all__ = [
     "VICTIMS",
-    "MeshInput",
     "load_mesh_input",
     "parse_azimuth_range",
     "parse_duration",
@@ -40,25 +41,6 @@ VICTIMS = ("efficientnet_lite0", "efficientnet_lite2", "ssd_mobilenet_v2_coco", 
            "yolov3")
 
 
-@dataclass(frozen=True)
-class MeshInput:
-    """A mesh named on the command line, normalised into ``[-1, 1]``.
-
-    Attributes:
-        mesh: the normalised, Y-up mesh the attack works on.
-        label: how the command line named it.
-        path: the resolved input file, ``None`` for built-ins.
-        transform: the ``NormalizeTransform`` from the input file's frame (``None`` for built-ins).
-        z_up: whether the file was taken as Z-up.
-    """
-
-    mesh: Any
-    label: str
-    path: Optional[Path]
-    transform: Any
-    z_up: bool
-
-
 def load_mesh_input(spec: str, *, z_up: Optional[bool] = None, say: bool = True) -> MeshInput:
     """Load the mesh named on the command line and normalise it into ``[-1, 1]``, saying which axis was taken as up.
 
@@ -75,7 +57,7 @@ def load_mesh_input(spec: str, *, z_up: Optional[bool] = None, say: bool = True)
     """
     import typer
 
-    from meshadv.mesh import load_mesh, normalize_mesh
+    from meshadv.mesh.file_input import MeshInput, read_file_input
     from meshadv.mesh.shapes import builtin_mesh, default_mesh
 
     if spec == "default":
@@ -92,8 +74,7 @@ def load_mesh_input(spec: str, *, z_up: Optional[bool] = None, say: bool = True)
             other = "--y-up" if z_up else "--z-up"
             typer.echo(f"note: {path.name} taken as {'Z' if z_up else 'Y'}-up ({why}); if it renders lying on its "
                        f"side or back, pass {other}", err=True)
-    mesh, transform = normalize_mesh(load_mesh(path), z_up=bool(z_up))
-    return MeshInput(mesh, str(path), path.resolve(), transform, bool(z_up))
+    return read_file_input(path, z_up=bool(z_up), label=str(path))
 
 
 def load_mesh_arg(spec: str, *, z_up: Optional[bool] = None) -> Tuple[Any, str]:

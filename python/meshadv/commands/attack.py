@@ -11,7 +11,6 @@ Example:
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, List, Optional, Sequence
 
@@ -30,48 +29,12 @@ from meshadv.commands._common import (
     resolve_method,
 )
 
-__all__ = ["attack", "attack_input", "build_attack", "build_criteria", "resampled_input", "run_with_progress"]
-
-
-def resampled_input(loaded: Any, faces: int) -> Any:
-    """``loaded`` (a ``MeshInput``) with its mesh resampled uniformly with MeshLab to about ``faces`` faces, saying
-    the face counts: a per-face mesh by :func:`meshadv.mesh.resample.resample_mesh_with_info`, a textured or
-    vertex-coloured one by :func:`meshadv.mesh.surface_resample.resample_surface_mesh` (its texture carried onto a
-    new atlas, its vertex colours onto the new vertices); unchanged for ``faces == 0`` and for built-in shapes (no
-    file).
-
-    Raises:
-        MeshProcessingError: MeshLab failed on the mesh (the message says so; ``--resample 0`` attacks it as loaded).
-    """
-    if faces == 0 or loaded.path is None:
-        return loaded
-    from meshadv.mesh.surface_mesh import SurfaceMesh
-
-    carried = ""
-    if isinstance(loaded.mesh, SurfaceMesh):
-        from meshadv.mesh.surface_resample import resample_surface_mesh
-
-        dense, info = resample_surface_mesh(loaded.mesh, target_faces=faces)
-        carried = "; " + " and ".join(
-            ([f"texture carried onto a {dense.texture.shape[1]}x{dense.texture.shape[0]} atlas"]
-             if dense.texture is not None else []) + (["vertex colours carried"] if dense.vertex_colors is not None
-                                                      else []))
-    else:
-        from meshadv.mesh.resample import resample_mesh_with_info
-
-        dense, info = resample_mesh_with_info(loaded.mesh, target_faces=faces)
-    typer.echo(f"resampled uniformly with MeshLab ({info.method}): {info.input_faces} -> {info.output_faces} faces"
-               f"{carried} (--resample 0 attacks the mesh as loaded)")
-    return replace(loaded, mesh=dense)
+__all__ = ["attack", "attack_input", "build_attack", "build_criteria", "run_with_progress"]
 
 
 def attack_input(loaded: Any, perturbation: str, shading: Optional[str], resample: int) -> Any:
-    """The ``MeshInput`` an attack of ``perturbation`` works on, resampled (:func:`resampled_input`) and under
-    ``shading`` (default: what the file asks for): a file's texture or vertex colours drawn as the file has them (a
-    :class:`~meshadv.mesh.surface_mesh.SurfaceMesh`; ``texture-map`` attacks it as loaded, its texels in the file's
-    UV layout being the perturbation), else the per-face mesh, drawn smooth with each vertex the mean of its faces'
-    colours for ``shading="smooth"``. Smooth shading uses the area-weighted normals of the attacked vertices (the
-    file's normals do not follow a shape perturbation).
+    """The ``MeshInput`` an attack of ``perturbation`` works on (:func:`meshadv.mesh.file_input.attack_input`, the
+    loader sweep jobs share), its resampling notes printed.
 
     Raises:
         ValueError: ``texture-map`` of a mesh without a UV texture image, or ``texture`` (per-face colours, drawn
@@ -79,27 +42,13 @@ def attack_input(loaded: Any, perturbation: str, shading: Optional[str], resampl
         MeshLoadError: the file's texture or attributes are unusable (the message names the file and field).
         MeshProcessingError: MeshLab failed on the mesh.
     """
-    from meshadv.commands._surface_views import surface_input
-    from meshadv.mesh.surface_mesh import SurfaceMesh
+    from meshadv.mesh import file_input
 
-    if perturbation == "texture":
-        if shading == "smooth":
-            raise ValueError("--shading smooth needs --perturbation shape or texture-map: the per-face colour "
-                             "attack (texture) draws its faces flat")
-        return resampled_input(loaded, resample)
-    surface = surface_input(loaded, None if shading == "smooth" else shading, keep_normals=False)
-    if isinstance(surface.mesh, SurfaceMesh):
-        surface = replace(surface, mesh=replace(surface.mesh, shading=shading or surface.mesh.shading))
-        if perturbation == "texture-map":
-            if resample:
-                typer.echo("texture-map: the textured file is attacked as loaded (its texels, in the file's UV "
-                           "layout, are the perturbation; resampling would re-encode them)")
-            return surface
-        return resampled_input(surface, resample)
-    if perturbation == "texture-map":
-        raise ValueError(f"--perturbation texture-map needs a UV texture image: {loaded.label} has none (an OBJ "
-                         "needs a map_Kd in its MTL, a GLB a base-colour texture)")
-    return surface_input(resampled_input(loaded, resample), shading)
+    if perturbation == "texture" and shading == "smooth":
+        raise ValueError("--shading smooth needs --perturbation shape or texture-map: the per-face colour "
+                         "attack (texture) draws its faces flat")
+    return file_input.attack_input(loaded, perturbation, shading, resample, say=typer.echo,
+                                   hint=" (--resample 0 attacks the mesh as loaded)")
 
 
 def build_attack(perturbation: str, **kwargs: Any) -> Any:
@@ -258,6 +207,7 @@ def attack(
         "default", help="perceptibility cap: 'default' (" + CAP_HELP + "), 'none' (the paper's protocol), or "
                         "NAME=VALUE,... of max_displacement (largest vertex move / bounding-box diagonal), "
                         "normal_change_p95_deg (area-weighted 95th-percentile turn of the face normals, degrees), "
+                        "edge_strain_p95 (length-weighted 95th-percentile relative change of the edge lengths), "
                         "color_change_p95 (area-weighted 95th-percentile RGB change of the face colours); a step "
                         "outside it never counts as a success, and a target that cannot succeed inside it fails with "
                         "its closest result inside it"),

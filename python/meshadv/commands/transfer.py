@@ -37,9 +37,10 @@ transfer_app = typer.Typer(
 
 def _surface_mesh_arg(spec: str, shading: Optional[str]) -> Any:
     """The normalised mesh of MESH drawn as ``meshadv render`` draws it: a file's texture or vertex colours under
-    ``--shading`` (:func:`~meshadv.commands._surface_views.surface_input`), else per face."""
+    ``--shading`` (:func:`~meshadv.mesh.file_input.surface_input`), else per face."""
     from meshadv.commands._common import load_mesh_input
-    from meshadv.commands._surface_views import parse_shading, surface_input
+    from meshadv.commands._surface_views import parse_shading
+    from meshadv.mesh.file_input import surface_input
 
     try:
         return surface_input(load_mesh_input(spec), parse_shading(shading)).mesh

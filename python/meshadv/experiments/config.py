@@ -8,7 +8,10 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
                   classes = [...] (PASCAL3D+ classes; default all 7), models_per_class = 1 (models 01, 02, ...),
                   or models = ["01", ...] (every class) or models = {chair = ["03"], ...} (per class)
                   builtin = [{name = "sphere", class = "bottle"}], files = [{path = "x.ply", class = "chair"}]
-                  target_faces = 0 (uniform resampling, 0 = keep), max_faces = 20000
+                  target_faces = 0 (uniform resampling, 0 = keep), max_faces = 20000,
+                  shading = "flat" | "smooth" (default: what each file asks for; shape jobs only: texture jobs draw
+                  per-face colours flat). A file's texture and vertex colours are attacked as they are, as
+                  ``meshadv attack`` takes them (:func:`meshadv.experiments.jobs.load_job_mesh`)
     [render]      image_size = 224, configurations = 72, config_seed = 0, distance = [3.6, 4.4],
                   azimuth = [0, 360], elevation = [0, 30], viewing_angle = 30,
                   light_intensity = [0.4, 0.8], ambient = [0.3, 0.6], light_jitter = 30,
@@ -93,7 +96,8 @@ __all__ = [
 SECTION_KEYS: Dict[str, frozenset] = {
     "experiment": frozenset({"name", "seeds", "output", "db"}),
     "meshes": frozenset(
-        {"source", "classes", "models_per_class", "models", "builtin", "files", "target_faces", "max_faces"}
+        {"source", "classes", "models_per_class", "models", "builtin", "files", "target_faces", "max_faces",
+         "shading"}
     ),
     "render": frozenset(
         {
@@ -331,10 +335,12 @@ def parse_config(raw: Dict[str, Any], *, base_dir: Union[str, Path] = ".", text:
     meshes = _meshes_section(raw, base)
     render = _render_section(raw, meshes["source"], base)
     victims, weights, caps = _victims_section(raw, base)
+    attack, multiview = _attack_section(raw), _multiview_section(raw)
+    _check_shading(meshes, attack, multiview)
     render["victim_configurations"] = dict(caps)
     return SweepConfig(name=name, seeds=tuple(int(s) for s in seeds), output=output, db=db, meshes=meshes,
-                       render=render, victims=tuple(victims), victim_weights=weights, attack=_attack_section(raw),
-                       multiview=_multiview_section(raw), runner=_runner_section(raw),
+                       render=render, victims=tuple(victims), victim_weights=weights, attack=attack,
+                       multiview=multiview, runner=_runner_section(raw),
                        raw=raw, text=text)
 
 
@@ -374,7 +380,23 @@ def _meshes_section(raw: Dict[str, Any], base: Path) -> Dict[str, Any]:
         if not isinstance(entry, dict) or "class" not in entry or not ({"name", "path"} & set(entry)):
             raise ValueError(f"meshes.builtin / meshes.files entries need 'name' or 'path' and 'class', got {entry!r}")
     meshes["files"] = [{**e, "path": str((base / e["path"]).resolve())} for e in meshes["files"]]
+    if meshes.get("shading") not in (None, "flat", "smooth"):
+        raise ValueError(f"meshes.shading must be flat or smooth, got {meshes['shading']!r}")
     return meshes
+
+
+def _check_shading(meshes: Dict[str, Any], attack: Dict[str, Any], multiview: Dict[str, Any]) -> None:
+    """``meshes.shading = "smooth"`` with no per-face colour (``texture``) jobs, which draw flat.
+
+    Raises:
+        ValueError: naming ``meshes.shading`` and the section that runs ``texture``.
+    """
+    if meshes.get("shading") != "smooth":
+        return
+    for section, table in (("attack", attack), ("multiview", multiview)):
+        if "texture" in table["perturbations"] and (section == "attack" or table["enabled"]):
+            raise ValueError(f"meshes.shading = 'smooth' needs {section}.perturbations without 'texture': the "
+                             "per-face colour attack draws its faces flat (run it from a sweep file without shading)")
 
 
 def _render_section(raw: Dict[str, Any], mesh_source: str, base: Path) -> Dict[str, Any]:
@@ -683,9 +705,13 @@ def rendering_set_instances(config: SweepConfig) -> List[Instance]:
     return out
 
 
-def _mesh_common(meshes: Dict[str, Any]) -> Dict[str, int]:
-    """The resampling keys every mesh entry carries."""
-    return {"target_faces": int(meshes["target_faces"]), "max_faces": int(meshes["max_faces"])}
+def _mesh_common(meshes: Dict[str, Any]) -> Dict[str, Any]:
+    """The resampling keys every mesh entry carries, and ``shading`` when the file sets one (absent, the jobs and
+    their ids are those of a sweep file without it)."""
+    common: Dict[str, Any] = {"target_faces": int(meshes["target_faces"]), "max_faces": int(meshes["max_faces"])}
+    if meshes.get("shading") is not None:
+        common["shading"] = meshes["shading"]
+    return common
 
 
 def _mesh_entries(meshes: Dict[str, Any]) -> List[Dict[str, Any]]:

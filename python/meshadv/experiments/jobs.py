@@ -29,9 +29,9 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from meshadv.experiments.regenerate import attack_pin_key, pinned_spec
 
-__all__ = ["run_attack_job", "load_job_mesh", "JobContext", "BenignVerdict", "planned_steps", "victim_optimize",
-           "default_attack_options", "pin_defaults", "prepare_attack_specs", "seed_pinned_defaults", "DISTANCE_KEYS",
-           "PINNED_DEFAULTS_KEY"]
+__all__ = ["run_attack_job", "load_job_mesh", "save_job_mesh", "JobContext", "BenignVerdict", "planned_steps",
+           "victim_optimize", "default_attack_options", "pin_defaults", "prepare_attack_specs", "seed_pinned_defaults",
+           "DISTANCE_KEYS", "PINNED_DEFAULTS_KEY"]
 
 #: Distance key of the record's ``distance`` per perturbation type: the measure comparable with the paper
 #: (``meshadv.attacks.distances.PAPER_COMPARABLE``; the record's ``distances`` holds every measure).
@@ -40,43 +40,81 @@ DISTANCE_KEYS = {"shape": "laplacian_pair_mean", "texture": "color_rmse"}
 _VICTIM_CACHE: Dict[str, Any] = {}
 
 
-def load_job_mesh(mesh_spec: Dict[str, Any]) -> Any:
-    """Load the mesh described by a job's ``mesh`` entry, normalised into ``[-1, 1]`` (Y up).
+def load_job_mesh(mesh_spec: Dict[str, Any], perturbation: Optional[str] = None) -> Any:
+    """Load the mesh described by a job's ``mesh`` entry, normalised into ``[-1, 1]`` (Y up), as the job of
+    ``perturbation`` attacks it.
+
+    With ``perturbation`` given and ``mesh_spec["surface"]`` true (the default; :func:`pin_defaults` pins false for
+    a database started when jobs loaded every file per face) a file's texture and vertex colours are taken as they
+    are, by ``meshadv attack``'s loader (:func:`meshadv.mesh.file_input.attack_input`: a shape job of a textured or
+    vertex-coloured file attacks its :class:`~meshadv.mesh.surface_mesh.SurfaceMesh` under ``mesh_spec["shading"]``,
+    resampled with its texture carried onto a new atlas; a texture job the per-face mesh). A file with neither, and
+    every built-in shape, loads per face as always (drawn smooth, each vertex the mean of its faces' colours, for
+    ``shading = "smooth"``).
 
     Args:
         mesh_spec: ``{"source": "pascal3d", "path": "pascal3d/<class>/NN.ply", ...}`` (path relative to the shared
             data folder), ``{"source": "builtin", "name": ...}`` or ``{"source": "files", "path": ...}``;
-            optional ``target_faces`` (uniform resampling) and ``max_faces``.
+            optional ``target_faces`` (uniform resampling), ``max_faces``, ``shading`` (``"flat"`` or ``"smooth"``;
+            default: what the file asks for) and ``surface``.
+        perturbation: the job's perturbation (``None``: the per-face mesh).
 
     Returns:
-        A ``meshadv.mesh.Mesh``.
+        A ``meshadv.mesh.Mesh``, or a ``SurfaceMesh`` (see above).
 
     Raises:
-        ValueError: unknown source. FileNotFoundError: missing file or shared data.
+        ValueError: unknown source, bad shading. FileNotFoundError: missing file or shared data.
+        MeshLoadError: the file's texture or attributes are unusable (the message names the file and field).
     """
     from meshadv import mesh as meshlib
+    from meshadv.mesh.file_input import MeshInput, attack_input, read_file_input, surface_input
 
     source = mesh_spec.get("source")
     max_faces = int(mesh_spec.get("max_faces", 20000))
+    target_faces = int(mesh_spec.get("target_faces", 0))
+    shading = mesh_spec.get("shading")
+    if shading not in (None, "flat", "smooth"):
+        raise ValueError(f"mesh.shading must be flat or smooth, got {shading!r}")
+    surface = perturbation is not None and bool(mesh_spec.get("surface", True))
     if source == "builtin":
         mesh = meshlib.builtin_mesh(mesh_spec["name"])
-    elif source in ("pascal3d", "files"):
-        if source == "pascal3d":
-            from meshadv.data import require_shared_data
-
-            path = require_shared_data(mesh_spec["path"])
-        else:
-            path = Path(mesh_spec["path"])
-            if not path.is_file():
-                raise FileNotFoundError(f"mesh file {path} does not exist")
-        mesh = meshlib.load_mesh(path, max_faces=max_faces)
-        mesh = meshlib.normalize_mesh(mesh, z_up=source == "pascal3d")[0]
-    else:
+        if target_faces > 0:
+            mesh = meshlib.resample_mesh(mesh, target_faces=target_faces)
+        if surface and perturbation != "texture":
+            return surface_input(MeshInput(mesh, str(mesh_spec["name"]), None, None, False), shading).mesh
+        return mesh
+    if source not in ("pascal3d", "files"):
         raise ValueError(f"mesh.source must be pascal3d, builtin or files, got {source!r}")
-    target_faces = int(mesh_spec.get("target_faces", 0))
+    if source == "pascal3d":
+        from meshadv.data import require_shared_data
+
+        path = require_shared_data(mesh_spec["path"])
+    else:
+        path = Path(mesh_spec["path"])
+        if not path.is_file():
+            raise FileNotFoundError(f"mesh file {path} does not exist")
+    loaded = read_file_input(path, z_up=source == "pascal3d", max_faces=max_faces)
+    if surface:
+        return attack_input(loaded, str(perturbation), None if perturbation == "texture" else shading,
+                            target_faces).mesh
+    mesh = loaded.mesh
     if target_faces > 0:
         mesh = meshlib.resample_mesh(mesh, target_faces=target_faces)
     return mesh
+
+
+def save_job_mesh(mesh: Any, out: Path, stem: str) -> Dict[str, str]:
+    """Write a job's mesh into ``out`` as ``<stem>.ply`` (per face, or a ``SurfaceMesh``'s vertex colours) and, for a
+    ``SurfaceMesh``, ``<stem>.obj`` with its texture (MTL + PNG) or vertex colours
+    (:func:`~meshadv.mesh.surface_mesh.save_any_mesh`); returns the artefact names, ``<stem>_mesh`` and
+    ``<stem>_surface``."""
+    from meshadv.mesh.surface_mesh import SurfaceMesh, save_any_mesh
+
+    save_any_mesh(mesh, out / f"{stem}.ply")
+    if not isinstance(mesh, SurfaceMesh):
+        return {f"{stem}_mesh": f"{stem}.ply"}
+    save_any_mesh(mesh, out / f"{stem}.obj")
+    return {f"{stem}_mesh": f"{stem}.ply", f"{stem}_surface": f"{stem}.obj"}
 
 
 def _make_job_attack(spec: Dict[str, Any], options: Dict[str, Any]) -> Any:
@@ -151,11 +189,13 @@ def pin_defaults(store: Any, specs: Any) -> Dict[str, Any]:
 
     A spec names only what its config sets; the rest comes from the code's defaults (the update rule's options, the
     victim's ``optimize``), which can change between the start of a sweep and its resumption. The database keeps, in
-    its meta entry :data:`PINNED_DEFAULTS_KEY`, ``{"victim_optimize": bool, "attack": {"<type>/<method>": options}}``
-    (the :data:`meshadv.experiments.regenerate.Assumed` format): entries missing for a kind of job among ``specs``
-    are added from today's code, existing ones are kept, so every job of a database runs with the defaults of its
-    first run. The runner applies them (:func:`meshadv.experiments.regenerate.pinned_spec`) before a job runs; the
-    job ids do not change.
+    its meta entry :data:`PINNED_DEFAULTS_KEY`, ``{"victim_optimize": bool, "surface_meshes": bool, "attack":
+    {"<type>/<method>": options}}`` (the :data:`meshadv.experiments.regenerate.Assumed` format): entries missing for
+    a kind of job among ``specs`` are added from today's code, existing ones are kept, so every job of a database
+    runs with the defaults of its first run. ``surface_meshes`` (whether jobs take a file's texture and vertex
+    colours as they are, :func:`load_job_mesh`) is pinned true for a new database and false for one that already
+    holds finished jobs without the pin: they were run per face. The runner applies them
+    (:func:`meshadv.experiments.regenerate.pinned_spec`) before a job runs; the job ids do not change.
 
     Args:
         store: an open, writable :class:`~meshadv.experiments.store.ResultStore`.
@@ -169,6 +209,9 @@ def pin_defaults(store: Any, specs: Any) -> Dict[str, Any]:
     changed = False
     if "victim_optimize" not in pins:
         pins["victim_optimize"] = victim_optimize({})
+        changed = True
+    if "surface_meshes" not in pins:  # a database with finished jobs but no pin was started loading per face
+        pins["surface_meshes"] = store.counts()["done"] == 0
         changed = True
     for spec in specs:
         attack = spec.get("attack") or {}
@@ -297,16 +340,15 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     from meshadv.experiments.provenance import compute_environment
     from meshadv.experiments.worker import attack_step_callback
     from meshadv.util.png import save_png
-    from meshadv.mesh import save_mesh
 
     start, cpu_start = time.perf_counter(), time.process_time()
     out = Path(out_dir)
     perturbation = check_perturbation(spec["perturbation"], "spec['perturbation']")
     torch.manual_seed(int(spec.get("seed", 0)))
-    mesh = load_job_mesh(spec["mesh"])
+    mesh = load_job_mesh(spec["mesh"], perturbation)
     context = JobContext.from_spec(spec)
     benign = context.benign_verdict(mesh)  # judge the benign render as the attack renders it
-    save_mesh(mesh, out / "benign.ply")
+    artifacts = save_job_mesh(mesh, out, "benign")
     benign_pngs = []
     for j in range(benign.images.shape[0]):
         save_png(benign.images[j], out / f"benign_v{j}.png")
@@ -318,7 +360,9 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         "victim_optimize": context.victim_optimize,
         "num_vertices": int(mesh.vertices.shape[0]),
         "num_faces": int(mesh.faces.shape[0]),
-        "artifacts": {"benign_mesh": "benign.ply", "benign_images": benign_pngs},
+        # whether a file's texture and vertex colours were taken as they are (regeneration loads the mesh so again)
+        "mesh_surface": bool(spec["mesh"].get("surface", True)),
+        "artifacts": {**artifacts, "benign_images": benign_pngs},
     }
     if spec.get("benign_correct_only") and not benign.correct:
         record.update(skipped=True, success=False, distance=None, steps=0, time=time.perf_counter() - start,

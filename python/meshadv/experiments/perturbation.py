@@ -102,14 +102,20 @@ class Perturbation:
         """The adversarial mesh: ``benign`` with the differences added to its fields.
 
         Raises:
-            ValueError: ``benign`` is not the mesh the perturbation was made on (other sizes).
+            ValueError: ``benign`` is not the mesh the perturbation was made on (other sizes), or a face-colour
+                perturbation of a ``SurfaceMesh`` (a shape job's is its vertices).
         """
         import torch
 
+        from meshadv.mesh.surface_mesh import SurfaceMesh
+
         rows = {"vertices": benign.num_vertices, "face_colors": benign.num_faces}
-        mesh = benign.detach()
+        surface = isinstance(benign, SurfaceMesh)
+        mesh = benign if surface else benign.detach()
         for name, delta in self.deltas(rows).items():
-            field = getattr(mesh, name)
+            if surface and name != "vertices":
+                raise ValueError(f"a textured or vertex-coloured mesh takes a vertex perturbation, got {name}")
+            field = getattr(mesh, name).detach()
             changed = (field + torch.as_tensor(delta, device=field.device)).contiguous()
             mesh = mesh.with_vertices(changed) if name == "vertices" else mesh.with_face_colors(changed)
         return mesh

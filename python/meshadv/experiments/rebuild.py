@@ -47,8 +47,10 @@ def rebuild_job(db_path: Union[str, Path], row: JobRow, target: Union[str, Path]
     import torch
 
     from meshadv.experiments.jobs import load_job_mesh
-    from meshadv.mesh import save_mesh
+    from meshadv.experiments.regenerate import recorded_mesh_spec
+    from meshadv.mesh.surface_mesh import save_any_mesh
     from meshadv.render import ViewSet
+    from meshadv.render.surface_reflectance import reflectance_of
     from meshadv.render.setup import RenderSetup, split_setup_options
     from meshadv.util.atomic import write_text_atomic
     from meshadv.util.png import save_png
@@ -61,7 +63,7 @@ def rebuild_job(db_path: Union[str, Path], row: JobRow, target: Union[str, Path]
         return None
     packed, _source = kept
     spec = row.spec
-    benign = load_job_mesh(spec["mesh"])
+    benign = load_job_mesh(recorded_mesh_spec(spec, record), spec.get("perturbation"))
     adversarial = packed.apply(benign)
     setup_options, _ = split_setup_options(dict(spec.get("attack", {})))
     setup = RenderSetup(image_size=int(spec.get("image_size", 224)), **setup_options)
@@ -69,17 +71,17 @@ def rebuild_job(db_path: Union[str, Path], row: JobRow, target: Union[str, Path]
     out = Path(target)
     out.mkdir(parents=True, exist_ok=True)
     arts = record.get("artifacts") or {}
-    save_mesh(benign, out / str(arts.get("benign_mesh", "benign.ply")))
-    if arts.get("adversarial_mesh"):
-        save_mesh(adversarial, out / str(arts["adversarial_mesh"]))
-    if arts.get("adversarial_obj"):
-        save_mesh(adversarial, out / str(arts["adversarial_obj"]))
+    meshes = {"benign_mesh": benign, "benign_surface": benign, "adversarial_mesh": adversarial,
+              "adversarial_obj": adversarial}
+    for key, name in {"benign_mesh": "benign.ply", **arts}.items():
+        if key in meshes and name:
+            save_any_mesh(meshes[key], out / str(name))
     with torch.no_grad():
         for key, mesh in (("benign_images", benign), ("adversarial_images", adversarial)):
             names = arts.get(key) or []
             if not names:
                 continue
-            images, _ = setup.render(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views)
+            images, _ = setup.render(mesh.vertices.unsqueeze(0), mesh.faces, reflectance_of(mesh), views)
             for j, name in enumerate(names[: images.shape[0]]):
                 save_png(images[j], out / str(name))
     write_text_atomic(out / str(arts.get("result", "result.json")), json.dumps(_result_of(spec, record), indent=2))

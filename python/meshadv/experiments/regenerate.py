@@ -27,11 +27,12 @@ from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 from meshadv.experiments.store import ResultStore, job_out_dir
 from meshadv.experiments.worker import execute
 
-__all__ = ["Regenerated", "regenerate_job", "stored_job_ref", "pinned_spec", "load_assumed",
+__all__ = ["Regenerated", "regenerate_job", "stored_job_ref", "pinned_spec", "load_assumed", "recorded_mesh_spec",
            "COMPARED_KEYS", "Assumed", "attack_pin_key", "compute_note"]
 
-#: What the sweep's code used where neither its specs nor its records say: ``{"victim_optimize": bool, "attack":
-#: {"shape": {option: value, "method_options": {...}}, "texture": {...}}}`` (every key optional); an attack entry
+#: What the sweep's code used where neither its specs nor its records say: ``{"victim_optimize": bool,
+#: "surface_meshes": bool, "attack": {"shape": {option: value, "method_options": {...}}, "texture": {...}}}`` (every
+#: key optional; ``surface_meshes``: whether jobs take a file's texture and vertex colours as they are); an attack entry
 #: applies to specs of its own ``method``, and ``"<type>/<method>"`` keys (``"shape/ddn"``, ``"texture/default"``
 #: for a spec without a method) take precedence over ``"<type>"`` ones.
 Assumed = Mapping[str, Any]
@@ -133,7 +134,9 @@ def pinned_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
 
     ``attack_config`` of the record (the attack's effective hyper-parameters) goes under ``spec["attack"]`` and
     ``victim_optimize`` into the spec; for a record without them, ``assume`` (see :data:`Assumed`) supplies them
-    (its attack options only to specs of the same ``method``).
+    (its attack options only to specs of the same ``method``). The record's ``mesh_surface`` (false for a record
+    without it, made when jobs loaded every file per face; for an unfinished job ``assume``'s ``surface_meshes``)
+    goes into ``spec["mesh"]["surface"]`` (:func:`meshadv.experiments.jobs.load_job_mesh`).
     The job id is not recomputed: the rerun is the same job.
 
     Args:
@@ -146,11 +149,12 @@ def pinned_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
         ValueError: ``assume`` is not a mapping of the documented shape.
     """
     assume = dict(assume or {})
-    unknown = set(assume) - {"victim_optimize", "attack"}
+    unknown = set(assume) - {"victim_optimize", "surface_meshes", "attack"}
     if unknown:
-        raise ValueError(f"assume has unknown keys {sorted(unknown)} (known: attack, victim_optimize)")
-    if "victim_optimize" in assume and not isinstance(assume["victim_optimize"], bool):
-        raise ValueError(f"assume['victim_optimize'] must be true or false, got {assume['victim_optimize']!r}")
+        raise ValueError(f"assume has unknown keys {sorted(unknown)} (known: attack, surface_meshes, victim_optimize)")
+    for key in ("victim_optimize", "surface_meshes"):
+        if key in assume and not isinstance(assume[key], bool):
+            raise ValueError(f"assume[{key!r}] must be true or false, got {assume[key]!r}")
     if not isinstance(assume.get("attack", {}), Mapping):
         raise ValueError("assume['attack'] must map a perturbation type to attack options")
     out = dict(spec)
@@ -163,6 +167,7 @@ def pinned_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
             out["victim_optimize"] = assume["victim_optimize"]
         else:
             notes.append("victim_optimize: neither the spec nor the record pins it; today's load_victim default used")
+    out["mesh"] = recorded_mesh_spec(out, stored, assume.get("surface_meshes"))
     attack = dict(out.get("attack") or {})
     config = record.get("attack_config")
     if isinstance(config, Mapping):
@@ -181,6 +186,21 @@ def pinned_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
             notes.append("attack options: the record has no attack_config; options the spec does not name "
                          "(e.g. the update rule's method_options) took today's defaults")
     return out, notes
+
+
+def recorded_mesh_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
+                       assumed_surface: Optional[bool] = None) -> Any:
+    """``spec["mesh"]`` with ``surface`` (:func:`meshadv.experiments.jobs.load_job_mesh`) as the job ran: the stored
+    record's ``mesh_surface``, false for a record without it (made when jobs loaded every file per face), else
+    (an unfinished job) ``assumed_surface`` when given; the spec's own ``surface`` wins. Not a mapping: as is."""
+    mesh = spec.get("mesh")
+    if not isinstance(mesh, Mapping) or "surface" in mesh:
+        return mesh
+    if stored is not None:
+        return {**mesh, "surface": bool(stored.get("mesh_surface", False))}
+    if assumed_surface is not None:
+        return {**mesh, "surface": bool(assumed_surface)}
+    return mesh
 
 
 def load_assumed(path: Union[str, Path, None]) -> Dict[str, Any]:

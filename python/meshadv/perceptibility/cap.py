@@ -2,7 +2,9 @@
 
 A :class:`PerceptibilityCap` holds a ceiling per measure of :mod:`meshadv.perceptibility.geometry` (``None``: no
 ceiling on it): the largest vertex move as a fraction of the bounding-box diagonal, the area-weighted 95th-percentile
-change of the face normals in degrees, and the area-weighted 95th-percentile change of the face colours. An attack
+change of the face normals in degrees, the length-weighted 95th-percentile strain of the edges, and the area-weighted
+95th-percentile change of the face colours. The attack loop projects its flow onto the largest-move ceiling
+(:mod:`meshadv.attacks.move_limit`); the others are verdict checks on every step's mesh. An attack
 run under a cap counts a step as a success only when the step's mesh is inside it, keeps (when no step succeeds) the
 closest step inside it, and reports a final mesh outside it as failed.
 
@@ -27,7 +29,7 @@ import torch
 from torch import Tensor
 
 from meshadv import _validate
-from meshadv.perceptibility.geometry import color_changes, normal_changes, texel_changes, vertex_moves
+from meshadv.perceptibility.geometry import color_changes, edge_strains, normal_changes, texel_changes, vertex_moves
 
 __all__ = ["CAP_SLACK", "PerceptibilityCap", "DEFAULT_CAP", "NO_CAP", "recommended_cap", "step_measures", "as_cap"]
 
@@ -42,6 +44,8 @@ class PerceptibilityCap:
     Attributes:
         max_displacement: largest vertex move / the pristine bounding-box diagonal, ``> 0``.
         normal_change_p95_deg: area-weighted 95th-percentile turn of the face normals, degrees in ``(0, 180]``.
+        edge_strain_p95: length-weighted 95th-percentile relative change of the edge lengths ``|l' / l - 1|``,
+            ``> 0`` (:func:`~meshadv.perceptibility.geometry.edge_strains`; a verdict check, not projected onto).
         color_change_p95: area-weighted 95th-percentile RGB change of the face colours, in ``(0, sqrt(3)]``.
 
     Raises:
@@ -50,10 +54,12 @@ class PerceptibilityCap:
 
     max_displacement: Optional[float] = None
     normal_change_p95_deg: Optional[float] = None
+    edge_strain_p95: Optional[float] = None
     color_change_p95: Optional[float] = None
 
     def __post_init__(self) -> None:
-        highs = {"max_displacement": None, "normal_change_p95_deg": 180.0, "color_change_p95": math.sqrt(3.0)}
+        highs = {"max_displacement": None, "normal_change_p95_deg": 180.0, "edge_strain_p95": None,
+                 "color_change_p95": math.sqrt(3.0)}
         for name, high in highs.items():
             value = getattr(self, name)
             if value is not None:
@@ -146,7 +152,8 @@ class PerceptibilityCap:
 NO_CAP = PerceptibilityCap()
 
 #: The cap of ``meshadv attack``, ``demo``, ``attack-scene`` and sweeps unless they are told otherwise.
-DEFAULT_CAP = PerceptibilityCap(max_displacement=0.02, normal_change_p95_deg=25.0, color_change_p95=0.05)
+DEFAULT_CAP = PerceptibilityCap(max_displacement=0.02, normal_change_p95_deg=25.0, edge_strain_p95=0.085,
+                                color_change_p95=0.05)
 
 
 def recommended_cap(perturbation: str) -> PerceptibilityCap:
@@ -206,6 +213,8 @@ def step_measures(cap: PerceptibilityCap, vertices_adv: Tensor, colors_adv: Any,
             out["max_displacement"] = vertex_moves(vertices_adv, vertices)["max_displacement"]
         if "normal_change_p95_deg" in limits:
             out["normal_change_p95_deg"] = normal_changes(vertices_adv, vertices, faces)["normal_change_p95_deg"]
+        if "edge_strain_p95" in limits:
+            out["edge_strain_p95"] = edge_strains(vertices_adv, vertices, faces)["edge_strain_p95"]
         if "color_change_p95" in limits and not isinstance(colors_adv, Tensor):
             if texture is None:
                 raise ValueError("texture (the pristine texture) is required to cap a texture image's change")

@@ -7,6 +7,10 @@
   (``normal_change_p95_deg``: the angle that 95% of the surface area turns by at most). A crumpled or folded surface
   shows up here even when its vertices move little.
 
+* :func:`edge_strains` -- the relative change of each edge's length, ``|l' / l - 1|``, weighted by the pristine
+  edge lengths: the 95th percentile (``edge_strain_p95``). A thin part broken into fragments, or a surface dented in
+  a fold, stretches and squeezes its edges even where its faces turn little; a smooth small bend keeps them.
+
 * :func:`color_changes` -- the change of each face's RGB colour (Euclidean, in ``[0, sqrt(3)]``), weighted by the
   pristine face areas: the 95th percentile (``color_change_p95``). A texture attack's bright specks show up here even
   when the colour RMSE over all faces is small.
@@ -30,9 +34,11 @@ from typing import Dict
 import torch
 from torch import Tensor
 
+from meshadv.mesh.adjacency import vertex_edges
 from meshadv.mesh.structure import bbox_diagonal
 
-__all__ = ["vertex_moves", "normal_changes", "color_changes", "surface_measures", "SURFACE_MEASURES", "PERCENTILE"]
+__all__ = ["vertex_moves", "normal_changes", "edge_strains", "color_changes", "surface_measures", "SURFACE_MEASURES",
+           "PERCENTILE"]
 
 #: The percentile of the ``p95_*`` measures.
 PERCENTILE = 0.95
@@ -43,6 +49,7 @@ SURFACE_MEASURES = {
     "p95_displacement": "95th-percentile vertex move / bounding-box diagonal",
     "normal_change_mean_deg": "area-weighted mean change of the face normals, degrees",
     "normal_change_p95_deg": "area-weighted 95th-percentile change of the face normals, degrees",
+    "edge_strain_p95": "edge-length-weighted 95th-percentile relative change of the edge lengths |l'/l - 1|",
     "color_change_p95": "area-weighted 95th-percentile change of the face colours (RGB distance, 0 to sqrt 3)",
 }
 
@@ -157,6 +164,47 @@ def normal_changes(vertices_adv: Tensor, vertices: Tensor, faces: Tensor) -> Dic
     return {"normal_change_mean_deg": mean.float(), "normal_change_p95_deg": _weighted_upper(angles, weights).float()}
 
 
+def edge_strains(vertices_adv: Tensor, vertices: Tensor, faces: Tensor) -> Dict[str, Tensor]:
+    """Edge-length-weighted 95th percentile of the edges' strain ``|l' / l - 1|`` (``l``, ``l'``: an edge's pristine
+    and adversarial length).
+
+    Every undirected edge of ``faces`` counts once (an edge shared by two faces is one edge), weighted by its pristine
+    length, so the many short edges of a finely meshed detail count by their extent, not their number; edges of zero
+    pristine length have no weight. The percentile is the smallest strain ``s`` such that edges straining by at most
+    ``s`` hold at least 95% of the total length (a weighted lower quantile, as :func:`normal_changes`). A strain of
+    0.1 is an edge stretched or squeezed by 10%; a rigid motion or a uniform scale by ``c`` gives 0 and ``|c - 1|``.
+
+    The attack loop does not project onto it: a cap on it (:class:`~meshadv.perceptibility.PerceptibilityCap`) is a
+    verdict check on every step's mesh.
+
+    Args:
+        vertices_adv: ``(N, 3)`` or ``(K, N, 3)`` adversarial vertices.
+        vertices: ``(N, 3)`` pristine vertices.
+        faces: int ``(M, 3)`` triangles (``M >= 1``, at least one edge of positive length).
+
+    Returns:
+        ``{"edge_strain_p95": (K,)}``.
+
+    Raises:
+        ValueError: bad shapes, or every edge of zero length.
+
+    Example:
+        >>> v = torch.tensor([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); f = torch.tensor([[0, 1, 2]])
+        >>> stretched = v * torch.tensor([1.5, 1.0, 1.0])  # edges of length 1, 1, 1.41 strain by 0.5, 0, 0.27
+        >>> round(float(edge_strains(stretched, v, f)["edge_strain_p95"][0]), 4)
+        0.5
+    """
+    batch = _batched(vertices_adv, vertices).double()
+    edges = vertex_edges(_check_faces(faces))
+    before = (vertices.double()[edges[:, 0]] - vertices.double()[edges[:, 1]]).norm(dim=-1)  # (E,)
+    if not float(before.sum()) > 0:
+        raise ValueError("every edge has zero length: an edge strain is undefined")
+    after = (batch[:, edges[:, 0]] - batch[:, edges[:, 1]]).norm(dim=-1)  # (K, E)
+    strain = (after / before.clamp(min=1e-300) - 1.0).abs()
+    strain = torch.where(before > 0, strain, torch.zeros_like(strain))
+    return {"edge_strain_p95": _weighted_upper(strain, before).float()}
+
+
 def color_changes(colors_adv: Tensor, colors: Tensor, vertices: Tensor, faces: Tensor) -> Dict[str, Tensor]:
     """Area-weighted 95th percentile of the faces' RGB colour change (Euclidean distance, ``[0, sqrt(3)]``).
 
@@ -213,8 +261,9 @@ def surface_measures(vertices_adv: Tensor, colors_adv: Tensor, vertices: Tensor,
         out = {k: float(v[0]) for k, v in vertex_moves(vertices_adv, vertices).items()}
         if not float(_face_cross(vertices.double(), faces).norm(dim=-1).sum()) > 0:
             return {**out, "normal_change_mean_deg": math.nan, "normal_change_p95_deg": math.nan,
-                    "color_change_p95": math.nan}
+                    "edge_strain_p95": math.nan, "color_change_p95": math.nan}
         out.update({k: float(v[0]) for k, v in normal_changes(vertices_adv, vertices, faces).items()})
+        out.update({k: float(v[0]) for k, v in edge_strains(vertices_adv, vertices, faces).items()})
         out.update({k: float(v[0]) for k, v in color_changes(colors_adv, colors, vertices, faces).items()})
     return out
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Sequence
+from typing import Any, Dict, List, Mapping, Optional, Sequence
 
 import torch
 
@@ -119,9 +119,13 @@ def _input_mesh(entry: Mapping[str, Any]) -> Any:
     raise FileNotFoundError(f"input mesh {label!r} of the record cannot be loaded again")
 
 
-def benign_mesh_of_job(spec: Dict[str, Any]) -> Any:
-    """The benign mesh of a sweep job: its spec's ``mesh`` loaded as the job loads it
-    (:func:`meshadv.experiments.jobs.load_job_mesh`)."""
+def benign_mesh_of_job(spec: Dict[str, Any], record: Optional[Mapping[str, Any]] = None) -> Any:
+    """The benign mesh of a sweep job: its spec's ``mesh`` loaded as the job of its finished ``record`` loaded it
+    (:func:`meshadv.experiments.jobs.load_job_mesh`, a textured file's ``SurfaceMesh`` when the record says
+    ``mesh_surface``; without a record, the per-face mesh)."""
     from meshadv.experiments.jobs import load_job_mesh
+    from meshadv.experiments.regenerate import recorded_mesh_spec
 
-    return load_job_mesh(spec["mesh"])
+    if record is None:
+        return load_job_mesh(spec["mesh"])
+    return load_job_mesh(recorded_mesh_spec(spec, record), spec.get("perturbation"))

@@ -34,6 +34,7 @@ from meshadv.experiments import ResultStore
 from meshadv.experiments.config import stored_retry_stages
 from meshadv.experiments.retries import superseded_retries
 from meshadv.mesh import load_mesh
+from meshadv.mesh.surface_mesh import SurfaceMesh
 from meshadv.render import RenderSetup, ViewSet
 from meshadv.transfer.benign_control import (benign_mesh_of_attack_folder, benign_mesh_of_job, benign_verdicts,
                                              load_saved_mesh)
@@ -63,7 +64,8 @@ class TransferCase:
 
     Attributes:
         case_id: identifier (the sweep job id, or any string).
-        mesh: the adversarial ``meshadv.mesh.Mesh``.
+        mesh: the adversarial ``meshadv.mesh.Mesh``, or a ``SurfaceMesh`` (with its texture or vertex colours and
+            the attack's shading) for an attack on one.
         views: ``ViewSet.to_records()`` records of the views (camera + lights).
         victim: victim name (``meshadv.victims.load_victim``).
         true_class: the class of the benign object (PASCAL3D+ name or ImageNet spec); a render is this class when
@@ -135,9 +137,11 @@ def cases_from_store(
     """Collect the adversarial meshes of a finished sweep (single-view attack jobs) as transfer cases.
 
     Reads the ``jobs`` table of the sweep database (``meshadv.experiments.ResultStore``); for each done job, the
-    adversarial mesh ``adversarial.ply`` and the views of its ``result.json`` in the job's folder. A job whose folder
-    is missing (the database was moved to another machine, or the sweep ran on a cluster) is regenerated from its
-    stored spec and seed into ``<artifact_root>/jobs/..`` (:func:`meshadv.experiments.rebuild.ensure_artifacts`).
+    adversarial mesh ``adversarial.ply`` (a job that attacked a textured or vertex-coloured file: ``adversarial.obj``
+    with the texture or colours, under the job's shading) and the views of its ``result.json`` in the job's folder.
+    A job whose folder is missing (the database was moved to another machine, or the sweep ran on a cluster) is
+    regenerated from its stored spec and seed into ``<artifact_root>/jobs/..``
+    (:func:`meshadv.experiments.rebuild.ensure_artifacts`).
 
     Args:
         db_path: the sweep's ``results.db``.
@@ -213,13 +217,19 @@ def _case_from_job(row: Any, out: Path) -> Optional[TransferCase]:
     if not mesh_path.is_file() or not result.get("views"):
         return None
     spec, record = row.spec, row.record or {}
+    benign = _benign_of_job(spec, record)
+    obj_path = out / meshes[0][1]
+    if isinstance(benign, SurfaceMesh) and obj_path.is_file():  # the texture or colours, as the job attacked them
+        adversarial = load_saved_mesh(obj_path, {"shading": benign.shading})
+    else:
+        adversarial = load_mesh(mesh_path)
     target = spec.get("target")
     if target in ("", "untargeted", None):
         target = None
     size = result.get("config", {}).get("image_size") or spec.get("image_size") or 224
     return TransferCase(
         case_id=row.job_id,
-        mesh=load_mesh(mesh_path),
+        mesh=adversarial,
         views=tuple(result["views"]),
         victim=str(spec.get("victim", result.get("victim"))),
         true_class=str(spec.get("source_class", spec.get("mesh", {}).get("class", ""))),
@@ -229,16 +239,16 @@ def _case_from_job(row: Any, out: Path) -> Optional[TransferCase]:
         benign_correct=None if record.get("benign_correct") is None else bool(record["benign_correct"]),
         antialias=int(result.get("config", {}).get("antialias") or 1),
         name=case_name(spec, row.job_id),
-        benign_mesh=_benign_of_job(spec),
+        benign_mesh=benign,
     )
 
 
-def _benign_of_job(spec: dict[str, Any]) -> Any:
+def _benign_of_job(spec: dict[str, Any], record: dict[str, Any]) -> Any:
     """The benign mesh of a job (:func:`~meshadv.transfer.benign_control.benign_mesh_of_job`), or ``None`` when its
     spec's mesh cannot be loaded here (e.g. the shared data is missing): its rows then carry no benign control and
     the tables leave them out of the untargeted count."""
     try:
-        return benign_mesh_of_job(spec)
+        return benign_mesh_of_job(spec, record)
     except (ValueError, FileNotFoundError, KeyError):
         return None
 
