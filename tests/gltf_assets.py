@@ -17,11 +17,11 @@ _COMPONENT = {np.dtype(np.float32): 5126, np.dtype(np.uint8): 5121, np.dtype(np.
 
 def write_glb(path: Path, positions: np.ndarray, faces: np.ndarray, *, uvs: Optional[np.ndarray] = None,
               texture: Optional[np.ndarray] = None, colors: Optional[np.ndarray] = None,
-              color_type: Optional[str] = None) -> Path:
+              color_type: Optional[str] = None, factor: Optional[list] = None) -> Path:
     """Write one triangle primitive: float ``POSITION``, uint32 indices, ``TEXCOORD_0`` (``uvs`` with meshadv's origin
     at the bottom-left, flipped to glTF's top-left) and a PNG ``baseColorTexture`` (``texture``, (H,W,3) uint8), and
     ``COLOR_0`` of ``colors``' dtype (uint8 / uint16 normalised, float32) and count, of type ``color_type``
-    (default VEC3 or VEC4 from its width)."""
+    (default VEC3 or VEC4 from its width); ``factor``: the material's ``baseColorFactor``."""
     blobs: list[bytes] = []
     views: list[dict[str, Any]] = []
     accessors: list[dict[str, Any]] = []
@@ -54,6 +54,10 @@ def write_glb(path: Path, positions: np.ndarray, faces: np.ndarray, *, uvs: Opti
         tree["samplers"] = [{}]
         tree["textures"] = [{"source": 0, "sampler": 0}]
         tree["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0.0}}]
+        primitive["material"] = 0
+    if factor is not None:
+        tree.setdefault("materials", [{"pbrMetallicRoughness": {}}])
+        tree["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"] = factor
         primitive["material"] = 0
     if colors is not None:
         kind = color_type or ("VEC3" if colors.shape[1] == 3 else "VEC4")

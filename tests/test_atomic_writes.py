@@ -212,6 +212,8 @@ def test_scene_attack_records_an_interruption() -> None:
     def stopped_attack(*_args: Any, **_kwargs: Any) -> Any:
         return SimpleNamespace(original_images=torch.zeros(1, 3, 64, 64), images=torch.ones(1, 1, 3, 64, 64),
                                success=torch.tensor([[True]]), succeeded=torch.tensor([True]), mesh=None,
+                               success_rate=torch.ones(1), success_fraction=1.0, eval_success=None,
+                               eval_scores=None, held_out_fraction=None,
                                original_scores=torch.ones(1, 1),
                                scores=torch.zeros(1, 1), distances=[{"color_rmse": 0.1}],
                                loss_history=[{"loss": [0.5]}], steps=2, wall_time=0.1, config={}, interrupted=True)

@@ -15,6 +15,7 @@ from cli_output import unwrapped
 from typer.testing import CliRunner
 
 from meshadv.attacks import ShapeAttack, TargetedMisclassification
+from meshadv.attacks.result import held_out_sentence, held_out_verdict
 from meshadv.cli import app
 from meshadv.mesh import builtin_mesh
 from meshadv.perceptibility import held_out_views
@@ -44,6 +45,25 @@ def test_held_out_fraction_is_validated_and_zero_turns_it_off() -> None:
             ShapeAttack(held_out_fraction=bad)
     with pytest.raises(TypeError, match="held_out_fraction"):
         ShapeAttack(held_out_fraction="0.8")
+
+
+def test_the_held_out_rule_on_hand_made_cases() -> None:
+    """At least the fraction of the held-out views, per target; no fraction: no say; none to judge on: a failure."""
+    five = torch.tensor([[True, True, True, True, False],     # 4/5 = 80%: enough
+                         [True, True, True, False, False],    # 3/5: not
+                         [True] * 5,
+                         [False] * 5])
+    assert held_out_verdict(five, 0.8, 4).tolist() == [True, False, True, False]
+    assert held_out_verdict(five, 0.6, 4).tolist() == [True, True, True, False]
+    assert held_out_verdict(five, 1.0, 4).tolist() == [False, False, True, False]
+    assert held_out_verdict(five, None, 4).tolist() == [True] * 4
+    assert held_out_verdict(None, 0.8, 2).tolist() == [False, False]
+    assert held_out_verdict(torch.zeros(2, 0, dtype=torch.bool), 0.8, 2).tolist() == [False, False]
+    thirds = torch.tensor([[True, True, False]] * 2)  # 2/3 against a fraction that equals it up to rounding
+    assert held_out_verdict(thirds, 2 / 3, 2).tolist() == [True, True]
+    assert held_out_sentence(4, 5, 0.8) == ("held-out views (never optimised on): the target holds on 4/5 (80%); "
+                                            "SUCCESS needs >= 80%")
+    assert held_out_sentence(1, 4, None).endswith("1/4 (25%); not part of the verdict")
 
 
 @needs_native

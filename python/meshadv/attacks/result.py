@@ -33,7 +33,8 @@ from torch import Tensor
 from meshadv.util.atomic import write_json_atomic
 from meshadv.util.png import save_png
 
-__all__ = ["AttackResult", "load_result_record", "RESULT_FILE", "enough_views", "perceptibility_line"]
+__all__ = ["AttackResult", "load_result_record", "RESULT_FILE", "enough_views", "held_out_sentence",
+           "held_out_verdict", "perceptibility_line"]
 
 #: Name of the JSON record inside a result folder.
 RESULT_FILE = "result.json"
@@ -46,6 +47,37 @@ def enough_views(fraction: Any, success_fraction: float) -> Any:
     """Whether ``fraction`` (a float or a tensor of fractions of adversarial views) reaches ``success_fraction``:
     ``fraction >= success_fraction - 1e-9``, a bool or a bool tensor like ``fraction``."""
     return fraction >= success_fraction - _FRACTION_SLACK
+
+
+def held_out_verdict(held_out_success: Optional[Tensor], fraction: Optional[float], num_targets: int) -> Tensor:
+    """The held-out part of a verdict: bool ``(T,)``, each target holds on at least ``fraction`` of its held-out
+    views.
+
+    Args:
+        held_out_success: bool ``(T, V_held)``: the target holds on each held-out view, or ``None`` for none.
+        fraction: ``None`` (no held-out verdict: all true) or the fraction in ``(0, 1]`` the target needs (with no
+            held-out views to judge on: all false).
+        num_targets: ``T``.
+
+    Example:
+        >>> held_out_verdict(torch.tensor([[True] * 4 + [False], [True] * 3 + [False] * 2]), 0.8, 2).tolist()
+        [True, False]
+    """
+    if fraction is None:
+        return torch.ones(num_targets, dtype=torch.bool)
+    if held_out_success is None or held_out_success.shape[-1] == 0:
+        return torch.zeros(num_targets, dtype=torch.bool)
+    return enough_views(held_out_success.float().mean(dim=-1), fraction)
+
+
+def held_out_sentence(held: int, total: int, fraction: Optional[float]) -> str:
+    """The held-out verdict of one target in words: ``"held-out views (never optimised on): the target holds on
+    4/5 (80%); SUCCESS needs >= 80%"`` (``fraction`` ``None``: "not part of the verdict")."""
+    share = 100 * held / max(total, 1)
+    line = f"held-out views (never optimised on): the target holds on {held}/{total} ({share:.0f}%)"
+    if fraction is None:
+        return line + "; not part of the verdict"
+    return line + f"; SUCCESS needs >= {100 * fraction:.0f}%"
 
 
 def _json_float(value: float) -> Optional[float]:
@@ -201,12 +233,7 @@ class AttackResult:
     def holds_held_out(self) -> Tensor:
         """bool ``(T,)``: the target holds on at least ``held_out_fraction`` of the held-out views (all true without
         a held-out verdict; all false when one is asked for and there are no held-out views)."""
-        if self.held_out_fraction is None:
-            return torch.ones(self.num_targets, dtype=torch.bool)
-        rate = self.held_out_rate
-        if rate is None:
-            return torch.zeros(self.num_targets, dtype=torch.bool)
-        return enough_views(rate, self.held_out_fraction)
+        return held_out_verdict(self.eval_success, self.held_out_fraction, self.num_targets)
 
     @property
     def succeeded(self) -> Tensor:

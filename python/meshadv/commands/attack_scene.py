@@ -8,6 +8,7 @@ from typing import Any, Optional
 import typer
 
 from meshadv.commands._cap_option import CAP_HELP, parse_cap
+from meshadv.scenes.held_out import DEFAULT_HELD_OUT_VIEWS
 
 #: Default Adam learning rates (``--method adam``): for shape in units of the object's bounding-box diagonal per step
 #: (small: NMR gradients are heavy-tailed and Adam moves every parameter that receives any gradient by about lr per
@@ -54,18 +55,31 @@ def attack_scene(
     cap: str = typer.Option("default", help="perceptibility cap of the object: 'default' (" + CAP_HELP + "), "
                                             "'none', or NAME=VALUE,... (as `meshadv attack --cap`); a result outside "
                                             "it is a failure"),
+    eval_views: int = typer.Option(
+        DEFAULT_HELD_OUT_VIEWS, min=0, help="held-out views that judge the result (never optimised on, never used to "
+                                            "pick it), drawn with --seed: a rendered scene's camera turned 2-5 degrees "
+                                            "about its look-at point, pitched up to 3 and moved up to 5% along its "
+                                            "line of sight; a photo's object shifted up to 4% of the image and "
+                                            "resized up to 10%; 0: none (needs --held-out-fraction 0)"),
+    held_out_fraction: float = typer.Option(
+        0.8, min=0.0, max=1.0, help="SUCCESS needs the class hidden on at least this fraction of the held-out views "
+                                    "as well as from the scene camera (0: the scene camera's verdict alone)"),
     width: Optional[int] = typer.Option(None, help="render width (default: the scene's / photo's own)"),
     seed: int = typer.Option(0, help="random seed"),
     output: Path = typer.Option(Path("out/attack-scene"), "-o", "--output", help="output folder"),
 ) -> None:
     """Hide CLASS (or everything) from a detector by perturbing only one object; writes before/after images with
-    detections drawn, the adversarial object mesh and a JSON record."""
+    detections drawn, the adversarial object mesh and a JSON record. SUCCESS means: the class is hidden from the
+    scene camera and on at least --held-out-fraction of the held-out views (small camera moves, or for a photo small
+    changes of the object's placement), which the attack never optimised on, with the object inside the
+    perceptibility cap (--cap)."""
     from meshadv.attacks import Disappearance
     from meshadv.attacks.families import check_perturbation
     from meshadv.attacks.update import RECOMMENDED_METHOD
     from meshadv.commands._common import resolve_method
     from meshadv.mesh import save_mesh
     from meshadv.scenes.attack import attack_scene
+    from meshadv.scenes.held_out import scene_held_out_views
     from meshadv.scenes.draw import draw_detections
     from meshadv.util.atomic import write_json_atomic
     from meshadv.util.png import save_png
@@ -78,6 +92,9 @@ def attack_scene(
             raise ValueError("--smoothing applies to --perturbation shape only")
         method = resolve_method(method, RECOMMENDED_METHOD, {
             "--lr": lr is not None, "--lambda": lambda_perceptual is not None, "--smoothing": bool(smoothing)})
+        if eval_views == 0 and held_out_fraction > 0:
+            raise ValueError("--eval-views 0 leaves no held-out views to judge the result on: give "
+                             "--held-out-fraction 0 too (the scene camera's verdict alone)")
         setup = build_setup(scene, obj, place, width)
         cap = parse_cap(cap)
     except (ValueError, FileNotFoundError) as exc:
@@ -85,14 +102,16 @@ def attack_scene(
     detector = load_victim(victim, weights=weights, cfg=cfg)
     criterion = Disappearance(hide, threshold=threshold)
     _require_something_to_hide(setup, detector, criterion, hide, threshold)
-    attack = _scene_attack(setup, perturbation, method, steps, seed, lr, smoothing, lambda_perceptual, cap)
+    attack = _scene_attack(setup, perturbation, method, steps, seed, lr, smoothing, lambda_perceptual, cap,
+                           held_out_fraction)
+    held_out = scene_held_out_views(setup, eval_views, seed) if eval_views > 0 else None
 
     def progress(info: object) -> None:
         step = info.total_step  # type: ignore[attr-defined]
         if step == 1 or step % 10 == 0:
             typer.echo(f"step {step:4d}  loss {info.loss[0]:.4f}  margin {info.margin[0]:.3f}")  # type: ignore
 
-    result = attack_scene(attack, setup, detector, criterion, callback=progress)
+    result = attack_scene(attack, setup, detector, criterion, callback=progress, held_out=held_out)
     output.mkdir(parents=True, exist_ok=True)
     (output / "result.json").unlink(missing_ok=True)  # no earlier record beside new files if this save is killed
     save_png(draw_detections(result.image_before, result.detections_before), output / "before.png")
@@ -109,14 +128,22 @@ def attack_scene(
     write_json_atomic(record, output / "result.json")
     if result.interrupted:
         typer.echo("interrupted: saved the best result so far (result.json says interrupted: true)")
+    held_line = result.held_out_line()
+    if held_line is not None:
+        typer.echo(f"{held_line} ({'camera moves' if held_out.kind == 'camera' else 'object placements'}: "  # type: ignore[union-attr]
+                   f"hidden scores {', '.join(f'{v:.2f}' for v in result.held_out_scores or [])})")
+    verdict = "success" if result.success else "failure"
+    if result.views_success and not result.success and held_line is not None and result.held_out_fraction:
+        verdict += " (hidden from the scene camera, not on enough held-out views)"
     typer.echo(
-        f"{'success' if result.success else 'failure'}: hidden score {result.score_before:.3f} -> "
+        f"{verdict}: hidden score {result.score_before:.3f} -> "
         f"{result.score_after:.3f} in {result.steps} steps; wrote {output}"
     )
 
 
 def _scene_attack(setup: Any, perturbation: str, method: str, steps: int, seed: int, lr: Optional[float],
-                  smoothing: Optional[int], lambda_perceptual: Optional[float], cap: Any = None) -> Any:
+                  smoothing: Optional[int], lambda_perceptual: Optional[float], cap: Any = None,
+                  held_out_fraction: float = 0.0) -> Any:
     """The attack of ``meshadv attack-scene``. ``method="adam"``: the paper's Adam with a perceptual weight, stopped
     once the hidden score stayed 0.05 below the threshold for 5 steps (``lr`` of a shape attack in units of the
     object's bounding-box diagonal, ``lambda_perceptual`` of a texture attack per pixel; defaults
@@ -124,16 +151,17 @@ def _scene_attack(setup: Any, perturbation: str, method: str, steps: int, seed: 
     rule with its default options, a shape attack's lengths scaled to the object
     (:func:`~meshadv.attacks.budget.shape_options_for`),
     run for every step (it keeps lowering the distortion after the first success and returns the least distorted
-    success). ``cap``: the perceptibility cap (``None``: none)."""
+    success). ``cap``: the perceptibility cap (``None``: none). ``held_out_fraction``: the fraction of the held-out
+    views the class must also be hidden on (0: the scene camera's verdict alone)."""
     from meshadv.attacks import make_attack
     from meshadv.attacks.budget import shape_options_for
 
     if method == "ddn":
         options = shape_options_for(setup.mesh) if perturbation == "shape" else {}
         return make_attack(perturbation, method=method, method_options=options, steps=steps, seed=seed,
-                           perceptibility_cap=cap)
+                           perceptibility_cap=cap, held_out_fraction=held_out_fraction)
     common = dict(method=method, steps=steps, early_stop=5, early_stop_margin=0.05, seed=seed,
-                  perceptibility_cap=cap)
+                  perceptibility_cap=cap, held_out_fraction=held_out_fraction)
     lr = DEFAULT_LR[perturbation] if lr is None else lr
     lambda_perceptual = DEFAULT_LAMBDA if lambda_perceptual is None else lambda_perceptual
     if perturbation == "shape":  # lr in units of the object's bounding-box diagonal

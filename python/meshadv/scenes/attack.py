@@ -22,10 +22,12 @@ import torch
 
 from meshadv.attacks.mesh_attack import MeshAttack, StepInfo
 from meshadv.attacks.criteria import Disappearance
+from meshadv.attacks.result import enough_views, held_out_sentence
 from meshadv.mesh import Mesh
 from meshadv.render import Lights, ViewSet
 from meshadv.render.setup import RenderSetup, static_objects
 from meshadv.scenes.composite import composite_over_photo
+from meshadv.scenes.held_out import SceneHeldOut, scene_held_out_views
 from meshadv.scenes.scene import Scene, SceneCamera
 from meshadv.victims.victim import Detections
 
@@ -102,8 +104,9 @@ class SceneAttackResult:
     """Outcome of a scene attack.
 
     Attributes:
-        success: the hidden class's best score is below the threshold on a fresh render of the final object, and
-            the object lies inside the attack's perceptibility cap (when it has one).
+        success: the hidden class's best score is below the threshold on a fresh render of the final object from
+            the scene camera, on at least ``held_out_fraction`` of the held-out views (when the attack asks for a
+            held-out verdict), and the object lies inside the attack's perceptibility cap (when it has one).
         object_mesh: the object's adversarial mesh (model space).
         image_before: (1, 3, H, W) the pristine scene image; image_after: the adversarial one.
         detections_before / detections_after: the victim's NMS-filtered detections on those images.
@@ -113,6 +116,13 @@ class SceneAttackResult:
         loss_history: total loss per step; steps: steps taken; wall_time: seconds.
         config: the attack's hyper-parameters and render setup.
         interrupted: the attack was stopped early by Ctrl-C / SIGTERM (the result is the best so far).
+        views_success: the class is hidden on the scene camera's view (the view optimised on).
+        held_out_success: per held-out view (:mod:`meshadv.scenes.held_out`, never optimised on), the class is
+            hidden there too; ``None`` without held-out views. ``held_out_scores``: the hidden class's best score
+            on each.
+        held_out_fraction: ``None`` (the scene camera's verdict alone) or the fraction of held-out views the class
+            must be hidden on for ``success``.
+        held_out: the record of the held-out views (``SceneHeldOut.to_record``: kind, moves, views), or ``None``.
     """
 
     success: bool
@@ -129,11 +139,35 @@ class SceneAttackResult:
     wall_time: float = 0.0
     config: Dict[str, Any] = field(default_factory=dict)
     interrupted: bool = False
+    views_success: bool = False
+    held_out_success: Optional[List[bool]] = None
+    held_out_scores: Optional[List[float]] = None
+    held_out_fraction: Optional[float] = None
+    held_out: Optional[Dict[str, Any]] = None
+
+    @property
+    def held_out_rate(self) -> Optional[float]:
+        """Fraction of the held-out views on which the class is hidden (``None`` without held-out views)."""
+        if not self.held_out_success:
+            return None
+        return sum(self.held_out_success) / len(self.held_out_success)
+
+    def held_out_line(self) -> Optional[str]:
+        """The held-out verdict in words (``attacks.result.held_out_sentence``), ``None`` without held-out views."""
+        if self.held_out_success is None:
+            return None
+        return held_out_sentence(sum(self.held_out_success), len(self.held_out_success), self.held_out_fraction)
 
     def to_record(self) -> dict:
-        """JSON-able summary (detections, scores, distances, steps, time)."""
+        """JSON-able summary (verdict, detections, scores, distances, held-out views, steps, time)."""
         return {
             "success": self.success,
+            "views_success": self.views_success,
+            "held_out_success": self.held_out_success,
+            "held_out_scores": self.held_out_scores,
+            "held_out_rate": self.held_out_rate,
+            "held_out_fraction": self.held_out_fraction,
+            "held_out": self.held_out,
             "score_before": self.score_before,
             "score_after": self.score_after,
             "detections_before": self.detections_before.to_records(),
@@ -148,27 +182,34 @@ class SceneAttackResult:
 
 
 def attack_scene(attack: MeshAttack, setup: SceneSetup, victim: Any, criterion: Disappearance, *,
-                 antialias: int = 1, callback: Optional[Callable[[StepInfo], None]] = None) -> SceneAttackResult:
+                 antialias: int = 1, callback: Optional[Callable[[StepInfo], None]] = None,
+                 held_out: Optional[SceneHeldOut] = None) -> SceneAttackResult:
     """Run ``attack`` on the object of ``setup`` against a detector and report detections before and after.
 
     Args:
-        attack: a shape or texture attack (hyper-parameters only).
+        attack: a shape or texture attack (hyper-parameters only); its ``held_out_fraction`` (``None``: the scene
+            camera's verdict alone) is the fraction of held-out views the class must also be hidden on.
         setup: the scene, the object to perturb, camera, lights and background.
         victim: a detector victim.
         criterion: which class(es) to hide and the detection threshold.
         antialias: supersampling factor of the renders.
         callback: called after every step (see :class:`~meshadv.attacks.StepInfo`).
+        held_out: the held-out views that judge the result (never optimised on, never used to pick it); ``None``:
+            :func:`~meshadv.scenes.held_out.scene_held_out_views` of ``setup`` with the attack's seed when the attack
+            asks for a held-out verdict, else none.
 
     Returns:
-        A :class:`SceneAttackResult`; success is measured on a fresh render of the final object.
+        A :class:`SceneAttackResult`; success is measured on fresh renders of the final object.
 
     Raises:
         ValueError: ``victim`` is not a detector.
     """
     if getattr(victim, "kind", None) != "detector":
         raise ValueError(f"victim must be a detector, got kind {getattr(victim, 'kind', None)!r}")
+    if held_out is None and getattr(attack, "held_out_fraction", None):
+        held_out = scene_held_out_views(setup, seed=attack.seed)
     result = attack(setup.mesh, setup.views(), victim, criterion, setup=setup.render_setup(antialias),
-                    callback=callback)
+                    callback=callback, eval_views=None if held_out is None else held_out.views)
     image_before = result.original_images[0][None]
     image_after = result.images[0, 0][None]
     bound = criterion.bind(victim)
@@ -189,4 +230,9 @@ def attack_scene(attack: MeshAttack, setup: SceneSetup, victim: Any, criterion: 
         wall_time=result.wall_time,
         config=dict(result.config),
         interrupted=bool(getattr(result, "interrupted", False)),
+        views_success=bool(enough_views(result.success_rate[0], result.success_fraction)),
+        held_out_success=None if result.eval_success is None else [bool(s) for s in result.eval_success[0].tolist()],
+        held_out_scores=None if result.eval_scores is None else [float(s) for s in result.eval_scores[0].tolist()],
+        held_out_fraction=result.held_out_fraction,
+        held_out=None if held_out is None else held_out.to_record(),
     )
