@@ -68,6 +68,28 @@ def test_texture_and_colours_survive_load_save_load_as_glb_and_obj(tmp_path: Pat
         torch.testing.assert_close(back.face_colors, first.face_colors, atol=1e-5, rtol=0)
 
 
+def test_the_base_color_factor_multiplies_the_texture_else_the_colours(tmp_path: Path) -> None:
+    factor = [0.5, 1.0, 0.25, 1.0]
+    colors = COLORS.astype(np.float32)
+    textured = load_surface_mesh(write_glb(tmp_path / "t.glb", QUAD, QUAD_FACES, uvs=QUAD_UVS,
+                                           texture=_block_texture(), colors=colors, factor=factor))
+    np.testing.assert_allclose(textured.texture.numpy(), _block_texture() / 255.0 * factor[:3], atol=1e-6)
+    by_position = {tuple(p): c for p, c in zip(textured.vertices.numpy().round(6), textured.vertex_colors.numpy())}
+    np.testing.assert_allclose(by_position[tuple(QUAD[1])], COLORS[1], atol=1e-6)
+    painted = load_surface_mesh(write_glb(tmp_path / "c.glb", QUAD, QUAD_FACES, colors=colors, factor=factor))
+    assert painted.texture is None
+    by_position = {tuple(p): c for p, c in zip(painted.vertices.numpy().round(6), painted.vertex_colors.numpy())}
+    for position, color in zip(QUAD, COLORS):
+        np.testing.assert_allclose(by_position[tuple(position)], color * factor[:3], atol=1e-6)
+    # saved with the factor folded in, the file reloads the same
+    save_surface_mesh(textured, tmp_path / "again.glb")
+    torch.testing.assert_close(load_surface_mesh(tmp_path / "again.glb").texture, textured.texture, atol=0.6 / 255,
+                               rtol=0)
+    bad = write_glb(tmp_path / "bad.glb", QUAD, QUAD_FACES, colors=colors, factor=[2.0, 1.0, 1.0, 1.0])
+    with pytest.raises(MeshLoadError, match=r"bad\.glb: baseColorFactor: needs 3 or 4 numbers in \[0, 1\]"):
+        load_surface_mesh(bad)
+
+
 @pytest.mark.skipif(not native_available(), reason="the native module meshadv._raster is not built")
 def test_a_pixel_is_the_texel_times_the_interpolated_colour_times_the_shading(tmp_path: Path) -> None:
     stored = COLORS.astype(np.float32)
@@ -107,6 +129,18 @@ def test_bad_color_0_is_an_error_naming_the_file_and_field(tmp_path: Path, field
         load_surface_mesh(path)
 
 
+def test_a_gltf_json_file_loads_and_checks_its_color_0_as_a_glb(tmp_path: Path) -> None:
+    colors = COLORS.astype(np.float32)
+    path = write_glb(tmp_path / "quad.gltf", QUAD, QUAD_FACES, uvs=QUAD_UVS, texture=_block_texture(), colors=colors)
+    surface = load_surface_mesh(path)
+    assert surface.texture is not None and surface.vertex_colors is not None
+    np.testing.assert_allclose(np.sort(surface.vertex_colors.numpy(), axis=0), np.sort(COLORS, axis=0), atol=1e-6)
+    short = write_glb(tmp_path / "short.gltf", QUAD, QUAD_FACES, uvs=QUAD_UVS, texture=_block_texture(),
+                      colors=colors[:2])
+    with pytest.raises(MeshLoadError, match=r"short\.gltf: mesh 0 primitive 0: COLOR_0: 2 colours for 4 vertices"):
+        load_surface_mesh(short)
+
+
 def test_a_color_0_of_an_integer_type_glTF_does_not_allow_is_an_error(tmp_path: Path) -> None:
     path = write_glb(tmp_path / "int.glb", QUAD, QUAD_FACES, uvs=QUAD_UVS, texture=_block_texture(),
                      colors=np.ones((4, 3), np.float32))
@@ -136,3 +170,40 @@ def test_mitsuba_draws_the_texture_times_the_vertex_colours(shading: str) -> Non
     # Mitsuba's image is the product, not the texture alone: the texture-only mesh draws another image
     alone = conversion_check(textured, light, image_size=64, spp=64, shading=shading)
     assert np.abs(alone.mitsuba_image - check.mitsuba_image).mean() > 0.05
+
+
+@pytest.mark.skipif(not native_available(), reason="the native module meshadv._raster is not built")
+def test_meshadv_attack_and_transfer_keep_a_glbs_texture_and_colours(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    pytest.importorskip("mitsuba", reason="mitsuba is not installed (pip install 'meshadv[transfer]')")
+    from PIL import Image
+    from stand_in_victims import PooledLinearClassifier
+    from surface_assets import box_textured, vertex_coloured
+    from typer.testing import CliRunner
+
+    import meshadv.victims as victims
+    from meshadv.cli import app
+    from meshadv.transfer.controlled import case_from_attack_folder, transfer_attack_folder
+
+    monkeypatch.setattr(victims, "load_victim", lambda *args, **kwargs: PooledLinearClassifier())
+    textured = box_textured()
+    both = SurfaceMesh(textured.mesh, textured.uvs, textured.uv_faces, textured.texture,
+                       vertex_coloured().vertex_colors).with_texture(textured.texture)
+    save_surface_mesh(both, tmp_path / "ball.glb")
+    out = tmp_path / "out"
+    run = CliRunner().invoke(app, [str(a) for a in (
+        "attack", tmp_path / "ball.glb", "--perturbation", "shape", "--target", "728", "--steps", "2", "--views", "1",
+        "--azimuths", "30:30", "--image-size", 48, "--quiet", "--method", "adam", "--lr", "0.01", "--cap", "none",
+        "--benign-wrong-ok", "--resample", "0", "-o", out)])
+    assert run.exit_code == 0, run.output
+    for name in ("adversarial.obj", "adversarial.glb"):
+        saved = load_surface_mesh(out / name)
+        assert saved.texture is not None and saved.vertex_colors is not None, name
+    case = case_from_attack_folder(out)
+    assert case.mesh.texture is not None and case.mesh.vertex_colors is not None
+    rows = transfer_attack_folder(out, spp=32, max_depth=2, victim_loader=lambda name: PooledLinearClassifier())
+    ours, theirs = (np.asarray(Image.open(out / f).convert("RGB"), dtype=np.float64) / 255.0
+                    for f in ("after_v0.png", "mitsuba_v0.png"))
+    inside = (ours < 0.99).any(-1) & (theirs < 0.99).any(-1)
+    assert np.median(np.abs(ours - theirs).mean(-1)[inside]) < 0.05
+    assert rows[0].mean_abs_image_difference < 0.06

@@ -279,3 +279,29 @@ def test_bad_surface_input_is_an_error_naming_the_field(change: dict, message: s
     args.update(change)
     with pytest.raises(ValueError, match=message):
         render_surface(s["vertices"], s["faces"], s["camera"], s["lights"], 16, **args)
+
+
+def test_the_native_texture_backward_checks_the_forwards_planes_and_inputs() -> None:
+    import meshadv._raster as native
+
+    verts = np.array([[[-0.8, -0.8, 2.0], [0.8, -0.8, 2.0], [-0.8, 0.8, 2.0]]], dtype=np.float32)
+    faces = np.array([[0, 1, 2]], dtype=np.int32)
+    uvs = np.array([[[0.1, 0.2], [0.9, 0.3], [0.4, 0.8]]], dtype=np.float32)
+    texture = np.random.default_rng(0).random((1, 4, 5, 3), dtype=np.float32)
+    face_index = native.rasterize_forward(
+        verts, faces, np.zeros((1, 1, 1), np.float32), np.zeros(1, np.float32), 8, 8, 0.1, 10.0, False
+    )[1]
+    image, planes = native.sample_uv_texture(verts, faces, face_index, faces, uvs, texture, 0.1, 10.0)
+    assert image.shape == (1, 8, 8, 3) and image.any()
+    grad = np.ones_like(image)
+    gt, guv, gv = native.sample_uv_texture_backward(planes, face_index, texture, grad)
+    assert gt.shape == texture.shape and guv.shape == uvs.shape and gv.shape == verts.shape
+    # Each drawn pixel's bilinear weights sum to 1: the texel gradient of an all-ones cotangent sums to the
+    # drawn pixels times the channels.
+    assert np.isclose(gt.sum(), 3 * (face_index >= 0).sum(), rtol=1e-5)
+    with pytest.raises(TypeError, match="planes"):
+        native.sample_uv_texture_backward(object(), face_index, texture, grad)
+    with pytest.raises(ValueError, match="texture"):
+        native.sample_uv_texture_backward(planes, face_index, texture[:, :3].copy(), grad)
+    with pytest.raises(ValueError, match="face_index"):
+        native.sample_uv_texture_backward(planes, face_index[:, :4].copy(), texture, grad[:, :4].copy())

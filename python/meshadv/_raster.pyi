@@ -277,6 +277,9 @@ def interpolate_backward(
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
     """Backward of ``interpolate``: ``(grad_values (Bv,A,K), grad_weights (B,H,W,3))``."""
 
+class UvTexturePlanes:
+    """The drawn faces' UV planes of one ``sample_uv_texture`` call, for its backward (opaque)."""
+
 def sample_uv_texture(
     verts_screen: npt.NDArray[np.float32],
     faces: npt.NDArray[np.int32],
@@ -289,27 +292,22 @@ def sample_uv_texture(
     orthographic: bool = False,
     wrap: str = "repeat",
     num_threads: int = 0,
-) -> npt.NDArray[np.float32]:
+) -> tuple[npt.NDArray[np.float32], UvTexturePlanes]:
     """The texture (Bt,Ht,Wt,C) sampled (bilinear) at each pixel's perspective-correct UV, interpolated from ``uvs``
-    (Bv,T,2) with rows ``corners`` (M,3): (B,H,W,C), 0 on background; ``wrap`` is ``"repeat"`` or ``"clamp"``
-    (docs/TEXTURES.md)."""
+    (Bv,T,2) with rows ``corners`` (M,3): ``(image (B,H,W,C), 0 on background; the UV planes for the backward)``;
+    ``wrap`` is ``"repeat"`` or ``"clamp"`` (docs/TEXTURES.md)."""
 
 def sample_uv_texture_backward(
-    verts_screen: npt.NDArray[np.float32],
-    faces: npt.NDArray[np.int32],
+    planes: UvTexturePlanes,
     face_index: npt.NDArray[np.int32],
-    corners: npt.NDArray[np.int32],
-    uvs: npt.NDArray[np.float32],
     texture: npt.NDArray[np.float32],
     grad: npt.NDArray[np.float32],
-    near: float,
-    far: float,
-    orthographic: bool = False,
     wrap: str = "repeat",
     num_threads: int = 0,
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
-    """Backward of ``sample_uv_texture``: ``(grad_texture (Bt,Ht,Wt,C), grad_uvs (Bv,T,2), grad_verts_screen
-    (B,N,3))``, the last at fixed face assignment."""
+    """Backward of ``sample_uv_texture`` with the ``planes`` it returned and its ``face_index`` and ``texture``:
+    ``(grad_texture (Bt,Ht,Wt,C), grad_uvs (Bv,T,2), grad_verts_screen (B,N,3))``, the last at fixed face
+    assignment."""
 
 def image_vertex_backward(
     verts_screen: npt.NDArray[np.float32],

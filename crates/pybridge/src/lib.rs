@@ -601,6 +601,7 @@ fn _raster(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(surface::interpolate_backward, m)?)?;
     m.add_function(wrap_pyfunction!(surface::sample_uv_texture, m)?)?;
     m.add_function(wrap_pyfunction!(surface::sample_uv_texture_backward, m)?)?;
+    m.add_class::<surface::UvTexturePlanes>()?;
     m.add_function(wrap_pyfunction!(surface::image_vertex_backward, m)?)?;
     m.add("MAX_IMAGE_SIZE", meshadv_raster::MAX_IMAGE_SIZE)?;
     m.add("MAX_CACHED_POOLS", meshadv_raster::MAX_CACHED_POOLS)?;

@@ -3,6 +3,7 @@
 //! `meshadv_raster::surface`, `meshadv_raster::textured` and `meshadv_raster::backward::image_vertex_backward`).
 
 use meshadv_raster::backward::image_vertex_backward as core_image_vertex_backward;
+use meshadv_raster::backward::Isa;
 use meshadv_raster::surface::{self, CornerAttrs};
 use meshadv_raster::texture::{Texture, Wrap};
 use meshadv_raster::textured;
@@ -238,8 +239,14 @@ fn texture_view<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>, wrap: &str) -> PyResult<
     })
 }
 
-/// The texture `f32[Bt,Ht,Wt,C]` sampled (bilinear) at each pixel's perspective-correct UV: `f32[B,H,W,C]`, 0 on
-/// background; `uvs f32[Bv,T,2]` with their rows `corners i32[M,3]`; `wrap` is `"repeat"` or `"clamp"`.
+/// The drawn faces' UV planes of one `sample_uv_texture` call, for its backward (opaque; built once from the
+/// forward's checked inputs, see `meshadv_raster::textured::UvTexturePlanes`).
+#[pyclass(frozen, module = "meshadv._raster", name = "UvTexturePlanes")]
+pub(crate) struct UvTexturePlanes(textured::UvTexturePlanes);
+
+/// The texture `f32[Bt,Ht,Wt,C]` sampled (bilinear) at each pixel's perspective-correct UV: `(f32[B,H,W,C], 0 on
+/// background; the UV planes for `sample_uv_texture_backward`)`; `uvs f32[Bv,T,2]` with their rows `corners
+/// i32[M,3]`; `wrap` is `"repeat"` or `"clamp"`.
 #[pyfunction]
 #[pyo3(signature = (verts_screen, faces, face_index, corners, uvs, texture, near, far, orthographic = false,
                     wrap = "repeat", num_threads = 0))]
@@ -257,7 +264,7 @@ pub(crate) fn sample_uv_texture<'py>(
     orthographic: bool,
     wrap: &str,
     num_threads: i64,
-) -> PyResult<PyArr<'py, f32>> {
+) -> PyResult<(PyArr<'py, f32>, UvTexturePlanes)> {
     let nt = threads(num_threads)?;
     let arrays = Fragments::extract(verts_screen, faces, face_index)?;
     let corners = array::<i32>("corners", "int32", corners)?;
@@ -267,56 +274,50 @@ pub(crate) fn sample_uv_texture<'py>(
     let [b, h, w] = dims(&v);
     let attrs = corner_attrs("uvs", &uvs, &corners)?;
     let tex = texture_view(&texture, wrap)?;
-    let out = run(py, nt, || {
-        textured::sample_uv_texture(&v.mesh, &v.params, v.face_index, &attrs, &tex)
+    let (out, planes) = run(py, nt, || {
+        let planes =
+            textured::UvTexturePlanes::new(&v.mesh, &v.params, v.face_index, &attrs, &tex)?;
+        Ok((planes.sample(Isa::detect(), v.face_index, &tex)?, planes))
     })?;
-    output(py, out, &[b, h, w, tex.channels])
+    Ok((
+        output(py, out, &[b, h, w, tex.channels])?,
+        UvTexturePlanes(planes),
+    ))
 }
 
-/// Backward of `sample_uv_texture`: `(grad_texture f32[Bt,Ht,Wt,C], grad_uvs f32[Bv,T,2], grad_verts_screen
-/// f32[B,N,3])`, the last at fixed face assignment (the UVs moving with the vertices).
+/// Backward of `sample_uv_texture` with the `planes` it returned and its `face_index` and `texture` (and `wrap`):
+/// `(grad_texture f32[Bt,Ht,Wt,C], grad_uvs f32[Bv,T,2], grad_verts_screen f32[B,N,3])`, the last at fixed face
+/// assignment (the UVs moving with the vertices).
 #[pyfunction]
-#[pyo3(signature = (verts_screen, faces, face_index, corners, uvs, texture, grad, near, far, orthographic = false,
-                    wrap = "repeat", num_threads = 0))]
-#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+#[pyo3(signature = (planes, face_index, texture, grad, wrap = "repeat", num_threads = 0))]
+#[allow(clippy::type_complexity)]
 pub(crate) fn sample_uv_texture_backward<'py>(
     py: Python<'py>,
-    verts_screen: &Bound<'py, PyAny>,
-    faces: &Bound<'py, PyAny>,
+    planes: &Bound<'py, UvTexturePlanes>,
     face_index: &Bound<'py, PyAny>,
-    corners: &Bound<'py, PyAny>,
-    uvs: &Bound<'py, PyAny>,
     texture: &Bound<'py, PyAny>,
     grad: &Bound<'py, PyAny>,
-    near: f64,
-    far: f64,
-    orthographic: bool,
     wrap: &str,
     num_threads: i64,
 ) -> PyResult<(PyArr<'py, f32>, PyArr<'py, f32>, PyArr<'py, f32>)> {
     let nt = threads(num_threads)?;
-    let arrays = Fragments::extract(verts_screen, faces, face_index)?;
-    let corners = array::<i32>("corners", "int32", corners)?;
-    let uvs = array::<f32>("uvs", "float32", uvs)?;
+    let planes = &planes.get().0;
+    let face_index = array::<i32>("face_index", "int32", face_index)?;
     let texture = array::<f32>("texture", "float32", texture)?;
     let grad = array::<f32>("grad", "float32", grad)?;
-    let v = arrays.views(near, far, orthographic)?;
-    let [b, h, w] = dims(&v);
-    let attrs = corner_attrs("uvs", &uvs, &corners)?;
+    let (is, fi) = view("face_index", &face_index, 3)?;
     let tex = texture_view(&texture, wrap)?;
-    let grad = view_exact("grad", &grad, &[b, h, w, tex.channels])?;
-    let g = run(py, nt, || {
-        textured::sample_uv_texture_backward(&v.mesh, &v.params, v.face_index, &attrs, &tex, grad)
-    })?;
-    let n = v.mesh.num_verts;
+    let grad = view_exact("grad", &grad, &[is[0], is[1], is[2], tex.channels])?;
+    let g = run(py, nt, || planes.backward(Isa::detect(), fi, &tex, grad))?;
+    let [uv_batch, uv_rows] = planes.uv_shape();
     Ok((
         output(
             py,
             g.grad_texels,
             &[tex.batch, tex.height, tex.width, tex.channels],
         )?,
-        output(py, g.grad_uvs, &[attrs.batch, attrs.rows, attrs.channels])?,
-        output(py, g.grad_verts_screen, &[b, n, 3])?,
+        output(py, g.grad_uvs, &[uv_batch, uv_rows, 2])?,
+        output(py, g.grad_verts_screen, &[is[0], planes.num_verts(), 3])?,
     ))
 }
 

@@ -2,9 +2,10 @@
 //!
 //! Case: a UV sphere of 10,000 faces filling a 299 x 299 image (as `bench`'s `sphere`), RGB + coverage, a random
 //! cotangent. Per-face: `rasterize` with per-face RGBA attributes, then `rasterize_backward` (attribute and NMR vertex
-//! gradients). Textured: fragments, the texture sample at each pixel's perspective-correct UV (per-vertex UVs, a
-//! 256 x 256 RGB texture, bilinear; `sample_uv_texture`), the RGBA image, then the per-pixel NMR vertex gradient and
-//! the texel, UV and interior vertex gradients (`sample_uv_texture_backward`). The two alternate, `reps` times each;
+//! gradients). Textured, as the Python op runs it: fragments, the drawn faces' UV planes (`UvTexturePlanes::new`),
+//! the texture sample at each pixel's perspective-correct UV (per-vertex UVs, a 256 x 256 RGB texture, bilinear;
+//! `UvTexturePlanes::sample`), the RGBA image, then the per-pixel NMR vertex gradient and the texel, UV and interior
+//! vertex gradients (`UvTexturePlanes::backward`, with the forward's planes). The two alternate, `reps` times each;
 //! medians and their ratio are printed.
 //!
 //! `cargo run --release -p meshadv-raster --example textured_bench [threads] [reps]` (1 thread and 21 repetitions by
@@ -12,11 +13,11 @@
 
 use std::time::Instant;
 
-use meshadv_raster::backward::{image_vertex_backward, Visibility};
+use meshadv_raster::backward::{image_vertex_backward, Isa, Visibility};
 use meshadv_raster::camera::{project, world_to_view, SphericalCamera};
 use meshadv_raster::surface::CornerAttrs;
 use meshadv_raster::texture::{Texture, Wrap};
-use meshadv_raster::textured::{sample_uv_texture, sample_uv_texture_backward};
+use meshadv_raster::textured::UvTexturePlanes;
 use meshadv_raster::{
     rasterize, rasterize_backward, rasterize_fragments, with_threads, BackwardInputs, FaceAttrs,
     RasterError, RasterParams, ScreenMesh,
@@ -145,7 +146,9 @@ fn main() -> Result<(), RasterError> {
     };
     let textured = || -> Result<f32, RasterError> {
         let frags = rasterize_fragments(&mesh, &params)?;
-        let rgb = sample_uv_texture(&mesh, &params, &frags.face_index, &uv_attrs, &texture)?;
+        // As the Python op: the planes built once by the forward and kept for the backward.
+        let planes = UvTexturePlanes::new(&mesh, &params, &frags.face_index, &uv_attrs, &texture)?;
+        let rgb = planes.sample(Isa::detect(), &frags.face_index, &texture)?;
         let mut image = Vec::with_capacity(frags.face_index.len() * 4);
         for (c, &f) in rgb.chunks_exact(3).zip(&frags.face_index) {
             image.extend_from_slice(&match f >= 0 {
@@ -162,14 +165,7 @@ fn main() -> Result<(), RasterError> {
             4,
             Visibility::Nmr,
         )?;
-        let gs = sample_uv_texture_backward(
-            &mesh,
-            &params,
-            &frags.face_index,
-            &uv_attrs,
-            &texture,
-            &grad_rgb,
-        )?;
+        let gs = planes.backward(Isa::detect(), &frags.face_index, &texture, &grad_rgb)?;
         Ok(gv[0] + gs.grad_verts_screen[0] + gs.grad_texels[0] + gs.grad_uvs[0])
     };
     let (mut tf, mut tt) = (Vec::new(), Vec::new());

@@ -195,15 +195,11 @@ fn drawn_planes(
         .collect()
 }
 
-/// Adds the vertex gradient `g` (`[corner][x, y, z]`) of face `f` to the vertex sums `sums` `(N, 3)`.
+/// Adds the vertex gradient `g` (`[corner][x, y, z]`) of a face with vertices `verts` to the vertex sums `sums`
+/// `(N, 3)`.
 #[inline]
-pub(crate) fn add_to_vertices(
-    mesh: &ScreenMesh<'_>,
-    f: usize,
-    g: &[[f64; 3]; 3],
-    sums: &mut [f64],
-) {
-    for (&vi, gk) in mesh.face(f).iter().zip(g) {
+pub(crate) fn add_to_vertices(verts: [usize; 3], g: &[[f64; 3]; 3], sums: &mut [f64]) {
+    for (&vi, gk) in verts.iter().zip(g) {
         for (s, &x) in sums[vi * 3..vi * 3 + 3].iter_mut().zip(gk) {
             *s += x;
         }
@@ -306,7 +302,7 @@ pub fn pixel_weights_backward(
             let mut sums = try_filled_vec(nv * 3, 0f64, "vertex gradient accumulator")?;
             for (f, (a, pl)) in acc.iter().zip(&planes).enumerate() {
                 if a.iter().flatten().any(|&x| x != 0.0) {
-                    add_to_vertices(mesh, f, &pl.vertex_grads(a, params), &mut sums);
+                    add_to_vertices(mesh.face(f), &pl.vertex_grads(a, params), &mut sums);
                 }
             }
             for (d, &s) in gv.iter_mut().zip(&sums) {
@@ -401,16 +397,13 @@ impl CornerAttrs<'_> {
 pub(crate) fn check_pixel_grad(
     grad: &[f32],
     channels: usize,
-    mesh: &ScreenMesh<'_>,
+    batch: usize,
     params: &RasterParams,
 ) -> Result<()> {
-    if grad.len() != mesh.batch * params.pixels() * channels {
+    if grad.len() != batch * params.pixels() * channels {
         return Err(RasterError::shape(
             "grad",
-            format!(
-                "({}, {}, {}, {channels})",
-                mesh.batch, params.height, params.width
-            ),
+            format!("({batch}, {}, {}, {channels})", params.height, params.width),
             format!("{} values", grad.len()),
         ));
     }
@@ -541,7 +534,7 @@ pub fn interpolate_backward(
     check_weights(weights, face_index)?;
     attrs.validate(mesh)?;
     let k = attrs.channels;
-    check_pixel_grad(grad, k, mesh, params)?;
+    check_pixel_grad(grad, k, mesh.batch, params)?;
     let hw = params.pixels();
     let mut grad_weights = try_filled_vec(face_index.len() * 3, 0f32, "grad_weights")?;
     // Per batch element in parallel, pixels in row-major order; shared values are summed in batch order below.

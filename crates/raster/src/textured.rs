@@ -12,7 +12,9 @@
 //! once per face. Conventions (UV origin, texel centres, wrap): [`crate::texture`]; the result equals sampling the
 //! texture at the UVs that [`crate::surface::interpolate`] gives with [`crate::surface::pixel_weights`], up to
 //! rounding. Texel sums run over pixels in row-major order and batch elements in order, the UV and vertex sums over
-//! the drawn faces in the order of their first pixels: bit-identical for any thread count.
+//! the drawn faces in the order of their first pixels: bit-identical for any thread count. [`UvTexturePlanes`] checks
+//! the inputs and builds the drawn faces' planes once for a forward and its backward; the pixel loops run compiled
+//! for AVX2 where the CPU has it, with the same bits as the baseline build.
 
 use rayon::prelude::*;
 
@@ -118,19 +120,18 @@ fn runs(fi: &[i32]) -> impl Iterator<Item = (usize, usize, i32)> + '_ {
     })
 }
 
-/// The UV corners of face `f` (batch element `b`).
-#[inline(always)]
-fn corner_uvs<'a>(uvs: &'a CornerAttrs<'_>, b: usize, f: usize) -> [&'a [f32]; 3] {
-    let c = &uvs.corners[f * 3..f * 3 + 3];
-    std::array::from_fn(|k| uvs.row(b, c[k] as usize))
-}
-
-/// The faces of one batch element drawn somewhere in its fragments, in order of their first pixel (row-major).
+/// The faces of one batch element drawn somewhere in its fragments, in order of their first pixel (row-major), with
+/// what the backward needs of their inputs.
+#[derive(Debug)]
 struct DrawnFaces {
-    /// Per face of the mesh: its index in `faces`, or `u32::MAX` where it is not drawn.
+    /// Per face of the mesh: its index among the drawn faces, or `u32::MAX` where it is not drawn.
     slot: Vec<u32>,
-    /// The drawn faces.
-    faces: Vec<u32>,
+    /// The drawn faces' vertices.
+    verts: Vec<[u32; 3]>,
+    /// Their corners' UV rows.
+    uv_rows: Vec<[u32; 3]>,
+    /// Their corners' UVs.
+    uv_values: Vec<[[f32; 2]; 3]>,
     /// Their weight planes.
     planes: Vec<FacePlanes>,
     /// Their UV planes.
@@ -148,7 +149,9 @@ impl DrawnFaces {
     ) -> DrawnFaces {
         let mut d = DrawnFaces {
             slot: vec![u32::MAX; mesh.num_faces()],
-            faces: Vec::new(),
+            verts: Vec::new(),
+            uv_rows: Vec::new(),
+            uv_values: Vec::new(),
             planes: Vec::new(),
             uv: Vec::new(),
         };
@@ -161,14 +164,33 @@ impl DrawnFaces {
             previous = f;
             if f >= 0 && d.slot[f as usize] == u32::MAX {
                 let f = f as usize;
-                d.slot[f] = d.faces.len() as u32;
+                d.slot[f] = d.verts.len() as u32;
                 let planes = FacePlanes::new(mesh, b, f, params);
-                d.faces.push(f as u32);
-                d.uv.push(UvPlanes::new(&planes, corner_uvs(uvs, b, f)));
+                let rows = &uvs.corners[f * 3..f * 3 + 3];
+                let uv: [&[f32]; 3] = std::array::from_fn(|k| uvs.row(b, rows[k] as usize));
+                d.verts.push(mesh.face(f).map(|v| v as u32));
+                d.uv_rows.push(std::array::from_fn(|k| rows[k] as u32));
+                d.uv_values.push(uv.map(|x| [x[0], x[1]]));
+                d.uv.push(UvPlanes::new(&planes, uv));
                 d.planes.push(planes);
             }
         }
         d
+    }
+
+    /// The index among the drawn faces of face `f` of the fragments (`f >= 0`), or an error naming `face_index`
+    /// where it is not one of them (fragments other than those the planes were built from).
+    #[inline(always)]
+    fn slot_of(&self, f: i32) -> Result<usize> {
+        match self.slot.get(f as usize) {
+            Some(&s) if (s as usize) < self.uv.len() => Ok(s as usize),
+            _ => Err(RasterError::Parameter {
+                arg: "face_index",
+                message: format!(
+                    "face {f} is not drawn in the fragments the UV planes were built from"
+                ),
+            }),
+        }
     }
 }
 
@@ -195,10 +217,162 @@ fn validate(
     texture.validate(mesh.batch)
 }
 
+/// `(Bt, Ht, Wt, C)` of a texture.
+fn texture_shape(texture: &Texture<'_>) -> [usize; 4] {
+    [
+        texture.batch,
+        texture.height,
+        texture.width,
+        texture.channels,
+    ]
+}
+
+/// The checked inputs of a textured pass and the UV planes of the faces drawn in its fragments, built once
+/// ([`UvTexturePlanes::new`]) for the forward ([`UvTexturePlanes::sample`]) and the backward
+/// ([`UvTexturePlanes::backward`]) alike: neither checks the mesh, UVs and texels again nor rebuilds the planes.
+/// The fragments and the texture given to those two must be the ones given to `new` (their shapes are checked; a
+/// face of the fragments that `new` did not see drawn is an error naming `face_index`).
+#[derive(Debug)]
+pub struct UvTexturePlanes {
+    params: RasterParams,
+    num_verts: usize,
+    /// `(Bv, T)` of the UVs.
+    uv_shape: [usize; 2],
+    texture_shape: [usize; 4],
+    /// Per batch element.
+    elements: Vec<DrawnFaces>,
+}
+
+impl UvTexturePlanes {
+    /// Checks the inputs of [`sample_uv_texture`] (the same arguments, the same errors) and builds the drawn faces'
+    /// planes.
+    pub fn new(
+        mesh: &ScreenMesh<'_>,
+        params: &RasterParams,
+        face_index: &[i32],
+        uvs: &CornerAttrs<'_>,
+        texture: &Texture<'_>,
+    ) -> Result<UvTexturePlanes> {
+        validate(mesh, params, face_index, uvs, texture)?;
+        let hw = params.pixels();
+        let elements = (0..mesh.batch)
+            .into_par_iter()
+            .map(|b| DrawnFaces::new(mesh, params, uvs, b, &face_index[b * hw..(b + 1) * hw]))
+            .collect();
+        Ok(UvTexturePlanes {
+            params: *params,
+            num_verts: mesh.num_verts,
+            uv_shape: [uvs.batch, uvs.rows],
+            texture_shape: texture_shape(texture),
+            elements,
+        })
+    }
+
+    /// `(Bv, T)` of the UVs given to [`UvTexturePlanes::new`]: the shape of their gradient is `(Bv, T, 2)`.
+    pub fn uv_shape(&self) -> [usize; 2] {
+        self.uv_shape
+    }
+
+    /// `N`, the vertices per batch element of the mesh given to [`UvTexturePlanes::new`].
+    pub fn num_verts(&self) -> usize {
+        self.num_verts
+    }
+
+    /// Checks that `face_index` and `texture` have the shapes of those given to [`UvTexturePlanes::new`] and that
+    /// `isa` is available.
+    fn check(&self, isa: Isa, face_index: &[i32], texture: &Texture<'_>) -> Result<()> {
+        isa.check()?;
+        let (b, h, w) = (self.elements.len(), self.params.height, self.params.width);
+        if face_index.len() != b * h * w {
+            return Err(RasterError::shape(
+                "face_index",
+                format!("({b}, {h}, {w}) as given to the UV planes"),
+                format!("{} values", face_index.len()),
+            ));
+        }
+        let shape = texture_shape(texture);
+        if shape != self.texture_shape || texture.texels.len() != shape.iter().product() {
+            return Err(RasterError::shape(
+                "texture",
+                format!("{:?} as given to the UV planes", self.texture_shape),
+                format!("{shape:?} with {} values", texture.texels.len()),
+            ));
+        }
+        Ok(())
+    }
+
+    /// [`sample_uv_texture`] of the inputs given to [`UvTexturePlanes::new`] (`face_index` and `texture` again) on
+    /// the instruction set `isa` (every choice gives the same bits; one this CPU lacks is an error naming `isa`).
+    pub fn sample(&self, isa: Isa, face_index: &[i32], texture: &Texture<'_>) -> Result<Vec<f32>> {
+        self.check(isa, face_index, texture)?;
+        let (c, w, h) = (texture.channels, self.params.width, self.params.height);
+        let mut out = try_filled_vec(face_index.len() * c, 0f32, "textured image")?;
+        out.par_chunks_mut(w * c)
+            .zip(face_index.par_chunks(w))
+            .enumerate()
+            .try_for_each(|(line, (dst, fi))| {
+                let b = line / h;
+                let (tex, drawn) = (texture.element(b), &self.elements[b]);
+                let v = (line % h) as f64;
+                with_channels!(c, C => sample_line_on::<C>(isa, &tex, drawn, fi, v, dst))
+            })?;
+        Ok(out)
+    }
+
+    /// [`sample_uv_texture_backward`] of the inputs given to [`UvTexturePlanes::new`] (`face_index` and `texture`
+    /// again) for the cotangent `grad` `(B, H, W, C)`, on the instruction set `isa` (as [`UvTexturePlanes::sample`]).
+    pub fn backward(
+        &self,
+        isa: Isa,
+        face_index: &[i32],
+        texture: &Texture<'_>,
+        grad: &[f32],
+    ) -> Result<UvTextureGradients> {
+        self.check(isa, face_index, texture)?;
+        let c = texture.channels;
+        check_pixel_grad(grad, c, self.elements.len(), &self.params)?;
+        let (hw, nv) = (self.params.pixels(), self.num_verts);
+        let mut grad_verts_screen =
+            try_filled_vec(self.elements.len() * nv * 3, 0f32, "grad_verts_screen")?;
+        let parts: Vec<ElementGrads> = grad_verts_screen
+            .par_chunks_mut(nv * 3)
+            .enumerate()
+            .map(|(b, gv)| {
+                let fi = &face_index[b * hw..(b + 1) * hw];
+                let g = &grad[b * hw * c..(b + 1) * hw * c];
+                let tex = texture.element(b);
+                with_channels!(c, C => element_backward_on::<C>(isa, self, b, fi, &tex, g, gv))
+            })
+            .collect::<Result<_>>()?;
+        // Shared values: the elements' sums added in batch order; per-element values: concatenated.
+        let sum_parts = |shared: bool, get: &dyn Fn(&ElementGrads) -> &[f64]| -> Vec<f32> {
+            if shared && parts.len() > 1 {
+                let mut sum = get(&parts[0]).to_vec();
+                for part in &parts[1..] {
+                    for (s, &x) in sum.iter_mut().zip(get(part)) {
+                        *s += x;
+                    }
+                }
+                sum.iter().map(|&x| x as f32).collect()
+            } else if parts.len() == 1 {
+                get(&parts[0]).iter().map(|&x| x as f32).collect()
+            } else {
+                parts.iter().flat_map(get).map(|&x| x as f32).collect()
+            }
+        };
+        Ok(UvTextureGradients {
+            grad_texels: sum_parts(texture.batch == 1, &|p| &p.texels),
+            grad_uvs: sum_parts(self.uv_shape[0] == 1, &|p| &p.uvs),
+            grad_verts_screen,
+        })
+    }
+}
+
 /// The texture sampled at each pixel's perspective-correct UV: `(B, H, W, C)`, 0 on background, for the fragments
 /// `face_index` of a forward pass with the same `mesh` and `params`, the per-corner UVs `uvs` (2 channels) and
 /// `texture` `(Bt, Ht, Wt, C)`. Errors name the argument at fault: among them, UVs that are not finite or beyond
-/// [`crate::texture::MAX_TEXTURE_COORDINATE`] in magnitude.
+/// [`crate::texture::MAX_TEXTURE_COORDINATE`] in magnitude. A forward followed by its backward builds the planes
+/// once with [`UvTexturePlanes`].
 ///
 /// ```
 /// use meshadv_raster::{rasterize_fragments, RasterParams, ScreenMesh};
@@ -237,23 +411,7 @@ pub fn sample_uv_texture_on(
     texture: &Texture<'_>,
 ) -> Result<Vec<f32>> {
     isa.check()?;
-    validate(mesh, params, face_index, uvs, texture)?;
-    let (c, w, hw) = (texture.channels, params.width, params.pixels());
-    let drawn: Vec<DrawnFaces> = (0..mesh.batch)
-        .into_par_iter()
-        .map(|b| DrawnFaces::new(mesh, params, uvs, b, &face_index[b * hw..(b + 1) * hw]))
-        .collect();
-    let mut out = try_filled_vec(face_index.len() * c, 0f32, "textured image")?;
-    out.par_chunks_mut(w * c)
-        .zip(face_index.par_chunks(w))
-        .enumerate()
-        .for_each(|(line, (dst, fi))| {
-            let b = line / params.height;
-            let (tex, drawn) = (texture.element(b), &drawn[b]);
-            let v = (line % params.height) as f64;
-            with_channels!(c, C => sample_line_on::<C>(isa, &tex, drawn, fi, v, dst))
-        });
-    Ok(out)
+    UvTexturePlanes::new(mesh, params, face_index, uvs, texture)?.sample(isa, face_index, texture)
 }
 
 /// [`sample_line`] compiled for `isa` (AVX2 where it is AVX2 or wider; the same bits: no fused multiply-adds).
@@ -264,7 +422,7 @@ fn sample_line_on<const C: usize>(
     fi: &[i32],
     v: f64,
     dst: &mut [f32],
-) {
+) -> Result<()> {
     /// # Safety
     /// The CPU must support AVX2.
     #[cfg(target_arch = "x86_64")]
@@ -276,7 +434,7 @@ fn sample_line_on<const C: usize>(
         fi: &[i32],
         v: f64,
         dst: &mut [f32],
-    ) {
+    ) -> Result<()> {
         sample_line::<C>(tex, drawn, fi, v, dst)
     }
     #[cfg(target_arch = "x86_64")]
@@ -297,13 +455,13 @@ fn sample_line<const C: usize>(
     fi: &[i32],
     v: f64,
     dst: &mut [f32],
-) {
+) -> Result<()> {
     let c = if C == 0 { tex.channels } else { C };
     for (start, end, f) in runs(fi) {
         if f < 0 {
             continue;
         }
-        let row = drawn.uv[drawn.slot[f as usize] as usize].row(v);
+        let row = drawn.uv[drawn.slot_of(f)?].row(v);
         // Along the run the planes are stepped by their slopes, as in the backward pass.
         let (mut p, step) = (row.at(start as f64), row.step());
         for px in dst[start * c..end * c].chunks_exact_mut(c) {
@@ -311,6 +469,7 @@ fn sample_line<const C: usize>(
             tex.sample_into::<C>(s, t, px);
         }
     }
+    Ok(())
 }
 
 /// Gradients of [`sample_uv_texture`].
@@ -356,104 +515,62 @@ pub fn sample_uv_texture_backward_on(
     grad: &[f32],
 ) -> Result<UvTextureGradients> {
     isa.check()?;
-    validate(mesh, params, face_index, uvs, texture)?;
-    let c = texture.channels;
-    check_pixel_grad(grad, c, mesh, params)?;
-    let (hw, nv) = (params.pixels(), mesh.num_verts);
-    let mut grad_verts_screen = try_filled_vec(mesh.batch * nv * 3, 0f32, "grad_verts_screen")?;
-    let parts: Vec<ElementGrads> = grad_verts_screen
-        .par_chunks_mut(nv * 3)
-        .enumerate()
-        .map(|(b, gv)| {
-            let fi = &face_index[b * hw..(b + 1) * hw];
-            let g = &grad[b * hw * c..(b + 1) * hw * c];
-            with_channels!(c, C => element_backward_on::<C>(isa, mesh, params, fi, uvs, texture, g, b, gv))
-        })
-        .collect::<Result<_>>()?;
-    // Shared values: the elements' sums added in batch order; per-element values: concatenated.
-    let sum_parts = |shared: bool, get: &dyn Fn(&ElementGrads) -> &[f64]| -> Vec<f32> {
-        if shared && parts.len() > 1 {
-            let mut sum = get(&parts[0]).to_vec();
-            for part in &parts[1..] {
-                for (s, &x) in sum.iter_mut().zip(get(part)) {
-                    *s += x;
-                }
-            }
-            sum.iter().map(|&x| x as f32).collect()
-        } else if parts.len() == 1 {
-            get(&parts[0]).iter().map(|&x| x as f32).collect()
-        } else {
-            parts.iter().flat_map(get).map(|&x| x as f32).collect()
-        }
-    };
-    Ok(UvTextureGradients {
-        grad_texels: sum_parts(texture.batch == 1, &|p| &p.texels),
-        grad_uvs: sum_parts(uvs.batch == 1, &|p| &p.uvs),
-        grad_verts_screen,
-    })
+    UvTexturePlanes::new(mesh, params, face_index, uvs, texture)?
+        .backward(isa, face_index, texture, grad)
 }
 
 /// [`element_backward`] compiled for `isa` (AVX2 where it is AVX2 or wider; the same bits).
-#[allow(clippy::too_many_arguments)]
 fn element_backward_on<const C: usize>(
     isa: Isa,
-    mesh: &ScreenMesh<'_>,
-    params: &RasterParams,
-    fi: &[i32],
-    uvs: &CornerAttrs<'_>,
-    texture: &Texture<'_>,
-    grad: &[f32],
+    planes: &UvTexturePlanes,
     b: usize,
+    fi: &[i32],
+    tex: &Texture<'_>,
+    grad: &[f32],
     gv: &mut [f32],
 ) -> Result<ElementGrads> {
     /// # Safety
     /// The CPU must support AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    #[allow(unsafe_code, clippy::too_many_arguments)]
+    #[allow(unsafe_code)]
     unsafe fn avx2<const C: usize>(
-        mesh: &ScreenMesh<'_>,
-        params: &RasterParams,
-        fi: &[i32],
-        uvs: &CornerAttrs<'_>,
-        texture: &Texture<'_>,
-        grad: &[f32],
+        planes: &UvTexturePlanes,
         b: usize,
+        fi: &[i32],
+        tex: &Texture<'_>,
+        grad: &[f32],
         gv: &mut [f32],
     ) -> Result<ElementGrads> {
-        element_backward::<C>(mesh, params, fi, uvs, texture, grad, b, gv)
+        element_backward::<C>(planes, b, fi, tex, grad, gv)
     }
     #[cfg(target_arch = "x86_64")]
     if isa >= Isa::Avx2 {
         // SAFETY: `isa` is available on this CPU.
         #[allow(unsafe_code)]
-        return unsafe { avx2::<C>(mesh, params, fi, uvs, texture, grad, b, gv) };
+        return unsafe { avx2::<C>(planes, b, fi, tex, grad, gv) };
     }
-    element_backward::<C>(mesh, params, fi, uvs, texture, grad, b, gv)
+    element_backward::<C>(planes, b, fi, tex, grad, gv)
 }
 
-/// [`sample_uv_texture_backward`] of batch element `b` (fragments `fi`, cotangent `grad`): its vertex gradient
-/// into `gv` `(N, 3)`, its texel and UV sums returned; `C` channels (0: any count).
-#[allow(clippy::too_many_arguments)]
+/// [`UvTexturePlanes::backward`] of batch element `b` (fragments `fi`, its texture `tex`, cotangent `grad`): its
+/// vertex gradient into `gv` `(N, 3)`, its texel and UV sums returned; `C` channels (0: any count).
 #[inline(always)]
 fn element_backward<const C: usize>(
-    mesh: &ScreenMesh<'_>,
-    params: &RasterParams,
-    fi: &[i32],
-    uvs: &CornerAttrs<'_>,
-    texture: &Texture<'_>,
-    grad: &[f32],
+    planes: &UvTexturePlanes,
     b: usize,
+    fi: &[i32],
+    tex: &Texture<'_>,
+    grad: &[f32],
     gv: &mut [f32],
 ) -> Result<ElementGrads> {
-    let c = if C == 0 { texture.channels } else { C };
-    let tex = texture.element(b);
-    let drawn = DrawnFaces::new(mesh, params, uvs, b, fi);
+    let c = if C == 0 { tex.channels } else { C };
+    let (drawn, params) = (&planes.elements[b], &planes.params);
     // One value more than the texels: 3-channel texels are added to four at a time.
     let mut texels = try_filled_vec(tex.texels.len() + 1, 0f64, "texture gradient accumulator")?;
     // Per drawn face, summed over its pixels: dL/dQ, dL/dN_u and dL/dN_v, each times (1, u, v); along a line, over
     // each run of pixels of one face first (the row v is constant there).
-    let mut sums = vec![[[0f64; 3]; 3]; drawn.faces.len()];
+    let mut sums = vec![[[0f64; 3]; 3]; drawn.uv.len()];
     for (row, (fi, grad)) in fi
         .chunks_exact(params.width)
         .zip(grad.chunks_exact(params.width * c))
@@ -464,7 +581,7 @@ fn element_backward<const C: usize>(
             if f < 0 {
                 continue;
             }
-            let slot = drawn.slot[f as usize] as usize;
+            let slot = drawn.slot_of(f)?;
             let line = drawn.uv[slot].row(v);
             let mut run = [[0f64; 2]; 3];
             // The planes stepped along the run by their slopes, as in the forward pass.
@@ -489,11 +606,11 @@ fn element_backward<const C: usize>(
             }
         }
     }
-    let mut uv_sums = try_filled_vec(uvs.rows * 2, 0f64, "UV gradient accumulator")?;
-    let mut vertex_sums = try_filled_vec(mesh.num_verts * 3, 0f64, "vertex gradient accumulator")?;
-    for ((a, &f), pl) in sums.iter().zip(&drawn.faces).zip(&drawn.planes) {
-        let f = f as usize;
-        let uv = corner_uvs(uvs, b, f);
+    let mut uv_sums = try_filled_vec(planes.uv_shape[1] * 2, 0f64, "UV gradient accumulator")?;
+    let mut vertex_sums =
+        try_filled_vec(planes.num_verts * 3, 0f64, "vertex gradient accumulator")?;
+    for (i, (a, pl)) in sums.iter().zip(&drawn.planes).enumerate() {
+        let uv = &drawn.uv_values[i];
         // dL/dq_k = dL/dQ + uv_k . dL/dN (Q is 1 in orthographic projection, not a function of the q_k).
         let gq: [[f64; 3]; 3] = std::array::from_fn(|k| {
             let (x, y) = (uv[k][0] as f64, uv[k][1] as f64);
@@ -502,9 +619,10 @@ fn element_backward<const C: usize>(
                 q + x * a[1][i] + y * a[2][i]
             })
         });
-        add_to_vertices(mesh, f, &pl.vertex_grads(&gq, params), &mut vertex_sums);
+        let verts = drawn.verts[i].map(|v| v as usize);
+        add_to_vertices(verts, &pl.vertex_grads(&gq, params), &mut vertex_sums);
         // dL/duv_k = sum_P (q_k / Q) dL/duv = sum_P q_k dL/dN.
-        for (k, &r) in uvs.corners[f * 3..f * 3 + 3].iter().enumerate() {
+        for (k, &r) in drawn.uv_rows[i].iter().enumerate() {
             let q = pl.numerator(k);
             uv_sums[r as usize * 2] += dot3(&q, &a[1]);
             uv_sums[r as usize * 2 + 1] += dot3(&q, &a[2]);
@@ -833,6 +951,67 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn planes_built_once_serve_the_forward_and_the_backward() {
+        let mut rng = Rng(4);
+        let case = Case::new(&mut rng, 2, 1, Projection::Perspective);
+        let (mesh, uvs, tex) = (
+            case.mesh(&case.verts),
+            case.uvs(&case.uv_values),
+            case.texture(&case.texels),
+        );
+        let (p, fi) = (&case.params, &case.face_index[..]);
+        let g: Vec<f32> = (0..fi.len() * 3)
+            .map(|_| (rng.next() - 0.5) as f32)
+            .collect();
+        let planes = UvTexturePlanes::new(&mesh, p, fi, &uvs, &tex).expect("planes");
+        let isa = Isa::detect();
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let image = planes.sample(isa, fi, &tex).expect("forward");
+        assert_eq!(
+            bits(&image),
+            bits(&case.forward(&case.verts, &case.uv_values, &case.texels))
+        );
+        let (got, want) = (
+            planes.backward(isa, fi, &tex, &g).expect("backward"),
+            case.backward(&g),
+        );
+        assert_eq!(bits(&got.grad_texels), bits(&want.grad_texels));
+        assert_eq!(bits(&got.grad_uvs), bits(&want.grad_uvs));
+        assert_eq!(bits(&got.grad_verts_screen), bits(&want.grad_verts_screen));
+        // Inputs other than those the planes were built from: errors naming them, no panic. Planes built without
+        // the first drawn face, then the fragments with it; a face index beyond the mesh.
+        let first = *fi.iter().find(|&&f| f >= 0).expect("a drawn pixel");
+        let hidden: Vec<i32> = fi
+            .iter()
+            .map(|&f| if f == first { -1 } else { f })
+            .collect();
+        let without = UvTexturePlanes::new(&mesh, p, &hidden, &uvs, &tex).expect("planes");
+        let mut beyond = fi.to_vec();
+        beyond[fi.iter().position(|&f| f >= 0).expect("a drawn pixel")] = case.faces.len() as i32;
+        for (planes, fi) in [(&without, fi), (&planes, &beyond[..])] {
+            let e = planes.sample(isa, fi, &tex).expect_err("unseen face");
+            assert!(e.to_string().starts_with("face_index"), "{e}");
+            let e = planes.backward(isa, fi, &tex, &g).expect_err("unseen face");
+            assert!(e.to_string().starts_with("face_index"), "{e}");
+        }
+        let e = planes.sample(isa, &fi[1..], &tex).expect_err("short map");
+        assert!(e.to_string().starts_with("face_index"), "{e}");
+        let small = Texture {
+            texels: &case.texels[..case.texels.len() / 2],
+            height: 3,
+            ..tex
+        };
+        let e = planes
+            .backward(isa, fi, &small, &g)
+            .expect_err("other texture");
+        assert!(e.to_string().starts_with("texture"), "{e}");
+        let e = planes
+            .backward(isa, fi, &tex, &g[1..])
+            .expect_err("short cotangent");
+        assert!(e.to_string().starts_with("grad"), "{e}");
     }
 
     #[test]

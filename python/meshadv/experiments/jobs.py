@@ -65,9 +65,13 @@ def load_job_mesh(mesh_spec: Dict[str, Any], perturbation: Optional[str] = None)
     Raises:
         ValueError: unknown source, bad shading. FileNotFoundError: missing file or shared data.
         MeshLoadError: the file's texture or attributes are unusable (the message names the file and field).
+
+    Example:
+        >>> load_job_mesh({"source": "files", "path": "ball.obj", "shading": "smooth"}, "shape")  # doctest: +SKIP
+        SurfaceMesh(...)
     """
     from meshadv import mesh as meshlib
-    from meshadv.mesh.file_input import MeshInput, attack_input, read_file_input, surface_input
+    from meshadv.mesh.file_input import MeshInput, attack_input, read_file_input
 
     source = mesh_spec.get("source")
     max_faces = int(mesh_spec.get("max_faces", 20000))
@@ -75,32 +79,26 @@ def load_job_mesh(mesh_spec: Dict[str, Any], perturbation: Optional[str] = None)
     shading = mesh_spec.get("shading")
     if shading not in (None, "flat", "smooth"):
         raise ValueError(f"mesh.shading must be flat or smooth, got {shading!r}")
-    surface = perturbation is not None and bool(mesh_spec.get("surface", True))
     if source == "builtin":
         mesh = meshlib.builtin_mesh(mesh_spec["name"])
-        if target_faces > 0:
+        if target_faces > 0:  # a built-in shape is resampled here (the attack command takes it as it is)
             mesh = meshlib.resample_mesh(mesh, target_faces=target_faces)
-        if surface and perturbation != "texture":
-            return surface_input(MeshInput(mesh, str(mesh_spec["name"]), None, None, False), shading).mesh
-        return mesh
-    if source not in ("pascal3d", "files"):
-        raise ValueError(f"mesh.source must be pascal3d, builtin or files, got {source!r}")
-    if source == "pascal3d":
-        from meshadv.data import require_shared_data
+        loaded, resample = MeshInput(mesh, str(mesh_spec["name"]), None, None, False), 0
+    elif source in ("pascal3d", "files"):
+        if source == "pascal3d":
+            from meshadv.data import require_shared_data
 
-        path = require_shared_data(mesh_spec["path"])
+            path = require_shared_data(mesh_spec["path"])
+        else:
+            path = Path(mesh_spec["path"])
+            if not path.is_file():
+                raise FileNotFoundError(f"mesh file {path} does not exist")
+        loaded, resample = read_file_input(path, z_up=source == "pascal3d", max_faces=max_faces), target_faces
     else:
-        path = Path(mesh_spec["path"])
-        if not path.is_file():
-            raise FileNotFoundError(f"mesh file {path} does not exist")
-    loaded = read_file_input(path, z_up=source == "pascal3d", max_faces=max_faces)
-    if surface:
-        return attack_input(loaded, str(perturbation), None if perturbation == "texture" else shading,
-                            target_faces).mesh
-    mesh = loaded.mesh
-    if target_faces > 0:
-        mesh = meshlib.resample_mesh(mesh, target_faces=target_faces)
-    return mesh
+        raise ValueError(f"mesh.source must be pascal3d, builtin or files, got {source!r}")
+    if perturbation is None or not mesh_spec.get("surface", True):
+        return loaded.mesh if resample == 0 else meshlib.resample_mesh(loaded.mesh, target_faces=resample)
+    return attack_input(loaded, str(perturbation), None if perturbation == "texture" else shading, resample).mesh
 
 
 def save_job_mesh(mesh: Any, out: Path, stem: str) -> Dict[str, str]:

@@ -1,8 +1,10 @@
-"""glTF vertex colours (``COLOR_0``): the checks trimesh does not make, and the values in ``[0, 1]``.
+"""glTF vertex colours (``COLOR_0``) and base-colour factor: the checks trimesh does not make, and the values.
 
 trimesh reads ``COLOR_0`` as the accessor's raw numbers (0-255 for ``UNSIGNED_BYTE``, 0-65535 for
 ``UNSIGNED_SHORT``, as stored for ``FLOAT``) and drops a ``COLOR_0`` whose count differs from the positions' without a
-word; :func:`check_color_accessors` reads the file's JSON so that such a file is an error naming the file and field.
+word; :func:`check_color_accessors` reads the file's JSON (:func:`gltf_json`) so that such a file is an error naming
+the file and field. trimesh rounds a material's ``baseColorFactor`` to 8 bits; :func:`base_color_factor` reads it
+exactly.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import numpy as np
 
 from meshadv.mesh.errors import MeshLoadError
 
-__all__ = ["check_color_accessors", "color_values"]
+__all__ = ["base_color_factor", "check_color_accessors", "color_values", "gltf_json"]
 
 #: The ``componentType`` codes glTF 2.0 allows for ``COLOR_0``, and the value each one's 1.0 is stored as.
 _COLOR_SCALES = {5126: 1.0, 5121: 255.0, 5123: 65535.0}
@@ -24,8 +26,12 @@ _GLB_MAGIC = b"glTF"
 _JSON_CHUNK = 0x4E4F534A
 
 
-def _gltf_json(path: Path) -> dict[str, Any]:
-    """The JSON of a ``.gltf`` file or of a ``.glb``'s first chunk."""
+def gltf_json(path: Path) -> dict[str, Any]:
+    """The JSON of a ``.gltf`` file or of a ``.glb``'s first chunk.
+
+    Raises:
+        MeshLoadError: not glTF JSON (the message names the file).
+    """
     data = path.read_bytes()
     try:
         if data[:4] == _GLB_MAGIC:
@@ -38,12 +44,12 @@ def _gltf_json(path: Path) -> dict[str, Any]:
         raise MeshLoadError(f"{path}: cannot be read as glTF ({exc})") from exc
 
 
-def check_color_accessors(path: Path) -> bool:
+def check_color_accessors(tree: dict[str, Any], path: Path) -> bool:
     """Check every mesh primitive's ``COLOR_0`` of a glTF/GLB file against glTF 2.0: one colour per ``POSITION``,
     ``VEC3`` or ``VEC4``, of ``FLOAT``, ``UNSIGNED_BYTE`` or ``UNSIGNED_SHORT`` components.
 
     Args:
-        path: a ``.glb`` or ``.gltf`` file.
+        tree: the file's JSON (:func:`gltf_json`). path: the file, for the messages.
 
     Returns:
         Whether any primitive has a ``COLOR_0``.
@@ -52,7 +58,6 @@ def check_color_accessors(path: Path) -> bool:
         MeshLoadError: a ``COLOR_0`` that breaks one of these rules; the message names the file, the mesh and
             primitive, and ``COLOR_0``.
     """
-    tree = _gltf_json(path)
     accessors = tree.get("accessors") or []
     found = False
     for m, mesh in enumerate(tree.get("meshes") or []):
@@ -95,3 +100,31 @@ def color_values(raw: np.ndarray, path: Path) -> np.ndarray:
     if rgb.min() < 0.0 or rgb.max() > 1.0:
         raise MeshLoadError(f"{path}: COLOR_0: colours must lie in [0, 1], got [{rgb.min():g}, {rgb.max():g}]")
     return rgb
+
+
+def base_color_factor(tree: dict[str, Any], path: Path) -> np.ndarray:
+    """(3,) float64 RGB ``baseColorFactor`` of the materials the file's primitives use (1 where a material or a
+    primitive gives none), which glTF multiplies with the base-colour texture and ``COLOR_0``.
+
+    Raises:
+        MeshLoadError: primitives whose factors differ (one mesh of meshadv has one reflectance rule), or a factor
+            that is not 3 or 4 numbers in ``[0, 1]``; the message names the file and ``baseColorFactor``.
+    """
+    materials = tree.get("materials") or []
+    factors = set()
+    for mesh in tree.get("meshes") or []:
+        for primitive in mesh.get("primitives") or []:
+            index = primitive.get("material")
+            material = materials[index] if isinstance(index, int) and 0 <= index < len(materials) else {}
+            raw = (material.get("pbrMetallicRoughness") or {}).get("baseColorFactor", [1.0, 1.0, 1.0, 1.0])
+            try:
+                rgb = tuple(float(x) for x in raw[:3])
+            except (TypeError, ValueError) as exc:
+                raise MeshLoadError(f"{path}: baseColorFactor: not numbers: {raw!r}") from exc
+            if len(raw) not in (3, 4) or not all(0.0 <= x <= 1.0 for x in rgb):
+                raise MeshLoadError(f"{path}: baseColorFactor: needs 3 or 4 numbers in [0, 1], got {raw!r}")
+            factors.add(rgb)
+    if len(factors) > 1:
+        raise MeshLoadError(f"{path}: baseColorFactor: the primitives' materials have different factors "
+                            f"{sorted(factors)}; meshadv draws one mesh with one (merge the materials)")
+    return np.asarray(factors.pop() if factors else (1.0, 1.0, 1.0), dtype=np.float64)

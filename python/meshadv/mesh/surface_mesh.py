@@ -309,8 +309,9 @@ def load_surface_mesh(path: PathLike) -> SurfaceMesh:
 
     OBJ: ``vt`` UVs with the ``map_Kd`` image of its MTL, ``vn`` normals, ``v x y z r g b`` vertex colours (in
     ``[0, 1]``, as MeshLab and trimesh write them). GLB/glTF: the base-colour texture, UVs, normals and ``COLOR_0``
-    vertex colours of the primitive (a texture and colours both: the reflectance is their product, as glTF defines
-    it). PLY: vertex colours (and normals when present). Other formats: geometry only.
+    vertex colours of the primitive (the reflectance is ``baseColorFactor`` x texture x ``COLOR_0``, as glTF defines
+    it; the factor is folded into the texture, else into the vertex colours). PLY: vertex colours (and normals when
+    present). Other formats: geometry only.
 
     Args:
         path: the mesh file.
@@ -322,7 +323,8 @@ def load_surface_mesh(path: PathLike) -> SurfaceMesh:
         MeshLoadError: an unreadable file, a missing or unreadable texture image or material file, a texture of zero
             size, NaN, non-numeric or out-of-range (beyond +-1e6) UVs, corner indices beyond the attribute counts, NaN
             vertex colours or a mismatched number of them (glTF: a ``COLOR_0`` of another count than ``POSITION``,
-            of a type glTF does not allow, or outside ``[0, 1]``); the message names the file and the field.
+            of a type glTF does not allow, or outside ``[0, 1]``; a ``baseColorFactor`` outside ``[0, 1]``, or
+            primitives of different factors beside a texture or colours); the message names the file and the field.
 
     Example:
         >>> sm = load_surface_mesh("textured.obj")  # doctest: +SKIP
@@ -333,8 +335,9 @@ def load_surface_mesh(path: PathLike) -> SurfaceMesh:
         raise MeshLoadError(f"{path}: no such file")
     ext = path.suffix.lower()
     texture_file = None
-    if ext in (".glb", ".gltf"):
-        _gltf.check_color_accessors(path)
+    gltf = _gltf.gltf_json(path) if ext in (".glb", ".gltf") else None
+    if gltf is not None:
+        _gltf.check_color_accessors(gltf, path)
     if ext == ".obj":
         _check_obj_indices(path)
         texture_file = _obj_map_kd(path)
@@ -373,6 +376,12 @@ def load_surface_mesh(path: PathLike) -> SurfaceMesh:
         rgb = rgb.reshape(len(rgb), -1)[:, :3]
     elif isinstance(visual, trimesh.visual.texture.TextureVisuals) and "color" in visual.vertex_attributes:
         rgb = _gltf.color_values(visual.vertex_attributes["color"], path)  # glTF COLOR_0 beside a material
+    if gltf is not None and (tex is not None or rgb is not None):  # glTF: factor x texture x COLOR_0
+        factor = _gltf.base_color_factor(gltf, path)
+        if tex is not None:
+            tex = tex * factor
+        else:
+            rgb = rgb * factor
     if rgb is not None:
         if rgb.shape[0] != len(raw_v):
             raise MeshLoadError(f"{path}: vertex colors: {rgb.shape[0]} colours for {len(raw_v)} vertices")

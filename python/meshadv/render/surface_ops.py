@@ -212,10 +212,12 @@ class _SampleUvTexture(torch.autograd.Function):
         wrap: str,
         num_threads: int,
     ) -> torch.Tensor:
-        args = (_f32(verts_screen), _i32(faces), frags.face_index.numpy(), _i32(corners), _f32(uvs), _f32(texture))
+        face_index, texels = frags.face_index.numpy(), _f32(texture)
+        args = (_f32(verts_screen), _i32(faces), face_index, _i32(corners), _f32(uvs), texels)
         opts = (min(frags.near), max(frags.far), frags.orthographic, wrap, num_threads)
-        out = _native().sample_uv_texture(*args, *opts)
-        ctx.args, ctx.opts = args, opts
+        out, planes = _native().sample_uv_texture(*args, *opts)
+        # The backward reuses the forward's checked inputs and drawn faces' UV planes.
+        ctx.planes, ctx.face_index, ctx.texels, ctx.opts = planes, face_index, texels, (wrap, num_threads)
         ctx.types = [(t.dtype, t.device) for t in (texture, uvs, verts_screen)]
         return torch.from_numpy(out).to(device=verts_screen.device, dtype=texture.dtype)
 
@@ -224,7 +226,9 @@ class _SampleUvTexture(torch.autograd.Function):
         needs = ctx.needs_input_grad[:3]
         if not any(needs):
             return (None,) * 8
-        gt, guv, gv = _native().sample_uv_texture_backward(*ctx.args, _f32(grad), *ctx.opts)
+        gt, guv, gv = _native().sample_uv_texture_backward(
+            ctx.planes, ctx.face_index, ctx.texels, _f32(grad), *ctx.opts
+        )
         return (*_as_inputs((gt, guv, gv), needs, ctx.types), None, None, None, None, None)
 
 
