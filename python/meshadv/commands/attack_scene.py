@@ -75,6 +75,7 @@ def attack_scene(
     perceptibility cap (--cap)."""
     from meshadv.attacks import Disappearance
     from meshadv.attacks.families import check_perturbation
+    from meshadv.attacks.result import enough_views
     from meshadv.attacks.update import RECOMMENDED_METHOD
     from meshadv.commands._common import resolve_method
     from meshadv.mesh import save_mesh
@@ -129,11 +130,13 @@ def attack_scene(
     if result.interrupted:
         typer.echo("interrupted: saved the best result so far (result.json says interrupted: true)")
     held_line = result.held_out_line()
-    if held_line is not None:
-        typer.echo(f"{held_line} ({'camera moves' if held_out.kind == 'camera' else 'object placements'}: "  # type: ignore[union-attr]
-                   f"hidden scores {', '.join(f'{v:.2f}' for v in result.held_out_scores or [])})")
+    if held_out is not None and held_line is not None:
+        moves = "camera moves" if held_out.kind == "camera" else "object placements"
+        scores = ", ".join(f"{v:.2f}" for v in result.held_out_scores or [])
+        typer.echo(f"{held_line} ({moves}; the hidden class's scores {scores})")
     verdict = "success" if result.success else "failure"
-    if result.views_success and not result.success and held_line is not None and result.held_out_fraction:
+    rate, fraction = result.held_out_rate, result.held_out_fraction
+    if result.views_success and fraction is not None and (rate is None or not enough_views(rate, fraction)):
         verdict += " (hidden from the scene camera, not on enough held-out views)"
     typer.echo(
         f"{verdict}: hidden score {result.score_before:.3f} -> "
