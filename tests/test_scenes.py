@@ -343,6 +343,8 @@ def test_attack_scene_judges_seeded_held_out_views(monkeypatch: pytest.MonkeyPat
     assert record["held_out_fraction"] == 0.8 and record["attack"]["held_out_fraction"] == 0.8
     assert record["held_out"]["kind"] == "camera" and len(record["held_out"]["moves"]) == 3
     assert len(record["held_out"]["views"]) == 3 and len(record["held_out_success"]) == 3
+    assert len(record["held_out_scores_before"]) == 3  # the pristine scene from the same views
+    assert all(b >= 0.5 for b in record["held_out_scores_before"])  # the stand-in chair is dark enough everywhere
     hidden = [s < 0.5 for s in record["held_out_scores"]]
     assert record["held_out_success"] == hidden
     rate = sum(hidden) / 3

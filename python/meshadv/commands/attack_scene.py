@@ -132,8 +132,9 @@ def attack_scene(
     held_line = result.held_out_line()
     if held_out is not None and held_line is not None:
         moves = "camera moves" if held_out.kind == "camera" else "object placements"
-        scores = ", ".join(f"{v:.2f}" for v in result.held_out_scores or [])
-        typer.echo(f"{held_line} ({moves}; the hidden class's scores {scores})")
+        scores = ", ".join(f"{b:.2f} -> {a:.2f}" for b, a in zip(result.held_out_scores_before or [],
+                                                               result.held_out_scores or []))
+        typer.echo(f"{held_line} ({moves}; the hidden class's score on each, pristine -> adversarial: {scores})")
     verdict = "success" if result.success else "failure"
     rate, fraction = result.held_out_rate, result.held_out_fraction
     if result.views_success and fraction is not None and (rate is None or not enough_views(rate, fraction)):

@@ -22,6 +22,7 @@ import torch
 
 from meshadv.attacks.mesh_attack import MeshAttack, StepInfo
 from meshadv.attacks.criteria import Disappearance
+from meshadv.attacks.evaluation import evaluate
 from meshadv.attacks.result import enough_views, held_out_sentence
 from meshadv.mesh import Mesh
 from meshadv.render import Lights, ViewSet
@@ -119,7 +120,7 @@ class SceneAttackResult:
         views_success: the class is hidden on the scene camera's view (the view optimised on).
         held_out_success: per held-out view (:mod:`meshadv.scenes.held_out`, never optimised on), the class is
             hidden there too; ``None`` without held-out views. ``held_out_scores``: the hidden class's best score
-            on each.
+            on each; ``held_out_scores_before``: on the pristine scene from the same views.
         held_out_fraction: ``None`` (the scene camera's verdict alone) or the fraction of held-out views the class
             must be hidden on for ``success``.
         held_out: the record of the held-out views (``SceneHeldOut.to_record``: kind, moves, views), or ``None``.
@@ -142,6 +143,7 @@ class SceneAttackResult:
     views_success: bool = False
     held_out_success: Optional[List[bool]] = None
     held_out_scores: Optional[List[float]] = None
+    held_out_scores_before: Optional[List[float]] = None
     held_out_fraction: Optional[float] = None
     held_out: Optional[Dict[str, Any]] = None
 
@@ -165,6 +167,7 @@ class SceneAttackResult:
             "views_success": self.views_success,
             "held_out_success": self.held_out_success,
             "held_out_scores": self.held_out_scores,
+            "held_out_scores_before": self.held_out_scores_before,
             "held_out_rate": self.held_out_rate,
             "held_out_fraction": self.held_out_fraction,
             "held_out": self.held_out,
@@ -215,6 +218,10 @@ def attack_scene(attack: MeshAttack, setup: SceneSetup, victim: Any, criterion: 
     bound = criterion.bind(victim)
     with torch.no_grad():
         detections = victim.detect(torch.cat([image_before, image_after]), score_threshold=bound.threshold)
+    before = None
+    if held_out is not None:  # the pristine scene from the held-out views: what the attack had to hide there
+        pristine = evaluate(setup.mesh, held_out.views, victim, bound, setup=setup.render_setup(antialias))
+        before = [float(s) for s in pristine.scores[0].tolist()]
     return SceneAttackResult(
         success=bool(result.succeeded[0]),
         object_mesh=result.mesh,
@@ -233,6 +240,7 @@ def attack_scene(attack: MeshAttack, setup: SceneSetup, victim: Any, criterion: 
         views_success=bool(enough_views(result.success_rate[0], result.success_fraction)),
         held_out_success=None if result.eval_success is None else [bool(s) for s in result.eval_success[0].tolist()],
         held_out_scores=None if result.eval_scores is None else [float(s) for s in result.eval_scores[0].tolist()],
+        held_out_scores_before=before,
         held_out_fraction=result.held_out_fraction,
         held_out=None if held_out is None else held_out.to_record(),
     )
