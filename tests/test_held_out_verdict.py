@@ -66,6 +66,20 @@ def test_the_held_out_rule_on_hand_made_cases() -> None:
     assert held_out_sentence(1, 4, None).endswith("1/4 (25%); not part of the verdict")
 
 
+def test_a_scene_counts_only_the_held_out_views_whose_pristine_scene_shows_the_class() -> None:
+    from meshadv.scenes.attack import scene_held_out_verdict
+
+    hidden = [True, True, True, False, False]
+    assert not scene_held_out_verdict(hidden, [True] * 5, 0.8)  # 3/5
+    assert scene_held_out_verdict(hidden, [True, True, True, True, False], 0.75)  # 3/4
+    assert not scene_held_out_verdict(hidden, [True, True, True, True, False], 0.8)
+    assert scene_held_out_verdict(hidden, [True, True, True, False, False], 0.8)  # 3/3: the rest showed nothing
+    assert not scene_held_out_verdict(hidden, [False] * 5, 0.8)  # nothing to hide anywhere: nothing shown hidden
+    assert scene_held_out_verdict(hidden, [False] * 5, None)  # no held-out verdict asked for
+    with pytest.raises(ValueError, match="one entry per held-out view"):
+        scene_held_out_verdict(hidden, [True], 0.8)
+
+
 @needs_native
 def test_held_out_views_judge_the_result_and_never_choose_it() -> None:
     plain = _run()

@@ -179,7 +179,12 @@ def test_attack_scene_command_writes_images_mesh_and_record(shared_data: Path, t
     # SUCCESS also needs the table hidden on 80% of the held-out camera moves (6 by default), never optimised on
     assert len(record["held_out_success"]) == 6 and record["held_out"]["kind"] == "camera"
     assert record["held_out_success"] == [s < 0.2 for s in record["held_out_scores"]]
-    assert record["success"] == (record["views_success"] and record["held_out_rate"] >= 0.8 - 1e-9)
+    # only views where the pristine scene shows the table count
+    assert record["held_out_counted"] == [b >= 0.2 for b in record["held_out_scores_before"]]
+    counted = [s for s, c in zip(record["held_out_success"], record["held_out_counted"]) if c]
+    rate = sum(counted) / len(counted) if counted else None
+    assert record["held_out_rate"] == (None if rate is None else pytest.approx(rate))
+    assert record["success"] == (record["views_success"] and rate is not None and rate >= 0.8 - 1e-9)
     distances = record["distances"]  # a texture attack moves no vertex and changes some colour
     assert distances["laplacian_sum"] == 0.0 and distances["max_displacement"] == 0.0 and distances["color_rmse"] > 0
     from PIL import Image
@@ -345,6 +350,7 @@ def test_attack_scene_judges_seeded_held_out_views(monkeypatch: pytest.MonkeyPat
     assert len(record["held_out"]["views"]) == 3 and len(record["held_out_success"]) == 3
     assert len(record["held_out_scores_before"]) == 3  # the pristine scene from the same views
     assert all(b >= 0.5 for b in record["held_out_scores_before"])  # the stand-in chair is dark enough everywhere
+    assert record["held_out_counted"] == [True] * 3
     hidden = [s < 0.5 for s in record["held_out_scores"]]
     assert record["held_out_success"] == hidden
     rate = sum(hidden) / 3

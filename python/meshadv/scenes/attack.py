@@ -23,7 +23,7 @@ import torch
 from meshadv.attacks.mesh_attack import MeshAttack, StepInfo
 from meshadv.attacks.criteria import Disappearance
 from meshadv.attacks.evaluation import evaluate
-from meshadv.attacks.result import enough_views, held_out_sentence
+from meshadv.attacks.result import enough_views, held_out_sentence, held_out_verdict
 from meshadv.mesh import Mesh
 from meshadv.render import Lights, ViewSet
 from meshadv.render.setup import RenderSetup, static_objects
@@ -32,7 +32,7 @@ from meshadv.scenes.held_out import SceneHeldOut, scene_held_out_views
 from meshadv.scenes.scene import Scene, SceneCamera
 from meshadv.victims.victim import Detections
 
-__all__ = ["SceneSetup", "SceneAttackResult", "attack_scene"]
+__all__ = ["SceneSetup", "SceneAttackResult", "attack_scene", "scene_held_out_verdict"]
 
 
 @dataclass(frozen=True)
@@ -106,8 +106,9 @@ class SceneAttackResult:
 
     Attributes:
         success: the hidden class's best score is below the threshold on a fresh render of the final object from
-            the scene camera, on at least ``held_out_fraction`` of the held-out views (when the attack asks for a
-            held-out verdict), and the object lies inside the attack's perceptibility cap (when it has one).
+            the scene camera, on at least ``held_out_fraction`` of the counted held-out views (when the attack asks
+            for a held-out verdict; :func:`scene_held_out_verdict`), and the object lies inside the attack's
+            perceptibility cap (when it has one).
         object_mesh: the object's adversarial mesh (model space).
         image_before: (1, 3, H, W) the pristine scene image; image_after: the adversarial one.
         detections_before / detections_after: the victim's NMS-filtered detections on those images.
@@ -121,6 +122,9 @@ class SceneAttackResult:
         held_out_success: per held-out view (:mod:`meshadv.scenes.held_out`, never optimised on), the class is
             hidden there too; ``None`` without held-out views. ``held_out_scores``: the hidden class's best score
             on each; ``held_out_scores_before``: on the pristine scene from the same views.
+        held_out_counted: per held-out view, the pristine scene shows the class there (the detector finds it
+            above the threshold); only those views count towards ``held_out_rate`` and the verdict (a view on which
+            the class is missed before the attack shows nothing hidden).
         held_out_fraction: ``None`` (the scene camera's verdict alone) or the fraction of held-out views the class
             must be hidden on for ``success``.
         held_out: the record of the held-out views (``SceneHeldOut.to_record``: kind, moves, views), or ``None``.
@@ -144,21 +148,32 @@ class SceneAttackResult:
     held_out_success: Optional[List[bool]] = None
     held_out_scores: Optional[List[float]] = None
     held_out_scores_before: Optional[List[float]] = None
+    held_out_counted: Optional[List[bool]] = None
     held_out_fraction: Optional[float] = None
     held_out: Optional[Dict[str, Any]] = None
 
+    def _counted(self) -> List[bool]:
+        """The held-out views' success on the counted views only."""
+        success = self.held_out_success or []
+        counted = self.held_out_counted if self.held_out_counted is not None else [True] * len(success)
+        return [s for s, c in zip(success, counted) if c]
+
     @property
     def held_out_rate(self) -> Optional[float]:
-        """Fraction of the held-out views on which the class is hidden (``None`` without held-out views)."""
-        if not self.held_out_success:
-            return None
-        return sum(self.held_out_success) / len(self.held_out_success)
+        """Fraction of the counted held-out views on which the class is hidden (``None`` without any)."""
+        counted = self._counted()
+        return sum(counted) / len(counted) if counted else None
 
     def held_out_line(self) -> Optional[str]:
         """The held-out verdict in words (``attacks.result.held_out_sentence``), ``None`` without held-out views."""
         if self.held_out_success is None:
             return None
-        return held_out_sentence(sum(self.held_out_success), len(self.held_out_success), self.held_out_fraction)
+        counted = self._counted()
+        line = held_out_sentence(sum(counted), len(counted), self.held_out_fraction)
+        left_out = len(self.held_out_success) - len(counted)
+        if left_out:
+            line += f" ({left_out} held-out view(s) left out: the pristine scene shows no such detection there)"
+        return line
 
     def to_record(self) -> dict:
         """JSON-able summary (verdict, detections, scores, distances, held-out views, steps, time)."""
@@ -168,6 +183,7 @@ class SceneAttackResult:
             "held_out_success": self.held_out_success,
             "held_out_scores": self.held_out_scores,
             "held_out_scores_before": self.held_out_scores_before,
+            "held_out_counted": self.held_out_counted,
             "held_out_rate": self.held_out_rate,
             "held_out_fraction": self.held_out_fraction,
             "held_out": self.held_out,
@@ -182,6 +198,22 @@ class SceneAttackResult:
             "loss_history": self.loss_history,
             "attack": self.config,
         }
+
+
+def scene_held_out_verdict(held_out_success: List[bool], counted: List[bool], fraction: Optional[float]) -> bool:
+    """The held-out part of a scene attack's verdict: the class is hidden on at least ``fraction`` of the held-out
+    views whose pristine scene shows it (``counted``), by the rule of
+    :func:`~meshadv.attacks.result.held_out_verdict` (``fraction`` ``None``: true; no counted view: false).
+
+    Example:
+        >>> scene_held_out_verdict([True, True, False, True], [True, True, False, True], 0.8)
+        True
+    """
+    if len(counted) != len(held_out_success):
+        raise ValueError(f"counted ({len(counted)}) and held_out_success ({len(held_out_success)}) must have one "
+                         "entry per held-out view")
+    kept = torch.tensor([[s for s, c in zip(held_out_success, counted) if c]], dtype=torch.bool).reshape(1, -1)
+    return bool(held_out_verdict(kept, fraction, 1)[0])
 
 
 def attack_scene(attack: MeshAttack, setup: SceneSetup, victim: Any, criterion: Disappearance, *,
@@ -218,12 +250,18 @@ def attack_scene(attack: MeshAttack, setup: SceneSetup, victim: Any, criterion: 
     bound = criterion.bind(victim)
     with torch.no_grad():
         detections = victim.detect(torch.cat([image_before, image_after]), score_threshold=bound.threshold)
-    before = None
+    success = bool(result.succeeded[0])
+    before = counted = held_out_success = None
     if held_out is not None:  # the pristine scene from the held-out views: what the attack had to hide there
         pristine = evaluate(setup.mesh, held_out.views, victim, bound, setup=setup.render_setup(antialias))
         before = [float(s) for s in pristine.scores[0].tolist()]
+        counted = [not bool(s) for s in pristine.success[0].tolist()]
+        held_out_success = [bool(s) for s in result.eval_success[0].tolist()]
+        views_hold = bool(enough_views(result.success_rate[0], result.success_fraction))
+        success = views_hold and bool(result.inside_cap[0]) and scene_held_out_verdict(
+            held_out_success, counted, result.held_out_fraction)
     return SceneAttackResult(
-        success=bool(result.succeeded[0]),
+        success=success,
         object_mesh=result.mesh,
         image_before=image_before,
         image_after=image_after,
@@ -238,9 +276,10 @@ def attack_scene(attack: MeshAttack, setup: SceneSetup, victim: Any, criterion: 
         config=dict(result.config),
         interrupted=bool(getattr(result, "interrupted", False)),
         views_success=bool(enough_views(result.success_rate[0], result.success_fraction)),
-        held_out_success=None if result.eval_success is None else [bool(s) for s in result.eval_success[0].tolist()],
+        held_out_success=held_out_success,
         held_out_scores=None if result.eval_scores is None else [float(s) for s in result.eval_scores[0].tolist()],
         held_out_scores_before=before,
+        held_out_counted=counted,
         held_out_fraction=result.held_out_fraction,
         held_out=None if held_out is None else held_out.to_record(),
     )
