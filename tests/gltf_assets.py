@@ -1,8 +1,10 @@
-"""Binary glTF files written here byte by byte (no exporter in between), so that the tests control every accessor:
-a textured primitive with ``COLOR_0`` of any component type and count."""
+"""glTF files written here byte by byte (no exporter in between), so that the tests control every accessor: a
+textured primitive with ``COLOR_0`` of any component type and count, as ``.glb`` or as ``.gltf`` (JSON with the
+buffer embedded)."""
 
 from __future__ import annotations
 
+import base64
 import io
 import json
 import struct
@@ -18,10 +20,11 @@ _COMPONENT = {np.dtype(np.float32): 5126, np.dtype(np.uint8): 5121, np.dtype(np.
 def write_glb(path: Path, positions: np.ndarray, faces: np.ndarray, *, uvs: Optional[np.ndarray] = None,
               texture: Optional[np.ndarray] = None, colors: Optional[np.ndarray] = None,
               color_type: Optional[str] = None, factor: Optional[list] = None) -> Path:
-    """Write one triangle primitive: float ``POSITION``, uint32 indices, ``TEXCOORD_0`` (``uvs`` with meshadv's origin
-    at the bottom-left, flipped to glTF's top-left) and a PNG ``baseColorTexture`` (``texture``, (H,W,3) uint8), and
-    ``COLOR_0`` of ``colors``' dtype (uint8 / uint16 normalised, float32) and count, of type ``color_type``
-    (default VEC3 or VEC4 from its width); ``factor``: the material's ``baseColorFactor``."""
+    """Write one triangle primitive (binary ``.glb``, or ``.gltf`` JSON by ``path``'s suffix): float ``POSITION``,
+    uint32 indices, ``TEXCOORD_0`` (``uvs`` with meshadv's origin at the bottom-left, flipped to glTF's top-left), a
+    PNG ``baseColorTexture`` (``texture``, (H,W,3) uint8), and ``COLOR_0`` of ``colors``' dtype (uint8 / uint16
+    normalised, float32) and count, of type ``color_type`` (default VEC3 or VEC4 from its width); ``factor``: the
+    material's ``baseColorFactor``."""
     blobs: list[bytes] = []
     views: list[dict[str, Any]] = []
     accessors: list[dict[str, Any]] = []
@@ -65,6 +68,10 @@ def write_glb(path: Path, positions: np.ndarray, faces: np.ndarray, *, uvs: Opti
         attributes["COLOR_0"] = add_accessor(colors, kind, **extra)
     binary = b"".join(blobs)
     tree.update(buffers=[{"byteLength": len(binary)}], bufferViews=views, accessors=accessors)
+    if path.suffix == ".gltf":  # one JSON file, the buffer embedded as a data URI
+        tree["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(binary).decode()
+        path.write_text(json.dumps(tree))
+        return path
     text = json.dumps(tree).encode()
     text += b" " * (-len(text) % 4)
     body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942) + binary

@@ -129,6 +129,18 @@ def test_bad_color_0_is_an_error_naming_the_file_and_field(tmp_path: Path, field
         load_surface_mesh(path)
 
 
+def test_a_gltf_json_file_loads_and_checks_its_color_0_as_a_glb(tmp_path: Path) -> None:
+    colors = COLORS.astype(np.float32)
+    path = write_glb(tmp_path / "quad.gltf", QUAD, QUAD_FACES, uvs=QUAD_UVS, texture=_block_texture(), colors=colors)
+    surface = load_surface_mesh(path)
+    assert surface.texture is not None and surface.vertex_colors is not None
+    np.testing.assert_allclose(np.sort(surface.vertex_colors.numpy(), axis=0), np.sort(COLORS, axis=0), atol=1e-6)
+    short = write_glb(tmp_path / "short.gltf", QUAD, QUAD_FACES, uvs=QUAD_UVS, texture=_block_texture(),
+                      colors=colors[:2])
+    with pytest.raises(MeshLoadError, match=r"short\.gltf: mesh 0 primitive 0: COLOR_0: 2 colours for 4 vertices"):
+        load_surface_mesh(short)
+
+
 def test_a_color_0_of_an_integer_type_glTF_does_not_allow_is_an_error(tmp_path: Path) -> None:
     path = write_glb(tmp_path / "int.glb", QUAD, QUAD_FACES, uvs=QUAD_UVS, texture=_block_texture(),
                      colors=np.ones((4, 3), np.float32))

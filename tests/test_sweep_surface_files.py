@@ -1,7 +1,7 @@
 """Sweep jobs take a textured file as ``meshadv attack`` does: a tiny sweep of a generated OBJ + MTL + PNG and an
 untextured PLY (stand-in victim, 32 px, 2 steps) draws the texture, keeps it through the artefacts, the kept
-perturbation, the Mitsuba transfer and a resume; the untextured file loads per face as before; ``meshes.shading``
-reaches the jobs; a database started loading per face keeps doing so."""
+perturbation, the Mitsuba transfer, a regeneration and a resume; the untextured file loads per face as before;
+``meshes.shading`` reaches the jobs; a database started loading per face keeps doing so."""
 
 from __future__ import annotations
 
@@ -123,6 +123,13 @@ def test_a_sweep_attacks_a_textured_file_with_its_texture_and_resumes(tmp_path: 
         result = controlled_transfer([cases["bottle"]], spp=16, max_depth=2,
                                      victim_loader=lambda name: PooledLinearClassifier())
         assert result[0].mean_abs_image_difference < 0.06
+    # regenerating the textured job reruns it on its textured surface and reproduces its record
+    from meshadv.experiments.regenerate import regenerate_job
+
+    again_run = regenerate_job(db, ball.job_id, tmp_path / "regenerated")
+    assert again_run.differences == [] and again_run.record["mesh_surface"] is True
+    torch.testing.assert_close(load_surface_mesh(again_run.out_dir / "benign.obj").texture, texture, atol=0.6 / 255,
+                               rtol=0)
     # resuming runs nothing and keeps the records
     second = _run(db, jobs, out)
     assert second.ran == 0 and second.skipped == 2

@@ -1,8 +1,8 @@
 """One labelled comparison image of an attack: benign | adversarial side by side, one row per view.
 
 Each render is scaled up (nearest neighbour) to at least :data:`MIN_CELL` pixels and captioned with the victim's
-top-1 class and its confidence; a footer line gives the distortion numbers. Written by ``meshadv demo`` and
-``meshadv attack`` as ``comparison.png``.
+top-1 class and its confidence; a footer gives the held-out verdict and the distortion numbers. Written by
+``meshadv demo`` and ``meshadv attack`` as ``comparison.png``.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import math
 from pathlib import Path
 from typing import Any, List, Optional, Sequence, Tuple, Union
 
-__all__ = ["MIN_CELL", "captions_for", "comparison_image", "distortion_line", "save_comparison", "top1_captions",
-           "write_attack_outputs"]
+__all__ = ["MIN_CELL", "captions_for", "comparison_image", "distortion_line", "held_out_line", "save_comparison",
+           "status_words", "top1_captions", "write_attack_outputs"]
 
 #: Smallest side, in pixels, of one render in the comparison image.
 MIN_CELL = 320
@@ -90,8 +90,32 @@ def distortion_line(distances: dict, perturbation: str) -> str:
     return "shape change: " + (", ".join(parts) if parts else "-")
 
 
+def held_out_line(result: Any, target: int = 0) -> Optional[str]:
+    """The held-out verdict of target ``target`` of an ``AttackResult`` in words, or ``None`` without held-out views:
+    ``"held-out views (never optimised on): the target holds on 4/5 (80%); SUCCESS needs >= 80%"``."""
+    from meshadv.attacks.result import held_out_sentence
+
+    if result.eval_success is None:
+        return None
+    return held_out_sentence(int(result.eval_success[target].sum()), int(result.eval_success.shape[1]),
+                             result.held_out_fraction)
+
+
+def status_words(result: Any, target: int = 0) -> str:
+    """The verdict of target ``target`` of an ``AttackResult`` for a title: ``"succeeded"``, ``"held on the attack
+    views, not on the held-out views"`` (the held-out views alone failed it) or ``"did not succeed"``."""
+    from meshadv.attacks.result import enough_views
+
+    if bool(result.succeeded[target]):
+        return "succeeded"
+    views_hold = bool(enough_views(result.success_rate[target], result.success_fraction))
+    if views_hold and bool(result.inside_cap[target]) and not bool(result.holds_held_out[target]):
+        return "held on the attack views, not on the held-out views"
+    return "did not succeed"
+
+
 def comparison_image(before: Any, after: Any, before_captions: Sequence[str], after_captions: Sequence[str],
-                     footer: str, title: str = "") -> Any:
+                     footer: Union[str, Sequence[str]], title: str = "") -> Any:
     """The labelled side-by-side image (a PIL image).
 
     Args:
@@ -99,8 +123,8 @@ def comparison_image(before: Any, after: Any, before_captions: Sequence[str], af
         after: ``(V, 3, H, W)`` adversarial renders.
         before_captions: ``V`` captions (e.g. the top-1 and its confidence) of the benign renders.
         after_captions: ``V`` captions of the adversarial renders.
-        footer: a line under the image (the distortion numbers).
-        title: a line above the image.
+        footer: text under the image (the distortion numbers), or several paragraphs, each wrapped to the width.
+        title: text above the image (wrapped to its width).
 
     Returns:
         An RGB ``PIL.Image``.
@@ -118,14 +142,16 @@ def comparison_image(before: Any, after: Any, before_captions: Sequence[str], af
     cell_h = max(c.height for pair in cells for c in pair)
     font, small = _font(20), _font(16)
     line = 26
-    header = line * (2 if title else 1)
     width = 2 * cell_w + 3 * _PAD
-    footer_lines = _wrapped(footer, small, width - 2 * _PAD)
+    title_lines = _wrapped(title, font, width - 2 * _PAD) if title else []
+    header = line * (len(title_lines) + 1)
+    paragraphs = [footer] if isinstance(footer, str) else list(footer)
+    footer_lines = [row for text in paragraphs for row in _wrapped(text, small, width - 2 * _PAD)]
     height = header + views * (cell_h + line + _PAD) + line * len(footer_lines) + _PAD
     canvas = Image.new("RGB", (width, height), "white")
     draw = ImageDraw.Draw(canvas)
-    if title:
-        draw.text((_PAD, 2), title, fill="black", font=font)
+    for i, text in enumerate(title_lines):
+        draw.text((_PAD, 2 + i * line), text, fill="black", font=font)
     for col, name in enumerate(("benign", "adversarial")):
         draw.text((_PAD + col * (cell_w + _PAD), header - line + 2), name, fill="black", font=font)
     y = header
@@ -181,7 +207,8 @@ def captions_for(victim: Any, images: Any) -> Tuple[List[str], Any]:
 
 def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, title: str, *,
                          source_class: Optional[str] = None) -> Path:
-    """What ``meshadv attack`` and ``meshadv demo`` add to ``AttackResult.save``: ``comparison.png``, the
+    """What ``meshadv attack`` and ``meshadv demo`` add to ``AttackResult.save``: ``comparison.png`` (its footer
+    the held-out verdict, :func:`held_out_line`, and the distortion numbers), the
     adversarial mesh in the input file's frame, the benign (attacked, normalised) mesh as ``benign.ply`` (and as
     ``benign.obj`` with its texture or vertex colours), and the input (path, Z-up, transform, the source class) in
     ``result.json``.
@@ -206,8 +233,10 @@ def write_attack_outputs(result: Any, victim: Any, output: Path, loaded: Any, ti
 
     before, _ = captions_for(victim, result.original_images)
     after, _ = captions_for(victim, result.images[0])
+    held = held_out_line(result)
+    footer = [distortion_line(result.distances[0], result.perturbation)]
     image = comparison_image(result.original_images, result.images[0], before, after,
-                             footer=distortion_line(result.distances[0], result.perturbation), title=title)
+                             footer=footer if held is None else [held, *footer], title=title)
     path = save_comparison(image, output / "comparison.png")
     record = json.loads((output / "result.json").read_text(encoding="utf-8"))
     entry = {"mesh": loaded.label, "path": None if loaded.path is None else str(loaded.path), "z_up": loaded.z_up,

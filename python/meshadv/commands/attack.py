@@ -249,7 +249,7 @@ def attack(
     from meshadv.attacks.robust_settings import robust_options
     from meshadv.attacks.update import RECOMMENDED_METHOD
     from meshadv.commands._benign_gate import benign_gate, source_class
-    from meshadv.commands._comparison import write_attack_outputs
+    from meshadv.commands._comparison import status_words, write_attack_outputs
     from meshadv.commands._surface_views import parse_shading
     from meshadv.mesh.errors import MeshProcessingError
     from meshadv.perceptibility import held_out_views
@@ -312,10 +312,9 @@ def attack(
     result = run_with_progress(attack_obj, mesh_obj, view_set, victim_obj, criteria, eval_views=held_out,
                                setup=setup, quiet=quiet)
     path = result.save(output)
-    status = "succeeded" if bool(result.succeeded[0]) else "did not succeed"
     comparison = write_attack_outputs(result, victim_obj, output, loaded,
                                       f"{label}: {perturbation} attack ({result.criteria[0].get('label', '')}) "
-                                      f"{status} ({result.steps} steps)", source_class=source)
+                                      f"{status_words(result)} ({result.steps} steps)", source_class=source)
     typer.echo(result.summary())
     if held_out is not None:
         verdict = (f"SUCCESS needs the target on >= {100 * held_out_fraction:.0f}% of them"
