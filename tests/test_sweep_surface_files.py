@@ -150,6 +150,32 @@ def test_a_sweep_attacks_a_textured_file_with_its_texture_and_resumes(tmp_path: 
         assert {r.spec["source_class"]: r.record for r in store.rows("done")}["bottle"] == ball.record
 
 
+def test_a_texture_map_sweep_keeps_and_rebuilds_the_attacked_texels(tmp_path: Path, stand_in: None) -> None:
+    from meshadv.experiments.rebuild import rebuild_job
+
+    textured = {"bottle": _files(tmp_path)["bottle"]}
+    config = _config(textured)
+    config["attack"].update(perturbations=["texture-map"], targets=["chair"],
+                            **{"texture-map": {"steps": 2, "method": "adam", "lr": 0.05}})
+    jobs = expand_jobs(parse_config(config))
+    assert [j["perturbation"] for j in jobs] == ["texture-map"]
+    db = tmp_path / "results.db"
+    summary = _run(db, jobs, tmp_path / "run")
+    assert summary.done == 1 and summary.failed == 0
+    with ResultStore(db) as store:
+        (row,) = store.rows("done")
+        packed, _ = store.perturbation(row.job_id)
+    assert packed.kind == "texture"
+    assert row.record["distance"] == row.record["distances"]["texel_rmse"] > 0
+    attacked = load_surface_mesh(Path(row.out_dir) / row.record["artifacts"]["adversarial_obj"])
+    original = load_surface_mesh(textured["bottle"]).texture
+    assert float((attacked.texture - original).abs().max()) > 0.01  # the texels moved
+    rebuilt = rebuild_job(db, row, tmp_path / "rebuilt")
+    again = load_surface_mesh(rebuilt / row.record["artifacts"]["adversarial_obj"])
+    torch.testing.assert_close(again.texture, attacked.texture, atol=1.5 / 255, rtol=0)
+    torch.testing.assert_close(again.vertices, attacked.vertices, atol=1e-6, rtol=0)
+
+
 def test_meshes_shading_reaches_the_jobs_and_refuses_per_face_jobs(tmp_path: Path) -> None:
     from meshadv.experiments.jobs import load_job_mesh
 
