@@ -1,7 +1,7 @@
 """Sweep jobs take a textured file as ``meshadv attack`` does: a tiny sweep of a generated OBJ + MTL + PNG and an
 untextured PLY (stand-in victim, 32 px, 2 steps) draws the texture, keeps it through the artefacts, the kept
-perturbation, the Mitsuba transfer, a regeneration and a resume; the untextured file loads per face as before;
-``meshes.shading`` reaches the jobs; a database started loading per face keeps doing so."""
+perturbation, the Mitsuba transfer, a regeneration, a study's render and a resume; the untextured file loads per face
+as before; ``meshes.shading`` reaches the jobs; a database started loading per face keeps doing so."""
 
 from __future__ import annotations
 
@@ -130,6 +130,19 @@ def test_a_sweep_attacks_a_textured_file_with_its_texture_and_resumes(tmp_path: 
     assert again_run.differences == [] and again_run.record["mesh_surface"] is True
     torch.testing.assert_close(load_surface_mesh(again_run.out_dir / "benign.obj").texture, texture, atol=0.6 / 255,
                                rtol=0)
+    # a study draws the textured job's missing render again from its OBJ, texture and shading included
+    from dataclasses import replace
+
+    from meshadv.study.selection import job_render
+
+    assert ball.record["mesh_shading"] == "flat" and "mesh_shading" not in chair.record
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    for path in folder.iterdir():  # the folder without its renders (the texture PNG stays)
+        if path.is_file() and path.name not in (*ball.record["artifacts"]["benign_images"], "benign_v0.png"):
+            (moved / path.name).write_bytes(path.read_bytes())
+    redrawn = job_render(replace(ball, out_dir=str(moved)), "benign", tmp_path / "cache")
+    assert np.abs(_png(redrawn) - benign_png).max() < 1.5 / 255
     # resuming runs nothing and keeps the records
     second = _run(db, jobs, out)
     assert second.ran == 0 and second.skipped == 2

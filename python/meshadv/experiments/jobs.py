@@ -337,6 +337,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     from meshadv.experiments.perturbation import PERTURBATION_KEY, Perturbation
     from meshadv.experiments.provenance import compute_environment
     from meshadv.experiments.worker import attack_step_callback
+    from meshadv.mesh.surface_mesh import SurfaceMesh
     from meshadv.util.png import save_png
 
     start, cpu_start = time.perf_counter(), time.process_time()
@@ -360,6 +361,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         "num_faces": int(mesh.faces.shape[0]),
         # whether a file's texture and vertex colours were taken as they are (regeneration loads the mesh so again)
         "mesh_surface": bool(spec["mesh"].get("surface", True)),
+        **({"mesh_shading": mesh.shading} if isinstance(mesh, SurfaceMesh) else {}),  # how its surface was drawn
         "artifacts": {**artifacts, "benign_images": benign_pngs},
     }
     if spec.get("benign_correct_only") and not benign.correct:
