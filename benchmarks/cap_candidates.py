@@ -18,7 +18,9 @@ one row of candidates:
   edge length (a local bend of the flow, dimensionless);
 * ``patch_turn_max`` -- the largest, over the faces, of the area-weighted mean normal turn (degrees) of the faces
   whose centroids lie within :data:`PATCH_RADIUS` of the bounding-box diagonal of the face's centroid (the worst
-  patch: damage on less than 5% of the surface, which no 95th percentile sees);
+  patch: damage on less than 5% of the surface, which no 95th percentile sees); ``region_turn_max`` the same over
+  regions of a fixed area instead, each face's region the faces nearest its centroid that hold :data:`REGION_AREA`
+  of the surface (so a few large CAD triangles do not make a patch of their own);
 * ``new_selfx`` -- area (percent) of faces that intersect another face in the adversarial mesh and not in the benign
   one (pymeshlab's ``compute_selection_by_self_intersections_per_face``: sheets of a thin part passing through each
   other);
@@ -53,10 +55,28 @@ import torch  # noqa: E402
 torch.set_num_threads(1)
 
 COLUMNS = ("move_max", "move_p95", "normals_p95", "normals_p99", "flipped", "area_p95", "strain_p95", "strain_p99",
-           "principal_p95", "dihedral_p95", "bend_p95", "patch_turn_max", "new_selfx", "ssim_min")
+           "principal_p95", "dihedral_p95", "bend_p95", "patch_turn_max", "region_turn_max", "new_selfx", "ssim_min")
 
 #: Radius of the ``patch_turn_max`` patches, as a fraction of the bounding-box diagonal.
 PATCH_RADIUS = 0.04
+#: Area of the ``region_turn_max`` regions, as a fraction of the surface.
+REGION_AREA = 0.01
+
+
+def _region_max(centroids: np.ndarray, area: np.ndarray, values: np.ndarray, fraction: float) -> float:
+    """The largest area-weighted mean of ``values`` over each face's region: the faces nearest its centroid that
+    together hold ``fraction`` of the total area."""
+    c, a, v = (torch.tensor(np.array(x, dtype=np.float64)) for x in (centroids, area, values))
+    need = float(fraction * a.sum())
+    best = 0.0
+    for start in range(0, len(c), 512):
+        order = torch.argsort(torch.cdist(c[start:start + 512], c), dim=1)
+        weights = a[order]
+        last = torch.searchsorted(torch.cumsum(weights, dim=1), torch.full((len(order), 1), need, dtype=a.dtype))
+        inside = torch.arange(len(c))[None] <= last.clamp(max=len(c) - 1)
+        means = (v[order] * weights * inside).sum(dim=1) / (weights * inside).sum(dim=1)
+        best = max(best, float(means.max()))
+    return best
 
 
 def _weighted_quantile(values: np.ndarray, weights: np.ndarray, q: float) -> float:
@@ -132,6 +152,7 @@ def candidates(benign: Any, vertices_adv: torch.Tensor) -> Dict[str, float]:
     diagonal = float(np.linalg.norm(a.max(0) - a.min(0)))
     patches = cKDTree(centroids).query_ball_point(centroids, PATCH_RADIUS * diagonal)
     out["patch_turn_max"] = max(float((turn[p] * area[p]).sum() / max(area[p].sum(), 1e-300)) for p in patches)
+    out["region_turn_max"] = _region_max(centroids, area, turn, REGION_AREA)
     new = _self_intersecting(b, f) & ~_self_intersecting(a, f)
     out["new_selfx"] = 100 * float(area[new].sum() / area.sum())
     return out

@@ -192,9 +192,9 @@ def test_select_where_keeps_the_jobs_matching_every_condition() -> None:
         parse_where(["sofa"])
 
 
-def test_sweep_where_runs_only_the_matching_jobs_and_names_the_option(tmp_path: Path) -> None:
+def test_sweep_where_runs_only_the_matching_jobs_and_names_the_option(tmp_path: Path, shared_data: Path) -> None:
     """``meshadv sweep --where`` counts only the matching jobs, and a bad condition is a usage error naming
-    --where before any database is made."""
+    --where before any database is made (the config's meshes are the shared PASCAL3D+ files)."""
     from meshadv.cli import app
     from typer.testing import CliRunner
 

@@ -1,7 +1,7 @@
 """Sweep jobs take a textured file as ``meshadv attack`` does: a tiny sweep of a generated OBJ + MTL + PNG and an
 untextured PLY (stand-in victim, 32 px, 2 steps) draws the texture, keeps it through the artefacts, the kept
-perturbation, the Mitsuba transfer, a regeneration and a resume; the untextured file loads per face as before;
-``meshes.shading`` reaches the jobs; a database started loading per face keeps doing so."""
+perturbation, the Mitsuba transfer, a regeneration, a study's render and a resume; the untextured file loads per face
+as before; ``meshes.shading`` reaches the jobs; a database started loading per face keeps doing so."""
 
 from __future__ import annotations
 
@@ -130,11 +130,50 @@ def test_a_sweep_attacks_a_textured_file_with_its_texture_and_resumes(tmp_path: 
     assert again_run.differences == [] and again_run.record["mesh_surface"] is True
     torch.testing.assert_close(load_surface_mesh(again_run.out_dir / "benign.obj").texture, texture, atol=0.6 / 255,
                                rtol=0)
+    # a study draws the textured job's missing render again from its OBJ, texture and shading included
+    from dataclasses import replace
+
+    from meshadv.study.selection import job_render
+
+    assert ball.record["mesh_shading"] == "flat" and "mesh_shading" not in chair.record
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    for path in folder.iterdir():  # the folder without its renders (the texture PNG stays)
+        if path.is_file() and path.name not in (*ball.record["artifacts"]["benign_images"], "benign_v0.png"):
+            (moved / path.name).write_bytes(path.read_bytes())
+    redrawn = job_render(replace(ball, out_dir=str(moved)), "benign", tmp_path / "cache")
+    assert np.abs(_png(redrawn) - benign_png).max() < 1.5 / 255
     # resuming runs nothing and keeps the records
     second = _run(db, jobs, out)
     assert second.ran == 0 and second.skipped == 2
     with ResultStore(db) as store:
         assert {r.spec["source_class"]: r.record for r in store.rows("done")}["bottle"] == ball.record
+
+
+def test_a_texture_map_sweep_keeps_and_rebuilds_the_attacked_texels(tmp_path: Path, stand_in: None) -> None:
+    from meshadv.experiments.rebuild import rebuild_job
+
+    textured = {"bottle": _files(tmp_path)["bottle"]}
+    config = _config(textured)
+    config["attack"].update(perturbations=["texture-map"], targets=["chair"],
+                            **{"texture-map": {"steps": 2, "method": "adam", "lr": 0.05}})
+    jobs = expand_jobs(parse_config(config))
+    assert [j["perturbation"] for j in jobs] == ["texture-map"]
+    db = tmp_path / "results.db"
+    summary = _run(db, jobs, tmp_path / "run")
+    assert summary.done == 1 and summary.failed == 0
+    with ResultStore(db) as store:
+        (row,) = store.rows("done")
+        packed, _ = store.perturbation(row.job_id)
+    assert packed.kind == "texture"
+    assert row.record["distance"] == row.record["distances"]["texel_rmse"] > 0
+    attacked = load_surface_mesh(Path(row.out_dir) / row.record["artifacts"]["adversarial_obj"])
+    original = load_surface_mesh(textured["bottle"]).texture
+    assert float((attacked.texture - original).abs().max()) > 0.01  # the texels moved
+    rebuilt = rebuild_job(db, row, tmp_path / "rebuilt")
+    again = load_surface_mesh(rebuilt / row.record["artifacts"]["adversarial_obj"])
+    torch.testing.assert_close(again.texture, attacked.texture, atol=1.5 / 255, rtol=0)
+    torch.testing.assert_close(again.vertices, attacked.vertices, atol=1e-6, rtol=0)
 
 
 def test_meshes_shading_reaches_the_jobs_and_refuses_per_face_jobs(tmp_path: Path) -> None:

@@ -34,8 +34,9 @@ __all__ = ["run_attack_job", "load_job_mesh", "save_job_mesh", "JobContext", "Be
            "DISTANCE_KEYS", "PINNED_DEFAULTS_KEY"]
 
 #: Distance key of the record's ``distance`` per perturbation type: the measure comparable with the paper
-#: (``meshadv.attacks.distances.PAPER_COMPARABLE``; the record's ``distances`` holds every measure).
-DISTANCE_KEYS = {"shape": "laplacian_pair_mean", "texture": "color_rmse"}
+#: (``meshadv.attacks.distances.PAPER_COMPARABLE``; the texel RMSE for ``texture-map``, which the paper does not
+#: have; the record's ``distances`` holds every measure).
+DISTANCE_KEYS = {"shape": "laplacian_pair_mean", "texture": "color_rmse", "texture-map": "texel_rmse"}
 
 _VICTIM_CACHE: Dict[str, Any] = {}
 
@@ -337,6 +338,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
     from meshadv.experiments.perturbation import PERTURBATION_KEY, Perturbation
     from meshadv.experiments.provenance import compute_environment
     from meshadv.experiments.worker import attack_step_callback
+    from meshadv.mesh.surface_mesh import SurfaceMesh
     from meshadv.util.png import save_png
 
     start, cpu_start = time.perf_counter(), time.process_time()
@@ -360,6 +362,7 @@ def run_attack_job(spec: Dict[str, Any], out_dir: Path) -> Dict[str, Any]:
         "num_faces": int(mesh.faces.shape[0]),
         # whether a file's texture and vertex colours were taken as they are (regeneration loads the mesh so again)
         "mesh_surface": bool(spec["mesh"].get("surface", True)),
+        **({"mesh_shading": mesh.shading} if isinstance(mesh, SurfaceMesh) else {}),  # how its surface was drawn
         "artifacts": {**artifacts, "benign_images": benign_pngs},
     }
     if spec.get("benign_correct_only") and not benign.correct:

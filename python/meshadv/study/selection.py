@@ -78,22 +78,40 @@ def _artifact(row: JobRow, key: str) -> Optional[Path]:
     return Path(row.out_dir) / str(value)
 
 
+def _job_mesh_artifact(row: JobRow, which: str) -> Optional[Path]:
+    """The mesh file a job's ``which`` render is drawn from: a job that attacked a textured or vertex-coloured file
+    (its record's ``mesh_shading``) its OBJ with the texture or colours, else its per-face PLY."""
+    if (row.record or {}).get("mesh_shading"):
+        surface = _artifact(row, "benign_surface" if which == "benign" else "adversarial_obj")
+        if surface is not None and surface.is_file():
+            return surface
+    return _artifact(row, f"{which}_mesh")
+
+
 def _rerender(row: JobRow, mesh_path: Path, out_png: Path) -> Path:
-    """Render ``mesh_path`` from the job's first view as the attack job did (white background) into ``out_png``."""
+    """Render ``mesh_path`` from the job's first view as the attack job did (white background; an OBJ with a texture
+    or vertex colours under the record's ``mesh_shading``) into ``out_png``."""
+    from dataclasses import replace
+
     import torch
 
-    from meshadv.render import RenderSetup, render_views
-    from meshadv.util.png import save_png
     from meshadv.mesh import load_mesh
-    from meshadv.render import ViewSet
+    from meshadv.mesh.surface_mesh import load_surface_mesh
+    from meshadv.render import RenderSetup, ViewSet
+    from meshadv.render.surface_reflectance import reflectance_of
+    from meshadv.util.png import save_png
 
-    mesh = load_mesh(mesh_path)
+    shading = (row.record or {}).get("mesh_shading")
+    if shading and mesh_path.suffix.lower() == ".obj":
+        mesh = replace(load_surface_mesh(mesh_path), shading=str(shading))
+    else:
+        mesh = load_mesh(mesh_path)
     views = ViewSet.from_records(row.spec["views"][:1])
     size = int(row.spec.get("image_size", 224))
     antialias = int(row.spec.get("attack", {}).get("antialias", 1))
     with torch.no_grad():
-        images, _ = render_views(mesh.vertices.unsqueeze(0), mesh.faces, mesh.face_colors, views,
-                                 RenderSetup(image_size=size, antialias=antialias))
+        images, _ = RenderSetup(image_size=size, antialias=antialias).render(
+            mesh.vertices.unsqueeze(0), mesh.faces, reflectance_of(mesh), views)
     out_png.parent.mkdir(parents=True, exist_ok=True)
     save_png(images[0], out_png)
     return out_png
@@ -125,7 +143,7 @@ def job_render(row: JobRow, which: str, cache_dir: Optional[Path] = None,
     png = _artifact(row, f"{which}_images")
     if png is not None and png.is_file():
         return png
-    mesh = _artifact(row, f"{which}_mesh")
+    mesh = _job_mesh_artifact(row, which)
     if (mesh is None or not mesh.is_file()) and db_path is not None:
         from dataclasses import replace
 
