@@ -110,7 +110,7 @@ def test_scene_attack_hides_the_target_class(shared_data: Path) -> None:
     setup = photo_setup(
         shared_data / "photos" / "dog.jpg",
         builtin_mesh("sphere"),
-        center_uv=(0.3, 0.62),
+        center_uv=(0.7, 0.62),
         height_fraction=0.35,
         width=320,
     )
@@ -302,6 +302,27 @@ def test_scene_held_out_views_are_small_seeded_camera_moves() -> None:
             scene_held_out_views(setup, count=bad)
     with pytest.raises(TypeError, match="setup"):
         scene_held_out_views("indoor")
+
+
+@pytest.mark.parametrize("u, v", [(0.2, 0.5), (0.8, 0.5), (0.5, 0.25), (0.3, 0.7)])
+def test_a_photo_object_appears_where_it_is_placed(tmp_path: Path, u: float, v: float) -> None:
+    """``center_uv`` is where the object's centre appears in the composite (u to the right, v downward): meshadv's
+    mirrored view frame must not swap left and right."""
+    pytest.importorskip("meshadv._raster")
+    from PIL import Image
+
+    from meshadv.mesh import builtin_mesh
+    from meshadv.scenes.photo import photo_setup
+
+    Image.fromarray((torch.full((60, 80, 3), 128)).to(torch.uint8).numpy()).save(tmp_path / "photo.png")
+    lights = Lights(directions=torch.tensor([[[0.3, 0.5, 1.0]]]), colors=torch.tensor([[[0.6, 0.6, 0.6]]]),
+                    ambient=torch.tensor([[0.4, 0.4, 0.4]]))
+    setup = photo_setup(tmp_path / "photo.png", builtin_mesh("sphere"), center_uv=(u, v), height_fraction=0.2,
+                        lights=lights)
+    image = setup.image()
+    rows, cols = torch.nonzero((image[0] - setup.photo[0]).abs().amax(dim=0) > 1e-3, as_tuple=True)
+    assert abs(float(cols.double().mean()) / image.shape[3] - u) < 0.02
+    assert abs(float(rows.double().mean()) / image.shape[2] - v) < 0.02
 
 
 def test_a_photo_held_out_view_renders_the_object_re_placed(tmp_path: Path) -> None:

@@ -114,12 +114,9 @@ def _placement_moves(setup: Any, count: int, generator: torch.Generator) -> Tupl
                                                                                         List[Dict[str, float]]]:
     cam = setup.camera
     eye, at = torch.tensor(cam.eye, dtype=torch.float64), torch.tensor(cam.at, dtype=torch.float64)
-    up = torch.tensor(cam.up, dtype=torch.float64)
     centre = _object_centre(setup)
     forward = (at - eye) / (at - eye).norm()
-    right = torch.cross(forward, up, dim=0)
-    right = right / right.norm()
-    true_up = torch.cross(right, forward, dim=0)
+    right, true_up = cam.image_axes()
     depth = float(torch.dot(centre - eye, forward))
     pixel = 2.0 * depth * math.tan(math.radians(cam.fov) / 2.0) / cam.width  # world units per pixel at the object
     eyes, ats, moves = [], [], []

@@ -26,12 +26,14 @@ def placement_transform(
 
     Args:
         mesh: the object (any scale, any centre).
-        camera: the photo's scene camera (looking down -z from ``PHOTO_EYE``).
+        camera: the photo's scene camera (any eye and look-at point; the object is placed in the plane through
+            ``camera.at`` facing the camera).
         center_uv: (u, v) in [0, 1], u to the right, v downward, where the object's centre should appear.
         height_fraction: the object's height as a fraction of the image height.
 
     Returns:
-        (4, 4) float32 matrix: scale, then translate to a point at the origin's depth under ``center_uv``.
+        (4, 4) float32 matrix: scale, then translate to the point of the look-at plane that meshadv's image shows at
+        ``center_uv`` (see :meth:`SceneCamera.image_axes` for the image's right).
     """
     u, v = center_uv
     if not (0.0 <= u <= 1.0 and 0.0 <= v <= 1.0):
@@ -41,15 +43,15 @@ def placement_transform(
     verts = mesh.vertices
     lo, hi = verts.min(0).values, verts.max(0).values
     centre = (lo + hi) / 2
-    depth = float(torch.tensor(camera.eye).norm())
+    depth = float((torch.tensor(camera.eye) - torch.tensor(camera.at)).norm())
     half_width_world = depth * math.tan(math.radians(camera.fov) / 2)
     pixel_world = 2 * half_width_world / camera.width
     scale = height_fraction * camera.height * pixel_world / float((hi - lo)[1].clamp_min(1e-9))
-    x = (u * camera.width - camera.width / 2) * pixel_world
-    y = (camera.height / 2 - v * camera.height) * pixel_world
+    right, up = camera.image_axes()
+    offset = ((u - 0.5) * camera.width * pixel_world) * right + ((0.5 - v) * camera.height * pixel_world) * up
     matrix = torch.eye(4)
     matrix[:3, :3] *= scale
-    matrix[:3, 3] = torch.tensor([x, y, 0.0]) - scale * centre
+    matrix[:3, 3] = (torch.tensor(camera.at, dtype=torch.float64) + offset).float() - scale * centre
     return matrix
 
 

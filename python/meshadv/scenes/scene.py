@@ -87,6 +87,23 @@ class SceneCamera:
             far=self.far,
         )
 
+    def image_axes(self) -> Tuple[torch.Tensor, torch.Tensor]:
+        """World directions (float64 unit (3,) vectors) of the image's right and up as meshadv renders this camera.
+
+        meshadv's view frame is NMR's: the image's right is ``normalize(cross(up, at - eye))``, which is the mirror of
+        a physical camera (for an eye on +Z looking at the origin, world +X appears on the image's *left*).
+
+        Example:
+            >>> right, up = SceneCamera(eye=(0.0, 0.0, 4.0), at=(0.0, 0.0, 0.0)).image_axes()
+            >>> right.tolist(), up.tolist()
+            ([-1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+        """
+        forward = torch.tensor(self.at, dtype=torch.float64) - torch.tensor(self.eye, dtype=torch.float64)
+        forward = forward / forward.norm()
+        right = torch.cross(torch.tensor(self.up, dtype=torch.float64), forward, dim=0)
+        right = right / right.norm()
+        return right, torch.cross(forward, right, dim=0)
+
     def resized(self, width: int) -> "SceneCamera":
         """The same camera rendering ``width`` pixels wide, the height scaled to keep the aspect ratio (rounded so
         that ``width - height`` stays even)."""
