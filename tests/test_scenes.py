@@ -387,3 +387,11 @@ def test_attack_scene_judges_seeded_held_out_views(monkeypatch: pytest.MonkeyPat
     assert unjudged["success"] == unjudged["views_success"]  # texture: no vertex moves, inside the cap
     refused, none = _stand_in_scene_command(monkeypatch, ["--eval-views", "0"], tmp_path / "e")
     assert refused.exit_code == 2 and "--held-out-fraction 0" in refused.output and none is None
+
+
+def test_attack_scene_command_defaults_to_the_scene_module_held_out_count() -> None:
+    """The command line writes the default held-out count out (it loads without torch); it must stay the module's."""
+    from meshadv.commands.attack_scene import DEFAULT_EVAL_VIEWS
+    from meshadv.scenes.held_out import DEFAULT_HELD_OUT_VIEWS
+
+    assert DEFAULT_EVAL_VIEWS == DEFAULT_HELD_OUT_VIEWS

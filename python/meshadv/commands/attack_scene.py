@@ -8,7 +8,6 @@ from typing import Any, Optional
 import typer
 
 from meshadv.commands._cap_option import CAP_HELP, parse_cap
-from meshadv.scenes.held_out import DEFAULT_HELD_OUT_VIEWS
 
 #: Default Adam learning rates (``--method adam``): for shape in units of the object's bounding-box diagonal per step
 #: (small: NMR gradients are heavy-tailed and Adam moves every parameter that receives any gradient by about lr per
@@ -18,6 +17,10 @@ DEFAULT_LR = {"shape": 5e-4, "texture": 0.05}
 DEFAULT_SMOOTHING = 8
 #: Default perceptual weight with ``--method adam`` (texture: per pixel).
 DEFAULT_LAMBDA = 1.0
+
+#: Held-out views by default: meshadv.scenes.held_out.DEFAULT_HELD_OUT_VIEWS, written out so that the command line
+#: loads without torch (tests/test_scenes.py checks that the two agree).
+DEFAULT_EVAL_VIEWS = 6
 
 SCENE_HELP = (
     "'indoor' (the shared desk scene), a Mitsuba scene XML file, or a photograph (.jpg/.png) to insert --object into"
@@ -56,7 +59,7 @@ def attack_scene(
                                             "'none', or NAME=VALUE,... (as `meshadv attack --cap`); a result outside "
                                             "it is a failure"),
     eval_views: int = typer.Option(
-        DEFAULT_HELD_OUT_VIEWS, min=0, help="held-out views that judge the result (never optimised on, never used to "
+        DEFAULT_EVAL_VIEWS, min=0, help="held-out views that judge the result (never optimised on, never used to "
                                             "pick it), drawn with --seed: a rendered scene's camera turned 2-5 degrees "
                                             "about its look-at point, pitched up to 3 and moved up to 5% along its "
                                             "line of sight; a photo's object shifted up to 4% of the image and "
