@@ -98,11 +98,12 @@ impl BackwardInputs<'_> {
     }
 }
 
-/// Per-task scratch of the sweeps, reused across faces: `sum_c G A` of one line (more than four channels only) and
-/// the planned sweeps of one edge along one axis.
+/// Per-task scratch of the sweeps, reused across faces: `sum_c G A` of one line (more than four channels only),
+/// the planned sweeps of one edge along one axis, and (per-pixel colours) the colours those sweeps read, as f64.
 struct Scratch {
     ga: Vec<f64>,
     jobs: Vec<LineJob>,
+    colors: Vec<f64>,
 }
 
 /// Per-batch-element context of the gradient sweeps.
@@ -115,7 +116,8 @@ struct Ctx<'a> {
     /// Per-face colours: `(M + 1, C)` colours as f64, the face attributes, then the background (row `M`). The
     /// forward drew `I[P] = colors[F[P]]` (background where `F[P] = -1`), so the IN sweeps read the colour beyond an
     /// edge here, by the face index of the line buffers, rather than from the image (a cache and TLB miss per column
-    /// line). Per-pixel colours ([`Ctx::per_pixel`]): the `(H * W, C)` image as f64.
+    /// line). Per-pixel colours ([`Ctx::per_pixel`]): empty; the sweeps' few pixels of the image are read into
+    /// [`Scratch`] as f64 as they are planned.
     colors: &'a [f64],
     /// Whether the colours are per pixel (a textured or smooth-shaded image): the OUT sweep's face colour on a line is
     /// that of the face's pixel at the edge (`I[pix(d_in)]`) and the IN sweep's colour beyond the edge `I[pix(d_out)]`,
@@ -305,7 +307,25 @@ impl Ctx<'_> {
         } else {
             self.colors.len() / c - 1
         };
-        let jobs = &mut scratch.jobs;
+        let Scratch {
+            ga: scratch_ga,
+            jobs,
+            colors: pixel_colors,
+        } = scratch;
+        // Per-pixel colours: the kept channels of image pixel `px` appended to `pixel_colors`, and their offset.
+        let ci = self.image.len() / self.params.pixels().max(1);
+        let every = ci == c;
+        let push_pixel = |pixel_colors: &mut Vec<f64>, px: usize| {
+            let at = pixel_colors.len();
+            let img = &self.image[px * ci..(px + 1) * ci];
+            if C != 0 && every {
+                let v: [f64; C] = std::array::from_fn(|k| img[k] as f64);
+                pixel_colors.extend_from_slice(&v);
+            } else {
+                pixel_colors.extend(self.kept.iter().map(|&ch| img[ch] as f64));
+            }
+            at
+        };
         let mut g = [[0.0f64; 2]; 3];
         for e in 0..3 {
             let (a, cc, o) = (e, (e + 1) % 3, (e + 2) % 3);
@@ -348,6 +368,7 @@ impl Ctx<'_> {
                 // First the lines' sweeps are planned (scalar work), then run together (vector work), then their
                 // sums are added to `g` line by line (OUT, then IN), in the order of the definition.
                 jobs.clear();
+                pixel_colors.clear();
                 for d0 in (lo as i64)..=(hi as i64) {
                     let d0f = d0 as f64;
                     let cross = qa + slope * (d0f - pa);
@@ -400,8 +421,9 @@ impl Ctx<'_> {
                         key0: 0.0,
                         inside: (0, 0),
                         out_color: 0,
+                        // Per-pixel colours: the pixel, made an offset into `pixel_colors` once the job is kept.
                         in_color: if self.per_pixel {
-                            pix(line, d_in as usize) * c
+                            pix(line, d_in as usize)
                         } else {
                             f * c
                         },
@@ -450,7 +472,7 @@ impl Ctx<'_> {
                         let beyond = ln.face_at(line, d_out as usize);
                         let row = usize::try_from(beyond).unwrap_or(background);
                         job.out_color = if self.per_pixel {
-                            pix(line, d_out as usize) * c
+                            pix(line, d_out as usize)
                         } else {
                             row * c
                         };
@@ -466,6 +488,14 @@ impl Ctx<'_> {
                         }
                     }
                     if job.out.0 < job.out.1 || from <= to {
+                        if self.per_pixel {
+                            if job.out.0 < job.out.1 {
+                                job.in_color = push_pixel(pixel_colors, job.in_color);
+                            }
+                            if from <= to {
+                                job.out_color = push_pixel(pixel_colors, job.out_color);
+                            }
+                        }
                         jobs.push(job);
                     }
                 }
@@ -476,9 +506,13 @@ impl Ctx<'_> {
                     key_step,
                     channels: c,
                     own: (along[0], along[1]),
-                    colors: self.colors,
+                    colors: if self.per_pixel {
+                        pixel_colors
+                    } else {
+                        self.colors
+                    },
                 };
-                run_lines::<C>(&face, jobs, &mut scratch.ga, isa);
+                run_lines::<C>(&face, jobs, scratch_ga, isa);
                 for job in jobs.iter() {
                     // A sweep that did not run has sums +0, and adding +0 leaves `g` as it is (`g` is never -0: it
                     // starts at +0, and a sum is -0 only from two -0s or under round-down).
@@ -763,18 +797,8 @@ fn element_grads(
     cols.fill_columns(isa, rows)?;
     match source {
         Colors::Faces(attrs) => face_colors(attrs, b, m, c, &kept, colors)?,
-        Colors::Pixels => {
-            try_clear_for(colors, hw * kept.len(), "backward colours")?;
-            if kept.len() == c {
-                colors.extend(image.iter().map(|&x| x as f64));
-            } else {
-                colors.extend(
-                    image
-                        .chunks_exact(c)
-                        .flat_map(|px| kept.iter().map(|&ch| px[ch] as f64)),
-                );
-            }
-        }
+        // Read pixel by pixel as the sweeps are planned.
+        Colors::Pixels => colors.clear(),
     }
     let longest = params.height.max(params.width);
     let pos = Positions::new(longest);
@@ -801,6 +825,7 @@ fn element_grads(
         || Scratch {
             ga: vec![0.0; ga_len],
             jobs: Vec::with_capacity(longest),
+            colors: Vec::with_capacity(2 * longest * kept.len()),
         },
         |scratch, f| {
             if visible(f) && ctx.setups[f].active {
