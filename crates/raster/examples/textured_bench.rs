@@ -6,10 +6,11 @@
 //! the texture sample at each pixel's perspective-correct UV (per-vertex UVs, a 256 x 256 RGB texture, bilinear;
 //! `UvTexturePlanes::sample`), the RGBA image, then the per-pixel NMR vertex gradient and the texel, UV and interior
 //! vertex gradients (`UvTexturePlanes::backward`, with the forward's planes). The two alternate, `reps` times each;
-//! medians and their ratio are printed.
+//! medians and their ratio are printed. With `stages` as a third argument, each stage of the two is then timed on its
+//! own as well (the stages of one repetition in a row, `reps` repetitions; per-stage medians).
 //!
-//! `cargo run --release -p meshadv-raster --example textured_bench [threads] [reps]` (1 thread and 21 repetitions by
-//! default).
+//! `cargo run --release -p meshadv-raster --example textured_bench [threads] [reps] [stages]` (1 thread and 21
+//! repetitions by default).
 
 use std::time::Instant;
 
@@ -185,6 +186,11 @@ fn main() -> Result<(), RasterError> {
         }
         Ok(())
     })??;
+    if args.get(3).map(String::as_str) == Some("stages") {
+        with_threads(threads, || {
+            stages(&mesh, &params, &face_rgba, &uv_attrs, &texture, &grad, reps)
+        })??;
+    }
     let (f, t) = (median(&mut tf), median(&mut tt));
     let (fc, tc) = (median(&mut cf), median(&mut ct));
     println!(
@@ -193,6 +199,98 @@ fn main() -> Result<(), RasterError> {
          ratio {:.2} wall, {:.2} CPU",
         t / f,
         tc / fc
+    );
+    Ok(())
+}
+
+/// Times each stage of the per-face and the textured render + backward (as in `main`) on its own and prints their
+/// medians over `reps` repetitions (after two untimed ones).
+fn stages(
+    mesh: &ScreenMesh<'_>,
+    params: &RasterParams,
+    face_rgba: &[f32],
+    uv_attrs: &CornerAttrs<'_>,
+    texture: &Texture<'_>,
+    grad: &[f32],
+    reps: usize,
+) -> Result<(), RasterError> {
+    const NAMES: [&str; 8] = [
+        "per-face: rasterize",
+        "per-face: rasterize_backward",
+        "textured: rasterize_fragments",
+        "textured: UvTexturePlanes::new",
+        "textured: UvTexturePlanes::sample",
+        "textured: RGBA image",
+        "textured: image_vertex_backward",
+        "textured: UvTexturePlanes::backward",
+    ];
+    let background = [1.0f32, 1.0, 1.0, 0.0];
+    let grad_rgb: Vec<f32> = grad
+        .chunks_exact(4)
+        .flat_map(|g| [g[0], g[1], g[2]])
+        .collect();
+    let mut times = vec![Vec::new(); NAMES.len()];
+    for rep in 0..reps + 2 {
+        let mut t = Instant::now();
+        let mut lap = |stage: usize| {
+            if rep >= 2 {
+                times[stage].push(t.elapsed().as_secs_f64() * 1e3);
+            }
+            t = Instant::now();
+        };
+        // Each path's buffers freed before the next starts, as in `main` (the allocator's state, and with it the
+        // page faults of fresh buffers, depends on it).
+        {
+            let attrs = FaceAttrs {
+                values: face_rgba,
+                background: &background,
+                channels: 4,
+            };
+            let out = rasterize(mesh, &attrs, params)?;
+            lap(0);
+            let inputs = BackwardInputs {
+                face_index: &out.face_index,
+                image: &out.image,
+                grad_image: grad,
+                vertex_grad: true,
+                visibility: Visibility::Nmr,
+            };
+            std::hint::black_box(rasterize_backward(mesh, &attrs, params, &inputs)?);
+            lap(1);
+        }
+        let frags = rasterize_fragments(mesh, params)?;
+        lap(2);
+        let planes = UvTexturePlanes::new(mesh, params, &frags.face_index, uv_attrs, texture)?;
+        lap(3);
+        let rgb = planes.sample(Isa::detect(), &frags.face_index, texture)?;
+        lap(4);
+        let mut image = Vec::with_capacity(frags.face_index.len() * 4);
+        for (c, &f) in rgb.chunks_exact(3).zip(&frags.face_index) {
+            image.extend_from_slice(&match f >= 0 {
+                true => [c[0], c[1], c[2], 1.0],
+                false => background,
+            });
+        }
+        lap(5);
+        let (fi, nmr) = (&frags.face_index, Visibility::Nmr);
+        std::hint::black_box(image_vertex_backward(
+            mesh, params, fi, &image, grad, 4, nmr,
+        )?);
+        lap(6);
+        std::hint::black_box(planes.backward(Isa::detect(), fi, texture, &grad_rgb)?);
+        lap(7);
+    }
+    let mut sums = [0.0; 2];
+    for (name, t) in NAMES.iter().zip(&mut times) {
+        let m = median(t);
+        sums[usize::from(name.starts_with("textured"))] += m;
+        println!("{name:36} {m:7.3} ms");
+    }
+    println!(
+        "sums of the stage medians: per-face {:.2} ms, textured {:.2} ms; ratio {:.2}",
+        sums[0],
+        sums[1],
+        sums[1] / sums[0]
     );
     Ok(())
 }
