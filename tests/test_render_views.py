@@ -111,3 +111,17 @@ def test_jitter_draws_tilt_then_distance_azimuth_elevation_and_keeps_the_other_f
     assert got.orthographic and got.ortho_scale is la.ortho_scale and got.distance is None
     with pytest.raises(ValueError, match="spherical camera"):
         ViewSet(la, Lights.default(la)).jitter(torch.Generator(), azimuth=1.0)
+
+
+def test_render_views_names_vertices_that_are_not_a_batch() -> None:
+    """One mesh's ``(N, 3)`` vertices are refused with the shape expected, not read as N meshes of one vertex."""
+    from meshadv.mesh import builtin_mesh
+    from meshadv.render import RenderSetup, render_views
+
+    mesh = builtin_mesh("sphere")
+    views = ViewSet.orbit([0.0, 90.0], elevation=20.0, distance=2.5)
+    with pytest.raises(ValueError, match=r"vertices must be a \(K, N, 3\)"):
+        render_views(mesh.vertices, mesh.faces, mesh.face_colors, views, RenderSetup(image_size=16))
+    pytest.importorskip("meshadv._raster")
+    images, _ = render_views(mesh.vertices[None], mesh.faces, mesh.face_colors, views, RenderSetup(image_size=16))
+    assert images.shape == (2, 3, 16, 16)  # the batched form draws both views

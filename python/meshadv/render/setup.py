@@ -190,11 +190,15 @@ class RenderSetup:
 
         Raises:
             TypeError: ``views`` is not a ViewSet (the other arguments are checked by :func:`meshadv.render.render`).
+            ValueError: ``vertices`` is not ``(K, N, 3)`` (one mesh is ``vertices[None]``).
         """
         from meshadv.render import ViewSet
         from meshadv.render.renderer import _render_image_alpha
 
         views = ViewSet.require(views)
+        if not isinstance(vertices, Tensor) or vertices.dim() != 3 or vertices.shape[-1] != 3:
+            shape = tuple(vertices.shape) if isinstance(vertices, Tensor) else type(vertices).__name__
+            raise ValueError(f"vertices must be a (K, N, 3) batch of meshes (one mesh: vertices[None]), got {shape}")
         k, v = vertices.shape[0], len(views)
         batched = ViewSet.cat([views] * k) if k > 1 else views
         verts = vertices.repeat_interleave(v, dim=0) if v > 1 else vertices
@@ -264,7 +268,8 @@ class RenderSetup:
 
 def render_views(vertices: Tensor, faces: Tensor, face_colors: Tensor, views: Any,
                  setup: Optional[RenderSetup] = None) -> Tuple[Tensor, Tensor]:
-    """``setup.render(vertices, faces, face_colors, views)`` (default setup: 224 px, white, no supersampling)."""
+    """``setup.render(vertices, faces, face_colors, views)`` (default setup: 224 px, white, no supersampling);
+    ``vertices`` is a ``(K, N, 3)`` batch (one mesh: ``vertices[None]``)."""
     return (setup or RenderSetup()).render(vertices, faces, face_colors, views)
 
 
