@@ -26,12 +26,14 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 DATA = Path(os.environ.get("MESHADV_DATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "data"))
 
-#: (PASCAL3D+ mesh, target): three classes, each mesh its class's on all 5 default views (EfficientNet-Lite0), each
+#: (PASCAL3D+ mesh, target): four classes, each mesh its class's on all 5 default views (EfficientNet-Lite0), each
 #: target a class of another object ranked among the benign centre view's top 6.
 CASES: Tuple[Tuple[str, str], ...] = (
     ("aeroplane/02", "space shuttle"),
     ("bottle/04", "water jug"),
     ("sofa/03", "chest"),
+    ("chair/02", "loudspeaker"),
+    ("chair/05", "cellular telephone"),
 )
 
 

@@ -42,7 +42,8 @@ def test_summary_row_reads_the_verdicts_distortion_and_mitsuba_counts(tmp_path: 
     assert "sofa/03 -> chest | eot4 | no | - |" in lines[3]
 
 
-def test_cases_are_three_classes_each_with_one_target() -> None:
+def test_cases_are_distinct_meshes_of_four_classes_each_with_one_target() -> None:
     bench = load_benchmark("attack_defaults_bench")
-    classes = [mesh.split("/")[0] for mesh, _ in bench.CASES]
-    assert len(set(classes)) == len(classes) == 3
+    meshes = [mesh for mesh, _ in bench.CASES]
+    assert len(set(meshes)) == len(meshes) == 5
+    assert {mesh.split("/")[0] for mesh in meshes} == {"aeroplane", "bottle", "sofa", "chair"}
