@@ -13,6 +13,7 @@ if TYPE_CHECKING:
     from meshadv.mesh.file_input import MeshInput
 
 __all__ = [
+    "DEFAULT_HELD_OUT_FRACTION",
     "VICTIMS",
     "load_mesh_input",
     "parse_azimuth_range",
@@ -33,6 +34,8 @@ DEFAULT_DISTANCE = 4.5
 DEFAULT_ELEVATION = 15.0
 #: Default background colour.
 DEFAULT_BACKGROUND = "1,1,1"
+#: Default ``--held-out-fraction`` of the attack commands: the share of held-out views a SUCCESS must also hold on.
+DEFAULT_HELD_OUT_FRACTION = 0.8
 
 
 #: The victims' names, for ``--victim`` help texts (kept equal to ``meshadv.victims.available_victims()`` by a

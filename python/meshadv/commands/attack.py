@@ -22,6 +22,7 @@ from meshadv.commands._common import (
     DEFAULT_BACKGROUND,
     DEFAULT_DISTANCE,
     DEFAULT_ELEVATION,
+    DEFAULT_HELD_OUT_FRACTION,
     load_mesh_input,
     make_views,
     parse_azimuth_range,
@@ -173,8 +174,9 @@ def attack(
                           "azimuths between them, 30 degrees beyond either end, 20 degrees above and below); N: N "
                           "views between the victim views; 0: none (needs --held-out-fraction 0)"),
     held_out_fraction: float = typer.Option(
-        0.8, min=0.0, max=1.0, help="SUCCESS needs the target to hold on at least this fraction of the held-out "
-                                    "views as well as on the victim views (0: the victim views' verdict alone)"),
+        DEFAULT_HELD_OUT_FRACTION, min=0.0, max=1.0,
+        help="SUCCESS needs the target to hold on at least this fraction of the held-out views as well as on the "
+             "victim views (0: the victim views' verdict alone)"),
     elevation: float = typer.Option(DEFAULT_ELEVATION, help="camera elevation (degrees)"),
     distance: float = typer.Option(DEFAULT_DISTANCE, help="camera distance (mesh normalised to [-1, 1])"),
     method: Optional[str] = typer.Option(

@@ -8,6 +8,7 @@ from typing import Any, Optional
 import typer
 
 from meshadv.commands._cap_option import CAP_HELP, parse_cap
+from meshadv.commands._common import DEFAULT_HELD_OUT_FRACTION
 
 #: Default Adam learning rates (``--method adam``): for shape in units of the object's bounding-box diagonal per step
 #: (small: NMR gradients are heavy-tailed and Adam moves every parameter that receives any gradient by about lr per
@@ -65,8 +66,9 @@ def attack_scene(
                                             "line of sight; a photo's object shifted up to 4% of the image and "
                                             "resized up to 10%; 0: none (needs --held-out-fraction 0)"),
     held_out_fraction: float = typer.Option(
-        0.8, min=0.0, max=1.0, help="SUCCESS needs the class hidden on at least this fraction of the held-out views "
-                                    "as well as from the scene camera (0: the scene camera's verdict alone)"),
+        DEFAULT_HELD_OUT_FRACTION, min=0.0, max=1.0,
+        help="SUCCESS needs the class hidden on at least this fraction of the held-out views as well as from the "
+             "scene camera (0: the scene camera's verdict alone)"),
     width: Optional[int] = typer.Option(None, help="render width (default: the scene's / photo's own)"),
     seed: int = typer.Option(0, help="random seed"),
     output: Path = typer.Option(Path("out/attack-scene"), "-o", "--output", help="output folder"),

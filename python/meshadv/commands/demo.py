@@ -30,7 +30,13 @@ from typing import Any, Optional, Tuple
 import typer
 
 from meshadv.commands._cap_option import CAP_HELP, parse_cap
-from meshadv.commands._common import DEFAULT_DISTANCE, DEFAULT_ELEVATION, load_mesh_input, make_views
+from meshadv.commands._common import (
+    DEFAULT_DISTANCE,
+    DEFAULT_ELEVATION,
+    DEFAULT_HELD_OUT_FRACTION,
+    load_mesh_input,
+    make_views,
+)
 
 __all__ = ["DemoSubject", "build_demo_attack", "demo", "demo_subject", "pick_target", "subdivide"]
 
@@ -96,7 +102,8 @@ def demo_subject(mesh: str = "default") -> DemoSubject:
     return DemoSubject(mesh, None, (165.0, 195.0), 128)
 
 
-def build_demo_attack(steps: int, seed: int, cap: Any = "default", held_out_fraction: float = 0.8) -> Any:
+def build_demo_attack(steps: int, seed: int, cap: Any = "default",
+                      held_out_fraction: float = DEFAULT_HELD_OUT_FRACTION) -> Any:
     """The demo's attack: the one place that chooses its method and hyper-parameters.
 
     A shape attack with the recommended update rule (:data:`~meshadv.attacks.update.RECOMMENDED_METHOD`, ``ddn``:
@@ -139,9 +146,10 @@ def demo(
     cap: str = typer.Option("default", help="perceptibility cap: 'default' (" + CAP_HELP + "), 'none', or "
                                             "NAME=VALUE,... (as `meshadv attack --cap`)"),
     held_out_fraction: float = typer.Option(
-        0.8, min=0.0, max=1.0, help="SUCCESS needs the target to hold on at least this fraction of the held-out "
-                                    "views (between, beyond, above and below the demo's views, never optimised on) "
-                                    "as well as on the demo's views (0: the demo views' verdict alone)"),
+        DEFAULT_HELD_OUT_FRACTION, min=0.0, max=1.0,
+        help="SUCCESS needs the target to hold on at least this fraction of the held-out views (between, beyond, "
+             "above and below the demo's views, never optimised on) as well as on the demo's views (0: the demo "
+             "views' verdict alone)"),
     quiet: bool = typer.Option(False, help="no progress bar"),
     output: Path = typer.Option(Path("meshadv-demo"), "-o", "--output", help="output folder"),
 ) -> None:
