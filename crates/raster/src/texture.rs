@@ -124,13 +124,12 @@ impl Texture<'_> {
         const ROUND: f64 = 6_755_399_441_055_744.0;
         if x.abs() < 2_147_483_648.0 {
             let r = x + ROUND;
-            let (mut i, mut t) = (r.to_bits() as i32 as i64, r - ROUND);
-            if t > x {
-                i -= 1;
-                t -= 1.0;
-            }
+            // The floor without a branch, in integers (a float select is a branch on x86-64): which way `x`
+            // rounds is a coin toss from one pixel to the next, and mispredicting it cost more than the rest of
+            // the axis. The floor converts back exactly.
+            let i = r.to_bits() as i32 as i64 - i64::from(r - ROUND > x);
             let (a, b) = self.pair(i, size);
-            return (a, b, x - t);
+            return (a, b, x - i as f64);
         }
         // Far outside the image, or NaN: the clamped position, a texel index all the same.
         let i = if x > 0.0 {
