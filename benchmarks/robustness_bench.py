@@ -418,8 +418,8 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     parser.add_argument("--mitsuba-views", type=int, default=4)
     parser.add_argument("--spp", type=int, default=64)
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--shard", type=_shard, default=(0, 1), help="i/n: run every n-th pending run from the i-th "
-                                                                     "(processes sharing the database)")
+    parser.add_argument("--shard", type=_shard, default=(0, 1), help="i/n: of the selection's runs, take every n-th "
+                                                                     "from the i-th (processes sharing the database)")
     parser.add_argument("--report", action="store_true", help="print the tables instead of running")
     parser.add_argument("--plot", default=str(OUT / "frontier.png"))
     args = parser.parse_args(argv)

@@ -103,6 +103,45 @@ def test_job_context_benign_verdict_is_the_jobs_own_check(tmp_path: Path) -> Non
     assert record["skipped"] is (not verdict.correct)
 
 
+def test_multiview_job_skips_a_mesh_wrong_on_its_unseen_views(tmp_path: Path,
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """A multi-view job judges its unseen views benignly too; with ``benign_correct_only`` a mesh right on every
+    attack view but wrong on an unseen one is skipped, and without it the job runs and records both verdicts."""
+    import torch
+
+    from meshadv.experiments.jobs import BenignVerdict, JobContext, run_attack_job
+
+    try:
+        from meshadv.victims import load_victim
+
+        load_victim("efficientnet_lite0")
+    except ImportError as err:
+        pytest.skip(f"victim efficientnet_lite0 unavailable: {err}")
+    config = {**TINY, "attack": {**TINY["attack"], "perturbations": ["texture"]},
+              "multiview": {"enabled": True, "view_counts": [2], "azimuth_ranges": [[40, 60]], "eval_views": 3,
+                            "perturbations": ["texture"], "targets": {"chair": "sofa", "sofa": "chair"}}}
+    spec = next(j for j in expand_jobs(parse_config(config)) if j["kind"] == "multiview")
+    assert spec["benign_correct_only"] is False  # the default keeps the jobs of existing sweeps as they were
+    judged = []
+
+    def verdict(self: JobContext, mesh: object, views: object = None) -> BenignVerdict:
+        unseen = views is not None
+        judged.append(len(views) if unseen else len(self.views))
+        count = len(views) if unseen else len(self.views)
+        label = "sofa" if unseen else self.spec["source_class"]  # right on the attack views, wrong on the unseen
+        return BenignVerdict(correct=not unseen, top1=[label] * count, images=torch.zeros(count, 3, 32, 32))
+
+    monkeypatch.setattr(JobContext, "benign_verdict", verdict)
+    job = {**spec, "attack": {**spec["attack"], "steps": 1}}
+    kept = run_attack_job({**job, "benign_correct_only": True}, tmp_path / "filtered")
+    assert judged == [2, 3]
+    assert kept["skipped"] is True and kept["benign_correct"] is True and kept["benign_unseen_correct"] is False
+    assert "unseen views" in kept["reason"] and kept["benign_unseen_top1"] == ["sofa"] * 3
+    ran = run_attack_job(job, tmp_path / "all")
+    assert ran["skipped"] is False and ran["steps"] >= 1 and ran["benign_unseen_correct"] is False
+    assert ran["eval_success_rate"] is not None
+
+
 def test_an_interrupted_attack_job_records_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Ctrl-C in a job's attack (the attack keeps its best so far) propagates: a job cut short is not a result, so
     that a serial sweep re-queues it and a report's regeneration is not taken for the job's artefacts."""

@@ -110,6 +110,12 @@ def test_victim_caps_protocols_grid_and_per_class_targets(tmp_path: Path) -> Non
     assert {(j["source_class"], j["target"], j["victim"]) for j in mv} == {("chair", "sofa", "v0")}
     with pytest.raises(ValueError, match="victims.configurations"):
         parse_config({**raw, "victims": {"names": ["v0"], "configurations": {"v0": 0}}}, base_dir=tmp_path)
+    assert {j["benign_correct_only"] for j in mv} == {False}  # multi-view jobs attack every mesh by default
+    filtered = {**raw, "multiview": {**raw["multiview"], "benign_correct_only": True}}
+    assert {j["benign_correct_only"] for j in expand_jobs(parse_config(filtered, base_dir=tmp_path))
+            if j["kind"] == "multiview"} == {True}
+    with pytest.raises(ValueError, match="multiview.benign_correct_only"):
+        parse_config({**raw, "multiview": {**raw["multiview"], "benign_correct_only": "yes"}}, base_dir=tmp_path)
 
 
 def test_paper_medium_has_the_issue_scale() -> None:

@@ -115,6 +115,11 @@ def test_table2_per_class_splits_a_cell_by_class() -> None:
     (pooled,) = table2(jobs)
     assert pooled.attacks == 3 and pooled.unseen_success == pytest.approx(0.4) and pooled.pair == ""
     assert pooled.benign_correct == 1  # only the sofa's benign views were all classified right
+    assert pooled.benign_all_views is None  # no record says how its unseen views were classified benignly
+    judged = [{**j, "record": {**j["record"], "benign_unseen_correct": i != 1}} for i, j in enumerate(jobs)]
+    assert table2(judged)[0].benign_all_views == 0  # the sofa, right on its attack views, is wrong on unseen ones
+    judged[1]["record"]["benign_unseen_correct"] = True
+    assert table2(judged)[0].benign_all_views == 1 and "| 1 | 1 |" in to_markdown(table2(judged))
     chair, sofa = table2(jobs, per_class=True)
     assert (chair.pair, chair.attacks, sofa.pair, sofa.attacks) == ("chair -> sofa", 2, "sofa -> chair", 1)
     assert chair.unseen_success == pytest.approx(0.3) and sofa.unseen_success == pytest.approx(0.6)

@@ -37,7 +37,8 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
                   grid = false (true: every view count with every range, the paper's 3 x 3 Table 2; false: pairs),
                   eval_views = 20, perturbations = ["shape", "texture"] (or ``types``), classes = [...],
                   targets = [...] | {chair = "sofa", ...} (one target per class), victims = [...] (default all),
-                  elevation = 20, distance = 4.0
+                  elevation = 20, distance = 4.0, benign_correct_only = false (true: attack only meshes whose
+                  benign render is the source class on every attack view and every unseen view of the job)
     [runner]      job = "meshadv.experiments.jobs:run_attack_job", max_attempts = 2, timeout = 0, workers = 0,
                   threads_per_job = 0, max_jobs_per_worker = 0
 
@@ -130,6 +131,7 @@ SECTION_KEYS: Dict[str, frozenset] = {
             "victims",
             "elevation",
             "distance",
+            "benign_correct_only",
         }
     ),  # fmt: skip
     "runner": frozenset({"job", "max_attempts", "timeout", "workers", "threads_per_job", "max_jobs_per_worker"}),
@@ -534,7 +536,11 @@ def _multiview_section(raw: Dict[str, Any]) -> Dict[str, Any]:
     multiview_raw, _ = _perturbations_key(dict(raw.get("multiview", {})), "multiview")
     multiview = {"enabled": False, "view_counts": [5, 10, 15], "azimuth_ranges": [[45, 60], [35, 70], [15, 75]],
                  "grid": False, "eval_views": 20, "perturbations": list(MESH_PERTURBATIONS), "classes": None,
-                 "targets": None, "victims": None, "elevation": 20.0, "distance": 4.0, **multiview_raw}
+                 "targets": None, "victims": None, "elevation": 20.0, "distance": 4.0, "benign_correct_only": False,
+                 **multiview_raw}
+    if not isinstance(multiview["benign_correct_only"], bool):
+        raise ValueError("multiview.benign_correct_only must be true or false, got "
+                         f"{multiview['benign_correct_only']!r}")
     if not multiview["grid"] and len(multiview["view_counts"]) != len(multiview["azimuth_ranges"]):
         raise ValueError("multiview.view_counts and multiview.azimuth_ranges must have the same length")
     for rng in multiview["azimuth_ranges"]:
@@ -805,7 +811,7 @@ def _multiview_jobs(config: SweepConfig, meshes: Sequence[Dict[str, Any]], class
                                 "eval_views": unseen, "image_size": size,
                                 "attack": dict(config.attack.get(perturbation, {})), "seed": seed,
                                 "num_views": int(count), "azimuth_range": [float(lo), float(hi)],
-                                "benign_correct_only": False,
+                                "benign_correct_only": mv["benign_correct_only"],
                             })
     # cells in the order each mesh's jobs list them; stable, so within a cell classes, victims, types and targets
     # keep their order

@@ -203,6 +203,9 @@ class Table2Row:
     unseen_success: float
     pair: str = ""  #: ``"chair -> sofa"`` in a per-class table (:func:`table2` with ``per_class``); empty when pooled
     benign_correct: int = 0  #: attacks whose victim classified every benign attack view as the source class
+    #: attacks whose benign render was the source class on every attack view and every unseen view (``None``: no
+    #: record of the row says, i.e. jobs recorded before the unseen views were judged benignly)
+    benign_all_views: Optional[int] = None
 
 
 def _mean(values: Sequence[float]) -> float:
@@ -385,7 +388,7 @@ def table2(jobs: Iterable[Any], *, per_class: bool = False) -> List[Table2Row]:
         per_class: one row per (source class, target) and cell instead of pooling the classes of a cell (the
             paper's Table 2 pools them); the rows' ``pair`` names the class and its target.
     """
-    groups: Dict[Tuple[Any, ...], List[Tuple[bool, float]]] = defaultdict(list)
+    groups: Dict[Tuple[Any, ...], List[Tuple[bool, float, bool, Optional[bool]]]] = defaultdict(list)
     for job in jobs:
         spec = job["spec"] if isinstance(job, dict) else job.spec
         record = job["record"] if isinstance(job, dict) else job.record
@@ -396,11 +399,16 @@ def table2(jobs: Iterable[Any], *, per_class: bool = False) -> List[Table2Row]:
             continue
         pair = f"{spec['source_class']} -> {spec['target']}" if per_class else ""
         key = (spec["victim"], spec["perturbation"], int(spec["num_views"]), tuple(spec["azimuth_range"]), pair)
-        groups[key].append((bool(record.get("success")), float(rate), bool(record.get("benign_correct"))))
+        attack_views_right = bool(record.get("benign_correct"))
+        unseen_right = record.get("benign_unseen_correct")
+        all_right = None if unseen_right is None else attack_views_right and bool(unseen_right)
+        groups[key].append((bool(record.get("success")), float(rate), attack_views_right, all_right))
     return [
         Table2Row(victim=k[0], perturbation=k[1], num_views=k[2], azimuth_range=(float(k[3][0]), float(k[3][1])),
-                  attacks=len(v), attack_view_success=_mean([float(s) for s, _, _ in v]),
-                  unseen_success=_mean([r for _, r, _ in v]), pair=k[4], benign_correct=sum(c for _, _, c in v))
+                  attacks=len(v), attack_view_success=_mean([float(s) for s, _, _, _ in v]),
+                  unseen_success=_mean([r for _, r, _, _ in v]), pair=k[4],
+                  benign_correct=sum(c for _, _, c, _ in v),
+                  benign_all_views=(None if all(a is None for *_, a in v) else sum(bool(a) for *_, a in v)))
         for k, v in sorted(groups.items())
     ]
 
@@ -478,11 +486,13 @@ def to_markdown(rows: Sequence[Any]) -> str:
         return "\n".join(lines) + "\n"
     per_class = any(r.pair for r in rows)
     lines = ["| victim | type | " + ("class -> target | " if per_class else "") + "attack views | azimuth range | "
-             "attacks | benign views all right | success on attack views | success on unseen views |",
-             "|---|---|---|---|---|---|---|---|" + ("---|" if per_class else "")]
+             "attacks | benign attack views all right | benign attack and unseen views all right | "
+             "success on attack views | success on unseen views |",
+             "|---|---|---|---|---|---|---|---|---|" + ("---|" if per_class else "")]
     for r in rows:
+        all_views = "–" if r.benign_all_views is None else str(r.benign_all_views)
         lines.append(f"| {r.victim} | {r.perturbation} | " + (f"{r.pair} | " if per_class else "")
                      + f"{r.num_views} | {r.azimuth_range[0]:g}°–{r.azimuth_range[1]:g}° | {r.attacks} | "
-                     f"{r.benign_correct} | {format_cell(r.attack_view_success, 'pct')} | "
+                     f"{r.benign_correct} | {all_views} | {format_cell(r.attack_view_success, 'pct')} | "
                      f"{format_cell(r.unseen_success, 'pct')} |")
     return "\n".join(lines) + "\n"
