@@ -126,8 +126,8 @@ def test_multiview_job_skips_a_mesh_wrong_on_its_unseen_views(tmp_path: Path,
 
     def verdict(self: JobContext, mesh: object, views: object = None) -> BenignVerdict:
         unseen = views is not None
-        judged.append(len(views) if unseen else len(self.views))
         count = len(views) if unseen else len(self.views)
+        judged.append(count)
         label = "sofa" if unseen else self.spec["source_class"]  # right on the attack views, wrong on the unseen
         return BenignVerdict(correct=not unseen, top1=[label] * count, images=torch.zeros(count, 3, 32, 32))
 
