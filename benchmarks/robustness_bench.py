@@ -340,6 +340,11 @@ def report(rows: Sequence[Dict[str, Any]], plot: Optional[Path]) -> str:
             s = summarize(rows, m, p)
             if s is None:
                 continue
+            # Each perturbation leaves the other's distance at zero: show only its own.
+            if p == "shape":
+                s["rmse"] = None
+            else:
+                s["pair_mean"] = s["max_move"] = None
             lines.append(f"| {p} | {m} | {s['n']} | {s['succeeded']} | {_fmt(s['views'])} | {_fmt(s['heldout'])} | "
                          f"{_fmt(s['untargeted'])} | {_fmt(s['aa'])} | {_fmt(s['mitsuba_untargeted'])} | "
                          f"{_fmt(s['mitsuba_targeted'])} | {_fmt(s['pair_mean'], '.2e')} | "
