@@ -116,6 +116,8 @@ def test_victim_caps_protocols_grid_and_per_class_targets(tmp_path: Path) -> Non
             if j["kind"] == "multiview"} == {True}
     with pytest.raises(ValueError, match="multiview.benign_correct_only"):
         parse_config({**raw, "multiview": {**raw["multiview"], "benign_correct_only": "yes"}}, base_dir=tmp_path)
+    with pytest.raises(ValueError, match="attack.benign_correct_only must be true or false, got 0"):
+        parse_config({**raw, "attack": {**raw["attack"], "benign_correct_only": 0}}, base_dir=tmp_path)
 
 
 def test_paper_medium_has_the_issue_scale() -> None:
@@ -146,6 +148,30 @@ def test_paper_medium_has_the_issue_scale() -> None:
         ("shape", "ddn", 300), ("texture", "ddn", 100)}
     assert {(j["attack"].get("method", "adam"), j["attack"]["steps"], j["attack"]["binary_search_steps"])
             for j in jobs if j.get("protocol") == "paper"} == {("adam", 1000, 5)}
+
+
+def test_paper_medium_robust_runs_the_robust_attack_at_the_issue_scale() -> None:
+    """configs/paper_medium_robust.toml: >= 300 shape attacks for Table 3 and the 3 x 3 Table 2 grid on 6 models per
+    class (>= 14 attacks per cell before the benign filter), every job benign-filtered and carrying the robust
+    attack's options (robust_options("shape", "ddn")) at ddn's 300 steps."""
+    from meshadv.attacks.robust_settings import robust_options
+    from meshadv.experiments.config import load_config
+
+    jobs = expand_jobs(load_config(Path(__file__).parents[1] / "configs" / "paper_medium_robust.toml"))
+    single = [j for j in jobs if j["kind"] == "single"]
+    mv = [j for j in jobs if j["kind"] == "multiview"]
+    assert len(single) >= 300 and {j["perturbation"] for j in jobs} == {"shape"}
+    cells: dict[tuple[int, tuple[float, ...]], int] = {}
+    for j in mv:
+        key = (j["num_views"], tuple(j["azimuth_range"]))
+        cells[key] = cells.get(key, 0) + 1
+    assert len(cells) == 9 and min(cells.values()) >= 14
+    assert all(len(j["eval_views"]) == 20 for j in mv)
+    assert {j["benign_correct_only"] for j in jobs} == {True}
+    robust = robust_options("shape", "ddn")
+    for j in jobs:
+        assert j["attack"]["method"] == "ddn" and j["attack"]["steps"] == 300
+        assert {k: j["attack"][k] for k in robust} == robust
 
 
 def test_multiview_jobs_are_cell_major_and_parts_select() -> None:

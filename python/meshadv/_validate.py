@@ -222,6 +222,22 @@ def boolean(name: str, value: Any) -> bool:
     raise TypeError(f"{name} must be True or False, got {_type_name(value)} {value!r}")
 
 
+def setting_flag(name: str, value: Any) -> bool:
+    """Return a boolean setting read from a file or a stored record (a sweep file, a job spec): only ``true`` /
+    ``false`` (a ``bool``), since ``"no"`` or ``0`` would read as a silent choice.
+
+    Raises:
+        ValueError: ``value`` is not a ``bool``, naming the setting ``name``.
+
+    Example:
+        >>> setting_flag("multiview.benign_correct_only", True)
+        True
+    """
+    if not isinstance(value, bool):
+        raise ValueError(f"{name} must be true or false, got {value!r}")
+    return value
+
+
 def suggest(word: str, options: Iterable[str]) -> Optional[str]:
     """Return the option closest to ``word`` (by ``difflib``), or ``None`` when nothing is close.
 

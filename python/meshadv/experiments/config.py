@@ -80,7 +80,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Union
 
-from meshadv._validate import suggest
+from meshadv._validate import setting_flag, suggest
 from meshadv.data import PASCAL3D_CLASSES
 from meshadv.experiments.retries import RETRY_PART
 from meshadv.experiments.sweep_views import multiview_views, rendering_configurations
@@ -463,6 +463,7 @@ def _attack_section(raw: Dict[str, Any]) -> Dict[str, Any]:
         if pname == RETRY_PART:
             raise ValueError(f"attack.protocols.{pname}: the name {RETRY_PART!r} is the retry pass's "
                              "([attack.retry]); name the protocol otherwise")
+    setting_flag("attack.benign_correct_only", attack["benign_correct_only"])
     attack["retry"] = _retry_stages(attack["retry"])
     for table in [attack, *attack["protocols"].values()]:
         for perturbation in PERTURBATIONS:
@@ -538,9 +539,7 @@ def _multiview_section(raw: Dict[str, Any]) -> Dict[str, Any]:
                  "grid": False, "eval_views": 20, "perturbations": list(MESH_PERTURBATIONS), "classes": None,
                  "targets": None, "victims": None, "elevation": 20.0, "distance": 4.0, "benign_correct_only": False,
                  **multiview_raw}
-    if not isinstance(multiview["benign_correct_only"], bool):
-        raise ValueError("multiview.benign_correct_only must be true or false, got "
-                         f"{multiview['benign_correct_only']!r}")
+    setting_flag("multiview.benign_correct_only", multiview["benign_correct_only"])
     if not multiview["grid"] and len(multiview["view_counts"]) != len(multiview["azimuth_ranges"]):
         raise ValueError("multiview.view_counts and multiview.azimuth_ranges must have the same length")
     for rng in multiview["azimuth_ranges"]:

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
+from meshadv._validate import setting_flag
 from meshadv.experiments.regenerate import attack_pin_key, pinned_spec
 
 __all__ = ["run_attack_job", "load_job_mesh", "save_job_mesh", "JobContext", "BenignVerdict", "planned_steps",
@@ -158,9 +159,7 @@ def victim_optimize(spec: Dict[str, Any]) -> bool:
         from meshadv.victims import load_victim
 
         return bool((load_victim.__kwdefaults__ or {}).get("optimize", True))
-    if not isinstance(value, bool):
-        raise ValueError(f"spec['victim_optimize'] must be true or false, got {value!r}")
-    return value
+    return setting_flag("spec['victim_optimize']", value)
 
 
 #: Meta key of a results database's pinned defaults (:func:`pin_defaults`).

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 
+from meshadv._validate import setting_flag
 from meshadv.experiments.store import ResultStore, job_out_dir
 from meshadv.experiments.worker import execute
 
@@ -153,8 +154,8 @@ def pinned_spec(spec: Mapping[str, Any], stored: Optional[Mapping[str, Any]],
     if unknown:
         raise ValueError(f"assume has unknown keys {sorted(unknown)} (known: attack, surface_meshes, victim_optimize)")
     for key in ("victim_optimize", "surface_meshes"):
-        if key in assume and not isinstance(assume[key], bool):
-            raise ValueError(f"assume[{key!r}] must be true or false, got {assume[key]!r}")
+        if key in assume:
+            setting_flag(f"assume[{key!r}]", assume[key])
     if not isinstance(assume.get("attack", {}), Mapping):
         raise ValueError("assume['attack'] must map a perturbation type to attack options")
     out = dict(spec)
