@@ -36,7 +36,8 @@ A sweep file has these sections (every key optional unless noted; see ``configs/
     [multiview]   enabled = false, view_counts = [5, 10, 15], azimuth_ranges = [[45, 60], [35, 70], [15, 75]],
                   grid = false (true: every view count with every range, the paper's 3 x 3 Table 2; false: pairs),
                   eval_views = 20, perturbations = ["shape", "texture"] (or ``types``), classes = [...],
-                  targets = [...] | {chair = "sofa", ...} (one target per class), victims = [...] (default all),
+                  targets = [...] | {chair = "sofa", ...} (each class's target, or list of targets),
+                  victims = [...] (default all),
                   elevation = 20, distance = 4.0, benign_correct_only = false (true: attack only meshes whose
                   benign render is the source class on every attack view and every unseen view of the job)
     [runner]      job = "meshadv.experiments.jobs:run_attack_job", max_attempts = 2, timeout = 0, workers = 0,
@@ -540,6 +541,7 @@ def _multiview_section(raw: Dict[str, Any]) -> Dict[str, Any]:
                  "targets": None, "victims": None, "elevation": 20.0, "distance": 4.0, "benign_correct_only": False,
                  **multiview_raw}
     setting_flag("multiview.benign_correct_only", multiview["benign_correct_only"])
+    _check_multiview_targets(multiview["targets"])
     if not multiview["grid"] and len(multiview["view_counts"]) != len(multiview["azimuth_ranges"]):
         raise ValueError("multiview.view_counts and multiview.azimuth_ranges must have the same length")
     for rng in multiview["azimuth_ranges"]:
@@ -737,11 +739,26 @@ def _mesh_entries(meshes: Dict[str, Any]) -> List[Dict[str, Any]]:
     return out
 
 
+def _check_multiview_targets(targets: Any) -> None:
+    """Refuse a ``multiview.targets`` that is none of: absent, a list of classes, a table of each class's target
+    or non-empty list of targets."""
+    def names(value: Any) -> bool:
+        return isinstance(value, list) and bool(value) and all(isinstance(t, str) for t in value)
+
+    if targets is None or names(targets):
+        return
+    if isinstance(targets, dict) and all(isinstance(v, str) or names(v) for v in targets.values()):
+        return
+    raise ValueError("multiview.targets must be a list of classes or a table of each class's target (a class or a "
+                     f"non-empty list of classes), got {targets!r}")
+
+
 def _targets(spec: Any, source: str, classes: Sequence[str]) -> List[str]:
     """The target classes of source class ``source``: ``"others"``/None (every other class), a list, or a
-    ``{source: target}`` table."""
-    if isinstance(spec, dict):  # one target per source class
-        return [spec[source]] if source in spec and spec[source] != source else []
+    ``{source: target or [targets]}`` table."""
+    if isinstance(spec, dict):  # the targets of each source class
+        chosen = spec.get(source, [])
+        return [c for c in ([chosen] if isinstance(chosen, str) else chosen) if c != source]
     if spec in (None, "others"):
         return [c for c in classes if c != source]
     return [c for c in spec if c != source]
