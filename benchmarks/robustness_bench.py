@@ -34,11 +34,13 @@ Each run (method, perturbation, class, instance) is one row of the SQLite file `
 when the run is complete (an interrupted run leaves nothing and is redone); a rerun skips finished rows. A contact
 sheet of the held-out renders (benign, then one row per target; meshadv and Mitsuba) is written per run into
 ``--renders`` so that results are judged by looking too. ``--report`` prints the tables (Markdown) and writes the
-frontier plot.
+frontier plot, of ``--db``'s rows and those of any ``--with-db`` databases.
 
 Usage:
     python benchmarks/robustness_bench.py --classes aeroplane bottle chair --instances 1 --targets 2
     python benchmarks/robustness_bench.py --report --plot benchmarks/robustness/frontier.png
+    python benchmarks/robustness_bench.py --report --db benchmarks/robustness/runs_full.sqlite \
+        --with-db benchmarks/robustness/runs_paper.sqlite --plot benchmarks/robustness/frontier_methods.png
 """
 
 from __future__ import annotations
@@ -427,9 +429,12 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
                                                                      "from the i-th (processes sharing the database)")
     parser.add_argument("--report", action="store_true", help="print the tables instead of running")
     parser.add_argument("--plot", default=str(OUT / "frontier.png"))
+    parser.add_argument("--with-db", nargs="+", default=[], metavar="DB",
+                        help="--report: add the rows of these databases (another selection or method) to --db's")
     args = parser.parse_args(argv)
     if args.report:
-        print(report(load_rows(Path(args.db)), Path(args.plot) if args.plot else None))
+        rows = [row for db in [args.db, *args.with_db] for row in load_rows(Path(db))]
+        print(report(rows, Path(args.plot) if args.plot else None))
         return
     run(args)
 

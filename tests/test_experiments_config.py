@@ -204,6 +204,24 @@ def test_multiview_jobs_are_cell_major_and_parts_select() -> None:
         select_parts(jobs, ["table2"])
 
 
+def test_multiview_jobs_with_several_meshes_per_class_cover_every_cell_first() -> None:
+    """With several meshes per class, Table 2's jobs run the first mesh of every class in every cell (cell-major)
+    before any class's second mesh, so a sweep stopped part-way has attacks in every cell."""
+    from meshadv.experiments.config import load_config, select_parts
+
+    jobs = select_parts(expand_jobs(load_config(Path(__file__).parents[1] / "configs" / "paper_medium_robust.toml")),
+                        ["multiview"])
+    assert len(jobs) == 50 * 2 * 9
+    first_round = jobs[:7 * 2 * 9]  # 7 classes x 2 targets x 9 cells
+    assert {Path(j["mesh"]["path"]).stem for j in first_round} == {"01"}
+    assert len({(j["num_views"], tuple(j["azimuth_range"]), j["source_class"], j["target"])
+                for j in first_round}) == len(first_round)
+    cells = [(j["num_views"], tuple(j["azimuth_range"])) for j in first_round]
+    grid = [(n, r) for n in (5, 10, 15) for r in ((45.0, 60.0), (35.0, 70.0), (15.0, 75.0))]
+    assert cells == [cell for cell in grid for _ in range(7 * 2)]
+    assert Path(jobs[7 * 2 * 9]["mesh"]["path"]).stem == "02"
+
+
 def test_sweep_only_names_the_option_on_a_bad_part(tmp_path: Path) -> None:
     """``meshadv sweep --only`` with a part the sweep lacks is a usage error naming --only, before any job runs."""
     from meshadv.cli import app

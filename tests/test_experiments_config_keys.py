@@ -40,7 +40,7 @@ def _renamed(path: str, new_key: str) -> dict[str, Any]:
     return raw
 
 
-# The misspellings (8 silently ignored before) plus misspelt section names.
+# Misspellings of real keys plus misspelt section names.
 MISSPELLINGS = [
     (_renamed("attack.shape", "shap"), "'attack.shap'", "'attack.shape'"),
     (_with("render.image_sise", 64), "'render.image_sise'", "'render.image_size'"),

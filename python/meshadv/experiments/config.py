@@ -65,8 +65,9 @@ Order (the order a fresh sweep runs them in; job ids are hashes of the spec and 
 setting, then each protocol, then the multi-view jobs. Within a setting the jobs are configuration-major, then
 victim: configuration 0 of every class (mesh) for the first victim, then for the next victim, then configuration 1,
 and so on (per class: perturbation types, then targets), so a sweep stopped part-way has covered every class about
-equally instead of the first classes only. The multi-view jobs are cell-major the same way: the first (view count,
-azimuth range) cell of every class, then the next. :func:`select_parts` keeps only some of these parts (``meshadv
+equally instead of the first classes only. The multi-view jobs the same way: the first mesh of every class in the
+first (view count, azimuth range) cell, then in the next cell, and so on, then the second mesh of every class in every
+cell (with one mesh per class: cell-major). :func:`select_parts` keeps only some of these parts (``meshadv
 sweep --only multiview``), to run one table first.
 
 Example:
@@ -800,8 +801,9 @@ def _single_view_jobs(config: SweepConfig, setting: Setting, instances: Sequence
 
 def _multiview_jobs(config: SweepConfig, meshes: Sequence[Dict[str, Any]], classes: Sequence[str],
                     size: int) -> List[Dict[str, Any]]:
-    """The Table 2 jobs of ``config.multiview`` (none when disabled), cell-major: the first (view count, azimuth
-    range) cell of every class, then the next cell, so a sweep stopped part-way has every class's first cells."""
+    """The Table 2 jobs of ``config.multiview`` (none when disabled), mesh-rank-major, then cell-major: the first
+    mesh of every class in the first (view count, azimuth range) cell, then in the next cell, ..., then the second
+    mesh of every class in every cell, so a sweep stopped part-way has every class in every cell."""
     mv = config.multiview
     if not mv["enabled"]:
         return []
@@ -811,9 +813,13 @@ def _multiview_jobs(config: SweepConfig, meshes: Sequence[Dict[str, Any]], class
         cells = list(zip(mv["view_counts"], mv["azimuth_ranges"]))
     mv_classes = mv["classes"] or classes
     jobs: List[Dict[str, Any]] = []
+    rank: Dict[int, int] = {}  # id(job) -> the rank of its mesh among its class's meshes
+    seen_per_class: Dict[str, int] = {}
     for mesh in meshes:
         if mesh["class"] not in mv_classes:
             continue
+        mesh_rank = seen_per_class.get(mesh["class"], 0)
+        seen_per_class[mesh["class"]] = mesh_rank + 1
         for victim in mv["victims"] or config.victims:
             for perturbation in mv["perturbations"]:
                 for target in _targets(mv["targets"] or config.attack["targets"], mesh["class"], classes):
@@ -829,7 +835,9 @@ def _multiview_jobs(config: SweepConfig, meshes: Sequence[Dict[str, Any]], class
                                 "num_views": int(count), "azimuth_range": [float(lo), float(hi)],
                                 "benign_correct_only": mv["benign_correct_only"],
                             })
+                            rank[id(jobs[-1])] = mesh_rank
     # cells in the order each mesh's jobs list them; stable, so within a cell classes, victims, types and targets
     # keep their order
-    order = list(dict.fromkeys((j["num_views"], tuple(j["azimuth_range"])) for j in jobs))
-    return sorted(jobs, key=lambda j: order.index((j["num_views"], tuple(j["azimuth_range"]))))
+    order = {cell: i for i, cell in enumerate(dict.fromkeys((j["num_views"], tuple(j["azimuth_range"]))
+                                                            for j in jobs))}
+    return sorted(jobs, key=lambda j: (rank[id(j)], order[(j["num_views"], tuple(j["azimuth_range"]))]))
