@@ -87,6 +87,7 @@ def test_the_source_class_comes_from_the_option_the_untargeted_class_or_the_fold
 def test_cap_help_spells_out_the_default_cap() -> None:
     from meshadv.commands._cap_option import CAP_HELP, parse_cap
     from meshadv.perceptibility import DEFAULT_CAP
+    from meshadv.perceptibility.geometry import EDGE_STRAIN_FLOOR
 
     cap = DEFAULT_CAP
     assert cap.max_displacement is not None and cap.normal_change_p95_deg is not None
@@ -95,6 +96,10 @@ def test_cap_help_spells_out_the_default_cap() -> None:
     assert f"at most {cap.normal_change_p95_deg:g} degrees" in CAP_HELP
     assert cap.edge_strain_p95 is not None
     assert f"stretched or squeezed by at most {100 * cap.edge_strain_p95:g}%" in CAP_HELP
+    assert cap.edge_strain_max is not None
+    assert f"no edge's length changed by more than {100 * cap.edge_strain_max:g}%" in CAP_HELP
+    assert (f"shorter than {100 * EDGE_STRAIN_FLOOR:g}% of the diagonal: by more than "
+            f"{100 * EDGE_STRAIN_FLOOR * cap.edge_strain_max:g}% of the diagonal") in CAP_HELP
     assert f"changing colour by at most {cap.color_change_p95:g}" in CAP_HELP
     assert parse_cap("default") == DEFAULT_CAP and parse_cap("none") is None
     with pytest.raises(ValueError, match="--cap"):

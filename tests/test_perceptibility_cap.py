@@ -175,6 +175,28 @@ def test_the_default_cap_refuses_a_thin_plate_broken_into_fragments_that_moves_a
     assert _verdict(older, broken, vertices, faces) == (True, [])
 
 
+def test_the_default_cap_refuses_a_thin_plate_torn_open_along_its_closed_edge() -> None:
+    import torch
+
+    vertices, faces = _thin_plate()
+    n = vertices.shape[0] // 2
+    last_row = torch.arange(n).reshape(41, 11)[:, -1]  # the sheets' edge y = 0.25, closed by a wall 0.01 high
+    a, b = last_row[:-1], last_row[1:]
+    faces = torch.cat([faces, torch.stack([a, b, b + n], dim=1), torch.stack([a, b + n, a + n], dim=1)])
+    diagonal = float((vertices.max(dim=0).values - vertices.min(dim=0).values).norm())
+    # the trailing 60% of the plate opened: the top sheet pulled up and the bottom one down, smoothly, by up to
+    # 1.8% of the diagonal at the edge, so the wall's 0.01 grows to about 0.047
+    ramp = ((vertices[:, 1] - 0.1) / 0.15).clamp(0.0, 1.0)
+    side = torch.cat([torch.ones(n), -torch.ones(n)])
+    torn = vertices.clone()
+    torn[:, 2] += 0.018 * diagonal * ramp * side
+    inside, violations = _verdict(DEFAULT_CAP, torn, vertices, faces)
+    assert not inside and [v.split()[0] for v in violations] == ["edge_strain_max"]
+    # the percentile ceilings alone pass it: the wall's edges are under 5% of the edge length, its faces of the area
+    percentiles = dataclasses.replace(DEFAULT_CAP, edge_strain_max=None)
+    assert _verdict(percentiles, torn, vertices, faces) == (True, [])
+
+
 def test_the_default_cap_refuses_a_fold_and_passes_a_smooth_small_bend() -> None:
     import math
 

@@ -104,6 +104,31 @@ def test_edge_strain_is_the_length_weighted_95th_percentile_of_the_edges_relativ
     assert float(got[0]) == pytest.approx(want, rel=1e-4)
 
 
+def test_the_largest_edge_strain_is_the_worst_single_edge_however_short() -> None:
+    v = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    f = torch.tensor([[0, 1, 2], [1, 3, 2]])
+    moved = v.clone()
+    moved[3, 0] = 1.5  # edge 2-3: 1 -> 1.5 (0.5), edge 1-3: 1 -> sqrt(1.25) (0.118)
+    got = edge_strains(torch.stack([v, moved]), v, f)["edge_strain_max"]
+    assert got.tolist() == pytest.approx([0.0, 0.5], abs=1e-6)
+    # the short edge 0-2 of a sliver stretched 0.02 -> 0.08 (strain 3), under 5% of the length: the percentile
+    # keeps the long edges' strain, the largest is 3
+    sliver = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0, 0.02, 0]])
+    opened = sliver.clone()
+    opened[2, 1] = 0.08
+    strains = edge_strains(opened, sliver, torch.tensor([[0, 1, 2]]))
+    assert float(strains["edge_strain_max"][0]) == pytest.approx(3.0, rel=1e-5)
+    assert float(strains["edge_strain_p95"][0]) == pytest.approx(math.sqrt(1 + 0.08 ** 2) / math.sqrt(1 + 0.02 ** 2)
+                                                                 - 1, rel=1e-4)
+    # an edge shorter than 0.25% of the diagonal counts as that long: 0.0001 -> 0.0011 over 0.0025 x the diagonal
+    micro = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0, 0.0001, 0]])
+    grown = micro.clone()
+    grown[2, 1] = 0.0011
+    diagonal = math.sqrt(1 + 0.0001 ** 2)
+    got = edge_strains(grown, micro, torch.tensor([[0, 1, 2]]))["edge_strain_max"]
+    assert float(got[0]) == pytest.approx(0.001 / (0.0025 * diagonal), rel=1e-4)
+
+
 def test_edge_strain_ignores_rigid_motion_and_gives_a_uniform_scale_its_factor() -> None:
     from meshadv.mesh import builtin_mesh
 

@@ -94,12 +94,13 @@ def _get(distances: Dict[str, Any], name: str) -> float:
 
 def perceptibility_line(distances: Dict[str, Any]) -> str:
     """The perceptibility measures of one target's ``distances`` on one line, the way a person reads them:
-    ``"move max 1.2% p95 0.4% of the diagonal, normals mean 2.1 p95 8.3 deg, edge strain p95 0.031, colours p95 0,
-    SSIM held-out mean 0.98 min 0.95"`` (``nan`` for a measure the record lacks)."""
+    ``"move max 1.2% p95 0.4% of the diagonal, normals mean 2.1 p95 8.3 deg, edge strain p95 0.031 max 0.4,
+    colours p95 0, SSIM held-out mean 0.98 min 0.95"`` (``nan`` for a measure the record lacks)."""
     return (f"move max {100 * _get(distances, 'max_displacement'):.3g}% p95 "
             f"{100 * _get(distances, 'p95_displacement'):.3g}% of the diagonal, normals mean "
             f"{_get(distances, 'normal_change_mean_deg'):.3g} p95 {_get(distances, 'normal_change_p95_deg'):.3g} "
-            f"deg, edge strain p95 {_get(distances, 'edge_strain_p95'):.3g}, colours p95 "
+            f"deg, edge strain p95 {_get(distances, 'edge_strain_p95'):.3g} max "
+            f"{_get(distances, 'edge_strain_max'):.3g}, colours p95 "
             f"{_get(distances, 'color_change_p95'):.3g}, SSIM held-out mean "
             f"{_get(distances, 'ssim_held_out_mean'):.3g} min {_get(distances, 'ssim_held_out_min'):.3g}")
 

@@ -12,6 +12,8 @@ __all__ = ["CAP_HELP", "parse_cap"]
 #: :data:`meshadv.perceptibility.DEFAULT_CAP` in words, for help texts.
 CAP_HELP = "largest vertex move 2% of the bounding-box diagonal, 95% of the surface turning by at most 25 degrees, " \
            "95% of the edge length stretched or squeezed by at most 8.5%, " \
+           "no edge's length changed by more than 100% (an edge shorter than 0.25% of the diagonal: by more than " \
+           "0.25% of the diagonal), " \
            "95% of the surface changing colour by at most 0.05"
 
 

@@ -78,9 +78,10 @@ def distortion_line(distances: dict, perturbation: str) -> str:
     if turn_mean is not None and turn_p95 is not None:
         parts.append(f"face normals turn {turn_mean:.2g} deg on average, 95% of the area by at most {turn_p95:.2g} "
                      "deg")
-    strain = pick("edge_strain_p95")
+    strain, strain_max = pick("edge_strain_p95"), pick("edge_strain_max")
     if strain is not None:
-        parts.append(f"95% of the edge length stretched or squeezed by at most {100 * strain:.2g}%")
+        parts.append(f"95% of the edge length stretched or squeezed by at most {100 * strain:.2g}%"
+                     + ("" if strain_max is None else f" (any edge by at most {100 * strain_max:.3g}%)"))
     parts += seen
     pair_mean, eq4_sum = pick("laplacian_pair_mean"), pick("laplacian_sum")
     if pair_mean is not None:

@@ -210,6 +210,8 @@ def attack(
                         "NAME=VALUE,... of max_displacement (largest vertex move / bounding-box diagonal), "
                         "normal_change_p95_deg (area-weighted 95th-percentile turn of the face normals, degrees), "
                         "edge_strain_p95 (length-weighted 95th-percentile relative change of the edge lengths), "
+                        "edge_strain_max (largest change of one edge's length over that length, at least 0.25% of the "
+                        "diagonal), "
                         "color_change_p95 (area-weighted 95th-percentile RGB change of the face colours); a step "
                         "outside it never counts as a success, and a target that cannot succeed inside it fails with "
                         "its closest result inside it"),

@@ -82,7 +82,8 @@ __all__ = [
 #: would agree with (:mod:`meshadv.perceptibility`; rows only for records that hold them).
 DISTANCE_NAMES: Dict[str, Tuple[str, ...]] = {
     "shape": ("laplacian_pair_mean", "laplacian_sum", "max_displacement", "p95_displacement",
-              "normal_change_mean_deg", "normal_change_p95_deg", "edge_strain_p95", "dssim_held_out_max"),
+              "normal_change_mean_deg", "normal_change_p95_deg", "edge_strain_p95", "edge_strain_max",
+              "dssim_held_out_max"),
     "texture": ("color_rmse", "color_change_p95", "dssim_held_out_max"),
 }
 #: The measures every record can give (the others are left out of the rows of records that lack them).

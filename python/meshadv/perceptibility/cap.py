@@ -2,9 +2,9 @@
 
 A :class:`PerceptibilityCap` holds a ceiling per measure of :mod:`meshadv.perceptibility.geometry` (``None``: no
 ceiling on it): the largest vertex move as a fraction of the bounding-box diagonal, the area-weighted 95th-percentile
-change of the face normals in degrees, the length-weighted 95th-percentile strain of the edges, and the area-weighted
-95th-percentile change of the face colours. The attack loop projects its flow onto the largest-move ceiling
-(:mod:`meshadv.attacks.move_limit`); the others are verdict checks on every step's mesh. An attack
+change of the face normals in degrees, the length-weighted 95th-percentile and the largest strain of the edges, and
+the area-weighted 95th-percentile change of the face colours. The attack loop projects its flow onto the
+largest-move ceiling (:mod:`meshadv.attacks.move_limit`); the others are verdict checks on every step's mesh. An attack
 run under a cap counts a step as a success only when the step's mesh is inside it, keeps (when no step succeeds) the
 closest step inside it, and reports a final mesh outside it as failed.
 
@@ -46,6 +46,8 @@ class PerceptibilityCap:
         normal_change_p95_deg: area-weighted 95th-percentile turn of the face normals, degrees in ``(0, 180]``.
         edge_strain_p95: length-weighted 95th-percentile relative change of the edge lengths ``|l' / l - 1|``,
             ``> 0`` (:func:`~meshadv.perceptibility.geometry.edge_strains`; a verdict check, not projected onto).
+        edge_strain_max: the largest change of one edge's length relative to that length, or to 0.25% of the
+            diagonal where the edge is shorter, ``> 0`` (a thin part torn open; a verdict check).
         color_change_p95: area-weighted 95th-percentile RGB change of the face colours, in ``(0, sqrt(3)]``.
 
     Raises:
@@ -56,10 +58,11 @@ class PerceptibilityCap:
     normal_change_p95_deg: Optional[float] = None
     edge_strain_p95: Optional[float] = None
     color_change_p95: Optional[float] = None
+    edge_strain_max: Optional[float] = None
 
     def __post_init__(self) -> None:
         highs = {"max_displacement": None, "normal_change_p95_deg": 180.0, "edge_strain_p95": None,
-                 "color_change_p95": math.sqrt(3.0)}
+                 "color_change_p95": math.sqrt(3.0), "edge_strain_max": None}
         for name, high in highs.items():
             value = getattr(self, name)
             if value is not None:
@@ -153,7 +156,7 @@ NO_CAP = PerceptibilityCap()
 
 #: The cap of ``meshadv attack``, ``demo``, ``attack-scene`` and sweeps unless they are told otherwise.
 DEFAULT_CAP = PerceptibilityCap(max_displacement=0.02, normal_change_p95_deg=25.0, edge_strain_p95=0.085,
-                                color_change_p95=0.05)
+                                color_change_p95=0.05, edge_strain_max=1.0)
 
 
 def recommended_cap(perturbation: str) -> PerceptibilityCap:
@@ -213,8 +216,9 @@ def step_measures(cap: PerceptibilityCap, vertices_adv: Tensor, colors_adv: Any,
             out["max_displacement"] = vertex_moves(vertices_adv, vertices)["max_displacement"]
         if "normal_change_p95_deg" in limits:
             out["normal_change_p95_deg"] = normal_changes(vertices_adv, vertices, faces)["normal_change_p95_deg"]
-        if "edge_strain_p95" in limits:
-            out["edge_strain_p95"] = edge_strains(vertices_adv, vertices, faces)["edge_strain_p95"]
+        if "edge_strain_p95" in limits or "edge_strain_max" in limits:
+            strains = edge_strains(vertices_adv, vertices, faces)
+            out.update({k: v for k, v in strains.items() if k in limits})
         if "color_change_p95" in limits and not isinstance(colors_adv, Tensor):
             if texture is None:
                 raise ValueError("texture (the pristine texture) is required to cap a texture image's change")

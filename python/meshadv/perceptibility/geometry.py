@@ -9,7 +9,9 @@
 
 * :func:`edge_strains` -- the relative change of each edge's length, ``|l' / l - 1|``, weighted by the pristine
   edge lengths: the 95th percentile (``edge_strain_p95``). A thin part broken into fragments, or a surface dented in
-  a fold, stretches and squeezes its edges even where its faces turn little; a smooth small bend keeps them.
+  a fold, stretches and squeezes its edges even where its faces turn little; a smooth small bend keeps them. The
+  largest strain of any edge (``edge_strain_max``, each edge counted at least :data:`EDGE_STRAIN_FLOOR` of the
+  diagonal long) shows a thin part torn open: the short edges across a wing's thickness stretched many times over.
 
 * :func:`color_changes` -- the change of each face's RGB colour (Euclidean, in ``[0, sqrt(3)]``), weighted by the
   pristine face areas: the 95th percentile (``color_change_p95``). A texture attack's bright specks show up here even
@@ -38,10 +40,14 @@ from meshadv.mesh.adjacency import vertex_edges
 from meshadv.mesh.structure import bbox_diagonal
 
 __all__ = ["vertex_moves", "normal_changes", "edge_strains", "color_changes", "surface_measures", "SURFACE_MEASURES",
-           "PERCENTILE"]
+           "PERCENTILE", "EDGE_STRAIN_FLOOR"]
 
 #: The percentile of the ``p95_*`` measures.
 PERCENTILE = 0.95
+
+#: The shortest length, as a fraction of the bounding-box diagonal, that ``edge_strain_max`` divides an edge's change
+#: by: remeshing and CAD files leave slivers a thousandth of that long, which an invisible move stretches many times.
+EDGE_STRAIN_FLOOR = 0.0025
 
 #: One line per measure, for tables and reports.
 SURFACE_MEASURES = {
@@ -50,6 +56,7 @@ SURFACE_MEASURES = {
     "normal_change_mean_deg": "area-weighted mean change of the face normals, degrees",
     "normal_change_p95_deg": "area-weighted 95th-percentile change of the face normals, degrees",
     "edge_strain_p95": "edge-length-weighted 95th-percentile relative change of the edge lengths |l'/l - 1|",
+    "edge_strain_max": "largest change of an edge's length |l' - l| / max(l, 0.25% of the diagonal)",
     "color_change_p95": "area-weighted 95th-percentile change of the face colours (RGB distance, 0 to sqrt 3)",
 }
 
@@ -165,14 +172,19 @@ def normal_changes(vertices_adv: Tensor, vertices: Tensor, faces: Tensor) -> Dic
 
 
 def edge_strains(vertices_adv: Tensor, vertices: Tensor, faces: Tensor) -> Dict[str, Tensor]:
-    """Edge-length-weighted 95th percentile of the edges' strain ``|l' / l - 1|`` (``l``, ``l'``: an edge's pristine
-    and adversarial length).
+    """Edge-length-weighted 95th percentile and the largest of the edges' strain ``|l' / l - 1|`` (``l``, ``l'``: an
+    edge's pristine and adversarial length).
 
     Every undirected edge of ``faces`` counts once (an edge shared by two faces is one edge), weighted by its pristine
     length, so the many short edges of a finely meshed detail count by their extent, not their number; edges of zero
     pristine length have no weight. The percentile is the smallest strain ``s`` such that edges straining by at most
     ``s`` hold at least 95% of the total length (a weighted lower quantile, as :func:`normal_changes`). A strain of
     0.1 is an edge stretched or squeezed by 10%; a rigid motion or a uniform scale by ``c`` gives 0 and ``|c - 1|``.
+    The largest strain is ``max |l' - l| / max(l, f d)`` over the edges of positive pristine length, ``d`` the
+    pristine bounding-box diagonal and ``f`` :data:`EDGE_STRAIN_FLOOR` (0.25%): a thin part torn open (the two faces
+    of a wing pulled apart) stretches its few short edges across the thickness many times over, which the
+    percentile, weighted by length, does not see; the floor keeps the slivers of a remeshed or CAD mesh (0.001% of
+    the diagonal long) from calling an invisible move a tear.
 
     The attack loop does not project onto it: a cap on it (:class:`~meshadv.perceptibility.PerceptibilityCap`) is a
     verdict check on every step's mesh.
@@ -183,7 +195,7 @@ def edge_strains(vertices_adv: Tensor, vertices: Tensor, faces: Tensor) -> Dict[
         faces: int ``(M, 3)`` triangles (``M >= 1``, at least one edge of positive length).
 
     Returns:
-        ``{"edge_strain_p95": (K,)}``.
+        ``{"edge_strain_p95": (K,), "edge_strain_max": (K,)}``.
 
     Raises:
         ValueError: bad shapes, or every edge of zero length.
@@ -191,8 +203,9 @@ def edge_strains(vertices_adv: Tensor, vertices: Tensor, faces: Tensor) -> Dict[
     Example:
         >>> v = torch.tensor([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); f = torch.tensor([[0, 1, 2]])
         >>> stretched = v * torch.tensor([1.5, 1.0, 1.0])  # edges of length 1, 1, 1.41 strain by 0.5, 0, 0.27
-        >>> round(float(edge_strains(stretched, v, f)["edge_strain_p95"][0]), 4)
-        0.5
+        >>> strains = edge_strains(stretched, v, f)
+        >>> round(float(strains["edge_strain_p95"][0]), 4), round(float(strains["edge_strain_max"][0]), 4)
+        (0.5, 0.5)
     """
     batch = _batched(vertices_adv, vertices).double()
     edges = vertex_edges(_check_faces(faces))
@@ -202,7 +215,10 @@ def edge_strains(vertices_adv: Tensor, vertices: Tensor, faces: Tensor) -> Dict[
     after = (batch[:, edges[:, 0]] - batch[:, edges[:, 1]]).norm(dim=-1)  # (K, E)
     strain = (after / before.clamp(min=1e-300) - 1.0).abs()
     strain = torch.where(before > 0, strain, torch.zeros_like(strain))
-    return {"edge_strain_p95": _weighted_upper(strain, before).float()}
+    floor = EDGE_STRAIN_FLOOR * float(bbox_diagonal(vertices.double()))
+    floored = (after - before).abs() / before.clamp(min=floor if floor > 0 else 1e-300)
+    floored = torch.where(before > 0, floored, torch.zeros_like(floored))
+    return {"edge_strain_p95": _weighted_upper(strain, before).float(), "edge_strain_max": floored.amax(dim=1).float()}
 
 
 def color_changes(colors_adv: Tensor, colors: Tensor, vertices: Tensor, faces: Tensor) -> Dict[str, Tensor]:
@@ -261,7 +277,7 @@ def surface_measures(vertices_adv: Tensor, colors_adv: Tensor, vertices: Tensor,
         out = {k: float(v[0]) for k, v in vertex_moves(vertices_adv, vertices).items()}
         if not float(_face_cross(vertices.double(), faces).norm(dim=-1).sum()) > 0:
             return {**out, "normal_change_mean_deg": math.nan, "normal_change_p95_deg": math.nan,
-                    "edge_strain_p95": math.nan, "color_change_p95": math.nan}
+                    "edge_strain_p95": math.nan, "edge_strain_max": math.nan, "color_change_p95": math.nan}
         out.update({k: float(v[0]) for k, v in normal_changes(vertices_adv, vertices, faces).items()})
         out.update({k: float(v[0]) for k, v in edge_strains(vertices_adv, vertices, faces).items()})
         out.update({k: float(v[0]) for k, v in color_changes(colors_adv, colors, vertices, faces).items()})
