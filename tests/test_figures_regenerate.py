@@ -238,6 +238,16 @@ def test_settings_mix_flags_a_group_run_with_two_settings(moved_db: Path) -> Non
     for i, r in enumerate(rows):  # the seed alone does not make a different setting
         r.record.update(first if i % 2 else {**first, "attack_config": {**first["attack_config"], "seed": 7}})
     assert settings_mix(rows) == []
+    # a cap ceiling added later, recorded unbounded, is the same setting as the records that predate it
+    cap = {"max_displacement": 0.02}
+    for i, r in enumerate(rows):
+        r.record["attack_config"] = {**r.record["attack_config"],
+                                     "perceptibility_cap": {**cap, "edge_strain_max": None} if i % 2 else cap}
+    assert settings_mix(rows) == []
+    rows[1].record["attack_config"] = {**rows[1].record["attack_config"],
+                                       "perceptibility_cap": {**cap, "edge_strain_max": 1.0}}
+    assert len(settings_mix(rows)) == 1
+    rows[1].record["attack_config"] = {**rows[1].record["attack_config"], "perceptibility_cap": cap}
     rows[0].record["victim_optimize"] = False
     (line,) = settings_mix(rows)
     assert line.startswith("- WARNING: v, shape: the attacks ran with 2 different") and "11, 1 attacks" in line

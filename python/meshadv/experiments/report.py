@@ -327,7 +327,7 @@ def settings_mix(done: List[JobRow]) -> List[str]:
     A spec names only what its config sets; a sweep resumed after a default changed (an update rule's options, the
     victim's ``optimize``) runs its remaining jobs with the new default, and Table 1 would pool both. The records say
     what each job ran with (``attack_config``, ``victim_optimize``; records from before they were recorded count as
-    one "not recorded" setting).
+    one "not recorded" setting). A cap ceiling recorded as ``None`` (unbounded) equals one the record does not name.
 
     Returns:
         One line per group with more than one setting (empty when every group is uniform).
@@ -340,6 +340,9 @@ def settings_mix(done: List[JobRow]) -> List[str]:
         config = rec.get("attack_config")
         if isinstance(config, dict):  # the seed is the instance's, not a setting
             config = {k: v for k, v in config.items() if k != "seed"}
+            cap = config.get("perceptibility_cap")
+            if isinstance(cap, dict):  # an unbounded ceiling is the same setting as one a record predates
+                config["perceptibility_cap"] = {k: v for k, v in cap.items() if v is not None}
         key = json.dumps({"attack_config": config, "victim_optimize": rec.get("victim_optimize")}, sort_keys=True)
         groups[(victim_label(r.spec), str(r.spec.get("perturbation")))][key] += 1
     lines = []
