@@ -25,22 +25,12 @@ from typing import Any, Dict, List, Optional, Sequence
 import torch
 import trimesh
 
-from meshadv.perceptibility.geometry import edge_strains, normal_changes, vertex_moves
+from meshadv.perceptibility.geometry import face_normal_turns, surface_measures
 
 
 def _load(path: Path) -> "tuple[torch.Tensor, torch.Tensor]":
     mesh = trimesh.load(path, process=False, force="mesh")
     return torch.tensor(mesh.vertices, dtype=torch.float64), torch.tensor(mesh.faces, dtype=torch.long)
-
-
-def _turned_area(adversarial: torch.Tensor, benign: torch.Tensor, faces: torch.Tensor, degrees: float) -> float:
-    """The share of the pristine area whose face normal turns by more than ``degrees``."""
-    def cross(v: torch.Tensor) -> torch.Tensor:
-        return torch.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]], dim=-1)
-    before, after = cross(benign), cross(adversarial)
-    area = before.norm(dim=-1)
-    angle = torch.rad2deg(torch.atan2(torch.cross(before, after, dim=-1).norm(dim=-1), (before * after).sum(-1)))
-    return float(area[angle > degrees].sum() / area.sum())
 
 
 def measure(job_dir: Path) -> Optional[Dict[str, float]]:
@@ -51,13 +41,15 @@ def measure(job_dir: Path) -> Optional[Dict[str, float]]:
     adversarial, faces_adv = _load(job_dir / "adversarial.ply")
     if adversarial.shape != benign.shape or not torch.equal(faces, faces_adv):
         raise ValueError(f"{job_dir}: benign.ply and adversarial.ply are not the same mesh's vertices")
-    strains = edge_strains(adversarial, benign, faces)
+    colors = torch.zeros(faces.shape[0], 3)
+    measures = surface_measures(adversarial, colors, benign, colors, faces)
+    angles, areas = face_normal_turns(adversarial, benign, faces)
     return {
-        "max_move_pct": 100 * float(vertex_moves(adversarial, benign)["max_displacement"][0]),
-        "normals_p95_deg": float(normal_changes(adversarial, benign, faces)["normal_change_p95_deg"][0]),
-        "turned_90_pct": 100 * _turned_area(adversarial, benign, faces, 90.0),
-        "strain_p95": float(strains["edge_strain_p95"][0]),
-        "strain_max": float(strains["edge_strain_max"][0]),
+        "max_move_pct": 100 * measures["max_displacement"],
+        "normals_p95_deg": measures["normal_change_p95_deg"],
+        "turned_90_pct": 100 * float(areas[angles[0] > 90.0].sum() / areas.sum()),
+        "strain_p95": measures["edge_strain_p95"],
+        "strain_max": measures["edge_strain_max"],
     }
 
 

@@ -812,8 +812,7 @@ def _multiview_jobs(config: SweepConfig, meshes: Sequence[Dict[str, Any]], class
     else:
         cells = list(zip(mv["view_counts"], mv["azimuth_ranges"]))
     mv_classes = mv["classes"] or classes
-    jobs: List[Dict[str, Any]] = []
-    rank: Dict[int, int] = {}  # id(job) -> the rank of its mesh among its class's meshes
+    ranked: List[Tuple[int, Dict[str, Any]]] = []  # (the rank of the job's mesh among its class's meshes, job)
     seen_per_class: Dict[str, int] = {}
     for mesh in meshes:
         if mesh["class"] not in mv_classes:
@@ -827,17 +826,17 @@ def _multiview_jobs(config: SweepConfig, meshes: Sequence[Dict[str, Any]], class
                         for seed in config.seeds:
                             views, unseen = multiview_views(mv, float(config.render["viewing_angle"]), seed,
                                                             count, (lo, hi))
-                            jobs.append({
+                            ranked.append((mesh_rank, {
                                 "kind": "multiview", "mesh": mesh, "source_class": mesh["class"],
                                 "target": target, "victim": victim, "perturbation": perturbation, "views": views,
                                 "eval_views": unseen, "image_size": size,
                                 "attack": dict(config.attack.get(perturbation, {})), "seed": seed,
                                 "num_views": int(count), "azimuth_range": [float(lo), float(hi)],
                                 "benign_correct_only": mv["benign_correct_only"],
-                            })
-                            rank[id(jobs[-1])] = mesh_rank
+                            }))
     # cells in the order each mesh's jobs list them; stable, so within a cell classes, victims, types and targets
     # keep their order
     order = {cell: i for i, cell in enumerate(dict.fromkeys((j["num_views"], tuple(j["azimuth_range"]))
-                                                            for j in jobs))}
-    return sorted(jobs, key=lambda j: (rank[id(j)], order[(j["num_views"], tuple(j["azimuth_range"]))]))
+                                                            for _, j in ranked))}
+    ranked.sort(key=lambda rj: (rj[0], order[(rj[1]["num_views"], tuple(rj[1]["azimuth_range"]))]))
+    return [job for _, job in ranked]

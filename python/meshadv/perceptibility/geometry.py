@@ -39,8 +39,8 @@ from torch import Tensor
 from meshadv.mesh.adjacency import vertex_edges
 from meshadv.mesh.structure import bbox_diagonal
 
-__all__ = ["vertex_moves", "normal_changes", "edge_strains", "color_changes", "surface_measures", "SURFACE_MEASURES",
-           "PERCENTILE", "EDGE_STRAIN_FLOOR"]
+__all__ = ["vertex_moves", "face_normal_turns", "normal_changes", "edge_strains", "color_changes", "surface_measures",
+           "SURFACE_MEASURES", "PERCENTILE", "EDGE_STRAIN_FLOOR"]
 
 #: The percentile of the ``p95_*`` measures.
 PERCENTILE = 0.95
@@ -137,14 +137,51 @@ def _areas(vertices: Tensor, faces: Tensor) -> Tensor:
     return weights
 
 
+def face_normal_turns(vertices_adv: Tensor, vertices: Tensor, faces: Tensor) -> "tuple[Tensor, Tensor]":
+    """Each face's turn and its weight: the angle between its normal before and after, in degrees, and its pristine
+    area (twice the area).
+
+    The angle is ``atan2(|n x n'|, n . n')``, in ``[0, 180]``: a face folded over turns 180 degrees; a face that
+    collapses to zero area counts as 90.
+
+    Args:
+        vertices_adv: ``(N, 3)`` or ``(K, N, 3)`` adversarial vertices.
+        vertices: ``(N, 3)`` pristine vertices.
+        faces: int ``(M, 3)`` triangles (``M >= 1``, at least one of positive area).
+
+    Returns:
+        ``(angles, weights)``: float64 ``(K, M)`` degrees and ``(M,)``.
+
+    Raises:
+        ValueError: bad shapes, or every face of zero area.
+
+    Example:
+        >>> v = torch.tensor([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); f = torch.tensor([[0, 1, 2]])
+        >>> moved = v.clone(); moved[2, 2] = 1.0
+        >>> angles, weights = face_normal_turns(moved, v, f)
+        >>> round(float(angles[0, 0]), 3), float(weights[0])
+        (45.0, 1.0)
+    """
+    batch = _batched(vertices_adv, vertices).double()
+    faces = _check_faces(faces)
+    weights = _areas(vertices, faces)
+    before = _face_cross(vertices.double(), faces)  # (M, 3)
+    after = _face_cross(batch, faces)  # (K, M, 3)
+    sine = torch.cross(before.expand_as(after), after, dim=-1).norm(dim=-1)
+    cosine = (before * after).sum(dim=-1)
+    angles = torch.rad2deg(torch.atan2(sine, cosine))
+    collapsed = after.norm(dim=-1) <= 1e-12 * weights.clamp(min=1e-300)
+    return torch.where(collapsed, torch.full_like(angles, 90.0), angles), weights
+
+
 def normal_changes(vertices_adv: Tensor, vertices: Tensor, faces: Tensor) -> Dict[str, Tensor]:
     """Area-weighted change of the face normals, in degrees: mean and 95th percentile.
 
-    Each face's change is the angle between its normal before and after (``atan2(|n x n'|, n . n')``, in
-    ``[0, 180]``: a face folded over turns 180 degrees; a face that collapses to zero area counts as 90). The weights
-    are the pristine face areas, so long thin CAD faces count by their size, not their number; faces of zero pristine
-    area have no weight. The percentile is the smallest change ``a`` such that faces turning by at most ``a`` hold at
-    least 95% of the area (a weighted lower quantile: no interpolation).
+    Each face's change is its turn (:func:`face_normal_turns`: the angle between its normal before and after, in
+    ``[0, 180]``; a face that collapses to zero area counts as 90). The weights are the pristine face areas, so long
+    thin CAD faces count by their size, not their number; faces of zero pristine area have no weight. The percentile
+    is the smallest change ``a`` such that faces turning by at most ``a`` hold at least 95% of the area (a weighted
+    lower quantile: no interpolation).
 
     Args:
         vertices_adv: ``(N, 3)`` or ``(K, N, 3)`` adversarial vertices.
@@ -157,16 +194,7 @@ def normal_changes(vertices_adv: Tensor, vertices: Tensor, faces: Tensor) -> Dic
     Raises:
         ValueError: bad shapes, or every face of zero area.
     """
-    batch = _batched(vertices_adv, vertices).double()
-    faces = _check_faces(faces)
-    weights = _areas(vertices, faces)
-    before = _face_cross(vertices.double(), faces)  # (M, 3)
-    after = _face_cross(batch, faces)  # (K, M, 3)
-    sine = torch.cross(before.expand_as(after), after, dim=-1).norm(dim=-1)
-    cosine = (before * after).sum(dim=-1)
-    angles = torch.rad2deg(torch.atan2(sine, cosine))
-    collapsed = after.norm(dim=-1) <= 1e-12 * weights.clamp(min=1e-300)
-    angles = torch.where(collapsed, torch.full_like(angles, 90.0), angles)
+    angles, weights = face_normal_turns(vertices_adv, vertices, faces)
     mean = (angles * weights).sum(dim=1) / weights.sum()
     return {"normal_change_mean_deg": mean.float(), "normal_change_p95_deg": _weighted_upper(angles, weights).float()}
 
@@ -215,8 +243,8 @@ def edge_strains(vertices_adv: Tensor, vertices: Tensor, faces: Tensor) -> Dict[
     after = (batch[:, edges[:, 0]] - batch[:, edges[:, 1]]).norm(dim=-1)  # (K, E)
     strain = (after / before.clamp(min=1e-300) - 1.0).abs()
     strain = torch.where(before > 0, strain, torch.zeros_like(strain))
-    floor = EDGE_STRAIN_FLOOR * float(bbox_diagonal(vertices.double()))
-    floored = (after - before).abs() / before.clamp(min=floor if floor > 0 else 1e-300)
+    floor = EDGE_STRAIN_FLOOR * float(bbox_diagonal(vertices.double()))  # > 0: some edge has positive length
+    floored = (after - before).abs() / before.clamp(min=floor)
     floored = torch.where(before > 0, floored, torch.zeros_like(floored))
     return {"edge_strain_p95": _weighted_upper(strain, before).float(), "edge_strain_max": floored.amax(dim=1).float()}
 
