@@ -160,6 +160,10 @@ def test_tiny_sweep_commands_tables_and_figures(tmp_path: Path) -> None:
         assert img.shape[0] > 100 and img.std() > 1.0, f"{name} is blank"
     settings = json.loads((out / "settings.json").read_text())
     assert settings["counts"]["done"] == 28 and "python" in settings["report_versions"]
+    # paths that travel with the folders: the database from the report, the config from the database
+    assert settings["database"] == "../run/results.db"
+    with ResultStore(db) as store:
+        assert store.get_meta("config_path") == "../tiny.toml"
     assert "Pearson" in (out / "README.md").read_text()
 
 

@@ -126,6 +126,9 @@ def test_export_writes_a_self_contained_folder(study_db: Path, tmp_path: Path) -
     for image_id, stim in plan["stimuli"].items():
         assert (out / "images" / stim["file"]).is_file(), image_id
     assert plan["settings"]["exposure_ms"] == 2000.0 and plan["per_image"] == 3
+    # the database is named from the study folder, so a copied folder carries no path of this machine
+    assert (out / plan["settings"]["database"]).resolve() == study_db.resolve()
+    assert not Path(plan["settings"]["database"]).is_absolute()
     assert len(plan["participants"]) == math.ceil(11 * 3 / 5)
     with pytest.raises(FileExistsError, match="exists and is not empty"):
         export_study(study_db, out)

@@ -2,7 +2,8 @@
 
 ``meshadv sweep`` writes ``<output>/index.csv`` and ``<output>/index.md`` at the end of every run and
 ``meshadv report`` writes them into the report folder: one row per job with its folder, state, victim, mesh,
-class, target, perturbation, success and, for failed jobs, the last line of the error.
+class, target, perturbation, success and, for failed jobs, the last line of the error. Folders are relative to the
+index's folder.
 """
 
 from __future__ import annotations
@@ -61,14 +62,21 @@ def failed_jobs(store: Any) -> List[Dict[str, Any]]:
 def write_job_index(store: Any, folder: Union[str, Path], out_root: Optional[Union[str, Path]] = None) -> Path:
     """Write ``index.csv`` and ``index.md`` (job id -> folder, settings, state, error) into ``folder`` atomically.
 
+    The job folders are written relative to ``folder`` (a URL as it is), so a copied results folder keeps its index
+    right and carries no path of the machine that wrote it.
+
     Returns:
         The path of ``index.csv``.
     """
     from meshadv.util.atomic import write_text_atomic
+    from meshadv.util.paths import relative_path
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     rows = index_rows(store, out_root)
+    for row in rows:
+        if row["folder"] and "://" not in row["folder"]:
+            row["folder"] = relative_path(row["folder"], folder)
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=INDEX_COLUMNS)
     writer.writeheader()

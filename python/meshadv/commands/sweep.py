@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import os
 import shlex
 import signal
 import sys
@@ -154,6 +153,7 @@ def sweep(
     from meshadv.experiments.retries import RETRY_PART, place_retries, retry_jobs
     from meshadv.experiments.report import environment_versions
     from meshadv.experiments.store import check_snapshot_target
+    from meshadv.util.paths import relative_path
 
     try:
         cfg = load_config(config)
@@ -248,7 +248,7 @@ def sweep(
     with store:
         store.set_meta("name", cfg.name)
         # relative to the database's folder, as its job folders: a copied run folder keeps pointing at its config
-        store.set_meta("config_path", os.path.relpath(Path(config).resolve(), Path(db_path).resolve().parent))
+        store.set_meta("config_path", relative_path(config, Path(db_path).resolve().parent))
         store.set_meta("config_text", cfg.text)
         store.set_meta("command", "meshadv sweep " + " ".join(shlex.quote(a) for a in sys.argv[2:]))
         store.set_meta("sweep_versions", environment_versions())

@@ -51,6 +51,7 @@ from meshadv.experiments.report_figures import (
 from meshadv.experiments.store import JobRow, ResultStore
 from meshadv.experiments.config import stored_retry_stages
 from meshadv.util.atomic import write_text_atomic
+from meshadv.util.paths import relative_path
 from meshadv.util.png import add_png_text
 from meshadv.experiments.tables import (
     DISTANCE_NAMES,
@@ -227,7 +228,7 @@ def write_report(db_path: Union[str, Path], out_dir: Union[str, Path], *, figure
         out.tables.extend(files)
         if text:
             extra.append(text)
-    settings = {"database": str(db.resolve()), "meta": meta, "report_versions": environment_versions(),
+    settings = {"database": relative_path(db, out.out_dir), "meta": meta, "report_versions": environment_versions(),
                 "counts": out.counts, "correlations": out.correlations, "superseded_retries": out.superseded}
     if out.regenerations:
         settings["regenerated_with"] = {"threads": threads, "assume": assume or {}}

@@ -34,6 +34,7 @@ from typing import Any, Collection, Dict, Iterable, Iterator, List, Optional, Tu
 
 from meshadv.experiments.perturbation import PERTURBATION_KEY, Perturbation
 from meshadv.experiments.spec import canonical, canonical_json, job_id
+from meshadv.util.paths import relative_path
 
 __all__ = ["JobRow", "ResultStore", "check_snapshot_target", "driver_lock", "job_out_dir", "STATES"]
 
@@ -440,8 +441,7 @@ class ResultStore:
         """``out_dir`` as the database keeps it: relative to the database's folder (a URL as it is)."""
         if out_dir is None or "://" in str(out_dir) or self.path == ":memory:":
             return None if out_dir is None else str(out_dir)
-        base = Path(self.path).resolve().parent
-        return Path(os.path.relpath(Path(out_dir).resolve(), base)).as_posix()
+        return relative_path(out_dir, Path(self.path).resolve().parent)
 
     def _local_dir(self, stored: Optional[str]) -> Optional[str]:
         """A stored ``out_dir`` on this machine: a relative one joined to the database's folder."""

@@ -26,6 +26,7 @@ from typing import Any, Dict, List, Optional, Union
 
 from meshadv.study.plan import StudyPlan, make_plan
 from meshadv.study.selection import Stimulus, select_stimuli
+from meshadv.util.paths import relative_path
 
 __all__ = ["ExportedStudy", "export_study", "write_study_folder", "WEB_FILES"]
 
@@ -163,6 +164,6 @@ def export_study(db_path: Union[str, Path], out_dir: Union[str, Path], *, per_im
         settings = {"max_images": max_images, "exposure_ms": float(exposure_ms), "fixation_ms": float(fixation_ms),
                     "image_px": int(image_px),
                     "post_url": post_url, "post_mode": post_mode, "study_id": f"{Path(db_path).stem}-s{seed}",
-                    "database": str(Path(db_path).resolve())}
+                    "database": relative_path(db_path, out_dir)}
         path = write_study_folder(out_dir, stimuli, plan, settings, overwrite=overwrite)
     return ExportedStudy(path, stimuli, plan)

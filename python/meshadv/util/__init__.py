@@ -4,5 +4,6 @@
 * :mod:`meshadv.util.json_file` -- reading a JSON file, with errors naming it;
 * :mod:`meshadv.util.png` -- saving images as PNG files (atomically);
 * :mod:`meshadv.util.markdown` -- Markdown tables;
+* :mod:`meshadv.util.paths` -- paths written relative to the folder that holds them;
 * :mod:`meshadv.util.spherical` -- the spherical-direction formula of the NMR camera convention.
 """
